@@ -1,0 +1,372 @@
+"""The ``odocal`` command line: a thin shell around the library.
+
+Exit codes: 0 done; 1 bad input, settings or output (one line on stderr, no traceback);
+2 bad command-line usage; 3 the calibration ran but could not identify anything;
+4 an internal error (a bug: rerun with -v for the traceback and report it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from odocal import __version__
+from odocal.calibrate import CalibrationResult, calibrate, load_drives, validate_theta
+from odocal.errors import OdocalError
+from odocal.model import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
+from odocal.settings import Settings, load_settings
+
+log = logging.getLogger("odocal")
+
+EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_FAILED, EXIT_BUG = 0, 1, 2, 3, 4
+
+
+class _Progress:
+    """tqdm bars per stage on a terminal; silent otherwise (logs stay clean)."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled and sys.stderr.isatty()
+        self.bars: dict[str, Any] = {}
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if not self.enabled:
+            return
+        from tqdm import tqdm
+
+        bar = self.bars.get(stage)
+        if bar is None:
+            bar = tqdm(total=total, desc=stage, unit="", leave=True, file=sys.stderr,
+                       dynamic_ncols=True)
+            self.bars[stage] = bar
+        bar.total = total
+        bar.n = done
+        bar.refresh()
+        if done >= total:
+            bar.close()
+
+    def close(self) -> None:
+        for bar in self.bars.values():
+            bar.close()
+
+
+def _settings(args: argparse.Namespace) -> Settings:
+    settings = load_settings(getattr(args, "config", None))
+    overrides: dict[str, dict[str, Any]] = {}
+    if getattr(args, "method", None):
+        overrides.setdefault("calibrate", {})["method"] = args.method
+    if getattr(args, "workers", None) is not None:
+        overrides.setdefault("calibrate", {})["workers"] = args.workers
+    if getattr(args, "seed", None) is not None and args.command in ("calibrate", "minimum"):
+        overrides.setdefault("calibrate", {})["seed"] = args.seed
+    return settings.replace(**overrides) if overrides else settings
+
+
+def _fmt_param(name: str, value: float) -> str:
+    if name in ("c_d", "d"):
+        return f"{value * 1000:+.3f} mm" if name == "c_d" else f"{value * 1000:+.3f} mm/(m/s^2)"
+    return f"{value:.5f} m"
+
+
+def _fmt_std(name: str, std: float) -> str:
+    if name in ("c_d", "d"):
+        return f"+-{std * 1000:.3f}"
+    return f"+-{std:.5f}"
+
+
+def _print(text: str = "") -> None:
+    sys.stdout.write(text + "\n")
+
+
+def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
+                  truth_error_m: float | None = None) -> None:
+    """The calibration as a small table on stdout."""
+    ident = result.identification
+    drives = result.drives
+    total_km = sum(d.distance_m for d in drives) / 1000
+    total_min = sum(d.duration_s for d in drives) / 60
+    _print(f"read {len(drives)} drive(s): {total_min:.1f} min, {total_km:.2f} km; "
+           f"{len(result.segments)} segments of {result.settings.segments.length} samples, "
+           f"{int(result.segments.selected.sum())} with bends "
+           f"(peak yaw rate > {result.settings.segments.yaw_rate_threshold_radps} rad/s)")
+    _print(f"method: {result.method}, identified from {result.segments_used} segments "
+           f"in {result.elapsed_s:.1f} s")
+    _print()
+    header = f"{'parameter':<10} {'datasheet':>16} {'calibrated':>16} {'std':>10}"
+    if truth is not None:
+        header += f" {'true':>16} {'error':>10}"
+    _print(header)
+    theta0, theta = ident.theta0.as_dict(), result.theta.as_dict()
+    true = truth.as_dict() if truth is not None else None
+    std = dict(zip(PARAMETER_NAMES, ident.std, strict=True))
+    for name, ok in zip(PARAMETER_NAMES, ident.identified, strict=True):
+        if ok:
+            cal, sd = _fmt_param(name, theta[name]), _fmt_std(name, std[name])
+        else:
+            cal, sd = "not identified", ""
+        line = f"{name:<10} {_fmt_param(name, theta0[name]):>16} {cal:>16} {sd:>10}"
+        if true is not None:
+            err = _fmt_std(name, abs(theta[name] - true[name])).replace("+-", "") if ok else ""
+            line += f" {_fmt_param(name, true[name]):>16} {err:>10}"
+        _print(line)
+    _print()
+    if result.validation is not None and result.datasheet_validation is not None:
+        seg = result.validation.segments
+        line = (f"validation error E_p over {len(seg)} segments of "
+                f"~{result.settings.segments.validation_distance_m:.0f} m: "
+                f"datasheet {result.datasheet_validation.mean_error_m:.2f} m -> calibrated "
+                f"{result.validation.mean_error_m:.2f} m")
+        if truth_error_m is not None:
+            line += f" (true parameters: {truth_error_m:.2f} m)"
+        _print(line)
+    else:
+        _print("validation error E_p: not available (no validation segment)")
+    for name in ident.unidentified:
+        _print(f"note: {name} ({PARAMETER_UNITS[PARAMETER_NAMES.index(name)]}) is not identified: "
+               f"{ident.reasons[name]}")
+    for warning in result.warnings:
+        if not any(warning.startswith(f"{n} is not identified") for n in ident.unidentified):
+            _print(f"warning: {warning}")
+    if not result.success:
+        _print(f"calibration failed: {ident.message}")
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from odocal.simulate import simulate
+
+    settings = _settings(args)
+    _print(f"simulating a {args.duration / 60:.0f}-minute city drive (noise profile "
+           f"'{args.noise}', seed {args.seed}) with known true parameters ...")
+    sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
+    progress = _Progress(not args.quiet)
+    try:
+        result = calibrate(sim.drive, settings=settings, progress=progress)
+    finally:
+        progress.close()
+    truth_error = validate_theta(sim.drive, sim.true_parameters, settings=settings).mean_error_m
+    print_summary(result, truth=sim.true_parameters, truth_error_m=truth_error)
+    if args.out:
+        _write_outputs(result, args, inputs=())
+    return EXIT_OK if result.success else EXIT_FAILED
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from odocal.io import save_drive
+    from odocal.io.atomic import refuse_inputs
+    from odocal.io.results import write_json
+    from odocal.simulate import simulate
+
+    out = Path(args.out)
+    truth_path = out.with_name(out.stem + ".truth.json")
+    refuse_inputs(out, [])
+    sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
+    save_drive(sim.drive, out)
+    write_json(truth_path, sim.truth_dict())
+    if not args.quiet:
+        d = sim.drive
+        _print(f"wrote {out} ({d.n_samples} samples, {d.duration_s / 60:.1f} min, "
+               f"{d.distance_m / 1000:.2f} km, noise '{args.noise}') and {truth_path}")
+    return EXIT_OK
+
+
+def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
+                   inputs: Sequence[str | Path]) -> None:
+    from odocal.output import prepare_output_dir, write_calibration, write_compensated_inputs
+
+    out = prepare_output_dir(args.out, inputs)
+    written = [write_calibration(result, out)]
+    if getattr(args, "save_inputs", False):
+        path = write_compensated_inputs(result, out)
+        if path is None:
+            _print("note: --save-inputs: this method does not compensate the wheel rates")
+        else:
+            written.append(path)
+    if not args.quiet:
+        for path in written:
+            _print(f"wrote {path}")
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    settings = _settings(args)
+    drives = load_drives(args.logs)
+    progress = _Progress(not args.quiet)
+    try:
+        result = calibrate(drives, settings=settings, progress=progress)
+    finally:
+        progress.close()
+    if not args.quiet:
+        print_summary(result)
+    _write_outputs(result, args, inputs=[*args.logs, *([args.config] if args.config else [])])
+    return EXIT_OK if result.success else EXIT_FAILED
+
+
+def _parameters_from(args: argparse.Namespace, settings: Settings) -> Parameters:
+    from odocal.io.results import read_parameters
+
+    if args.params:
+        return read_parameters(args.params)
+    return Parameters.from_array(settings.identify.theta0)
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    settings = _settings(args)
+    theta = _parameters_from(args, settings)
+    result = validate_theta(args.logs, theta, settings=settings)
+    _print("parameters: " + ", ".join(f"{k} = {v:.6g}" for k, v in theta.as_dict().items()))
+    _print(f"validation error E_p = {result.mean_error_m:.3f} m over {len(result.segments)} "
+           f"segments ({result.segments.distance_m.sum() / 1000:.2f} km)")
+    if args.quiet:
+        return EXIT_OK
+    _print(f"{'segment':>7} {'drive':<30} {'start [s]':>10} {'length [m]':>10} {'E_p [m]':>9} "
+           f"{'end error [m]':>13}")
+    drives = result.drive_names
+    for i, (d, t0, dist, e, f) in enumerate(zip(result.segments.drive, result.start_s,
+                                                 result.segments.distance_m,
+                                                 result.errors.mean_m, result.errors.final_m,
+                                                 strict=True)):
+        _print(f"{i:>7} {Path(drives[int(d)]).name[:30]:<30} {t0:>10.1f} {dist:>10.1f} {e:>9.3f} "
+               f"{f:>13.3f}")
+    return EXIT_OK
+
+
+def cmd_minimum(args: argparse.Namespace) -> int:
+    from odocal.parallel import resolve_workers
+    from odocal.segments import gather_ragged, validation_segments
+    from odocal.validate import mean_error, reachable_minimum
+
+    settings = _settings(args)
+    drives = load_drives(args.logs)
+    start = _parameters_from(args, settings)
+    segs = validation_segments(drives, settings.segments)
+    data = gather_ragged(drives, segs)
+    _print(f"searching the reachable minimum of E_p over {len(segs)} validation segments "
+           "(differential evolution) ...")
+    result = reachable_minimum(data, start.as_array(), settings=settings.minimum,
+                               seed=settings.calibrate.seed,
+                               workers=resolve_workers(settings.calibrate.workers))
+    _print(f"start   E_p = {mean_error(start.as_array(), data):.3f} m at "
+           + ", ".join(f"{k} = {v:.6g}" for k, v in start.as_dict().items()))
+    _print(f"minimum E_p = {result.mean_error_m:.3f} m at "
+           + ", ".join(f"{k} = {v:.6g}" for k, v in result.theta.as_dict().items()))
+    _print(f"({result.evaluations} evaluations; {result.message})")
+    if args.out:
+        from odocal.io.results import write_json
+
+        write_json(args.out, {"theta": result.theta.as_dict(), "E_p_m": result.mean_error_m,
+                              "success": result.success, "message": result.message,
+                              "evaluations": result.evaluations,
+                              "bounds": np.asarray(result.bounds).tolist()})
+        _print(f"wrote {args.out}")
+    return EXIT_OK if result.success else EXIT_FAILED
+
+
+def _add_common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="TOML", help="settings file (see README, 'Settings')")
+    p.add_argument("--workers", type=int, metavar="N",
+                   help="processes for per-segment work (0 = every core; default from settings)")
+    p.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+    p.add_argument("-v", "--verbose", action="count", default=0,
+                   help="more log output (-vv for debug)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="odocal", description="Calibrate a vehicle's wheel-odometry model from logged drives.")
+    parser.add_argument("--version", action="version", version=f"odocal {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    from odocal.simulate import NOISE_PROFILES
+
+    p = sub.add_parser("demo", help="simulate a drive with known parameters and calibrate it")
+    p.add_argument("--duration", type=float, default=1200.0, metavar="S",
+                   help="simulated drive length in seconds (default 1200)")
+    p.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
+    p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic",
+                   help="noise profile (default realistic)")
+    p.add_argument("--method", choices=("compensated", "raw", "joint"),
+                   help="calibration method (default compensated)")
+    p.add_argument("--out", metavar="DIR", help="also write the results to this folder")
+    _add_common(p)
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("simulate", help="write a simulated drive and its truth")
+    p.add_argument("--out", required=True, metavar="FILE",
+                   help="drive file to write (.csv or .parquet); the truth goes to "
+                        "FILE.truth.json beside it")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--duration", type=float, default=1800.0, metavar="S")
+    p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic",
+                   metavar="PROFILE", help=f"one of {', '.join(NOISE_PROFILES)}")
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-v", "--verbose", action="count", default=0)
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("calibrate", help="calibrate from drive logs of one vehicle")
+    p.add_argument("logs", nargs="+", metavar="LOG", help="drive-format files (.csv, .parquet)")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for calibration.json")
+    p.add_argument("--method", choices=("compensated", "raw", "joint"),
+                   help="compensated (three-step, default), raw (batch G-N) or joint")
+    p.add_argument("--seed", type=int, help="seed of the step-1 batch draw")
+    p.add_argument("--save-inputs", action="store_true",
+                   help="also write the compensated wheel rates (compensated_inputs.parquet)")
+    _add_common(p)
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("validate", help="validation error E_p of parameters on drive logs")
+    p.add_argument("logs", nargs="+", metavar="LOG")
+    p.add_argument("--params", metavar="JSON",
+                   help="calibration.json to validate (default: the datasheet parameters)")
+    _add_common(p)
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("minimum", help="the reachable minimum validation error (global search)")
+    p.add_argument("logs", nargs="+", metavar="LOG")
+    p.add_argument("--params", metavar="JSON", help="centre of the search box (default datasheet)")
+    p.add_argument("--seed", type=int, help="optimiser seed")
+    p.add_argument("--out", metavar="JSON", help="write the result to this file")
+    _add_common(p)
+    p.set_defaults(func=cmd_minimum)
+    return parser
+
+
+def _configure_logging(verbose: int, quiet: bool) -> None:
+    level = logging.ERROR if quiet else (logging.WARNING if verbose == 0 else
+                                         logging.INFO if verbose == 1 else logging.DEBUG)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s",
+                        stream=sys.stderr)
+    if verbose == 0:
+        # warnings are printed in the summary; keep the log for -v
+        logging.getLogger("odocal").setLevel(logging.ERROR)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    _configure_logging(args.verbose, args.quiet)
+    func: Callable[[argparse.Namespace], int] = args.func
+    try:
+        return func(args)
+    except OdocalError as exc:
+        sys.stderr.write(f"odocal {args.command}: error: {exc}\n")
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        sys.stderr.write(f"odocal {args.command}: interrupted\n")
+        return 130
+    except BrokenPipeError:  # the reader went away (| head): stop quietly
+        sys.stderr.close()
+        return EXIT_OK
+    except Exception as exc:  # a bug: say so in one line, with the traceback on request
+        if args.verbose:
+            raise
+        sys.stderr.write(f"odocal {args.command}: internal error: {type(exc).__name__}: {exc} "
+                         "(rerun with -v for the traceback)\n")
+        return EXIT_BUG
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,320 @@
+"""The in-memory drive: one log of one vehicle on a uniform time grid.
+
+A :class:`Drive` holds the signals of METHOD section 1 sample by sample: the measured wheel rates
+``n_rl, n_rr`` (rev/s), the lateral acceleration ``a_y`` (m/s^2), the sideslip ``beta`` (rad) and
+the reference pose ``x, y, psi`` (m, m, rad). Every constructor checks its input and raises
+:class:`~odocal.errors.DataError` with a message naming the source, the column and the problem.
+
+A drive may consist of several *pieces*: runs of samples on one uniform grid separated by gaps
+(for example where a logger dropped out). Segments never cross a piece boundary.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal.errors import DataError
+
+FloatArray = NDArray[np.float64]
+
+#: Columns of the drive format that must be present.
+REQUIRED_COLUMNS: tuple[str, ...] = ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi")
+#: Columns of the drive format that may be present.
+OPTIONAL_COLUMNS: tuple[str, ...] = ("beta", "yaw_rate", "piece", "x_std", "y_std", "psi_std")
+#: Units of the drive format's columns, for messages and documentation.
+COLUMN_UNITS: Mapping[str, str] = MappingProxyType({
+    "t": "s", "n_rl": "rev/s", "n_rr": "rev/s", "a_y": "m/s^2", "beta": "rad", "x": "m",
+    "y": "m", "psi": "rad", "yaw_rate": "rad/s", "piece": "integer", "x_std": "m",
+    "y_std": "m", "psi_std": "rad",
+})
+
+# Plausibility limits used to catch wrong units (not physics limits of any car).
+_MAX_WHEEL_RATE_REVPS = 40.0  # 40 rev/s with a 2 m wheel is 290 km/h
+_MAX_YAW_RATE_RADPS = 3.0
+_MIN_STEP_S, _MAX_STEP_S = 1e-3, 1.0
+_UNIFORM_TOLERANCE = 0.01  # relative jitter of the time step still called uniform
+
+
+def _as_float_array(values: Any) -> FloatArray:
+    return np.ascontiguousarray(values, dtype=np.float64)
+
+
+@dataclass(frozen=True, eq=False)
+class Drive:
+    """One drive on a uniform time grid.
+
+    Attributes
+    ----------
+    t : ndarray, shape (M,)
+        Time, s, strictly increasing; uniform with step ``t_s`` inside each piece.
+    n_rl, n_rr : ndarray, shape (M,)
+        Measured rear-left / rear-right wheel rotation rates, rev/s.
+    a_y : ndarray, shape (M,)
+        Lateral acceleration, m/s^2, positive to the left.
+    beta : ndarray, shape (M,)
+        Sideslip angle, rad.
+    x, y : ndarray, shape (M,)
+        Reference position in a local planar frame, m.
+    psi : ndarray, shape (M,)
+        Reference heading, rad, counter-clockwise from the x axis, unwrapped inside each piece.
+    yaw_rate : ndarray, shape (M,)
+        Yaw rate, rad/s (measured, or derived from ``psi``); used to select segments.
+    t_s : float
+        Sampling time, s.
+    pieces : tuple of (start, stop)
+        Index ranges ``[start, stop)`` of the contiguous pieces, in order, covering all samples.
+    name : str
+        Where the drive came from (a file name), used in messages.
+    pose_std : ndarray, shape (M, 3), or None
+        Standard deviation of the reference pose (m, m, rad) where known (from a fusion).
+    metadata : mapping
+        Free-form provenance (source format, conversion settings, time offsets found, ...).
+    """
+
+    t: FloatArray
+    n_rl: FloatArray
+    n_rr: FloatArray
+    a_y: FloatArray
+    beta: FloatArray
+    x: FloatArray
+    y: FloatArray
+    psi: FloatArray
+    yaw_rate: FloatArray
+    t_s: float
+    pieces: tuple[tuple[int, int], ...]
+    name: str = "drive"
+    pose_std: FloatArray | None = None
+    metadata: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+
+    def __post_init__(self) -> None:
+        m = self.t.shape[0]
+        for key in ("n_rl", "n_rr", "a_y", "beta", "x", "y", "psi", "yaw_rate"):
+            arr = getattr(self, key)
+            if arr.shape != (m,):
+                raise DataError(f"{self.name}: column {key} has shape {arr.shape}, expected ({m},)")
+        if self.pose_std is not None and self.pose_std.shape != (m, 3):
+            raise DataError(f"{self.name}: pose_std has shape {self.pose_std.shape}, "
+                            f"expected ({m}, 3)")
+        covered = 0
+        for start, stop in self.pieces:
+            if start != covered or stop <= start:
+                raise DataError(f"{self.name}: pieces {self.pieces} do not tile 0..{m}")
+            covered = stop
+        if covered != m:
+            raise DataError(f"{self.name}: pieces {self.pieces} do not tile 0..{m}")
+        for arr in (self.t, self.n_rl, self.n_rr, self.a_y, self.beta, self.x, self.y, self.psi,
+                    self.yaw_rate):
+            arr.flags.writeable = False
+        if self.pose_std is not None:
+            self.pose_std.flags.writeable = False
+        if not isinstance(self.metadata, MappingProxyType):
+            object.__setattr__(self, "metadata", MappingProxyType(dict(self.metadata)))
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def duration_s(self) -> float:
+        return float(sum((stop - start - 1) * self.t_s for start, stop in self.pieces))
+
+    @property
+    def distance_m(self) -> float:
+        """Travelled distance of the reference inside the pieces."""
+        total = 0.0
+        for start, stop in self.pieces:
+            total += float(np.hypot(np.diff(self.x[start:stop]), np.diff(self.y[start:stop])).sum())
+        return total
+
+    def columns(self) -> dict[str, FloatArray]:
+        """The drive as drive-format columns (``piece`` only when there are several)."""
+        cols: dict[str, FloatArray] = {
+            "t": self.t, "n_rl": self.n_rl, "n_rr": self.n_rr, "a_y": self.a_y,
+            "beta": self.beta, "x": self.x, "y": self.y, "psi": self.psi,
+            "yaw_rate": self.yaw_rate,
+        }
+        if len(self.pieces) > 1:
+            piece = np.empty(self.n_samples)
+            for i, (start, stop) in enumerate(self.pieces):
+                piece[start:stop] = i
+            cols["piece"] = piece
+        if self.pose_std is not None:
+            cols["x_std"], cols["y_std"], cols["psi_std"] = (self.pose_std[:, 0],
+                                                            self.pose_std[:, 1],
+                                                            self.pose_std[:, 2])
+        return cols
+
+    def with_wheel_rates(self, n_rl: FloatArray, n_rr: FloatArray) -> Drive:
+        """A copy with other wheel rates (for example compensated ones)."""
+        return Drive(t=self.t, n_rl=_as_float_array(n_rl), n_rr=_as_float_array(n_rr),
+                     a_y=self.a_y, beta=self.beta, x=self.x, y=self.y, psi=self.psi,
+                     yaw_rate=self.yaw_rate, t_s=self.t_s, pieces=self.pieces, name=self.name,
+                     pose_std=self.pose_std, metadata=self.metadata)
+
+    @classmethod
+    def from_columns(cls, columns: Mapping[str, Any], *, name: str = "drive",
+                     metadata: Mapping[str, Any] | None = None) -> Drive:
+        """Build a drive from drive-format columns, checking everything a user can get wrong.
+
+        ``columns`` maps the names of the drive format (see :data:`REQUIRED_COLUMNS` and
+        :data:`OPTIONAL_COLUMNS`) to 1-D arrays; unknown columns are ignored.
+        """
+        missing = [c for c in REQUIRED_COLUMNS if c not in columns]
+        if missing:
+            raise DataError(f"'{name}' lacks column{'s' if len(missing) > 1 else ''} "
+                            f"{', '.join(missing)} (the drive format needs "
+                            f"{', '.join(REQUIRED_COLUMNS)})")
+        arrays: dict[str, FloatArray] = {}
+        for key in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS):
+            if key not in columns:
+                continue
+            try:
+                arr = _as_float_array(columns[key])
+            except (TypeError, ValueError):
+                raise DataError(f"'{name}' column {key} is not numeric") from None
+            if arr.ndim != 1:
+                raise DataError(f"'{name}' column {key} must be one-dimensional")
+            arrays[key] = arr
+        m = arrays["t"].shape[0]
+        if m == 0:
+            raise DataError(f"'{name}' has no rows")
+        if m < 3:
+            raise DataError(f"'{name}' has only {m} rows; a drive needs many samples")
+        t = arrays["t"]
+        for key, arr in arrays.items():
+            if arr.shape[0] != m:
+                raise DataError(f"'{name}' column {key} has {arr.shape[0]} rows, t has {m}")
+            bad = ~np.isfinite(arr)
+            if bad.any():
+                first = int(np.argmax(bad))
+                where = f"t={t[first]:.3f} s" if key != "t" and np.isfinite(t[first]) \
+                    else f"row {first}"
+                raise DataError(f"'{name}' column {key} contains {int(bad.sum())} NaN or "
+                                f"infinite values (first at {where})")
+
+        dt = np.diff(t)
+        if (dt <= 0).any():
+            first = int(np.argmax(dt <= 0))
+            raise DataError(f"'{name}' column t is not strictly increasing: t={t[first + 1]:.6g} "
+                            f"follows t={t[first]:.6g} at row {first + 1}; sort the log or drop "
+                            "duplicate stamps")
+        pieces = _pieces(name, t, arrays.get("piece"))
+        t_s = _sampling_time(name, t, pieces)
+
+        n_rl, n_rr = arrays["n_rl"], arrays["n_rr"]
+        _check_wheel_units(name, n_rl, n_rr)
+        psi = _unwrap_pieces(arrays["psi"], pieces)
+        yaw_from_psi = _derivative_pieces(psi, t_s, pieces)
+        if np.percentile(np.abs(yaw_from_psi), 99) > _MAX_YAW_RATE_RADPS:
+            raise DataError(f"'{name}' column psi changes by up to "
+                            f"{np.percentile(np.abs(yaw_from_psi), 99) * t_s:.3g} per sample: "
+                            "psi must be in radians (is it in degrees?)")
+        yaw_rate = arrays.get("yaw_rate", yaw_from_psi)
+        if np.percentile(np.abs(yaw_rate), 99) > _MAX_YAW_RATE_RADPS:
+            raise DataError(f"'{name}' column yaw_rate reaches {np.max(np.abs(yaw_rate)):.3g}: "
+                            "yaw_rate must be in rad/s (is it in deg/s?)")
+        x, y = arrays["x"], arrays["y"]
+        _check_position_units(name, x, y, n_rl, n_rr, t_s, pieces)
+
+        pose_std = None
+        std_cols = [c for c in ("x_std", "y_std", "psi_std") if c in arrays]
+        if std_cols:
+            if len(std_cols) != 3:
+                raise DataError(f"'{name}' has {', '.join(std_cols)} but not all of x_std, y_std, "
+                                "psi_std")
+            pose_std = np.column_stack([arrays["x_std"], arrays["y_std"], arrays["psi_std"]])
+            if (pose_std < 0).any():
+                raise DataError(f"'{name}' has negative pose standard deviations")
+        return cls(t=t, n_rl=n_rl, n_rr=n_rr, a_y=arrays["a_y"],
+                   beta=arrays.get("beta", np.zeros(m)), x=x, y=y, psi=psi,
+                   yaw_rate=_as_float_array(yaw_rate), t_s=t_s, pieces=pieces, name=name,
+                   pose_std=pose_std, metadata=MappingProxyType(dict(metadata or {})))
+
+
+def _pieces(name: str, t: FloatArray, piece: FloatArray | None) -> tuple[tuple[int, int], ...]:
+    """Index ranges of the pieces: from a ``piece`` column, or one piece."""
+    m = t.shape[0]
+    if piece is None:
+        return ((0, m),)
+    if (piece != np.round(piece)).any():
+        raise DataError(f"'{name}' column piece must hold integers")
+    change = np.flatnonzero(np.diff(piece) != 0) + 1
+    if (np.diff(piece) < 0).any():
+        raise DataError(f"'{name}' column piece must not decrease")
+    bounds = [0, *change.tolist(), m]
+    return tuple((bounds[i], bounds[i + 1]) for i in range(len(bounds) - 1))
+
+
+def _sampling_time(name: str, t: FloatArray, pieces: tuple[tuple[int, int], ...]) -> float:
+    """The uniform step inside the pieces, or a DataError naming the first irregularity."""
+    inside = np.concatenate([np.diff(t[a:b]) for a, b in pieces])
+    if inside.size == 0:
+        raise DataError(f"'{name}': every piece holds a single sample")
+    t_s = float(np.median(inside))
+    if t_s > _MAX_STEP_S:
+        unit = "milliseconds" if 1 <= t_s <= 1000 else "an unknown unit"
+        raise DataError(f"'{name}' column t has a step of {t_s:.6g}: t must be in seconds "
+                        f"(it looks like {unit})")
+    if t_s < _MIN_STEP_S:
+        raise DataError(f"'{name}' column t has a step of {t_s:.3g} s: t must be in seconds "
+                        "(a rate above 1 kHz is not a drive log)")
+    off = np.abs(inside - t_s) > _UNIFORM_TOLERANCE * t_s
+    if off.any():
+        # Report the time where the first irregular step inside a piece starts.
+        offsets = np.concatenate([np.arange(a, b - 1) for a, b in pieces])
+        first = int(offsets[np.argmax(off)])
+        step = float(t[first + 1] - t[first])
+        kind = "gap" if step > t_s else "irregular step"
+        raise DataError(f"'{name}' column t has a {kind} of {step:.4g} s at t={t[first]:.3f} s "
+                        f"(the step is {t_s:.4g} s); resample to a uniform grid, or mark the "
+                        "separate runs with a 'piece' column")
+    return t_s
+
+
+def _unwrap_pieces(psi: FloatArray, pieces: tuple[tuple[int, int], ...]) -> FloatArray:
+    out = np.empty_like(psi)
+    for a, b in pieces:
+        out[a:b] = np.unwrap(psi[a:b])
+    return out
+
+
+def _derivative_pieces(values: FloatArray, t_s: float,
+                       pieces: tuple[tuple[int, int], ...]) -> FloatArray:
+    out = np.zeros_like(values)
+    for a, b in pieces:
+        if b - a >= 2:
+            out[a:b] = np.gradient(values[a:b], t_s)
+    return out
+
+
+def _check_wheel_units(name: str, n_rl: FloatArray, n_rr: FloatArray) -> None:
+    for key, n in (("n_rl", n_rl), ("n_rr", n_rr)):
+        peak = float(np.percentile(np.abs(n), 99))
+        if peak > _MAX_WHEEL_RATE_REVPS:
+            hint = " (it looks like rpm: divide by 60)" if peak < 60 * _MAX_WHEEL_RATE_REVPS else ""
+            raise DataError(f"'{name}' column {key} reaches {peak:.4g}: wheel rates must be in "
+                            f"rev/s{hint}")
+
+
+def _check_position_units(name: str, x: FloatArray, y: FloatArray, n_rl: FloatArray,
+                          n_rr: FloatArray, t_s: float,
+                          pieces: tuple[tuple[int, int], ...]) -> None:
+    """Positions must move roughly as far as the wheels say (a 1.2-2.6 m wheel, generously)."""
+    ref_dist = 0.0
+    wheel_rev = 0.0
+    for a, b in pieces:
+        ref_dist += float(np.hypot(np.diff(x[a:b]), np.diff(y[a:b])).sum())
+        wheel_rev += float((0.5 * np.abs(n_rl[a:b - 1] + n_rr[a:b - 1])).sum() * t_s)
+    if wheel_rev < 20.0:  # too little motion to judge (a stand-still log)
+        return
+    metres_per_rev = ref_dist / wheel_rev
+    if not 0.2 <= metres_per_rev <= 20.0:
+        raise DataError(f"'{name}' columns x, y move {ref_dist:.4g} while the wheels turn "
+                        f"{wheel_rev:.4g} revolutions ({metres_per_rev:.3g} per revolution): "
+                        "x and y must be metres in a local planar frame (not degrees or km)")

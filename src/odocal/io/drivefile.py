@@ -1,0 +1,100 @@
+"""The drive format: one row per sample, CSV or Parquet (see README, "The drive format")."""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import pyarrow.parquet as pq
+
+from odocal.drive import Drive
+from odocal.errors import DataError, InputFileError
+from odocal.io.atomic import atomic_path
+
+_FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}
+
+
+def _format_of(path: Path) -> str:
+    fmt = _FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        raise DataError(f"'{path}': unknown file type {path.suffix!r}; the drive format is "
+                        "stored as .csv or .parquet")
+    return fmt
+
+
+def read_table(path: str | Path) -> dict[str, np.ndarray]:
+    """Read a CSV or Parquet file into float columns (non-numeric columns raise DataError)."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(f"input file '{p}' does not exist")
+    fmt = _format_of(p)
+    if p.stat().st_size == 0:
+        raise DataError(f"'{p}' is empty")
+    try:
+        if fmt == "csv":
+            table = pacsv.read_csv(p)
+        else:
+            table = pq.read_table(p)
+    except (pa.ArrowInvalid, pa.ArrowTypeError, OSError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise DataError(f"'{p}' cannot be read as {fmt.upper()}: {first}") from None
+    columns: dict[str, np.ndarray] = {}
+    for name in table.column_names:
+        col = table.column(name)
+        if pa.types.is_integer(col.type) or pa.types.is_floating(col.type) \
+                or pa.types.is_boolean(col.type) or pa.types.is_null(col.type):
+            columns[name] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
+        else:
+            columns[name] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=object)
+    for name, values in columns.items():
+        if values.dtype == object:
+            try:
+                columns[name] = np.array([np.nan if v is None else float(v) for v in values])
+            except (TypeError, ValueError):
+                bad = next(v for v in values if not _is_number(v))
+                raise DataError(f"'{p}' column {name} holds a non-numeric value {bad!r}") from None
+    return columns
+
+
+def _is_number(value: Any) -> bool:
+    try:
+        float(value)
+    except (TypeError, ValueError):
+        return value is None
+    return True
+
+
+def load_drive(path: str | Path, *, metadata: Mapping[str, Any] | None = None) -> Drive:
+    """Read a drive-format file (CSV or Parquet) into a checked :class:`Drive`."""
+    p = Path(path)
+    columns = read_table(p)
+    return Drive.from_columns(columns, name=str(p), metadata={"source": str(p),
+                                                              "sha256": file_sha256(p),
+                                                              **(metadata or {})})
+
+
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 of a file's bytes, hex."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def save_drive(drive: Drive, path: str | Path) -> Path:
+    """Write ``drive`` in the drive format, atomically; the format follows the file suffix."""
+    p = Path(path)
+    fmt = _format_of(p)
+    table = pa.table({k: pa.array(np.asarray(v)) for k, v in drive.columns().items()})
+    with atomic_path(p) as tmp:
+        if fmt == "csv":
+            pacsv.write_csv(table, tmp)
+        else:
+            pq.write_table(table, tmp)
+    return p

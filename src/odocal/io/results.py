@@ -1,0 +1,73 @@
+"""calibration.json and other result files: written atomically, read back with checks."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from odocal.errors import DataError, InputFileError
+from odocal.io.atomic import write_text
+from odocal.model import PARAMETER_NAMES, Parameters
+
+
+def _plain(obj: Any) -> Any:
+    """JSON-safe copy: numpy scalars and arrays to Python, NaN and inf to null."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        value = float(obj)
+        return value if math.isfinite(value) else None
+    return obj
+
+
+def write_json(path: str | Path, data: dict[str, Any]) -> Path:
+    """Write ``data`` as indented JSON, atomically."""
+    p = Path(path)
+    write_text(p, json.dumps(_plain(data), indent=2, allow_nan=False) + "\n")
+    return p
+
+
+def read_json(path: str | Path) -> dict[str, Any]:
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(f"file '{p}' does not exist")
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DataError(f"'{p}' is not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise DataError(f"'{p}' must hold a JSON object")
+    return data
+
+
+def read_parameters(path: str | Path) -> Parameters:
+    """theta from a calibration.json (or any JSON with a ``theta`` object of the four names)."""
+    data = read_json(path)
+    theta = data.get("theta")
+    if not isinstance(theta, dict):
+        raise DataError(f"'{path}' has no \"theta\" object with {', '.join(PARAMETER_NAMES)}")
+    missing = [n for n in PARAMETER_NAMES if n not in theta]
+    if missing:
+        raise DataError(f"'{path}' theta lacks {', '.join(missing)}")
+    values = []
+    for name in PARAMETER_NAMES:
+        value = theta[name]
+        if not isinstance(value, int | float) or isinstance(value, bool) \
+                or not math.isfinite(value):
+            raise DataError(f"'{path}' theta.{name} = {value!r} is not a finite number")
+        values.append(float(value))
+    if values[0] <= 0 or values[2] <= 0:
+        raise DataError(f"'{path}' theta has a non-positive c_e or t_r: {values}")
+    return Parameters(*values)

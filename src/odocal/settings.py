@@ -1,0 +1,317 @@
+"""All of odocal's settings in one typed place, with the paper's defaults.
+
+Every section is a frozen dataclass; :class:`Settings` groups them. A TOML file may set any
+subset; unknown sections or keys, wrong types and out-of-range values are :class:`ConfigError`.
+The defaults are those of Fazekas, Gáspár and Németh (IFAC 2022) as restated in METHOD.md.
+
+Example ``odocal.toml``::
+
+    [segments]
+    length = 650
+    yaw_rate_threshold_radps = 0.15
+
+    [compensate]
+    state_weights = [1.0, 1.0, 10.0]
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from odocal.errors import ConfigError, InputFileError
+
+#: Datasheet parameters of the paper, ``[c_e, c_d, t_r, d]`` (m, m, m, m per m/s^2).
+DATASHEET_THETA: tuple[float, float, float, float] = (2.0, 0.0, 1.6, 0.0)
+
+
+def _check(condition: bool, section: str, key: str, value: object, expected: str) -> None:
+    if not condition:
+        raise ConfigError(f"setting [{section}] {key} = {value!r} is invalid: expected {expected}")
+
+
+@dataclass(frozen=True)
+class SegmentSettings:
+    """METHOD 2: how a drive is cut into identification and validation segments."""
+
+    length: int = 650
+    """K, samples per identification segment (650 = 16.25 s at 40 Hz)."""
+    step: int = 100
+    """Samples between the starts of consecutive identification segments (2.5 s)."""
+    yaw_rate_threshold_radps: float = 0.15
+    """A segment is selected for identification if its peak |yaw rate| exceeds this."""
+    min_selected: int = 1
+    """With fewer selected segments than this, identification uses every segment (straight
+    drives)."""
+    validation_distance_m: float = 300.0
+    """Travelled distance of each validation segment."""
+    validation_offset: int = 50
+    """Samples from a piece's start to its first validation segment (other start points than
+    the identification segments')."""
+    validation_min_fraction: float = 0.5
+    """A trailing validation segment shorter than this fraction of the distance is dropped."""
+
+    def __post_init__(self) -> None:
+        s = "segments"
+        _check(self.length >= 10, s, "length", self.length, "an integer >= 10")
+        _check(self.step >= 1, s, "step", self.step, "an integer >= 1")
+        _check(self.yaw_rate_threshold_radps >= 0, s, "yaw_rate_threshold_radps",
+               self.yaw_rate_threshold_radps, "a number >= 0")
+        _check(self.min_selected >= 1, s, "min_selected", self.min_selected, "an integer >= 1")
+        _check(self.validation_distance_m > 0, s, "validation_distance_m",
+               self.validation_distance_m, "a positive distance in m")
+        _check(self.validation_offset >= 0, s, "validation_offset", self.validation_offset,
+               "an integer >= 0")
+        _check(0 < self.validation_min_fraction <= 1, s, "validation_min_fraction",
+               self.validation_min_fraction, "a fraction in (0, 1]")
+
+
+@dataclass(frozen=True)
+class IdentifySettings:
+    """METHOD 3: Gauss-Newton identification."""
+
+    theta0: tuple[float, float, float, float] = DATASHEET_THETA
+    """Initial guess [c_e, c_d, t_r, d]: the datasheet values."""
+    weights: tuple[float, float, float] = (1.0, 1.0, 1600.0)
+    """Diagonal of W per sample, [w_px, w_py, w_psi] (the paper's [1, 1, 40^2])."""
+    max_iterations: int = 5
+    """i_max: at most this many G-N iterations (the paper: 5)."""
+    step_tolerance: float = 1e-12
+    """Stop when every relative parameter change is below this."""
+    prior_std: tuple[float, float, float, float] = (0.05, 0.01, 0.10, 0.005)
+    """How uncertain the datasheet values are; a parameter whose data standard deviation exceeds
+    ``identifiable_ratio`` times this is reported as not identified by the drive."""
+    identifiable_ratio: float = 0.5
+    rcond: float = 1e-9
+    """Relative singular value below which the scaled normal equations count as rank deficient."""
+
+    def __post_init__(self) -> None:
+        s = "identify"
+        _check(self.theta0[0] > 0 and self.theta0[2] > 0, s, "theta0", self.theta0,
+               "positive c_e and t_r")
+        _check(all(w >= 0 for w in self.weights) and any(w > 0 for w in self.weights), s,
+               "weights", self.weights, "non-negative weights, not all zero")
+        _check(self.max_iterations >= 1, s, "max_iterations", self.max_iterations,
+               "an integer >= 1")
+        _check(self.step_tolerance >= 0, s, "step_tolerance", self.step_tolerance, "a number >= 0")
+        _check(all(p > 0 for p in self.prior_std), s, "prior_std", self.prior_std,
+               "four positive standard deviations")
+        _check(0 < self.identifiable_ratio <= 1, s, "identifiable_ratio",
+               self.identifiable_ratio, "a fraction in (0, 1]")
+        _check(0 < self.rcond < 1, s, "rcond", self.rcond, "a number in (0, 1)")
+
+
+@dataclass(frozen=True)
+class CompensateSettings:
+    """METHOD 4: input compensation by optimal control (the QP)."""
+
+    state_weights: tuple[float, float, float] = (1.0, 1.0, 10.0)
+    """Q = diag(...), weight of the pose tracking error [px, py, psi]."""
+    rate_change_weights: tuple[float, float] = (1000.0, 1000.0)
+    """R = diag(...), weight of the change of the estimated rates between samples."""
+    state_bounds: tuple[float, float, float] = (5.0, 5.0, 0.5)
+    """|x_k - y~_k| <= these (m, m, rad)."""
+    rate_bound: float = 0.05
+    """(1 - b) n~_k <= n_k <= (1 + b) n~_k for both wheels."""
+    linearisations: int = 1
+    """How many times the model is linearised and the QP solved (1 = the paper; more
+    re-linearise around the trajectory of the previous solution)."""
+    solver: Literal["structured", "osqp"] = "structured"
+    """``structured``: odocal's banded active-set solver; ``osqp``: the sparse reference."""
+    max_active_set_iterations: int = 50
+    """Iterations of the structured solver before it hands the problem to OSQP."""
+
+    def __post_init__(self) -> None:
+        s = "compensate"
+        _check(all(q >= 0 for q in self.state_weights) and any(self.state_weights), s,
+               "state_weights", self.state_weights, "non-negative weights, not all zero")
+        _check(all(r > 0 for r in self.rate_change_weights), s, "rate_change_weights",
+               self.rate_change_weights, "positive weights")
+        _check(all(b > 0 for b in self.state_bounds), s, "state_bounds", self.state_bounds,
+               "positive bounds (m, m, rad)")
+        _check(0 < self.rate_bound < 1, s, "rate_bound", self.rate_bound, "a fraction in (0, 1)")
+        _check(self.linearisations >= 1, s, "linearisations", self.linearisations,
+               "an integer >= 1")
+        _check(self.solver in ("structured", "osqp"), s, "solver", self.solver,
+               "'structured' or 'osqp'")
+        _check(self.max_active_set_iterations >= 1, s, "max_active_set_iterations",
+               self.max_active_set_iterations, "an integer >= 1")
+
+
+@dataclass(frozen=True)
+class CalibrateSettings:
+    """METHOD 5: the calibration method and the three-step architecture."""
+
+    method: Literal["compensated", "raw", "joint"] = "compensated"
+    step1_batches: int = 50
+    """Independent batches identified in step 1 (the paper: 50)."""
+    step1_batch_size: int = 10
+    """N of each step-1 batch (the paper: 10)."""
+    step1_sets: int = 5
+    """Parameter sets picked at equal steps through the sorted step-1 list (the paper: 5)."""
+    step3_batch_size: int = 5
+    """N of the per-batch step-3 experiment of ``odocal reproduce`` (the paper: 5)."""
+    seed: int = 0
+    """Seed of the batch draw (and every other random choice of a calibration)."""
+    workers: int = 0
+    """Processes for per-segment work; 0 uses every core. Results do not depend on it."""
+
+    def __post_init__(self) -> None:
+        s = "calibrate"
+        _check(self.method in ("compensated", "raw", "joint"), s, "method", self.method,
+               "'compensated', 'raw' or 'joint'")
+        for key in ("step1_batches", "step1_batch_size", "step1_sets", "step3_batch_size"):
+            _check(getattr(self, key) >= 1, s, key, getattr(self, key), "an integer >= 1")
+        _check(self.workers >= 0, s, "workers", self.workers, "an integer >= 0 (0 = all cores)")
+
+
+@dataclass(frozen=True)
+class MinimumSettings:
+    """METHOD 6: the search for the reachable minimum validation error."""
+
+    half_width: tuple[float, float, float, float] = (0.10, 0.02, 0.30, 0.01)
+    """The search box is theta_start +- these (m, m, m, m per m/s^2)."""
+    max_generations: int = 200
+    population: int = 15
+    """Population size multiplier of differential evolution."""
+    tolerance: float = 1e-7
+
+    def __post_init__(self) -> None:
+        s = "minimum"
+        _check(all(h > 0 for h in self.half_width), s, "half_width", self.half_width,
+               "four positive half-widths")
+        _check(self.max_generations >= 1, s, "max_generations", self.max_generations,
+               "an integer >= 1")
+        _check(self.population >= 4, s, "population", self.population, "an integer >= 4")
+        _check(self.tolerance > 0, s, "tolerance", self.tolerance, "a positive number")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Every setting of odocal. ``Settings()`` holds the paper's defaults."""
+
+    segments: SegmentSettings = field(default_factory=SegmentSettings)
+    identify: IdentifySettings = field(default_factory=IdentifySettings)
+    compensate: CompensateSettings = field(default_factory=CompensateSettings)
+    calibrate: CalibrateSettings = field(default_factory=CalibrateSettings)
+    minimum: MinimumSettings = field(default_factory=MinimumSettings)
+
+    def replace(self, **sections: Any) -> Settings:
+        """A copy with whole sections or single keys replaced.
+
+        ``settings.replace(calibrate={"method": "raw"})`` changes one key of one section.
+        """
+        updates: dict[str, Any] = {}
+        for name, value in sections.items():
+            if name not in _SECTIONS:
+                raise ConfigError(f"unknown settings section {name!r}; known: {sorted(_SECTIONS)}")
+            current = getattr(self, name)
+            if isinstance(value, dict):
+                value = _build_section(name, _SECTIONS[name], value, base=current)
+            updates[name] = value
+        return dataclasses.replace(self, **updates)
+
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """Plain, JSON- and TOML-friendly nested dict of every setting."""
+        return {name: _to_plain(dataclasses.asdict(getattr(self, name))) for name in _SECTIONS}
+
+
+def _to_plain(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _to_plain(v) for k, v in obj.items()}
+    if isinstance(obj, tuple | list):
+        return [_to_plain(v) for v in obj]
+    return obj
+
+
+_SECTIONS: dict[str, type] = {f.name: typing.get_type_hints(Settings)[f.name]
+                              for f in dataclasses.fields(Settings)}
+
+
+def _coerce(section: str, key: str, value: Any, hint: Any) -> Any:
+    """Convert a TOML value to the annotated type, or raise ConfigError."""
+    origin = typing.get_origin(hint)
+    if hint is float:
+        _check(isinstance(value, int | float) and not isinstance(value, bool), section, key,
+               value, "a number")
+        return float(value)
+    if hint is int:
+        _check(isinstance(value, int) and not isinstance(value, bool), section, key, value,
+               "an integer")
+        return int(value)
+    if hint is bool:
+        _check(isinstance(value, bool), section, key, value, "true or false")
+        return value
+    if hint is str:
+        _check(isinstance(value, str), section, key, value, "a string")
+        return value
+    if origin is Literal:
+        allowed = typing.get_args(hint)
+        _check(value in allowed, section, key, value, " or ".join(repr(a) for a in allowed))
+        return value
+    if origin is tuple:
+        args = typing.get_args(hint)
+        _check(isinstance(value, list | tuple), section, key, value, "a list")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(section, key, v, args[0]) for v in value)
+        _check(len(value) == len(args), section, key, value, f"a list of {len(args)} values")
+        return tuple(_coerce(section, key, v, a) for v, a in zip(value, args, strict=True))
+    if origin in (types.UnionType, typing.Union):
+        args = typing.get_args(hint)
+        if value is None and type(None) in args:
+            return None
+        for arg in args:
+            if arg is type(None):
+                continue
+            try:
+                return _coerce(section, key, value, arg)
+            except ConfigError:
+                continue
+        raise ConfigError(f"setting [{section}] {key} = {value!r} is invalid: expected {hint}")
+    raise ConfigError(f"setting [{section}] {key}: unsupported type {hint}")  # pragma: no cover
+
+
+def _build_section(name: str, cls: type, values: dict[str, Any], *, base: Any = None) -> Any:
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ConfigError(
+            f"unknown setting [{name}] {unknown[0]!r}; known keys: {', '.join(sorted(known))}")
+    converted = {k: _coerce(name, k, v, hints[k]) for k, v in values.items()}
+    if base is None:
+        return cls(**converted)
+    return dataclasses.replace(base, **converted)
+
+
+def settings_from_dict(data: dict[str, Any], *, source: str = "settings") -> Settings:
+    """Build :class:`Settings` from a nested dict (as read from TOML), rejecting unknown keys."""
+    unknown = sorted(set(data) - set(_SECTIONS))
+    if unknown:
+        raise ConfigError(f"unknown section [{unknown[0]}] in {source}; known sections: "
+                          f"{', '.join(sorted(_SECTIONS))}")
+    sections: dict[str, Any] = {}
+    for name, values in data.items():
+        if not isinstance(values, dict):
+            raise ConfigError(f"{source}: [{name}] must be a table of settings, got {values!r}")
+        sections[name] = _build_section(name, _SECTIONS[name], values)
+    return Settings(**sections)
+
+
+def load_settings(path: str | Path | None) -> Settings:
+    """Read a TOML settings file; ``None`` gives the defaults."""
+    if path is None:
+        return Settings()
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(f"settings file '{p}' does not exist")
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"settings file '{p}' is not valid TOML: {exc}") from None
+    return settings_from_dict(data, source=f"'{p}'")

@@ -1,0 +1,142 @@
+"""METHOD 6: validation error E_p and the reachable minimum.
+
+For a parameter set, every validation segment is rolled out with the *measured* wheel rates from its
+measured initial pose, and the per-sample position error ``sqrt(dx^2 + dy^2)`` is averaged over the
+segment's samples (k = 1..K). ``E_p`` is the mean over segments.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import differential_evolution
+
+from odocal.model import Parameters, rollout_ragged
+from odocal.segments import RaggedSegments, SegmentSet
+from odocal.settings import MinimumSettings
+
+FloatArray = NDArray[np.float64]
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SegmentErrors:
+    """Per-segment validation errors of one parameter set.
+
+    mean_m : ndarray, shape (S,)
+        Mean position error over each segment's samples, m.
+    final_m : ndarray, shape (S,)
+        Position error at each segment's last sample, m.
+    final_heading_rad : ndarray, shape (S,)
+        Absolute heading error at each segment's last sample, rad.
+    """
+
+    mean_m: FloatArray
+    final_m: FloatArray
+    final_heading_rad: FloatArray
+
+
+def segment_errors(theta: FloatArray, data: RaggedSegments) -> SegmentErrors:
+    """Validation errors of ``theta`` on every segment of ``data``."""
+    first_row = np.concatenate([[0], np.cumsum(data.steps + 1)[:-1]]).astype(np.int64)
+    x0 = data.reference[first_row]
+    poses = rollout_ragged(np.asarray(theta, dtype=np.float64), data.inputs, x0, data.steps,
+                           data.t_s)
+    err = np.hypot(poses[:, 0] - data.reference[:, 0], poses[:, 1] - data.reference[:, 1])
+    # row first_row[s] has zero error by construction, so the sum over rows of segment s
+    # divided by steps[s] is the mean over k = 1..K.
+    sums = np.add.reduceat(err, first_row)
+    last_row = first_row + data.steps
+    dpsi = np.abs(np.remainder(poses[last_row, 2] - data.reference[last_row, 2] + np.pi,
+                               2 * np.pi) - np.pi)
+    return SegmentErrors(mean_m=sums / data.steps, final_m=err[last_row], final_heading_rad=dpsi)
+
+
+def mean_error(theta: FloatArray, data: RaggedSegments) -> float:
+    """E_p: the mean over segments of the mean position error, m."""
+    return float(segment_errors(theta, data).mean_m.mean())
+
+
+@dataclass(frozen=True)
+class ValidationResult:
+    """Validation of one parameter set.
+
+    theta : the parameters validated
+    mean_error_m : E_p, m
+    errors : per-segment errors
+    segments : where the validation segments lie
+    drive_names : names of the drives, indexed by ``segments.drive``
+    start_s : ndarray, shape (S,), time of each segment's first sample in its drive, s
+    """
+
+    theta: Parameters
+    mean_error_m: float
+    errors: SegmentErrors
+    segments: SegmentSet
+    drive_names: tuple[str, ...]
+    start_s: FloatArray
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "E_p_m": self.mean_error_m,
+            "segments": len(self.segments),
+            "distance_m": float(self.segments.distance_m.sum()),
+            "per_segment": [
+                {"drive": self.drive_names[int(d)], "start": int(s), "start_s": float(t0),
+                 "steps": int(k), "distance_m": float(dist), "E_p_m": float(e),
+                 "final_error_m": float(f)}
+                for d, s, t0, k, dist, e, f in zip(self.segments.drive, self.segments.start,
+                                                   self.start_s, self.segments.steps,
+                                                   self.segments.distance_m, self.errors.mean_m,
+                                                   self.errors.final_m, strict=True)
+            ],
+        }
+
+
+@dataclass(frozen=True)
+class MinimumResult:
+    """The reachable minimum of E_p found by a global optimiser.
+
+    theta : the minimising parameters
+    mean_error_m : the minimum E_p, m
+    success, message : the optimiser's status
+    evaluations : how many times E_p was evaluated
+    bounds : the search box, shape (4, 2)
+    """
+
+    theta: Parameters
+    mean_error_m: float
+    success: bool
+    message: str
+    evaluations: int
+    bounds: FloatArray
+
+
+def reachable_minimum(data: RaggedSegments, start: FloatArray, *, settings: MinimumSettings,
+                      seed: int = 0, workers: int = 1) -> MinimumResult:
+    """Minimise E_p over theta with differential evolution in a box around ``start``.
+
+    Bounded, seeded, and polished with L-BFGS-B, so the same inputs give the same answer.
+    ``workers`` > 1 evaluates the population in parallel processes (same result).
+    """
+    start = np.asarray(start, dtype=np.float64)
+    half = np.asarray(settings.half_width)
+    bounds = np.column_stack([start - half, start + half])
+    bounds[0, 0] = max(bounds[0, 0], 1e-3)
+    bounds[2, 0] = max(bounds[2, 0], 1e-3)
+    result = differential_evolution(
+        mean_error, bounds=[tuple(b) for b in bounds], args=(data,),
+        seed=seed, maxiter=settings.max_generations, popsize=settings.population,
+        tol=settings.tolerance, polish=True, x0=np.clip(start, bounds[:, 0], bounds[:, 1]),
+        workers=workers, updating="deferred" if workers != 1 else "immediate")
+    on_edge = np.isclose(result.x, bounds[:, 0]) | np.isclose(result.x, bounds[:, 1])
+    message = str(result.message)
+    if on_edge.any():
+        message += "; the minimum lies on the edge of the search box (widen [minimum] half_width)"
+        log.warning("reachable minimum on the edge of the search box")
+    return MinimumResult(theta=Parameters.from_array(result.x), mean_error_m=float(result.fun),
+                         success=bool(result.success), message=message,
+                         evaluations=int(result.nfev), bounds=bounds)

@@ -1,0 +1,67 @@
+"""Settings: the paper's defaults, TOML, and rejected input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from odocal.errors import ConfigError, InputFileError
+from odocal.settings import Settings, load_settings
+
+
+def test_defaults_are_the_papers() -> None:
+    s = Settings()
+    assert (s.segments.length, s.segments.step, s.segments.yaw_rate_threshold_radps) == \
+        (650, 100, 0.15)
+    assert s.segments.validation_distance_m == 300.0
+    assert s.identify.theta0 == (2.0, 0.0, 1.6, 0.0)
+    assert s.identify.weights == (1.0, 1.0, 1600.0)
+    assert s.identify.max_iterations == 5
+    assert s.compensate.state_weights == (1.0, 1.0, 10.0)
+    assert s.compensate.rate_change_weights == (1000.0, 1000.0)
+    assert s.compensate.state_bounds == (5.0, 5.0, 0.5)
+    assert s.compensate.rate_bound == 0.05
+    assert (s.calibrate.step1_batches, s.calibrate.step1_batch_size, s.calibrate.step1_sets,
+            s.calibrate.step3_batch_size) == (50, 10, 5, 5)
+
+
+def test_toml_overrides_some_keys(tmp_path: Path) -> None:
+    path = tmp_path / "odocal.toml"
+    path.write_text("[segments]\nlength = 400\n\n[identify]\ntheta0 = [1.9, 0, 1.5, 0]\n"
+                    "[compensate]\nsolver = \"osqp\"\n")
+    s = load_settings(path)
+    assert s.segments.length == 400 and s.segments.step == 100
+    assert s.identify.theta0 == (1.9, 0.0, 1.5, 0.0)
+    assert s.compensate.solver == "osqp"
+    assert Settings().to_dict()["segments"]["length"] == 650
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("[segments]\nlenght = 400\n", r"unknown setting \[segments\] 'lenght'"),
+    ("[segment]\nlength = 400\n", r"unknown section \[segment\]"),
+    ("[segments]\nlength = 4.5\n", r"\[segments\] length = 4.5 is invalid: expected an integer"),
+    ("[segments]\nlength = 3\n", r"length = 3 is invalid: expected an integer >= 10"),
+    ("[identify]\ntheta0 = [2, 0, 1.6]\n", r"theta0 .* expected a list of 4 values"),
+    ("[compensate]\nsolver = \"cvx\"\n", r"solver = 'cvx' is invalid"),
+    ("[compensate]\nrate_bound = 1.5\n", r"rate_bound = 1.5 is invalid"),
+    ("segments = 3\n", r"\[segments\] must be a table"),
+    ("[segments\n", r"is not valid TOML"),
+])
+def test_bad_settings_are_named(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_settings(path)
+
+
+def test_missing_settings_file(tmp_path: Path) -> None:
+    with pytest.raises(InputFileError, match="does not exist"):
+        load_settings(tmp_path / "nope.toml")
+
+
+def test_replace_checks_keys() -> None:
+    s = Settings().replace(calibrate={"method": "raw"})
+    assert s.calibrate.method == "raw"
+    with pytest.raises(ConfigError, match="unknown setting"):
+        Settings().replace(calibrate={"methd": "raw"})

@@ -1,0 +1,60 @@
+"""The simulator: believable, deterministic, and exactly consistent with the model."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import odocal
+from odocal.errors import ConfigError
+from odocal.model import Inputs, rollout
+from odocal.simulate import NOISE_PROFILES
+
+
+def test_deterministic_for_a_seed() -> None:
+    a = odocal.simulate(duration_s=120, seed=4, noise="realistic")
+    b = odocal.simulate(duration_s=120, seed=4, noise="realistic")
+    c = odocal.simulate(duration_s=120, seed=5, noise="realistic")
+    np.testing.assert_array_equal(a.drive.n_rl, b.drive.n_rl)
+    np.testing.assert_array_equal(a.drive.x, b.drive.x)
+    assert not np.array_equal(a.drive.x, c.drive.x)
+
+
+def test_noise_free_drive_is_the_model(clean_drive: odocal.SimulatedDrive) -> None:
+    d = clean_drive.drive
+    u = Inputs(d.n_rl[:-1], d.n_rr[:-1], d.beta[:-1], d.a_y[:-1])
+    poses = rollout(clean_drive.true_parameters.as_array(), u, np.array([d.x[0], d.y[0],
+                                                                          d.psi[0]]), d.t_s)
+    np.testing.assert_allclose(poses[:, :2], np.column_stack([d.x, d.y]), atol=1e-8)
+    np.testing.assert_array_equal(d.n_rl, clean_drive.true_n_rl)
+
+
+def test_city_drive_is_believable() -> None:
+    sim = odocal.simulate(duration_s=1800, seed=2, noise="none")
+    d = sim.drive
+    speed = np.hypot(np.diff(d.x), np.diff(d.y)) / d.t_s
+    assert speed.max() <= 15.0 + 1e-6
+    assert 6.0 < speed.mean() < 12.0
+    assert (speed < 0.01).mean() > 0.02                   # it stops
+    assert np.abs(np.diff(speed)).max() / d.t_s < 3.0     # no jumps in speed
+    moving = speed > 1.0
+    curvature = np.abs(d.yaw_rate[:-1][moving]) / speed[moving]
+    assert curvature.max() <= 1 / 8.0 * 1.05               # tightest turn 8 m
+    assert np.abs(np.diff(d.yaw_rate)).max() / d.t_s < 2.0   # clothoids: no yaw-rate jumps
+    assert np.abs(d.a_y).max() < 4.0
+
+
+@pytest.mark.parametrize("profile", sorted(NOISE_PROFILES))
+def test_every_profile_runs_and_documents_itself(profile: str) -> None:
+    sim = odocal.simulate(duration_s=60, seed=1, noise=profile)
+    assert sim.profile.description
+    assert np.isfinite(sim.drive.n_rl).all()
+    if profile in ("none", "reference"):
+        np.testing.assert_array_equal(sim.drive.n_rl, sim.true_n_rl)
+    else:
+        assert not np.array_equal(sim.drive.n_rl, sim.true_n_rl)
+
+
+def test_unknown_profile() -> None:
+    with pytest.raises(ConfigError, match="unknown noise profile 'loud'"):
+        odocal.simulate(duration_s=60, noise="loud")
