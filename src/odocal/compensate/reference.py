@@ -117,7 +117,7 @@ def solve_osqp(p: CompensationProblem, *,
         solver.setup(qp.P, qp.q, qp.A, qp.l, qp.u, verbose=False, eps_abs=eps, eps_rel=eps,
                      scaling=int(attempt["scaling"]), polishing=True, polish_refine_iter=10,
                      max_iter=max_iter, eps_prim_inf=1e-7, eps_dual_inf=1e-7)
-        result = solver.solve()
+        result = solver.solve(raise_error=False)
         status = str(result.info.status)
         iterations = int(result.info.iter)
         if "infeasible" in status and "dual" not in status:

@@ -5,12 +5,14 @@ unknowns stage by stage, ``[dn_{k-1} (2), lambda_k (3), dx_k (3)]`` for k = 1..K
 matrix (Hessian, model constraints and their multipliers) in a band of half-width 9, so one solve
 is a banded LU (LAPACK ``dgbsv``) costing O(K).
 
-Bounds are handled exactly by the primal-dual active-set method (Hintermüller, Ito and Kunisch,
-SIAM J. Optim. 13(3), 2003): each iteration fixes the variables of the current active set at their
-bounds, solves the equality-constrained KKT system, and moves variables in or out of the active
-set by the signs of their bound multipliers and violations. When the active set repeats, the
-solution satisfies the full KKT conditions. Most segments need one to three iterations. If the
-sets cycle or the iteration limit is reached, the caller hands the problem to OSQP.
+This is the general path, used when a state bound binds (the fast path in :mod:`.riccati` handles
+the rate bounds alone). Bounds are handled exactly by an active-set method: each iteration fixes
+the working set at its bounds and solves the equality-constrained KKT system; bounds with a
+multiplier of the wrong sign leave, violated ones enter. A full primal-dual active-set update
+(Hintermüller, Ito and Kunisch 2003) is unstable with state bounds (the set overshoots to
+hundreds of bounds and the KKT system turns singular), so changes are made a few at a time. If
+the working set cycles, the KKT system is singular or the iteration limit is reached, the caller
+hands the problem to OSQP.
 """
 
 from __future__ import annotations
@@ -113,10 +115,30 @@ def _values(p: CompensationProblem) -> FloatArray:
     return np.concatenate(parts)
 
 
+def _runs(mask: NDArray[np.bool_], k: int) -> list[IntArray]:
+    """Indices of ``mask`` (shape (5K,)) grouped into runs consecutive in time per component."""
+    grid = mask.reshape(k, STAGE)
+    runs: list[IntArray] = []
+    for comp in range(STAGE):
+        idx = np.flatnonzero(grid[:, comp])
+        if idx.size == 0:
+            continue
+        for part in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
+            runs.append(part * STAGE + comp)
+    return runs
+
+
 def solve_structured(p: CompensationProblem, *, max_iterations: int = 50,
                      initial_active: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None,
                      ) -> StructuredSolution:
-    """Solve the compensation QP by the primal-dual active-set method on the banded KKT."""
+    """Solve the compensation QP with an active-set method on the banded KKT system.
+
+    Each iteration fixes the working set at its bounds and solves the KKT system by banded LU.
+    If a working bound has a multiplier of the wrong sign, the worst one is released; otherwise,
+    if bounds are violated, the most violated bound of each run of violations (consecutive in
+    time) is added. When neither happens the KKT conditions hold. Starting from a good working
+    set (the fast path's rate bounds), few iterations are needed.
+    """
     k = p.steps
     n = _WIDTH * k
     rows, cols, band_rows, z_index = _pattern(k)
@@ -133,19 +155,27 @@ def solve_structured(p: CompensationProblem, *, max_iterations: int = 50,
     diag = np.zeros(n)
     on_diag = rows == cols
     diag[rows[on_diag]] = vals[on_diag]
-    c = np.maximum(diag[z_index], 1e-8)          # PDAS scaling per variable
+    scale = np.maximum(diag[z_index], 1e-8)       # curvature per variable, to compare multipliers
+    width = np.maximum(upper - lower, 1e-12)
     fixed = upper - lower <= 0.0
     tol_z = 1e-10 * (1.0 + np.abs(lower) + np.abs(upper))
     if initial_active is None:
         act_lo, act_hi = fixed.copy(), np.zeros_like(fixed)
     else:
-        act_lo, act_hi = initial_active[0] | fixed, initial_active[1] & ~fixed
+        act_lo = initial_active[0] | fixed
+        act_hi = initial_active[1] & ~act_lo
     offsets = np.arange(-_KL, _KU + 1)
     seen: set[bytes] = set()
     z = np.zeros(STAGE * k)
     message = "iteration limit"
+    iteration = 0
     for iteration in range(1, max_iterations + 1):
         active = act_lo | act_hi
+        key = np.packbits(np.concatenate([act_lo, act_hi])).tobytes()
+        if key in seen:
+            message = "the working set cycles"
+            break
+        seen.add(key)
         ab = base.copy()
         rhs = rhs_base.copy()
         if active.any():
@@ -165,18 +195,20 @@ def solve_structured(p: CompensationProblem, *, max_iterations: int = 50,
         z = x[z_index]
         # bound multipliers mu = -(P z + q + E^T lambda) from the unmodified stationarity rows
         stationarity = np.bincount(rows, weights=vals * x[cols], minlength=n)[z_index] + q
-        mu = np.where(active, -stationarity, 0.0)
-        new_hi = ~fixed & (mu + c * (z - upper) > c * tol_z)
-        new_lo = fixed | (mu + c * (z - lower) < -c * tol_z)
-        new_hi &= ~new_lo
-        if np.array_equal(new_hi, act_hi) and np.array_equal(new_lo, act_lo):
+        mu = -stationarity
+        wrong = ~fixed & ((act_hi & (mu < -1e-9 * scale)) | (act_lo & (mu > 1e-9 * scale)))
+        if wrong.any():
+            worst = int(np.argmax(np.where(wrong, np.abs(mu) / scale, -1.0)))
+            act_lo[worst] = act_hi[worst] = False
+            continue
+        below = ~active & (z < lower - tol_z)
+        above = ~active & (z > upper + tol_z)
+        if not (below.any() or above.any()):
             return StructuredSolution(z=z, converged=True, iterations=iteration,
                                       active=int(active.sum()), message="optimal")
-        key = np.packbits(np.concatenate([new_lo, new_hi])).tobytes()
-        if key in seen:
-            message = "the active set cycles"
-            break
-        seen.add(key)
-        act_lo, act_hi = new_lo, new_hi
+        violation = np.where(below, lower - z, np.where(above, z - upper, 0.0)) / width
+        for run in _runs(below | above, k):
+            i = int(run[np.argmax(violation[run])])
+            act_lo[i], act_hi[i] = bool(below[i]), bool(above[i])
     return StructuredSolution(z=z, converged=False, iterations=iteration,
                               active=int((act_lo | act_hi).sum()), message=message)
