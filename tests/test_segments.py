@@ -61,8 +61,14 @@ def test_gather_copies_the_right_samples(clean_drive: SimulatedDrive) -> None:
     s = int(segs.start[1])
     np.testing.assert_array_equal(batch.inputs.n_rl[1], d.n_rl[s:s + 650])
     np.testing.assert_array_equal(batch.reference[1, :, 2], d.psi[s:s + 651])
-    ragged = gather_ragged([d], validation_segments([d], SegmentSettings()))
-    assert ragged.reference.shape[0] == int(ragged.steps.sum()) + len(ragged)
+    vsegs = validation_segments([d], SegmentSettings())
+    ragged = gather_ragged([d], vsegs)
+    assert ragged.reference.shape[0] == int(ragged.steps.sum())
+    first = int(vsegs.start[1])
+    np.testing.assert_array_equal(ragged.initial[1], [d.x[first], d.y[first], d.psi[first]])
+    row = int(ragged.steps[0])                            # first row of segment 1
+    np.testing.assert_array_equal(ragged.reference[row], [d.x[first + 1], d.y[first + 1],
+                                                          d.psi[first + 1]])
 
 
 def test_segments_from_several_drives(clean_drive: SimulatedDrive,

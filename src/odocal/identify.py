@@ -17,6 +17,7 @@ uncertainty ``prior_std``). They are named in the result, never silently estimat
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,8 +46,6 @@ class Linearisation:
         Upper-triangular R of the QR factorisation of ``[sqrt(W) J | sqrt(W) R]``.
     scores : ndarray, shape (N, 4)
         Per-segment ``J_s^T W R_s``.
-    information : ndarray, shape (N, 4, 4)
-        Per-segment ``J_s^T W J_s``.
     residual_ss : ndarray, shape (3,)
         Unweighted sums of squared residuals of p_x, p_y, psi.
     samples : int
@@ -57,46 +56,61 @@ class Linearisation:
     cost: float
     r_factor: FloatArray
     scores: FloatArray
-    information: FloatArray
     residual_ss: FloatArray
     samples: int
 
 
-def linearise(batch: SegmentBatch, theta: FloatArray, weights: FloatArray) -> Linearisation:
-    """Residuals and Jacobians of every segment at ``theta``, reduced to a 5x5 R factor."""
+def _weighted_chunks(batch: SegmentBatch, theta: FloatArray, weights: FloatArray,
+                     ) -> Iterator[tuple[int, FloatArray, FloatArray, FloatArray]]:
+    """Per chunk of segments: (first index, sqrt(W) J (n, K, 3, 4), sqrt(W) R (n, K, 3), R)."""
     sqrt_w = np.sqrt(np.asarray(weights, dtype=np.float64))
-    n = len(batch)
-    scores = np.empty((n, 4))
-    information = np.empty((n, 4, 4))
-    residual_ss = np.zeros(3)
-    stacked: list[FloatArray] = []
-    cost = 0.0
-    for lo in range(0, n, _CHUNK_SEGMENTS):
+    for lo in range(0, len(batch), _CHUNK_SEGMENTS):
         part = batch.take(slice(lo, lo + _CHUNK_SEGMENTS))
         poses, jac = rollout_with_jacobian(theta, part.inputs, part.reference[:, 0], batch.t_s)
         r = pose_residuals(part.reference[:, 1:], poses[:, 1:])          # (n, K, 3)
+        yield lo, jac[:, 1:] * sqrt_w[:, None], r * sqrt_w, r
+
+
+def linearise(batch: SegmentBatch, theta: FloatArray, weights: FloatArray) -> Linearisation:
+    """Residuals and Jacobians of every segment at ``theta``, reduced to a 5x5 R factor."""
+    n = len(batch)
+    scores = np.empty((n, 4))
+    residual_ss = np.zeros(3)
+    stacked: list[FloatArray] = []
+    cost = 0.0
+    for lo, a, rw, r in _weighted_chunks(batch, theta, weights):
         residual_ss += np.einsum("nki,nki->i", r, r)
-        r *= sqrt_w
-        a = jac[:, 1:] * sqrt_w[:, None]                                  # (n, K, 3, 4)
-        cost += float(np.einsum("nki,nki->", r, r))
-        scores[lo:lo + len(part)] = np.einsum("nkij,nki->nj", a, r)
-        information[lo:lo + len(part)] = np.einsum("nkij,nkil->njl", a, a)
-        block = np.concatenate([a.reshape(-1, 4), r.reshape(-1, 1)], axis=1)
-        stacked.append(qr(block, mode="r", check_finite=False)[0][:5])
+        cost += float(np.einsum("nki,nki->", rw, rw))
+        scores[lo:lo + a.shape[0]] = np.einsum("nkij,nki->nj", a, rw)
+        # [A | r] in Fortran order, so that LAPACK factorises it in place
+        block = np.empty((rw.size, 5), order="F")
+        block[:, :4] = a.reshape(-1, 4)
+        block[:, 4] = rw.ravel()
+        stacked.append(qr(block, mode="r", check_finite=False, overwrite_a=True)[0][:5])
     r_factor = stacked[0] if len(stacked) == 1 else qr(np.concatenate(stacked), mode="r",
                                                        check_finite=False)[0][:5]
     if r_factor.shape[0] < 5:  # fewer rows than columns (a degenerate, tiny batch)
         r_factor = np.vstack([r_factor, np.zeros((5 - r_factor.shape[0], 5))])
     return Linearisation(theta=np.asarray(theta, dtype=np.float64).copy(), cost=cost,
-                         r_factor=r_factor, scores=scores, information=information,
-                         residual_ss=residual_ss, samples=n * batch.steps)
+                         r_factor=r_factor, scores=scores, residual_ss=residual_ss,
+                         samples=n * batch.steps)
+
+
+def segment_information(batch: SegmentBatch, theta: FloatArray,
+                        weights: FloatArray) -> FloatArray:
+    """Per-segment ``J_s^T W J_s`` at ``theta``, shape (N, 4, 4) (for bootstrap and diagnostics)."""
+    out = np.empty((len(batch), 4, 4))
+    for lo, a, _, _ in _weighted_chunks(batch, theta, weights):
+        out[lo:lo + a.shape[0]] = np.einsum("nkij,nkil->njl", a, a)
+    return out
 
 
 @dataclass(frozen=True)
 class IdentificationResult:
     """The outcome of a Gauss-Newton identification.
 
-    theta : the identified parameters (unidentified ones keep their initial values)
+    theta : the identified parameters (unidentified ones keep their datasheet values)
+    theta0 : the datasheet values
     success : False when the iteration could not improve on the initial guess or broke down
     message : why the iteration stopped
     iterations : accepted G-N steps
@@ -111,7 +125,7 @@ class IdentificationResult:
         ``sigma^2 (J^T W J)^-1`` with ``sigma^2 = V / (m - p)``, assuming white residuals.
     segments : number of segments identified from
     residual_rms : RMS of the p_x, p_y (m) and psi (rad) residuals at the final theta
-    segment_scores, segment_information : per-segment ``J^T W R`` and ``J^T W J`` at the final theta
+    segment_scores : per-segment ``J^T W R`` at the final theta
     """
 
     theta: Parameters
@@ -128,7 +142,6 @@ class IdentificationResult:
     segments: int
     residual_rms: tuple[float, float, float]
     segment_scores: FloatArray = field(repr=False)
-    segment_information: FloatArray = field(repr=False)
 
     @property
     def std(self) -> FloatArray:
@@ -158,21 +171,23 @@ class IdentificationResult:
 
 
 def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
-                 theta0: FloatArray | None = None, clusters: IntArray | None = None,
+                 start: FloatArray | None = None, clusters: IntArray | None = None,
                  fixed: tuple[str, ...] = ()) -> IdentificationResult:
     """Pure (one segment) or batch (several) Gauss-Newton identification.
 
     Parameters
     ----------
     batch : the segments, with the wheel rates to identify from (measured or compensated)
-    settings : weights, iteration limit, identifiability thresholds
-    theta0 : initial guess; ``settings.theta0`` (the datasheet) when None
+    settings : weights, iteration limit, identifiability thresholds; ``settings.theta0`` holds the
+        datasheet values, which parameters the data cannot identify keep
+    start : initial guess (default: the datasheet values)
     clusters : ndarray of int, shape (N,), optional
         Group label of each segment for the cluster-robust covariance: segments that overlap in
         time belong together. Each segment is its own group when None.
-    fixed : names of parameters to keep at ``theta0`` regardless of the data
+    fixed : names of parameters to keep at their datasheet values regardless of the data
     """
-    theta_init = np.asarray(settings.theta0 if theta0 is None else theta0, dtype=np.float64)
+    datasheet = np.asarray(settings.theta0, dtype=np.float64)
+    theta_init = datasheet.copy() if start is None else np.asarray(start, dtype=np.float64)
     weights = np.asarray(settings.weights, dtype=np.float64)
     prior = np.asarray(settings.prior_std, dtype=np.float64)
     free = np.array([name not in fixed for name in PARAMETER_NAMES])
@@ -180,9 +195,14 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
     if clusters is None:
         clusters = np.arange(len(batch), dtype=np.int64)
 
+    theta_init[~free] = datasheet[~free]
     lin0 = linearise(batch, theta_init, weights)
-    free, why = _numerically_free(lin0.r_factor, prior, settings.rcond, free)
+    numeric_free, why = _numerically_free(lin0.r_factor, prior, settings.rcond, free)
     reasons.update(why)
+    if not np.array_equal(numeric_free, free):
+        free = numeric_free
+        theta_init[~free] = datasheet[~free]
+        lin0 = linearise(batch, theta_init, weights)
 
     while True:
         theta, lin, history, iterations, success, message = _iterate(
@@ -196,6 +216,8 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
             cov, kind = cov_naive, "residual"
         std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
         weak = free & (std > settings.identifiable_ratio * prior)
+        if not settings.judge_identifiability:
+            weak[:] = False
         if not weak.any() or not _settled(history, message, settings):
             # before the iteration settles, residuals measure the misfit of the estimate, not
             # the noise, and say nothing about what the data can identify
@@ -203,27 +225,31 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
         for j in np.flatnonzero(weak):
             name = PARAMETER_NAMES[j]
             reasons[name] = (f"the data determine {name} only to +-{std[j]:.3g} "
-                             f"(datasheet uncertainty {prior[j]:.3g}); kept at "
-                             f"{theta_init[j]:.6g}")
+                             f"(datasheet uncertainty {prior[j]:.3g}); kept at the datasheet "
+                             f"value {datasheet[j]:.6g}")
         free = free & ~weak
+        theta_init = theta.copy()
+        theta_init[~free] = datasheet[~free]
         if not free.any():
-            theta, lin, history = theta_init.copy(), lin0, [lin0.cost]
+            lin = linearise(batch, theta_init, weights)
+            theta, history = theta_init, [lin.cost]
             iterations, success = 0, False
             message = "no parameter is identifiable from these segments"
             cov = cov_naive = np.zeros((4, 4))
             kind = "residual"
             break
+        lin0 = linearise(batch, theta_init, weights)
 
     rms = np.sqrt(lin.residual_ss / max(lin.samples, 1))
     if not success:
         log.warning("identification: %s", message)
     return IdentificationResult(
-        theta=Parameters.from_array(theta), theta0=Parameters.from_array(theta_init),
+        theta=Parameters.from_array(theta), theta0=Parameters.from_array(datasheet),
         success=success, message=message, iterations=iterations,
         cost_history=tuple(history), identified=tuple(bool(f) for f in free),  # type: ignore[arg-type]
         reasons=reasons, covariance=cov, covariance_kind=kind, covariance_naive=cov_naive,
         segments=len(batch), residual_rms=(float(rms[0]), float(rms[1]), float(rms[2])),
-        segment_scores=lin.scores, segment_information=lin.information)
+        segment_scores=lin.scores)
 
 
 def _iterate(batch: SegmentBatch, theta_init: FloatArray, lin0: Linearisation,
@@ -297,7 +323,7 @@ def _numerically_free(r_factor: FloatArray, prior: FloatArray, rcond: float,
         worst = cols[int(np.argmax(np.abs(vt[-1])))] if s_max > 0 else cols[0]
         name = PARAMETER_NAMES[worst]
         reasons[name] = (f"these segments carry no information on {name} (rank-deficient "
-                         "normal equations); kept at its initial value")
+                         "normal equations); kept at the datasheet value")
         free[worst] = False
     return free, reasons
 

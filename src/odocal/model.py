@@ -245,37 +245,37 @@ def pose_residuals(reference: FloatArray, predicted: FloatArray) -> FloatArray:
 
 
 def rollout_ragged(theta: FloatArray, u: Inputs, x0: FloatArray, steps: NDArray[np.int64],
-                   t_s: float) -> FloatArray:
+                   t_s: float, *, segment: NDArray[np.int64] | None = None) -> FloatArray:
     """Roll out many segments of different lengths stored one after another.
 
     Parameters
     ----------
     u : Inputs with arrays of shape (L,), ``L = steps.sum()``; segment after segment.
-    x0 : ndarray, shape (S, 3)
+    x0 : ndarray, shape (S, 3), the initial pose of each segment
     steps : ndarray of int, shape (S,)
+    segment : ndarray of int, shape (L,), optional
+        Segment number of each input sample (``np.repeat(np.arange(S), steps)``); pass it when
+        rolling out the same segments many times.
 
     Returns
     -------
-    poses : ndarray, shape (L + S, 3)
-        ``steps[s] + 1`` poses per segment, segment after segment.
+    poses : ndarray, shape (L, 3)
+        The pose after each step: row j is the pose that input sample j leads to.
     """
+    if segment is None:
+        segment = np.repeat(np.arange(steps.shape[0]), steps)
+    first = np.concatenate([[0], np.cumsum(steps)[:-1]]).astype(np.int64)
     v, w = body_rates(theta, u.n_rl, u.n_rr, u.a_y)
-    n_seg = steps.shape[0]
-    first_row = np.concatenate([[0], np.cumsum(steps + 1)[:-1]]).astype(np.int64)
-    rows = np.ones(int(steps.sum()) + n_seg, dtype=bool)
-    rows[first_row] = False                                   # rows that follow a model step
-
-    def segmented_cumsum(increments: FloatArray) -> FloatArray:
-        padded = np.zeros(rows.shape[0])
-        padded[rows] = increments
-        total = np.cumsum(padded)
-        return total - np.repeat(total[first_row], steps + 1)
-
-    psi = np.repeat(x0[:, 2], steps + 1) + segmented_cumsum(w * t_s)
-    heading = psi[np.flatnonzero(rows) - 1] + 0.5 * t_s * w + u.beta
-    step = v * t_s
-    poses = np.empty((rows.shape[0], 3))
-    poses[:, 0] = np.repeat(x0[:, 0], steps + 1) + segmented_cumsum(step * np.cos(heading))
-    poses[:, 1] = np.repeat(x0[:, 1], steps + 1) + segmented_cumsum(step * np.sin(heading))
-    poses[:, 2] = psi
+    turn = w * t_s
+    before = np.cumsum(turn) - turn                       # heading change before each step
+    psi = x0[segment, 2] + before - before[first][segment]
+    heading = psi + 0.5 * turn + u.beta                   # (1): psi + w t_s / 2 + beta
+    length = v * t_s
+    poses = np.empty((v.shape[0], 3))
+    for axis, trig in ((0, np.cos), (1, np.sin)):
+        step = length * trig(heading)
+        travelled = np.cumsum(step)
+        travelled -= (travelled[first] - step[first])[segment]
+        poses[:, axis] = x0[segment, axis] + travelled
+    poses[:, 2] = psi + turn
     return poses

@@ -225,19 +225,28 @@ class RaggedSegments:
     """Segments of different lengths, flattened (for validation).
 
     inputs : Inputs with arrays of shape (L,), L = sum of steps
-    reference : ndarray, shape (L + S, 3)
-        Measured poses, ``steps[s] + 1`` rows per segment, segment after segment.
+    initial : ndarray, shape (S, 3), the measured pose at each segment's start
+    reference : ndarray, shape (L, 3)
+        Measured poses after each step (the rows ``rollout_ragged`` predicts).
     steps : ndarray of int, shape (S,)
+    segment : ndarray of int, shape (L,), the segment of each sample
     t_s : float
     """
 
     inputs: Inputs
+    initial: FloatArray
     reference: FloatArray
     steps: IntArray
+    segment: IntArray
     t_s: float
 
     def __len__(self) -> int:
         return int(self.steps.shape[0])
+
+    @property
+    def first(self) -> IntArray:
+        """Index of each segment's first sample."""
+        return np.concatenate([[0], np.cumsum(self.steps)[:-1]]).astype(np.int64)
 
 
 def gather_ragged(drives: Sequence[Drive], segments: SegmentSet) -> RaggedSegments:
@@ -245,15 +254,20 @@ def gather_ragged(drives: Sequence[Drive], segments: SegmentSet) -> RaggedSegmen
     t_s = common_sampling_time(drives)
     parts: dict[str, list[FloatArray]] = {k: [] for k in ("n_rl", "n_rr", "beta", "a_y")}
     ref_parts: list[FloatArray] = []
+    initial: list[FloatArray] = []
     for d, s, k in zip(segments.drive, segments.start, segments.steps, strict=True):
         drive = drives[int(d)]
         for key in parts:
             parts[key].append(getattr(drive, key)[s:s + k])
-        ref_parts.append(np.column_stack([drive.x[s:s + k + 1], drive.y[s:s + k + 1],
-                                          drive.psi[s:s + k + 1]]))
+        pose = np.column_stack([drive.x[s:s + k + 1], drive.y[s:s + k + 1],
+                                drive.psi[s:s + k + 1]])
+        initial.append(pose[0])
+        ref_parts.append(pose[1:])
     if not ref_parts:
         raise DataError("no validation segments: the drives are too short for "
                         "the validation distance")
     inputs = Inputs(**{key: np.concatenate(v) for key, v in parts.items()})
-    return RaggedSegments(inputs=inputs, reference=np.concatenate(ref_parts),
-                          steps=segments.steps.copy(), t_s=t_s)
+    steps = segments.steps.copy()
+    return RaggedSegments(inputs=inputs, initial=np.array(initial),
+                          reference=np.concatenate(ref_parts), steps=steps,
+                          segment=np.repeat(np.arange(steps.shape[0]), steps), t_s=t_s)

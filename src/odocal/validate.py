@@ -41,18 +41,15 @@ class SegmentErrors:
 
 def segment_errors(theta: FloatArray, data: RaggedSegments) -> SegmentErrors:
     """Validation errors of ``theta`` on every segment of ``data``."""
-    first_row = np.concatenate([[0], np.cumsum(data.steps + 1)[:-1]]).astype(np.int64)
-    x0 = data.reference[first_row]
-    poses = rollout_ragged(np.asarray(theta, dtype=np.float64), data.inputs, x0, data.steps,
-                           data.t_s)
+    poses = rollout_ragged(np.asarray(theta, dtype=np.float64), data.inputs, data.initial,
+                           data.steps, data.t_s, segment=data.segment)
     err = np.hypot(poses[:, 0] - data.reference[:, 0], poses[:, 1] - data.reference[:, 1])
-    # row first_row[s] has zero error by construction, so the sum over rows of segment s
-    # divided by steps[s] is the mean over k = 1..K.
-    sums = np.add.reduceat(err, first_row)
-    last_row = first_row + data.steps
-    dpsi = np.abs(np.remainder(poses[last_row, 2] - data.reference[last_row, 2] + np.pi,
-                               2 * np.pi) - np.pi)
-    return SegmentErrors(mean_m=sums / data.steps, final_m=err[last_row], final_heading_rad=dpsi)
+    first = data.first
+    last = first + data.steps - 1
+    dpsi = np.abs(np.remainder(poses[last, 2] - data.reference[last, 2] + np.pi, 2 * np.pi)
+                  - np.pi)
+    return SegmentErrors(mean_m=np.add.reduceat(err, first) / data.steps, final_m=err[last],
+                         final_heading_rad=dpsi)
 
 
 def mean_error(theta: FloatArray, data: RaggedSegments) -> float:
