@@ -62,7 +62,8 @@ def _settings(args: argparse.Namespace) -> Settings:
         overrides.setdefault("calibrate", {})["method"] = args.method
     if getattr(args, "workers", None) is not None:
         overrides.setdefault("calibrate", {})["workers"] = args.workers
-    if getattr(args, "seed", None) is not None and args.command in ("calibrate", "minimum"):
+    if getattr(args, "seed", None) is not None and args.command in ("calibrate", "minimum",
+                                                                    "reproduce"):
         overrides.setdefault("calibrate", {})["seed"] = args.seed
     return settings.replace(**overrides) if overrides else settings
 
@@ -265,6 +266,27 @@ def cmd_minimum(args: argparse.Namespace) -> int:
     return EXIT_OK if result.success else EXIT_FAILED
 
 
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from odocal.io.results import write_json
+    from odocal.reproduce import format_report, reproduce
+
+    settings = _settings(args)
+    if not args.quiet:
+        _print(f"reproducing the paper's experiment on a simulated {args.distance_km:g} km drive "
+               f"(seed {args.seed}, noise '{args.noise}') ...")
+    progress = _Progress(not args.quiet)
+    try:
+        result = reproduce(seed=args.seed, noise=args.noise, distance_km=args.distance_km,
+                           settings=settings, minimum=not args.no_minimum, progress=progress)
+    finally:
+        progress.close()
+    _print(format_report(result))
+    if args.out:
+        write_json(args.out, result.to_dict())
+        _print(f"wrote {args.out}")
+    return EXIT_OK
+
+
 def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="TOML", help="settings file (see README, 'Settings')")
     p.add_argument("--workers", type=int, metavar="N",
@@ -323,6 +345,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="calibration.json to validate (default: the datasheet parameters)")
     _add_common(p)
     p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("reproduce", help="the paper's experiment on a simulated ~24 km drive")
+    p.add_argument("--seed", type=int, default=0, help="simulation and batch seed (default 0)")
+    p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic")
+    p.add_argument("--distance-km", type=float, default=24.0, help="drive length (default 24)")
+    p.add_argument("--no-minimum", action="store_true",
+                   help="skip the global search for the reachable minimum")
+    p.add_argument("--out", metavar="JSON", help="write the numbers to this file")
+    _add_common(p)
+    p.set_defaults(func=cmd_reproduce)
 
     p = sub.add_parser("minimum", help="the reachable minimum validation error (global search)")
     p.add_argument("logs", nargs="+", metavar="LOG")

@@ -87,6 +87,9 @@ class IdentifySettings:
     """How uncertain the datasheet values are; a parameter whose data standard deviation exceeds
     ``identifiable_ratio`` times this is reported as not identified by the drive."""
     identifiable_ratio: float = 0.5
+    judge_identifiability: bool = True
+    """Keep parameters the data determine too loosely at their initial values (and name them).
+    Off, every parameter with full-rank normal equations is estimated, however loosely."""
     rcond: float = 1e-9
     """Relative singular value below which the scaled normal equations count as rank deficient."""
 
