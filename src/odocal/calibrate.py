@@ -181,9 +181,18 @@ def segment_clusters(segments: SegmentSet, block: int) -> IntArray:
     return (segments.drive * (10**9) + segments.start // max(block, 1)).astype(np.int64)
 
 
-def select_identification(segments: SegmentSet, settings: Settings,
-                          warnings: list[str]) -> NDArray[np.bool_]:
-    """The selection rule, with the weak-data fallback to every segment."""
+#: Parameters observable only through the yaw equation in bends (METHOD 2).
+NEED_BENDS = ("t_r", "d")
+
+
+def select_identification(segments: SegmentSet, settings: Settings, warnings: list[str]
+                          ) -> tuple[NDArray[np.bool_], dict[str, str]]:
+    """The selection rule, with the weak-data fallback to every segment.
+
+    Returns the mask of segments to identify from and the parameters to keep at their datasheet
+    values with the reason: without bends, t_r and d are not observable (the load transfer and the
+    track width act on the yaw rate only when the vehicle turns).
+    """
     seg = settings.segments
     if len(segments) == 0:
         raise DataError(
@@ -191,12 +200,15 @@ def select_identification(segments: SegmentSet, settings: Settings,
             f"({seg.length} samples); shorten [segments] length or give longer logs")
     selected = segments.selected
     if int(selected.sum()) >= seg.min_selected:
-        return selected.copy()
+        return selected.copy(), {}
+    peak = float(segments.peak_yaw_rate_radps.max())
     warnings.append(
         f"only {int(selected.sum())} of {len(segments)} segments have a peak yaw rate above "
-        f"{seg.yaw_rate_threshold_radps} rad/s; identifying from all of them. c_d, t_r and d "
-        "are observable only through the yaw equation and need bends")
-    return np.ones(len(segments), dtype=bool)
+        f"{seg.yaw_rate_threshold_radps} rad/s; identifying from all of them")
+    reason = (f"needs bends: no segment has a peak yaw rate above "
+              f"{seg.yaw_rate_threshold_radps} rad/s (the largest is {peak:.3f} rad/s); kept at "
+              "the datasheet value")
+    return np.ones(len(segments), dtype=bool), {name: reason for name in NEED_BENDS}
 
 
 def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
@@ -250,7 +262,7 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     warnings: list[str] = []
 
     id_segments = identification_segments(drive_list, settings.segments)
-    used = select_identification(id_segments, settings, warnings)
+    used, fixed = select_identification(id_segments, settings, warnings)
     val_segments = validation_segments(drive_list, settings.segments)
     val_data = gather_ragged(drive_list, val_segments) if len(val_segments) else None
     if val_data is None:
@@ -266,18 +278,18 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     if method == "raw":
         if progress:
             progress("identify", 0, 1)
-        ident = gauss_newton(batch, settings=settings.identify, clusters=clusters)
+        ident = gauss_newton(batch, settings=settings.identify, clusters=clusters, fixed=fixed)
         if progress:
             progress("identify", 1, 1)
     elif method == "compensated":
         outcome = three_step(batch, val_data, settings=settings, clusters=clusters,
-                             progress=progress)
+                             fixed=fixed, progress=progress)
         ident = outcome.final
         warnings.extend(outcome.warnings)
     else:
         from odocal.joint import joint_calibration
 
-        joint = joint_calibration(drive_list, settings=settings, progress=progress)
+        joint = joint_calibration(drive_list, settings=settings, fixed=fixed, progress=progress)
         ident = joint.identification
         warnings.extend(joint.warnings)
 

@@ -65,6 +65,10 @@ def _settings(args: argparse.Namespace) -> Settings:
     if getattr(args, "seed", None) is not None and args.command in ("calibrate", "minimum",
                                                                     "reproduce"):
         overrides.setdefault("calibrate", {})["seed"] = args.seed
+    if getattr(args, "reference", None):
+        overrides.setdefault("convert", {})["reference"] = args.reference
+    if getattr(args, "circumference", None) is not None:
+        overrides.setdefault("convert", {})["wheel_circumference_m"] = args.circumference
     return settings.replace(**overrides) if overrides else settings
 
 
@@ -192,9 +196,31 @@ def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
             _print(f"wrote {path}")
 
 
+def _drives_from(args: argparse.Namespace, settings: Settings) -> list[Any]:
+    """Drive files, or raw logs converted in memory with --from."""
+    if getattr(args, "source_format", None):
+        from odocal.convert import convert
+
+        drives = convert(args.source_format, args.logs, mapping=args.mapping,
+                         scenes=args.scene, settings=settings)
+        if not args.quiet:
+            for d in drives:
+                _print(_conversion_line(d))
+        return drives
+    return load_drives(args.logs)
+
+
+def _conversion_line(drive: Any) -> str:
+    c = drive.metadata.get("conversion", {})
+    offset = (c.get("wheel_offset") or {}).get("message", "no wheel offset estimate")
+    return (f"converted {drive.name}: {drive.duration_s:.1f} s, {drive.distance_m:.0f} m, "
+            f"{len(drive.pieces)} piece(s), reference {c.get('reference')}; {offset}; "
+            f"sideslip {c.get('sideslip')}")
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     settings = _settings(args)
-    drives = load_drives(args.logs)
+    drives = _drives_from(args, settings)
     progress = _Progress(not args.quiet)
     try:
         result = calibrate(drives, settings=settings, progress=progress)
@@ -202,8 +228,56 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         progress.close()
     if not args.quiet:
         print_summary(result)
-    _write_outputs(result, args, inputs=[*args.logs, *([args.config] if args.config else [])])
+    _write_outputs(result, args, inputs=[*args.logs, *([args.config] if args.config else []),
+                                         *([args.mapping] if getattr(args, "mapping", None)
+                                           else [])])
     return EXIT_OK if result.success else EXIT_FAILED
+
+
+def cmd_convert(args: argparse.Namespace) -> int:
+    from odocal.io import save_drive
+    from odocal.io.atomic import refuse_inputs
+
+    settings = _settings(args)
+    out = Path(args.out)
+    inputs = [*args.logs, *([args.mapping] if args.mapping else [])]
+    refuse_inputs(out, inputs)
+    drives = _drives_from(args, settings)
+    targets = [out] if len(drives) == 1 else \
+        [out.with_name(f"{out.stem}-{_safe(d.name)}{out.suffix}") for d in drives]
+    for drive, target in zip(drives, targets, strict=True):
+        refuse_inputs(target, inputs)
+        save_drive(drive, target)
+        if not args.quiet:
+            _print(f"wrote {target} ({drive.n_samples} samples at "
+                   f"{1 / drive.t_s:.0f} Hz)")
+    return EXIT_OK
+
+
+def _safe(name: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in Path(name).name)
+
+
+def cmd_inspect(args: argparse.Namespace) -> int:
+    from odocal.convert import inspect
+
+    settings = _settings(args)
+    for found in inspect(args.source_format, args.logs, mapping=args.mapping, scenes=args.scene,
+                         settings=settings):
+        _print(f"{found.log.name} ({found.log.metadata.get('source_format')}):")
+        _print(f"  {'role':<8} {'stream':<34} {'samples':>8} {'rate Hz':>8} {'span s':>8} "
+               f"{'gaps':>5} {'longest gap s':>13} {'repaired':>9}  units")
+        for role, r in found.streams.items():
+            repaired = f"{r.out_of_order}o/{r.duplicates}d/{r.missing}m"
+            units = ", ".join(f"{k} {v}" for k, v in r.units.items())
+            _print(f"  {role:<8} {r.name[:34]:<34} {r.samples:>8} {r.rate_hz:>8.1f} "
+                   f"{r.end_s - r.start_s:>8.2f} {r.gaps:>5} {r.longest_gap_s:>13.3f} "
+                   f"{repaired:>9}  {units}")
+        spans = [(r.start_s, r.end_s) for r in found.streams.values()]
+        overlap = min(b for _, b in spans) - max(a for a, _ in spans)
+        _print(f"  common span {max(overlap, 0.0):.2f} s "
+               "(repaired: out-of-order / duplicate stamps / samples with missing values)")
+    return EXIT_OK
 
 
 def _parameters_from(args: argparse.Namespace, settings: Settings) -> Parameters:
@@ -287,6 +361,21 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _add_source(p: argparse.ArgumentParser, *, required: bool) -> None:
+    from odocal.convert import FORMATS
+
+    p.add_argument("--from", dest="source_format", choices=FORMATS, required=required,
+                   help="raw log format")
+    p.add_argument("--mapping", metavar="TOML",
+                   help="which files/topics and columns/fields hold each stream (see README)")
+    p.add_argument("--scene", action="append", metavar="NAME",
+                   help="nuScenes scene to use (repeatable; default all)")
+    p.add_argument("--reference", choices=("auto", "fused", "gnss-imu"),
+                   help="reference pose: the log's fused pose, or odocal's GNSS/IMU fusion")
+    p.add_argument("--circumference", type=float, metavar="M",
+                   help="nominal wheel circumference for wheel speeds in m/s or km/h")
+
+
 def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="TOML", help="settings file (see README, 'Settings')")
     p.add_argument("--workers", type=int, metavar="N",
@@ -329,7 +418,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("calibrate", help="calibrate from drive logs of one vehicle")
-    p.add_argument("logs", nargs="+", metavar="LOG", help="drive-format files (.csv, .parquet)")
+    p.add_argument("logs", nargs="+", metavar="LOG",
+                   help="drive-format files (.csv, .parquet), or raw logs with --from")
+    _add_source(p, required=False)
     p.add_argument("--out", required=True, metavar="DIR", help="folder for calibration.json")
     p.add_argument("--method", choices=("compensated", "raw", "joint"),
                    help="compensated (three-step, default), raw (batch G-N) or joint")
@@ -338,6 +429,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write the compensated wheel rates (compensated_inputs.parquet)")
     _add_common(p)
     p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("convert", help="turn raw logs into the drive format")
+    p.add_argument("logs", nargs="+", metavar="SOURCE",
+                   help="nuScenes folders, comma2k19 segment folders, bags or table files")
+    _add_source(p, required=True)
+    p.add_argument("--out", required=True, metavar="FILE",
+                   help="drive file (.csv or .parquet); with several logs, one file each named "
+                        "FILE-<log>")
+    _add_common(p)
+    p.set_defaults(func=cmd_convert)
+
+    p = sub.add_parser("inspect", help="list the streams in raw logs before converting them")
+    p.add_argument("logs", nargs="+", metavar="SOURCE")
+    _add_source(p, required=True)
+    _add_common(p)
+    p.set_defaults(func=cmd_inspect)
 
     p = sub.add_parser("validate", help="validation error E_p of parameters on drive logs")
     p.add_argument("logs", nargs="+", metavar="LOG")

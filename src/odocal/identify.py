@@ -17,7 +17,7 @@ uncertainty ``prior_std``). They are named in the result, never silently estimat
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,6 +50,8 @@ class Linearisation:
         Unweighted sums of squared residuals of p_x, p_y, psi.
     samples : int
         Number of residual samples (segments times K).
+    lag1 : float
+        Lag-1 autocorrelation of the weighted residuals along each segment (pooled).
     """
 
     theta: FloatArray
@@ -58,6 +60,7 @@ class Linearisation:
     scores: FloatArray
     residual_ss: FloatArray
     samples: int
+    lag1: float
 
 
 def _weighted_chunks(batch: SegmentBatch, theta: FloatArray, weights: FloatArray,
@@ -78,8 +81,11 @@ def linearise(batch: SegmentBatch, theta: FloatArray, weights: FloatArray) -> Li
     residual_ss = np.zeros(3)
     stacked: list[FloatArray] = []
     cost = 0.0
+    lagged = 0.0
     for lo, a, rw, r in _weighted_chunks(batch, theta, weights):
         residual_ss += np.einsum("nki,nki->i", r, r)
+        centred = rw - rw.mean(axis=1, keepdims=True)
+        lagged += float(np.einsum("nki,nki->", centred[:, 1:], centred[:, :-1]))
         cost += float(np.einsum("nki,nki->", rw, rw))
         scores[lo:lo + a.shape[0]] = np.einsum("nkij,nki->nj", a, rw)
         # [A | r] in Fortran order, so that LAPACK factorises it in place
@@ -93,7 +99,7 @@ def linearise(batch: SegmentBatch, theta: FloatArray, weights: FloatArray) -> Li
         r_factor = np.vstack([r_factor, np.zeros((5 - r_factor.shape[0], 5))])
     return Linearisation(theta=np.asarray(theta, dtype=np.float64).copy(), cost=cost,
                          r_factor=r_factor, scores=scores, residual_ss=residual_ss,
-                         samples=n * batch.steps)
+                         samples=n * batch.steps, lag1=lagged / cost if cost > 0 else 0.0)
 
 
 def segment_information(batch: SegmentBatch, theta: FloatArray,
@@ -122,7 +128,8 @@ class IdentificationResult:
         over groups of non-overlapping segments when there are enough groups, else from the
         residual variance (see ``covariance_kind``).
     covariance_naive : ndarray, shape (4, 4)
-        ``sigma^2 (J^T W J)^-1`` with ``sigma^2 = V / (m - p)``, assuming white residuals.
+        ``sigma^2 (J^T W J)^-1`` with ``sigma^2 = V / (m - p)``, inflated by (1 + rho) / (1 - rho)
+        for the residuals' lag-1 autocorrelation rho.
     segments : number of segments identified from
     residual_rms : RMS of the p_x, p_y (m) and psi (rad) residuals at the final theta
     segment_scores : per-segment ``J^T W R`` at the final theta
@@ -172,7 +179,7 @@ class IdentificationResult:
 
 def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
                  start: FloatArray | None = None, clusters: IntArray | None = None,
-                 fixed: tuple[str, ...] = ()) -> IdentificationResult:
+                 fixed: Mapping[str, str] | None = None) -> IdentificationResult:
     """Pure (one segment) or batch (several) Gauss-Newton identification.
 
     Parameters
@@ -184,14 +191,16 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
     clusters : ndarray of int, shape (N,), optional
         Group label of each segment for the cluster-robust covariance: segments that overlap in
         time belong together. Each segment is its own group when None.
-    fixed : names of parameters to keep at their datasheet values regardless of the data
+    fixed : parameters to keep at their datasheet values regardless of the data, with the
+        reason (reported with the result)
     """
     datasheet = np.asarray(settings.theta0, dtype=np.float64)
     theta_init = datasheet.copy() if start is None else np.asarray(start, dtype=np.float64)
     weights = np.asarray(settings.weights, dtype=np.float64)
     prior = np.asarray(settings.prior_std, dtype=np.float64)
+    fixed = dict(fixed or {})
     free = np.array([name not in fixed for name in PARAMETER_NAMES])
-    reasons = {name: "fixed by the caller" for name in fixed}
+    reasons = dict(fixed)
     if clusters is None:
         clusters = np.arange(len(batch), dtype=np.int64)
 
@@ -213,7 +222,7 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
         if n_clusters >= _MIN_CLUSTERS_FOR_ROBUST:
             cov, kind = cov_robust, "cluster-robust"
         else:
-            cov, kind = cov_naive, "residual"
+            cov, kind = cov_naive, "residual (autocorrelation-corrected)"
         std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
         weak = free & (std > settings.identifiable_ratio * prior)
         if not settings.judge_identifiability:
@@ -236,7 +245,7 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
             iterations, success = 0, False
             message = "no parameter is identifiable from these segments"
             cov = cov_naive = np.zeros((4, 4))
-            kind = "residual"
+            kind = "residual (autocorrelation-corrected)"
             break
         lin0 = linearise(batch, theta_init, weights)
 
@@ -343,9 +352,16 @@ def _information_inverse(lin: Linearisation, free: NDArray[np.bool_]) -> FloatAr
 
 
 def _naive_covariance(lin: Linearisation, free: NDArray[np.bool_]) -> FloatArray:
+    """``sigma^2 (J^T W J)^-1``, inflated for the residuals' autocorrelation.
+
+    Rollout residuals are far from white (errors integrate along a segment); with lag-1
+    autocorrelation rho, the residuals carry about (1 - rho) / (1 + rho) as much independent
+    information as white ones, so the white-noise covariance is scaled by (1 + rho) / (1 - rho).
+    """
     p = int(free.sum())
     dof = max(3 * lin.samples - p, 1)
-    return (lin.cost / dof) * _information_inverse(lin, free)
+    rho = min(max(lin.lag1, 0.0), 0.999)
+    return (lin.cost / dof) * (1 + rho) / (1 - rho) * _information_inverse(lin, free)
 
 
 def _robust_covariance(lin: Linearisation, free: NDArray[np.bool_],

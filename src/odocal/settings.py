@@ -195,6 +195,94 @@ class MinimumSettings:
 
 
 @dataclass(frozen=True)
+class ConvertSettings:
+    """METHOD 7: turning raw logs into the drive format (alignment and resampling)."""
+
+    rate_hz: float = 40.0
+    """Rate of the common grid every stream is resampled to (the paper's 40 Hz)."""
+    max_gap_s: float = 0.5
+    """A stream gap longer than this (or 2.5 of its own sample periods) splits the drive."""
+    max_gnss_gap_s: float = 5.0
+    """GNSS outages up to this long are bridged by the fusion (its uncertainty grows)."""
+    min_piece_s: float = 5.0
+    """Pieces shorter than this after splitting are dropped."""
+    wheel_offset: Literal["estimate", "off"] = "estimate"
+    """Estimate the wheel stream's clock offset against the IMU yaw rate."""
+    max_wheel_offset_s: float = 0.5
+    """Search range of that estimate."""
+    wheel_circumference_m: float | None = None
+    """Nominal circumference for wheel speeds given in m/s or km/h (default: the datasheet c_e)."""
+    reference: Literal["auto", "fused", "gnss-imu"] = "auto"
+    """``fused``: a fused pose stream of the log; ``gnss-imu``: odocal's own GNSS/IMU fusion;
+    ``auto``: the fused pose when there is one."""
+
+    def __post_init__(self) -> None:
+        s = "convert"
+        _check(1.0 <= self.rate_hz <= 1000.0, s, "rate_hz", self.rate_hz, "a rate in [1, 1000] Hz")
+        _check(self.max_gap_s > 0, s, "max_gap_s", self.max_gap_s, "a positive time in s")
+        _check(self.max_gnss_gap_s > 0, s, "max_gnss_gap_s", self.max_gnss_gap_s,
+               "a positive time in s")
+        _check(self.min_piece_s >= 0, s, "min_piece_s", self.min_piece_s, "a time >= 0 s")
+        _check(self.wheel_offset in ("estimate", "off"), s, "wheel_offset", self.wheel_offset,
+               "'estimate' or 'off'")
+        _check(self.max_wheel_offset_s > 0, s, "max_wheel_offset_s", self.max_wheel_offset_s,
+               "a positive time in s")
+        _check(self.wheel_circumference_m is None or self.wheel_circumference_m > 0, s,
+               "wheel_circumference_m", self.wheel_circumference_m, "a positive length in m")
+        _check(self.reference in ("auto", "fused", "gnss-imu"), s, "reference", self.reference,
+               "'auto', 'fused' or 'gnss-imu'")
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """METHOD 7: the reference-pose Kalman filter and RTS smoother over GNSS and IMU."""
+
+    gnss_position_std_m: float = 1.5
+    """Position noise when the receiver reports no accuracy."""
+    gnss_speed_std_mps: float = 0.3
+    gnss_course_std_rad: float = 0.03
+    heading_std_rad: float = 0.02
+    gyro_noise_radps: float = 0.01
+    """Yaw-rate noise density, rad/s per sqrt(Hz)."""
+    gyro_bias_walk_radps: float = 1e-4
+    """Gyro bias random walk, rad/s per sqrt(s)."""
+    accel_noise_mps2: float = 1.0
+    """Speed random walk (unmodelled acceleration), m/s^2 per sqrt(Hz)."""
+    position_noise_m: float = 0.05
+    """Position process noise (unmodelled sideslip), m per sqrt(s)."""
+    min_course_speed_mps: float = 3.0
+    """Below this speed the GNSS course is ignored."""
+    outlier_chi2: float = 16.0
+    """A measurement whose normalised innovation squared per dimension exceeds this is rejected."""
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            _check(value > 0, "fusion", f.name, value, "a positive number")
+
+
+@dataclass(frozen=True)
+class SideslipSettings:
+    """METHOD 7: sideslip from course over ground versus heading, in bends."""
+
+    mode: Literal["auto", "on", "off"] = "auto"
+    """``auto``: estimate it when the log has a course independent of the heading."""
+    bend_yaw_rate_radps: float = 0.1
+    """Samples with a larger yaw rate (and enough speed) are in a bend; elsewhere beta = 0."""
+    min_speed_mps: float = 3.0
+    smoothing_s: float = 1.0
+    """Moving-average window of the estimate."""
+    max_abs_rad: float = 0.2
+    """Estimates beyond this are treated as course errors and set to 0."""
+
+    def __post_init__(self) -> None:
+        s = "sideslip"
+        _check(self.mode in ("auto", "on", "off"), s, "mode", self.mode, "'auto', 'on' or 'off'")
+        for key in ("bend_yaw_rate_radps", "min_speed_mps", "smoothing_s", "max_abs_rad"):
+            _check(getattr(self, key) > 0, s, key, getattr(self, key), "a positive number")
+
+
+@dataclass(frozen=True)
 class Settings:
     """Every setting of odocal. ``Settings()`` holds the paper's defaults."""
 
@@ -203,6 +291,9 @@ class Settings:
     compensate: CompensateSettings = field(default_factory=CompensateSettings)
     calibrate: CalibrateSettings = field(default_factory=CalibrateSettings)
     minimum: MinimumSettings = field(default_factory=MinimumSettings)
+    convert: ConvertSettings = field(default_factory=ConvertSettings)
+    fusion: FusionSettings = field(default_factory=FusionSettings)
+    sideslip: SideslipSettings = field(default_factory=SideslipSettings)
 
     def replace(self, **sections: Any) -> Settings:
         """A copy with whole sections or single keys replaced.

@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -137,14 +137,15 @@ def pick_at_equal_steps(order: IntArray, count: int) -> IntArray:
     return order[positions]
 
 
-def _identify_batches(args: tuple[SegmentBatch, IntArray, IdentifySettings]
+def _identify_batches(args: tuple[SegmentBatch, IntArray, IdentifySettings, dict[str, str]]
                       ) -> list[IdentificationResult]:
-    batch, batches, settings = args
-    return [gauss_newton(batch.take(idx), settings=settings) for idx in batches]
+    batch, batches, settings, fixed = args
+    return [gauss_newton(batch.take(idx), settings=settings, fixed=fixed) for idx in batches]
 
 
 def step1(batch: SegmentBatch, validation: RaggedSegments | None, settings: Settings, *,
-          workers: int = 1, progress: Callable[[int, int], None] | None = None) -> Step1Result:
+          workers: int = 1, fixed: Mapping[str, str] | None = None,
+          progress: Callable[[int, int], None] | None = None) -> Step1Result:
     """Identify independent batches on measured rates, validate, sort and pick."""
     cal = settings.calibrate
     batches = draw_batches(len(batch), cal.step1_batches, cal.step1_batch_size, cal.seed)
@@ -154,7 +155,7 @@ def step1(batch: SegmentBatch, validation: RaggedSegments | None, settings: Sett
     # identifies belongs to the final step.
     identify = dataclasses.replace(settings.identify, judge_identifiability=False)
     tasks = [(batch.take(np.unique(batches[lo:lo + per_task])), _reindex(batches[lo:lo + per_task]),
-              identify) for lo in range(0, batches.shape[0], per_task)]
+              identify, dict(fixed or {})) for lo in range(0, batches.shape[0], per_task)]
     chunks = map_chunks(_identify_batches, tasks, workers=workers,
                         weights=[t[1].shape[0] for t in tasks], progress=progress)
     results = tuple(r for chunk in chunks for r in chunk)
@@ -180,7 +181,7 @@ def _reindex(batches: IntArray) -> IntArray:
 
 
 def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settings: Settings,
-               clusters: IntArray | None = None,
+               clusters: IntArray | None = None, fixed: Mapping[str, str] | None = None,
                progress: Callable[[str, int, int], None] | None = None) -> ThreeStepOutcome:
     """Run the three steps on the selected segments ``batch``; step 3 uses all of them."""
     workers = resolve_workers(settings.calibrate.workers)
@@ -193,7 +194,8 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
         return lambda done, total: progress(name, done, total)
 
     started = time.perf_counter()
-    s1 = step1(batch, validation, settings, workers=workers, progress=stage("step 1: batches"))
+    s1 = step1(batch, validation, settings, workers=workers, fixed=fixed,
+               progress=stage("step 1: batches"))
     timings["step1"] = time.perf_counter() - started
     if not s1.success.any():
         warnings.append("no step-1 batch could be identified; compensating with the datasheet "
@@ -219,7 +221,7 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
     # Start from the step-1 sets' mean: the same minimum as from the datasheet, in fewer steps.
     start = sets.mean(axis=0) if s1.success.any() else None
     final = gauss_newton(batch.with_wheel_rates(comp.n_rl, comp.n_rr), settings=settings.identify,
-                         start=start, clusters=clusters)
+                         start=start, clusters=clusters, fixed=fixed)
     if progress:
         progress("step 3: identification", 1, 1)
     timings["step3"] = time.perf_counter() - started

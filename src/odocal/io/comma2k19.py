@@ -1,0 +1,109 @@
+"""A comma2k19 segment folder: ``processed_log/`` and ``global_pose/`` (NumPy arrays).
+
+* ``processed_log/CAN/wheel_speed`` (N, 4) [FL, FR, RL, RR] m/s (the car's own conversion with its
+  nominal circumference): turned into rotation rates with a nominal circumference
+* ``processed_log/IMU/gyro``, ``accelerometer`` in the phone frame [forward, right, down]: the
+  left-positive yaw rate is ``-gyro[:, 2]``, the left-positive lateral acceleration
+  ``-accelerometer[:, 1]``
+* ``processed_log/GNSS/live_gnss_ublox`` (N, 6) [lat deg, lon deg, speed m/s, UTC ms, alt m,
+  bearing deg clockwise from north]
+* ``global_pose/frame_positions`` ECEF m, ``frame_velocities`` ECEF m/s,
+  ``frame_orientations`` quaternion [w, x, y, z] camera (forward, right, down) to ECEF, at 20 Hz:
+  comma's fused pose. Its velocity gives a course independent of the orientation.
+
+Times are device boot time in seconds. Positions become a local ENU frame about the first pose.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from odocal.errors import DataError, InputFileError
+from odocal.io.geodesy import check_lla, ecef_origin, ecef_to_enu, ecef_vectors_to_enu, lla_to_enu
+from odocal.io.streams import RawLog, Stream
+from odocal.io.units import wheel_rate_revps
+
+FloatArray = NDArray[np.float64]
+
+
+def _load(folder: Path, rel: str) -> FloatArray:
+    path = folder / rel
+    if not path.is_file():
+        raise DataError(f"comma2k19 segment '{folder}' lacks {rel}")
+    try:
+        return np.asarray(np.load(path, allow_pickle=False), dtype=np.float64)
+    except (ValueError, OSError) as exc:
+        raise DataError(f"comma2k19 segment '{folder}': {rel} cannot be read: {exc}") from None
+
+
+def _series(folder: Path, name: str) -> tuple[FloatArray, FloatArray]:
+    t = _load(folder, f"{name}/t")
+    v = _load(folder, f"{name}/value")
+    if v.shape[0] != t.shape[0]:
+        raise DataError(f"comma2k19 segment '{folder}': {name} has {v.shape[0]} values and "
+                        f"{t.shape[0]} times")
+    return t, v
+
+
+def read_comma2k19(source: str | Path, *, circumference_m: float) -> RawLog:
+    folder = Path(source)
+    if not folder.is_dir():
+        raise InputFileError(f"comma2k19 segment folder '{folder}' does not exist")
+    log_dir = folder / "processed_log"
+    tw, ws = _series(log_dir, "CAN/wheel_speed")
+    if ws.ndim != 2 or ws.shape[1] != 4:
+        raise DataError(f"comma2k19 segment '{folder}': CAN/wheel_speed must be (N, 4)")
+    tg, gyro = _series(log_dir, "IMU/gyro")
+    ta, acc = _series(log_dir, "IMU/accelerometer")
+    if not np.array_equal(tg, ta):
+        acc = np.column_stack([np.interp(tg, ta, acc[:, i]) for i in range(3)])
+    tu, ublox = _series(log_dir, "GNSS/live_gnss_ublox")
+    if ublox.ndim != 2 or ublox.shape[1] != 6:
+        raise DataError(f"comma2k19 segment '{folder}': GNSS/live_gnss_ublox must be (N, 6)")
+    check_lla(ublox[:, 0], ublox[:, 1], stream="live_gnss_ublox")
+
+    streams: dict[str, Stream] = {
+        "wheels": Stream(name="CAN/wheel_speed", role="wheels", t=tw,
+                         values={"n_rl": wheel_rate_revps(ws[:, 2], "m/s", stream="wheel_speed",
+                                                          circumference_m=circumference_m),
+                                 "n_rr": wheel_rate_revps(ws[:, 3], "m/s", stream="wheel_speed",
+                                                          circumference_m=circumference_m)},
+                         units={"n_rl": f"m/s (circumference {circumference_m} m)",
+                                "n_rr": f"m/s (circumference {circumference_m} m)"}),
+        "imu": Stream(name="IMU/gyro+accelerometer", role="imu", t=tg,
+                      values={"yaw_rate": -gyro[:, 2], "a_y": -acc[:, 1]},
+                      units={"yaw_rate": "rad/s (phone frame, -z)",
+                             "a_y": "m/s^2 (phone frame, -y)"}),
+    }
+    pose_dir = folder / "global_pose"
+    if pose_dir.is_dir():
+        tp = _load(pose_dir, "frame_times")
+        pos = _load(pose_dir, "frame_positions")
+        vel = _load(pose_dir, "frame_velocities")
+        quat = _load(pose_dir, "frame_orientations")
+        origin = ecef_origin(*pos[0])
+        east, north, _ = ecef_to_enu(pos[:, 0], pos[:, 1], pos[:, 2], origin)
+        forward = Rotation.from_quat(quat[:, [1, 2, 3, 0]]).apply([1.0, 0.0, 0.0])
+        fe, fn, _ = ecef_vectors_to_enu(forward[:, 0], forward[:, 1], forward[:, 2], origin)
+        ve, vn, _ = ecef_vectors_to_enu(vel[:, 0], vel[:, 1], vel[:, 2], origin)
+        streams["pose"] = Stream(name="global_pose", role="pose", t=tp,
+                                 values={"x": east, "y": north, "psi": np.arctan2(fn, fe),
+                                         "vx": ve, "vy": vn},
+                                 units={"x": "ECEF m", "y": "ECEF m", "psi": "quaternion",
+                                        "vx": "ECEF m/s", "vy": "ECEF m/s"})
+    else:
+        origin = (float(ublox[0, 0]), float(ublox[0, 1]), float(ublox[0, 4]))
+    e, n, _ = lla_to_enu(ublox[:, 0], ublox[:, 1], ublox[:, 4], origin)
+    streams["gnss"] = Stream(name="GNSS/live_gnss_ublox", role="gnss", t=tu,
+                             values={"east": e, "north": n, "speed": ublox[:, 2],
+                                     "course": np.pi / 2 - np.deg2rad(ublox[:, 5])},
+                             units={"east": "deg", "north": "deg", "speed": "m/s",
+                                    "course": "deg (compass)"})
+    return RawLog(name=folder.name if folder.name else str(folder), streams=streams,
+                  origin_lla=origin,
+                  metadata={"source_format": "comma2k19", "segment": str(folder),
+                            "wheel_circumference_m": circumference_m})

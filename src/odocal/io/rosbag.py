@@ -1,0 +1,234 @@
+"""ROS 1 bags, ROS 2 bags and MCAP files, read with the ``rosbags`` library (no ROS install).
+
+Each source (a ``.bag`` file, a ROS 2 bag folder, or an ``.mcap`` file) is one log. Topics and
+fields come from the mapping file (see :mod:`odocal.io.mapping`: ``topic`` and field paths such
+as ``angular_velocity.z`` or ``velocity[2]``); without a section for a role, the first topic of a
+standard type is used with these defaults:
+
+================================ =========================================================
+``sensor_msgs/msg/Imu``          imu: ``angular_velocity.z`` (rad/s), ``linear_acceleration.y``
+``sensor_msgs/msg/NavSatFix``    gnss: ``latitude``, ``longitude``, ``altitude``, accuracy from
+                                 ``position_covariance[0]``
+``nav_msgs/msg/Odometry``        pose: ``pose.pose.position.x/y`` and the yaw of
+                                 ``pose.pose.orientation``
+``geometry_msgs/msg/PoseStamped`` pose: ``pose.position.x/y``, ``pose.orientation``
+``sensor_msgs/msg/JointState``   wheels: ``velocity`` (rad/s) of the joints named by
+                                 ``rear_left``/``rear_right``, else of joints whose names say
+                                 rear (or back) left/right
+================================ =========================================================
+
+Time stamps are the messages' ``header.stamp`` (``time = "header"``, the default when there is a
+header) or the bag's receive time (``time = "receive"``).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal.errors import ConfigError, DataError, InputFileError, MissingDependencyError
+from odocal.io.streams import RawLog, Stream
+from odocal.io.table import stream_from_columns
+from odocal.io.units import quaternion_yaw
+
+FloatArray = NDArray[np.float64]
+
+TYPE_DEFAULTS: Mapping[str, Mapping[str, Mapping[str, str]]] = {
+    "imu": {"sensor_msgs/msg/Imu": {"yaw_rate": "angular_velocity.z",
+                                    "lateral_accel": "linear_acceleration.y"}},
+    "gnss": {"sensor_msgs/msg/NavSatFix": {"latitude": "latitude", "longitude": "longitude",
+                                           "altitude": "altitude",
+                                           "std": "position_covariance[0]"}},
+    "pose": {"nav_msgs/msg/Odometry": {"x": "pose.pose.position.x", "y": "pose.pose.position.y",
+                                       "quaternion": "pose.pose.orientation"},
+             "geometry_msgs/msg/PoseStamped": {"x": "pose.position.x", "y": "pose.position.y",
+                                               "quaternion": "pose.orientation"}},
+    "wheels": {"sensor_msgs/msg/JointState": {}},
+}
+_REAR = {"rear_left": re.compile(r"(rear|back|^r).*left|left.*(rear|back)|^rl\b|^rl_", re.I),
+         "rear_right": re.compile(r"(rear|back|^r).*right|right.*(rear|back)|^rr\b|^rr_", re.I)}
+_FIELD = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(?:\[(\d+)\])?$")
+
+
+def _get(msg: Any, path: str) -> Any:
+    value = msg
+    for part in path.split("."):
+        m = _FIELD.match(part)
+        if m is None:
+            raise ConfigError(f"bad field path {path!r}")
+        value = getattr(value, m.group(1))
+        if m.group(2) is not None:
+            value = value[int(m.group(2))]
+    return value
+
+
+def _normalise_type(msgtype: str) -> str:
+    parts = msgtype.split("/")
+    return f"{parts[0]}/msg/{parts[-1]}" if len(parts) == 2 else msgtype
+
+
+def _stamp(msg: Any) -> float | None:
+    header = getattr(msg, "header", None)
+    if header is None:
+        return None
+    stamp = header.stamp
+    return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
+
+
+def read_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,
+                circumference_m: float) -> RawLog:
+    """One raw log from a ROS 1 bag, ROS 2 bag folder or MCAP file."""
+    try:
+        from rosbags.highlevel import AnyReader
+    except ImportError:  # pragma: no cover - rosbags is a dependency
+        raise MissingDependencyError("reading ROS bags needs 'rosbags' (pip install rosbags)") \
+            from None
+    path = Path(source)
+    if not path.exists():
+        raise InputFileError(f"bag '{path}' does not exist")
+    try:
+        reader = AnyReader([path])
+        reader.open()
+    except Exception as exc:  # rosbags raises several kinds for a corrupt or unknown file
+        raise DataError(f"'{path}' cannot be read as a ROS bag or MCAP file: "
+                        f"{type(exc).__name__}: {exc}") from None
+    try:
+        topics = {c.topic: _normalise_type(c.msgtype) for c in reader.connections}
+        plan = _plan(path, topics, mapping)
+        raw = _collect(reader, plan, path)
+    finally:
+        reader.close()
+    streams: dict[str, Stream] = {}
+    origin: list[tuple[float, float, float]] = []
+    for role in ("gnss", "wheels", "imu", "pose", "heading"):
+        if role not in plan:
+            continue
+        topic, section = plan[role]
+        table = raw[role]
+        if table["time"].size == 0:
+            raise DataError(f"'{path}': topic {topic} ({role}) holds no messages")
+        streams[role] = stream_from_columns(role, table, section, name=f"{topic} ({role})",
+                                            path_label=Path(topic), circumference_m=circumference_m,
+                                            origin=origin)
+    return RawLog(name=path.stem if path.is_file() else path.name, streams=streams,
+                  origin_lla=origin[0] if origin else None,
+                  metadata={"source_format": "rosbag", "bag": str(path),
+                            "topics": {r: plan[r][0] for r in plan}})
+
+
+def _plan(path: Path, topics: Mapping[str, str], mapping: Mapping[str, Mapping[str, Any]]
+          ) -> dict[str, tuple[str, dict[str, Any]]]:
+    """Role -> (topic, mapping section with type defaults filled in)."""
+    plan: dict[str, tuple[str, dict[str, Any]]] = {}
+    for role in ("wheels", "imu", "pose", "gnss", "heading"):
+        section = dict(mapping.get(role, {}))
+        topic = section.get("topic")
+        if topic is None:
+            if role in mapping:
+                raise ConfigError(f"mapping [{role}] needs a 'topic' for the rosbag format")
+            candidates = [t for t, ty in topics.items() if ty in TYPE_DEFAULTS.get(role, {})]
+            if not candidates:
+                continue
+            topic = sorted(candidates)[0]
+        if topic not in topics:
+            raise DataError(f"'{path}' has no topic {topic} (mapping [{role}]); topics: "
+                            f"{', '.join(sorted(topics)) or 'none'}")
+        msgtype = topics[topic]
+        if "type" in section and _normalise_type(str(section["type"])) != msgtype:
+            raise DataError(f"'{path}': topic {topic} holds {msgtype}, not {section['type']}")
+        for key, value in TYPE_DEFAULTS.get(role, {}).get(msgtype, {}).items():
+            section.setdefault(key, value)
+        if role == "wheels" and msgtype == "sensor_msgs/msg/JointState":
+            section.setdefault("unit", "rad/s")
+        section.setdefault("time", "header")
+        section["_type"] = msgtype
+        plan[role] = (str(topic), section)
+    if "wheels" not in plan:
+        raise DataError(f"'{path}': no wheel-speed topic; name it in the mapping ([wheels] topic, "
+                        f"rear_left, rear_right); topics: {', '.join(sorted(topics))}")
+    return plan
+
+
+def _collect(reader: Any, plan: Mapping[str, tuple[str, dict[str, Any]]],
+             path: Path) -> dict[str, dict[str, FloatArray]]:
+    """Read every planned topic once into columns named by the mapping's keys."""
+    by_topic: dict[str, list[str]] = {}
+    for role, (topic, _) in plan.items():
+        by_topic.setdefault(topic, []).append(role)
+    columns: dict[str, dict[str, list[float]]] = {role: {} for role in plan}
+    joint_index: dict[str, tuple[int, int]] = {}
+    conns = [c for c in reader.connections if c.topic in by_topic]
+    for conn, receive_ns, data in reader.messages(connections=conns):
+        msg = reader.deserialize(data, conn.msgtype)
+        for role in by_topic[conn.topic]:
+            section = plan[role][1]
+            cols = columns[role]
+            stamp = _stamp(msg) if section["time"] == "header" else None
+            if section["time"] not in ("header", "receive"):
+                raise ConfigError(f"mapping [{role}] time must be 'header' or 'receive' for "
+                                  "bags")
+            cols.setdefault("time", []).append(stamp if stamp is not None
+                                               else receive_ns * 1e-9)
+            for key, value in _extract(role, section, msg, joint_index, conn.topic).items():
+                cols.setdefault(key, []).append(value)
+    out: dict[str, dict[str, FloatArray]] = {}
+    for role, cols in columns.items():
+        table = {k: np.asarray(v, dtype=np.float64) for k, v in cols.items()}
+        if "time" not in table:
+            table["time"] = np.zeros(0)
+        out[role] = table
+        # from here on the mapping refers to these columns, named by their keys
+        section = plan[role][1]
+        for key in table:
+            section[key] = key
+        section["time_unit"] = "s"
+    return out
+
+
+def _extract(role: str, section: Mapping[str, Any], msg: Any,
+             joint_index: dict[str, tuple[int, int]], topic: str) -> dict[str, float]:
+    values: dict[str, float] = {}
+    if role == "wheels" and section.get("_type") == "sensor_msgs/msg/JointState":
+        if topic not in joint_index:
+            joint_index[topic] = _joints(list(msg.name), section, topic)
+        left, right = joint_index[topic]
+        values["rear_left"] = float(msg.velocity[left])
+        values["rear_right"] = float(msg.velocity[right])
+        return values
+    for key in ("rear_left", "rear_right", "yaw_rate", "lateral_accel", "x", "y", "heading",
+                "vx", "vy", "latitude", "longitude", "altitude", "speed", "course", "std"):
+        path = section.get(key)
+        if isinstance(path, str):
+            values[key] = float(_get(msg, path))
+    if role == "gnss" and section.get("std") == "position_covariance[0]":
+        values["std"] = float(np.sqrt(max(values.get("std", np.nan), 0.0))) \
+            if np.isfinite(values.get("std", np.nan)) and values["std"] > 0 else np.nan
+    quat = section.get("quaternion")
+    if role == "pose" and isinstance(quat, str):
+        q = _get(msg, quat)
+        values["heading"] = float(quaternion_yaw(*(np.array([float(getattr(q, a))])
+                                                   for a in ("w", "x", "y", "z")))[0])
+    return values
+
+
+def _joints(names: Sequence[str], section: Mapping[str, Any], topic: str) -> tuple[int, int]:
+    found: list[int] = []
+    for side in ("rear_left", "rear_right"):
+        wanted = section.get(side)
+        if isinstance(wanted, str):
+            if wanted not in names:
+                raise DataError(f"topic {topic}: no joint named {wanted!r}; joints: "
+                                f"{', '.join(names)}")
+            found.append(names.index(wanted))
+            continue
+        matches = [i for i, n in enumerate(names) if _REAR[side].search(n)]
+        if len(matches) != 1:
+            raise DataError(f"topic {topic}: cannot tell which joint is the {side} wheel among "
+                            f"{', '.join(names)}; name it in the mapping ([wheels] {side})")
+        found.append(matches[0])
+    return found[0], found[1]

@@ -1,0 +1,183 @@
+"""The ``table`` format: one CSV or Parquet file per stream, described by a mapping file."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal.errors import ConfigError, DataError, InputFileError
+from odocal.io.drivefile import read_table
+from odocal.io.geodesy import check_lla, lla_to_enu
+from odocal.io.streams import RawLog, Stream
+from odocal.io.units import (
+    accel_mps2,
+    angle_rad,
+    angular_rate_radps,
+    heading_enu,
+    time_seconds,
+    wheel_rate_revps,
+)
+
+FloatArray = NDArray[np.float64]
+
+
+def _resolve(section: Mapping[str, Any], role: str, sources: Sequence[Path]) -> Path:
+    if "file" not in section:
+        raise ConfigError(f"mapping [{role}] needs a 'file' (one of the table files)")
+    name = str(section["file"])
+    for src in sources:
+        if src.name == Path(name).name or str(src) == name:
+            return src
+    base = section.get("_base")
+    candidate = (base / name) if base is not None else Path(name)
+    if candidate.is_file():
+        return candidate
+    raise InputFileError(f"mapping [{role}] file '{name}' is neither among the sources nor "
+                         f"beside the mapping file")
+
+
+def _column(table: Mapping[str, FloatArray], section: Mapping[str, Any], key: str, role: str,
+            path: Path, *, required: bool = True) -> FloatArray | None:
+    name = section.get(key)
+    if name is None:
+        if required:
+            raise ConfigError(f"mapping [{role}] needs '{key}' (a column of '{path.name}')")
+        return None
+    if name not in table:
+        raise DataError(f"stream '{role}' ({path.name}): no column {name!r} (mapping [{role}] "
+                        f"{key}); columns: {', '.join(table)}")
+    return table[name]
+
+
+def stream_from_columns(role: str, table: Mapping[str, FloatArray], section: Mapping[str, Any],
+                        *, name: str, path_label: Path, circumference_m: float,
+                        origin: list[tuple[float, float, float]]) -> Stream:
+    """Build one stream from already-read columns (shared by the table and rosbag readers).
+
+    ``origin`` holds the ENU origin once the first GNSS stream has set it.
+    """
+    t_raw = _column(table, section, "time", role, path_label)
+    assert t_raw is not None
+    t = time_seconds(t_raw, str(section.get("time_unit", "s")), stream=name)
+
+    def col(key: str, required: bool = True) -> FloatArray | None:
+        return _column(table, section, key, role, path_label, required=required)
+
+    values: dict[str, FloatArray] = {}
+    units: dict[str, str] = {}
+    if role == "wheels":
+        unit = str(section.get("unit", "rev/s"))
+        for side, key in (("n_rl", "rear_left"), ("n_rr", "rear_right")):
+            raw = col(key)
+            assert raw is not None
+            values[side] = wheel_rate_revps(
+                raw, unit, stream=name, t=t,
+                circumference_m=float(section.get("circumference_m", circumference_m)),
+                ticks_per_rev=section.get("ticks_per_rev"))
+        units = {"n_rl": unit, "n_rr": unit}
+    elif role == "imu":
+        frame = str(section.get("frame", "flu"))
+        if frame not in ("flu", "frd"):
+            raise DataError(f"stream '{name}': unknown IMU frame {frame!r}; use 'flu' (x forward, "
+                            "y left, z up) or 'frd' (x forward, y right, z down)")
+        sign = 1.0 if frame == "flu" else -1.0
+        yaw = col("yaw_rate", required=False)
+        if yaw is not None:
+            unit = str(section.get("yaw_rate_unit", "rad/s"))
+            values["yaw_rate"] = sign * angular_rate_radps(yaw, unit, stream=name)
+            units["yaw_rate"] = unit
+        acc = col("lateral_accel", required=False)
+        if acc is not None:
+            unit = str(section.get("lateral_accel_unit", "m/s^2"))
+            values["a_y"] = sign * accel_mps2(acc, unit, stream=name)
+            units["a_y"] = unit
+        if not values:
+            raise ConfigError("mapping [imu] needs yaw_rate and/or lateral_accel")
+    elif role == "pose":
+        for key in ("x", "y"):
+            raw = col(key)
+            assert raw is not None
+            values[key] = raw
+            units[key] = "m"
+        heading = col("heading")
+        assert heading is not None
+        unit = str(section.get("heading_unit", "rad"))
+        values["psi"] = heading_enu(angle_rad(heading, unit, stream=name),
+                                    str(section.get("heading_convention", "enu")), stream=name)
+        units["psi"] = unit
+        for key in ("vx", "vy"):
+            raw = col(key, required=False)
+            if raw is not None:
+                values[key] = raw
+    elif role == "gnss":
+        lat, lon = col("latitude"), col("longitude")
+        assert lat is not None and lon is not None
+        check_lla(lat, lon, stream=name)
+        alt = col("altitude", required=False)
+        alt = np.zeros_like(lat) if alt is None else alt
+        if not origin:
+            first = int(np.flatnonzero(np.isfinite(lat) & np.isfinite(lon))[0])
+            origin.append((float(lat[first]), float(lon[first]), float(np.nan_to_num(alt[first]))))
+        east, north, _ = lla_to_enu(lat, lon, alt, origin[0])
+        values.update(east=east, north=north)
+        units.update(east="deg (latitude/longitude)", north="deg (latitude/longitude)")
+        speed = col("speed", required=False)
+        if speed is not None:
+            unit = str(section.get("speed_unit", "m/s"))
+            if unit not in ("m/s", "km/h", "knots"):
+                raise DataError(f"stream '{name}': unknown speed unit {unit!r}; use m/s, km/h "
+                                "or knots")
+            values["speed"] = speed * {"m/s": 1.0, "km/h": 1 / 3.6, "knots": 0.514444}[unit]
+            units["speed"] = unit
+        course = col("course", required=False)
+        if course is not None:
+            unit = str(section.get("course_unit", "deg"))
+            values["course"] = heading_enu(angle_rad(course, unit, stream=name),
+                                           str(section.get("course_convention", "compass")),
+                                           stream=name)
+            units["course"] = unit
+        std = col("std", required=False)
+        if std is not None:
+            values["std"] = std
+            units["std"] = "m"
+    else:  # heading
+        heading = col("heading")
+        assert heading is not None
+        unit = str(section.get("heading_unit", "deg"))
+        values["psi"] = heading_enu(angle_rad(heading, unit, stream=name),
+                                    str(section.get("heading_convention", "compass")),
+                                    stream=name)
+        units["psi"] = unit
+    return Stream(name=name, role=role, t=t, values=values, units=units)
+
+
+def read_table_log(sources: Sequence[str | Path], mapping: Mapping[str, Mapping[str, Any]], *,
+                   circumference_m: float, name: str | None = None) -> RawLog:
+    """Streams from CSV/Parquet files as the mapping describes them."""
+    if not mapping:
+        raise ConfigError("the table format needs a mapping file (--mapping) that says which "
+                          "file and columns hold each stream")
+    paths = [Path(s) for s in sources]
+    for p in paths:
+        if not p.is_file():
+            raise InputFileError(f"input file '{p}' does not exist")
+    streams: dict[str, Stream] = {}
+    origin: list[tuple[float, float, float]] = []
+    for role in ("gnss", "wheels", "imu", "pose", "heading"):
+        section = mapping.get(role)
+        if section is None:
+            continue
+        path = _resolve(section, role, paths)
+        table = read_table(path)
+        if not table or next(iter(table.values())).size == 0:
+            raise DataError(f"stream '{role}' ({path.name}) has no rows")
+        streams[role] = stream_from_columns(role, table, section, name=f"{role} ({path.name})",
+                                            path_label=path, circumference_m=circumference_m,
+                                            origin=origin)
+    label = name or (paths[0].stem if paths else "table")
+    return RawLog(name=label, streams=streams, origin_lla=origin[0] if origin else None,
+                  metadata={"source_format": "table", "files": [str(p) for p in paths]})

@@ -1,0 +1,197 @@
+"""A raw log to a :class:`~odocal.drive.Drive`: clean, align, fuse, estimate sideslip."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal.drive import Drive
+from odocal.errors import DataError
+from odocal.io.streams import RawLog, Stream
+from odocal.preprocess.align import (
+    OffsetEstimate,
+    StreamReport,
+    clean_log,
+    common_grid,
+    estimate_wheel_offset,
+    resample,
+    with_offset,
+)
+from odocal.preprocess.fusion import fuse
+from odocal.preprocess.sideslip import estimate_sideslip
+from odocal.settings import Settings
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ConversionReport:
+    """How a raw log became a drive (stored in the drive's metadata as ``conversion``)."""
+
+    log: str
+    streams: dict[str, StreamReport]
+    reference: str
+    wheel_offset: OffsetEstimate | None
+    pieces: list[tuple[float, float]]
+    dropped_s: float
+    sideslip: str
+    fusion: list[dict[str, Any]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"log": self.log,
+                "streams": {k: v.to_dict() for k, v in self.streams.items()},
+                "reference": self.reference,
+                "wheel_offset": self.wheel_offset.to_dict() if self.wheel_offset else None,
+                "pieces_s": [list(p) for p in self.pieces], "dropped_s": self.dropped_s,
+                "sideslip": self.sideslip, "fusion": self.fusion, "notes": list(self.notes)}
+
+
+def _reference_mode(log: RawLog, requested: str) -> str:
+    has_pose = "pose" in log.streams
+    if requested == "auto":
+        return "fused" if has_pose else "gnss-imu"
+    if requested == "fused" and not has_pose:
+        raise DataError(f"'{log.name}' has no fused pose stream for --reference fused; use "
+                        "--reference gnss-imu (odocal's own fusion of GNSS and IMU)")
+    return requested
+
+
+def build_drive(log: RawLog, settings: Settings, *,
+                offsets: Mapping[str, float] | None = None) -> Drive:
+    """Clean, align and resample ``log`` onto the grid, build its reference pose, and check the
+    result like any drive file (units, NaNs, ...). ``offsets`` (s, by role) shift stream clocks;
+    a wheel offset given there is used instead of the estimate."""
+    cs = settings.convert
+    mode = _reference_mode(log, cs.reference)
+    log, reports = clean_log(log, offsets)
+    notes: list[str] = []
+    wheels = log.require("wheels", "rear wheel rotation rates")
+    imu = log.streams.get("imu")
+    if mode == "gnss-imu":
+        log.require("gnss", "GNSS positions, for --reference gnss-imu")
+        if imu is None or "yaw_rate" not in imu.values:
+            raise DataError(f"'{log.name}' has no IMU yaw rate, which --reference gnss-imu needs")
+    reference_stream = log.streams["pose"] if mode == "fused" else log.streams["gnss"]
+
+    offset_estimate = None
+    if imu is not None and "yaw_rate" in imu.values and not (offsets and "wheels" in offsets) \
+            and cs.wheel_offset == "estimate":
+        theta0 = settings.identify.theta0
+        offset_estimate = estimate_wheel_offset(
+            wheels, imu, circumference_m=theta0[0], track_m=theta0[2],
+            max_offset_s=cs.max_wheel_offset_s)
+        wheels = with_offset(wheels, offset_estimate.offset_s)
+        reports["wheels"] = dataclasses.replace(reports["wheels"],
+                                                offset_s=offset_estimate.offset_s)
+        notes.append(offset_estimate.message)
+
+    required = [wheels, reference_stream] + ([imu] if imu is not None else [])
+    grid = common_grid(required, rate_hz=cs.rate_hz, max_gap_s=cs.max_gap_s,
+                       max_gnss_gap_s=cs.max_gnss_gap_s, min_piece_s=cs.min_piece_s,
+                       name=log.name)
+    valid = grid.valid
+    t = grid.t[valid]
+    dropped = float((grid.t.size - t.size) / cs.rate_hz)
+    piece_col = np.concatenate([np.full(b - a, i, dtype=np.float64)
+                                for i, (a, b) in enumerate(grid.pieces)])
+    bounds = np.concatenate([[0], np.cumsum([b - a for a, b in grid.pieces])])
+    piece_ranges = [(int(bounds[i]), int(bounds[i + 1])) for i in range(len(grid.pieces))]
+
+    w = resample(wheels, t)
+    columns: dict[str, FloatArray] = {"t": t, "n_rl": w["n_rl"], "n_rr": w["n_rr"],
+                                      "piece": piece_col}
+    imu_values = resample(imu, t) if imu is not None else {}
+    fusion_summaries: list[dict[str, Any]] = []
+    course: FloatArray | None = None
+    speed: FloatArray | None = None
+    if mode == "fused":
+        pose = resample(reference_stream, t)
+        columns.update(x=pose["x"], y=pose["y"], psi=pose["psi"])
+        if "vx" in pose and "vy" in pose:
+            course = np.arctan2(pose["vy"], pose["vx"])
+            speed = np.hypot(pose["vx"], pose["vy"])
+        yaw_rate = imu_values.get("yaw_rate")
+    else:
+        gnss = reference_stream
+        heading = log.streams.get("heading")
+        x, y, psi = (np.empty(t.size) for _ in range(3))
+        std = np.empty((t.size, 3))
+        yaw_rate = np.empty(t.size)
+        speed = np.empty(t.size)
+        course = np.empty(t.size)
+        for a, b in piece_ranges:
+            tg = gnss.t + gnss.offset_s
+            inside = (tg >= t[a] - 1.0) & (tg <= t[b - 1] + 1.0)
+            ht = heading.t + heading.offset_s if heading is not None else None
+            fused = fuse(t[a:b], imu_values["yaw_rate"][a:b], gnss_t=tg[inside],
+                         east=gnss.values["east"][inside], north=gnss.values["north"][inside],
+                         gnss_speed=_opt(gnss, "speed", inside),
+                         gnss_course=_opt(gnss, "course", inside),
+                         gnss_std=_opt(gnss, "std", inside),
+                         heading_t=ht, heading=heading.values["psi"] if heading else None,
+                         settings=settings.fusion, name=log.name)
+            x[a:b], y[a:b], psi[a:b], std[a:b] = fused.x, fused.y, fused.psi, fused.std
+            yaw_rate[a:b] = imu_values["yaw_rate"][a:b] - fused.gyro_bias
+            speed[a:b] = fused.speed
+            course[a:b] = fused.psi + fused.sideslip      # the smoothed course over ground
+            fusion_summaries.append(fused.summary())
+        columns.update(x=x, y=y, psi=psi, x_std=std[:, 0], y_std=std[:, 1], psi_std=std[:, 2])
+
+    if "a_y" in imu_values:
+        columns["a_y"] = imu_values["a_y"]
+    else:
+        notes.append("no IMU lateral acceleration: a_y is derived from the reference as speed "
+                     "times yaw rate")
+        columns["a_y"] = _derived_lateral_accel(columns, piece_ranges, cs.rate_hz)
+    if yaw_rate is not None:
+        columns["yaw_rate"] = yaw_rate
+
+    sideslip = settings.sideslip
+    has_course = course is not None and speed is not None
+    if sideslip.mode == "on" and not has_course:
+        raise DataError(f"'{log.name}': sideslip estimation needs a course over ground "
+                        "independent of the heading (GNSS velocity or a pose velocity)")
+    if sideslip.mode == "off" or not has_course:
+        slip_note = "off" if sideslip.mode == "off" else \
+            "off: the log has no course over ground independent of the heading"
+        columns["beta"] = np.zeros(t.size)
+    else:
+        assert course is not None and speed is not None
+        rate = yaw_rate if yaw_rate is not None else np.gradient(np.unwrap(columns["psi"]),
+                                                                 1.0 / cs.rate_hz)
+        columns["beta"] = estimate_sideslip(course, np.unwrap(columns["psi"]), rate, speed,
+                                            rate_hz=cs.rate_hz, settings=sideslip)
+        slip_note = (f"estimated in bends (|yaw rate| > {sideslip.bend_yaw_rate_radps} rad/s): "
+                     f"{np.mean(columns['beta'] != 0) * 100:.1f}% of samples, max "
+                     f"{np.degrees(np.max(np.abs(columns['beta']))):.2f} deg")
+
+    report = ConversionReport(
+        log=log.name, streams=reports, reference=mode, wheel_offset=offset_estimate,
+        pieces=[(float(t[a]), float(t[b - 1])) for a, b in piece_ranges], dropped_s=dropped,
+        sideslip=slip_note, fusion=fusion_summaries, notes=notes)
+    metadata = {**dict(log.metadata), "conversion": report.to_dict()}
+    if log.origin_lla is not None:
+        metadata["origin_lla"] = list(log.origin_lla)
+    return Drive.from_columns(columns, name=log.name, metadata=metadata)
+
+
+def _opt(stream: Stream, key: str, mask: NDArray[np.bool_]) -> FloatArray | None:
+    values = stream.values.get(key)
+    return None if values is None else values[mask]
+
+
+def _derived_lateral_accel(columns: Mapping[str, FloatArray],
+                           pieces: list[tuple[int, int]], rate_hz: float) -> FloatArray:
+    out = np.zeros(columns["t"].size)
+    for a, b in pieces:
+        if b - a < 3:
+            continue
+        speed = np.hypot(np.gradient(columns["x"][a:b]), np.gradient(columns["y"][a:b])) * rate_hz
+        out[a:b] = speed * np.gradient(np.unwrap(columns["psi"][a:b])) * rate_hz
+    return out
