@@ -15,6 +15,8 @@ The public API::
 
 __version__ = "0.1.0"
 
+import logging as _logging
+
 from odocal.calibrate import CalibrationResult, calibrate
 from odocal.calibrate import validate_theta as validate
 from odocal.drive import Drive
@@ -31,6 +33,9 @@ from odocal.io import load_drive, save_drive
 from odocal.model import Parameters
 from odocal.settings import Settings, load_settings
 from odocal.simulate import NOISE_PROFILES, TRUE_PARAMETERS, SimulatedDrive, simulate
+
+# A library stays quiet unless the application configures logging (the CLI does).
+_logging.getLogger("odocal").addHandler(_logging.NullHandler())
 
 __all__ = [
     "NOISE_PROFILES",
