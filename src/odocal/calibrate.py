@@ -44,6 +44,7 @@ from odocal.segments import (
 )
 from odocal.settings import Settings
 from odocal.threestep import ThreeStepOutcome, three_step
+from odocal.uncertainty import BootstrapResult, bootstrap
 from odocal.validate import ValidationResult, segment_errors
 
 log = logging.getLogger(__name__)
@@ -84,6 +85,7 @@ class CalibrationResult:
     used : mask over ``segments`` of those identified from
     drives : what was read
     warnings : things the user should know (weak data, failed solves, fallbacks)
+    bootstrap : the bootstrap check of the covariance (None when off or not applicable)
     three_step : the three-step method's intermediate results (``compensated`` only)
     joint : the joint estimator's results (``joint`` only)
     batch : the identification segments' data with the measured rates
@@ -101,6 +103,7 @@ class CalibrationResult:
     settings: Settings
     warnings: tuple[str, ...]
     elapsed_s: float
+    bootstrap: BootstrapResult | None = None
     three_step: ThreeStepOutcome | None = None
     joint: Any = None
     batch: SegmentBatch | None = field(default=None, repr=False)
@@ -144,6 +147,7 @@ class CalibrationResult:
             "elapsed_s": self.elapsed_s,
             "settings": self.settings.to_dict(),
         }
+        out["bootstrap"] = self.bootstrap.to_dict() if self.bootstrap is not None else None
         if self.three_step is not None:
             out["three_step"] = self.three_step.to_dict()
         if self.joint is not None:
@@ -295,6 +299,21 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
 
     for name in ident.unidentified:
         warnings.append(f"{name} is not identified by these drives: {ident.reasons[name]}")
+    boot = None
+    if settings.uncertainty.bootstrap_count > 1 and method != "joint":
+        if progress:
+            progress("bootstrap", 0, 1)
+        rates = batch if outcome is None else batch.with_wheel_rates(
+            outcome.compensation.n_rl, outcome.compensation.n_rr)
+        boot = bootstrap(rates, ident, clusters, identify=settings.identify,
+                         settings=settings.uncertainty, seed=settings.calibrate.seed,
+                         step1_thetas=None if outcome is None else
+                         outcome.step1.thetas[outcome.step1.success],
+                         step1_sets=0 if outcome is None else int(outcome.step1.picked.size))
+        if progress:
+            progress("bootstrap", 1, 1)
+        if not all(boot.agree):
+            warnings.append(boot.message)
     validation = datasheet = None
     if val_data is not None:
         validation = _validation(ident.theta, val_data, val_segments, drive_list)
@@ -305,6 +324,7 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         theta=ident.theta, method=method, identification=ident, validation=validation,
         datasheet_validation=datasheet, segments=id_segments, used=used,
         drives=summarise(drive_list), settings=settings, warnings=tuple(warnings),
-        elapsed_s=time.perf_counter() - started, three_step=outcome, joint=joint, batch=batch,
+        elapsed_s=time.perf_counter() - started, bootstrap=boot, three_step=outcome, joint=joint,
+        batch=batch,
         drive_data=tuple(drive_list))
 

@@ -180,11 +180,27 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
-                   inputs: Sequence[str | Path]) -> None:
-    from odocal.output import prepare_output_dir, write_calibration, write_compensated_inputs
+                   inputs: Sequence[str | Path],
+                   progress: Callable[[str, int, int], None] | None = None) -> None:
+    from odocal.output import (
+        export_parameters,
+        prepare_output_dir,
+        write_calibration,
+        write_compensated_inputs,
+    )
 
     out = prepare_output_dir(args.out, inputs)
-    written = [write_calibration(result, out)]
+    written: list[Path] = []
+    report_numbers = None
+    if not getattr(args, "no_report", False):
+        from odocal.report import write_report
+
+        report = write_report(result, out, progress=progress)
+        written += [report.html_path]
+        report_numbers = report.data.to_dict()
+    written.insert(0, write_calibration(result, out, report=report_numbers))
+    for fmt in getattr(args, "export", None) or []:
+        written.append(export_parameters(result, out, fmt))
     if getattr(args, "save_inputs", False):
         path = write_compensated_inputs(result, out)
         if path is None:
@@ -224,13 +240,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     progress = _Progress(not args.quiet)
     try:
         result = calibrate(drives, settings=settings, progress=progress)
+        if not args.quiet:
+            print_summary(result)
+        _write_outputs(result, args, progress=progress,
+                       inputs=[*args.logs, *([args.config] if args.config else []),
+                               *([args.mapping] if getattr(args, "mapping", None) else [])])
     finally:
         progress.close()
-    if not args.quiet:
-        print_summary(result)
-    _write_outputs(result, args, inputs=[*args.logs, *([args.config] if args.config else []),
-                                         *([args.mapping] if getattr(args, "mapping", None)
-                                           else [])])
     return EXIT_OK if result.success else EXIT_FAILED
 
 
@@ -401,7 +417,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="noise profile (default realistic)")
     p.add_argument("--method", choices=("compensated", "raw", "joint"),
                    help="calibration method (default compensated)")
-    p.add_argument("--out", metavar="DIR", help="also write the results to this folder")
+    p.add_argument("--out", metavar="DIR",
+                   help="also write the results (calibration.json, report.html) to this folder")
     _add_common(p)
     p.set_defaults(func=cmd_demo)
 
@@ -427,6 +444,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="seed of the step-1 batch draw")
     p.add_argument("--save-inputs", action="store_true",
                    help="also write the compensated wheel rates (compensated_inputs.parquet)")
+    p.add_argument("--export", action="append", choices=("yaml", "json"),
+                   help="also write the parameters for a localisation stack: yaml (a ROS 2 "
+                        "parameter file) or json, with their covariance (repeatable)")
+    p.add_argument("--no-report", action="store_true", help="skip report.html and the figures")
     _add_common(p)
     p.set_defaults(func=cmd_calibrate)
 

@@ -7,13 +7,16 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from odocal import __version__
 from odocal.calibrate import CalibrationResult
 from odocal.errors import OutputError
-from odocal.io.atomic import refuse_inputs
+from odocal.io.atomic import refuse_inputs, write_text
 from odocal.io.results import write_json
+from odocal.model import PARAMETER_NAMES, PARAMETER_UNITS
 
 CALIBRATION_FILE = "calibration.json"
 
@@ -33,9 +36,53 @@ def prepare_output_dir(out_dir: str | Path, inputs: Iterable[str | Path]) -> Pat
     return out
 
 
-def write_calibration(result: CalibrationResult, out_dir: str | Path) -> Path:
-    """Write ``calibration.json`` into ``out_dir``."""
-    return write_json(Path(out_dir) / CALIBRATION_FILE, result.to_dict())
+def write_calibration(result: CalibrationResult, out_dir: str | Path, *,
+                      report: dict[str, Any] | None = None) -> Path:
+    """Write ``calibration.json`` into ``out_dir`` (with the report's numbers when given)."""
+    data = result.to_dict()
+    if report is not None:
+        data["report"] = report
+    return write_json(Path(out_dir) / CALIBRATION_FILE, data)
+
+
+def export_parameters(result: CalibrationResult, out_dir: str | Path, fmt: str) -> Path:
+    """The parameters for a localisation stack: ``yaml`` (a ROS 2 parameter file) or ``json``.
+
+    Both carry theta, its covariance (order c_e, c_d, t_r, d; SI units) and which parameters the
+    drive identified; the YAML adds the derived wheel radius.
+    """
+    ident = result.identification
+    theta = result.theta.as_dict()
+    cov = ident.covariance
+    if fmt == "json":
+        return write_json(Path(out_dir) / "odometry_parameters.json", {
+            "theta": theta, "covariance": cov.tolist(),
+            "std": dict(zip(PARAMETER_NAMES, ident.std.tolist(), strict=True)),
+            "identified": dict(zip(PARAMETER_NAMES, ident.identified, strict=True)),
+            "units": dict(zip(PARAMETER_NAMES, PARAMETER_UNITS, strict=True)),
+            "method": result.method, "odocal_version": __version__})
+    if fmt != "yaml":
+        raise OutputError(f"unknown export format {fmt!r}; use yaml or json")
+    identified = ", ".join("true" if ok else "false" for ok in ident.identified)
+    lines = [
+        f"# Wheel-odometry parameters calibrated by odocal {__version__} "
+        f"(method {result.method}).",
+        "# Parameters a drive did not identify keep their datasheet values (identified: false).",
+        "wheel_odometry:",
+        "  ros__parameters:",
+        f"    effective_wheel_circumference: {theta['c_e']:.9g}   # c_e, m",
+        f"    wheel_radius: {theta['c_e'] / (2 * np.pi):.9g}   # c_e / (2 pi), m",
+        f"    circumference_difference: {theta['c_d']:.9g}   # c_d, m, left minus right",
+        f"    rear_track_width: {theta['t_r']:.9g}   # t_r, m",
+        f"    load_transfer_coefficient: {theta['d']:.9g}   # d, m per m/s^2",
+        "    parameter_names: [c_e, c_d, t_r, d]",
+        f"    identified: [{identified}]",
+        "    # row-major 4x4 covariance in the order of parameter_names, SI units",
+        "    covariance: [" + ", ".join(f"{v:.9g}" for v in cov.ravel()) + "]",
+    ]
+    path = Path(out_dir) / "odometry_parameters.yaml"
+    write_text(path, "\n".join(lines) + "\n")
+    return path
 
 
 def write_compensated_inputs(result: CalibrationResult, out_dir: str | Path) -> Path | None:

@@ -195,6 +195,28 @@ class MinimumSettings:
 
 
 @dataclass(frozen=True)
+class UncertaintySettings:
+    """How sure a calibration is: the bootstrap over segments that checks the covariance."""
+
+    bootstrap_count: int = 200
+    """Resamples (0 turns the bootstrap off)."""
+    bootstrap_mode: Literal["one-step", "full"] = "one-step"
+    """``one-step``: one Gauss-Newton step from the estimate per resample (fast);
+    ``full``: the identification rerun on every resample (slow, includes the nonlinearity)."""
+    disagreement_factor: float = 2.0
+    """Bootstrap and covariance standard deviations further apart than this factor disagree."""
+
+    def __post_init__(self) -> None:
+        s = "uncertainty"
+        _check(self.bootstrap_count >= 0, s, "bootstrap_count", self.bootstrap_count,
+               "an integer >= 0")
+        _check(self.bootstrap_mode in ("one-step", "full"), s, "bootstrap_mode",
+               self.bootstrap_mode, "'one-step' or 'full'")
+        _check(self.disagreement_factor > 1, s, "disagreement_factor", self.disagreement_factor,
+               "a factor > 1")
+
+
+@dataclass(frozen=True)
 class ConvertSettings:
     """METHOD 7: turning raw logs into the drive format (alignment and resampling)."""
 
@@ -291,6 +313,7 @@ class Settings:
     compensate: CompensateSettings = field(default_factory=CompensateSettings)
     calibrate: CalibrateSettings = field(default_factory=CalibrateSettings)
     minimum: MinimumSettings = field(default_factory=MinimumSettings)
+    uncertainty: UncertaintySettings = field(default_factory=UncertaintySettings)
     convert: ConvertSettings = field(default_factory=ConvertSettings)
     fusion: FusionSettings = field(default_factory=FusionSettings)
     sideslip: SideslipSettings = field(default_factory=SideslipSettings)

@@ -36,6 +36,10 @@ def atomic_path(target: str | Path) -> Iterator[Path]:
         raise OutputError(f"cannot write '{target}': {exc.strerror or exc}") from None
     os.close(fd)
     tmp_path = Path(tmp)
+    # mkstemp creates the file private (0600); give it the permissions a new file gets
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp_path, 0o666 & ~umask)
     try:
         yield tmp_path
         os.replace(tmp_path, target)

@@ -1,0 +1,177 @@
+"""The report's figures. Each function draws on the axes it is given and returns what it drew."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from matplotlib.axes import Axes
+from numpy.typing import NDArray
+
+from odocal.model import PARAMETER_NAMES
+
+FloatArray = NDArray[np.float64]
+
+REFERENCE, DATASHEET, CALIBRATED, RAW, STEP1 = "#222222", "#d62728", "#1f77b4", "#ff7f0e", "#999999"
+#: Display scale and unit of each parameter (c_d and d read best in mm).
+DISPLAY = {"c_e": (1.0, "m"), "c_d": (1e3, "mm"), "t_r": (1.0, "m"), "d": (1e3, "mm/(m/s²)")}
+
+
+def plot_map(ax: Axes, reference: FloatArray, datasheet: FloatArray, calibrated: FloatArray, *,
+             title: str) -> list[Any]:
+    """Reference and dead-reckoned trajectories of one segment, positions in metres."""
+    origin = reference[0]
+    artists = [
+        ax.plot(*(reference - origin).T, color=REFERENCE, lw=2.2, label="reference")[0],
+        ax.plot(*(datasheet - origin).T, color=DATASHEET, lw=1.4, ls="--",
+                label="datasheet parameters")[0],
+        ax.plot(*(calibrated - origin).T, color=CALIBRATED, lw=1.4, label="calibrated")[0],
+        ax.plot(0, 0, "o", color=REFERENCE, ms=5)[0],
+    ]
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title, fontsize=9)
+    ax.grid(True, alpha=0.3)
+    return artists
+
+
+def plot_step1_sorted(ax: Axes, sorted_errors: FloatArray, picked_ranks: Sequence[int], *,
+                      final_m: float | None, raw_m: float | None) -> list[Any]:
+    """Fig. 4: validation errors of the step-1 batches, sorted, the picked ones marked."""
+    ranks = np.arange(1, sorted_errors.size + 1)
+    colours = [CALIBRATED if i in set(picked_ranks) else STEP1 for i in range(sorted_errors.size)]
+    artists: list[Any] = [ax.bar(ranks, sorted_errors, color=colours, width=0.8)]
+    if final_m is not None:
+        artists.append(ax.axhline(final_m, color=CALIBRATED, lw=1.5,
+                                  label=f"three-step calibration {final_m:.2f} m"))
+    if raw_m is not None:
+        artists.append(ax.axhline(raw_m, color=RAW, lw=1.5, ls="--",
+                                  label=f"batch G-N on all segments {raw_m:.2f} m"))
+    ax.set_xlabel("step-1 batch, sorted by validation error")
+    ax.set_ylabel("validation error E_p [m]")
+    ax.set_title("Step 1: batch G-N on measured rates (picked sets in blue)", fontsize=9)
+    ax.legend(fontsize=8, loc="upper left")
+    ax.grid(True, axis="y", alpha=0.3)
+    return artists
+
+
+def plot_parameter_spread(axes: Sequence[Axes], step1: FloatArray, picked: Sequence[int],
+                          estimates: Sequence[tuple[str, FloatArray, FloatArray, str]],
+                          datasheet: FloatArray) -> list[Any]:
+    """Fig. 5/7: every step-1 batch's parameters, and the final estimates with one std."""
+    artists: list[Any] = []
+    for j, (ax, name) in enumerate(zip(axes, PARAMETER_NAMES, strict=True)):
+        scale, unit = DISPLAY[name]
+        jitter = np.linspace(-0.15, 0.15, step1.shape[0]) if step1.shape[0] else np.zeros(0)
+        artists.append(ax.scatter(jitter, step1[:, j] * scale, s=10, color=STEP1,
+                                  label="step-1 batches"))
+        if len(picked):
+            artists.append(ax.scatter(jitter[list(picked)], step1[list(picked), j] * scale, s=22,
+                                      color=CALIBRATED, marker="s", label="picked for step 2"))
+        for i, (label, theta, std, colour) in enumerate(estimates):
+            artists.append(ax.errorbar([0.5 + 0.25 * i], [theta[j] * scale], yerr=[std[j] * scale],
+                                       fmt="o", color=colour, capsize=3, label=label))
+        artists.append(ax.axhline(datasheet[j] * scale, color=DATASHEET, lw=1, ls=":",
+                                  label="datasheet"))
+        ax.set_xticks([])
+        ax.set_xlim(-0.4, 0.5 + 0.25 * len(estimates))
+        ax.set_title(f"{name} [{unit}]", fontsize=9)
+        ax.grid(True, axis="y", alpha=0.3)
+    axes[0].legend(fontsize=7, loc="best")
+    return artists
+
+
+def plot_rates(ax: Axes, t: FloatArray, measured: FloatArray, compensated: FloatArray
+               ) -> list[Any]:
+    """Fig. 6: measured and compensated wheel rates of one segment (rev/s)."""
+    artists = []
+    for i, (side, colour) in enumerate((("rear left", "#2ca02c"), ("rear right", "#9467bd"))):
+        artists.append(ax.plot(t, measured[:, i], color=colour, lw=0.8, alpha=0.5,
+                               label=f"{side}, measured")[0])
+        artists.append(ax.plot(t, compensated[:, i], color=colour, lw=1.6,
+                               label=f"{side}, compensated")[0])
+    ax.set_xlabel("time in segment [s]")
+    ax.set_ylabel("wheel rotation rate [rev/s]")
+    ax.set_title("Step 2: measured and compensated wheel rates", fontsize=9)
+    ax.legend(fontsize=7, ncol=2)
+    ax.grid(True, alpha=0.3)
+    return artists
+
+
+def plot_segment_errors(ax: Axes, errors: dict[str, FloatArray]) -> list[Any]:
+    """Fig. 8: validation error of each validation segment, per parameter set."""
+    order = [k for k in ("datasheet", "raw", "calibrated") if k in errors]
+    colours = {"datasheet": DATASHEET, "raw": RAW, "calibrated": CALIBRATED}
+    labels = {"datasheet": "datasheet", "raw": "batch G-N, measured rates",
+              "calibrated": "calibrated"}
+    n = errors[order[0]].size
+    width = 0.8 / len(order)
+    x = np.arange(1, n + 1)
+    artists = [ax.bar(x + (i - (len(order) - 1) / 2) * width, errors[k], width=width,
+                      color=colours[k], label=f"{labels[k]} (mean {errors[k].mean():.2f} m)")
+               for i, k in enumerate(order)]
+    ax.set_xlabel("validation segment")
+    ax.set_ylabel("mean position error [m]")
+    ax.set_yscale("log")
+    low, high = ax.get_ylim()
+    ax.set_ylim(low, high * 10)                   # head room for the legend on the log scale
+    ax.set_title("Validation error per segment", fontsize=9)
+    ax.legend(fontsize=8, ncol=len(order), loc="upper center")
+    ax.grid(True, axis="y", alpha=0.3, which="both")
+    return artists
+
+
+def plot_histogram(ax: Axes, seconds: FloatArray, edges: FloatArray, *, xlabel: str,
+                   marks: Sequence[float] = (), mark_label: str = "") -> list[Any]:
+    """Time spent in each bin (s)."""
+    artists: list[Any] = [ax.bar(edges[:-1], seconds, width=np.diff(edges), align="edge",
+                                 color="#8da0cb", edgecolor="white")]
+    for i, m in enumerate(marks):
+        artists.append(ax.axvline(m, color=DATASHEET, lw=1, ls="--",
+                                  label=mark_label if i == 0 else None))
+    if marks and mark_label:
+        ax.legend(fontsize=8)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("time [s]")
+    ax.grid(True, axis="y", alpha=0.3)
+    return artists
+
+
+def plot_selection(ax: Axes, peak_yaw: FloatArray, threshold: float) -> list[Any]:
+    """Peak yaw rate of every identification segment against the selection threshold."""
+    selected = peak_yaw > threshold
+    idx = np.arange(peak_yaw.size)
+    artists = [ax.scatter(idx[selected], peak_yaw[selected], s=6, color=CALIBRATED,
+                          label=f"selected ({int(selected.sum())})"),
+               ax.scatter(idx[~selected], peak_yaw[~selected], s=6, color=STEP1,
+                          label=f"too straight ({int((~selected).sum())})"),
+               ax.axhline(threshold, color=DATASHEET, lw=1, ls="--",
+                          label=f"threshold {threshold} rad/s")]
+    ax.set_xlabel("identification segment")
+    ax.set_ylabel("peak |yaw rate| [rad/s]")
+    ax.legend(fontsize=8)
+    ax.grid(True, alpha=0.3)
+    return artists
+
+
+def plot_uncertainty(ax: Axes, covariance_std: FloatArray, bootstrap_std: FloatArray | None,
+                     prior_std: FloatArray, identified: Sequence[bool]) -> list[Any]:
+    """Standard deviations relative to the datasheet uncertainty (log scale)."""
+    x = np.arange(4)
+    ok = np.array(identified)
+    rel_cov = np.where(ok, covariance_std / prior_std, np.nan)
+    artists: list[Any] = [ax.bar(x - 0.2, rel_cov, width=0.4, color=CALIBRATED,
+                                 label="covariance")]
+    if bootstrap_std is not None:
+        artists.append(ax.bar(x + 0.2, np.where(ok, bootstrap_std / prior_std, np.nan),
+                              width=0.4, color=RAW, label="bootstrap"))
+    artists.append(ax.axhline(0.5, color=DATASHEET, lw=1, ls="--",
+                              label="identifiability limit"))
+    ax.set_xticks(x, list(PARAMETER_NAMES))
+    ax.set_yscale("log")
+    ax.set_ylabel("standard deviation / datasheet uncertainty")
+    ax.legend(fontsize=8)
+    ax.grid(True, axis="y", alpha=0.3, which="both")
+    return artists

@@ -1,0 +1,242 @@
+"""The calibration report: one self-contained HTML page with its figures embedded, and the PNGs."""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from odocal import __version__
+from odocal.calibrate import CalibrationResult
+from odocal.io.atomic import write_bytes, write_text
+from odocal.model import PARAMETER_LABELS
+from odocal.report import figures
+from odocal.report.data import ReportData, build, parameter_rows
+
+DPI = 110
+
+
+@dataclass(frozen=True)
+class Report:
+    """What :func:`write_report` wrote, and the numbers it showed."""
+
+    html_path: Path
+    figure_paths: tuple[Path, ...]
+    data: ReportData
+
+
+def _figure(width: float, height: float, nrows: int = 1, ncols: int = 1,
+            ) -> tuple[Figure, np.ndarray]:
+    """A figure of its own (no pyplot state), with a grid of axes."""
+    fig = Figure(figsize=(width, height), layout="constrained")
+    return fig, fig.subplots(nrows, ncols, squeeze=False)
+
+
+def _png(fig: Figure) -> bytes:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=DPI)
+    return buffer.getvalue()
+
+
+def _figures(result: CalibrationResult, data: ReportData) -> dict[str, tuple[str, bytes]]:
+    """name -> (caption, PNG bytes)."""
+    out: dict[str, tuple[str, bytes]] = {}
+    settings = result.settings
+    if data.maps:
+        fig, axes = _figure(4.0 * len(data.maps), 4.0, 1, len(data.maps))
+        for ax, m in zip(axes[0], data.maps, strict=True):
+            figures.plot_map(ax, m.reference, m.datasheet, m.calibrated,
+                             title=f"{Path(m.drive).name} at {m.start_s:.0f} s, "
+                                   f"{m.distance_m:.0f} m")
+        axes[0][0].legend(fontsize=8, loc="best")
+        out["map"] = ("Reference trajectory and dead reckoning with the datasheet and the "
+                      "calibrated parameters, on the validation segments that turn most.",
+                      _png(fig))
+    ts = result.three_step
+    if ts is not None:
+        s1 = ts.step1
+        if np.isfinite(s1.validation_m).any():
+            fig, axes = _figure(8.0, 3.4)
+            ranks = [int(np.flatnonzero(s1.order == p)[0]) for p in s1.picked]
+            figures.plot_step1_sorted(
+                axes[0][0], s1.validation_m[s1.order], ranks,
+                final_m=result.validation.mean_error_m if result.validation else None,
+                raw_m=float(data.segment_errors["raw"].mean()) if "raw" in data.segment_errors
+                else None)
+            out["step1"] = ("Fig. 4 of the paper: validation errors of the step-1 batches.",
+                            _png(fig))
+        fig, axes = _figure(10.0, 3.2, 1, 4)
+        estimates = [("batch G-N, measured rates", ts.raw.theta.as_array(), ts.raw.std,
+                      figures.RAW),
+                     ("three-step (calibrated)", result.theta.as_array(),
+                      result.identification.std, figures.CALIBRATED)]
+        figures.plot_parameter_spread(list(axes[0]), s1.thetas, list(s1.picked), estimates,
+                                      result.identification.theta0.as_array())
+        out["spread"] = ("Figs. 5 and 7 of the paper: the parameters of every step-1 batch, and "
+                         "the final estimates with one standard deviation.", _png(fig))
+        if result.batch is not None:
+            busiest = int(np.argmax(np.abs(result.batch.inputs.a_y).max(axis=1)))
+            u = result.batch.inputs
+            k = u.n_rl.shape[1]
+            t = np.arange(k, dtype=np.float64) * result.batch.t_s
+            fig, axes = _figure(8.0, 3.2)
+            figures.plot_rates(axes[0][0], t, np.column_stack([u.n_rl[busiest], u.n_rr[busiest]]),
+                               np.column_stack([ts.compensation.n_rl[busiest],
+                                                ts.compensation.n_rr[busiest]]))
+            out["rates"] = ("Fig. 6 of the paper: measured and compensated wheel rates on the "
+                            "selected segment with the highest lateral acceleration.", _png(fig))
+    if data.segment_errors:
+        fig, axes = _figure(8.0, 3.4)
+        figures.plot_segment_errors(axes[0][0], data.segment_errors)
+        out["segments"] = ("Fig. 8 of the paper: mean position error on each validation segment.",
+                           _png(fig))
+    fig, axes = _figure(10.0, 3.0, 1, 3)
+    figures.plot_histogram(axes[0][0], data.speed_hist[0], data.speed_hist[1],
+                           xlabel="speed [m/s]")
+    figures.plot_histogram(axes[0][1], data.yaw_hist[0], data.yaw_hist[1],
+                           xlabel="yaw rate [rad/s]",
+                           marks=(-settings.segments.yaw_rate_threshold_radps,
+                                  settings.segments.yaw_rate_threshold_radps),
+                           mark_label="selection threshold")
+    figures.plot_selection(axes[0][2], result.segments.peak_yaw_rate_radps,
+                           settings.segments.yaw_rate_threshold_radps)
+    out["coverage"] = ("Data coverage: time at each speed and yaw rate, and which segments the "
+                       "selection rule kept.", _png(fig))
+    fig, axes = _figure(6.0, 3.2)
+    figures.plot_uncertainty(axes[0][0], result.identification.std,
+                             result.bootstrap.std if result.bootstrap is not None else None,
+                             np.asarray(settings.identify.prior_std),
+                             result.identification.identified)
+    out["uncertainty"] = ("Standard deviations from the covariance and from the bootstrap, "
+                          "relative to the datasheet uncertainty.", _png(fig))
+    return out
+
+
+_CSS = """
+body { font-family: system-ui, -apple-system, 'Segoe UI', Roboto, sans-serif; margin: 0;
+       color: #222; background: #f6f7f9; }
+main { max-width: 1100px; margin: 0 auto; padding: 24px; }
+h1 { font-size: 1.6em; margin: 0 0 4px 0; } h2 { font-size: 1.2em; margin-top: 28px; }
+.meta { color: #666; font-size: 0.9em; }
+.verdict { padding: 12px 16px; border-radius: 6px; font-weight: 600; margin: 16px 0; }
+.good { background: #e3f4e5; border-left: 6px solid #2e9b3e; }
+.partial { background: #fff5dd; border-left: 6px solid #d9a400; }
+.bad { background: #fde6e6; border-left: 6px solid #c62828; }
+table { border-collapse: collapse; background: white; margin: 8px 0; }
+th, td { padding: 6px 12px; border-bottom: 1px solid #e2e4e8; text-align: right; }
+th { background: #eef0f3; } td:first-child, th:first-child { text-align: left; }
+figure { background: white; margin: 12px 0; padding: 8px; border-radius: 6px; }
+figure img { max-width: 100%; height: auto; display: block; }
+figcaption { color: #555; font-size: 0.9em; margin-top: 4px; }
+ul { line-height: 1.5; } .no { color: #c62828; } .yes { color: #2e9b3e; }
+"""
+
+
+def _fmt(name: str, value: float | None) -> str:
+    if value is None:
+        return "-"
+    scale, unit = figures.DISPLAY[name]
+    digits = 3 if name in ("c_d", "d") else 5
+    return f"{value * scale:.{digits}f} {unit}"
+
+
+def _page(result: CalibrationResult, data: ReportData,
+          figs: dict[str, tuple[str, str]]) -> str:
+    e = html.escape
+    rows = []
+    for row, label in zip(parameter_rows(result), PARAMETER_LABELS, strict=True):
+        name = row["name"]
+        ident = row["identified"]
+        cal = _fmt(name, row["calibrated"]) if ident else "not identified"
+        rows.append(
+            f"<tr><td><b>{name}</b> {e(label)}</td><td>{_fmt(name, row['datasheet'])}</td>"
+            f"<td>{cal}</td><td>{_fmt(name, row['std']) if ident else '-'}</td>"
+            f"<td>{_fmt(name, row['bootstrap_std']) if ident else '-'}</td>"
+            f"<td class='{'yes' if ident else 'no'}'>{'yes' if ident else 'no'}</td></tr>")
+    val = ""
+    if result.validation is not None and result.datasheet_validation is not None:
+        parts = [f"datasheet {result.datasheet_validation.mean_error_m:.3f} m"]
+        if "raw" in data.segment_errors:
+            parts.append(f"batch G-N on measured rates {data.segment_errors['raw'].mean():.3f} m")
+        parts.append(f"<b>calibrated {result.validation.mean_error_m:.3f} m</b>")
+        val = (f"<p>Validation error E_p over {len(result.validation.segments)} segments "
+               f"({result.validation.segments.distance_m.sum() / 1000:.2f} km): "
+               + " &rarr; ".join(parts) + "</p>")
+
+    def fig(name: str) -> str:
+        if name not in figs:
+            return ""
+        caption, uri = figs[name]
+        return (f"<figure id='fig-{name}'><img alt='{e(caption)}' src='{uri}'>"
+                f"<figcaption>{e(caption)}</figcaption></figure>")
+
+    cov = data.coverage
+    boot = result.bootstrap
+    warnings = "".join(f"<li>{e(w)}</li>" for w in result.warnings)
+    advice = "".join(f"<li class='{'yes' if a.identified else 'no'}'><b>{a.name}</b>: "
+                     f"<span style='color:#222'>{e(a.text)}</span></li>" for a in data.advice)
+    drives = ", ".join(e(Path(d.name).name) for d in result.drives)
+    paper = fig("step1") + fig("spread") + fig("rates") if result.three_step else ""
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>odocal calibration report</title><style>{_CSS}</style></head>
+<body><main>
+<h1>Wheel-odometry calibration</h1>
+<div class="meta">{drives} &middot; method {e(result.method)} &middot; odocal {__version__}
+&middot; {cov['distance_m'] / 1000:.2f} km, {cov['duration_s'] / 60:.1f} min</div>
+<div class="verdict {data.verdict_level}" id="verdict">{e(data.verdict)}</div>
+<h2>Result</h2>
+<table id="parameters"><tr><th>parameter</th><th>datasheet</th><th>calibrated</th>
+<th>std (covariance)</th><th>std (bootstrap)</th><th>identified</th></tr>
+{''.join(rows)}</table>
+<p class="meta">Covariance: {e(result.identification.covariance_kind)}.
+{e(boot.message[:1].upper() + boot.message[1:]) + '.' if boot is not None
+ else 'No bootstrap.'}</p>
+{val}
+<h2>Map</h2>{fig('map')}
+<h2>Validation</h2>{fig('segments')}
+{"<h2>The paper's views</h2>" + paper if paper else ""}
+<h2>Uncertainty</h2>{fig('uncertainty')}
+<h2>Data coverage</h2>
+<p>{cov['segments']} identification segments of {result.settings.segments.length} samples;
+{cov['selected']} passed the selection rule (peak yaw rate above
+{result.settings.segments.yaw_rate_threshold_radps} rad/s), {cov['not_selected']} were too
+straight{f"; {cov['time_in_pieces_too_short_s']:.0f} s lie in pieces too short for a segment"
+         if cov['time_in_pieces_too_short_s'] else ""}.
+{cov['bend_s']:.0f} s of {cov['moving_s']:.0f} s of driving are in bends.</p>
+{fig('coverage')}
+<h2>Identifiability</h2><ul id="identifiability">{advice}</ul>
+{"<h2>Warnings</h2><ul>" + warnings + "</ul>" if warnings else ""}
+<p class="meta">Every number on this page is in calibration.json.</p>
+</main></body></html>
+"""
+
+
+def write_report(result: CalibrationResult, out_dir: str | Path, *,
+                 progress: Callable[[str, int, int], None] | None = None) -> Report:
+    """Write ``report.html`` and ``figures/*.png`` into ``out_dir``."""
+    out = Path(out_dir)
+    if progress:
+        progress("report", 0, 1)
+    data = build(result)
+    pngs = _figures(result, data)
+    paths = []
+    for name, (_, png) in pngs.items():
+        path = out / "figures" / f"{name}.png"
+        write_bytes(path, png)
+        paths.append(path)
+    uris = {name: (caption, "data:image/png;base64," + base64.b64encode(png).decode("ascii"))
+            for name, (caption, png) in pngs.items()}
+    html_path = out / "report.html"
+    write_text(html_path, _page(result, data, uris))
+    if progress:
+        progress("report", 1, 1)
+    return Report(html_path=html_path, figure_paths=tuple(paths), data=data)
+

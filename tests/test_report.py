@@ -1,0 +1,146 @@
+"""The report: content, exports, and rendering in a real browser (headless Chromium)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import odocal
+from odocal.cli import EXIT_OK, main
+from odocal.report import write_report
+from odocal.simulate import SimulatedDrive
+
+ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
+FIGURES = ("map", "segments", "step1", "spread", "rates", "coverage", "uncertainty")
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory: pytest.TempPathFactory,
+               noisy_drive: SimulatedDrive) -> tuple[Path, odocal.CalibrationResult]:
+    path = tmp_path_factory.mktemp("report") / "drive.parquet"
+    odocal.save_drive(noisy_drive.drive, path)
+    out = path.parent / "out"
+    assert main(["calibrate", str(path), "--out", str(out), "--export", "yaml", "--export",
+                 "json", "-q"]) == EXIT_OK
+    return out, odocal.calibrate(noisy_drive.drive)
+
+
+def test_report_files_and_numbers(calibrated: tuple[Path, odocal.CalibrationResult]) -> None:
+    out, _ = calibrated
+    page = (out / "report.html").read_text()
+    assert page.startswith("<!DOCTYPE html>")
+    assert "http://" not in page and "https://" not in page      # opens offline
+    for name in FIGURES:
+        assert (out / "figures" / f"{name}.png").stat().st_size > 5000
+        assert f"id='fig-{name}'" in page
+    data = json.loads((out / "calibration.json").read_text())
+    report = data["report"]
+    assert report["verdict"] in page
+    assert len(report["identifiability"]) == 4
+    assert report["coverage"]["selected"] == data["segments_selected"]
+    errors = report["validation_segment_errors_m"]
+    assert np.mean(errors["calibrated"]) == pytest.approx(data["validation"]["E_p_m"])
+    assert set(errors) == {"datasheet", "raw", "calibrated"}
+    assert data["bootstrap"]["count"] == 200 and "agree" in data["bootstrap"]
+    for name, value in data["theta"].items():
+        assert f"{value * (1e3 if name in ('c_d', 'd') else 1):.3f}"[:5] in page
+
+
+def test_exports(calibrated: tuple[Path, odocal.CalibrationResult]) -> None:
+    out, _ = calibrated
+    exported = json.loads((out / "odometry_parameters.json").read_text())
+    data = json.loads((out / "calibration.json").read_text())
+    assert exported["theta"] == data["theta"]
+    assert np.array(exported["covariance"]).shape == (4, 4)
+    text = (out / "odometry_parameters.yaml").read_text()
+    assert "ros__parameters:" in text and "rear_track_width:" in text
+    import yaml  # PyYAML: only to check the file parses the way ROS 2 would read it
+
+    params = yaml.safe_load(text)["wheel_odometry"]["ros__parameters"]
+    assert params["effective_wheel_circumference"] == pytest.approx(data["theta"]["c_e"])
+    assert len(params["covariance"]) == 16
+
+
+def straight_drive(seconds: float = 240.0) -> odocal.Drive:
+    """A straight road with speed changes and noisy wheels: no bends at all."""
+    from odocal.model import Inputs, rollout, wheel_rates_for
+
+    theta = odocal.TRUE_PARAMETERS.as_array()
+    rng = np.random.default_rng(8)
+    t = np.arange(int(seconds * 40) + 1) * 0.025
+    v = 9.0 + 4.0 * np.sin(0.1 * t)
+    zero = np.zeros_like(t)
+    n_rl, n_rr = wheel_rates_for(theta, v, zero, zero)
+    poses = rollout(theta, Inputs(n_rl[:-1], n_rr[:-1], zero[:-1], zero[:-1]),
+                    np.array([0.0, 0.0, 0.3]), 0.025)
+    return odocal.Drive.from_columns(
+        {"t": t, "n_rl": n_rl + 0.02 * rng.standard_normal(t.size),
+         "n_rr": n_rr + 0.02 * rng.standard_normal(t.size), "a_y": zero,
+         "x": poses[:, 0], "y": poses[:, 1], "psi": poses[:, 2]}, name="straight")
+
+
+def test_drive_without_bends_names_what_it_cannot_identify(tmp_path: Path) -> None:
+    result = odocal.calibrate(straight_drive(), method="raw")
+    report = write_report(result, tmp_path)
+    advice = {a.name: a for a in report.data.advice}
+    assert advice["c_e"].identified
+    for name in ("t_r", "d"):
+        assert not advice[name].identified and "needs bends" in advice[name].text
+        assert "0 s" in advice[name].text
+    page = report.html_path.read_text()
+    assert "t_r, d not identified" in page
+
+
+def _chromium() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+@pytest.mark.browser
+def test_report_renders_in_headless_chromium(
+        calibrated: tuple[Path, odocal.CalibrationResult]) -> None:
+    executable = _chromium()
+    if executable is None:
+        pytest.skip("no Chromium on this machine (.ci/run installs Debian's chromium)")
+    sync_api = pytest.importorskip("playwright.sync_api")
+    out, _ = calibrated
+    errors: list[str] = []
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(
+            executable_path=executable, headless=True,
+            args=["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                  "--disable-background-networking", "--disable-component-update",
+                  "--disable-sync"])
+        page = browser.new_page(viewport={"width": 1200, "height": 900})
+        page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto((out / "report.html").as_uri())
+        page.wait_for_load_state("load")
+        figures = page.evaluate("""() => Array.from(document.images).map(img => {
+            const c = document.createElement('canvas');
+            c.width = img.naturalWidth; c.height = img.naturalHeight;
+            const ctx = c.getContext('2d'); ctx.drawImage(img, 0, 0);
+            const d = ctx.getImageData(0, 0, c.width, c.height).data;
+            let dark = 0;
+            for (let i = 0; i < d.length; i += 4) if (d[i] + d[i + 1] + d[i + 2] < 600) dark++;
+            return {id: img.parentElement.id, width: img.naturalWidth, complete: img.complete,
+                    dark: dark / (d.length / 4)};
+        })""")
+        ARTIFACTS.mkdir(exist_ok=True)
+        page.screenshot(path=str(ARTIFACTS / "report.png"), full_page=True)
+        verdict = page.inner_text("#verdict")
+        browser.close()
+    assert errors == []
+    assert {f["id"] for f in figures} == {f"fig-{name}" for name in FIGURES}
+    for f in figures:
+        assert f["complete"] and f["width"] > 300, f
+        assert f["dark"] > 0.01, f                    # not blank: axes, lines, text drawn
+    assert verdict.startswith(("Calibrated", "Do not use", "Calibration failed"))
+    assert (ARTIFACTS / "report.png").stat().st_size > 50_000
