@@ -1,4 +1,4 @@
-"""Evidence (issue 3): raw batch G-N against the compensated three-step method, per noise profile.
+"""Evidence (issues 3 and 6): raw batch G-N, the three-step method and the joint estimator.
 
     python benchmarks/bench_bias.py [--seeds 10] [--duration 1800] [--profiles white,slip,...]
                                     [--out results.json]
@@ -12,9 +12,11 @@ For every noisy simulator profile and seed, one calibration drive and one held-o
 * ``comp-10``      step 3 on the same batch of 10 with its compensated rates (theta_BF)
 * ``oracle``       step 3 on all segments with rates compensated with the *true* parameters: what
                    compensation gives when step 1 is perfect (a diagnostic of inheritance)
+* ``joint``        the joint errors-in-variables estimator on the whole drive
 
 Printed per profile: each parameter's error against the truth (mean and standard deviation over
-seeds) and E_p on the held-out drives relative to the true parameters' E_p (mean over seeds).
+seeds), E_p on the held-out drives relative to the true parameters' E_p (mean over seeds), and for
+every method's reported covariance the spread of error / reported std over seeds (1 is honest).
 """
 
 from __future__ import annotations
@@ -34,7 +36,8 @@ from odocal.segments import gather, gather_ragged, identification_segments, vali
 from odocal.settings import Settings
 from odocal.validate import mean_error
 
-ARMS = ("raw", "compensated", "raw-10", "comp-10", "oracle")
+ARMS = ("raw", "compensated", "raw-10", "comp-10", "oracle", "joint")
+REPORTED = ("raw", "compensated", "joint")
 SCALE = np.array([1e3, 1e3, 1e3, 1e3])   # report every error in mm (or mm per m/s^2)
 
 
@@ -49,11 +52,16 @@ def one_run(profile: str, seed: int, duration: float, settings: Settings) -> dic
     val = gather_ragged([held_out.drive], validation_segments([held_out.drive],
                                                                settings.segments))
     thetas: dict[str, np.ndarray] = {}
+    stds: dict[str, list[float]] = {}
 
     raw = odocal.calibrate(sim.drive, settings=settings, method="raw")
     thetas["raw"] = raw.theta.as_array()
     comp = odocal.calibrate(sim.drive, settings=settings, method="compensated")
     thetas["compensated"] = comp.theta.as_array()
+    joint = odocal.calibrate(sim.drive, settings=settings, method="joint")
+    thetas["joint"] = joint.theta.as_array()
+    for arm, result in (("raw", raw), ("compensated", comp), ("joint", joint)):
+        stds[arm] = result.identification.std.tolist()
     outcome = comp.three_step
     assert outcome is not None
 
@@ -74,6 +82,7 @@ def one_run(profile: str, seed: int, duration: float, settings: Settings) -> dic
         "error": {arm: (thetas[arm] - truth).tolist() for arm in ARMS},
         "E_p_ratio": {arm: mean_error(thetas[arm], val) / e_true for arm in ARMS},
         "E_p_true_m": e_true,
+        "std": stds,
         "step1_picked_mean_error": (outcome.step1.thetas[outcome.step1.picked].mean(axis=0)
                                     - truth).tolist(),
     }
@@ -90,6 +99,15 @@ def summarise(runs: list[dict[str, Any]], profile: str) -> None:
         cells = "".join(f"{m:>+9.3f} +-{s:6.3f}" for m, s in zip(err.mean(0), err.std(0),
                                                                   strict=True))
         print(f"  {arm:<12}{cells}{ratio.mean():>12.4f}")
+    for arm in REPORTED:
+        err = np.array([r["error"][arm] for r in rows])
+        std = np.array([r["std"][arm] for r in rows])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(std > 0, err / std, np.nan)
+        print(f"  {arm:<12} error / reported std over seeds: spread "
+              + ", ".join(f"{n} {np.nanstd(z[:, j]):.2f}" for j, n in enumerate(PARAMETER_NAMES))
+              + "; RMS " + ", ".join(f"{np.sqrt(np.nanmean(z[:, j] ** 2)):.2f}"
+                                      for j in range(4)))
     picked = np.array([r["step1_picked_mean_error"] for r in rows]) * SCALE
     cells = "".join(f"{m:>+9.3f} +-{s:6.3f}" for m, s in zip(picked.mean(0), picked.std(0),
                                                               strict=True))

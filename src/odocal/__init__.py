@@ -19,6 +19,7 @@ import logging as _logging
 
 from odocal.calibrate import CalibrationResult, calibrate
 from odocal.calibrate import validate_theta as validate
+from odocal.convert import convert, inspect
 from odocal.drive import Drive
 from odocal.errors import (
     ConfigError,
@@ -54,6 +55,8 @@ __all__ = [
     "SolverError",
     "__version__",
     "calibrate",
+    "convert",
+    "inspect",
     "load_drive",
     "load_settings",
     "save_drive",

@@ -101,7 +101,7 @@ def wheel_rates_for(theta: FloatArray, v: FloatArray, w: FloatArray,
     return (v - half) / c_rl, (v + half) / c_rr
 
 
-def _rate_derivatives(theta: FloatArray, u: Inputs) -> tuple[FloatArray, FloatArray,
+def rate_derivatives(theta: FloatArray, u: Inputs) -> tuple[FloatArray, FloatArray,
                                                              FloatArray, FloatArray]:
     """v, w and their derivatives with respect to theta, shapes (..., K) and (..., K, 4)."""
     v, w = body_rates(theta, u.n_rl, u.n_rr, u.a_y)
@@ -174,7 +174,7 @@ def rollout_with_jacobian(theta: FloatArray, u: Inputs, x0: FloatArray,
     jac : ndarray, shape (..., K+1, 3, 4)
         ``jac[..., k, i, j] = d poses[..., k, i] / d theta[j]``; zero at k = 0 (x0 is measured).
     """
-    v, w, dv, dw = _rate_derivatives(theta, u)
+    v, w, dv, dw = rate_derivatives(theta, u)
     poses = _integrate(v, w, u.beta, x0, t_s)
     heading = poses[..., :-1, 2] + 0.5 * t_s * w + u.beta
     cos_h, sin_h = np.cos(heading), np.sin(heading)
