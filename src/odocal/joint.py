@@ -10,12 +10,16 @@ as unknowns, with three kinds of residual, each weighted by its noise::
     wheel rates  dn_b / sigma_n                                      (the encoders' noise)
 
 The true rates are the measured ones plus a correction ``dn_b`` per block of ``block_s``
-(1 s by default), and ``F`` is the exact 40 Hz model rolled out across the block from its
+(5 s by default), and ``F`` is the exact 40 Hz model rolled out across the block from its
 boundary pose ``x_b``. A correction per sample (``block_s`` = one sample) is the textbook
 formulation, but the errors it would have to explain are not white at 40 Hz: encoder ticks
 counted over a window, quantisation (whose errors telescope), slip correlated over a second,
 small clock delays. Against the truth on simulated drives the per-sample form missed t_r by
-10-20 cm with those profiles, while a block's mean error is close to white.
+10-20 cm with those profiles, while a block's mean error is close to white. Short blocks have a
+second weakness: the noise estimation cannot fully tell reference-heading noise from wheel noise
+(in errors-in-variables problems the variance ratio is only weakly identified), and the more
+wheel noise a block leaves, the more t_r is pulled; the default block is the length at which
+that stopped mattering on every simulated profile.
 
 Ordering the unknowns block by block, ``[x_b (3), dn_b (2)]``, makes the Gauss-Newton normal
 equations banded (half-width 7) with a dense border for theta. Each step factorises the banded

@@ -203,9 +203,12 @@ class JointSettings:
     variance-component estimation.
     """
 
-    block_s: float = 1.0
+    block_s: float = 5.0
     """Length of the blocks the true wheel rates are corrected per (the measured rates plus one
-    correction per block). One sample (0.025) gives a correction per sample."""
+    correction per block). One sample (0.025) gives a correction per sample. Shorter blocks let
+    the noise estimation confuse reference-heading noise with wheel noise, which biases t_r
+    (white wheel noise, 3 seeds: +36 mm at 0.25 s, +11 mm at 1 s, +3 mm at 3 s, -0.3 mm at 5 s;
+    benchmarks/README.md)."""
     wheel_noise_revps: float | None = None
     """Noise of a block's mean measured wheel rate, rev/s."""
     reference_position_m: float | None = None
