@@ -476,6 +476,14 @@ def joint_calibration(drives: Sequence[Drive], *, settings: Settings,
     theta = datasheet.copy()
     history_noise: list[dict[str, float]] = []
     warnings: list[str] = []
+
+    def solve(noise: NoiseLevels, z: FloatArray, theta: FloatArray,
+              free: BoolArray) -> tuple[_Solution, _Weights]:
+        wt = _Weights.of(data, noise)
+        sol = _gauss_newton(z, theta, free, data, wt, js.max_iterations)
+        history_noise.append({**noise.to_dict(), "cost": sol.system.cost})
+        return sol, wt
+
     total_iterations = 0
     rounds = js.noise_rounds if estimate else 0
     settled = not estimate
@@ -483,11 +491,9 @@ def joint_calibration(drives: Sequence[Drive], *, settings: Settings,
     for round_ in range(rounds):
         if progress:
             progress("joint: noise estimation", round_, rounds)
-        wt = _Weights.of(data, noise)
-        sol = _gauss_newton(z0, theta, free, data, wt, js.max_iterations)
+        sol, wt = solve(noise, z0, theta, free)
         total_iterations += sol.iterations
         z0, theta = sol.z, sol.theta
-        history_noise.append({**noise.to_dict(), "cost": sol.system.cost})
         red = _redundancy(sol, wt, data, estimate, js.trace_probes, rng)
         parts = _group_ss(sol, data, wt)
         scale = {g: parts[g] / max(red[g], 1.0) for g in estimate}
@@ -512,15 +518,10 @@ def joint_calibration(drives: Sequence[Drive], *, settings: Settings,
     if progress:
         progress("joint: noise estimation", rounds, rounds)
     # the final solve, at the final noise levels (warm-started)
-    wt = _Weights.of(data, noise)
-    sol = _gauss_newton(z0, theta, free, data, wt, js.max_iterations)
+    sol, wt = solve(noise, z0, theta, free)
     total_iterations += sol.iterations
     z0, theta = sol.z, sol.theta
-    history_noise.append({**noise.to_dict(), "cost": sol.system.cost})
-
-    cov = np.zeros((4, 4))
-    _, _, schur = _solve(sol.system, np.zeros(_STAGE * z0.shape[0]), np.zeros(int(free.sum())))
-    cov[np.ix_(free, free)] = np.linalg.inv(schur)
+    cov = _theta_covariance(sol, free)
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     prior = np.asarray(settings.identify.prior_std)
     weak = free & (std > settings.identify.identifiable_ratio * prior)
@@ -531,14 +532,10 @@ def joint_calibration(drives: Sequence[Drive], *, settings: Settings,
                 f"uncertainty {prior[j]:.3g}); kept at the datasheet value {datasheet[j]:.6g}")
         free = free & ~weak
         theta[~free] = datasheet[~free]
-        sol = _gauss_newton(z0, theta, free, data, wt, js.max_iterations)
+        sol, wt = solve(noise, sol.z, theta, free)
         theta = sol.theta
         total_iterations += sol.iterations
-        cov = np.zeros((4, 4))
-        if free.any():
-            _, _, schur = _solve(sol.system, np.zeros(_STAGE * z0.shape[0]),
-                                 np.zeros(int(free.sum())))
-            cov[np.ix_(free, free)] = np.linalg.inv(schur)
+        cov = _theta_covariance(sol, free)
         std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
 
     sensitivity: dict[str, dict[str, float]] = {}
@@ -577,13 +574,18 @@ def joint_calibration(drives: Sequence[Drive], *, settings: Settings,
                        elapsed_s=time.perf_counter() - started, warnings=tuple(warnings))
 
 
-def _theta_std(sol: _Solution, free: BoolArray) -> FloatArray:
-    std = np.zeros(4)
+def _theta_covariance(sol: _Solution, free: BoolArray) -> FloatArray:
+    """theta's covariance: the inverse Schur complement, embedded in 4x4."""
+    cov = np.zeros((4, 4))
     if free.any():
         _, _, schur = _solve(sol.system, np.zeros(sol.system.g_z.shape[0]),
                              np.zeros(int(free.sum())))
-        std[free] = np.sqrt(np.clip(np.diag(np.linalg.inv(schur)), 0.0, None))
-    return std
+        cov[np.ix_(free, free)] = np.linalg.inv(schur)
+    return cov
+
+
+def _theta_std(sol: _Solution, free: BoolArray) -> FloatArray:
+    return np.sqrt(np.clip(np.diag(_theta_covariance(sol, free)), 0.0, None))
 
 
 def _group_ss(sol: _Solution, data: _Data, wt: _Weights) -> dict[str, float]:

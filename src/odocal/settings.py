@@ -464,15 +464,19 @@ def settings_from_dict(data: dict[str, Any], *, source: str = "settings") -> Set
     return Settings(**sections)
 
 
+def read_toml(path: str | Path, kind: str) -> dict[str, Any]:
+    """A TOML file's content; a missing or malformed file is named as ``kind`` in the error."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(f"{kind} '{p}' does not exist")
+    try:
+        return tomllib.loads(p.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{kind} '{p}' is not valid TOML: {exc}") from None
+
+
 def load_settings(path: str | Path | None) -> Settings:
     """Read a TOML settings file; ``None`` gives the defaults."""
     if path is None:
         return Settings()
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(f"settings file '{p}' does not exist")
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"settings file '{p}' is not valid TOML: {exc}") from None
-    return settings_from_dict(data, source=f"'{p}'")
+    return settings_from_dict(read_toml(path, "settings file"), source=f"'{path}'")

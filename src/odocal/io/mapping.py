@@ -49,12 +49,12 @@ file) and columns; for ``rosbag`` a ``topic`` and field paths (``angular_velocit
 
 from __future__ import annotations
 
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from odocal.errors import ConfigError, InputFileError
+from odocal.errors import ConfigError
+from odocal.settings import read_toml
 
 _COMMON = {"offset_s", "file", "topic", "time", "time_unit", "type"}
 KEYS: Mapping[str, set[str]] = {
@@ -73,13 +73,7 @@ def load_mapping(path: str | Path | None) -> dict[str, dict[str, Any]]:
     if path is None:
         return {}
     p = Path(path)
-    if not p.is_file():
-        raise InputFileError(f"mapping file '{p}' does not exist")
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"mapping file '{p}' is not valid TOML: {exc}") from None
-    return check_mapping(data, source=str(p), base=p.parent)
+    return check_mapping(read_toml(p, "mapping file"), source=str(p), base=p.parent)
 
 
 def check_mapping(data: Mapping[str, Any], *, source: str = "mapping",
