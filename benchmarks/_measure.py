@@ -13,7 +13,11 @@ def _tree(pid: int) -> list[int]:
     pids = [pid]
     i = 0
     while i < len(pids):
-        for task in Path(f"/proc/{pids[i]}/task").glob("*"):
+        try:
+            tasks = list(Path(f"/proc/{pids[i]}/task").glob("*"))
+        except OSError:                      # the process has just ended
+            tasks = []
+        for task in tasks:
             try:
                 pids.extend(int(c) for c in (task / "children").read_text().split())
             except OSError:
@@ -36,7 +40,8 @@ def _pss_kb(pid: int) -> int:
 def run_measured(argv: Sequence[str]) -> tuple[float, float]:
     """Run ``argv``; return (wall seconds, peak summed PSS of the process tree in MB).
 
-    The tree is sampled every 20 ms, so short spikes between samples can be missed.
+    The tree is sampled every 200 ms (reading PSS costs the measured process time, so more often
+    would slow it down), so short spikes between samples can be missed.
     """
     start = time.perf_counter()
     proc = subprocess.Popen(list(argv))
@@ -47,7 +52,7 @@ def run_measured(argv: Sequence[str]) -> tuple[float, float]:
         nonlocal peak
         while not done.is_set():
             peak = max(peak, sum(_pss_kb(p) for p in _tree(proc.pid)))
-            time.sleep(0.02)
+            time.sleep(0.2)
 
     thread = threading.Thread(target=poll, daemon=True)
     thread.start()

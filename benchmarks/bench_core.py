@@ -55,9 +55,10 @@ def calibrate_command(duration: float) -> None:
         for method in ("raw", "compensated"):
             wall, peak_mb = run_measured([sys.executable, "-m", "odocal.cli", "calibrate",
                                           str(drive), "--out", str(Path(tmp) / method),
-                                          "--method", method, "-q"])
-            print(f"odocal calibrate --method {method}, {duration / 60:.0f}-minute drive: "
-                  f"{wall:.1f} s wall, peak memory {peak_mb:.0f} MB (PSS, all processes)")
+                                          "--method", method, "-q", "--no-report"])
+            print(f"odocal calibrate --method {method} --no-report, "
+                  f"{duration / 60:.0f}-minute drive: {wall:.1f} s wall, peak memory "
+                  f"{peak_mb:.0f} MB (PSS, all processes)")
 
 
 def main() -> None:

@@ -236,7 +236,8 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
         final = gauss_newton(compensated, settings=settings.identify, start=start,
                              clusters=clusters, fixed={**dict(fixed or {}), **weak})
         final = _with_inheritance(final, s1.thetas[s1.success], sets.shape[0])
-    raw = gauss_newton(batch, settings=settings.identify, clusters=clusters, fixed=fixed)
+    raw = gauss_newton(batch, settings=settings.identify, start=start, clusters=clusters,
+                       fixed=fixed)
     if progress:
         progress("step 3: identification", 1, 1)
     timings["step3"] = time.perf_counter() - started
