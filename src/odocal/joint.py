@@ -378,13 +378,13 @@ def _redundancy(solution: _Solution, wt: _Weights, data: _Data, groups: Sequence
                 for a in range(8):
                     np.add.at(u, _STAGE * links + a, contrib[:, a])
                 ut += np.einsum("lp,lq->pq", jt[:, row], v[:, j])
-            a_z, a_t, _ = _solve(system, u, _free_rows(ut, solution, free_p))
+            a_z, a_t, _ = _solve(system, u, ut[solution.free])
             quad = np.zeros(probes)
             for j, row in enumerate(rows):
                 back = np.zeros((links.size, probes))
                 for a in range(8):
                     back += jz[:, row, a, None] * a_z[_STAGE * links + a]
-                back += np.einsum("lp,pq->lq", jt[:, row][:, _free_mask(solution, free_p)],
+                back += np.einsum("lp,pq->lq", jt[:, row][:, solution.free],
                                   a_t)
                 quad += np.einsum("lq,lq->q", v[:, j], back)
             out[group] = float(links.size * len(rows) - quad.mean())
@@ -402,14 +402,6 @@ def _redundancy(solution: _Solution, wt: _Weights, data: _Data, groups: Sequence
             quad += np.einsum("kp,kp->p", w[:, j, None] * v[:, j], a_z[idx + c])
         out[group] = float(w.size - quad.mean())
     return out
-
-
-def _free_mask(solution: _Solution, free_p: int) -> BoolArray:
-    return np.asarray(solution.free)
-
-
-def _free_rows(ut: FloatArray, solution: _Solution, free_p: int) -> FloatArray:
-    return ut[np.asarray(solution.free)]
 
 
 def _initial_noise(settings: Settings) -> NoiseLevels:

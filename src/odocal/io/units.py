@@ -27,28 +27,27 @@ def _unknown(stream: str, what: str, unit: str, known: tuple[str, ...] | list[st
                      f"{', '.join(known)}")
 
 
+def _scaled(values: FloatArray, unit: str, table: dict[str, float], what: str,
+            stream: str) -> FloatArray:
+    if unit not in table:
+        raise _unknown(stream, what, unit, list(table))
+    return np.asarray(values, dtype=np.float64) * table[unit]
+
+
 def time_seconds(values: FloatArray, unit: str, *, stream: str) -> FloatArray:
-    if unit not in TIME_UNITS:
-        raise _unknown(stream, "time", unit, list(TIME_UNITS))
-    return np.asarray(values, dtype=np.float64) * TIME_UNITS[unit]
+    return _scaled(values, unit, TIME_UNITS, "time", stream)
 
 
 def angle_rad(values: FloatArray, unit: str, *, stream: str) -> FloatArray:
-    if unit not in ANGLE_UNITS:
-        raise _unknown(stream, "angle", unit, list(ANGLE_UNITS))
-    return np.asarray(values, dtype=np.float64) * ANGLE_UNITS[unit]
+    return _scaled(values, unit, ANGLE_UNITS, "angle", stream)
 
 
 def angular_rate_radps(values: FloatArray, unit: str, *, stream: str) -> FloatArray:
-    if unit not in ANGULAR_RATE_UNITS:
-        raise _unknown(stream, "angular rate", unit, list(ANGULAR_RATE_UNITS))
-    return np.asarray(values, dtype=np.float64) * ANGULAR_RATE_UNITS[unit]
+    return _scaled(values, unit, ANGULAR_RATE_UNITS, "angular rate", stream)
 
 
 def accel_mps2(values: FloatArray, unit: str, *, stream: str) -> FloatArray:
-    if unit not in ACCEL_UNITS:
-        raise _unknown(stream, "acceleration", unit, list(ACCEL_UNITS))
-    return np.asarray(values, dtype=np.float64) * ACCEL_UNITS[unit]
+    return _scaled(values, unit, ACCEL_UNITS, "acceleration", stream)
 
 
 def heading_enu(values_rad: FloatArray, convention: str, *, stream: str) -> FloatArray:

@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 from odocal.advice import ParameterAdvice, advise, coverage
 from odocal.calibrate import CalibrationResult
 from odocal.model import PARAMETER_NAMES, Inputs, rollout
-from odocal.segments import gather_ragged, validation_segments
+from odocal.segments import gather_ragged
 from odocal.validate import segment_errors
 
 FloatArray = NDArray[np.float64]
@@ -62,8 +62,11 @@ class ReportData:
         }
 
 
-def verdict(result: CalibrationResult) -> tuple[str, str]:
-    """One line, and a level (good, partial, bad) for its colour."""
+def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str, str]:
+    """One line, and a level (good, partial, bad) for its colour.
+
+    ``raw_m`` is E_p of the raw estimate the three-step method computed alongside, if any.
+    """
     ident = result.identification
     if not result.success:
         return f"Calibration failed: {ident.message}.", "bad"
@@ -89,22 +92,12 @@ def verdict(result: CalibrationResult) -> tuple[str, str]:
     if result.bootstrap is not None and not all(result.bootstrap.agree):
         base += "; the bootstrap disagrees with the covariance"
         level = "partial" if level == "good" else level
-    raw = _raw_validation(result)
-    if raw is not None and result.validation is not None \
-            and raw < result.validation.mean_error_m:
-        base += (f". Batch G-N on the measured rates validates better ({raw:.2f} m): "
+    if raw_m is not None and result.validation is not None \
+            and raw_m < result.validation.mean_error_m:
+        base += (f". Batch G-N on the measured rates validates better ({raw_m:.2f} m): "
                  "consider --method raw or joint")
         level = "partial" if level == "good" else level
     return base + ".", level
-
-
-def _raw_validation(result: CalibrationResult) -> float | None:
-    """E_p of the raw estimate the three-step method computed alongside (None otherwise)."""
-    if result.three_step is None or result.validation is None:
-        return None
-    drives = result.drive_data
-    data = gather_ragged(drives, result.validation.segments)
-    return float(segment_errors(result.three_step.raw.theta.as_array(), data).mean_m.mean())
 
 
 def build(result: CalibrationResult) -> ReportData:
@@ -124,13 +117,14 @@ def build(result: CalibrationResult) -> ReportData:
     if result.validation is not None and result.datasheet_validation is not None:
         errors["datasheet"] = result.datasheet_validation.errors.mean_m
         errors["calibrated"] = result.validation.errors.mean_m
-        segs = validation_segments(drives, settings.segments)
-        data = gather_ragged(drives, segs)
+        segs = result.validation.segments
         if result.three_step is not None:
+            data = gather_ragged(drives, segs)
             errors["raw"] = segment_errors(result.three_step.raw.theta.as_array(), data).mean_m
         maps = _maps(result, segs)
+    line, level = verdict(result, float(errors["raw"].mean()) if "raw" in errors else None)
     return ReportData(
-        verdict=verdict(result)[0], verdict_level=verdict(result)[1],
+        verdict=line, verdict_level=level,
         advice=advise(result.identification, cov, settings), coverage=cov.to_dict(),
         speed_hist=(speed_hist[0] * t_s, speed_hist[1]), yaw_hist=(yaw_hist[0] * t_s, yaw_edges),
         segment_errors=errors, maps=maps)
