@@ -61,7 +61,7 @@ def one_run(profile: str, seed: int, duration: float, settings: Settings) -> dic
     joint = odocal.calibrate(sim.drive, settings=settings, method="joint")
     thetas["joint"] = joint.theta.as_array()
     for arm, result in (("raw", raw), ("compensated", comp), ("joint", joint)):
-        stds[arm] = result.identification.std.tolist()
+        stds[arm] = result.estimate.std.tolist()
     outcome = comp.three_step
     assert outcome is not None
 

@@ -28,7 +28,7 @@ BOSTON = ("scene-0103", "scene-0655")
 
 
 def fmt_theta(result: odocal.CalibrationResult) -> str:
-    ident = result.identification
+    ident = result.estimate
     parts = []
     for name, value, std, ok in zip(PARAMETER_NAMES, result.theta.as_array(), ident.std,
                                     ident.identified, strict=True):
@@ -56,7 +56,7 @@ def nuscenes(data: Path, methods: list[str]) -> None:
                               settings=settings)
         held_out = [drives[s] for s in SINGAPORE if s not in SINGAPORE_TURNS]
         cal = odocal.validate(held_out, sg.theta, settings=settings)
-        ds = odocal.validate(held_out, sg.identification.theta0, settings=settings)
+        ds = odocal.validate(held_out, sg.estimate.datasheet, settings=settings)
         print(f"  Singapore car, calibrated on {', '.join(SINGAPORE_TURNS)}: {fmt_theta(sg)}")
         print(f"    validated on scene-0796 and scene-1100 ({len(cal.segments)} segment(s) of "
               f"~{settings.segments.validation_distance_m:.0f} m, "
@@ -65,7 +65,7 @@ def nuscenes(data: Path, methods: list[str]) -> None:
         bos = odocal.calibrate([drives[s] for s in BOSTON], method=method, settings=settings)
         print(f"  Boston car, calibrated on {', '.join(BOSTON)}: {fmt_theta(bos)}")
         diff = bos.theta.c_d - sg.theta.c_d
-        spread = float(np.hypot(bos.identification.std[1], sg.identification.std[1]))
+        spread = float(np.hypot(bos.estimate.std[1], sg.estimate.std[1]))
         print(f"  c_d Boston - Singapore: {diff * 1e3:+.2f} mm ({abs(diff) / spread:.0f} "
               "standard deviations)")
         for car, scenes in (("Singapore", SINGAPORE), ("Boston", BOSTON)):
@@ -77,7 +77,7 @@ def nuscenes(data: Path, methods: list[str]) -> None:
                     continue
                 r = odocal.calibrate(train, method=method, settings=settings)
                 e = odocal.validate(drives[out], r.theta, settings=settings).mean_error_m
-                e0 = odocal.validate(drives[out], r.identification.theta0,
+                e0 = odocal.validate(drives[out], r.estimate.datasheet,
                                      settings=settings).mean_error_m
                 rows.append(f"{out}: {e:.3f} m (datasheet {e0:.3f})")
             print(f"  {car} leave-one-scene-out E_p: " + "; ".join(rows))
@@ -110,8 +110,8 @@ def comma(data: Path, methods: list[str]) -> None:
                   f"{r.validation.mean_error_m:.3f} m (datasheet "
                   f"{r.datasheet_validation.mean_error_m:.3f}); scale c_e/2.0 = "
                   f"{r.theta.c_e / 2.0:.4f}")
-            for name in r.identification.unidentified:
-                print(f"    {name}: {r.identification.reasons[name]}")
+            for name in r.estimate.unidentified:
+                print(f"    {name}: {r.estimate.verdict(name)}")
 
 
 def main() -> None:

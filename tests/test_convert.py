@@ -10,6 +10,7 @@ import pyarrow.csv as pacsv
 import pytest
 
 import odocal
+from odocal.estimate import Reason
 from odocal.cli import EXIT_ERROR, EXIT_OK, main
 from odocal.convert import convert, inspect
 from odocal.errors import ConfigError, DataError
@@ -336,21 +337,21 @@ def test_singapore_calibration_beats_the_datasheet_on_other_scenes(
     result = odocal.calibrate([nuscenes[s] for s in SINGAPORE_TURNS], method="raw")
     held_out = [nuscenes[s] for s in SINGAPORE_OTHER]
     calibrated = odocal.validate(held_out, result.theta).mean_error_m
-    datasheet = odocal.validate(held_out, result.identification.theta0).mean_error_m
+    datasheet = odocal.validate(held_out, result.estimate.datasheet).mean_error_m
     assert calibrated < 0.5 * datasheet
-    assert all(result.identification.identified)
+    assert all(result.estimate.identified)
 
 
 @pytest.mark.realdata
 def test_boston_car_differs_from_singapore_car(nuscenes: dict[str, odocal.Drive]) -> None:
     singapore = odocal.calibrate([nuscenes[s] for s in SINGAPORE_TURNS], method="raw")
     boston = odocal.calibrate([nuscenes[s] for s in BOSTON], method="raw")
-    assert boston.identification.identified[1]          # c_d shows in the heading drift
+    assert boston.estimate.identified[1]          # c_d shows in the heading drift
     difference = abs(boston.theta.c_d - singapore.theta.c_d)
-    spread = np.hypot(boston.identification.std[1], singapore.identification.std[1])
+    spread = np.hypot(boston.estimate.std[1], singapore.estimate.std[1])
     assert difference > 10 * spread and difference > 0.005
     # the Boston scenes are nearly straight: no track width or load transfer from them
-    assert set(boston.identification.unidentified) == {"t_r", "d"}
+    assert set(boston.estimate.unidentified) == {"t_r", "d"}
 
 
 @pytest.fixture(scope="module")
@@ -377,10 +378,10 @@ def test_comma_fusion_agrees_with_global_pose(comma_segment: Path) -> None:
 def test_comma_identifies_the_scale_not_the_yaw_parameters(comma_segment: Path) -> None:
     drive = convert("comma2k19", [comma_segment])[0]
     result = odocal.calibrate(drive, method="raw")
-    assert result.identification.identified[0]
+    assert result.estimate.identified[0]
     assert 1.005 < result.theta.c_e / 2.0 < 1.015      # the ~1 % scale of the car's conversion
-    assert set(result.identification.unidentified) == {"t_r", "d"}
-    assert "needs bends" in result.identification.reasons["t_r"]
+    assert set(result.estimate.unidentified) == {"t_r", "d"}
+    assert result.estimate.verdict("t_r").reason is Reason.NEEDS_BENDS
 
 
 @pytest.mark.realdata

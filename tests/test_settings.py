@@ -61,7 +61,9 @@ def test_missing_settings_file(tmp_path: Path) -> None:
 
 
 def test_replace_checks_keys() -> None:
-    s = Settings().replace(calibrate={"method": "raw"})
-    assert s.calibrate.method == "raw"
+    s = Settings().replace(calibrate={"seed": 3})
+    assert s.calibrate.seed == 3
     with pytest.raises(ConfigError, match="unknown setting"):
-        Settings().replace(calibrate={"methd": "raw"})
+        Settings().replace(calibrate={"sed": 3})
+    with pytest.raises(ConfigError, match="choose the method with --method"):
+        Settings().replace(calibrate={"method": "raw"})

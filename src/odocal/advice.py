@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from odocal.drive import Drive
-from odocal.identify import IdentificationResult
+from odocal.estimate import Estimate, Identified, NotIdentified, Reason
 from odocal.model import PARAMETER_LABELS, PARAMETER_NAMES
 from odocal.segments import SegmentSet
 from odocal.settings import Settings
@@ -89,52 +89,90 @@ def _more(what: str, amount: float, factor: float) -> str:
     return f"about {extra / 60:.0f} more minutes of driving"
 
 
-def advise(ident: IdentificationResult, cov: Coverage, settings: Settings
-           ) -> list[ParameterAdvice]:
-    """One sentence or two per parameter."""
-    prior = np.asarray(settings.identify.prior_std)
-    limit = settings.identify.identifiable_ratio * prior
+def advise(estimate: Estimate, cov: Coverage, settings: Settings,
+           segment_s: float) -> list[ParameterAdvice]:
+    """One sentence or two per parameter, from the typed verdicts.
+
+    ``segment_s`` is the duration of one identification segment (K times the drive's sampling
+    time).
+    """
     threshold = settings.segments.yaw_rate_threshold_radps
-    segment_s = settings.segments.length / settings.convert.rate_hz
+    prior = np.asarray(settings.identify.prior_std)
     out = []
-    for j, name in enumerate(PARAMETER_NAMES):
+    for j, (name, verdict) in enumerate(zip(PARAMETER_NAMES, estimate.verdicts, strict=True)):
         label = PARAMETER_LABELS[j]
         what = NEEDS[name]
         amount, have = _amount(what, cov)
-        std = float(ident.std[j])
-        if ident.identified[j]:
-            factor = (std / limit[j]) ** 2 if limit[j] > 0 else 0.0
-            text = (f"{label} is identified to +-{_fmt(name, std)} from {have}; the limit for "
-                    f"calling it identified is +-{_fmt(name, limit[j])}")
+        if isinstance(verdict, Identified):
+            factor = (verdict.std / verdict.limit) ** 2 if verdict.limit > 0 else 0.0
+            text = (f"{label} is identified to +-{format_value(name, verdict.std)} from {have}; "
+                    f"the limit for calling it identified is "
+                    f"+-{format_value(name, verdict.limit)}")
             if factor > 0.25:
                 text += (f". It is close to that limit: {_more(what, amount, 4 * factor)} "
                          "would halve the uncertainty")
             out.append(ParameterAdvice(name, label, True, text + "."))
             continue
-        reason = ident.reasons.get(name, "")
-        if (what == "bends" and cov.bend_s <= 0.0) or "needs bends" in reason:
-            text = (f"{label} needs bends: its effect shows only when the vehicle turns, and "
-                    f"this drive's yaw rate exceeds {threshold} rad/s for {cov.bend_s:.0f} s. "
-                    f"Drive through at least 10 bends or junction turns (each in a "
-                    f"{segment_s:.0f} s segment, as the method's batches use) or a few "
-                    "roundabouts, then calibrate again.")
-        elif "only to +-" in reason:
-            got = float(reason.split("only to +-")[1].split(" ")[0]) if "only to +-" in reason \
-                else std
-            factor = (got / limit[j]) ** 2
-            text = (f"{label} is determined only to +-{_fmt(name, got)} by {have}, not better "
-                    f"than the datasheet (+-{_fmt(name, prior[j])}): {_more(what, amount, factor)}"
-                    f" would identify it (about {factor:.0f} times this drive's).")
-        elif "rank-deficient" in reason:
-            text = (f"{label} leaves no trace in these segments ({have}). "
-                    f"It needs {'bends' if what == 'bends' else 'more varied driving'}.")
-        else:
-            text = f"{label} is not identified: {reason}."
-        out.append(ParameterAdvice(name, label, False, text))
+        out.append(ParameterAdvice(name, label, False, _not_identified(
+            name, label, verdict, cov, have, what, amount, threshold, segment_s, prior[j])))
     return out
 
 
-def _fmt(name: str, value: float) -> str:
+def _not_identified(name: str, label: str, verdict: NotIdentified, cov: Coverage, have: str,
+                    what: str, amount: float, threshold: float, segment_s: float,
+                    prior: float) -> str:
+    reason = verdict.reason
+    if reason is Reason.NEEDS_BENDS:
+        return (f"{label} needs bends: its effect shows only when the vehicle turns, and this "
+                f"drive's yaw rate exceeds {threshold} rad/s for {cov.bend_s:.0f} s (the "
+                f"largest segment peak is {verdict.detail:.3f} rad/s). Drive through at least "
+                f"10 bends or junction turns (each in a {segment_s:.0f} s segment, as the "
+                "method's batches use) or a few roundabouts, then calibrate again.")
+    if reason is Reason.WEAK:
+        factor = (verdict.std / verdict.limit) ** 2 if verdict.limit > 0 else float("inf")
+        return (f"{label} is determined only to +-{format_value(name, verdict.std)} by {have}, "
+                f"not well below the datasheet uncertainty (+-{format_value(name, prior)}): "
+                f"{_more(what, amount, factor)} would identify it (about {factor:.0f} times "
+                "this drive's).")
+    if reason is Reason.NO_INFORMATION:
+        return (f"{label} leaves no trace in these segments ({have}). "
+                f"It needs {'bends' if what == 'bends' else 'more varied driving'}.")
+    if reason is Reason.NO_DIFFERENTIAL:
+        return (f"{label} is not calibrated: the two wheel signals carry no differential "
+                "information (a locked axle, a single speed signal, or one column copied into "
+                "the other), so only the distance scale c_e can be.")
+    if reason is Reason.ONE_CLUSTER:
+        return (f"{label} is not identified: all {cov.selected} segments overlap in time, one "
+                "piece of independent evidence, which cannot say how uncertain the estimate "
+                f"is. Drive at least {2 * segment_s:.0f} s more with bends.")
+    if reason is Reason.FAILED:
+        return f"{label} is not identified: the estimation failed."
+    return f"{label} is held at its datasheet value, as requested."
+
+
+def reason_text(name: str, verdict: NotIdentified, *, threshold_radps: float) -> str:
+    """Why a parameter is not identified, in one clause (for the CLI and warnings)."""
+    reason = verdict.reason
+    if reason is Reason.NEEDS_BENDS:
+        return (f"needs bends: no segment has a peak yaw rate above {threshold_radps} rad/s "
+                f"(the largest is {verdict.detail:.3f} rad/s); kept at the datasheet value")
+    if reason is Reason.WEAK:
+        return (f"the data determine {name} only to +-{format_value(name, verdict.std)} (the "
+                f"limit is +-{format_value(name, verdict.limit)}); kept at the datasheet value")
+    if reason is Reason.NO_INFORMATION:
+        return "these segments carry no information on it; kept at the datasheet value"
+    if reason is Reason.NO_DIFFERENTIAL:
+        return ("the wheel signals carry no differential information; only c_e is calibrated")
+    if reason is Reason.ONE_CLUSTER:
+        return ("all segments overlap in time (one piece of independent evidence); kept at the "
+                "datasheet value")
+    if reason is Reason.FAILED:
+        return "the estimation failed"
+    return "held at the datasheet value"
+
+
+def format_value(name: str, value: float) -> str:
+    """A parameter value (or standard deviation) in the unit it reads best in."""
     if name == "c_d":
         return f"{value * 1000:.3g} mm"
     if name == "d":

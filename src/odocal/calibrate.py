@@ -1,13 +1,14 @@
 """METHOD 5: calibrating a vehicle from one or more drives.
 
 :func:`calibrate` is the front door: it checks its arguments once, cuts the drives into
-identification and validation segments, runs the chosen method and validates the answer.
+identification and validation segments, runs the chosen method (the one place a method is
+chosen) and validates the answer.
 
-Methods
--------
+Methods (:data:`METHODS`)
+-------------------------
 ``raw``
     Batch Gauss-Newton on every selected segment with the measured wheel rates.
-``compensated`` (default)
+``compensated``
     The paper's three-step architecture (see :mod:`odocal.threestep`): step-1 batches on measured
     rates, input compensation of every selected segment with five step-1 parameter sets, and a
     final batch Gauss-Newton on all selected segments with the compensated rates.
@@ -17,9 +18,10 @@ Methods
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,10 +32,12 @@ from numpy.typing import NDArray
 from odocal import __version__
 from odocal.drive import Drive
 from odocal.errors import ConfigError, DataError
-from odocal.identify import IdentificationResult, gauss_newton
+from odocal.estimate import Estimate, NotIdentified, Reason, Status, held_as_weak, weak
+from odocal.identify import gauss_newton
 from odocal.io.drivefile import load_drive
 from odocal.model import PARAMETER_NAMES, Parameters
 from odocal.segments import (
+    RaggedSegments,
     SegmentBatch,
     SegmentSet,
     common_sampling_time,
@@ -52,8 +56,10 @@ log = logging.getLogger(__name__)
 #: ``progress(stage, done, total)``: called as long steps advance (the CLI draws bars from it).
 ProgressCallback = Callable[[str, int, int], None]
 IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
 
-METHODS = ("compensated", "raw", "joint")
+#: Parameters observable only through the yaw equation in bends (METHOD 2).
+NEED_BENDS = ("t_r", "d")
 
 
 @dataclass(frozen=True)
@@ -73,45 +79,127 @@ class DriveSummary:
 
 
 @dataclass(frozen=True)
+class Prepared:
+    """The drives cut into segments, ready for any method.
+
+    drives : the drives
+    segments : every identification segment (with the selection rule's verdict)
+    used : mask over ``segments`` of those to identify from
+    held : parameters the selection already knows the data cannot identify (no bends)
+    batch : the used segments' data, measured rates
+    clusters : cluster label of each used segment (overlapping segments share one)
+    validation_segments, validation : the validation segments and their data (None without any)
+    warnings : what the user should know about the data
+    """
+
+    drives: tuple[Drive, ...]
+    segments: SegmentSet
+    used: BoolArray
+    held: Mapping[str, NotIdentified]
+    batch: SegmentBatch
+    clusters: IntArray
+    validation_segments: SegmentSet
+    validation: RaggedSegments | None
+    warnings: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class MethodOutcome:
+    """What a method returns to the front door."""
+
+    estimate: Estimate
+    three_step: ThreeStepOutcome | None = None
+    warnings: tuple[str, ...] = ()
+    bootstrap_rates: SegmentBatch | None = None
+    """The segments (with the rates the estimate used) to bootstrap over; None: no bootstrap."""
+    step1_thetas: NDArray[np.float64] | None = None
+    step1_sets: int = 0
+
+
+def _run_raw(prep: Prepared, settings: Settings,
+             progress: ProgressCallback | None) -> MethodOutcome:
+    if progress:
+        progress("identify", 0, 1)
+    est = gauss_newton(prep.batch, settings=settings.identify, clusters=prep.clusters,
+                       held=prep.held, method="raw")
+    if progress:
+        progress("identify", 1, 1)
+    return MethodOutcome(estimate=est, bootstrap_rates=prep.batch)
+
+
+def _run_compensated(prep: Prepared, settings: Settings,
+                     progress: ProgressCallback | None) -> MethodOutcome:
+    outcome = three_step(prep.batch, prep.validation, settings=settings, clusters=prep.clusters,
+                         held=prep.held, progress=progress)
+    s1 = outcome.step1
+    return MethodOutcome(estimate=outcome.final, three_step=outcome, warnings=outcome.warnings,
+                         bootstrap_rates=prep.batch.with_wheel_rates(outcome.compensation.n_rl,
+                                                                     outcome.compensation.n_rr),
+                         step1_thetas=s1.thetas[s1.success], step1_sets=int(s1.picked.size))
+
+
+def _run_joint(prep: Prepared, settings: Settings,
+               progress: ProgressCallback | None) -> MethodOutcome:
+    from odocal.joint import JointDetails, joint_calibration
+
+    est = joint_calibration(prep.drives, settings=settings, held=prep.held, progress=progress)
+    details = est.details
+    return MethodOutcome(estimate=est, warnings=details.warnings
+                         if isinstance(details, JointDetails) else ())
+
+
+#: The calibration methods by name: the one list the CLI, the settings and the docs use.
+METHODS: Mapping[str, Callable[[Prepared, Settings, ProgressCallback | None], MethodOutcome]] = {
+    "compensated": _run_compensated,
+    "raw": _run_raw,
+    "joint": _run_joint,
+}
+#: The method a calibration uses unless told otherwise.
+DEFAULT_METHOD = "compensated"
+
+
+@dataclass(frozen=True)
 class CalibrationResult:
     """Everything a calibration found, and how.
 
-    theta : the calibrated parameters
-    method : ``raw``, ``compensated`` or ``joint``
-    identification : the final identification (status, covariance, identifiability)
-    validation : E_p of ``theta`` on the validation segments (None without any)
-    datasheet_validation : E_p of the initial (datasheet) parameters on the same segments
+    estimate : the calibrated parameters, their covariance and the identifiability verdicts
+    validation : E_p of the estimate on the validation segments (None without any)
+    datasheet_validation : E_p of the datasheet values on the same segments
     segments : the identification segments (with the selection rule's verdict)
     used : mask over ``segments`` of those identified from
     drives : what was read
     warnings : things the user should know (weak data, failed solves, fallbacks)
     bootstrap : the bootstrap check of the covariance (None when off or not applicable)
     three_step : the three-step method's intermediate results (``compensated`` only)
-    joint : the joint estimator's results (``joint`` only)
     batch : the identification segments' data with the measured rates
     drive_data : the drives themselves (for plots)
     """
 
-    theta: Parameters
-    method: str
-    identification: IdentificationResult
+    estimate: Estimate
     validation: ValidationResult | None
     datasheet_validation: ValidationResult | None
     segments: SegmentSet
-    used: NDArray[np.bool_]
+    used: BoolArray
     drives: tuple[DriveSummary, ...]
     settings: Settings
     warnings: tuple[str, ...]
     elapsed_s: float
     bootstrap: BootstrapResult | None = None
     three_step: ThreeStepOutcome | None = None
-    joint: Any = None
     batch: SegmentBatch | None = field(default=None, repr=False)
     drive_data: tuple[Drive, ...] = field(default=(), repr=False)
 
     @property
+    def theta(self) -> Parameters:
+        return self.estimate.theta
+
+    @property
+    def method(self) -> str:
+        return self.estimate.method
+
+    @property
     def success(self) -> bool:
-        return self.identification.success
+        return self.estimate.success
 
     @property
     def segments_used(self) -> int:
@@ -119,39 +207,29 @@ class CalibrationResult:
 
     def to_dict(self) -> dict[str, Any]:
         """The content of ``calibration.json``."""
-        ident = self.identification
-        out: dict[str, Any] = {
-            "odocal_version": __version__,
-            "method": self.method,
-            "theta": self.theta.as_dict(),
-            "std": dict(zip(PARAMETER_NAMES, ident.std.tolist(), strict=True)),
-            "covariance": ident.covariance.tolist(),
-            "covariance_kind": ident.covariance_kind,
-            "identified": dict(zip(PARAMETER_NAMES, ident.identified, strict=True)),
-            "unidentified_reasons": dict(ident.reasons),
-            "segments_used": self.segments_used,
-            "segments_total": len(self.segments),
-            "segments_selected": int(self.segments.selected.sum()),
-            "validation": (self.validation.to_dict() if self.validation is not None
-                           else {"E_p_m": None, "segments": 0}),
-            "datasheet": {
-                "theta": ident.theta0.as_dict(),
-                "validation": ({"E_p_m": self.datasheet_validation.mean_error_m,
-                                "segments": len(self.datasheet_validation.segments)}
-                               if self.datasheet_validation is not None else None),
-            },
-            "status": {"success": self.success, "message": ident.message,
-                       "warnings": list(self.warnings)},
-            "identification": ident.to_dict(),
-            "inputs": [d.to_dict() for d in self.drives],
-            "elapsed_s": self.elapsed_s,
-            "settings": self.settings.to_dict(),
-        }
+        est = self.estimate
+        out: dict[str, Any] = {"odocal_version": __version__, **est.to_dict()}
+        out["unidentified_reasons"] = {n: est.verdict(n).reason.value  # type: ignore[union-attr]
+                                       for n in est.unidentified}
+        out["segments_used"] = self.segments_used
+        out["segments_total"] = len(self.segments)
+        out["segments_selected"] = int(self.segments.selected.sum())
+        out["validation"] = (self.validation.to_dict() if self.validation is not None
+                             else {"E_p_m": None, "segments": 0})
+        out["datasheet"] = {
+            "theta": est.datasheet.as_dict(),
+            "validation": ({"E_p_m": self.datasheet_validation.mean_error_m,
+                            "segments": len(self.datasheet_validation.segments)}
+                           if self.datasheet_validation is not None else None)}
+        out["status"]["warnings"] = list(self.warnings)
+        details = est.details
+        out["details"] = details.to_dict() if hasattr(details, "to_dict") else None
+        out["inputs"] = [d.to_dict() for d in self.drives]
+        out["elapsed_s"] = self.elapsed_s
+        out["settings"] = self.settings.to_dict()
         out["bootstrap"] = self.bootstrap.to_dict() if self.bootstrap is not None else None
         if self.three_step is not None:
             out["three_step"] = self.three_step.to_dict()
-        if self.joint is not None:
-            out["joint"] = self.joint.to_dict()
         return out
 
 
@@ -185,17 +263,13 @@ def segment_clusters(segments: SegmentSet, block: int) -> IntArray:
     return (segments.drive * (10**9) + segments.start // max(block, 1)).astype(np.int64)
 
 
-#: Parameters observable only through the yaw equation in bends (METHOD 2).
-NEED_BENDS = ("t_r", "d")
-
-
-def select_identification(segments: SegmentSet, settings: Settings, warnings: list[str]
-                          ) -> tuple[NDArray[np.bool_], dict[str, str]]:
+def select_identification(segments: SegmentSet, settings: Settings
+                          ) -> tuple[BoolArray, dict[str, NotIdentified], tuple[str, ...]]:
     """The selection rule, with the weak-data fallback to every segment.
 
-    Returns the mask of segments to identify from and the parameters to keep at their datasheet
-    values with the reason: without bends, t_r and d are not observable (the load transfer and the
-    track width act on the yaw rate only when the vehicle turns).
+    Returns the mask of segments to identify from, the parameters to keep at their datasheet
+    values (without bends, t_r and d are not observable: the load transfer and the track width
+    act on the yaw rate only when the vehicle turns), and warnings.
     """
     seg = settings.segments
     if len(segments) == 0:
@@ -204,15 +278,29 @@ def select_identification(segments: SegmentSet, settings: Settings, warnings: li
             f"({seg.length} samples); shorten [segments] length or give longer logs")
     selected = segments.selected
     if int(selected.sum()) >= seg.min_selected:
-        return selected.copy(), {}
+        return selected.copy(), {}, ()
     peak = float(segments.peak_yaw_rate_radps.max())
-    warnings.append(
-        f"only {int(selected.sum())} of {len(segments)} segments have a peak yaw rate above "
-        f"{seg.yaw_rate_threshold_radps} rad/s; identifying from all of them")
-    reason = (f"needs bends: no segment has a peak yaw rate above "
-              f"{seg.yaw_rate_threshold_radps} rad/s (the largest is {peak:.3f} rad/s); kept at "
-              "the datasheet value")
-    return np.ones(len(segments), dtype=bool), {name: reason for name in NEED_BENDS}
+    warning = (f"only {int(selected.sum())} of {len(segments)} segments have a peak yaw rate "
+               f"above {seg.yaw_rate_threshold_radps} rad/s; identifying from all of them")
+    held = {name: NotIdentified(Reason.NEEDS_BENDS, detail=peak) for name in NEED_BENDS}
+    return np.ones(len(segments), dtype=bool), held, (warning,)
+
+
+def prepare(drives: Sequence[Drive], settings: Settings) -> Prepared:
+    """Cut the drives into identification and validation segments (METHOD 2)."""
+    id_segments = identification_segments(drives, settings.segments)
+    used, held, warnings = select_identification(id_segments, settings)
+    val_segments = validation_segments(drives, settings.segments)
+    val_data = gather_ragged(drives, val_segments) if len(val_segments) else None
+    if val_data is None:
+        shortest = (settings.segments.validation_min_fraction
+                    * settings.segments.validation_distance_m)
+        warnings += (f"the drives hold no validation segment of {shortest:.0f} m or more; "
+                     "E_p is not available",)
+    return Prepared(drives=tuple(drives), segments=id_segments, used=used, held=held,
+                    batch=gather(drives, id_segments.subset(used)),
+                    clusters=segment_clusters(id_segments.subset(used), settings.segments.length),
+                    validation_segments=val_segments, validation=val_data, warnings=warnings)
 
 
 def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
@@ -223,11 +311,12 @@ def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
     drive_list = load_drives(drives)
     segs = validation_segments(drive_list, settings.segments)
     data = gather_ragged(drive_list, segs)
-    return _validation(theta, data, segs, drive_list)
+    return validation(theta, data, segs, drive_list)
 
 
-def _validation(theta: Parameters | NDArray[np.float64], data: Any, segs: SegmentSet,
-                drives: Sequence[Drive]) -> ValidationResult:
+def validation(theta: Parameters | NDArray[np.float64], data: RaggedSegments, segs: SegmentSet,
+               drives: Sequence[Drive]) -> ValidationResult:
+    """E_p of ``theta`` on already gathered validation segments."""
     params = theta if isinstance(theta, Parameters) else Parameters.from_array(theta)
     errors = segment_errors(params.as_array(), data)
     start_s = np.array([drives[int(d)].t[int(s)] for d, s in zip(segs.drive, segs.start,
@@ -246,8 +335,8 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     ----------
     drives : one or more :class:`Drive` objects or drive-format files of the same vehicle;
         segments are drawn from all of them, never across a file boundary or a gap
-    settings : all settings (default: the paper's); ``settings.calibrate.method`` picks the method
-    method : overrides ``settings.calibrate.method``: ``compensated``, ``raw`` or ``joint``
+    settings : all settings (default: the paper's)
+    method : one of :data:`METHODS` (default :data:`DEFAULT_METHOD`)
     progress : optional ``progress(stage, done, total)`` callback for long steps
 
     Returns
@@ -258,73 +347,64 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     """
     started = time.perf_counter()
     settings = settings or Settings()
-    method = method or settings.calibrate.method
+    method = method or DEFAULT_METHOD
     if method not in METHODS:
         raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
-    settings = settings.replace(calibrate={"method": method})
     drive_list = load_drives(drives)
-    warnings: list[str] = []
-
-    id_segments = identification_segments(drive_list, settings.segments)
-    used, fixed = select_identification(id_segments, settings, warnings)
-    val_segments = validation_segments(drive_list, settings.segments)
-    val_data = gather_ragged(drive_list, val_segments) if len(val_segments) else None
-    if val_data is None:
-        shortest = (settings.segments.validation_min_fraction
-                    * settings.segments.validation_distance_m)
-        warnings.append(f"the drives hold no validation segment of {shortest:.0f} m or more; "
-                        "E_p is not available")
-    batch = gather(drive_list, id_segments.subset(used))
-    clusters = segment_clusters(id_segments.subset(used), settings.segments.length)
-    outcome: ThreeStepOutcome | None = None
-    joint: Any = None
-
-    if method == "raw":
-        if progress:
-            progress("identify", 0, 1)
-        ident = gauss_newton(batch, settings=settings.identify, clusters=clusters, fixed=fixed)
-        if progress:
-            progress("identify", 1, 1)
-    elif method == "compensated":
-        outcome = three_step(batch, val_data, settings=settings, clusters=clusters,
-                             fixed=fixed, progress=progress)
-        ident = outcome.final
-        warnings.extend(outcome.warnings)
-    else:
-        from odocal.joint import joint_calibration
-
-        joint = joint_calibration(drive_list, settings=settings, fixed=fixed, progress=progress)
-        ident = joint.identification
-        warnings.extend(joint.warnings)
-
-    for name in ident.unidentified:
-        warnings.append(f"{name} is not identified by these drives: {ident.reasons[name]}")
-    boot = None
-    if settings.uncertainty.bootstrap_count > 1 and method != "joint":
-        if progress:
-            progress("bootstrap", 0, 1)
-        rates = batch if outcome is None else batch.with_wheel_rates(
-            outcome.compensation.n_rl, outcome.compensation.n_rr)
-        boot = bootstrap(rates, ident, clusters, identify=settings.identify,
-                         settings=settings.uncertainty, seed=settings.calibrate.seed,
-                         step1_thetas=None if outcome is None else
-                         outcome.step1.thetas[outcome.step1.success],
-                         step1_sets=0 if outcome is None else int(outcome.step1.picked.size))
-        if progress:
-            progress("bootstrap", 1, 1)
-        if not all(boot.agree):
-            warnings.append(boot.message)
-    validation = datasheet = None
-    if val_data is not None:
-        validation = _validation(ident.theta, val_data, val_segments, drive_list)
-        datasheet = _validation(ident.theta0, val_data, val_segments, drive_list)
+    prep = prepare(drive_list, settings)
+    outcome, estimate, boot = _checked_by_bootstrap(method, prep, settings, progress)
+    warnings = [*prep.warnings, *outcome.warnings]
+    if boot is not None and not all(boot.agree):
+        warnings.append(boot.message)
+    val = datasheet = None
+    if prep.validation is not None:
+        val = validation(estimate.theta, prep.validation, prep.validation_segments, drive_list)
+        datasheet = validation(estimate.datasheet, prep.validation, prep.validation_segments,
+                               drive_list)
     for w in warnings:
         log.warning("%s", w)
     return CalibrationResult(
-        theta=ident.theta, method=method, identification=ident, validation=validation,
-        datasheet_validation=datasheet, segments=id_segments, used=used,
-        drives=summarise(drive_list), settings=settings, warnings=tuple(warnings),
-        elapsed_s=time.perf_counter() - started, bootstrap=boot, three_step=outcome, joint=joint,
-        batch=batch,
-        drive_data=tuple(drive_list))
+        estimate=estimate, validation=val, datasheet_validation=datasheet,
+        segments=prep.segments, used=prep.used, drives=summarise(drive_list), settings=settings,
+        warnings=tuple(warnings), elapsed_s=time.perf_counter() - started, bootstrap=boot,
+        three_step=outcome.three_step, batch=prep.batch, drive_data=tuple(drive_list))
 
+
+def _checked_by_bootstrap(method: str, prep: Prepared, settings: Settings,
+                          progress: ProgressCallback | None
+                          ) -> tuple[MethodOutcome, Estimate, BootstrapResult | None]:
+    """Run the method, check it by the bootstrap over segment clusters, keep the larger spread.
+
+    Where the bootstrap's spread exceeds the covariance's by more than the disagreement factor,
+    the standard deviation is widened to the bootstrap's (what is printed and exported is the
+    larger); a parameter that is then beyond the identifiability limit is held at its datasheet
+    value and the method runs again without it.
+    """
+    for _ in range(len(PARAMETER_NAMES)):
+        outcome = METHODS[method](prep, settings, progress)
+        estimate = outcome.estimate
+        rates = outcome.bootstrap_rates
+        if settings.uncertainty.bootstrap_count <= 1 or rates is None or not estimate.success \
+                or estimate.status is Status.EXACT or not any(estimate.free):
+            return outcome, estimate, None
+        if progress:
+            progress("bootstrap", 0, 1)
+        boot = bootstrap(rates, estimate, prep.clusters, identify=settings.identify,
+                         settings=settings.uncertainty, seed=settings.calibrate.seed,
+                         step1_thetas=outcome.step1_thetas, step1_sets=outcome.step1_sets)
+        if progress:
+            progress("bootstrap", 1, 1)
+        factor = np.where(np.isfinite(boot.ratio)
+                          & (boot.ratio > settings.uncertainty.disagreement_factor),
+                          boot.ratio, 1.0)
+        if (factor == 1.0).all():
+            return outcome, estimate, boot
+        widened = estimate.with_covariance(estimate.covariance * np.outer(factor, factor),
+                                           estimate.covariance_kind,
+                                           widening=estimate.widening * factor)
+        too_weak = weak(widened.std, widened.free, settings.identify)
+        if not too_weak.any():
+            return outcome, widened, boot
+        prep = dataclasses.replace(prep, held={**prep.held, **held_as_weak(
+            widened.std, too_weak, settings.identify)})
+    return outcome, widened, boot

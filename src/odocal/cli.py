@@ -17,7 +17,14 @@ from typing import Any
 import numpy as np
 
 from odocal import __version__
-from odocal.calibrate import CalibrationResult, calibrate, load_drives, validate_theta
+from odocal.calibrate import (
+    DEFAULT_METHOD,
+    METHODS,
+    CalibrationResult,
+    calibrate,
+    load_drives,
+    validate_theta,
+)
 from odocal.errors import OdocalError
 from odocal.model import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
 from odocal.settings import Settings, load_settings
@@ -58,8 +65,6 @@ class _Progress:
 def _settings(args: argparse.Namespace) -> Settings:
     settings = load_settings(getattr(args, "config", None))
     overrides: dict[str, dict[str, Any]] = {}
-    if getattr(args, "method", None):
-        overrides.setdefault("calibrate", {})["method"] = args.method
     if getattr(args, "workers", None) is not None:
         overrides.setdefault("calibrate", {})["workers"] = args.workers
     if getattr(args, "seed", None) is not None and args.command in ("calibrate", "minimum",
@@ -91,14 +96,18 @@ def _print(text: str = "") -> None:
 def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
                   truth_error_m: float | None = None) -> None:
     """The calibration as a small table on stdout."""
-    ident = result.identification
+    from odocal.advice import reason_text
+    from odocal.estimate import NotIdentified, Status
+
+    est = result.estimate
     drives = result.drives
     total_km = sum(d.distance_m for d in drives) / 1000
     total_min = sum(d.duration_s for d in drives) / 60
+    segs = result.settings.segments
     _print(f"read {len(drives)} drive(s): {total_min:.1f} min, {total_km:.2f} km; "
-           f"{len(result.segments)} segments of {result.settings.segments.length} samples, "
+           f"{len(result.segments)} segments of {segs.length} samples, "
            f"{int(result.segments.selected.sum())} with bends "
-           f"(peak yaw rate > {result.settings.segments.yaw_rate_threshold_radps} rad/s)")
+           f"(peak yaw rate > {segs.yaw_rate_threshold_radps} rad/s)")
     _print(f"method: {result.method}, identified from {result.segments_used} segments "
            f"in {result.elapsed_s:.1f} s")
     _print()
@@ -106,12 +115,14 @@ def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
     if truth is not None:
         header += f" {'true':>16} {'error':>10}"
     _print(header)
-    theta0, theta = ident.theta0.as_dict(), result.theta.as_dict()
+    theta0, theta = est.datasheet.as_dict(), est.theta.as_dict()
     true = truth.as_dict() if truth is not None else None
-    std = dict(zip(PARAMETER_NAMES, ident.std, strict=True))
-    for name, ok in zip(PARAMETER_NAMES, ident.identified, strict=True):
+    std = dict(zip(PARAMETER_NAMES, est.std, strict=True))
+    exact = est.status is Status.EXACT
+    for name, ok in zip(PARAMETER_NAMES, est.identified, strict=True):
         if ok:
-            cal, sd = _fmt_param(name, theta[name]), _fmt_std(name, std[name])
+            cal = _fmt_param(name, theta[name])
+            sd = "exact" if exact else _fmt_std(name, std[name])
         else:
             cal, sd = "not identified", ""
         line = f"{name:<10} {_fmt_param(name, theta0[name]):>16} {cal:>16} {sd:>10}"
@@ -123,7 +134,7 @@ def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
     if result.validation is not None and result.datasheet_validation is not None:
         seg = result.validation.segments
         line = (f"validation error E_p over {len(seg)} segments of "
-                f"~{result.settings.segments.validation_distance_m:.0f} m: "
+                f"~{segs.validation_distance_m:.0f} m: "
                 f"datasheet {result.datasheet_validation.mean_error_m:.2f} m -> calibrated "
                 f"{result.validation.mean_error_m:.2f} m")
         if truth_error_m is not None:
@@ -131,14 +142,17 @@ def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
         _print(line)
     else:
         _print("validation error E_p: not available (no validation segment)")
-    for name in ident.unidentified:
-        _print(f"note: {name} ({PARAMETER_UNITS[PARAMETER_NAMES.index(name)]}) is not identified: "
-               f"{ident.reasons[name]}")
+    if exact:
+        _print(f"note: {est.message}")
+    for name, verdict in zip(PARAMETER_NAMES, est.verdicts, strict=True):
+        if isinstance(verdict, NotIdentified) and est.success:
+            _print(f"note: {name} ({PARAMETER_UNITS[PARAMETER_NAMES.index(name)]}) is not "
+                   f"identified: "
+                   f"{reason_text(name, verdict, threshold_radps=segs.yaw_rate_threshold_radps)}")
     for warning in result.warnings:
-        if not any(warning.startswith(f"{n} is not identified") for n in ident.unidentified):
-            _print(f"warning: {warning}")
+        _print(f"warning: {warning}")
     if not result.success:
-        _print(f"calibration failed: {ident.message}")
+        _print(f"calibration failed: {est.message}")
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -150,7 +164,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
     progress = _Progress(not args.quiet)
     try:
-        result = calibrate(sim.drive, settings=settings, progress=progress)
+        result = calibrate(sim.drive, settings=settings, method=args.method, progress=progress)
     finally:
         progress.close()
     truth_error = validate_theta(sim.drive, sim.true_parameters, settings=settings).mean_error_m
@@ -239,7 +253,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     drives = _drives_from(args, settings)
     progress = _Progress(not args.quiet)
     try:
-        result = calibrate(drives, settings=settings, progress=progress)
+        result = calibrate(drives, settings=settings, method=args.method, progress=progress)
         if not args.quiet:
             print_summary(result)
         _write_outputs(result, args, progress=progress,
@@ -415,8 +429,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
     p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic",
                    help="noise profile (default realistic)")
-    p.add_argument("--method", choices=("compensated", "raw", "joint"),
-                   help="calibration method (default compensated)")
+    p.add_argument("--method", choices=tuple(METHODS),
+                   help=f"calibration method (default {DEFAULT_METHOD})")
     p.add_argument("--out", metavar="DIR",
                    help="also write the results (calibration.json, report.html) to this folder")
     _add_common(p)
@@ -439,8 +453,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="drive-format files (.csv, .parquet), or raw logs with --from")
     _add_source(p, required=False)
     p.add_argument("--out", required=True, metavar="DIR", help="folder for calibration.json")
-    p.add_argument("--method", choices=("compensated", "raw", "joint"),
-                   help="compensated (three-step, default), raw (batch G-N) or joint")
+    p.add_argument("--method", choices=tuple(METHODS),
+                   help=f"calibration method (default {DEFAULT_METHOD}; README, 'Methods')")
     p.add_argument("--seed", type=int, help="seed of the step-1 batch draw")
     p.add_argument("--save-inputs", action="store_true",
                    help="also write the compensated wheel rates (compensated_inputs.parquet)")

@@ -2,39 +2,55 @@
 
 Minimises ``V(theta) = sum_k (y~_k - y^_k)^T W (y~_k - y^_k)`` over the segments of a batch
 (one segment: *pure* G-N; several: *batch* G-N, their J and R stacked). Each iteration solves the
-weighted linear least-squares problem (7)-(8) by QR (a tall-skinny QR accumulated chunk by chunk, so
-memory stays bounded on long drives), iterating while the cost decreases, at most ``i_max`` times.
-A step that would raise the cost is halved until it does not (up to ten times) before the
-iteration stops; near the solution the full step is always taken, so this only guards the first
-steps from a poor initial guess.
+weighted linear least-squares problem (7)-(8) by QR: every segment's ``[sqrt(W) J | sqrt(W) R]``
+is reduced to a 5x5 R factor in the compiled model kernel (:func:`odocal.model.segment_r_factors`),
+and the stacked factors once more (a tall-skinny QR), iterating while the cost decreases, at most
+``i_max`` times. A step that would raise the cost is halved until it does not (up to ten times)
+before the iteration stops; near the solution the full step is always taken, so this only guards
+the first steps from a poor initial guess.
 
 Parameters the data cannot identify are found two ways and kept at their initial values:
 numerically (the scaled normal equations are rank deficient, e.g. no bends at all) and
 statistically (the data's standard deviation of a parameter is not much smaller than the datasheet
-uncertainty ``prior_std``). They are named in the result, never silently estimated.
+uncertainty ``prior_std``: :func:`odocal.estimate.judge`). The verdict is applied however the
+iteration ended.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import qr, solve_triangular
 
-from odocal.model import PARAMETER_NAMES, Parameters, pose_residuals, rollout_with_jacobian
+from odocal.estimate import (
+    CovarianceKind,
+    Estimate,
+    GaussNewtonDetails,
+    NotIdentified,
+    Reason,
+    Status,
+    held_as_weak,
+    judge,
+    weak,
+)
+from odocal.model import PARAMETER_NAMES, Parameters, segment_r_factors
 from odocal.segments import SegmentBatch
 from odocal.settings import IdentifySettings
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
 log = logging.getLogger(__name__)
 
-_CHUNK_SEGMENTS = 128
 _MIN_CLUSTERS_FOR_ROBUST = 10
 _MAX_HALVINGS = 10
+#: A weighted RMS residual below this (m, or rad times the heading weight's root) is numerically
+#: zero: the data fit the model exactly.
+_EXACT_RMS = 1e-9
 
 
 @dataclass(frozen=True)
@@ -44,8 +60,8 @@ class Linearisation:
     cost : V(theta)
     r_factor : ndarray, shape (5, 5)
         Upper-triangular R of the QR factorisation of ``[sqrt(W) J | sqrt(W) R]``.
-    scores : ndarray, shape (N, 4)
-        Per-segment ``J_s^T W R_s``.
+    segment_r : ndarray, shape (N, 5, 5)
+        The same per segment.
     residual_ss : ndarray, shape (3,)
         Unweighted sums of squared residuals of p_x, p_y, psi.
     samples : int
@@ -57,129 +73,57 @@ class Linearisation:
     theta: FloatArray
     cost: float
     r_factor: FloatArray
-    scores: FloatArray
+    segment_r: FloatArray
     residual_ss: FloatArray
     samples: int
     lag1: float
 
+    @property
+    def scores(self) -> FloatArray:
+        """Per-segment ``J_s^T W R_s``, shape (N, 4)."""
+        return np.einsum("nij,ni->nj", self.segment_r[:, :4, :4], self.segment_r[:, :4, 4])
 
-def _weighted_chunks(batch: SegmentBatch, theta: FloatArray, weights: FloatArray,
-                     ) -> Iterator[tuple[int, FloatArray, FloatArray, FloatArray]]:
-    """Per chunk of segments: (first index, sqrt(W) J (n, K, 3, 4), sqrt(W) R (n, K, 3), R)."""
-    sqrt_w = np.sqrt(np.asarray(weights, dtype=np.float64))
-    for lo in range(0, len(batch), _CHUNK_SEGMENTS):
-        part = batch.take(slice(lo, lo + _CHUNK_SEGMENTS))
-        poses, jac = rollout_with_jacobian(theta, part.inputs, part.reference[:, 0], batch.t_s)
-        r = pose_residuals(part.reference[:, 1:], poses[:, 1:])          # (n, K, 3)
-        yield lo, jac[:, 1:] * sqrt_w[:, None], r * sqrt_w, r
+    @property
+    def information(self) -> FloatArray:
+        """Per-segment ``J_s^T W J_s``, shape (N, 4, 4)."""
+        a = self.segment_r[:, :4, :4]
+        return np.einsum("nki,nkj->nij", a, a)
 
 
 def linearise(batch: SegmentBatch, theta: FloatArray, weights: FloatArray) -> Linearisation:
-    """Residuals and Jacobians of every segment at ``theta``, reduced to a 5x5 R factor."""
-    n = len(batch)
-    scores = np.empty((n, 4))
-    residual_ss = np.zeros(3)
-    stacked: list[FloatArray] = []
-    cost = 0.0
-    lagged = 0.0
-    for lo, a, rw, r in _weighted_chunks(batch, theta, weights):
-        residual_ss += np.einsum("nki,nki->i", r, r)
-        centred = rw - rw.mean(axis=1, keepdims=True)
-        lagged += float(np.einsum("nki,nki->", centred[:, 1:], centred[:, :-1]))
-        cost += float(np.einsum("nki,nki->", rw, rw))
-        scores[lo:lo + a.shape[0]] = np.einsum("nkij,nki->nj", a, rw)
-        # [A | r] in Fortran order, so that LAPACK factorises it in place
-        block = np.empty((rw.size, 5), order="F")
-        block[:, :4] = a.reshape(-1, 4)
-        block[:, 4] = rw.ravel()
-        stacked.append(qr(block, mode="r", check_finite=False, overwrite_a=True)[0][:5])
-    r_factor = stacked[0] if len(stacked) == 1 else qr(np.concatenate(stacked), mode="r",
-                                                       check_finite=False)[0][:5]
+    """Residuals and Jacobians of every segment at ``theta``, reduced to R factors."""
+    segment_r, stats = segment_r_factors(theta, batch.inputs, batch.reference, batch.t_s, weights)
+    stacked = segment_r.reshape(-1, 5)
+    r_factor = qr(stacked, mode="r", check_finite=False)[0][:5]
     if r_factor.shape[0] < 5:  # fewer rows than columns (a degenerate, tiny batch)
         r_factor = np.vstack([r_factor, np.zeros((5 - r_factor.shape[0], 5))])
+    cost = float(stats[:, 0].sum())
+    lagged = float(stats[:, 4].sum())
     return Linearisation(theta=np.asarray(theta, dtype=np.float64).copy(), cost=cost,
-                         r_factor=r_factor, scores=scores, residual_ss=residual_ss,
-                         samples=n * batch.steps, lag1=lagged / cost if cost > 0 else 0.0)
+                         r_factor=r_factor, segment_r=segment_r,
+                         residual_ss=stats[:, 1:4].sum(axis=0), samples=len(batch) * batch.steps,
+                         lag1=lagged / cost if cost > 0 else 0.0)
 
 
 def segment_information(batch: SegmentBatch, theta: FloatArray,
                         weights: FloatArray) -> FloatArray:
     """Per-segment ``J_s^T W J_s`` at ``theta``, shape (N, 4, 4) (for bootstrap and diagnostics)."""
-    out = np.empty((len(batch), 4, 4))
-    for lo, a, _, _ in _weighted_chunks(batch, theta, weights):
-        out[lo:lo + a.shape[0]] = np.einsum("nkij,nkil->njl", a, a)
-    return out
+    return linearise(batch, theta, weights).information
 
 
 @dataclass(frozen=True)
-class IdentificationResult:
-    """The outcome of a Gauss-Newton identification.
-
-    theta : the identified parameters (unidentified ones keep their datasheet values)
-    theta0 : the datasheet values
-    success : False when the iteration could not improve on the initial guess or broke down
-    message : why the iteration stopped
-    iterations : accepted G-N steps
-    cost_history : V at the initial guess and after each accepted step
-    identified : for each of c_e, c_d, t_r, d, whether the data identified it
-    reasons : for each unidentified parameter, why (plain words)
-    covariance : ndarray, shape (4, 4)
-        Parameter covariance (zero rows and columns for unidentified parameters); cluster-robust
-        over groups of non-overlapping segments when there are enough groups, else from the
-        residual variance (see ``covariance_kind``).
-    covariance_naive : ndarray, shape (4, 4)
-        ``sigma^2 (J^T W J)^-1`` with ``sigma^2 = V / (m - p)``, inflated by (1 + rho) / (1 - rho)
-        for the residuals' lag-1 autocorrelation rho.
-    segments : number of segments identified from
-    residual_rms : RMS of the p_x, p_y (m) and psi (rad) residuals at the final theta
-    segment_scores : per-segment ``J^T W R`` at the final theta
-    """
-
-    theta: Parameters
-    theta0: Parameters
-    success: bool
-    message: str
+class _Iteration:
+    theta: FloatArray
+    lin: Linearisation
+    history: list[float]
     iterations: int
-    cost_history: tuple[float, ...]
-    identified: tuple[bool, bool, bool, bool]
-    reasons: dict[str, str]
-    covariance: FloatArray
-    covariance_kind: str
-    covariance_naive: FloatArray
-    segments: int
-    residual_rms: tuple[float, float, float]
-    segment_scores: FloatArray = field(repr=False)
-
-    @property
-    def std(self) -> FloatArray:
-        """Standard deviations of c_e, c_d, t_r, d from ``covariance``."""
-        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
-
-    @property
-    def unidentified(self) -> tuple[str, ...]:
-        return tuple(n for n, ok in zip(PARAMETER_NAMES, self.identified, strict=True) if not ok)
-
-    def to_dict(self) -> dict[str, object]:
-        return {
-            "success": self.success,
-            "message": self.message,
-            "iterations": self.iterations,
-            "cost_history": list(self.cost_history),
-            "identified": dict(zip(PARAMETER_NAMES, self.identified, strict=True)),
-            "unidentified_reasons": dict(self.reasons),
-            "covariance": self.covariance.tolist(),
-            "covariance_kind": self.covariance_kind,
-            "covariance_naive": self.covariance_naive.tolist(),
-            "std": dict(zip(PARAMETER_NAMES, self.std.tolist(), strict=True)),
-            "segments": self.segments,
-            "residual_rms": {"p_x_m": self.residual_rms[0], "p_y_m": self.residual_rms[1],
-                             "psi_rad": self.residual_rms[2]},
-        }
+    status: Status
 
 
 def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
                  start: FloatArray | None = None, clusters: IntArray | None = None,
-                 fixed: Mapping[str, str] | None = None) -> IdentificationResult:
+                 held: Mapping[str, NotIdentified] | None = None,
+                 method: str = "raw") -> Estimate:
     """Pure (one segment) or batch (several) Gauss-Newton identification.
 
     Parameters
@@ -191,84 +135,90 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
     clusters : ndarray of int, shape (N,), optional
         Group label of each segment for the cluster-robust covariance: segments that overlap in
         time belong together. Each segment is its own group when None.
-    fixed : parameters to keep at their datasheet values regardless of the data, with the
-        reason (reported with the result)
+    held : parameters to keep at their datasheet values regardless of the data, with the reason
+    method : the method name the estimate carries
+
+    Returns
+    -------
+    Estimate
+        With :class:`~odocal.estimate.GaussNewtonDetails`.
     """
     datasheet = np.asarray(settings.theta0, dtype=np.float64)
-    theta_init = datasheet.copy() if start is None else np.asarray(start, dtype=np.float64)
+    theta_init = datasheet.copy() if start is None else np.array(start, dtype=np.float64)
     weights = np.asarray(settings.weights, dtype=np.float64)
     prior = np.asarray(settings.prior_std, dtype=np.float64)
-    fixed = dict(fixed or {})
-    free = np.array([name not in fixed for name in PARAMETER_NAMES])
-    reasons = dict(fixed)
+    held = dict(held or {})
+    free = np.array([name not in held for name in PARAMETER_NAMES])
     if clusters is None:
         clusters = np.arange(len(batch), dtype=np.int64)
+    n_clusters = int(np.unique(clusters).shape[0])
 
     theta_init[~free] = datasheet[~free]
     lin0 = linearise(batch, theta_init, weights)
-    numeric_free, why = _numerically_free(lin0.r_factor, prior, settings.rcond, free)
-    reasons.update(why)
+    numeric_free = _numerically_free(lin0.r_factor, prior, settings.rcond, free)
+    for j in np.flatnonzero(free & ~numeric_free):
+        held[PARAMETER_NAMES[j]] = NotIdentified(Reason.NO_INFORMATION)
     if not np.array_equal(numeric_free, free):
         free = numeric_free
         theta_init[~free] = datasheet[~free]
         lin0 = linearise(batch, theta_init, weights)
 
     while True:
-        theta, lin, history, iterations, success, message = _iterate(
-            batch, theta_init, lin0, free, weights, settings)
-        cov_naive = _naive_covariance(lin, free)
-        cov_robust = _robust_covariance(lin, free, clusters)
-        n_clusters = int(np.unique(clusters).shape[0])
+        it = _iterate(batch, theta_init, lin0, free, weights, settings)
+        cov_naive = _naive_covariance(it.lin, free)
+        cov = cov_naive
+        kind = CovarianceKind.RESIDUAL
         if n_clusters >= _MIN_CLUSTERS_FOR_ROBUST:
-            cov, kind = cov_robust, "cluster-robust"
+            cov, kind = _robust_covariance(it.lin, free, clusters), CovarianceKind.CLUSTER_ROBUST
+        elif n_clusters >= 2:
+            cov = _larger(cov_naive, _robust_covariance(it.lin, free, clusters))
+        if n_clusters < 2 and free.any() and settings.judge_identifiability:
+            # one cluster of overlapping segments is one piece of evidence: no spread to judge by
+            std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+            for j in np.flatnonzero(free):
+                held[PARAMETER_NAMES[j]] = NotIdentified(Reason.ONE_CLUSTER, float(std[j]),
+                                                         detail=float(n_clusters))
+            free = np.zeros(4, dtype=bool)
         else:
-            cov, kind = cov_naive, "residual (autocorrelation-corrected)"
-        std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        weak = free & (std > settings.identifiable_ratio * prior)
-        if not settings.judge_identifiability:
-            weak[:] = False
-        if not weak.any() or not _settled(history, message, settings):
-            # before the iteration settles, residuals measure the misfit of the estimate, not
-            # the noise, and say nothing about what the data can identify
-            break
-        for j in np.flatnonzero(weak):
-            name = PARAMETER_NAMES[j]
-            reasons[name] = (f"the data determine {name} only to +-{std[j]:.3g} "
-                             f"(datasheet uncertainty {prior[j]:.3g}); kept at the datasheet "
-                             f"value {datasheet[j]:.6g}")
-        free = free & ~weak
-        theta_init = theta.copy()
+            std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+            too_weak = weak(std, free, settings)
+            if not too_weak.any():
+                break
+            held.update(held_as_weak(std, too_weak, settings))
+            free = free & ~too_weak
+        theta_init = it.theta.copy()
         theta_init[~free] = datasheet[~free]
         if not free.any():
             lin = linearise(batch, theta_init, weights)
-            theta, history = theta_init, [lin.cost]
-            iterations, success = 0, False
-            message = "no parameter is identifiable from these segments"
+            it = _Iteration(theta_init, lin, [lin.cost], 0, Status.NOTHING_IDENTIFIABLE)
             cov = cov_naive = np.zeros((4, 4))
-            kind = "residual (autocorrelation-corrected)"
+            kind = CovarianceKind.NONE
             break
         lin0 = linearise(batch, theta_init, weights)
 
+    lin = it.lin
     rms = np.sqrt(lin.residual_ss / max(lin.samples, 1))
-    if not success:
-        log.warning("identification: %s", message)
-    return IdentificationResult(
-        theta=Parameters.from_array(theta), theta0=Parameters.from_array(datasheet),
-        success=success, message=message, iterations=iterations,
-        cost_history=tuple(history), identified=tuple(bool(f) for f in free),  # type: ignore[arg-type]
-        reasons=reasons, covariance=cov, covariance_kind=kind, covariance_naive=cov_naive,
-        segments=len(batch), residual_rms=(float(rms[0]), float(rms[1]), float(rms[2])),
-        segment_scores=lin.scores)
+    if not it.status.success:
+        log.warning("identification: %s", it.status.name)
+    details = GaussNewtonDetails(
+        iterations=it.iterations, cost_history=tuple(it.history), segments=len(batch),
+        clusters=n_clusters, residual_rms=(float(rms[0]), float(rms[1]), float(rms[2])),
+        covariance_naive=cov_naive, segment_scores=lin.scores)
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return Estimate(
+        method=method, theta=Parameters.from_array(it.theta),
+        datasheet=Parameters.from_array(datasheet), covariance=cov, covariance_kind=kind,
+        free=tuple(bool(f) for f in free),  # type: ignore[arg-type]
+        verdicts=judge(std, free, settings, held=held), status=it.status, details=details)
 
 
 def _iterate(batch: SegmentBatch, theta_init: FloatArray, lin0: Linearisation,
-             free: NDArray[np.bool_], weights: FloatArray, settings: IdentifySettings,
-             ) -> tuple[FloatArray, Linearisation, list[float], int, bool, str]:
+             free: BoolArray, weights: FloatArray, settings: IdentifySettings) -> _Iteration:
     """G-N iterations (8) on the free parameters, from ``theta_init``."""
     theta, lin = theta_init.copy(), lin0
     history = [lin.cost]
     scale = np.maximum(np.abs(theta_init), np.asarray(settings.prior_std))
-    message = f"reached the iteration limit i_max = {settings.max_iterations}"
+    status = Status.ITERATION_LIMIT
     iterations = 0
     for _ in range(settings.max_iterations):
         delta = np.zeros(4)
@@ -284,30 +234,22 @@ def _iterate(batch: SegmentBatch, theta_init: FloatArray, lin0: Linearisation,
             trial = None
             delta = 0.5 * delta
         if trial is None:
-            message = "the cost no longer decreases"
+            status = Status.SETTLED
             break
         theta, lin = theta + delta, trial
         history.append(lin.cost)
         iterations += 1
         if np.max(np.abs(delta) / scale) < settings.step_tolerance:
-            message = "converged (the step is below the tolerance)"
+            status = Status.CONVERGED
             break
-    success = iterations > 0 or lin.cost == 0.0
-    if not success:
-        message = f"could not improve on the initial guess: {message}"
-    return theta, lin, history, iterations, success, message
+    if np.sqrt(lin.cost / max(3 * lin.samples, 1)) < _EXACT_RMS:
+        status = Status.EXACT
+    elif iterations == 0:
+        status = Status.NO_IMPROVEMENT
+    return _Iteration(theta, lin, history, iterations, status)
 
 
-def _settled(history: list[float], message: str, settings: IdentifySettings) -> bool:
-    """Whether the iteration reached a minimum rather than stopping on the iteration limit."""
-    if len(history) < 2:
-        return False
-    if not message.startswith("reached the iteration limit"):
-        return True
-    return history[-2] - history[-1] <= 1e-3 * history[-1]
-
-
-def _solve_step(r_factor: FloatArray, free: NDArray[np.bool_]) -> FloatArray:
+def _solve_step(r_factor: FloatArray, free: BoolArray) -> FloatArray:
     """Least-squares step of the free parameters from the R factor of ``[A | r]``.
 
     Since ``[A | r] = Q R``, ``min ||A_F d - r||`` equals ``min ||R[:, F] d - R[:, 4]||``.
@@ -318,10 +260,9 @@ def _solve_step(r_factor: FloatArray, free: NDArray[np.bool_]) -> FloatArray:
 
 
 def _numerically_free(r_factor: FloatArray, prior: FloatArray, rcond: float,
-                      free: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], dict[str, str]]:
+                      free: BoolArray) -> BoolArray:
     """Drop parameters until the scaled normal equations of the rest have full rank."""
     free = free.copy()
-    reasons: dict[str, str] = {}
     while free.any():
         cols = np.flatnonzero(free)
         a = r_factor[:4, cols] * prior[cols]          # columns in units of the prior std
@@ -330,20 +271,17 @@ def _numerically_free(r_factor: FloatArray, prior: FloatArray, rcond: float,
         if s_max > 0 and s[-1] > rcond * s_max:
             break
         worst = cols[int(np.argmax(np.abs(vt[-1])))] if s_max > 0 else cols[0]
-        name = PARAMETER_NAMES[worst]
-        reasons[name] = (f"these segments carry no information on {name} (rank-deficient "
-                         "normal equations); kept at the datasheet value")
         free[worst] = False
-    return free, reasons
+    return free
 
 
-def _information_inverse(lin: Linearisation, free: NDArray[np.bool_]) -> FloatArray:
-    """(J^T W J)^-1 of the free parameters from the R factor, embedded in 4x4."""
+def information_inverse(r_factor: FloatArray, free: BoolArray) -> FloatArray:
+    """(J^T W J)^-1 of the free parameters from an R factor, embedded in 4x4."""
     cols = np.flatnonzero(free)
     out = np.zeros((4, 4))
     if cols.size == 0:
         return out
-    _, r = np.linalg.qr(lin.r_factor[:4, cols])
+    _, r = np.linalg.qr(r_factor[:4, cols])
     if np.min(np.abs(np.diag(r))) == 0.0:
         return out
     r_inv = solve_triangular(r, np.eye(cols.size))
@@ -351,7 +289,7 @@ def _information_inverse(lin: Linearisation, free: NDArray[np.bool_]) -> FloatAr
     return out
 
 
-def _naive_covariance(lin: Linearisation, free: NDArray[np.bool_]) -> FloatArray:
+def _naive_covariance(lin: Linearisation, free: BoolArray) -> FloatArray:
     """``sigma^2 (J^T W J)^-1``, inflated for the residuals' autocorrelation.
 
     Rollout residuals are far from white (errors integrate along a segment); with lag-1
@@ -361,11 +299,11 @@ def _naive_covariance(lin: Linearisation, free: NDArray[np.bool_]) -> FloatArray
     p = int(free.sum())
     dof = max(3 * lin.samples - p, 1)
     rho = min(max(lin.lag1, 0.0), 0.999)
-    return (lin.cost / dof) * (1 + rho) / (1 - rho) * _information_inverse(lin, free)
+    return (lin.cost / dof) * (1 + rho) / (1 - rho) * information_inverse(lin.r_factor, free)
 
 
-def _robust_covariance(lin: Linearisation, free: NDArray[np.bool_],
-                       clusters: IntArray) -> FloatArray:
+def robust_covariance(h_inv: FloatArray, scores: FloatArray, free: BoolArray,
+                      clusters: IntArray) -> FloatArray:
     """Sandwich ``H^-1 M H^-1`` with M the outer products of per-cluster scores.
 
     Residuals of one segment are strongly correlated (a rollout integrates its errors), and
@@ -373,10 +311,9 @@ def _robust_covariance(lin: Linearisation, free: NDArray[np.bool_],
     scores of overlapping segments into clusters and adding the Bartlett-weighted products of
     neighbouring clusters gives a covariance that holds under that correlation.
     """
-    h_inv = _information_inverse(lin, free)
     labels, index = np.unique(clusters, return_inverse=True)
     g = np.zeros((labels.shape[0], 4))
-    np.add.at(g, index, lin.scores)
+    np.add.at(g, index, scores)
     g[:, ~free] = 0.0
     g -= g.mean(axis=0)
     meat = g.T @ g
@@ -386,3 +323,16 @@ def _robust_covariance(lin: Linearisation, free: NDArray[np.bool_],
     c = g.shape[0]
     correction = c / (c - 1) if c > 1 else 1.0
     return correction * (h_inv @ meat @ h_inv)
+
+
+def _robust_covariance(lin: Linearisation, free: BoolArray, clusters: IntArray) -> FloatArray:
+    return robust_covariance(information_inverse(lin.r_factor, free), lin.scores, free, clusters)
+
+
+def _larger(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``a`` with each standard deviation raised to the larger of ``a``'s and ``b``'s."""
+    sa = np.sqrt(np.clip(np.diag(a), 0.0, None))
+    sb = np.sqrt(np.clip(np.diag(b), 0.0, None))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(sa > 0, np.maximum(sa, sb) / sa, 1.0)
+    return a * np.outer(f, f)

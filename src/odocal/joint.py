@@ -48,16 +48,18 @@ from numpy.typing import NDArray
 from scipy.linalg import lapack
 
 from odocal.drive import Drive
-from odocal.errors import SolverError
-from odocal.identify import IdentificationResult
-from odocal.model import (
-    PARAMETER_NAMES,
-    Inputs,
-    Parameters,
-    circumferences,
-    rate_derivatives,
-    wrap_angle,
+from odocal.errors import DataError, SolverError
+from odocal.estimate import (
+    CovarianceKind,
+    Estimate,
+    NotIdentified,
+    Status,
+    failed_estimate,
+    held_as_weak,
+    judge,
+    weak,
 )
+from odocal.model import PARAMETER_NAMES, Inputs, Parameters, block_rollout, wrap_angle
 from odocal.segments import common_sampling_time
 from odocal.settings import Settings
 
@@ -125,8 +127,8 @@ def _gather(drives: Sequence[Drive], block: int) -> _Data:
                 assert d.pose_std is not None
                 parts["std"].append(d.pose_std[nodes])
     if not pieces:
-        raise SolverError(f"joint calibration: no piece is longer than one block of {block} "
-                          "samples")
+        raise DataError(f"joint calibration: no piece of the drives is longer than one block of "
+                        f"{block} samples")
     cat: dict[str, NDArray[Any]] = {k: np.concatenate(v) for k, v in parts.items() if v}
     return _Data(n_rl=cat["n_rl"][:-1], n_rr=cat["n_rr"][:-1], beta=cat["beta"][:-1],
                  a_y=cat["a_y"][:-1], y=cat["y"], link=cat["link"][:-1].astype(bool),
@@ -193,41 +195,18 @@ def _model_terms(z: FloatArray, theta: FloatArray, data: _Data
     """Model residual x_{b+1} - F(x_b, n~ + dn_b) of every block and its Jacobians (unweighted).
 
     Returns r (B, 3), J_z (B, 3, 8) over [x_b, dn_b, x_{b+1}], J_theta (B, 3, 4), and the
-    block-end poses.
+    block-end poses. F and its derivatives are the model's block rollout
+    (:func:`odocal.model.block_rollout`).
     """
     x, dn = z[:, :3], z[:, 3:]
-    t_s = data.t_s
-    x0 = x[:-1]
-    u = Inputs(n_rl=data.n_rl + dn[:-1, 0:1], n_rr=data.n_rr + dn[:-1, 1:2], beta=data.beta,
-               a_y=data.a_y)
-    v, w, dv_t, dw_t = rate_derivatives(theta, u)
-    c_rl, c_rr = circumferences(theta, data.a_y)
-    # the block's correction acts like two more parameters: dv/ddn, dw/ddn per step
-    dv = np.concatenate([dv_t, np.stack([0.5 * c_rl, 0.5 * c_rr], axis=-1)], axis=-1)
-    dw = np.concatenate([dw_t, np.stack([-c_rl, c_rr], axis=-1) / theta[2]], axis=-1)
-    turn = w * t_s
-    before = np.cumsum(turn, axis=1) - turn                    # heading change before each step
-    heading = x0[:, 2:3] + before + 0.5 * turn + u.beta        # (1)
-    c, s = np.cos(heading), np.sin(heading)
-    length = v * t_s
-    end = np.column_stack([x0[:, 0] + np.sum(length * c, axis=1),
-                           x0[:, 1] + np.sum(length * s, axis=1),
-                           x0[:, 2] + np.sum(turn, axis=1)])
-    dbefore = t_s * (np.cumsum(dw, axis=1) - dw)
-    dh = dbefore + 0.5 * t_s * dw                               # (B, L, 6)
-    jac = np.stack([np.sum(t_s * dv * c[..., None] - (length * s)[..., None] * dh, axis=1),
-                    np.sum(t_s * dv * s[..., None] + (length * c)[..., None] * dh, axis=1),
-                    t_s * np.sum(dw, axis=1)], axis=1)          # (B, 3, 6)
+    end, jac = block_rollout(theta, Inputs(n_rl=data.n_rl, n_rr=data.n_rr, beta=data.beta,
+                                           a_y=data.a_y), x[:-1], dn[:-1], data.t_s)
     r = x[1:] - end
     r[:, 2] = wrap_angle(r[:, 2])
-    nb = x0.shape[0]
-    jz = np.zeros((nb, 3, 8))
-    jz[:, 0, 0] = jz[:, 1, 1] = jz[:, 2, 2] = -1.0
-    jz[:, 0, 2] = end[:, 1] - x0[:, 1]                          # d end / d psi_b, negated
-    jz[:, 1, 2] = -(end[:, 0] - x0[:, 0])
-    jz[:, :, 3:5] = -jac[:, :, 4:6]
+    jz = np.zeros((end.shape[0], 3, 8))
+    jz[:, :, :5] = -jac[:, :, :5]
     jz[:, 0, 5] = jz[:, 1, 6] = jz[:, 2, 7] = 1.0
-    return r, jz, -jac[:, :, :4], end
+    return r, jz, -jac[:, :, 5:], end
 
 
 def _cost(z: FloatArray, theta: FloatArray, data: _Data, wt: _Weights) -> dict[str, float]:
@@ -416,17 +395,18 @@ def _initial_noise(settings: Settings) -> NoiseLevels:
 
 
 @dataclass(frozen=True)
-class JointResult:
-    """The joint calibration's result (see the module docstring).
+class JointDetails:
+    """What the joint calibration did (see the module docstring).
 
-    identification : theta, covariance (the inverse Schur complement) and identifiability, in
-        the form every method reports
     noise : the noise levels of the final solve; ``estimated`` names those found from the data
+    noise_history : the levels and the cost of every solve
     cost_parts : the final cost split into its model, reference and wheel parts
+    iterations : Gauss-Newton iterations over all solves
     sensitivity : theta's change (in standard deviations) with the wheel noise halved, doubled
+    residual_rms : RMS of the reference residuals p_x, p_y (m) and psi (rad)
+    warnings : what the user should know
     """
 
-    identification: IdentificationResult
     noise: NoiseLevels
     estimated: tuple[str, ...]
     noise_history: list[dict[str, float]]
@@ -435,6 +415,7 @@ class JointResult:
     sensitivity: dict[str, dict[str, float]]
     pieces: int
     samples: int
+    residual_rms: tuple[float, float, float]
     elapsed_s: float
     warnings: tuple[str, ...] = field(default=())
 
@@ -442,66 +423,133 @@ class JointResult:
         return {"noise": self.noise.to_dict(), "noise_estimated": list(self.estimated),
                 "noise_history": self.noise_history, "cost_parts": self.cost_parts,
                 "iterations": self.iterations, "wheel_noise_sensitivity_std": self.sensitivity,
-                "pieces": self.pieces, "samples": self.samples, "elapsed_s": self.elapsed_s}
+                "pieces": self.pieces, "samples": self.samples,
+                "residual_rms": {"p_x_m": self.residual_rms[0], "p_y_m": self.residual_rms[1],
+                                 "psi_rad": self.residual_rms[2]},
+                "elapsed_s": self.elapsed_s}
+
+
+@dataclass
+class _Run:
+    """The state the joint calibration carries from solve to solve."""
+
+    data: _Data
+    settings: Settings
+    noise: NoiseLevels
+    z: FloatArray
+    theta: FloatArray
+    free: BoolArray
+    history: list[dict[str, float]] = field(default_factory=list)
+    iterations: int = 0
+
+    def solve(self, noise: NoiseLevels | None = None) -> tuple[_Solution, _Weights]:
+        """Gauss-Newton at ``noise`` (default: the current levels), warm-started."""
+        wt = _Weights.of(self.data, noise or self.noise)
+        sol = _gauss_newton(self.z, self.theta, self.free, self.data, wt,
+                            self.settings.joint.max_iterations)
+        self.history.append({**(noise or self.noise).to_dict(), "cost": sol.system.cost})
+        self.iterations += sol.iterations
+        return sol, wt
+
+    def accept(self, sol: _Solution) -> None:
+        self.z, self.theta = sol.z, sol.theta
 
 
 def joint_calibration(drives: Sequence[Drive], *, settings: Settings,
-                      fixed: Mapping[str, str] | None = None,
-                      progress: Callable[[str, int, int], None] | None = None) -> JointResult:
-    """Calibrate theta jointly with the poses and the true wheel rates of every sample."""
+                      held: Mapping[str, NotIdentified] | None = None,
+                      progress: Callable[[str, int, int], None] | None = None) -> Estimate:
+    """Calibrate theta jointly with the poses and the true wheel rates of every sample.
+
+    Returns an :class:`~odocal.estimate.Estimate` with :class:`JointDetails`; a factorisation
+    that breaks down gives a failed estimate (``Status.SOLVER_FAILED``), not an exception.
+    """
     started = time.perf_counter()
     js = settings.joint
     t_s = common_sampling_time(drives)
     data = _gather(drives, max(round(js.block_s / t_s), 1))
     datasheet = np.asarray(settings.identify.theta0, dtype=np.float64)
-    fixed = dict(fixed or {})
-    free = np.array([name not in fixed for name in PARAMETER_NAMES])
-    reasons = dict(fixed)
-    noise = _initial_noise(settings)
+    held = dict(held or {})
+    run = _Run(data=data, settings=settings, noise=_initial_noise(settings),
+               z=np.concatenate([data.y, np.zeros((data.y.shape[0], 2))], axis=1),
+               theta=datasheet.copy(),
+               free=np.array([name not in held for name in PARAMETER_NAMES]))
+    warnings: list[str] = []
+    try:
+        estimated = _estimate_noise(run, warnings, progress)
+        sol, _ = run.solve()
+        run.accept(sol)
+        cov = _theta_covariance(sol, run.free)
+        too_weak = weak(np.sqrt(np.clip(np.diag(cov), 0.0, None)), run.free, settings.identify)
+        if too_weak.any():
+            held.update(held_as_weak(np.sqrt(np.diag(cov)), too_weak, settings.identify))
+            run.free = run.free & ~too_weak
+            run.theta[~run.free] = datasheet[~run.free]
+            sol, _ = run.solve()
+            run.accept(sol)
+            cov = _theta_covariance(sol, run.free)
+        std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        sensitivity = _sensitivity(run, sol, std, warnings)
+    except SolverError:
+        log.warning("joint calibration: the normal equations could not be factorised")
+        return failed_estimate("joint", settings.identify, Status.SOLVER_FAILED)
+    residual_y = sol.z[:, :3] - data.y
+    residual_y[:, 2] = wrap_angle(residual_y[:, 2])
+    rms = np.sqrt(np.mean(residual_y**2, axis=0))
+    details = JointDetails(noise=run.noise, estimated=estimated, noise_history=run.history,
+                           cost_parts=sol.system.cost_parts, iterations=run.iterations,
+                           sensitivity=sensitivity, pieces=data.pieces, samples=data.samples,
+                           residual_rms=(float(rms[0]), float(rms[1]), float(rms[2])),
+                           elapsed_s=time.perf_counter() - started, warnings=tuple(warnings))
+    if not run.free.any():
+        status = Status.NOTHING_IDENTIFIABLE
+    elif sol.system.cost < 1e-12 * data.samples:
+        status = Status.EXACT
+    else:
+        status = Status.SETTLED if sol.converged else Status.ITERATION_LIMIT
+    return Estimate(method="joint", theta=Parameters.from_array(run.theta),
+                    datasheet=Parameters.from_array(datasheet), covariance=cov,
+                    covariance_kind=CovarianceKind.JOINT,
+                    free=tuple(bool(f) for f in run.free),  # type: ignore[arg-type]
+                    verdicts=judge(std, run.free, settings.identify, held=held), status=status,
+                    details=details)
+
+
+def _estimate_noise(run: _Run, warnings: list[str],
+                    progress: Callable[[str, int, int], None] | None) -> tuple[str, ...]:
+    """Variance-component estimation of the noise levels left unset; returns their names."""
+    js = run.settings.joint
     given = {"wheels": js.wheel_noise_revps, "reference_position": js.reference_position_m,
              "reference_heading": js.reference_heading_rad,
              "process_position": js.process_position_m,
              "process_heading": js.process_heading_rad}
     estimate = tuple(g for g in GROUPS if given[g] is None)
-    rng = np.random.default_rng(settings.calibrate.seed)
-    z0 = np.concatenate([data.y, np.zeros((data.y.shape[0], 2))], axis=1)
-    theta = datasheet.copy()
-    history_noise: list[dict[str, float]] = []
-    warnings: list[str] = []
-
-    def solve(noise: NoiseLevels, z: FloatArray, theta: FloatArray,
-              free: BoolArray) -> tuple[_Solution, _Weights]:
-        wt = _Weights.of(data, noise)
-        sol = _gauss_newton(z, theta, free, data, wt, js.max_iterations)
-        history_noise.append({**noise.to_dict(), "cost": sol.system.cost})
-        return sol, wt
-
-    total_iterations = 0
+    rng = np.random.default_rng(run.settings.calibrate.seed)
     rounds = js.noise_rounds if estimate else 0
     settled = not estimate
     previous: FloatArray | None = None
     for round_ in range(rounds):
         if progress:
             progress("joint: noise estimation", round_, rounds)
-        sol, wt = solve(noise, z0, theta, free)
-        total_iterations += sol.iterations
-        z0, theta = sol.z, sol.theta
-        red = _redundancy(sol, wt, data, estimate, js.trace_probes, rng)
-        parts = _group_ss(sol, data, wt)
+        sol, wt = run.solve()
+        run.accept(sol)
+        red = _redundancy(sol, wt, run.data, estimate, js.trace_probes, rng)
+        parts = _group_ss(sol, run.data, wt)
         scale = {g: parts[g] / max(red[g], 1.0) for g in estimate}
-        noise = dataclasses.replace(noise, **{
-            _FIELD[g]: max(getattr(noise, _FIELD[g]) * float(np.sqrt(scale[g])), _FLOOR[g])
+        run.noise = dataclasses.replace(run.noise, **{
+            _FIELD[g]: max(getattr(run.noise, _FIELD[g]) * float(np.sqrt(scale[g])), _FLOOR[g])
             for g in estimate})
         # Settled when theta stops moving (against its own standard deviation) and so does the
         # wheel level, which is what the errors-in-variables correction rests on. A reference
         # error correlated over seconds is hard to tell from process noise at block level, so
         # those two levels may keep trading slowly without changing theta.
-        std = _theta_std(sol, free)
+        std = _theta_std(sol, run.free)
+        free = run.free
         moved = np.inf if previous is None else float(
-            np.max(np.abs(theta - previous)[free] / np.maximum(std[free], 1e-300)))
-        previous = theta.copy()
+            np.max(np.abs(run.theta - previous)[free] / np.maximum(std[free], 1e-300),
+                   initial=0.0))
+        previous = run.theta.copy()
         wheel_change = abs(np.sqrt(scale.get("wheels", 1.0)) - 1.0)
-        if (moved < 0.05 and wheel_change < 0.05) or sol.system.cost < 1e-12 * data.samples:
+        if (moved < 0.05 and wheel_change < 0.05) or sol.system.cost < 1e-12 * run.data.samples:
             settled = True                   # (a noise-free drive: nothing left to estimate)
             break
     if not settled:
@@ -509,61 +557,29 @@ def joint_calibration(drives: Sequence[Drive], *, settings: Settings,
                         "rounds of variance-component estimation")
     if progress:
         progress("joint: noise estimation", rounds, rounds)
-    # the final solve, at the final noise levels (warm-started)
-    sol, wt = solve(noise, z0, theta, free)
-    total_iterations += sol.iterations
-    z0, theta = sol.z, sol.theta
-    cov = _theta_covariance(sol, free)
-    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    prior = np.asarray(settings.identify.prior_std)
-    weak = free & (std > settings.identify.identifiable_ratio * prior)
-    if settings.identify.judge_identifiability and weak.any():
-        for j in np.flatnonzero(weak):
-            reasons[PARAMETER_NAMES[j]] = (
-                f"the data determine {PARAMETER_NAMES[j]} only to +-{std[j]:.3g} (datasheet "
-                f"uncertainty {prior[j]:.3g}); kept at the datasheet value {datasheet[j]:.6g}")
-        free = free & ~weak
-        theta[~free] = datasheet[~free]
-        sol, wt = solve(noise, sol.z, theta, free)
-        theta = sol.theta
-        total_iterations += sol.iterations
-        cov = _theta_covariance(sol, free)
-        std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return estimate
 
-    sensitivity: dict[str, dict[str, float]] = {}
-    if js.sensitivity and free.any():
-        for label, factor in (("halved", 0.5), ("doubled", 2.0)):
-            alt = _Weights.of(data, dataclasses.replace(noise,
-                                                        wheels_revps=noise.wheels_revps * factor))
-            other = _gauss_newton(sol.z, theta, free, data, alt, js.max_iterations)
-            sensitivity[label] = {n: float((other.theta[j] - theta[j]) / std[j])
-                                  if free[j] and std[j] > 0 else 0.0
-                                  for j, n in enumerate(PARAMETER_NAMES)}
-        worst = max(abs(v) for d in sensitivity.values() for v in d.values())
-        if worst > 1.0:
-            warnings.append(f"theta moves by up to {worst:.1f} standard deviations when the "
-                            "wheel-noise level is halved or doubled: the estimate depends on "
-                            "that level")
 
-    residual_y = sol.z[:, :3] - data.y
-    residual_y[:, 2] = wrap_angle(residual_y[:, 2])
-    rms = np.sqrt(np.mean(residual_y**2, axis=0))
-    ident = IdentificationResult(
-        theta=Parameters.from_array(theta), theta0=Parameters.from_array(datasheet),
-        success=sol.iterations > 0 or sol.converged,
-        message=("converged" if sol.converged else
-                 f"reached the iteration limit {js.max_iterations}"),
-        iterations=total_iterations, cost_history=tuple(sol.history),
-        identified=tuple(bool(f) for f in free),  # type: ignore[arg-type]
-        reasons=reasons, covariance=cov, covariance_kind="joint normal equations",
-        covariance_naive=cov, segments=data.pieces,
-        residual_rms=(float(rms[0]), float(rms[1]), float(rms[2])),
-        segment_scores=np.zeros((0, 4)))
-    return JointResult(identification=ident, noise=noise, estimated=estimate,
-                       noise_history=history_noise, cost_parts=sol.system.cost_parts,
-                       iterations=total_iterations, sensitivity=sensitivity,
-                       pieces=data.pieces, samples=data.samples,
-                       elapsed_s=time.perf_counter() - started, warnings=tuple(warnings))
+def _sensitivity(run: _Run, sol: _Solution, std: FloatArray,
+                 warnings: list[str]) -> dict[str, dict[str, float]]:
+    """theta's move, in standard deviations, with the wheel-noise level halved and doubled."""
+    js = run.settings.joint
+    out: dict[str, dict[str, float]] = {}
+    if not js.sensitivity or not run.free.any():
+        return out
+    for label, factor in (("halved", 0.5), ("doubled", 2.0)):
+        alt = _Weights.of(run.data, dataclasses.replace(
+            run.noise, wheels_revps=run.noise.wheels_revps * factor))
+        other = _gauss_newton(sol.z, run.theta, run.free, run.data, alt, js.max_iterations)
+        out[label] = {n: float((other.theta[j] - run.theta[j]) / std[j])
+                      if run.free[j] and std[j] > 0 else 0.0
+                      for j, n in enumerate(PARAMETER_NAMES)}
+    worst = max(abs(v) for d in out.values() for v in d.values())
+    if worst > 1.0:
+        warnings.append(f"theta moves by up to {worst:.1f} standard deviations when the "
+                        "wheel-noise level is halved or doubled: the estimate depends on "
+                        "that level")
+    return out
 
 
 def _theta_covariance(sol: _Solution, free: BoolArray) -> FloatArray:

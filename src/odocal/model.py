@@ -1,4 +1,4 @@
-"""METHOD 1: the wheel-odometry model, its rollout and its Jacobians.
+"""METHOD 1: the wheel-odometry model, its rollouts and their derivatives, in one place.
 
 State ``x_k = [p_x, p_y, psi]`` (m, m, rad); inputs ``u_k = [n_rl, n_rr, beta, a_y]``
 (rev/s, rev/s, rad, m/s^2); parameters ``theta = [c_e, c_d, t_r, d]`` (m, m, m, m per m/s^2)::
@@ -7,25 +7,51 @@ State ``x_k = [p_x, p_y, psi]`` (m, m, rad); inputs ``u_k = [n_rl, n_rr, beta, a
     (2a) v = (n_rl c_rl + n_rr c_rr) / 2     (2b) w = (n_rr c_rr - n_rl c_rl) / t_r
     (1)  p+ = p + v t_s [cos h, sin h],  h = psi + w t_s / 2 + beta;   psi+ = psi + w t_s
 
-A rollout is a cumulative sum over time, so every function here works on arrays of any leading
-shape ``(..., K)`` (one segment, or a batch of segments of equal length) without a Python loop.
+The paper prints ``h = psi + w/2 + beta``; the intended midpoint heading is ``psi + w t_s/2 + beta``
+(with ``w/2`` a car at 10 m/s turning at 0.5 rad/s would be rotated by a quarter radian per 25 ms
+step), and that is what odocal uses.
+
+**One model step.** Equations (1)-(3) are written once, in :func:`_body` and :func:`_increment`,
+and their derivatives once, in :func:`_increment_derivatives` (with respect to the wheel rates
+and theta, holding the heading fixed; the derivative with respect to the heading is
+``d(p+)/d psi = [-dy, dx]``). Every rollout is built from these compiled pieces: the plain rollout
+(:func:`rollout`, :func:`rollout_ragged`: validation, simulation, plots), the Gauss-Newton
+linearisation (:func:`segment_r_factors`), the QP's step Jacobians (:func:`step_jacobians`), the
+joint estimator's block rollouts (:func:`block_rollout`) and the online calibrator. A Jacobian
+``J = d x_k / d p`` propagates as ``J+ = A_k J + B_k`` with ``A_k = I + [0, 0, -dy; 0, 0, dx; 0, 0,
+0]``: a cumulative sum along the rollout, computed in one compiled pass per segment.
+
+**What else depends on the sizes.** Changing the vehicle model means changing this module, and:
+the compensation QP's solvers (:mod:`odocal.compensate.riccati`, :mod:`.structured`) are written
+for 3 states and 2 controlled inputs (the stage layout ``[dn (2), dx (3)]``, fixed loops over 3
+and 5); the joint estimator (:mod:`odocal.joint`) orders its unknowns ``[x_b (3), dn_b (2)]`` per
+block with a band of half-width 7; :data:`PARAMETER_NAMES` (4 parameters) sizes every covariance.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import prange
 from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from odocal._jit import jit
 
-#: Names and units of theta, in order.
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: Names, units and labels of theta, in order.
 PARAMETER_NAMES: tuple[str, str, str, str] = ("c_e", "c_d", "t_r", "d")
 PARAMETER_UNITS: tuple[str, str, str, str] = ("m", "m", "m", "m/(m/s^2)")
 PARAMETER_LABELS: tuple[str, str, str, str] = (
     "effective wheel circumference", "left-right circumference difference", "rear track width",
     "load-transfer coefficient")
+#: How each parameter is best displayed: scale and unit (c_d and d read best in mm).
+PARAMETER_DISPLAY: dict[str, tuple[float, str]] = {
+    "c_e": (1.0, "m"), "c_d": (1e3, "mm"), "t_r": (1.0, "m"), "d": (1e3, "mm/(m/s^2)")}
+STATES, WHEELS, PARAMETERS = 3, 2, 4
 
 
 @dataclass(frozen=True)
@@ -77,61 +103,354 @@ class Inputs:
         return Inputs(n_rl=n_rl, n_rr=n_rr, beta=self.beta, a_y=self.a_y)
 
 
+# --------------------------------------------------------------------------------------------
+# The model step: equations (1)-(3) and their derivatives, written once.
+# --------------------------------------------------------------------------------------------
+
+@jit(inline=True)
+def _circumferences(th: FloatArray, a_y: float) -> tuple[float, float]:  # pragma: no cover
+    """(3a), (3b): c_rl, c_rr."""
+    return th[0] + 0.5 * th[1] + th[3] * a_y, th[0] - 0.5 * th[1] - th[3] * a_y
+
+
+@jit(inline=True)
+def _body(th: FloatArray, n_rl: float, n_rr: float,
+          a_y: float) -> tuple[float, float, float, float]:  # pragma: no cover
+    """(2a), (2b): v, w, and the circumferences c_rl, c_rr."""
+    c_rl, c_rr = _circumferences(th, a_y)
+    s_rl = n_rl * c_rl
+    s_rr = n_rr * c_rr
+    return 0.5 * (s_rl + s_rr), (s_rr - s_rl) / th[2], c_rl, c_rr
+
+
+@jit(inline=True)
+def _increment(psi: float, v: float, w: float, beta: float,
+               t_s: float) -> tuple[float, float, float, float, float]:  # pragma: no cover
+    """(1): the pose increment (dx, dy, dpsi) and t_s cos h, t_s sin h."""
+    h = psi + 0.5 * w * t_s + beta
+    ct = t_s * math.cos(h)
+    st = t_s * math.sin(h)
+    return v * ct, v * st, w * t_s, ct, st
+
+
+@jit(inline=True)
+def _increment_derivatives(th: FloatArray, n_rl: float, n_rr: float, a_y: float, v: float,
+                           w: float, c_rl: float, c_rr: float, dx: float, dy: float, ct: float,
+                           st: float, t_s: float, out: FloatArray) -> None:  # pragma: no cover
+    """d(dx, dy, dpsi) / d[n_rl, n_rr, c_e, c_d, t_r, d] at a fixed heading, into out (3, 6).
+
+    With dh = t_s/2 dw:  d(dx) = t_s cos h dv - dy dh,  d(dy) = t_s sin h dv + dx dh,
+    d(dpsi) = t_s dw, where (from (2), (3))
+    dv/d[n_rl, n_rr, c_e, c_d, t_r, d] = [c_rl/2, c_rr/2, (n_rl+n_rr)/2, (n_rl-n_rr)/4, 0,
+                                         a_y (n_rl-n_rr)/2],
+    dw/d[...] = [-c_rl, c_rr, n_rr-n_rl, -(n_rl+n_rr)/2, -w t_r, -a_y (n_rl+n_rr)] / t_r.
+    """
+    inv = 1.0 / th[2]
+    n_sum = n_rl + n_rr
+    n_diff = n_rl - n_rr
+    dv = (0.5 * c_rl, 0.5 * c_rr, 0.5 * n_sum, 0.25 * n_diff, 0.0, 0.5 * a_y * n_diff)
+    dw = (-c_rl * inv, c_rr * inv, -n_diff * inv, -0.5 * n_sum * inv, -w * inv,
+          -a_y * n_sum * inv)
+    for p in range(6):
+        dh = 0.5 * t_s * dw[p]
+        out[0, p] = ct * dv[p] - dy * dh
+        out[1, p] = st * dv[p] + dx * dh
+        out[2, p] = t_s * dw[p]
+
+
+@jit(inline=True)
+def _wrap(angle: float) -> float:  # pragma: no cover
+    """Wrap to (-pi, pi]."""
+    r = angle - 2.0 * math.pi * math.floor((angle + math.pi) / (2.0 * math.pi))
+    if r <= -math.pi:
+        r += 2.0 * math.pi
+    return r
+
+
+# --------------------------------------------------------------------------------------------
+# Compiled rollouts built from the step.
+# --------------------------------------------------------------------------------------------
+
+@jit(parallel=True)
+def _rollout_kernel(th: FloatArray, n_rl: FloatArray, n_rr: FloatArray, beta: FloatArray,
+                    a_y: FloatArray, x0: FloatArray, t_s: float,
+                    poses: FloatArray) -> None:  # pragma: no cover
+    """Rows of (N, K) inputs from x0 (N, 3) into poses (N, K+1, 3)."""
+    n, k_steps = n_rl.shape
+    for s in prange(n):
+        x, y, psi = x0[s, 0], x0[s, 1], x0[s, 2]
+        poses[s, 0, 0], poses[s, 0, 1], poses[s, 0, 2] = x, y, psi
+        for k in range(k_steps):
+            v, w, _, _ = _body(th, n_rl[s, k], n_rr[s, k], a_y[s, k])
+            dx, dy, dpsi, _, _ = _increment(psi, v, w, beta[s, k], t_s)
+            x += dx
+            y += dy
+            psi += dpsi
+            poses[s, k + 1, 0], poses[s, k + 1, 1], poses[s, k + 1, 2] = x, y, psi
+
+
+@jit(parallel=True)
+def _ragged_kernel(th: FloatArray, n_rl: FloatArray, n_rr: FloatArray, beta: FloatArray,
+                   a_y: FloatArray, x0: FloatArray, first: IntArray, steps: IntArray,
+                   t_s: float, poses: FloatArray) -> None:  # pragma: no cover
+    """Segments stored one after another (flat inputs); poses (L, 3) after each step."""
+    for s in prange(steps.shape[0]):
+        x, y, psi = x0[s, 0], x0[s, 1], x0[s, 2]
+        for j in range(first[s], first[s] + steps[s]):
+            v, w, _, _ = _body(th, n_rl[j], n_rr[j], a_y[j])
+            dx, dy, dpsi, _, _ = _increment(psi, v, w, beta[j], t_s)
+            x += dx
+            y += dy
+            psi += dpsi
+            poses[j, 0], poses[j, 1], poses[j, 2] = x, y, psi
+
+
+@jit(parallel=True)
+def _jacobian_kernel(th: FloatArray, n_rl: FloatArray, n_rr: FloatArray, beta: FloatArray,
+                     a_y: FloatArray, x0: FloatArray, t_s: float, poses: FloatArray,
+                     jac: FloatArray) -> None:  # pragma: no cover
+    """Rollout and d poses / d theta at every step: poses (N, K+1, 3), jac (N, K+1, 3, 4)."""
+    n, k_steps = n_rl.shape
+    for s in prange(n):
+        d = np.empty((3, 6))
+        x, y, psi = x0[s, 0], x0[s, 1], x0[s, 2]
+        poses[s, 0, 0], poses[s, 0, 1], poses[s, 0, 2] = x, y, psi
+        jac[s, 0] = 0.0
+        for k in range(k_steps):
+            v, w, c_rl, c_rr = _body(th, n_rl[s, k], n_rr[s, k], a_y[s, k])
+            dx, dy, dpsi, ct, st = _increment(psi, v, w, beta[s, k], t_s)
+            _increment_derivatives(th, n_rl[s, k], n_rr[s, k], a_y[s, k], v, w, c_rl, c_rr,
+                                   dx, dy, ct, st, t_s, d)
+            for j in range(4):
+                jpsi = jac[s, k, 2, j]
+                jac[s, k + 1, 0, j] = jac[s, k, 0, j] - dy * jpsi + d[0, 2 + j]
+                jac[s, k + 1, 1, j] = jac[s, k, 1, j] + dx * jpsi + d[1, 2 + j]
+                jac[s, k + 1, 2, j] = jpsi + d[2, 2 + j]
+            x += dx
+            y += dy
+            psi += dpsi
+            poses[s, k + 1, 0], poses[s, k + 1, 1], poses[s, k + 1, 2] = x, y, psi
+
+
+@jit(parallel=True)
+def _r_factor_kernel(th: FloatArray, n_rl: FloatArray, n_rr: FloatArray, beta: FloatArray,
+                     a_y: FloatArray, ref: FloatArray, t_s: float, sqrt_w: FloatArray,
+                     r_out: FloatArray, stats: FloatArray) -> None:  # pragma: no cover
+    """Per segment: the R factor of ``[sqrt(W) J | sqrt(W) R]`` (3K x 5) by Householder QR.
+
+    ref (N, K+1, 3) are the measured poses (each rollout starts at ref[s, 0]); r_out (N, 5, 5);
+    stats (N, 5): weighted cost, unweighted sums of squares of the p_x, p_y, psi residuals, and
+    the sum of lag-1 products of the centred weighted residuals along the segment.
+    """
+    n, k_steps = n_rl.shape
+    m = 3 * k_steps
+    for s in prange(n):
+        mat = np.empty((m, 5))
+        d = np.empty((3, 6))
+        jac = np.zeros((3, 4))
+        x, y, psi = ref[s, 0, 0], ref[s, 0, 1], ref[s, 0, 2]
+        for k in range(k_steps):
+            v, w, c_rl, c_rr = _body(th, n_rl[s, k], n_rr[s, k], a_y[s, k])
+            dx, dy, dpsi, ct, st = _increment(psi, v, w, beta[s, k], t_s)
+            _increment_derivatives(th, n_rl[s, k], n_rr[s, k], a_y[s, k], v, w, c_rl, c_rr,
+                                   dx, dy, ct, st, t_s, d)
+            for j in range(4):
+                jpsi = jac[2, j]
+                jac[0, j] += -dy * jpsi + d[0, 2 + j]
+                jac[1, j] += dx * jpsi + d[1, 2 + j]
+                jac[2, j] = jpsi + d[2, 2 + j]
+            x += dx
+            y += dy
+            psi += dpsi
+            row = 3 * k
+            res0 = ref[s, k + 1, 0] - x
+            res1 = ref[s, k + 1, 1] - y
+            res2 = _wrap(ref[s, k + 1, 2] - psi)
+            for i in range(3):
+                for j in range(4):
+                    mat[row + i, j] = sqrt_w[i] * jac[i, j]
+            mat[row, 4] = sqrt_w[0] * res0
+            mat[row + 1, 4] = sqrt_w[1] * res1
+            mat[row + 2, 4] = sqrt_w[2] * res2
+        # residual statistics, before the factorisation overwrites the last column
+        cost = 0.0
+        ss0 = ss1 = ss2 = 0.0
+        mean0 = mean1 = mean2 = 0.0
+        for k in range(k_steps):
+            a0, a1, a2 = mat[3 * k, 4], mat[3 * k + 1, 4], mat[3 * k + 2, 4]
+            cost += a0 * a0 + a1 * a1 + a2 * a2
+            mean0 += a0
+            mean1 += a1
+            mean2 += a2
+            ss0 += (a0 / sqrt_w[0]) ** 2
+            ss1 += (a1 / sqrt_w[1]) ** 2
+            ss2 += (a2 / sqrt_w[2]) ** 2
+        mean0 /= k_steps
+        mean1 /= k_steps
+        mean2 /= k_steps
+        lagged = 0.0
+        for k in range(1, k_steps):
+            lagged += ((mat[3 * k, 4] - mean0) * (mat[3 * k - 3, 4] - mean0)
+                       + (mat[3 * k + 1, 4] - mean1) * (mat[3 * k - 2, 4] - mean1)
+                       + (mat[3 * k + 2, 4] - mean2) * (mat[3 * k - 1, 4] - mean2))
+        stats[s, 0], stats[s, 1], stats[s, 2], stats[s, 3], stats[s, 4] = (cost, ss0, ss1, ss2,
+                                                                           lagged)
+        _householder_r(mat, r_out[s])
+
+
+@jit(inline=True)
+def _householder_r(mat: FloatArray, r: FloatArray) -> None:  # pragma: no cover
+    """Upper-triangular R (n x n) of the QR factorisation of mat (m x n), overwriting mat."""
+    m, ncol = mat.shape
+    for j in range(ncol):
+        norm2 = 0.0
+        for i in range(j, m):
+            norm2 += mat[i, j] * mat[i, j]
+        norm = math.sqrt(norm2)
+        if norm == 0.0:
+            continue
+        alpha = -norm if mat[j, j] >= 0.0 else norm
+        mat[j, j] -= alpha                         # v = x - alpha e1, stored in place
+        vnorm2 = norm2 - 2.0 * alpha * (mat[j, j] + alpha) + alpha * alpha
+        if vnorm2 > 0.0:
+            for c in range(j + 1, ncol):
+                dot = 0.0
+                for i in range(j, m):
+                    dot += mat[i, j] * mat[i, c]
+                f = 2.0 * dot / vnorm2
+                for i in range(j, m):
+                    mat[i, c] -= f * mat[i, j]
+        mat[j, j] = alpha
+    for i in range(ncol):
+        for j in range(ncol):
+            r[i, j] = mat[i, j] if j >= i and i < m else 0.0
+
+
+@jit(parallel=True)
+def _step_jacobian_kernel(th: FloatArray, n_rl: FloatArray, n_rr: FloatArray, beta: FloatArray,
+                          a_y: FloatArray, poses: FloatArray, t_s: float, a_out: FloatArray,
+                          b_out: FloatArray) -> None:  # pragma: no cover
+    """A_k = df/dx (N, K, 3, 3) and B_k = df/d[n_rl, n_rr] (N, K, 3, 2) around poses (N, K+1, 3)."""
+    n, k_steps = n_rl.shape
+    for s in prange(n):
+        d = np.empty((3, 6))
+        for k in range(k_steps):
+            v, w, c_rl, c_rr = _body(th, n_rl[s, k], n_rr[s, k], a_y[s, k])
+            dx, dy, _, ct, st = _increment(poses[s, k, 2], v, w, beta[s, k], t_s)
+            _increment_derivatives(th, n_rl[s, k], n_rr[s, k], a_y[s, k], v, w, c_rl, c_rr,
+                                   dx, dy, ct, st, t_s, d)
+            for i in range(3):
+                for j in range(3):
+                    a_out[s, k, i, j] = 1.0 if i == j else 0.0
+                b_out[s, k, i, 0] = d[i, 0]
+                b_out[s, k, i, 1] = d[i, 1]
+            a_out[s, k, 0, 2] = -dy
+            a_out[s, k, 1, 2] = dx
+
+
+@jit(parallel=True)
+def _block_kernel(th: FloatArray, n_rl: FloatArray, n_rr: FloatArray, beta: FloatArray,
+                  a_y: FloatArray, start: FloatArray, dn: FloatArray, t_s: float,
+                  end: FloatArray, jac: FloatArray) -> None:  # pragma: no cover
+    """Each block's rollout from start (B, 3) with rates n + dn (dn (B, 2) per block).
+
+    end (B, 3); jac (B, 3, 9) = d end / d[x_b (3), dn_b (2), theta (4)].
+    """
+    n_blocks, length = n_rl.shape
+    for b in prange(n_blocks):
+        d = np.empty((3, 6))
+        j9 = np.zeros((3, 9))
+        j9[0, 0] = j9[1, 1] = j9[2, 2] = 1.0
+        x, y, psi = start[b, 0], start[b, 1], start[b, 2]
+        for k in range(length):
+            nl = n_rl[b, k] + dn[b, 0]
+            nr = n_rr[b, k] + dn[b, 1]
+            v, w, c_rl, c_rr = _body(th, nl, nr, a_y[b, k])
+            dx, dy, dpsi, ct, st = _increment(psi, v, w, beta[b, k], t_s)
+            _increment_derivatives(th, nl, nr, a_y[b, k], v, w, c_rl, c_rr, dx, dy, ct, st,
+                                   t_s, d)
+            for j in range(9):
+                jpsi = j9[2, j]
+                j9[0, j] += -dy * jpsi
+                j9[1, j] += dx * jpsi
+            for p in range(6):                     # columns 3..8: dn (2), theta (4)
+                j9[0, 3 + p] += d[0, p]
+                j9[1, 3 + p] += d[1, p]
+                j9[2, 3 + p] += d[2, p]
+            x += dx
+            y += dy
+            psi += dpsi
+        end[b, 0], end[b, 1], end[b, 2] = x, y, psi
+        jac[b] = j9
+
+
+@jit
+def _body_rates_kernel(th: FloatArray, n_rl: FloatArray, n_rr: FloatArray, a_y: FloatArray,
+                       v: FloatArray, w: FloatArray, c_rl: FloatArray,
+                       c_rr: FloatArray) -> None:  # pragma: no cover
+    for i in range(n_rl.shape[0]):
+        v[i], w[i], c_rl[i], c_rr[i] = _body(th, n_rl[i], n_rr[i], a_y[i])
+
+
+# --------------------------------------------------------------------------------------------
+# The public, array-shaped interface.
+# --------------------------------------------------------------------------------------------
+
+def _flat(values: FloatArray | float, shape: tuple[int, ...]) -> FloatArray:
+    """A C-contiguous float64 array of ``shape`` (one compiled signature per kernel)."""
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(values, dtype=np.float64), shape))
+
+
+def _theta(theta: FloatArray | Parameters) -> FloatArray:
+    if isinstance(theta, Parameters):
+        return theta.as_array()
+    return np.ascontiguousarray(theta, dtype=np.float64).reshape(4)
+
+
 def circumferences(theta: FloatArray, a_y: FloatArray) -> tuple[FloatArray, FloatArray]:
     """(3a), (3b): the actual rear-left and rear-right circumferences, m."""
-    c_e, c_d, _, d = theta
-    c_rl = c_e + 0.5 * c_d + d * a_y
-    c_rr = c_e - 0.5 * c_d - d * a_y
+    _, _, c_rl, c_rr = _rates(theta, np.zeros_like(a_y, dtype=np.float64),
+                              np.zeros_like(a_y, dtype=np.float64), a_y)
     return c_rl, c_rr
+
+
+def _rates(theta: FloatArray, n_rl: FloatArray, n_rr: FloatArray,
+           a_y: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    shape = np.broadcast_shapes(np.shape(n_rl), np.shape(n_rr), np.shape(a_y))
+    size = int(np.prod(shape))
+    out = [np.empty(size) for _ in range(4)]
+    _body_rates_kernel(_theta(theta), _flat(n_rl, shape).reshape(size),
+                       _flat(n_rr, shape).reshape(size), _flat(a_y, shape).reshape(size), *out)
+    v, w, c_rl, c_rr = (o.reshape(shape) for o in out)
+    return v, w, c_rl, c_rr
 
 
 def body_rates(theta: FloatArray, n_rl: FloatArray, n_rr: FloatArray,
                a_y: FloatArray) -> tuple[FloatArray, FloatArray]:
     """(2a), (2b): longitudinal speed v (m/s) and yaw rate w (rad/s)."""
-    c_rl, c_rr = circumferences(theta, a_y)
-    s_rl, s_rr = n_rl * c_rl, n_rr * c_rr
-    return 0.5 * (s_rl + s_rr), (s_rr - s_rl) / theta[2]
+    v, w, _, _ = _rates(theta, n_rl, n_rr, a_y)
+    return v, w
 
 
 def wheel_rates_for(theta: FloatArray, v: FloatArray, w: FloatArray,
                     a_y: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Inverse of :func:`body_rates`: the wheel rates (rev/s) that give speed v and yaw rate w."""
-    c_rl, c_rr = circumferences(theta, a_y)
-    half = 0.5 * theta[2] * w
-    return (v - half) / c_rl, (v + half) / c_rr
+    c_rl, c_rr = circumferences(theta, np.broadcast_to(a_y, np.broadcast_shapes(
+        np.shape(v), np.shape(w), np.shape(a_y))))
+    half = 0.5 * _theta(theta)[2] * np.asarray(w)
+    return (np.asarray(v) - half) / c_rl, (np.asarray(v) + half) / c_rr
 
 
-def rate_derivatives(theta: FloatArray, u: Inputs) -> tuple[FloatArray, FloatArray,
-                                                             FloatArray, FloatArray]:
-    """v, w and their derivatives with respect to theta, shapes (..., K) and (..., K, 4)."""
-    v, w = body_rates(theta, u.n_rl, u.n_rr, u.a_y)
-    t_r = theta[2]
-    n_sum, n_diff = u.n_rl + u.n_rr, u.n_rl - u.n_rr
-    dv = np.stack([0.5 * n_sum,                # dv/dc_e
-                   0.25 * n_diff,              # dv/dc_d
-                   np.zeros_like(v),           # dv/dt_r
-                   0.5 * u.a_y * n_diff],      # dv/dd
-                  axis=-1)
-    dw = np.stack([-n_diff / t_r,              # dw/dc_e = (n_rr - n_rl)/t_r
-                   -0.5 * n_sum / t_r,         # dw/dc_d
-                   -w / t_r,                   # dw/dt_r
-                   -u.a_y * n_sum / t_r],      # dw/dd
-                  axis=-1)
-    return v, w, dv, dw
+def _as_batch(u: Inputs) -> tuple[tuple[int, ...], list[FloatArray]]:
+    """Inputs of shape (..., K) as four C-contiguous (N, K) arrays, and the leading shape."""
+    shape = u.shape
+    lead, k = shape[:-1], shape[-1]
+    n = int(np.prod(lead)) if lead else 1
+    arrays = [_flat(getattr(u, f), shape).reshape(n, k) for f in ("n_rl", "n_rr", "beta", "a_y")]
+    return lead, arrays
 
 
-def _exclusive_cumsum(values: FloatArray, axis: int) -> FloatArray:
-    """out[k] = sum of values[:k] along ``axis``, with one more entry than the input."""
-    out_shape = list(values.shape)
-    out_shape[axis] += 1
-    out = np.zeros(out_shape, dtype=np.float64)
-    index: list[slice] = [slice(None)] * values.ndim
-    index[axis] = slice(1, None)
-    np.cumsum(values, axis=axis, out=out[tuple(index)])
-    return out
-
-
-def rollout(theta: FloatArray, u: Inputs, x0: FloatArray, t_s: float) -> FloatArray:
+def rollout(theta: FloatArray | Parameters, u: Inputs, x0: FloatArray, t_s: float) -> FloatArray:
     """Roll the model out from ``x0`` over the inputs.
 
     Parameters
@@ -148,23 +467,15 @@ def rollout(theta: FloatArray, u: Inputs, x0: FloatArray, t_s: float) -> FloatAr
     poses : ndarray, shape (..., K+1, 3)
         ``poses[..., 0, :] == x0``.
     """
-    v, w = body_rates(theta, u.n_rl, u.n_rr, u.a_y)
-    return _integrate(v, w, u.beta, x0, t_s)
+    lead, (n_rl, n_rr, beta, a_y) = _as_batch(u)
+    n, k = n_rl.shape
+    poses = np.empty((n, k + 1, 3))
+    _rollout_kernel(_theta(theta), n_rl, n_rr, beta, a_y, _flat(x0, (*lead, 3)).reshape(n, 3),
+                    float(t_s), poses)
+    return poses.reshape(*lead, k + 1, 3)
 
 
-def _integrate(v: FloatArray, w: FloatArray, beta: FloatArray, x0: FloatArray,
-               t_s: float) -> FloatArray:
-    psi = x0[..., 2:3] + t_s * _exclusive_cumsum(w, axis=-1)           # (..., K+1)
-    heading = psi[..., :-1] + 0.5 * t_s * w + beta                      # (1): psi + w t_s/2 + beta
-    step = v * t_s
-    poses = np.empty((*v.shape[:-1], v.shape[-1] + 1, 3))
-    poses[..., 0] = x0[..., 0:1] + _exclusive_cumsum(step * np.cos(heading), axis=-1)
-    poses[..., 1] = x0[..., 1:2] + _exclusive_cumsum(step * np.sin(heading), axis=-1)
-    poses[..., 2] = psi
-    return poses
-
-
-def rollout_with_jacobian(theta: FloatArray, u: Inputs, x0: FloatArray,
+def rollout_with_jacobian(theta: FloatArray | Parameters, u: Inputs, x0: FloatArray,
                           t_s: float) -> tuple[FloatArray, FloatArray]:
     """Rollout and its Jacobian with respect to theta, propagated along the rollout.
 
@@ -174,21 +485,42 @@ def rollout_with_jacobian(theta: FloatArray, u: Inputs, x0: FloatArray,
     jac : ndarray, shape (..., K+1, 3, 4)
         ``jac[..., k, i, j] = d poses[..., k, i] / d theta[j]``; zero at k = 0 (x0 is measured).
     """
-    v, w, dv, dw = rate_derivatives(theta, u)
-    poses = _integrate(v, w, u.beta, x0, t_s)
-    heading = poses[..., :-1, 2] + 0.5 * t_s * w + u.beta
-    cos_h, sin_h = np.cos(heading), np.sin(heading)
-    jac = np.empty((*poses.shape, 4))
-    dpsi = t_s * _exclusive_cumsum(dw, axis=-2)                           # (..., K+1, 4)
-    dheading = dpsi[..., :-1, :] + 0.5 * t_s * dw                         # (..., K, 4)
-    # d(v t_s cos h) = t_s (dv cos h - v sin h dh), and likewise for sin.
-    vt = (v * t_s)[..., None]
-    jac[..., 0, :] = _exclusive_cumsum(t_s * dv * cos_h[..., None] - vt * sin_h[..., None]
-                                       * dheading, axis=-2)
-    jac[..., 1, :] = _exclusive_cumsum(t_s * dv * sin_h[..., None] + vt * cos_h[..., None]
-                                       * dheading, axis=-2)
-    jac[..., 2, :] = dpsi
-    return poses, jac
+    lead, (n_rl, n_rr, beta, a_y) = _as_batch(u)
+    n, k = n_rl.shape
+    poses = np.empty((n, k + 1, 3))
+    jac = np.empty((n, k + 1, 3, 4))
+    _jacobian_kernel(_theta(theta), n_rl, n_rr, beta, a_y, _flat(x0, (*lead, 3)).reshape(n, 3),
+                     float(t_s), poses, jac)
+    return poses.reshape(*lead, k + 1, 3), jac.reshape(*lead, k + 1, 3, 4)
+
+
+def segment_r_factors(theta: FloatArray | Parameters, u: Inputs, reference: FloatArray,
+                      t_s: float, weights: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The Gauss-Newton least-squares problem of each segment, reduced to a 5x5 R factor.
+
+    Parameters
+    ----------
+    u : Inputs with arrays of shape (N, K)
+    reference : ndarray, shape (N, K+1, 3), the measured poses; each rollout starts at the first
+    weights : ndarray, shape (3,), W per sample (METHOD 3)
+
+    Returns
+    -------
+    r : ndarray, shape (N, 5, 5)
+        Upper-triangular R of ``[sqrt(W) J_s | sqrt(W) R_s] = Q R`` for each segment s, with
+        J_s = d y^ / d theta and R_s = y~ - y^ (heading residuals wrapped) over its K samples.
+    stats : ndarray, shape (N, 5)
+        Weighted cost, unweighted sums of squares of the p_x, p_y, psi residuals, and the sum of
+        lag-1 products of the centred weighted residuals.
+    """
+    _, (n_rl, n_rr, beta, a_y) = _as_batch(u)
+    n = n_rl.shape[0]
+    r = np.empty((n, 5, 5))
+    stats = np.empty((n, 5))
+    _r_factor_kernel(_theta(theta), n_rl, n_rr, beta, a_y,
+                     np.ascontiguousarray(reference, dtype=np.float64), float(t_s),
+                     np.sqrt(np.asarray(weights, dtype=np.float64)), r, stats)
+    return r, stats
 
 
 @dataclass(frozen=True)
@@ -205,30 +537,44 @@ class StepJacobians:
     B: FloatArray
 
 
-def step_jacobians(theta: FloatArray, u: Inputs, poses: FloatArray, t_s: float) -> StepJacobians:
+def step_jacobians(theta: FloatArray | Parameters, u: Inputs, poses: FloatArray,
+                   t_s: float) -> StepJacobians:
     """(10a): A_k = df/dx and B_k = df/dn around ``poses`` (the trajectory of the inputs ``u``).
 
     ``poses`` has shape (..., K+1, 3) and ``u`` arrays (..., K); step k maps poses[k] to
     poses[k+1] with u[k].
     """
-    v, w = body_rates(theta, u.n_rl, u.n_rr, u.a_y)
-    c_rl, c_rr = circumferences(theta, u.a_y)
-    heading = poses[..., :-1, 2] + 0.5 * t_s * w + u.beta
-    cos_h, sin_h = np.cos(heading), np.sin(heading)
-    shape = v.shape
-    A = np.zeros((*shape, 3, 3))
-    A[..., 0, 0] = A[..., 1, 1] = A[..., 2, 2] = 1.0
-    A[..., 0, 2] = -v * t_s * sin_h
-    A[..., 1, 2] = v * t_s * cos_h
-    # dv/dn = [c_rl/2, c_rr/2]; dw/dn = [-c_rl/t_r, c_rr/t_r]
-    dv = np.stack([0.5 * c_rl, 0.5 * c_rr], axis=-1)
-    dw = np.stack([-c_rl / theta[2], c_rr / theta[2]], axis=-1)
-    half = 0.5 * t_s * v
-    B = np.empty((*shape, 3, 2))
-    B[..., 0, :] = t_s * (dv * cos_h[..., None] - half[..., None] * sin_h[..., None] * dw)
-    B[..., 1, :] = t_s * (dv * sin_h[..., None] + half[..., None] * cos_h[..., None] * dw)
-    B[..., 2, :] = t_s * dw
-    return StepJacobians(A=A, B=B)
+    lead, (n_rl, n_rr, beta, a_y) = _as_batch(u)
+    n, k = n_rl.shape
+    a = np.empty((n, k, 3, 3))
+    b = np.empty((n, k, 3, 2))
+    _step_jacobian_kernel(_theta(theta), n_rl, n_rr, beta, a_y,
+                          _flat(poses, (*lead, k + 1, 3)).reshape(n, k + 1, 3), float(t_s), a, b)
+    return StepJacobians(A=a.reshape(*lead, k, 3, 3), B=b.reshape(*lead, k, 3, 2))
+
+
+def block_rollout(theta: FloatArray | Parameters, u: Inputs, start: FloatArray,
+                  correction: FloatArray, t_s: float) -> tuple[FloatArray, FloatArray]:
+    """Roll out blocks from their start poses with a constant wheel-rate correction each.
+
+    Parameters
+    ----------
+    u : Inputs with arrays of shape (B, L): the measured rates (and beta, a_y) of each block
+    start : ndarray, shape (B, 3)
+    correction : ndarray, shape (B, 2), added to [n_rl, n_rr] over the whole block
+
+    Returns
+    -------
+    end : ndarray, shape (B, 3), the pose after the block's L steps
+    jac : ndarray, shape (B, 3, 9), d end / d[start (3), correction (2), theta (4)]
+    """
+    _, (n_rl, n_rr, beta, a_y) = _as_batch(u)
+    n = n_rl.shape[0]
+    end = np.empty((n, 3))
+    jac = np.empty((n, 3, 9))
+    _block_kernel(_theta(theta), n_rl, n_rr, beta, a_y, _flat(start, (n, 3)),
+                  _flat(correction, (n, 2)), float(t_s), end, jac)
+    return end, jac
 
 
 def wrap_angle(angle: FloatArray) -> FloatArray:
@@ -244,8 +590,9 @@ def pose_residuals(reference: FloatArray, predicted: FloatArray) -> FloatArray:
     return r
 
 
-def rollout_ragged(theta: FloatArray, u: Inputs, x0: FloatArray, steps: NDArray[np.int64],
-                   t_s: float, *, segment: NDArray[np.int64] | None = None) -> FloatArray:
+def rollout_ragged(theta: FloatArray | Parameters, u: Inputs, x0: FloatArray,
+                   steps: NDArray[np.int64], t_s: float, *,
+                   segment: NDArray[np.int64] | None = None) -> FloatArray:
     """Roll out many segments of different lengths stored one after another.
 
     Parameters
@@ -253,29 +600,21 @@ def rollout_ragged(theta: FloatArray, u: Inputs, x0: FloatArray, steps: NDArray[
     u : Inputs with arrays of shape (L,), ``L = steps.sum()``; segment after segment.
     x0 : ndarray, shape (S, 3), the initial pose of each segment
     steps : ndarray of int, shape (S,)
-    segment : ndarray of int, shape (L,), optional
-        Segment number of each input sample (``np.repeat(np.arange(S), steps)``); pass it when
-        rolling out the same segments many times.
+    segment : unused; kept for callers that pass the sample-to-segment map
 
     Returns
     -------
     poses : ndarray, shape (L, 3)
         The pose after each step: row j is the pose that input sample j leads to.
     """
-    if segment is None:
-        segment = np.repeat(np.arange(steps.shape[0]), steps)
-    first = np.concatenate([[0], np.cumsum(steps)[:-1]]).astype(np.int64)
-    v, w = body_rates(theta, u.n_rl, u.n_rr, u.a_y)
-    turn = w * t_s
-    before = np.cumsum(turn) - turn                       # heading change before each step
-    psi = x0[segment, 2] + before - before[first][segment]
-    heading = psi + 0.5 * turn + u.beta                   # (1): psi + w t_s / 2 + beta
-    length = v * t_s
-    poses = np.empty((v.shape[0], 3))
-    for axis, trig in ((0, np.cos), (1, np.sin)):
-        step = length * trig(heading)
-        travelled = np.cumsum(step)
-        travelled -= (travelled[first] - step[first])[segment]
-        poses[:, axis] = x0[segment, axis] + travelled
-    poses[:, 2] = psi + turn
+    del segment
+    steps = np.ascontiguousarray(steps, dtype=np.int64)
+    first = np.zeros(steps.shape[0], dtype=np.int64)
+    if steps.shape[0] > 1:
+        first[1:] = np.cumsum(steps)[:-1]
+    size = int(steps.sum())
+    poses = np.empty((size, 3))
+    _ragged_kernel(_theta(theta), *(_flat(getattr(u, f), (size,))
+                                    for f in ("n_rl", "n_rr", "beta", "a_y")),
+                   _flat(x0, (steps.shape[0], 3)), first, steps, float(t_s), poses)
     return poses

@@ -51,19 +51,19 @@ def export_parameters(result: CalibrationResult, out_dir: str | Path, fmt: str) 
     Both carry theta, its covariance (order c_e, c_d, t_r, d; SI units) and which parameters the
     drive identified; the YAML adds the derived wheel radius.
     """
-    ident = result.identification
-    theta = result.theta.as_dict()
-    cov = ident.covariance
+    est = result.estimate
+    theta = est.theta.as_dict()
+    cov = est.covariance
     if fmt == "json":
         return write_json(Path(out_dir) / "odometry_parameters.json", {
             "theta": theta, "covariance": cov.tolist(),
-            "std": dict(zip(PARAMETER_NAMES, ident.std.tolist(), strict=True)),
-            "identified": dict(zip(PARAMETER_NAMES, ident.identified, strict=True)),
+            "std": dict(zip(PARAMETER_NAMES, est.std.tolist(), strict=True)),
+            "identified": dict(zip(PARAMETER_NAMES, est.identified, strict=True)),
             "units": dict(zip(PARAMETER_NAMES, PARAMETER_UNITS, strict=True)),
             "method": result.method, "odocal_version": __version__})
     if fmt != "yaml":
         raise OutputError(f"unknown export format {fmt!r}; use yaml or json")
-    identified = ", ".join("true" if ok else "false" for ok in ident.identified)
+    identified = ", ".join("true" if ok else "false" for ok in est.identified)
     lines = [
         f"# Wheel-odometry parameters calibrated by odocal {__version__} "
         f"(method {result.method}).",

@@ -28,7 +28,8 @@ from numpy.typing import NDArray
 
 from odocal.compensate import compensate_batch
 from odocal.drive import Drive
-from odocal.identify import IdentificationResult, gauss_newton
+from odocal.estimate import Estimate, GaussNewtonDetails
+from odocal.identify import gauss_newton
 from odocal.model import PARAMETER_NAMES
 from odocal.parallel import resolve_workers
 from odocal.segments import (
@@ -50,7 +51,7 @@ EXAMINED_SEGMENT = 6
 
 
 @dataclass(frozen=True)
-class Estimate:
+class Reproduced:
     """One parameter estimate with its validation error and its distance from the truth."""
 
     label: str
@@ -78,21 +79,21 @@ class ReproduceResult:
     segments: int
     selected: int
     validation_segments: int
-    truth: Estimate
-    nominal: Estimate
+    truth: Reproduced
+    nominal: Reproduced
     step1_sorted_m: FloatArray
     examined_batch: int
-    table1: tuple[Estimate, ...]
-    per_segment_raw: tuple[Estimate, ...]
-    per_segment_compensated: tuple[Estimate, ...]
-    step3_batches: tuple[Estimate, ...]
-    whole_raw: Estimate
-    whole_compensated: Estimate
-    minimum: Estimate | None
+    table1: tuple[Reproduced, ...]
+    per_segment_raw: tuple[Reproduced, ...]
+    per_segment_compensated: tuple[Reproduced, ...]
+    step3_batches: tuple[Reproduced, ...]
+    whole_raw: Reproduced
+    whole_compensated: Reproduced
+    minimum: Reproduced | None
     mean_relative_change: float
 
     def to_dict(self) -> dict[str, Any]:
-        def many(items: tuple[Estimate, ...]) -> list[dict[str, Any]]:
+        def many(items: tuple[Reproduced, ...]) -> list[dict[str, Any]]:
             return [e.to_dict() for e in items]
 
         return {
@@ -142,13 +143,15 @@ def reproduce(*, seed: int = 0, noise: str = "realistic", distance_km: float = 2
     batch = gather(drives, selected)
     val = gather_ragged(drives, validation_segments(drives, settings.segments))
 
-    def estimate(label: str, result: IdentificationResult | FloatArray) -> Estimate:
-        if isinstance(result, IdentificationResult):
-            theta, its, msg = result.theta.as_array(), result.iterations, result.message
+    def estimate(label: str, result: Estimate | FloatArray) -> Reproduced:
+        if isinstance(result, Estimate):
+            theta, msg = result.theta.as_array(), result.message
+            its = result.details.iterations if isinstance(result.details,
+                                                           GaussNewtonDetails) else 0
         else:
             theta, its, msg = np.asarray(result), 0, ""
-        return Estimate(label=label, theta=theta, validation_m=mean_error(theta, val),
-                        error=theta - truth, iterations=its, message=msg)
+        return Reproduced(label=label, theta=theta, validation_m=mean_error(theta, val),
+                          error=theta - truth, iterations=its, message=msg)
 
     def stage(name: str) -> Callable[[int, int], None] | None:
         return (lambda d, t: progress(name, d, t)) if progress else None
@@ -240,7 +243,7 @@ def format_report(r: ReproduceResult) -> str:
         f"{'dc_e':>7} {'dc_d':>7} {'dt_r':>7} {'dd':>7}",
     ]
 
-    def row(e: Estimate) -> str:
+    def row(e: Reproduced) -> str:
         t, d = e.theta, e.error
         return (f"  {e.label:<44} {t[0]:7.4f} {_mm(t[1])} {t[2]:7.4f} {_mm(t[3])} "
                 f"{e.validation_m:7.2f}   {d[0]:+7.4f} {_mm(d[1])} {d[2]:+7.4f} {_mm(d[3])}")

@@ -148,9 +148,11 @@ class CompensateSettings:
 
 @dataclass(frozen=True)
 class CalibrateSettings:
-    """METHOD 5: the calibration method and the three-step architecture."""
+    """METHOD 5: the three-step architecture, and what every calibration shares.
 
-    method: Literal["compensated", "raw", "joint"] = "compensated"
+    The method itself is chosen per calibration (``odocal calibrate --method``, or
+    ``odocal.calibrate(method=...)``), not here."""
+
     step1_batches: int = 50
     """Independent batches identified in step 1 (the paper: 50)."""
     step1_batch_size: int = 10
@@ -166,8 +168,6 @@ class CalibrateSettings:
 
     def __post_init__(self) -> None:
         s = "calibrate"
-        _check(self.method in ("compensated", "raw", "joint"), s, "method", self.method,
-               "'compensated', 'raw' or 'joint'")
         for key in ("step1_batches", "step1_batch_size", "step1_sets", "step3_batch_size"):
             _check(getattr(self, key) >= 1, s, key, getattr(self, key), "an integer >= 1")
         _check(self.workers >= 0, s, "workers", self.workers, "an integer >= 0 (0 = all cores)")
@@ -365,7 +365,7 @@ class Settings:
     def replace(self, **sections: Any) -> Settings:
         """A copy with whole sections or single keys replaced.
 
-        ``settings.replace(calibrate={"method": "raw"})`` changes one key of one section.
+        ``settings.replace(calibrate={"seed": 3})`` changes one key of one section.
         """
         updates: dict[str, Any] = {}
         for name, value in sections.items():
@@ -441,6 +441,9 @@ def _build_section(name: str, cls: type, values: dict[str, Any], *, base: Any = 
     hints = typing.get_type_hints(cls)
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(values) - known)
+    if name == "calibrate" and "method" in unknown:
+        raise ConfigError("setting [calibrate] method is no longer a setting: choose the method "
+                          "with --method (or odocal.calibrate(method=...))")
     if unknown:
         raise ConfigError(
             f"unknown setting [{name}] {unknown[0]!r}; known keys: {', '.join(sorted(known))}")

@@ -23,7 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.compensate import BatchCompensation, compensate_batch
-from odocal.identify import IdentificationResult, gauss_newton
+from odocal.estimate import CovarianceKind, Estimate, NotIdentified, held_as_weak, weak
+from odocal.identify import gauss_newton
 from odocal.model import PARAMETER_NAMES
 from odocal.parallel import map_chunks, resolve_workers
 from odocal.segments import RaggedSegments, SegmentBatch
@@ -45,7 +46,7 @@ class Step1Result:
     validation_m : ndarray, shape (B,), E_p of each batch's theta (nan without validation data)
     order : ndarray of int, shape (B,), batches sorted by validation error (best first)
     picked : ndarray of int, shape (S,), the batches whose theta is used in step 2
-    results : the identification results, one per batch
+    results : the step-1 estimates, one per batch
     """
 
     batches: IntArray
@@ -54,7 +55,7 @@ class Step1Result:
     validation_m: FloatArray
     order: IntArray
     picked: IntArray
-    results: tuple[IdentificationResult, ...] = field(repr=False)
+    results: tuple[Estimate, ...] = field(repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -77,7 +78,7 @@ class ThreeStepOutcome:
 
     step1 : the step-1 batches and the picked parameter sets
     compensation : the step-2 compensated rates of every selected segment
-    final : the step-3 identification (the calibration); its covariance includes the spread the
+    final : the step-3 estimate (the calibration); its covariance includes the spread the
         compensated rates inherit from the step-1 sets
     raw : batch G-N on the same segments with the measured rates, for comparison
     warnings : what the user should know
@@ -87,8 +88,8 @@ class ThreeStepOutcome:
 
     step1: Step1Result
     compensation: BatchCompensation
-    final: IdentificationResult
-    raw: IdentificationResult
+    final: Estimate
+    raw: Estimate
     warnings: tuple[str, ...]
     timings_s: dict[str, float]
     mean_relative_change: float
@@ -102,9 +103,8 @@ class ThreeStepOutcome:
                       "solves": comp.status_counts(),
                       "segments_kept_measured_rates": int(comp.fell_back.sum()),
                       "mean_abs_relative_change": self.mean_relative_change},
-            "step3": {"segments": self.final.segments, "iterations": self.final.iterations,
-                      "message": self.final.message,
-                      "covariance_kind": self.final.covariance_kind},
+            "step3": {**self.final.details.to_dict(), "message": self.final.message,
+                      "covariance_kind": self.final.covariance_kind.value},
             "raw": {"theta": self.raw.theta.as_dict(),
                     "std": dict(zip(PARAMETER_NAMES, self.raw.std.tolist(), strict=True)),
                     "identified": dict(zip(PARAMETER_NAMES, self.raw.identified, strict=True))},
@@ -144,14 +144,15 @@ def pick_at_equal_steps(order: IntArray, count: int) -> IntArray:
     return order[positions]
 
 
-def _identify_batches(args: tuple[SegmentBatch, IntArray, IdentifySettings, dict[str, str]]
-                      ) -> list[IdentificationResult]:
-    batch, batches, settings, fixed = args
-    return [gauss_newton(batch.take(idx), settings=settings, fixed=fixed) for idx in batches]
+def _identify_batches(args: tuple[SegmentBatch, IntArray, IdentifySettings,
+                                  dict[str, NotIdentified]]) -> list[Estimate]:
+    batch, batches, settings, held = args
+    return [gauss_newton(batch.take(idx), settings=settings, held=held, method="step 1")
+            for idx in batches]
 
 
 def step1(batch: SegmentBatch, validation: RaggedSegments | None, settings: Settings, *,
-          workers: int = 1, fixed: Mapping[str, str] | None = None,
+          workers: int = 1, held: Mapping[str, NotIdentified] | None = None,
           progress: Callable[[int, int], None] | None = None) -> Step1Result:
     """Identify independent batches on measured rates, validate, sort and pick."""
     cal = settings.calibrate
@@ -162,7 +163,7 @@ def step1(batch: SegmentBatch, validation: RaggedSegments | None, settings: Sett
     # identifies belongs to the final step.
     identify = dataclasses.replace(settings.identify, judge_identifiability=False)
     tasks = [(batch.take(np.unique(batches[lo:lo + per_task])), _reindex(batches[lo:lo + per_task]),
-              identify, dict(fixed or {})) for lo in range(0, batches.shape[0], per_task)]
+              identify, dict(held or {})) for lo in range(0, batches.shape[0], per_task)]
     chunks = map_chunks(_identify_batches, tasks, workers=workers,
                         weights=[t[1].shape[0] for t in tasks], progress=progress)
     results = tuple(r for chunk in chunks for r in chunk)
@@ -171,7 +172,8 @@ def step1(batch: SegmentBatch, validation: RaggedSegments | None, settings: Sett
     if validation is not None:
         errors = np.array([mean_error(t, validation) for t in thetas])
     else:  # no validation segments: rank by the identification cost per segment instead
-        errors = np.array([r.cost_history[-1] / max(r.segments, 1) for r in results])
+        errors = np.array([r.details.cost_history[-1] / max(r.details.segments, 1)
+                           for r in results])
     ranking = np.where(success, errors, np.inf)
     order = np.argsort(ranking, kind="stable").astype(np.int64)
     usable = order[np.isfinite(ranking[order])]
@@ -188,7 +190,7 @@ def _reindex(batches: IntArray) -> IntArray:
 
 
 def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settings: Settings,
-               clusters: IntArray | None = None, fixed: Mapping[str, str] | None = None,
+               clusters: IntArray | None = None, held: Mapping[str, NotIdentified] | None = None,
                progress: Callable[[str, int, int], None] | None = None) -> ThreeStepOutcome:
     """Run the three steps on the selected segments ``batch``; step 3 uses all of them."""
     workers = resolve_workers(settings.calibrate.workers)
@@ -201,7 +203,7 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
         return lambda done, total: progress(name, done, total)
 
     started = time.perf_counter()
-    s1 = step1(batch, validation, settings, workers=workers, fixed=fixed,
+    s1 = step1(batch, validation, settings, workers=workers, held=held,
                progress=stage("step 1: batches"))
     timings["step1"] = time.perf_counter() - started
     if not s1.success.any():
@@ -228,16 +230,18 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
     # Start from the step-1 sets' mean: the same minimum as from the datasheet, in fewer steps.
     start = sets.mean(axis=0) if s1.success.any() else None
     compensated = batch.with_wheel_rates(comp.n_rl, comp.n_rr)
-    final = gauss_newton(compensated, settings=settings.identify, start=start, clusters=clusters,
-                         fixed=fixed)
-    final = _with_inheritance(final, s1.thetas[s1.success], sets.shape[0])
-    weak = _weak(final, settings)
-    if weak:
+    held = dict(held or {})
+    for _ in range(len(PARAMETER_NAMES)):
         final = gauss_newton(compensated, settings=settings.identify, start=start,
-                             clusters=clusters, fixed={**dict(fixed or {}), **weak})
+                             clusters=clusters, held=held, method="compensated")
         final = _with_inheritance(final, s1.thetas[s1.success], sets.shape[0])
+        too_weak = weak(final.std, final.free, settings.identify)
+        if not too_weak.any():
+            break
+        # the inherited spread pushed a parameter over the limit: hold it and identify again
+        held.update(held_as_weak(final.std, too_weak, settings.identify))
     raw = gauss_newton(batch, settings=settings.identify, start=start, clusters=clusters,
-                       fixed=fixed)
+                       held=held)
     if progress:
         progress("step 3: identification", 1, 1)
     timings["step3"] = time.perf_counter() - started
@@ -246,8 +250,7 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
                             mean_relative_change=relative_change(batch, comp))
 
 
-def _with_inheritance(final: IdentificationResult, step1_thetas: FloatArray,
-                      sets: int) -> IdentificationResult:
+def _with_inheritance(final: Estimate, step1_thetas: FloatArray, sets: int) -> Estimate:
     """Add the spread the compensated rates inherit from the step-1 sets to the covariance.
 
     The compensated rates make the model fit with whatever parameters they were computed with,
@@ -256,25 +259,8 @@ def _with_inheritance(final: IdentificationResult, step1_thetas: FloatArray,
     varies like the step-1 batches' covariance divided by the number of sets, which step 3's own
     covariance does not see (it is 15 to 80 times too small without this term).
     """
-    if step1_thetas.shape[0] < 2:
+    if step1_thetas.shape[0] < 2 or not any(final.free):
         return final
-    free = np.array(final.identified)
+    free = np.array(final.free)
     inherit = np.cov(step1_thetas.T) / max(sets, 1) * np.outer(free, free)
-    return dataclasses.replace(final, covariance=final.covariance + inherit,
-                               covariance_kind=final.covariance_kind
-                               + " + step-1 spread / sets")
-
-
-def _weak(final: IdentificationResult, settings: Settings) -> dict[str, str]:
-    """Parameters the combined covariance no longer counts as identified, with the reason."""
-    ident = settings.identify
-    if not ident.judge_identifiability:
-        return {}
-    prior = np.asarray(ident.prior_std)
-    out = {}
-    for j, (name, ok) in enumerate(zip(PARAMETER_NAMES, final.identified, strict=True)):
-        if ok and final.std[j] > ident.identifiable_ratio * prior[j]:
-            out[name] = (f"the compensated estimate of {name} is only good to "
-                         f"+-{final.std[j]:.3g} (it inherits the step-1 batches' spread; "
-                         f"datasheet uncertainty {prior[j]:.3g}); kept at the datasheet value")
-    return out
+    return final.with_covariance(final.covariance + inherit, CovarianceKind.THREE_STEP)

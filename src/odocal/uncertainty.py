@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.identify import IdentificationResult, gauss_newton, segment_information
+from odocal.estimate import Estimate, NotIdentified, Reason
+from odocal.identify import gauss_newton, segment_information
 from odocal.model import PARAMETER_NAMES
 from odocal.segments import SegmentBatch
 from odocal.settings import IdentifySettings, UncertaintySettings
@@ -62,7 +63,7 @@ class BootstrapResult:
                 "message": self.message}
 
 
-def bootstrap(batch: SegmentBatch, result: IdentificationResult, clusters: IntArray, *,
+def bootstrap(batch: SegmentBatch, result: Estimate, clusters: IntArray, *,
               identify: IdentifySettings, settings: UncertaintySettings, seed: int,
               step1_thetas: FloatArray | None = None, step1_sets: int = 0) -> BootstrapResult:
     """Resample clusters of segments (and step-1 sets) and re-estimate theta.
@@ -76,7 +77,7 @@ def bootstrap(batch: SegmentBatch, result: IdentificationResult, clusters: IntAr
     step1_sets : how many step-1 sets the compensation averaged
     """
     theta = result.theta.as_array()
-    free = np.array(result.identified)
+    free = np.array(result.free)
     rng = np.random.default_rng(seed)
     labels, index = np.unique(clusters, return_inverse=True)
     n_clusters = labels.shape[0]
@@ -90,21 +91,21 @@ def bootstrap(batch: SegmentBatch, result: IdentificationResult, clusters: IntAr
             h = np.zeros((n_clusters, 4, 4))
             g = np.zeros((n_clusters, 4))
             np.add.at(h, index, info)
-            np.add.at(g, index, result.segment_scores)
+            np.add.at(g, index, result.details.segment_scores)
             cols = np.flatnonzero(free)
             for b, w in enumerate(draws):
                 hw = np.einsum("c,cij->ij", w.astype(float), h)[np.ix_(cols, cols)]
                 samples[b, cols] = theta[cols] + np.linalg.solve(hw, w @ g[:, cols])
         else:
             loose = dataclasses.replace(identify, judge_identifiability=False, max_iterations=3)
-            fixed = {name: "not identified" for name, ok in zip(PARAMETER_NAMES, free,
-                                                                 strict=True) if not ok}
+            held = {name: NotIdentified(Reason.HELD) for name, ok in zip(PARAMETER_NAMES, free,
+                                                                          strict=True) if not ok}
             members = [np.flatnonzero(index == c) for c in range(n_clusters)]
             for b, w in enumerate(draws):
                 take = np.concatenate([np.tile(members[c], int(k)) for c, k in enumerate(w)
                                        if k])
                 samples[b] = gauss_newton(batch.take(take), settings=loose, start=theta,
-                                          fixed=fixed).theta.as_array()
+                                          held=held).theta.as_array()
     if step1_thetas is not None and step1_sets > 0 and step1_thetas.shape[0] > 1:
         # the compensated rates inherit the mean of the step-1 sets: redraw those sets
         centre = step1_thetas.mean(axis=0)

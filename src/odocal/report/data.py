@@ -67,10 +67,10 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
 
     ``raw_m`` is E_p of the raw estimate the three-step method computed alongside, if any.
     """
-    ident = result.identification
+    est = result.estimate
     if not result.success:
-        return f"Calibration failed: {ident.message}.", "bad"
-    missing = ident.unidentified
+        return f"Calibration failed: {est.message}.", "bad"
+    missing = est.unidentified
     if result.validation is None or result.datasheet_validation is None:
         base = "Calibrated, but the drive holds no validation segment to check it on"
         level = "partial"
@@ -125,7 +125,8 @@ def build(result: CalibrationResult) -> ReportData:
     line, level = verdict(result, float(errors["raw"].mean()) if "raw" in errors else None)
     return ReportData(
         verdict=line, verdict_level=level,
-        advice=advise(result.identification, cov, settings), coverage=cov.to_dict(),
+        advice=advise(result.estimate, cov, settings, settings.segments.length * t_s),
+        coverage=cov.to_dict(),
         speed_hist=(speed_hist[0] * t_s, speed_hist[1]), yaw_hist=(yaw_hist[0] * t_s, yaw_edges),
         segment_errors=errors, maps=maps)
 
@@ -137,7 +138,7 @@ def _maps(result: CalibrationResult, segs: Any) -> list[MapSegment]:
                      for d, s, k in zip(segs.drive, segs.start, segs.steps, strict=True)])
     chosen = np.argsort(-turn, kind="stable")[:MAP_SEGMENTS]
     out = []
-    theta0 = result.identification.theta0.as_array()
+    theta0 = result.estimate.datasheet.as_array()
     theta = result.theta.as_array()
     for i in sorted(chosen):
         d = drives[int(segs.drive[i])]
@@ -154,13 +155,13 @@ def _maps(result: CalibrationResult, segs: Any) -> list[MapSegment]:
 
 def parameter_rows(result: CalibrationResult) -> list[dict[str, Any]]:
     """The parameter table: datasheet, calibrated, standard deviations, identified."""
-    ident = result.identification
+    est = result.estimate
     boot = result.bootstrap
     rows = []
     for j, name in enumerate(PARAMETER_NAMES):
-        rows.append({"name": name, "datasheet": float(ident.theta0.as_array()[j]),
-                     "calibrated": float(result.theta.as_array()[j]),
-                     "std": float(ident.std[j]),
+        rows.append({"name": name, "datasheet": float(est.datasheet.as_array()[j]),
+                     "calibrated": float(est.theta.as_array()[j]),
+                     "std": float(est.std[j]),
                      "bootstrap_std": float(boot.std[j]) if boot is not None else None,
-                     "identified": bool(ident.identified[j])})
+                     "identified": bool(est.identified[j])})
     return rows

@@ -9,13 +9,13 @@ import numpy as np
 from matplotlib.axes import Axes
 from numpy.typing import NDArray
 
-from odocal.model import PARAMETER_NAMES
+from odocal.model import PARAMETER_DISPLAY, PARAMETER_NAMES
 
 FloatArray = NDArray[np.float64]
 
 REFERENCE, DATASHEET, CALIBRATED, RAW, STEP1 = "#222222", "#d62728", "#1f77b4", "#ff7f0e", "#999999"
 #: Display scale and unit of each parameter (c_d and d read best in mm).
-DISPLAY = {"c_e": (1.0, "m"), "c_d": (1e3, "mm"), "t_r": (1.0, "m"), "d": (1e3, "mm/(m/s²)")}
+DISPLAY = PARAMETER_DISPLAY
 
 
 def plot_map(ax: Axes, reference: FloatArray, datasheet: FloatArray, calibrated: FloatArray, *,
@@ -157,8 +157,12 @@ def plot_selection(ax: Axes, peak_yaw: FloatArray, threshold: float) -> list[Any
 
 
 def plot_uncertainty(ax: Axes, covariance_std: FloatArray, bootstrap_std: FloatArray | None,
-                     prior_std: FloatArray, identified: Sequence[bool]) -> list[Any]:
-    """Standard deviations relative to the datasheet uncertainty (log scale)."""
+                     prior_std: FloatArray, identified: Sequence[bool],
+                     limit_ratio: float) -> list[Any]:
+    """Standard deviations relative to the datasheet uncertainty (log scale).
+
+    ``limit_ratio`` is the identifiability limit as a fraction of the datasheet uncertainty.
+    """
     x = np.arange(4)
     ok = np.array(identified)
     rel_cov = np.where(ok, covariance_std / prior_std, np.nan)
@@ -167,7 +171,7 @@ def plot_uncertainty(ax: Axes, covariance_std: FloatArray, bootstrap_std: FloatA
     if bootstrap_std is not None:
         artists.append(ax.bar(x + 0.2, np.where(ok, bootstrap_std / prior_std, np.nan),
                               width=0.4, color=RAW, label="bootstrap"))
-    artists.append(ax.axhline(0.5, color=DATASHEET, lw=1, ls="--",
+    artists.append(ax.axhline(limit_ratio, color=DATASHEET, lw=1, ls="--",
                               label="identifiability limit"))
     ax.set_xticks(x, list(PARAMETER_NAMES))
     ax.set_yscale("log")

@@ -75,9 +75,9 @@ def _figures(result: CalibrationResult, data: ReportData) -> dict[str, tuple[str
         estimates = [("batch G-N, measured rates", ts.raw.theta.as_array(), ts.raw.std,
                       figures.RAW),
                      ("three-step (calibrated)", result.theta.as_array(),
-                      result.identification.std, figures.CALIBRATED)]
+                      result.estimate.std, figures.CALIBRATED)]
         figures.plot_parameter_spread(list(axes[0]), s1.thetas, list(s1.picked), estimates,
-                                      result.identification.theta0.as_array())
+                                      result.estimate.datasheet.as_array())
         out["spread"] = ("Figs. 5 and 7 of the paper: the parameters of every step-1 batch, and "
                          "the final estimates with one standard deviation.", _png(fig))
         if result.batch is not None:
@@ -109,10 +109,10 @@ def _figures(result: CalibrationResult, data: ReportData) -> dict[str, tuple[str
     out["coverage"] = ("Data coverage: time at each speed and yaw rate, and which segments the "
                        "selection rule kept.", _png(fig))
     fig, axes = _figure(6.0, 3.2)
-    figures.plot_uncertainty(axes[0][0], result.identification.std,
+    figures.plot_uncertainty(axes[0][0], result.estimate.std,
                              result.bootstrap.std if result.bootstrap is not None else None,
                              np.asarray(settings.identify.prior_std),
-                             result.identification.identified)
+                             result.estimate.identified, settings.identify.identifiable_ratio)
     out["uncertainty"] = ("Standard deviations from the covariance and from the bootstrap, "
                           "relative to the datasheet uncertainty.", _png(fig))
     return out
@@ -196,7 +196,7 @@ def _page(result: CalibrationResult, data: ReportData,
 <table id="parameters"><tr><th>parameter</th><th>datasheet</th><th>calibrated</th>
 <th>std (covariance)</th><th>std (bootstrap)</th><th>identified</th></tr>
 {''.join(rows)}</table>
-<p class="meta">Covariance: {e(result.identification.covariance_kind)}.
+<p class="meta">Covariance: {e(result.estimate.covariance_kind.value)}.
 {e(boot.message[:1].upper() + boot.message[1:]) + '.' if boot is not None
  else 'No bootstrap.'}</p>
 {val}
