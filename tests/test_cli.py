@@ -165,3 +165,22 @@ def test_parquet_logs_calibrate_too(clean_drive: SimulatedDrive, tmp_path: Path,
     truth = clean_drive.true_parameters.as_dict()
     for name, value in data["theta"].items():
         assert value == pytest.approx(truth[name], rel=1e-6)
+
+
+def test_help_and_version_load_nothing_heavy() -> None:
+    """--help and --version answer without numpy, scipy, numba or matplotlib."""
+    import subprocess
+    import sys
+
+    code = ("import sys; import odocal.cli as c; c.build_parser().format_help(); "
+            "heavy = [m for m in ('numpy', 'scipy', 'numba', 'matplotlib', 'pyarrow') "
+            "if m in sys.modules]; print(heavy); assert not heavy")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
+def test_every_method_name_has_an_estimator() -> None:
+    from odocal.calibrate import METHODS
+    from odocal.methods import DEFAULT_METHOD, METHOD_NAMES
+
+    assert tuple(METHODS) == METHOD_NAMES and DEFAULT_METHOD in METHOD_NAMES

@@ -10,10 +10,10 @@ import pyarrow.csv as pacsv
 import pytest
 
 import odocal
-from odocal.estimate import Reason
 from odocal.cli import EXIT_ERROR, EXIT_OK, main
 from odocal.convert import convert, inspect
 from odocal.errors import ConfigError, DataError
+from odocal.estimate import Reason
 from odocal.io.streams import RawLog, Stream
 from odocal.preprocess.align import clean, common_grid, estimate_wheel_offset
 from odocal.preprocess.pipeline import build_drive

@@ -8,7 +8,7 @@ import pytest
 import odocal
 from odocal.errors import ConfigError
 from odocal.model import Inputs, rollout
-from odocal.simulate import NOISE_PROFILES
+from odocal.noise import NOISE_PROFILES
 
 
 def test_deterministic_for_a_seed() -> None:
@@ -49,12 +49,34 @@ def test_every_profile_runs_and_documents_itself(profile: str) -> None:
     sim = odocal.simulate(duration_s=60, seed=1, noise=profile)
     assert sim.profile.description
     assert np.isfinite(sim.drive.n_rl).all()
-    if profile in ("none", "reference"):
+    if sim.profile.wheels_exact:
         np.testing.assert_array_equal(sim.drive.n_rl, sim.true_n_rl)
     else:
         assert not np.array_equal(sim.drive.n_rl, sim.true_n_rl)
+    p = sim.profile
+    reference_exact = not (p.reference_position_m or p.reference_slow_position_m)
+    assert np.array_equal(sim.drive.x, sim.true_poses[:, 0]) == reference_exact
 
 
 def test_unknown_profile() -> None:
     with pytest.raises(ConfigError, match="unknown noise profile 'loud'"):
         odocal.simulate(duration_s=60, noise="loud")
+
+
+def test_noise_levels_are_what_the_profiles_say() -> None:
+    """The simulated errors have the documented size and correlation."""
+    sim = odocal.simulate(duration_s=1200, seed=3, noise="white-5x")
+    moving = sim.true_n_rl > 0
+    err = sim.drive.n_rl[moving] - sim.true_n_rl[moving]
+    assert abs(err.std() - 0.10) < 0.005
+    markov = odocal.simulate(duration_s=1200, seed=3, noise="markov")
+    e = markov.drive.n_rr - markov.true_n_rr
+    e = e[markov.true_n_rr > 0]
+    assert abs(e.std() - 0.03) < 0.006
+    lag = round(0.5 / 0.025)                              # the correlation time: exp(-1)
+    assert abs(np.corrcoef(e[:-lag], e[lag:])[0, 1] - np.exp(-1)) < 0.1
+    delayed = odocal.simulate(duration_s=600, seed=3, noise="delay")
+    t = delayed.drive.t
+    lagged = np.interp(t - 0.04, t, delayed.true_n_rl)
+    assert np.std(delayed.drive.n_rl - lagged) < 0.006 < np.std(delayed.drive.n_rl
+                                                              - delayed.true_n_rl)

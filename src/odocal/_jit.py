@@ -23,7 +23,7 @@ from numba import njit
 # Parallel kernels run on numba's own work queue unless the user chose a threading layer: it is
 # fork-safe (odocal's process pools fork after kernels have run; GNU OpenMP would abort there).
 if "NUMBA_THREADING_LAYER" not in os.environ:
-    numba.config.THREADING_LAYER = "workqueue"
+    numba.config.THREADING_LAYER = "workqueue"  # type: ignore[attr-defined]
 
 F = TypeVar("F", bound=Callable[..., Any])
 log = logging.getLogger(__name__)

@@ -35,6 +35,7 @@ from odocal.errors import ConfigError, DataError
 from odocal.estimate import Estimate, NotIdentified, Reason, Status, held_as_weak, weak
 from odocal.identify import gauss_newton
 from odocal.io.drivefile import load_drive
+from odocal.methods import DEFAULT_METHOD
 from odocal.model import PARAMETER_NAMES, Parameters
 from odocal.segments import (
     RaggedSegments,
@@ -148,14 +149,12 @@ def _run_joint(prep: Prepared, settings: Settings,
                          if isinstance(details, JointDetails) else ())
 
 
-#: The calibration methods by name: the one list the CLI, the settings and the docs use.
+#: The estimator behind each name of :data:`odocal.methods.METHOD_NAMES`.
 METHODS: Mapping[str, Callable[[Prepared, Settings, ProgressCallback | None], MethodOutcome]] = {
     "compensated": _run_compensated,
     "raw": _run_raw,
     "joint": _run_joint,
 }
-#: The method a calibration uses unless told otherwise.
-DEFAULT_METHOD = "compensated"
 
 
 @dataclass(frozen=True)
@@ -336,7 +335,8 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     drives : one or more :class:`Drive` objects or drive-format files of the same vehicle;
         segments are drawn from all of them, never across a file boundary or a gap
     settings : all settings (default: the paper's)
-    method : one of :data:`METHODS` (default :data:`DEFAULT_METHOD`)
+    method : one of :data:`odocal.methods.METHOD_NAMES` (default
+        :data:`odocal.methods.DEFAULT_METHOD`)
     progress : optional ``progress(stage, done, total)`` callback for long steps
 
     Returns

@@ -12,22 +12,19 @@ import logging
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from odocal import __version__
-from odocal.calibrate import (
-    DEFAULT_METHOD,
-    METHODS,
-    CalibrationResult,
-    calibrate,
-    load_drives,
-    validate_theta,
-)
 from odocal.errors import OdocalError
-from odocal.model import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
+from odocal.methods import DEFAULT_METHOD, METHOD_NAMES
+from odocal.noise import NOISE_PROFILES
 from odocal.settings import Settings, load_settings
+
+if TYPE_CHECKING:
+    from odocal.calibrate import CalibrationResult
+    from odocal.model import Parameters
+
+# numpy, scipy and numba load only in the commands that compute: --help and --version stay fast.
 
 log = logging.getLogger("odocal")
 
@@ -98,6 +95,7 @@ def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
     """The calibration as a small table on stdout."""
     from odocal.advice import reason_text
     from odocal.estimate import NotIdentified, Status
+    from odocal.model import PARAMETER_NAMES, PARAMETER_UNITS
 
     est = result.estimate
     drives = result.drives
@@ -156,6 +154,7 @@ def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    from odocal.calibrate import calibrate, validate_theta
     from odocal.simulate import simulate
 
     settings = _settings(args)
@@ -228,6 +227,8 @@ def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
 
 def _drives_from(args: argparse.Namespace, settings: Settings) -> list[Any]:
     """Drive files, or raw logs converted in memory with --from."""
+    from odocal.calibrate import load_drives
+
     if getattr(args, "source_format", None):
         from odocal.convert import convert
 
@@ -249,6 +250,8 @@ def _conversion_line(drive: Any) -> str:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
+    from odocal.calibrate import calibrate
+
     settings = _settings(args)
     drives = _drives_from(args, settings)
     progress = _Progress(not args.quiet)
@@ -312,6 +315,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 def _parameters_from(args: argparse.Namespace, settings: Settings) -> Parameters:
     from odocal.io.results import read_parameters
+    from odocal.model import Parameters
 
     if args.params:
         return read_parameters(args.params)
@@ -319,6 +323,8 @@ def _parameters_from(args: argparse.Namespace, settings: Settings) -> Parameters
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
+    from odocal.calibrate import validate_theta
+
     settings = _settings(args)
     theta = _parameters_from(args, settings)
     result = validate_theta(args.logs, theta, settings=settings)
@@ -340,6 +346,9 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 
 def cmd_minimum(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from odocal.calibrate import load_drives
     from odocal.parallel import resolve_workers
     from odocal.segments import gather_ragged, validation_segments
     from odocal.validate import mean_error, reachable_minimum
@@ -392,7 +401,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def _add_source(p: argparse.ArgumentParser, *, required: bool) -> None:
-    from odocal.convert import FORMATS
+    from odocal.io.registry import FORMATS
 
     p.add_argument("--from", dest="source_format", choices=FORMATS, required=required,
                    help="raw log format")
@@ -421,15 +430,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"odocal {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    from odocal.simulate import NOISE_PROFILES
-
     p = sub.add_parser("demo", help="simulate a drive with known parameters and calibrate it")
     p.add_argument("--duration", type=float, default=1200.0, metavar="S",
                    help="simulated drive length in seconds (default 1200)")
     p.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
     p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic",
                    help="noise profile (default realistic)")
-    p.add_argument("--method", choices=tuple(METHODS),
+    p.add_argument("--method", choices=METHOD_NAMES,
                    help=f"calibration method (default {DEFAULT_METHOD})")
     p.add_argument("--out", metavar="DIR",
                    help="also write the results (calibration.json, report.html) to this folder")
@@ -453,7 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="drive-format files (.csv, .parquet), or raw logs with --from")
     _add_source(p, required=False)
     p.add_argument("--out", required=True, metavar="DIR", help="folder for calibration.json")
-    p.add_argument("--method", choices=tuple(METHODS),
+    p.add_argument("--method", choices=METHOD_NAMES,
                    help=f"calibration method (default {DEFAULT_METHOD}; README, 'Methods')")
     p.add_argument("--seed", type=int, help="seed of the step-1 batch draw")
     p.add_argument("--save-inputs", action="store_true",

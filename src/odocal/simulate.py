@@ -15,23 +15,25 @@ to rest at each stop. The true yaw rate is ``w = v kappa``, the lateral accelera
 true wheel rates are the inverse of the model (METHOD 1) with the true parameters, and the true
 poses are the model's rollout of them, so a noise-free drive fits the model exactly.
 
-Noise profiles (:data:`NOISE_PROFILES`) corrupt the measurements the way real sensors do; see
-:class:`NoiseProfile`. Everything is deterministic for a given seed.
+Noise profiles (:data:`odocal.noise.NOISE_PROFILES`) corrupt the measurements the way real
+sensors do; see :class:`odocal.noise.NoiseProfile`. Everything is deterministic for a given seed.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
-from types import MappingProxyType
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import lfilter
 
+from odocal._jit import jit
 from odocal.drive import Drive
 from odocal.errors import ConfigError
 from odocal.model import Inputs, Parameters, rollout, wheel_rates_for
+from odocal.noise import NOISE_PROFILES, NoiseProfile
+
+__all__ = ["NOISE_PROFILES", "TRUE_PARAMETERS", "NoiseProfile", "SimulatedDrive", "simulate"]
 
 FloatArray = NDArray[np.float64]
 
@@ -43,66 +45,6 @@ _ACCEL_MPS2 = 1.5         # acceleration limit of the speed profile
 _BRAKE_MPS2 = 2.5         # braking limit
 _MASS_KG, _L_F, _L_R = 1500.0, 1.1, 1.5   # single-track model for the sideslip
 _C_REAR_NPRAD = 90000.0   # rear-axle cornering stiffness
-
-
-@dataclass(frozen=True)
-class NoiseProfile:
-    """What corrupts the simulated measurements (all zero: a noise-free drive).
-
-    wheel_white_revps : white Gaussian noise on each wheel rate, rev/s (std)
-    slip_fraction : wheel slip proportional to speed: std of a first-order Gauss-Markov slip ratio
-        common to both rear wheels, correlation time ``slip_correlation_s``
-    slip_differential : std of the part of the slip ratio that differs between the wheels
-        (it turns into a false yaw rate, so it is much smaller than the common part)
-    slip_per_accel : common slip ratio per m/s^2 of longitudinal acceleration (positive when
-        accelerating, negative when braking)
-    ticks_per_rev : encoder quantisation (0: off): the rate is the change of an integer tick count
-        over the last ``tick_window`` samples, as an ABS unit reports it. 96 is a 48-tooth tone ring
-        counted on both edges
-    tick_window : samples the tick count is differenced over
-    reference_position_m, reference_heading_rad : std of the reference pose error a good GNSS/INS
-        filter leaves: first-order Gauss-Markov with correlation time ``reference_correlation_s``
-    lateral_accel_mps2 : white noise on the IMU lateral acceleration (std)
-    sideslip_fraction : relative error of the filtered sideslip (std, correlated like slip)
-    """
-
-    name: str
-    description: str
-    wheel_white_revps: float = 0.0
-    slip_fraction: float = 0.0
-    slip_differential: float = 0.0
-    slip_per_accel: float = 0.0
-    slip_correlation_s: float = 1.0
-    ticks_per_rev: int = 0
-    tick_window: int = 4
-    reference_position_m: float = 0.0
-    reference_heading_rad: float = 0.0
-    reference_correlation_s: float = 5.0
-    lateral_accel_mps2: float = 0.0
-    sideslip_fraction: float = 0.0
-
-    def as_dict(self) -> dict[str, Any]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-
-NOISE_PROFILES: MappingProxyType[str, NoiseProfile] = MappingProxyType({p.name: p for p in (
-    NoiseProfile("none", "noise-free: the measurements are the truth"),
-    NoiseProfile("white", "white wheel-rate noise of 0.02 rev/s per wheel",
-                 wheel_white_revps=0.02),
-    NoiseProfile("slip", "wheel slip: 0.5% of speed common to both wheels and 0.05% between them, "
-                 "correlated over 1 s, plus 0.3% per m/s^2 of acceleration",
-                 slip_fraction=0.005, slip_differential=0.0005, slip_per_accel=0.003),
-    NoiseProfile("quantised", "encoder quantisation: 96 ticks per revolution, counted over 100 ms",
-                 ticks_per_rev=96),
-    NoiseProfile("reference", "reference pose error of a good GNSS/INS filter: 5 cm and 0.2 deg, "
-                 "correlated over 5 s", reference_position_m=0.05,
-                 reference_heading_rad=np.deg2rad(0.2)),
-    NoiseProfile("realistic", "all of it: white noise, slip, quantisation, reference error, IMU "
-                 "and sideslip errors", wheel_white_revps=0.01, slip_fraction=0.003,
-                 slip_differential=0.0003, slip_per_accel=0.002, ticks_per_rev=96,
-                 reference_position_m=0.05, reference_heading_rad=np.deg2rad(0.2),
-                 lateral_accel_mps2=0.05, sideslip_fraction=0.1),
-)})
 
 
 @dataclass(frozen=True)
@@ -273,26 +215,36 @@ def _drive_along(kappa_s: FloatArray, vmax_s: FloatArray, stops: list[tuple[floa
     return speed, curvature
 
 
+@jit
+def _ar1(drive: FloatArray, first: FloatArray, phi: float) -> FloatArray:  # pragma: no cover
+    """out[0] = first, out[k] = phi out[k-1] + drive[k] along axis 0."""
+    out = np.empty_like(drive)
+    out[0] = first
+    for k in range(1, drive.shape[0]):
+        out[k] = phi * out[k - 1] + drive[k]
+    return out
+
+
 def _gauss_markov(rng: np.random.Generator, shape: tuple[int, ...], std: float, tau_s: float,
                   t_s: float) -> FloatArray:
     """Stationary first-order Gauss-Markov noise along axis 0 with the given std."""
     if std == 0.0:
         return np.zeros(shape)
-    phi = np.exp(-t_s / tau_s)
+    phi = float(np.exp(-t_s / tau_s))
     drive = rng.standard_normal(shape) * std * np.sqrt(1.0 - phi**2)
-    out = np.empty(shape)
-    out[0] = rng.standard_normal(shape[1:]) * std
-    # out[k] = phi out[k-1] + drive[k], as a linear filter
-    out[1:] = lfilter([1.0], [1.0, -phi], drive[1:], axis=0, zi=phi * out[0:1])[0]
-    return out
+    first = rng.standard_normal(shape[1:]) * std
+    return np.asarray(_ar1(drive.reshape(shape[0], -1), first.reshape(-1), phi)).reshape(shape)
 
 
-def _corrupt(rng: np.random.Generator, profile: NoiseProfile, v: FloatArray, n_rl: FloatArray,
-             n_rr: FloatArray, a_y: FloatArray, beta: FloatArray, poses: FloatArray,
-             t_s: float
-             ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    m = n_rl.shape[0]
-    rates = np.column_stack([n_rl, n_rr])
+def _wheel_errors(rng: np.random.Generator, profile: NoiseProfile, v: FloatArray,
+                  rates: FloatArray, t_s: float) -> FloatArray:
+    """The measured rates (M, 2) from the true ones: delay, slip, quantisation, noise."""
+    m = rates.shape[0]
+    true = rates
+    if profile.wheel_delay_s:
+        t = np.arange(m) * t_s
+        rates = np.column_stack([np.interp(t - profile.wheel_delay_s, t, rates[:, i])
+                                 for i in range(2)])
     if profile.slip_fraction or profile.slip_differential or profile.slip_per_accel:
         common = _gauss_markov(rng, (m, 1), profile.slip_fraction, profile.slip_correlation_s, t_s)
         own = _gauss_markov(rng, (m, 2), profile.slip_differential / np.sqrt(2),
@@ -307,17 +259,31 @@ def _corrupt(rng: np.random.Generator, profile: NoiseProfile, v: FloatArray, n_r
         w = profile.tick_window
         lagged = np.concatenate([np.repeat(ticks[:1], w - 1, axis=0), ticks])[:-w]
         rates = (ticks[1:] - lagged[:m]) / (profile.ticks_per_rev * w * t_s)
-    if profile.wheel_white_revps:
-        rates = rates + rng.standard_normal((m, 2)) * profile.wheel_white_revps
-        at_rest = np.column_stack([n_rl, n_rr]) == 0.0
-        rates = np.where(at_rest, 0.0, rates)                 # encoders read 0 at rest
+    rates = rates + _gauss_markov(rng, (m, 2), profile.wheel_markov_revps,
+                                  profile.wheel_markov_correlation_s, t_s)
+    if profile.wheel_white_revps or profile.wheel_white_fraction:
+        std = np.hypot(profile.wheel_white_revps, profile.wheel_white_fraction * np.abs(rates))
+        rates = rates + rng.standard_normal((m, 2)) * std
+    if not profile.wheels_exact:
+        rates = np.where(true == 0.0, 0.0, rates)              # encoders read 0 at rest
+    return rates
+
+
+def _corrupt(rng: np.random.Generator, profile: NoiseProfile, v: FloatArray, n_rl: FloatArray,
+             n_rr: FloatArray, a_y: FloatArray, beta: FloatArray, poses: FloatArray,
+             t_s: float
+             ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    m = n_rl.shape[0]
+    rates = _wheel_errors(rng, profile, v, np.column_stack([n_rl, n_rr]), t_s)
     meas_ay = a_y + rng.standard_normal(m) * profile.lateral_accel_mps2
     meas_beta = beta * (1.0 + _gauss_markov(rng, (m, 1), profile.sideslip_fraction,
                                             profile.slip_correlation_s, t_s)[:, 0])
     ref = poses.copy()
-    ref[:, :2] += _gauss_markov(rng, (m, 2), profile.reference_position_m,
-                                profile.reference_correlation_s, t_s)
-    ref[:, 2] += _gauss_markov(rng, (m, 1), profile.reference_heading_rad,
-                               profile.reference_correlation_s, t_s)[:, 0]
+    for pos, head, tau in ((profile.reference_position_m, profile.reference_heading_rad,
+                            profile.reference_correlation_s),
+                           (profile.reference_slow_position_m, profile.reference_slow_heading_rad,
+                            profile.reference_slow_correlation_s)):
+        ref[:, :2] += _gauss_markov(rng, (m, 2), pos, tau, t_s)
+        ref[:, 2] += _gauss_markov(rng, (m, 1), head, tau, t_s)[:, 0]
     ref[:, 2] = np.remainder(ref[:, 2] + np.pi, 2 * np.pi) - np.pi   # a wrapped heading, as logged
     return rates[:, 0], rates[:, 1], meas_ay, meas_beta, ref

@@ -12,7 +12,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import differential_evolution
 
 from odocal.model import Parameters, rollout_ragged
 from odocal.segments import RaggedSegments, SegmentSet
@@ -119,6 +118,8 @@ def reachable_minimum(data: RaggedSegments, start: FloatArray, *, settings: Mini
     Bounded, seeded, and polished with L-BFGS-B, so the same inputs give the same answer.
     ``workers`` > 1 evaluates the population in parallel processes (same result).
     """
+    from scipy.optimize import differential_evolution
+
     start = np.asarray(start, dtype=np.float64)
     half = np.asarray(settings.half_width)
     bounds = np.column_stack([start - half, start + half])

@@ -1,5 +1,19 @@
 """Outside formats in, one in-memory :class:`~odocal.drive.Drive` out, and the drive format back."""
 
-from odocal.io.drivefile import load_drive, save_drive
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from odocal.io.drivefile import load_drive, save_drive
 
 __all__ = ["load_drive", "save_drive"]
+
+
+def __getattr__(name: str) -> Any:
+    # pyarrow is loaded only when a drive file is read or written
+    if name in __all__:
+        from odocal.io import drivefile
+
+        return getattr(drivefile, name)
+    raise AttributeError(f"module 'odocal.io' has no attribute {name!r}")

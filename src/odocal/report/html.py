@@ -5,6 +5,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+import multiprocessing
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,82 +41,135 @@ def _figure(width: float, height: float, nrows: int = 1, ncols: int = 1,
 
 def _png(fig: Figure) -> bytes:
     buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=DPI)
+    fig.savefig(buffer, format="png", dpi=DPI, pil_kwargs={"compress_level": 3})
     return buffer.getvalue()
 
 
-def _figures(result: CalibrationResult, data: ReportData) -> dict[str, tuple[str, bytes]]:
-    """name -> (caption, PNG bytes)."""
-    out: dict[str, tuple[str, bytes]] = {}
-    settings = result.settings
-    if data.maps:
-        fig, axes = _figure(4.0 * len(data.maps), 4.0, 1, len(data.maps))
-        for ax, m in zip(axes[0], data.maps, strict=True):
-            figures.plot_map(ax, m.reference, m.datasheet, m.calibrated,
-                             title=f"{Path(m.drive).name} at {m.start_s:.0f} s, "
-                                   f"{m.distance_m:.0f} m")
-        axes[0][0].legend(fontsize=8, loc="best")
-        out["map"] = ("Reference trajectory and dead reckoning with the datasheet and the "
-                      "calibrated parameters, on the validation segments that turn most.",
-                      _png(fig))
+Rendered = tuple[str, bytes] | None
+
+
+def _map(result: CalibrationResult, data: ReportData) -> Rendered:
+    if not data.maps:
+        return None
+    fig, axes = _figure(4.0 * len(data.maps), 4.0, 1, len(data.maps))
+    for ax, m in zip(axes[0], data.maps, strict=True):
+        figures.plot_map(ax, m.reference, m.datasheet, m.calibrated,
+                         title=f"{Path(m.drive).name} at {m.start_s:.0f} s, {m.distance_m:.0f} m")
+    axes[0][0].legend(fontsize=8, loc="best")
+    return ("Reference trajectory and dead reckoning with the datasheet and the calibrated "
+            "parameters, on the validation segments that turn most.", _png(fig))
+
+
+def _step1(result: CalibrationResult, data: ReportData) -> Rendered:
     ts = result.three_step
-    if ts is not None:
-        s1 = ts.step1
-        if np.isfinite(s1.validation_m).any():
-            fig, axes = _figure(8.0, 3.4)
-            ranks = [int(np.flatnonzero(s1.order == p)[0]) for p in s1.picked]
-            figures.plot_step1_sorted(
-                axes[0][0], s1.validation_m[s1.order], ranks,
-                final_m=result.validation.mean_error_m if result.validation else None,
-                raw_m=float(data.segment_errors["raw"].mean()) if "raw" in data.segment_errors
-                else None)
-            out["step1"] = ("Fig. 4 of the paper: validation errors of the step-1 batches.",
-                            _png(fig))
-        fig, axes = _figure(10.0, 3.2, 1, 4)
-        estimates = [("batch G-N, measured rates", ts.raw.theta.as_array(), ts.raw.std,
-                      figures.RAW),
-                     ("three-step (calibrated)", result.theta.as_array(),
-                      result.estimate.std, figures.CALIBRATED)]
-        figures.plot_parameter_spread(list(axes[0]), s1.thetas, list(s1.picked), estimates,
-                                      result.estimate.datasheet.as_array())
-        out["spread"] = ("Figs. 5 and 7 of the paper: the parameters of every step-1 batch, and "
-                         "the final estimates with one standard deviation.", _png(fig))
-        if result.batch is not None:
-            busiest = int(np.argmax(np.abs(result.batch.inputs.a_y).max(axis=1)))
-            u = result.batch.inputs
-            k = u.n_rl.shape[1]
-            t = np.arange(k, dtype=np.float64) * result.batch.t_s
-            fig, axes = _figure(8.0, 3.2)
-            figures.plot_rates(axes[0][0], t, np.column_stack([u.n_rl[busiest], u.n_rr[busiest]]),
-                               np.column_stack([ts.compensation.n_rl[busiest],
-                                                ts.compensation.n_rr[busiest]]))
-            out["rates"] = ("Fig. 6 of the paper: measured and compensated wheel rates on the "
-                            "selected segment with the highest lateral acceleration.", _png(fig))
-    if data.segment_errors:
-        fig, axes = _figure(8.0, 3.4)
-        figures.plot_segment_errors(axes[0][0], data.segment_errors)
-        out["segments"] = ("Fig. 8 of the paper: mean position error on each validation segment.",
-                           _png(fig))
+    if ts is None or not np.isfinite(ts.step1.validation_m).any():
+        return None
+    s1 = ts.step1
+    fig, axes = _figure(8.0, 3.4)
+    ranks = [int(np.flatnonzero(s1.order == p)[0]) for p in s1.picked]
+    figures.plot_step1_sorted(
+        axes[0][0], s1.validation_m[s1.order], ranks,
+        final_m=result.validation.mean_error_m if result.validation else None,
+        raw_m=float(data.segment_errors["raw"].mean()) if "raw" in data.segment_errors else None)
+    return "Fig. 4 of the paper: validation errors of the step-1 batches.", _png(fig)
+
+
+def _spread(result: CalibrationResult, data: ReportData) -> Rendered:
+    ts = result.three_step
+    if ts is None:
+        return None
+    fig, axes = _figure(10.0, 3.2, 1, 4)
+    estimates = [("batch G-N, measured rates", ts.raw.theta.as_array(), ts.raw.std, figures.RAW),
+                 ("three-step (calibrated)", result.theta.as_array(), result.estimate.std,
+                  figures.CALIBRATED)]
+    figures.plot_parameter_spread(list(axes[0]), ts.step1.thetas, list(ts.step1.picked),
+                                  estimates, result.estimate.datasheet.as_array())
+    return ("Figs. 5 and 7 of the paper: the parameters of every step-1 batch, and the final "
+            "estimates with one standard deviation.", _png(fig))
+
+
+def _rates(result: CalibrationResult, data: ReportData) -> Rendered:
+    ts = result.three_step
+    if ts is None or result.batch is None:
+        return None
+    u = result.batch.inputs
+    busiest = int(np.argmax(np.abs(u.a_y).max(axis=1)))
+    t = np.arange(u.n_rl.shape[1], dtype=np.float64) * result.batch.t_s
+    fig, axes = _figure(8.0, 3.2)
+    figures.plot_rates(axes[0][0], t, np.column_stack([u.n_rl[busiest], u.n_rr[busiest]]),
+                       np.column_stack([ts.compensation.n_rl[busiest],
+                                        ts.compensation.n_rr[busiest]]))
+    return ("Fig. 6 of the paper: measured and compensated wheel rates on the selected segment "
+            "with the highest lateral acceleration.", _png(fig))
+
+
+def _segments(result: CalibrationResult, data: ReportData) -> Rendered:
+    if not data.segment_errors:
+        return None
+    fig, axes = _figure(8.0, 3.4)
+    figures.plot_segment_errors(axes[0][0], data.segment_errors)
+    return "Fig. 8 of the paper: mean position error on each validation segment.", _png(fig)
+
+
+def _coverage(result: CalibrationResult, data: ReportData) -> Rendered:
+    threshold = result.settings.segments.yaw_rate_threshold_radps
     fig, axes = _figure(10.0, 3.0, 1, 3)
     figures.plot_histogram(axes[0][0], data.speed_hist[0], data.speed_hist[1],
                            xlabel="speed [m/s]")
     figures.plot_histogram(axes[0][1], data.yaw_hist[0], data.yaw_hist[1],
-                           xlabel="yaw rate [rad/s]",
-                           marks=(-settings.segments.yaw_rate_threshold_radps,
-                                  settings.segments.yaw_rate_threshold_radps),
+                           xlabel="yaw rate [rad/s]", marks=(-threshold, threshold),
                            mark_label="selection threshold")
-    figures.plot_selection(axes[0][2], result.segments.peak_yaw_rate_radps,
-                           settings.segments.yaw_rate_threshold_radps)
-    out["coverage"] = ("Data coverage: time at each speed and yaw rate, and which segments the "
-                       "selection rule kept.", _png(fig))
+    figures.plot_selection(axes[0][2], result.segments.peak_yaw_rate_radps, threshold)
+    return ("Data coverage: time at each speed and yaw rate, and which segments the selection "
+            "rule kept.", _png(fig))
+
+
+def _uncertainty(result: CalibrationResult, data: ReportData) -> Rendered:
+    ident = result.settings.identify
     fig, axes = _figure(6.0, 3.2)
     figures.plot_uncertainty(axes[0][0], result.estimate.std,
                              result.bootstrap.std if result.bootstrap is not None else None,
-                             np.asarray(settings.identify.prior_std),
-                             result.estimate.identified, settings.identify.identifiable_ratio)
-    out["uncertainty"] = ("Standard deviations from the covariance and from the bootstrap, "
-                          "relative to the datasheet uncertainty.", _png(fig))
-    return out
+                             np.asarray(ident.prior_std), result.estimate.identified,
+                             ident.identifiable_ratio)
+    return ("Standard deviations from the covariance and from the bootstrap, relative to the "
+            "datasheet uncertainty.", _png(fig))
+
+
+#: Every figure of the page, in page order.
+FIGURES: dict[str, Callable[[CalibrationResult, ReportData], Rendered]] = {
+    "map": _map, "step1": _step1, "spread": _spread, "rates": _rates, "segments": _segments,
+    "coverage": _coverage, "uncertainty": _uncertainty}
+
+# The job the forked renderers draw from (set only while a pool renders).
+_JOB: tuple[CalibrationResult, ReportData] | None = None
+
+
+def _render(name: str) -> Rendered:
+    assert _JOB is not None
+    return FIGURES[name](*_JOB)
+
+
+def _figures(result: CalibrationResult, data: ReportData, *,
+             workers: int = 1) -> dict[str, tuple[str, bytes]]:
+    """name -> (caption, PNG bytes); rendered in ``workers`` forked processes where possible.
+
+    A figure is pure drawing from data already computed, so a forked child renders it from the
+    parent's memory and returns only the PNG's bytes.
+    """
+    global _JOB
+    names = list(FIGURES)
+    rendered: list[Rendered]
+    if workers > 1 and "fork" in multiprocessing.get_all_start_methods():
+        _JOB = (result, data)
+        try:
+            context = multiprocessing.get_context("fork")
+            with context.Pool(min(workers, len(names))) as pool:
+                rendered = pool.map(_render, names, chunksize=1)
+        finally:
+            _JOB = None
+    else:
+        rendered = [FIGURES[n](result, data) for n in names]
+    return {n: r for n, r in zip(names, rendered, strict=True) if r is not None}
 
 
 _CSS = """
@@ -226,7 +280,9 @@ def write_report(result: CalibrationResult, out_dir: str | Path, *,
     if progress:
         progress("report", 0, 1)
     data = build(result)
-    pngs = _figures(result, data)
+    from odocal.parallel import resolve_workers
+
+    pngs = _figures(result, data, workers=resolve_workers(result.settings.calibrate.workers))
     paths = []
     for name, (_, png) in pngs.items():
         path = out / "figures" / f"{name}.png"

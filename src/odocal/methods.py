@@ -1,0 +1,18 @@
+"""The calibration methods by name (light: the command line lists them without loading numpy).
+
+The estimators themselves are registered under these names in :data:`odocal.calibrate.METHODS`.
+"""
+
+from __future__ import annotations
+
+from types import MappingProxyType
+
+#: Every calibration method, with what it is in a few words.
+METHOD_SUMMARIES: MappingProxyType[str, str] = MappingProxyType({
+    "compensated": "the paper's three-step architecture (batch G-N, input compensation, G-N)",
+    "raw": "batch Gauss-Newton on all selected segments with the measured wheel rates",
+    "joint": "the joint errors-in-variables MAP estimator over the whole drive",
+})
+METHOD_NAMES: tuple[str, ...] = tuple(METHOD_SUMMARIES)
+#: The method a calibration uses unless told otherwise.
+DEFAULT_METHOD = "compensated"
