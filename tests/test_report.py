@@ -12,46 +12,64 @@ import pytest
 import odocal
 from odocal.cli import EXIT_OK, main
 from odocal.report import write_report
+from odocal.report.html import _fmt
 from odocal.simulate import SimulatedDrive
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
-FIGURES = ("map", "segments", "step1", "spread", "rates", "coverage", "uncertainty")
+#: The figures each method's report shows.
+FIGURES = {"inverse": ("map", "inverse", "segments", "coverage", "uncertainty"),
+           "compensated": ("map", "segments", "step1", "spread", "rates", "coverage",
+                           "uncertainty")}
+
+
+def _calibrate(tmp_path_factory: pytest.TempPathFactory, drive: odocal.Drive,
+               method: str) -> Path:
+    path = tmp_path_factory.mktemp(f"report-{method}") / "drive.parquet"
+    odocal.save_drive(drive, path)
+    out = path.parent / "out"
+    assert main(["calibrate", str(path), "--out", str(out), "--export", "yaml", "--export",
+                 "json", "--method", method, "-q"]) == EXIT_OK
+    return out
 
 
 @pytest.fixture(scope="module")
-def calibrated(tmp_path_factory: pytest.TempPathFactory,
-               noisy_drive: SimulatedDrive) -> tuple[Path, odocal.CalibrationResult]:
-    path = tmp_path_factory.mktemp("report") / "drive.parquet"
-    odocal.save_drive(noisy_drive.drive, path)
-    out = path.parent / "out"
-    assert main(["calibrate", str(path), "--out", str(out), "--export", "yaml", "--export",
-                 "json", "-q"]) == EXIT_OK
-    return out, odocal.calibrate(noisy_drive.drive)
+def calibrated(tmp_path_factory: pytest.TempPathFactory, noisy_drive: SimulatedDrive) -> Path:
+    """The default method's results folder for a 15-minute realistic drive."""
+    return _calibrate(tmp_path_factory, noisy_drive.drive, "inverse")
 
 
-def test_report_files_and_numbers(calibrated: tuple[Path, odocal.CalibrationResult]) -> None:
-    out, _ = calibrated
+@pytest.mark.parametrize("method", sorted(FIGURES))
+def test_report_files_and_numbers(method: str, tmp_path_factory: pytest.TempPathFactory,
+                                  calibrated: Path, noisy_drive: SimulatedDrive) -> None:
+    out = calibrated if method == "inverse" else _calibrate(tmp_path_factory,
+                                                            noisy_drive.drive, method)
     page = (out / "report.html").read_text()
     assert page.startswith("<!DOCTYPE html>")
     assert "http://" not in page and "https://" not in page      # opens offline
-    for name in FIGURES:
+    for name in FIGURES[method]:
         assert (out / "figures" / f"{name}.png").stat().st_size > 5000
         assert f"id='fig-{name}'" in page
+    assert sorted(p.stem for p in (out / "figures").glob("*.png")) == sorted(FIGURES[method])
     data = json.loads((out / "calibration.json").read_text())
+    assert data["method"] == method
     report = data["report"]
     assert report["verdict"] in page
+    # a realistic 15-minute city drive identifies everything and validates far better
+    assert report["verdict_level"] == "good"
+    assert report["verdict"].startswith("Calibrated: the validation error E_p falls from")
     assert len(report["identifiability"]) == 4
     assert report["coverage"]["selected"] == data["segments_selected"]
     errors = report["validation_segment_errors_m"]
     assert np.mean(errors["calibrated"]) == pytest.approx(data["validation"]["E_p_m"])
-    assert set(errors) == {"datasheet", "raw", "calibrated"}
+    expected = {"datasheet", "calibrated"} | ({"raw"} if method == "compensated" else set())
+    assert set(errors) == expected
     assert data["bootstrap"]["count"] == 200 and "agree" in data["bootstrap"]
-    for name, value in data["theta"].items():
-        assert f"{value * (1e3 if name in ('c_d', 'd') else 1):.3f}"[:5] in page
+    for name, value in data["theta"].items():       # as the parameter table prints them
+        assert _fmt(name, value) in page
 
 
-def test_exports(calibrated: tuple[Path, odocal.CalibrationResult]) -> None:
-    out, _ = calibrated
+def test_exports(calibrated: Path) -> None:
+    out = calibrated
     exported = json.loads((out / "odometry_parameters.json").read_text())
     data = json.loads((out / "calibration.json").read_text())
     assert exported["theta"] == data["theta"]
@@ -104,13 +122,12 @@ def _chromium() -> str | None:
 
 
 @pytest.mark.browser
-def test_report_renders_in_headless_chromium(
-        calibrated: tuple[Path, odocal.CalibrationResult]) -> None:
+def test_report_renders_in_headless_chromium(calibrated: Path) -> None:
     executable = _chromium()
     if executable is None:
         pytest.skip("no Chromium on this machine (.ci/run installs Debian's chromium)")
     sync_api = pytest.importorskip("playwright.sync_api")
-    out, _ = calibrated
+    out = calibrated
     errors: list[str] = []
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(
@@ -138,9 +155,9 @@ def test_report_renders_in_headless_chromium(
         verdict = page.inner_text("#verdict")
         browser.close()
     assert errors == []
-    assert {f["id"] for f in figures} == {f"fig-{name}" for name in FIGURES}
+    assert {f["id"] for f in figures} == {f"fig-{name}" for name in FIGURES["inverse"]}
     for f in figures:
         assert f["complete"] and f["width"] > 300, f
         assert f["dark"] > 0.01, f                    # not blank: axes, lines, text drawn
-    assert verdict.startswith(("Calibrated", "Do not use", "Calibration failed"))
+    assert verdict.startswith("Calibrated: the validation error E_p falls from")
     assert (ARTIFACTS / "report.png").stat().st_size > 50_000

@@ -72,7 +72,7 @@ def test_noise_levels_are_what_the_profiles_say() -> None:
     markov = odocal.simulate(duration_s=1200, seed=3, noise="markov")
     e = markov.drive.n_rr - markov.true_n_rr
     e = e[markov.true_n_rr > 0]
-    assert abs(e.std() - 0.03) < 0.006
+    assert abs(e.std() - 0.015) < 0.003
     lag = round(0.5 / 0.025)                              # the correlation time: exp(-1)
     assert abs(np.corrcoef(e[:-lag], e[lag:])[0, 1] - np.exp(-1)) < 0.1
     delayed = odocal.simulate(duration_s=600, seed=3, noise="delay")

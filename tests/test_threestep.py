@@ -35,7 +35,7 @@ def test_pick_at_equal_steps_includes_best_and_worst() -> None:
 
 
 def test_noise_free_three_step_is_close_to_truth(clean_drive: SimulatedDrive) -> None:
-    result = odocal.calibrate(clean_drive.drive)
+    result = odocal.calibrate(clean_drive.drive, method="compensated")
     truth = clean_drive.true_parameters.as_array()
     # R = 1000 smooths true rates a little, so the answer is near, not at, the truth
     np.testing.assert_allclose(result.theta.as_array(), truth, rtol=2e-3, atol=1e-5)
@@ -48,17 +48,20 @@ def test_noise_free_three_step_is_close_to_truth(clean_drive: SimulatedDrive) ->
 
 def test_three_step_result_is_the_same_with_one_or_two_workers(
         noisy_drive: SimulatedDrive) -> None:
-    one = odocal.calibrate(noisy_drive.drive, settings=Settings().replace(calibrate={"workers": 1}))
-    two = odocal.calibrate(noisy_drive.drive, settings=Settings().replace(calibrate={"workers": 2}))
+    one = odocal.calibrate(noisy_drive.drive, method="compensated",
+                           settings=Settings().replace(calibrate={"workers": 1}))
+    two = odocal.calibrate(noisy_drive.drive, method="compensated",
+                           settings=Settings().replace(calibrate={"workers": 2}))
     np.testing.assert_array_equal(one.theta.as_array(), two.theta.as_array())
 
 
-def test_compensated_beats_the_worst_step1_batch(noisy_drive: SimulatedDrive) -> None:
-    result = odocal.calibrate(noisy_drive.drive)
+def test_compensated_validates_better_than_a_typical_step1_batch(
+        noisy_drive: SimulatedDrive) -> None:
+    result = odocal.calibrate(noisy_drive.drive, method="compensated")
     outcome = result.three_step
     assert outcome is not None and result.validation is not None
-    worst = np.nanmax(outcome.step1.validation_m)
-    assert result.validation.mean_error_m < worst
+    # the paper's claim, against its unit of comparison: one batch of 10 segments
+    assert result.validation.mean_error_m < np.nanmedian(outcome.step1.validation_m)
 
 
 def test_save_inputs_writes_measured_and_compensated(noisy_drive: SimulatedDrive,
@@ -66,7 +69,7 @@ def test_save_inputs_writes_measured_and_compensated(noisy_drive: SimulatedDrive
     path = tmp_path / "drive.parquet"
     odocal.save_drive(noisy_drive.drive, path)
     assert main(["calibrate", str(path), "--out", str(tmp_path / "o"), "--save-inputs",
-                 "-q"]) == EXIT_OK
+                 "--method", "compensated", "-q"]) == EXIT_OK
     import pyarrow.parquet as pq
 
     table = pq.read_table(tmp_path / "o" / "compensated_inputs.parquet").to_pydict()
@@ -95,9 +98,8 @@ def test_reachable_minimum_is_no_worse_than_the_truth(noisy_drive: SimulatedDriv
     assert again.mean_error_m == result.mean_error_m
 
 
-@pytest.mark.parametrize("noise", ["realistic"])
-def test_reproduce_runs_and_reports(noise: str, tmp_path: Path) -> None:
-    result = reproduce(seed=2, noise=noise, distance_km=8.0, minimum=False,
+def test_reproduce_runs_and_reports(tmp_path: Path) -> None:
+    result = reproduce(seed=2, noise="realistic", distance_km=8.0, minimum=False,
                        settings=Settings().replace(calibrate={"workers": 1}))
     text = format_report(result)
     assert "Fig. 4" in text and "Table 1" in text and "Section 6.5" in text
@@ -118,5 +120,7 @@ def test_minimum_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
     out = tmp_path / "min.json"
     code = main(["minimum", str(path), "--config", str(config), "--out", str(out)])
     stdout = capsys.readouterr().out
-    assert code in (0, 3) and "minimum E_p" in stdout
-    assert set(json.loads(out.read_text())["theta"]) == {"c_e", "c_d", "t_r", "d"}
+    assert code == 0 and "minimum E_p" in stdout
+    found = json.loads(out.read_text())
+    assert set(found["theta"]) == {"c_e", "c_d", "t_r", "d"}
+    assert found["E_p_m"] < 0.2 * found["start"]["E_p_m"]

@@ -37,7 +37,7 @@ from odocal.errors import (
 __version__ = "0.1.0"
 
 if TYPE_CHECKING:
-    from odocal.calibrate import CalibrationResult, calibrate
+    from odocal.calibrate import CalibrationResult, calibrate, minimum
     from odocal.calibrate import validate_theta as validate
     from odocal.convert import convert, inspect
     from odocal.drive import Drive
@@ -75,6 +75,7 @@ _LAZY: dict[str, tuple[str, str]] = {
     "SimulatedDrive": ("odocal.simulate", "SimulatedDrive"),
     "simulate": ("odocal.simulate", "simulate"),
     "reachable_minimum": ("odocal.validate", "reachable_minimum"),
+    "minimum": ("odocal.calibrate", "minimum"),
 }
 
 
@@ -116,6 +117,6 @@ __all__ = [
     "Estimate", "Identified", "InputFileError", "MissingDependencyError", "NoiseProfile",
     "NotIdentified", "OdocalError", "OutputError", "Parameters", "Reason", "Settings",
     "SimulatedDrive", "SolverError", "Status", "__version__", "calibrate", "convert", "inspect",
-    "load_drive", "load_settings", "reachable_minimum", "reproduce", "save_drive", "simulate",
-    "validate",
+    "load_drive", "load_settings", "minimum", "reachable_minimum", "reproduce", "save_drive",
+    "simulate", "validate",
 ]

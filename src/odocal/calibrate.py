@@ -33,7 +33,7 @@ from odocal import __version__
 from odocal.drive import Drive
 from odocal.errors import ConfigError, DataError
 from odocal.estimate import Estimate, NotIdentified, Reason, Status, held_as_weak, weak
-from odocal.identify import gauss_newton
+from odocal.identify import gauss_newton, linearise
 from odocal.io.drivefile import load_drive
 from odocal.methods import DEFAULT_METHOD
 from odocal.model import PARAMETER_NAMES, Parameters
@@ -50,7 +50,7 @@ from odocal.segments import (
 from odocal.settings import Settings
 from odocal.threestep import ThreeStepOutcome, three_step
 from odocal.uncertainty import BootstrapResult, bootstrap
-from odocal.validate import ValidationResult, segment_errors
+from odocal.validate import MinimumResult, ValidationResult, segment_errors
 
 log = logging.getLogger(__name__)
 
@@ -105,16 +105,47 @@ class Prepared:
 
 
 @dataclass(frozen=True)
+class BootstrapTerms:
+    """What the bootstrap resamples: per-unit information and scores at the estimate.
+
+    information : ndarray, shape (N, 4, 4); scores : ndarray, shape (N, 4); clusters : (N,)
+    refit : theta from a resample of the units (``bootstrap_mode = "full"``), or None
+    step1_thetas, step1_sets : the three-step method's step-1 sets (redrawn too)
+    """
+
+    information: NDArray[np.float64]
+    scores: NDArray[np.float64]
+    clusters: IntArray
+    refit: Callable[[IntArray], NDArray[np.float64]] | None = None
+    step1_thetas: NDArray[np.float64] | None = None
+    step1_sets: int = 0
+
+
+@dataclass(frozen=True)
 class MethodOutcome:
     """What a method returns to the front door."""
 
     estimate: Estimate
     three_step: ThreeStepOutcome | None = None
     warnings: tuple[str, ...] = ()
-    bootstrap_rates: SegmentBatch | None = None
-    """The segments (with the rates the estimate used) to bootstrap over; None: no bootstrap."""
-    step1_thetas: NDArray[np.float64] | None = None
-    step1_sets: int = 0
+    bootstrap: BootstrapTerms | None = None
+    """What to bootstrap over; None: the method has no bootstrap."""
+
+
+def _gn_terms(rates: SegmentBatch, estimate: Estimate, prep: Prepared, settings: Settings,
+              **extra: Any) -> BootstrapTerms:
+    """Bootstrap terms of a Gauss-Newton estimate on ``rates`` (the segments it used)."""
+    lin = linearise(rates, estimate.theta.as_array(), np.asarray(settings.identify.weights))
+    held = {n: NotIdentified(Reason.HELD) for n, f in zip(PARAMETER_NAMES, estimate.free,
+                                                         strict=True) if not f}
+    loose = dataclasses.replace(settings.identify, judge_identifiability=False, max_iterations=3)
+
+    def refit(take: IntArray) -> NDArray[np.float64]:
+        return gauss_newton(rates.take(take), settings=loose, start=estimate.theta.as_array(),
+                            held=held).theta.as_array()
+
+    return BootstrapTerms(information=lin.information, scores=lin.scores,
+                          clusters=prep.clusters, refit=refit, **extra)
 
 
 def _run_raw(prep: Prepared, settings: Settings,
@@ -125,7 +156,7 @@ def _run_raw(prep: Prepared, settings: Settings,
                        held=prep.held, method="raw")
     if progress:
         progress("identify", 1, 1)
-    return MethodOutcome(estimate=est, bootstrap_rates=prep.batch)
+    return MethodOutcome(estimate=est, bootstrap=_gn_terms(prep.batch, est, prep, settings))
 
 
 def _run_compensated(prep: Prepared, settings: Settings,
@@ -133,10 +164,23 @@ def _run_compensated(prep: Prepared, settings: Settings,
     outcome = three_step(prep.batch, prep.validation, settings=settings, clusters=prep.clusters,
                          held=prep.held, progress=progress)
     s1 = outcome.step1
+    rates = prep.batch.with_wheel_rates(outcome.compensation.n_rl, outcome.compensation.n_rr)
     return MethodOutcome(estimate=outcome.final, three_step=outcome, warnings=outcome.warnings,
-                         bootstrap_rates=prep.batch.with_wheel_rates(outcome.compensation.n_rl,
-                                                                     outcome.compensation.n_rr),
-                         step1_thetas=s1.thetas[s1.success], step1_sets=int(s1.picked.size))
+                         bootstrap=_gn_terms(rates, outcome.final, prep, settings,
+                                             step1_thetas=s1.thetas[s1.success],
+                                             step1_sets=int(s1.picked.size)))
+
+
+def _run_inverse(prep: Prepared, settings: Settings,
+                 progress: ProgressCallback | None) -> MethodOutcome:
+    from odocal.inverse import InverseDetails, inverse_calibration
+
+    est = inverse_calibration(prep.drives, settings=settings, held=prep.held, progress=progress)
+    d = est.details
+    terms = None
+    if isinstance(d, InverseDetails) and d.windows:
+        terms = BootstrapTerms(information=d.information, scores=d.scores, clusters=d.cluster)
+    return MethodOutcome(estimate=est, bootstrap=terms)
 
 
 def _run_joint(prep: Prepared, settings: Settings,
@@ -151,6 +195,7 @@ def _run_joint(prep: Prepared, settings: Settings,
 
 #: The estimator behind each name of :data:`odocal.methods.METHOD_NAMES`.
 METHODS: Mapping[str, Callable[[Prepared, Settings, ProgressCallback | None], MethodOutcome]] = {
+    "inverse": _run_inverse,
     "compensated": _run_compensated,
     "raw": _run_raw,
     "joint": _run_joint,
@@ -313,6 +358,25 @@ def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
     return validation(theta, data, segs, drive_list)
 
 
+def minimum(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
+            start: Parameters | None = None, settings: Settings | None = None) -> MinimumResult:
+    """The reachable minimum of E_p on the validation segments of ``drives`` (METHOD 6).
+
+    Differential evolution in a box of ``[minimum] half_width`` around ``start`` (default the
+    datasheet values), seeded by ``[calibrate] seed``.
+    """
+    from odocal.parallel import resolve_workers
+    from odocal.validate import reachable_minimum
+
+    settings = settings or Settings()
+    drive_list = load_drives(drives)
+    data = gather_ragged(drive_list, validation_segments(drive_list, settings.segments))
+    centre = start.as_array() if start is not None else np.asarray(settings.identify.theta0)
+    return reachable_minimum(data, centre, settings=settings.minimum,
+                             seed=settings.calibrate.seed,
+                             workers=resolve_workers(settings.calibrate.workers))
+
+
 def validation(theta: Parameters | NDArray[np.float64], data: RaggedSegments, segs: SegmentSet,
                drives: Sequence[Drive]) -> ValidationResult:
     """E_p of ``theta`` on already gathered validation segments."""
@@ -383,15 +447,16 @@ def _checked_by_bootstrap(method: str, prep: Prepared, settings: Settings,
     for _ in range(len(PARAMETER_NAMES)):
         outcome = METHODS[method](prep, settings, progress)
         estimate = outcome.estimate
-        rates = outcome.bootstrap_rates
-        if settings.uncertainty.bootstrap_count <= 1 or rates is None or not estimate.success \
+        terms = outcome.bootstrap
+        if settings.uncertainty.bootstrap_count <= 1 or terms is None or not estimate.success \
                 or estimate.status is Status.EXACT or not any(estimate.free):
             return outcome, estimate, None
         if progress:
             progress("bootstrap", 0, 1)
-        boot = bootstrap(rates, estimate, prep.clusters, identify=settings.identify,
+        boot = bootstrap(estimate, terms.information, terms.scores, terms.clusters,
                          settings=settings.uncertainty, seed=settings.calibrate.seed,
-                         step1_thetas=outcome.step1_thetas, step1_sets=outcome.step1_sets)
+                         refit=terms.refit, step1_thetas=terms.step1_thetas,
+                         step1_sets=terms.step1_sets)
         if progress:
             progress("bootstrap", 1, 1)
         factor = np.where(np.isfinite(boot.ratio)

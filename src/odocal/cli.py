@@ -346,36 +346,26 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 
 def cmd_minimum(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from odocal.calibrate import load_drives
-    from odocal.parallel import resolve_workers
-    from odocal.segments import gather_ragged, validation_segments
-    from odocal.validate import mean_error, reachable_minimum
+    from odocal.calibrate import minimum
 
     settings = _settings(args)
-    drives = load_drives(args.logs)
     start = _parameters_from(args, settings)
-    segs = validation_segments(drives, settings.segments)
-    data = gather_ragged(drives, segs)
-    _print(f"searching the reachable minimum of E_p over {len(segs)} validation segments "
-           "(differential evolution) ...")
-    result = reachable_minimum(data, start.as_array(), settings=settings.minimum,
-                               seed=settings.calibrate.seed,
-                               workers=resolve_workers(settings.calibrate.workers))
-    _print(f"start   E_p = {mean_error(start.as_array(), data):.3f} m at "
+    if not args.quiet:
+        _print("searching the reachable minimum of E_p over the validation segments "
+               "(differential evolution) ...")
+    result = minimum(args.logs, start=start, settings=settings)
+    _print(f"start   E_p = {result.start_error_m:.3f} m at "
            + ", ".join(f"{k} = {v:.6g}" for k, v in start.as_dict().items()))
-    _print(f"minimum E_p = {result.mean_error_m:.3f} m at "
+    _print(f"minimum E_p = {result.mean_error_m:.3f} m over {result.segments} segments at "
            + ", ".join(f"{k} = {v:.6g}" for k, v in result.theta.as_dict().items()))
-    _print(f"({result.evaluations} evaluations; {result.message})")
+    if not args.quiet:
+        _print(f"({result.evaluations} evaluations; {result.message})")
     if args.out:
         from odocal.io.results import write_json
 
-        write_json(args.out, {"theta": result.theta.as_dict(), "E_p_m": result.mean_error_m,
-                              "success": result.success, "message": result.message,
-                              "evaluations": result.evaluations,
-                              "bounds": np.asarray(result.bounds).tolist()})
-        _print(f"wrote {args.out}")
+        write_json(args.out, result.to_dict())
+        if not args.quiet:
+            _print(f"wrote {args.out}")
     return EXIT_OK if result.success else EXIT_FAILED
 
 

@@ -311,3 +311,16 @@ def failed_estimate(method: str, settings: IdentifySettings, status: Status, *,
                     covariance_kind=CovarianceKind.NONE, free=(False, False, False, False),
                     verdicts=(NotIdentified(Reason.FAILED),) * 4,
                     status=status, details=details)
+
+
+#: The one-standard-deviation quantile (0.8413) of Student's t with 1..8 degrees of freedom
+#: (``scipy.special.stdtrit(dof, 0.8413447)``): how much wider a standard deviation estimated
+#: from only 2..9 independent clusters must be to cover as often as one from many.
+_T_ONE_SIGMA = (1.8373, 1.3213, 1.1969, 1.1416, 1.1105, 1.0906, 1.0767, 1.0665)
+
+
+def few_clusters_inflation(clusters: int) -> float:
+    """Factor for standard deviations estimated from ``clusters`` independent clusters."""
+    if clusters < 2:
+        return float("inf")
+    return _T_ONE_SIGMA[clusters - 2] if clusters - 2 < len(_T_ONE_SIGMA) else 1.0

@@ -33,6 +33,7 @@ from odocal.estimate import (
     NotIdentified,
     Reason,
     Status,
+    few_clusters_inflation,
     held_as_weak,
     judge,
     weak,
@@ -171,7 +172,8 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
         if n_clusters >= _MIN_CLUSTERS_FOR_ROBUST:
             cov, kind = _robust_covariance(it.lin, free, clusters), CovarianceKind.CLUSTER_ROBUST
         elif n_clusters >= 2:
-            cov = _larger(cov_naive, _robust_covariance(it.lin, free, clusters))
+            cov = _larger(cov_naive, _robust_covariance(it.lin, free, clusters)) \
+                * few_clusters_inflation(n_clusters) ** 2
         if n_clusters < 2 and free.any() and settings.judge_identifiability:
             # one cluster of overlapping segments is one piece of evidence: no spread to judge by
             std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
@@ -304,12 +306,17 @@ def _naive_covariance(lin: Linearisation, free: BoolArray) -> FloatArray:
 
 def robust_covariance(h_inv: FloatArray, scores: FloatArray, free: BoolArray,
                       clusters: IntArray) -> FloatArray:
-    """Sandwich ``H^-1 M H^-1`` with M the outer products of per-cluster scores.
+    """Sandwich ``H^-1 M H^-1`` with M the long-run covariance of per-cluster scores.
 
     Residuals of one segment are strongly correlated (a rollout integrates its errors), and
-    overlapping segments share samples, so the white-noise covariance is too small. Summing the
-    scores of overlapping segments into clusters and adding the Bartlett-weighted products of
-    neighbouring clusters gives a covariance that holds under that correlation.
+    overlapping segments share samples, so the white-noise covariance is too small. Scores are
+    summed into clusters of overlapping (or neighbouring) units; errors reach at most into the
+    neighbouring cluster (clusters are longer than the correlations they absorb), so ``M`` is the
+    clusters' outer products plus the neighbours' cross products at full weight. Full weight
+    matters where errors telescope (quantised counts, a reference's errors differenced over
+    windows): consecutive clusters' scores then cancel, and a down-weighted cross term would
+    count the cancelled part as uncertainty. ``M`` is made positive semi-definite by clipping
+    its eigenvalues.
     """
     labels, index = np.unique(clusters, return_inverse=True)
     g = np.zeros((labels.shape[0], 4))
@@ -319,7 +326,9 @@ def robust_covariance(h_inv: FloatArray, scores: FloatArray, free: BoolArray,
     meat = g.T @ g
     if g.shape[0] > 1:
         cross = g[:-1].T @ g[1:]
-        meat += 0.5 * (cross + cross.T)
+        meat += cross + cross.T
+        values, vectors = np.linalg.eigh(meat)
+        meat = (vectors * np.clip(values, 0.0, None)) @ vectors.T
     c = g.shape[0]
     correction = c / (c - 1) if c > 1 else 1.0
     return correction * (h_inv @ meat @ h_inv)

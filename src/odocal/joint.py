@@ -53,8 +53,10 @@ from odocal.estimate import (
     CovarianceKind,
     Estimate,
     NotIdentified,
+    Reason,
     Status,
     failed_estimate,
+    few_clusters_inflation,
     held_as_weak,
     judge,
     weak,
@@ -466,7 +468,7 @@ def joint_calibration(drives: Sequence[Drive], *, settings: Settings,
     started = time.perf_counter()
     js = settings.joint
     t_s = common_sampling_time(drives)
-    data = _gather(drives, max(round(js.block_s / t_s), 1))
+    data = _gather(drives, max(round(js.block_s / t_s), 1))  # (pieces of one block at least)
     datasheet = np.asarray(settings.identify.theta0, dtype=np.float64)
     held = dict(held or {})
     run = _Run(data=data, settings=settings, noise=_initial_noise(settings),
@@ -474,6 +476,15 @@ def joint_calibration(drives: Sequence[Drive], *, settings: Settings,
                theta=datasheet.copy(),
                free=np.array([name not in held for name in PARAMETER_NAMES]))
     warnings: list[str] = []
+    # independent evidence: pieces of drive a segment long (as the other methods' clusters)
+    chunk = settings.segments.length
+    block = max(round(js.block_s / t_s), 1)
+    n_clusters = sum(max((b - a) // chunk, 1) for d in drives for a, b in d.pieces
+                     if b - a - 1 >= block)
+    if n_clusters < 2 and settings.identify.judge_identifiability:
+        for name in PARAMETER_NAMES:
+            held.setdefault(name, NotIdentified(Reason.ONE_CLUSTER, detail=float(n_clusters)))
+        run.free = np.array([name not in held for name in PARAMETER_NAMES])
     try:
         estimated = _estimate_noise(run, warnings, progress)
         sol, _ = run.solve()
@@ -487,6 +498,7 @@ def joint_calibration(drives: Sequence[Drive], *, settings: Settings,
             sol, _ = run.solve()
             run.accept(sol)
             cov = _theta_covariance(sol, run.free)
+        cov = cov * few_clusters_inflation(max(n_clusters, 2)) ** 2
         std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
         sensitivity = _sensitivity(run, sol, std, warnings)
     except SolverError:

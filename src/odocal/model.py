@@ -17,9 +17,12 @@ and theta, holding the heading fixed; the derivative with respect to the heading
 ``d(p+)/d psi = [-dy, dx]``). Every rollout is built from these compiled pieces: the plain rollout
 (:func:`rollout`, :func:`rollout_ragged`: validation, simulation, plots), the Gauss-Newton
 linearisation (:func:`segment_r_factors`), the QP's step Jacobians (:func:`step_jacobians`), the
-joint estimator's block rollouts (:func:`block_rollout`) and the online calibrator. A Jacobian
-``J = d x_k / d p`` propagates as ``J+ = A_k J + B_k`` with ``A_k = I + [0, 0, -dy; 0, 0, dx; 0, 0,
-0]``: a cumulative sum along the rollout, computed in one compiled pass per segment.
+joint estimator's block rollouts (:func:`block_rollout`). A Jacobian ``J = d x_k / d p``
+propagates as ``J+ = A_k J + B_k`` with ``A_k = I + [0, 0, -dy; 0, 0, dx; 0, 0, 0]``: a cumulative
+sum along the rollout, computed in one compiled pass per segment. The model run backwards, the
+wheel revolutions a step's motion implies (:func:`_inverse_step`, :func:`inverse_revolutions`,
+with (1) inverted by :func:`motion_increments`), serves the default errors-in-variables estimator
+(:mod:`odocal.inverse`) and the online calibrator.
 
 **What else depends on the sizes.** Changing the vehicle model means changing this module, and:
 the compensation QP's solvers (:mod:`odocal.compensate.riccati`, :mod:`.structured`) are written
@@ -384,6 +387,38 @@ def _block_kernel(th: FloatArray, n_rl: FloatArray, n_rr: FloatArray, beta: Floa
         jac[b] = j9
 
 
+@jit(inline=True)
+def _inverse_step(th: FloatArray, ds: float, dpsi: float, a_y: float,
+                  d: FloatArray) -> tuple[float, float]:  # pragma: no cover
+    """(1)-(3) inverted: the wheel revolutions (rl, rr) a step of ``ds`` along track and ``dpsi``
+    of heading take, and their derivatives d (2, 4) with respect to theta.
+
+    From (2): n_rl c_rl t_s = v t_s - (t_r / 2) w t_s and n_rr c_rr t_s = v t_s + (t_r / 2) w t_s,
+    with v t_s = ds and w t_s = dpsi by (1).
+    """
+    c_rl, c_rr = _circumferences(th, a_y)
+    u_rl = (ds - 0.5 * th[2] * dpsi) / c_rl
+    u_rr = (ds + 0.5 * th[2] * dpsi) / c_rr
+    d[0, 0] = -u_rl / c_rl
+    d[0, 1] = -0.5 * u_rl / c_rl
+    d[0, 2] = -0.5 * dpsi / c_rl
+    d[0, 3] = -a_y * u_rl / c_rl
+    d[1, 0] = -u_rr / c_rr
+    d[1, 1] = 0.5 * u_rr / c_rr
+    d[1, 2] = 0.5 * dpsi / c_rr
+    d[1, 3] = a_y * u_rr / c_rr
+    return u_rl, u_rr
+
+
+@jit
+def _inverse_kernel(th: FloatArray, ds: FloatArray, dpsi: FloatArray, a_y: FloatArray,
+                    revs: FloatArray, jac: FloatArray) -> None:  # pragma: no cover
+    d = np.empty((2, 4))
+    for k in range(ds.shape[0]):
+        revs[k, 0], revs[k, 1] = _inverse_step(th, ds[k], dpsi[k], a_y[k], d)
+        jac[k] = d
+
+
 @jit
 def _body_rates_kernel(th: FloatArray, n_rl: FloatArray, n_rr: FloatArray, a_y: FloatArray,
                        v: FloatArray, w: FloatArray, c_rl: FloatArray,
@@ -575,6 +610,50 @@ def block_rollout(theta: FloatArray | Parameters, u: Inputs, start: FloatArray,
     _block_kernel(_theta(theta), n_rl, n_rr, beta, a_y, _flat(start, (n, 3)),
                   _flat(correction, (n, 2)), float(t_s), end, jac)
     return end, jac
+
+
+def motion_increments(x: FloatArray, y: FloatArray, psi: FloatArray,
+                      beta: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """(1) inverted: what each step of a pose sequence moved, along track and in heading.
+
+    Parameters
+    ----------
+    x, y, psi : ndarray, shape (M,), poses (psi unwrapped)
+    beta : ndarray, shape (M,), sideslip
+
+    Returns
+    -------
+    ds : ndarray, shape (M-1,)
+        The step's displacement along the direction of travel ``h = psi + dpsi/2 + beta``
+        (``v t_s`` in (1)).
+    dpsi : ndarray, shape (M-1,)
+        The heading increment (``w t_s``).
+    """
+    dpsi = np.diff(psi)
+    h = psi[:-1] + 0.5 * dpsi + beta[:-1]
+    return np.diff(x) * np.cos(h) + np.diff(y) * np.sin(h), dpsi
+
+
+def inverse_revolutions(theta: FloatArray | Parameters, ds: FloatArray, dpsi: FloatArray,
+                        a_y: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The wheel revolutions each step's motion implies, and their Jacobian in theta.
+
+    Parameters
+    ----------
+    ds, dpsi : ndarray, shape (M,), from :func:`motion_increments`
+    a_y : ndarray, shape (M,), lateral acceleration of each step
+
+    Returns
+    -------
+    revs : ndarray, shape (M, 2), revolutions of the rear-left and rear-right wheel
+        (``n_rl t_s``, ``n_rr t_s``)
+    jac : ndarray, shape (M, 2, 4), d revs / d theta
+    """
+    m = int(np.shape(ds)[0])
+    revs = np.empty((m, 2))
+    jac = np.empty((m, 2, 4))
+    _inverse_kernel(_theta(theta), _flat(ds, (m,)), _flat(dpsi, (m,)), _flat(a_y, (m,)), revs, jac)
+    return revs, jac
 
 
 def wrap_angle(angle: FloatArray) -> FloatArray:

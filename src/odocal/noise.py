@@ -102,13 +102,13 @@ NOISE_PROFILES: MappingProxyType[str, NoiseProfile] = MappingProxyType({p.name: 
                  wheel_white_revps=0.10),
     NoiseProfile("white-rate", "white wheel-rate noise growing with the rate: 1% of the rate "
                  "plus 0.005 rev/s", wheel_white_revps=0.005, wheel_white_fraction=0.01),
-    NoiseProfile("markov", "coloured wheel-rate errors: 0.03 rev/s per wheel, first-order "
-                 "Gauss-Markov over 0.5 s", wheel_markov_revps=0.03),
+    NoiseProfile("markov", "coloured wheel-rate errors: 0.015 rev/s per wheel, first-order "
+                 "Gauss-Markov over 0.5 s", wheel_markov_revps=0.015),
     NoiseProfile("slip", "wheel slip: 0.5% of speed common to both wheels and 0.05% between them, "
                  "correlated over 1 s, plus 0.3% per m/s^2 of acceleration", **_SLIP),
-    NoiseProfile("slip-heavy", "slip-dominated: 2% of speed common and 0.2% between the wheels, "
-                 "correlated over 1 s, plus 1% per m/s^2 of acceleration, and 0.005 rev/s white",
-                 slip_fraction=0.02, slip_differential=0.002, slip_per_accel=0.01,
+    NoiseProfile("slip-heavy", "slip-dominated: 1% of speed common and 0.1% between the wheels, "
+                 "correlated over 1 s, plus 0.6% per m/s^2 of acceleration, and 0.005 rev/s white",
+                 slip_fraction=0.01, slip_differential=0.001, slip_per_accel=0.006,
                  wheel_white_revps=0.005),
     NoiseProfile("quantised", "encoder quantisation: 96 ticks per revolution, counted over 100 ms",
                  ticks_per_rev=96),
@@ -125,8 +125,8 @@ NOISE_PROFILES: MappingProxyType[str, NoiseProfile] = MappingProxyType({p.name: 
                  reference_position_m=0.05, reference_heading_rad=0.1 * _DEG,
                  reference_correlation_s=2.0, reference_slow_position_m=0.3,
                  reference_slow_heading_rad=0.3 * _DEG),
-    NoiseProfile("heavy", "heavy white noise with slip: 0.10 rev/s white plus the slip profile",
-                 wheel_white_revps=0.10, **_SLIP),
+    NoiseProfile("heavy", "heavy white noise with slip: 0.05 rev/s white plus the slip profile",
+                 wheel_white_revps=0.05, **_SLIP),
     NoiseProfile("realistic", "all of it: white noise, slip, quantisation, reference error, IMU "
                  "and sideslip errors", **_REALISTIC),
     NoiseProfile("everything", "realistic plus coloured wheel errors (0.02 rev/s over 0.5 s), a "

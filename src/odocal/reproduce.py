@@ -156,7 +156,7 @@ def reproduce(*, seed: int = 0, noise: str = "realistic", distance_km: float = 2
     def stage(name: str) -> Callable[[int, int], None] | None:
         return (lambda d, t: progress(name, d, t)) if progress else None
 
-    s1 = step1(batch, val, settings, workers=workers, progress=stage("step 1: 50 batches"))
+    s1 = step1(batch, val, settings, progress=stage("step 1: 50 batches"))
     examined = int(s1.order[-1])
     examined_idx = s1.batches[examined]
     exam = batch.take(examined_idx)

@@ -238,6 +238,39 @@ class JointSettings:
 
 
 @dataclass(frozen=True)
+class InverseSettings:
+    """The default method (``inverse``): the wheel revolutions the reference motion implies,
+    fitted to the measured ones over short windows."""
+
+    window_s: float = 2.0
+    """Length of the windows the revolutions are summed over. Longer windows make the
+    reference's own errors smaller against the motion (use 5-10 s with a plain GNSS reference);
+    shorter ones keep more of the lateral-acceleration detail."""
+    delay: Literal["estimate", "off"] = "estimate"
+    """Find the wheel stream's lag behind the reference and apply it."""
+    max_delay_s: float = 0.2
+    """Search range of that lag (either sign)."""
+    heading_offset: Literal["estimate", "off"] = "estimate"
+    """Find a constant rotation of the reference heading against the direction of travel (a
+    mounting yaw) on straight stretches and apply it."""
+    max_iterations: int = 10
+    tolerance: float = 1e-10
+    """Stop when every relative parameter change is below this."""
+
+    def __post_init__(self) -> None:
+        s = "inverse"
+        _check(0 < self.window_s <= 60, s, "window_s", self.window_s, "a time in (0, 60] s")
+        _check(self.delay in ("estimate", "off"), s, "delay", self.delay, "'estimate' or 'off'")
+        _check(0 < self.max_delay_s <= 2, s, "max_delay_s", self.max_delay_s,
+               "a time in (0, 2] s")
+        _check(self.heading_offset in ("estimate", "off"), s, "heading_offset",
+               self.heading_offset, "'estimate' or 'off'")
+        _check(self.max_iterations >= 1, s, "max_iterations", self.max_iterations,
+               "an integer >= 1")
+        _check(self.tolerance >= 0, s, "tolerance", self.tolerance, "a number >= 0")
+
+
+@dataclass(frozen=True)
 class UncertaintySettings:
     """How sure a calibration is: the bootstrap over segments that checks the covariance."""
 
@@ -358,6 +391,7 @@ class Settings:
     minimum: MinimumSettings = field(default_factory=MinimumSettings)
     uncertainty: UncertaintySettings = field(default_factory=UncertaintySettings)
     joint: JointSettings = field(default_factory=JointSettings)
+    inverse: InverseSettings = field(default_factory=InverseSettings)
     convert: ConvertSettings = field(default_factory=ConvertSettings)
     fusion: FusionSettings = field(default_factory=FusionSettings)
     sideslip: SideslipSettings = field(default_factory=SideslipSettings)

@@ -152,19 +152,23 @@ def _identify_batches(args: tuple[SegmentBatch, IntArray, IdentifySettings,
 
 
 def step1(batch: SegmentBatch, validation: RaggedSegments | None, settings: Settings, *,
-          workers: int = 1, held: Mapping[str, NotIdentified] | None = None,
+          held: Mapping[str, NotIdentified] | None = None,
           progress: Callable[[int, int], None] | None = None) -> Step1Result:
-    """Identify independent batches on measured rates, validate, sort and pick."""
+    """Identify independent batches on measured rates, validate, sort and pick.
+
+    The batches run one after another in this process: each is small, and the compiled model
+    kernel already spreads a batch's segments over the cores.
+    """
     cal = settings.calibrate
     batches = draw_batches(len(batch), cal.step1_batches, cal.step1_batch_size, cal.seed)
-    per_task = max(1, -(-batches.shape[0] // (2 * max(workers, 1))))
     # Step 1 estimates every parameter the batch's equations determine, as the paper does: its
     # sets only feed the compensation and are ranked by validation; the verdict on what the drive
     # identifies belongs to the final step.
     identify = dataclasses.replace(settings.identify, judge_identifiability=False)
+    per_task = max(1, -(-batches.shape[0] // 10))
     tasks = [(batch.take(np.unique(batches[lo:lo + per_task])), _reindex(batches[lo:lo + per_task]),
               identify, dict(held or {})) for lo in range(0, batches.shape[0], per_task)]
-    chunks = map_chunks(_identify_batches, tasks, workers=workers,
+    chunks = map_chunks(_identify_batches, tasks, workers=1,
                         weights=[t[1].shape[0] for t in tasks], progress=progress)
     results = tuple(r for chunk in chunks for r in chunk)
     thetas = np.array([r.theta.as_array() for r in results])
@@ -203,7 +207,7 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
         return lambda done, total: progress(name, done, total)
 
     started = time.perf_counter()
-    s1 = step1(batch, validation, settings, workers=workers, held=held,
+    s1 = step1(batch, validation, settings, held=held,
                progress=stage("step 1: batches"))
     timings["step1"] = time.perf_counter() - started
     if not s1.success.any():

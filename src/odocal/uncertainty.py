@@ -11,18 +11,16 @@ drawn with replacement from all step-1 batches, because the compensated rates in
 
 from __future__ import annotations
 
-import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.estimate import Estimate, NotIdentified, Reason
-from odocal.identify import gauss_newton, segment_information
+from odocal.estimate import Estimate
 from odocal.model import PARAMETER_NAMES
-from odocal.segments import SegmentBatch
-from odocal.settings import IdentifySettings, UncertaintySettings
+from odocal.settings import UncertaintySettings
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -63,16 +61,20 @@ class BootstrapResult:
                 "message": self.message}
 
 
-def bootstrap(batch: SegmentBatch, result: Estimate, clusters: IntArray, *,
-              identify: IdentifySettings, settings: UncertaintySettings, seed: int,
+def bootstrap(result: Estimate, information: FloatArray, scores: FloatArray, clusters: IntArray,
+              *, settings: UncertaintySettings, seed: int,
+              refit: Callable[[IntArray], FloatArray] | None = None,
               step1_thetas: FloatArray | None = None, step1_sets: int = 0) -> BootstrapResult:
-    """Resample clusters of segments (and step-1 sets) and re-estimate theta.
+    """Resample clusters of units (segments or windows, and step-1 sets); re-estimate theta.
 
     Parameters
     ----------
-    batch : the segments ``result`` was identified from (with the rates it used)
-    result : the identification to check
-    clusters : group label per segment (segments that overlap share a label)
+    result : the estimate to check
+    information : ndarray, shape (N, 4, 4), each unit's ``J^T W J`` at the estimate
+    scores : ndarray, shape (N, 4), each unit's ``J^T W R`` at the estimate
+    clusters : group label per unit (units that overlap or correlate share a label)
+    refit : for ``bootstrap_mode = "full"``: theta re-estimated from the units with the given
+        indices (repeats allowed); one Gauss-Newton step from the estimate when None
     step1_thetas : ndarray, shape (B, 4), every step-1 batch's theta (three-step method only)
     step1_sets : how many step-1 sets the compensation averaged
     """
@@ -86,26 +88,22 @@ def bootstrap(batch: SegmentBatch, result: Estimate, clusters: IntArray, *,
     if free.any() and n_clusters > 1:
         draws = [np.bincount(rng.integers(0, n_clusters, n_clusters), minlength=n_clusters)
                  for _ in range(count)]
-        if settings.bootstrap_mode == "one-step":
-            info = segment_information(batch, theta, np.asarray(identify.weights))
-            h = np.zeros((n_clusters, 4, 4))
-            g = np.zeros((n_clusters, 4))
-            np.add.at(h, index, info)
-            np.add.at(g, index, result.details.segment_scores)
-            cols = np.flatnonzero(free)
-            for b, w in enumerate(draws):
-                hw = np.einsum("c,cij->ij", w.astype(float), h)[np.ix_(cols, cols)]
-                samples[b, cols] = theta[cols] + np.linalg.solve(hw, w @ g[:, cols])
-        else:
-            loose = dataclasses.replace(identify, judge_identifiability=False, max_iterations=3)
-            held = {name: NotIdentified(Reason.HELD) for name, ok in zip(PARAMETER_NAMES, free,
-                                                                          strict=True) if not ok}
+        if settings.bootstrap_mode == "full" and refit is not None:
             members = [np.flatnonzero(index == c) for c in range(n_clusters)]
             for b, w in enumerate(draws):
                 take = np.concatenate([np.tile(members[c], int(k)) for c, k in enumerate(w)
                                        if k])
-                samples[b] = gauss_newton(batch.take(take), settings=loose, start=theta,
-                                          held=held).theta.as_array()
+                samples[b] = refit(take)
+        else:
+            h = np.zeros((n_clusters, 4, 4))
+            g = np.zeros((n_clusters, 4))
+            np.add.at(h, index, information)
+            np.add.at(g, index, scores)
+            cols = np.flatnonzero(free)
+            for b, w in enumerate(draws):
+                hw = np.einsum("c,cij->ij", w.astype(float), h)[np.ix_(cols, cols)]
+                samples[b, cols] = theta[cols] + np.linalg.lstsq(hw, w @ g[:, cols],
+                                                                 rcond=None)[0]
     if step1_thetas is not None and step1_sets > 0 and step1_thetas.shape[0] > 1:
         # the compensated rates inherit the mean of the step-1 sets: redraw those sets
         centre = step1_thetas.mean(axis=0)

@@ -98,17 +98,34 @@ class MinimumResult:
 
     theta : the minimising parameters
     mean_error_m : the minimum E_p, m
-    success, message : the optimiser's status
+    start : the centre of the search box; ``start_error_m`` its E_p
+    converged, message : the optimiser's status (it may stop at its generation limit)
     evaluations : how many times E_p was evaluated
     bounds : the search box, shape (4, 2)
+    segments : validation segments searched over
     """
 
     theta: Parameters
     mean_error_m: float
-    success: bool
+    start: Parameters
+    start_error_m: float
+    converged: bool
     message: str
     evaluations: int
     bounds: FloatArray
+    segments: int
+
+    @property
+    def success(self) -> bool:
+        """Whether the search improved on its starting point."""
+        return self.mean_error_m < self.start_error_m or self.converged
+
+    def to_dict(self) -> dict[str, object]:
+        return {"theta": self.theta.as_dict(), "E_p_m": self.mean_error_m,
+                "start": {"theta": self.start.as_dict(), "E_p_m": self.start_error_m},
+                "converged": self.converged, "success": self.success, "message": self.message,
+                "evaluations": self.evaluations, "segments": self.segments,
+                "bounds": np.asarray(self.bounds).tolist()}
 
 
 def reachable_minimum(data: RaggedSegments, start: FloatArray, *, settings: MinimumSettings,
@@ -136,5 +153,7 @@ def reachable_minimum(data: RaggedSegments, start: FloatArray, *, settings: Mini
         message += "; the minimum lies on the edge of the search box (widen [minimum] half_width)"
         log.warning("reachable minimum on the edge of the search box")
     return MinimumResult(theta=Parameters.from_array(result.x), mean_error_m=float(result.fun),
-                         success=bool(result.success), message=message,
-                         evaluations=int(result.nfev), bounds=bounds)
+                         start=Parameters.from_array(start),
+                         start_error_m=mean_error(start, data),
+                         converged=bool(result.success), message=message,
+                         evaluations=int(result.nfev), bounds=bounds, segments=len(data))

@@ -37,7 +37,7 @@ def thin(points: FloatArray, limit: int = MAX_LINE_POINTS) -> FloatArray:
     return points[index]
 
 
-def bars(ax: Axes, x: FloatArray, heights: FloatArray, *, width: float | FloatArray,
+def bars(ax: Axes, x: NDArray[Any], heights: NDArray[Any], *, width: float | FloatArray,
          color: str | Sequence[str], label: str | None = None, bottom: float = 0.0,
          align: str = "center") -> PolyCollection:
     """Bars as one collection (the look of ``ax.bar``, one artist for all of them)."""
@@ -222,4 +222,26 @@ def plot_uncertainty(ax: Axes, covariance_std: FloatArray, bootstrap_std: FloatA
     ax.set_ylabel("standard deviation / datasheet uncertainty")
     ax.legend(fontsize=8)
     ax.grid(True, axis="y", alpha=0.3, which="both")
+    return artists
+
+
+def plot_inverse_fit(ax: Axes, measured: FloatArray, residual: FloatArray, *,
+                     channel: int) -> list[Any]:
+    """Measured window revolutions against those the reference motion implies (one channel).
+
+    ``channel`` 0: distance (mean of the two wheels); 1: yaw (right minus left).
+    """
+    implied = measured[:, channel] - residual[:, channel]
+    pts = thin(np.column_stack([implied, measured[:, channel]]), 4000)
+    lo, hi = float(np.min(pts)), float(np.max(pts))
+    name = ("distance: mean of both wheels" if channel == 0
+            else "yaw: right minus left wheel")
+    artists = [ax.scatter(pts[:, 0], pts[:, 1], s=3, color=CALIBRATED, alpha=0.5,
+                          label="windows"),
+               ax.plot([lo, hi], [lo, hi], color=REFERENCE, lw=1, label="measured = implied")[0]]
+    ax.set_xlabel("revolutions the reference motion implies [rev]")
+    ax.set_ylabel("measured revolutions [rev]")
+    ax.set_title(name, fontsize=9)
+    ax.legend(fontsize=8, loc="upper left")
+    ax.grid(True, alpha=0.3)
     return artists

@@ -103,6 +103,19 @@ def _rates(result: CalibrationResult, data: ReportData) -> Rendered:
             "with the highest lateral acceleration.", _png(fig))
 
 
+def _inverse(result: CalibrationResult, data: ReportData) -> Rendered:
+    from odocal.inverse import InverseDetails
+
+    d = result.estimate.details
+    if not isinstance(d, InverseDetails) or d.windows == 0:
+        return None
+    fig, axes = _figure(10.0, 3.6, 1, 2)
+    for channel in (0, 1):
+        figures.plot_inverse_fit(axes[0][channel], d.measured, d.residual, channel=channel)
+    return (f"The fit: each {d.window_s:.0f} s window's measured wheel revolutions against those "
+            "the reference motion implies with the calibrated parameters.", _png(fig))
+
+
 def _segments(result: CalibrationResult, data: ReportData) -> Rendered:
     if not data.segment_errors:
         return None
@@ -137,8 +150,8 @@ def _uncertainty(result: CalibrationResult, data: ReportData) -> Rendered:
 
 #: Every figure of the page, in page order.
 FIGURES: dict[str, Callable[[CalibrationResult, ReportData], Rendered]] = {
-    "map": _map, "step1": _step1, "spread": _spread, "rates": _rates, "segments": _segments,
-    "coverage": _coverage, "uncertainty": _uncertainty}
+    "map": _map, "inverse": _inverse, "step1": _step1, "spread": _spread, "rates": _rates,
+    "segments": _segments, "coverage": _coverage, "uncertainty": _uncertainty}
 
 # The job the forked renderers draw from (set only while a pool renders).
 _JOB: tuple[CalibrationResult, ReportData] | None = None
@@ -255,6 +268,7 @@ def _page(result: CalibrationResult, data: ReportData,
  else 'No bootstrap.'}</p>
 {val}
 <h2>Map</h2>{fig('map')}
+{"<h2>The fit</h2>" + fig('inverse') if 'inverse' in figs else ""}
 <h2>Validation</h2>{fig('segments')}
 {"<h2>The paper's views</h2>" + paper if paper else ""}
 <h2>Uncertainty</h2>{fig('uncertainty')}

@@ -1,0 +1,520 @@
+"""The default method (``inverse``): the wheel rates as the measurement, the motion as the model.
+
+The paper's Gauss-Newton rolls the model out *with the measured wheel rates as inputs* and fits
+the poses. Wheel-rate noise then sits in the regressors: integrated along a segment it blurs the
+heading, which shrinks the rolled-out trajectory (c_e comes out too large) and attenuates the
+yaw-rate gain (t_r comes out too large): the errors-in-variables bias, which grows with the
+square of the noise. The three-step method inherits it from its step-1 sets; compensation cannot
+remove what it does not know.
+
+Here the model runs the other way (:func:`odocal.model.inverse_revolutions`): from the reference
+motion of each step (along-track displacement ``ds`` and heading change ``dpsi``, by (1)
+inverted), (2)-(3) give the revolutions each rear wheel must have turned::
+
+    n_rl t_s = (ds - t_r dpsi / 2) / c_rl,      n_rr t_s = (ds + t_r dpsi / 2) / c_rr
+
+and theta is fitted to the *measured* revolutions, summed over short windows (``window_s``).
+Wheel errors of every kind that is independent of the reference (white, growing with the rate,
+coloured, slip, quantisation) are now in the measurement, where least squares is unbiased; only
+the reference's own errors sit in the regressors, and over a window of seconds they are tiny
+against the motion (a heading error of 0.2 degrees against the turns of a city drive attenuates
+t_r by well under a millimetre).
+
+What remains is done from the data:
+
+* **Weights.** The windows' residuals, in a sum channel (distance: c_e) and a difference channel
+  (yaw: t_r, c_d, d), get a variance that grows with the revolutions, ``s0^2 + (f rev)^2`` (white
+  noise; slip and rate-proportional noise), fitted to the residuals; spikes beyond four standard
+  deviations are down-weighted (Huber) and counted.
+* **Clock offset.** A wheel stream that lags the reference (a logging delay, or the window an ABS
+  unit counts its ticks over) biases the yaw terms in every bend. The lag is found by scanning
+  the yaw channel's cost over shifts of the reference side (which carries no wheel noise) and
+  refining the minimum by a parabola; it is reported and applied. (The distance channel is left
+  out: slip that grows with acceleration looks like a lag there.)
+* **Heading offset.** A reference heading rotated against the direction of travel (a mounting
+  yaw) shortens every projected step by the cosine of the offset; it is measured on the straight
+  stretches and applied.
+* **Uncertainty.** The covariance is a sandwich over clusters of windows (neighbouring clusters'
+  cross products included), so correlated and mis-weighted errors widen it rather than hide.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal.drive import Drive
+from odocal.estimate import (
+    CovarianceKind,
+    Estimate,
+    NotIdentified,
+    Reason,
+    Status,
+    few_clusters_inflation,
+    held_as_weak,
+    judge,
+    weak,
+)
+from odocal.identify import robust_covariance
+from odocal.model import PARAMETER_NAMES, Parameters, inverse_revolutions, motion_increments
+from odocal.segments import common_sampling_time
+from odocal.settings import Settings
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+log = logging.getLogger(__name__)
+
+_HUBER = 4.0              # residuals beyond this many standard deviations are down-weighted
+_MIN_CLUSTERS_FOR_ROBUST = 10
+
+
+@dataclass(frozen=True)
+class _Steps:
+    """Every step of every piece of every drive, one after another.
+
+    ds, dpsi, a_y : per step (see :func:`odocal.model.motion_increments`)
+    revs : ndarray, shape (S, 2), measured wheel revolutions of each step (n t_s)
+    piece_start, piece_stop : ndarray of int, the step range of each piece
+    time_s : ndarray, shape (S,), the time of each step (for clustering)
+    drive : ndarray of int, shape (S,), the drive of each step
+    """
+
+    ds: FloatArray
+    dpsi: FloatArray
+    a_y: FloatArray
+    revs: FloatArray
+    piece_start: IntArray
+    piece_stop: IntArray
+    time_s: FloatArray
+    drive: IntArray
+    speed: FloatArray
+
+
+def _steps(drives: Sequence[Drive], heading_offset: float = 0.0) -> _Steps:
+    parts: dict[str, list[FloatArray]] = {k: [] for k in ("ds", "dpsi", "a_y", "revs", "t", "drv",
+                                                           "speed")}
+    starts, stops = [], []
+    count = 0
+    for i, d in enumerate(drives):
+        for a, b in d.pieces:
+            if b - a < 2:
+                continue
+            ds, dpsi = motion_increments(d.x[a:b], d.y[a:b], d.psi[a:b],
+                                         d.beta[a:b] + heading_offset)
+            parts["ds"].append(ds)
+            parts["dpsi"].append(dpsi)
+            parts["a_y"].append(d.a_y[a:b - 1])
+            parts["revs"].append(np.column_stack([d.n_rl[a:b - 1], d.n_rr[a:b - 1]]) * d.t_s)
+            parts["t"].append(d.t[a:b - 1])
+            parts["drv"].append(np.full(b - a - 1, i, dtype=np.float64))
+            parts["speed"].append(np.hypot(np.diff(d.x[a:b]), np.diff(d.y[a:b])) / d.t_s)
+            starts.append(count)
+            count += b - a - 1
+            stops.append(count)
+    cat = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
+    return _Steps(ds=cat["ds"], dpsi=cat["dpsi"], a_y=cat["a_y"],
+                  revs=cat["revs"].reshape(-1, 2), piece_start=np.array(starts, dtype=np.int64),
+                  piece_stop=np.array(stops, dtype=np.int64), time_s=cat["t"],
+                  drive=cat["drv"].astype(np.int64), speed=cat["speed"])
+
+
+@dataclass(frozen=True)
+class _Windows:
+    """Windows of ``length`` steps inside the pieces, leaving ``margin`` steps at each end (room
+    for the clock-offset shift)."""
+
+    start: IntArray
+    length: int
+    measured: FloatArray          # (W, 2) measured revolutions
+    cluster: IntArray             # (W,) cluster label
+
+
+def _windows(steps: _Steps, length: int, margin: int, cluster_steps: int) -> _Windows:
+    starts = []
+    for a, b in zip(steps.piece_start, steps.piece_stop, strict=True):
+        lo, hi = a + margin, b - margin
+        n = (hi - lo) // length
+        if n > 0:
+            starts.append(lo + length * np.arange(n, dtype=np.int64))
+    start = np.concatenate(starts) if starts else np.zeros(0, dtype=np.int64)
+    cum = np.concatenate([np.zeros((1, 2)), np.cumsum(steps.revs, axis=0)])
+    measured = cum[start + length] - cum[start]
+    moving = np.abs(measured).sum(axis=1) > 0       # a window at a standstill says nothing
+    start, measured = start[moving], measured[moving]
+    cluster = steps.drive[start] * (10**9) + (start // max(cluster_steps, 1))
+    return _Windows(start=start, length=length, measured=measured,
+                    cluster=cluster.astype(np.int64))
+
+
+def _predict(theta: FloatArray, steps: _Steps, win: _Windows,
+             shift: float) -> tuple[FloatArray, FloatArray]:
+    """Predicted revolutions of each window (W, 2) and their Jacobian (W, 2, 4).
+
+    ``shift`` (steps, may be fractional) moves the reference side back in time: the wheel window
+    [s, e) is compared with the motion over [s - shift, e - shift).
+    """
+    revs, jac = inverse_revolutions(theta, steps.ds, steps.dpsi, steps.a_y)
+    cum = np.concatenate([np.zeros((1, 2)), np.cumsum(revs, axis=0)])
+    cum_j = np.concatenate([np.zeros((1, 2, 4)), np.cumsum(jac, axis=0)])
+
+    def at(index: FloatArray, table: FloatArray) -> FloatArray:
+        lo = np.floor(index).astype(np.int64)
+        frac = (index - lo).reshape((-1,) + (1,) * (table.ndim - 1))
+        return table[lo] * (1.0 - frac) + table[np.minimum(lo + 1, table.shape[0] - 1)] * frac
+
+    s = win.start.astype(np.float64) - shift
+    e = s + win.length
+    return at(e, cum) - at(s, cum), at(e, cum_j) - at(s, cum_j)
+
+
+_CHANNELS = np.array([[0.5, 0.5], [-1.0, 1.0]])   # sum (distance) and difference (yaw) channels
+
+
+@dataclass
+class _Fit:
+    theta: FloatArray
+    residual: FloatArray          # (W, 2) channel residuals
+    jac: FloatArray               # (W, 2, 4) channel Jacobian
+    weight: FloatArray            # (W, 2)
+    cost: float
+    iterations: int
+    history: list[float] = field(default_factory=list)
+
+
+def _solve(theta0: FloatArray, steps: _Steps, win: _Windows, shift: float, free: BoolArray,
+           noise: FloatArray, max_iterations: int, tolerance: float) -> _Fit:
+    """Weighted Gauss-Newton on the channel residuals (the model is nearly linear in theta)."""
+    theta = theta0.copy()
+    history: list[float] = []
+    iterations = 0
+    fit: _Fit | None = None
+    for _ in range(max_iterations + 1):
+        pred, jac = _predict(theta, steps, win, shift)
+        r = (win.measured - pred) @ _CHANNELS.T
+        j = np.einsum("ci,wip->wcp", _CHANNELS, jac)
+        w = _weights(win.measured, r, noise)
+        cost = float(np.sum(w * r**2))
+        history.append(cost)
+        fit = _Fit(theta, r, j, w, cost, iterations, history)
+        if iterations == max_iterations or not free.any():
+            break
+        sw = np.sqrt(w)
+        a = (j * sw[..., None]).reshape(-1, 4)[:, free]
+        b = (r * sw).ravel()
+        step = np.zeros(4)
+        step[free] = np.linalg.lstsq(a, b, rcond=None)[0]
+        theta = theta + step
+        iterations += 1
+        scale = np.maximum(np.abs(theta), 1e-3)
+        if np.max(np.abs(step) / scale) < tolerance:
+            pred, jac = _predict(theta, steps, win, shift)
+            r = (win.measured - pred) @ _CHANNELS.T
+            j = np.einsum("ci,wip->wcp", _CHANNELS, jac)
+            w = _weights(win.measured, r, noise)
+            cost = float(np.sum(w * r**2))
+            history.append(cost)
+            fit = _Fit(theta, r, j, w, cost, iterations, history)
+            break
+    assert fit is not None
+    return fit
+
+
+def _weights(measured: FloatArray, residual: FloatArray, noise: FloatArray) -> FloatArray:
+    """1 / variance per window and channel from the noise model, Huber-limited."""
+    w = 1.0 / _variance(measured, noise)
+    z = np.abs(residual) * np.sqrt(w)
+    return w * np.minimum(1.0, _HUBER / np.maximum(z, 1e-300))
+
+
+def _variance(measured: FloatArray, noise: FloatArray) -> FloatArray:
+    """``s0^2 + (f rev)^2`` per channel; ``noise`` is (2, 2): rows channels, columns s0, f."""
+    rev = np.abs(measured.mean(axis=1))[:, None]
+    return noise[None, :, 0] ** 2 + (noise[None, :, 1] * rev) ** 2
+
+
+def _fit_noise(measured: FloatArray, residual: FloatArray) -> FloatArray:
+    """The noise model ``s0, f`` of each channel, fitted to the squared residuals.
+
+    A least-squares fit of ``r^2 ~ s0^2 + f^2 rev^2`` with both terms kept non-negative, the
+    largest 1% of the squared residuals left out (they are the outliers the Huber weights deal
+    with).
+    """
+    rev2 = measured.mean(axis=1) ** 2
+    out = np.empty((2, 2))
+    for c in range(2):
+        r2 = residual[:, c] ** 2
+        keep = r2 <= np.quantile(r2, 0.99) if r2.size > 100 else np.ones(r2.size, dtype=bool)
+        coef = _nonnegative_line(rev2[keep], r2[keep])
+        floor = max(float(np.median(r2[keep])) * 1e-3, 1e-24)
+        out[c] = np.sqrt(max(coef[0], floor)), np.sqrt(coef[1])
+    return out
+
+
+def _nonnegative_line(x: FloatArray, y: FloatArray) -> tuple[float, float]:
+    """``y ~ a + b x`` by least squares with ``a, b >= 0`` (two unknowns: check the faces)."""
+    if x.size == 0:
+        return 0.0, 0.0
+    design = np.column_stack([np.ones(x.size), x])
+    a, b = np.linalg.lstsq(design, y, rcond=None)[0]
+    if a >= 0 and b >= 0:
+        return float(a), float(b)
+    only_a = (max(float(np.mean(y)), 0.0), 0.0)
+    xx = float(x @ x)
+    only_b = (0.0, max(float(x @ y) / xx, 0.0)) if xx > 0 else (0.0, 0.0)
+    cost = [float(np.sum((y - c[0] - c[1] * x) ** 2)) for c in (only_a, only_b)]
+    return only_a if cost[0] <= cost[1] else only_b
+
+
+@dataclass(frozen=True)
+class InverseDetails:
+    """What the inverse-model calibration did.
+
+    windows, window_s, clusters : the windows fitted and their grouping for the covariance
+    delay_s : the wheel stream's lag behind the reference that was found and applied (positive:
+        the wheels are late); ``delay_std_s`` its standard deviation (nan: not determined)
+    heading_offset_rad : the reference heading's rotation against the direction of travel, found
+        on straight stretches and applied
+    noise : the fitted noise model, per channel (distance, yaw): ``s0`` (revolutions per window)
+        and ``f`` (fraction of the revolutions)
+    downweighted : windows whose residual exceeded four standard deviations
+    iterations, cost_history : of the final fit
+    residual_rms : RMS of the channel residuals (revolutions per window)
+    """
+
+    windows: int
+    window_s: float
+    clusters: int
+    delay_s: float
+    delay_std_s: float
+    heading_offset_rad: float
+    noise: tuple[tuple[float, float], tuple[float, float]]
+    downweighted: int
+    iterations: int
+    cost_history: tuple[float, ...]
+    residual_rms: tuple[float, float]
+    elapsed_s: float
+    information: FloatArray = field(repr=False)
+    scores: FloatArray = field(repr=False)
+    cluster: IntArray = field(repr=False)
+    measured: FloatArray = field(repr=False)
+    """(W, 2): each window's measured revolutions in the distance and yaw channels."""
+    residual: FloatArray = field(repr=False)
+    """(W, 2): measured minus what the motion implies, same channels."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"windows": self.windows, "window_s": self.window_s, "clusters": self.clusters,
+                "delay_s": self.delay_s, "delay_std_s": self.delay_std_s,
+                "heading_offset_rad": self.heading_offset_rad,
+                "noise": {"distance": {"s0_rev": self.noise[0][0], "f": self.noise[0][1]},
+                          "yaw": {"s0_rev": self.noise[1][0], "f": self.noise[1][1]}},
+                "downweighted_windows": self.downweighted, "iterations": self.iterations,
+                "cost_history": list(self.cost_history),
+                "residual_rms_rev": {"distance": self.residual_rms[0],
+                                     "yaw": self.residual_rms[1]},
+                "elapsed_s": self.elapsed_s}
+
+
+def heading_offset(drives: Sequence[Drive], *, min_speed_mps: float = 3.0,
+                   max_yaw_rate_radps: float = 0.02) -> tuple[float, int]:
+    """The reference heading's constant rotation against the direction of travel, on straights.
+
+    Returns the offset (rad; add it to the heading to get the course) and how many samples it
+    rests on. Over one-second stretches the course is the direction of the displacement.
+    """
+    lat = lon = 0.0
+    used = 0
+    for d in drives:
+        step = max(round(1.0 / d.t_s), 1)
+        for a, b in d.pieces:
+            idx = np.arange(a, b - step, step)
+            if idx.size == 0:
+                continue
+            dx = d.x[idx + step] - d.x[idx]
+            dy = d.y[idx + step] - d.y[idx]
+            psi = 0.5 * (d.psi[idx] + d.psi[idx + step])
+            speed = np.hypot(dx, dy) / (step * d.t_s)
+            turn = np.abs(d.psi[idx + step] - d.psi[idx]) / (step * d.t_s)
+            ok = (speed > min_speed_mps) & (turn < max_yaw_rate_radps)
+            lon += float(np.sum((dx * np.cos(psi) + dy * np.sin(psi))[ok]))
+            lat += float(np.sum((-dx * np.sin(psi) + dy * np.cos(psi))[ok]))
+            used += int(ok.sum()) * step
+    return (float(np.arctan2(lat, lon)) if lon > 0 else 0.0), used
+
+
+def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
+                        held: Mapping[str, NotIdentified] | None = None,
+                        progress: Callable[[str, int, int], None] | None = None) -> Estimate:
+    """Calibrate theta by fitting the wheel revolutions the reference motion implies.
+
+    Returns an :class:`~odocal.estimate.Estimate` with :class:`InverseDetails`.
+    """
+    started = time.perf_counter()
+    cfg = settings.inverse
+    t_s = common_sampling_time(drives)
+    datasheet = np.asarray(settings.identify.theta0, dtype=np.float64)
+    held = dict(held or {})
+    free = np.array([name not in held for name in PARAMETER_NAMES])
+    offset, offset_samples = (heading_offset(drives) if cfg.heading_offset == "estimate"
+                              else (0.0, 0))
+    if offset_samples < 200:          # five seconds of straight driving at least
+        offset = 0.0
+    steps = _steps(drives, heading_offset=offset)
+    length = max(round(cfg.window_s / t_s), 1)
+    margin = int(np.ceil(cfg.max_delay_s / t_s)) + 1 if cfg.delay == "estimate" else 0
+    win = _windows(steps, length, margin, settings.segments.length)
+    if win.start.size < 4:
+        log.warning("inverse calibration: the drives hold fewer than four moving windows")
+        return _nothing(settings, datasheet, held, started, win)
+
+    noise = np.array([[1e-3, 1e-3], [1e-3, 1e-3]])
+    if progress:
+        progress("inverse: fit", 0, 4)
+    fit = _solve(datasheet, steps, win, 0.0, free, noise, cfg.max_iterations, cfg.tolerance)
+    noise = _fit_noise(win.measured, fit.residual)
+    shift, shift_std = 0.0, float("nan")
+    if cfg.delay == "estimate":
+        fit = _solve(fit.theta, steps, win, 0.0, free, noise, cfg.max_iterations, cfg.tolerance)
+        shift, shift_std = _scan_delay(fit.theta, steps, win, noise, margin - 1)
+    if progress:
+        progress("inverse: fit", 2, 4)
+    for _ in range(2):                  # re-fit the noise model at the final shift
+        fit = _solve(fit.theta, steps, win, shift, free, noise, cfg.max_iterations, cfg.tolerance)
+        noise = _fit_noise(win.measured, fit.residual)
+    fit = _solve(fit.theta, steps, win, shift, free, noise, cfg.max_iterations, cfg.tolerance)
+    n_clusters = int(np.unique(win.cluster).size)
+    for _ in range(len(PARAMETER_NAMES)):
+        cov, info, scores = _covariance(fit, free, win.cluster, n_clusters)
+        std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        if n_clusters < 2 and free.any() and settings.identify.judge_identifiability:
+            for j in np.flatnonzero(free):
+                held[PARAMETER_NAMES[j]] = NotIdentified(Reason.ONE_CLUSTER, float(std[j]),
+                                                         detail=float(n_clusters))
+            free[:] = False
+        else:
+            too_weak = weak(std, free, settings.identify)
+            if not too_weak.any():
+                break
+            held.update(held_as_weak(std, too_weak, settings.identify))
+            free = free & ~too_weak
+        theta = fit.theta.copy()
+        theta[~free] = datasheet[~free]
+        fit = _solve(theta, steps, win, shift, free, noise, cfg.max_iterations, cfg.tolerance)
+        if not free.any():
+            cov = np.zeros((4, 4))
+            break
+    if progress:
+        progress("inverse: fit", 4, 4)
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    rms = np.sqrt(np.mean(fit.residual**2, axis=0))
+    z = np.abs(fit.residual) * np.sqrt(1.0 / _variance(win.measured, noise))
+    details = InverseDetails(
+        windows=int(win.start.size), window_s=length * t_s, clusters=n_clusters,
+        delay_s=shift * t_s, delay_std_s=shift_std * t_s, heading_offset_rad=offset,
+        noise=((float(noise[0, 0]), float(noise[0, 1])), (float(noise[1, 0]),
+                                                          float(noise[1, 1]))),
+        downweighted=int((z > _HUBER).any(axis=1).sum()), iterations=fit.iterations,
+        cost_history=tuple(fit.history), residual_rms=(float(rms[0]), float(rms[1])),
+        elapsed_s=time.perf_counter() - started, information=info, scores=scores,
+        cluster=win.cluster, measured=win.measured @ _CHANNELS.T, residual=fit.residual)
+    if not free.any():
+        status = Status.NOTHING_IDENTIFIABLE
+    elif float(np.max(rms)) < 1e-9:
+        status = Status.EXACT
+    else:
+        status = Status.CONVERGED if fit.iterations < cfg.max_iterations \
+            else Status.ITERATION_LIMIT
+    theta = fit.theta.copy()
+    theta[~free] = datasheet[~free]
+    return Estimate(method="inverse", theta=Parameters.from_array(theta),
+                    datasheet=Parameters.from_array(datasheet), covariance=cov,
+                    covariance_kind=(CovarianceKind.CLUSTER_ROBUST
+                                     if n_clusters >= _MIN_CLUSTERS_FOR_ROBUST
+                                     else CovarianceKind.RESIDUAL),
+                    free=tuple(bool(f) for f in free),  # type: ignore[arg-type]
+                    verdicts=judge(std, free, settings.identify, held=held), status=status,
+                    details=details)
+
+
+def _nothing(settings: Settings, datasheet: FloatArray, held: dict[str, NotIdentified],
+             started: float, win: _Windows) -> Estimate:
+    for name in PARAMETER_NAMES:
+        held.setdefault(name, NotIdentified(Reason.NO_INFORMATION))
+    details = InverseDetails(
+        windows=int(win.start.size), window_s=win.length * 0.0, clusters=0, delay_s=0.0,
+        delay_std_s=float("nan"), heading_offset_rad=0.0, noise=((0.0, 0.0), (0.0, 0.0)),
+        downweighted=0, iterations=0, cost_history=(), residual_rms=(0.0, 0.0),
+        elapsed_s=time.perf_counter() - started, information=np.zeros((0, 4, 4)),
+        scores=np.zeros((0, 4)), cluster=np.zeros(0, dtype=np.int64),
+        measured=np.zeros((0, 2)), residual=np.zeros((0, 2)))
+    return Estimate(method="inverse", theta=Parameters.from_array(datasheet),
+                    datasheet=Parameters.from_array(datasheet), covariance=np.zeros((4, 4)),
+                    covariance_kind=CovarianceKind.NONE, free=(False, False, False, False),
+                    verdicts=judge(np.zeros(4), np.zeros(4, dtype=bool), settings.identify,
+                                   held=held),
+                    status=Status.NOTHING_IDENTIFIABLE, details=details)
+
+
+def _scan_delay(theta: FloatArray, steps: _Steps, win: _Windows, noise: FloatArray,
+                limit: int) -> tuple[float, float]:
+    """The shift (steps) of the reference side that fits the wheels best, and its std.
+
+    The yaw channel's cost is scanned at half-step spacing with theta fixed, and the minimum
+    refined by a parabola through it and its neighbours; the parabola's curvature gives the std
+    (the cost is a weighted sum of squares with unit-variance residuals near the minimum). A
+    shift within three standard deviations of zero, or a flat cost (no turning to time the
+    wheels by), is not applied.
+    """
+    grid = np.arange(-limit, limit + 0.25, 0.5)
+    costs = np.empty(grid.size)
+    for i, shift in enumerate(grid):
+        pred, _ = _predict(theta, steps, win, float(shift))
+        r = (win.measured - pred) @ _CHANNELS.T
+        # the yaw channel times the wheels: slip that grows with acceleration is common to both
+        # wheels and would pass for a lag in the distance channel
+        costs[i] = float(np.sum((_weights(win.measured, r, noise) * r**2)[:, 1]))
+    i = int(np.argmin(costs))
+    if i == 0 or i == grid.size - 1:
+        log.warning("inverse calibration: the wheel clock offset lies at the edge of the search "
+                    "range; none applied (widen [inverse] max_delay_s)")
+        return 0.0, float("nan")
+    c0, c1, c2 = costs[i - 1:i + 2]
+    curvature = (c0 - 2.0 * c1 + c2) / 0.25            # d^2 cost / d shift^2
+    if curvature <= 0:
+        return 0.0, float("nan")
+    best = float(grid[i] + 0.5 * 0.5 * (c0 - c2) / (c0 - 2.0 * c1 + c2))
+    std = float(np.sqrt(2.0 / curvature))
+    if abs(best) < 3.0 * std:                          # not distinguishable from no lag
+        return 0.0, std
+    return best, std
+
+
+def _covariance(fit: _Fit, free: BoolArray, cluster: IntArray,
+                n_clusters: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Sandwich covariance over clusters of windows; per-window information and scores."""
+    jw = fit.jac * fit.weight[..., None]
+    info = np.einsum("wcp,wcq->wpq", jw, fit.jac)            # (W, 4, 4)
+    scores = np.einsum("wcp,wc->wp", jw, fit.residual)      # (W, 4)
+    h = info.sum(axis=0)
+    h_inv = np.zeros((4, 4))
+    cols = np.flatnonzero(free)
+    if cols.size:
+        h_inv[np.ix_(cols, cols)] = np.linalg.pinv(h[np.ix_(cols, cols)])
+    if n_clusters >= _MIN_CLUSTERS_FOR_ROBUST:
+        cov = robust_covariance(h_inv, scores, free, cluster)
+    else:
+        dof = max(fit.residual.size - int(free.sum()), 1)
+        naive = (fit.cost / dof) * h_inv
+        robust = robust_covariance(h_inv, scores, free, cluster) if n_clusters >= 2 else naive
+        s_n = np.sqrt(np.clip(np.diag(naive), 0.0, None))
+        s_r = np.sqrt(np.clip(np.diag(robust), 0.0, None))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.where(s_n > 0, np.maximum(s_n, s_r) / s_n, 1.0)
+        cov = naive * np.outer(f, f) * few_clusters_inflation(n_clusters) ** 2
+    return cov, info, scores
