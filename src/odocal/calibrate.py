@@ -18,10 +18,11 @@ Methods (:data:`METHODS`)
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -173,14 +174,13 @@ def _run_compensated(prep: Prepared, settings: Settings,
 
 def _run_inverse(prep: Prepared, settings: Settings,
                  progress: ProgressCallback | None) -> MethodOutcome:
-    from odocal.inverse import InverseDetails, inverse_calibration
+    from odocal.inverse import inverse_calibration
 
+    # No bootstrap: its errors telescope (quantised counts, a reference's errors differenced
+    # over windows), which resampling clusters cannot see; the sandwich's full neighbour term
+    # does, and the noise matrix checks it against the truth (benchmarks/bench_matrix.py).
     est = inverse_calibration(prep.drives, settings=settings, held=prep.held, progress=progress)
-    d = est.details
-    terms = None
-    if isinstance(d, InverseDetails) and d.windows:
-        terms = BootstrapTerms(information=d.information, scores=d.scores, clusters=d.cluster)
-    return MethodOutcome(estimate=est, bootstrap=terms)
+    return MethodOutcome(estimate=est)
 
 
 def _run_joint(prep: Prepared, settings: Settings,
@@ -217,6 +217,8 @@ class CalibrationResult:
     three_step : the three-step method's intermediate results (``compensated`` only)
     batch : the identification segments' data with the measured rates
     drive_data : the drives themselves (for plots)
+    timings_s : wall time of each stage (read, segments, the method's steps, bootstrap,
+        validation)
     """
 
     estimate: Estimate
@@ -232,6 +234,7 @@ class CalibrationResult:
     three_step: ThreeStepOutcome | None = None
     batch: SegmentBatch | None = field(default=None, repr=False)
     drive_data: tuple[Drive, ...] = field(default=(), repr=False)
+    timings_s: dict[str, float] = field(default_factory=dict)
 
     @property
     def theta(self) -> Parameters:
@@ -270,6 +273,7 @@ class CalibrationResult:
         out["details"] = details.to_dict() if hasattr(details, "to_dict") else None
         out["inputs"] = [d.to_dict() for d in self.drives]
         out["elapsed_s"] = self.elapsed_s
+        out["timings_s"] = dict(self.timings_s)
         out["settings"] = self.settings.to_dict()
         out["bootstrap"] = self.bootstrap.to_dict() if self.bootstrap is not None else None
         if self.three_step is not None:
@@ -414,24 +418,60 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     method = method or DEFAULT_METHOD
     if method not in METHODS:
         raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
-    drive_list = load_drives(drives)
-    prep = prepare(drive_list, settings)
-    outcome, estimate, boot = _checked_by_bootstrap(method, prep, settings, progress)
+    clock = Stopwatch(progress)
+    with clock.stage("read"):
+        drive_list = load_drives(drives)
+    with clock.stage("segments"):
+        prep = prepare(drive_list, settings)
+    outcome, estimate, boot = _checked_by_bootstrap(method, prep, settings, clock)
     warnings = [*prep.warnings, *outcome.warnings]
     if boot is not None and not all(boot.agree):
         warnings.append(boot.message)
     val = datasheet = None
-    if prep.validation is not None:
-        val = validation(estimate.theta, prep.validation, prep.validation_segments, drive_list)
-        datasheet = validation(estimate.datasheet, prep.validation, prep.validation_segments,
-                               drive_list)
+    with clock.stage("validation"):
+        if prep.validation is not None:
+            val = validation(estimate.theta, prep.validation, prep.validation_segments,
+                             drive_list)
+            datasheet = validation(estimate.datasheet, prep.validation,
+                                   prep.validation_segments, drive_list)
     for w in warnings:
         log.warning("%s", w)
     return CalibrationResult(
         estimate=estimate, validation=val, datasheet_validation=datasheet,
         segments=prep.segments, used=prep.used, drives=summarise(drive_list), settings=settings,
         warnings=tuple(warnings), elapsed_s=time.perf_counter() - started, bootstrap=boot,
-        three_step=outcome.three_step, batch=prep.batch, drive_data=tuple(drive_list))
+        three_step=outcome.three_step, batch=prep.batch, drive_data=tuple(drive_list),
+        timings_s=dict(clock.seconds))
+
+
+class Stopwatch:
+    """A progress callback that also times each stage (and passes progress on).
+
+    A stage starts when it first reports ``done == 0`` (or enters :meth:`stage`) and its time
+    accumulates until it reports ``done >= total``.
+    """
+
+    def __init__(self, progress: ProgressCallback | None = None) -> None:
+        self.progress = progress
+        self.seconds: dict[str, float] = {}
+        self._open: dict[str, float] = {}
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        now = time.perf_counter()
+        if stage not in self._open and done < total:
+            self._open[stage] = now
+        if done >= total and stage in self._open:
+            self.seconds[stage] = self.seconds.get(stage, 0.0) + now - self._open.pop(stage)
+        if self.progress:
+            self.progress(stage, done, total)
+
+    @contextlib.contextmanager
+    def stage(self, name: str) -> Iterator[None]:
+        begun = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - begun
 
 
 def _checked_by_bootstrap(method: str, prep: Prepared, settings: Settings,

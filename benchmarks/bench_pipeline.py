@@ -1,0 +1,69 @@
+"""Speed of ``odocal calibrate`` by stage, for every method and drive length (issue 14).
+
+    python benchmarks/bench_pipeline.py [--minutes 15,60,240] [--methods inverse,raw,...]
+
+For each simulated drive (realistic noise) and method, ``odocal calibrate`` runs as a separate
+process twice: with the report (the wall time a user waits, and the peak memory of the process
+tree) and with ``--no-report``. The split by stage comes from ``timings_s`` in calibration.json;
+"start" is the rest of the ``--no-report`` run (starting Python, imports, writing the file) and
+"report" the difference between the two runs. The last column is the wall time per hour of
+driving, which should not grow with the drive's length.
+
+Before timing, one untimed run compiles and caches the numba kernels.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _measure import run_measured
+
+import odocal
+from odocal.methods import METHOD_NAMES
+
+STAGES = ("read", "segments", "inverse: fit", "step 1: batches", "step 2: compensation",
+          "step 3: identification", "identify", "joint: noise estimation", "bootstrap",
+          "validation")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--minutes", default="15,60,240")
+    parser.add_argument("--methods", default=",".join(METHOD_NAMES))
+    args = parser.parse_args()
+    exe = str(Path(sys.executable).with_name("odocal"))
+    work = Path(tempfile.mkdtemp(prefix="odocal-bench-"))
+    warm = work / "warm.parquet"
+    odocal.save_drive(odocal.simulate(duration_s=300, seed=99).drive, warm)
+    for method in args.methods.split(","):
+        run_measured([exe, "calibrate", str(warm), "--out", str(work / "w"), "--method", method,
+                      "-q"])
+    print(f"{'drive':>8} {'method':<12} {'wall s':>7} {'peak MB':>8} {'start':>6} "
+          + " ".join(f"{s.split(':')[0][:9]:>9}" for s in STAGES)
+          + f" {'report':>7} {'s per h':>8}")
+    for minutes in (int(m) for m in args.minutes.split(",")):
+        drive = work / f"drive{minutes}.parquet"
+        odocal.save_drive(odocal.simulate(duration_s=60.0 * minutes, seed=1).drive, drive)
+        for method in args.methods.split(","):
+            out = work / f"{method}{minutes}"
+            wall, peak = run_measured([exe, "calibrate", str(drive), "--out", str(out),
+                                       "--method", method, "-q"])
+            bare, _ = run_measured([exe, "calibrate", str(drive), "--out", str(out) + "n",
+                                    "--method", method, "-q", "--no-report"])
+            timings = json.loads((Path(str(out) + "n") / "calibration.json")
+                                 .read_text())["timings_s"]
+            start = bare - sum(timings.values())
+            cells = " ".join(f"{timings[s]:>9.2f}" if s in timings else f"{'':>9}"
+                             for s in STAGES)
+            print(f"{minutes:>5} min {method:<12} {wall:>7.2f} {peak:>8.0f} {start:>6.2f} "
+                  f"{cells} {wall - bare:>7.2f} {wall / (minutes / 60):>8.2f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
