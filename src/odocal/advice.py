@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from odocal.diagnose import Check, Finding, Severity
 from odocal.drive import Drive
 from odocal.estimate import Estimate, Identified, NotIdentified, Reason
 from odocal.model import PARAMETER_LABELS, PARAMETER_NAMES
@@ -147,6 +148,10 @@ def _not_identified(name: str, label: str, verdict: NotIdentified, cov: Coverage
                 f"is. Drive at least {2 * segment_s:.0f} s more with bends.")
     if reason is Reason.FAILED:
         return f"{label} is not identified: the estimation failed."
+    if reason is Reason.STANDSTILL:
+        return f"{label} is not identified: the vehicle does not move."
+    if reason is Reason.REJECTED:
+        return f"{label} is not calibrated: the data contradict the model (see the checks)."
     return f"{label} is held at its datasheet value, as requested."
 
 
@@ -168,6 +173,10 @@ def reason_text(name: str, verdict: NotIdentified, *, threshold_radps: float) ->
                 "datasheet value")
     if reason is Reason.FAILED:
         return "the estimation failed"
+    if reason is Reason.STANDSTILL:
+        return "the vehicle does not move"
+    if reason is Reason.REJECTED:
+        return "the data contradict the model"
     return "held at the datasheet value"
 
 
@@ -178,3 +187,68 @@ def format_value(name: str, value: float) -> str:
     if name == "d":
         return f"{value * 1000:.3g} mm per m/s^2"
     return f"{value * 1000:.3g} mm" if value < 0.1 else f"{value:.3g} m"
+
+
+#: Factors a wheel-speed unit or scale mistake produces, and what would cause them.
+_SCALE_HINTS = ((60.0, "rpm given as rev/s"), (1 / 60.0, "rev/s given as rpm"),
+                (2 * np.pi, "rad/s given as rev/s, or the radius given as the circumference"),
+                (1 / (2 * np.pi), "rev/s given as rad/s, or the circumference as the radius"),
+                (3.6, "km/h given as m/s"), (1 / 3.6, "m/s given as km/h"),
+                (2.0, "the diameter given as the radius"), (0.5, "the radius as the diameter"))
+
+
+def finding_text(finding: Finding, settings: Settings) -> str:
+    """One finding of the checks in plain words."""
+    c, v, ref = finding.check, finding.value, finding.reference
+    if c is Check.STANDSTILL:
+        return (f"the vehicle does not move (the wheels turn {v:.1f} m in all): there is "
+                "nothing to calibrate")
+    if c is Check.WHEELS_SWAPPED:
+        return (f"the yaw rate the wheels imply turns against the reference's in bends "
+                f"(correlation {v:+.2f}): the left and right wheel columns are swapped, or the "
+                "heading is mirrored; fix the mapping and calibrate again")
+    if c is Check.WHEELS_IDENTICAL:
+        return ("the two wheel signals are identical (one column copied into the other, or one "
+                "speed signal for both wheels): they carry no yaw, so only c_e is calibrated")
+    if c is Check.NO_DIFFERENTIAL:
+        return (f"the yaw rate the wheels imply does not follow the reference's in bends "
+                f"(correlation {v:+.2f}): a locked axle or a single speed signal? Only c_e is "
+                "calibrated")
+    if c is Check.SPEED_SCALE:
+        if finding.severity is Severity.NOTE:
+            c_e = settings.identify.theta0[0]
+            speeds = (" Or are they wheel speeds in m/s given as rev/s?"
+                      if abs(np.log(v / c_e)) < 0.25 else "")
+            return (f"with the datasheet c_e ({c_e:g} m) the wheels imply {v:.3f} times the "
+                    "distance the reference travels: is [identify] theta0 set for this "
+                    f"vehicle?{speeds}")
+        factor, cause = min(_SCALE_HINTS, key=lambda h: abs(np.log(v / h[0])))
+        hint = f" ({cause}?)" if abs(np.log(v / factor)) < 0.25 else ""
+        return (f"the wheels imply {v:.3g} times the distance the reference travels: a wrong "
+                f"wheel-speed unit or scale{hint}")
+    if c is Check.LATERAL_SIGN:
+        return (f"a_y has the wrong sign against speed times yaw rate (slope {v:+.2f}): the "
+                "lateral acceleration must be positive to the left")
+    if c is Check.LATERAL_SCALE:
+        hint = " (in g instead of m/s^2?)" if 0.07 < v < 0.14 else ""
+        return f"a_y is {v:.3g} times speed times yaw rate{hint}"
+    if c is Check.CLOCK_OFFSET:
+        if finding.severity is Severity.FATAL:
+            return (f"the wheel stream lags the pose stream by {v:+.2f} s: align the clocks "
+                    "(the mapping's offset_s) and calibrate again")
+        return (f"the wheel stream lags the pose stream by {v * 1000:+.0f} ms, more than the "
+                f"{settings.inverse.max_delay_s:g} s the calibration corrects: align the clocks")
+    if c is Check.PARAMETER_RANGE:
+        return (f"{finding.name} = {format_value(finding.name, abs(v))}"
+                f"{' (negative)' if v < 0 else ''} lies outside its physical range (limit "
+                f"{format_value(finding.name, abs(ref))}, [gate] in the settings)")
+    if c is Check.WORSE_THAN_DATASHEET:
+        return (f"the calibrated parameters validate worse than the datasheet values "
+                f"({v:.2f} m against {ref:.2f} m)")
+    if c is Check.LARGE_ERROR:
+        return (f"the validation error ({v:.2f} m) is a large share of the "
+                f"{settings.segments.validation_distance_m:.0f} m segments (the limit is "
+                f"{ref:.1f} m): the model does not describe these data")
+    if c is Check.DATA_REPAIRED:
+        return f"{finding.name}: {v:.0f} isolated spike(s) repaired"
+    return c.value

@@ -31,9 +31,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal import __version__
+from odocal.diagnose import Diagnosis, check_drives, gate
 from odocal.drive import Drive
 from odocal.errors import ConfigError, DataError
-from odocal.estimate import Estimate, NotIdentified, Reason, Status, held_as_weak, weak
+from odocal.estimate import (
+    Estimate,
+    NotIdentified,
+    Reason,
+    Status,
+    held_as_weak,
+    refused_estimate,
+    weak,
+)
 from odocal.identify import gauss_newton, linearise
 from odocal.io.drivefile import load_drive
 from odocal.methods import DEFAULT_METHOD
@@ -62,6 +71,8 @@ BoolArray = NDArray[np.bool_]
 
 #: Parameters observable only through the yaw equation in bends (METHOD 2).
 NEED_BENDS = ("t_r", "d")
+#: Parameters that need the two wheels' difference (all but the distance scale).
+NEED_DIFFERENTIAL = ("c_d", "t_r", "d")
 
 
 @dataclass(frozen=True)
@@ -219,6 +230,7 @@ class CalibrationResult:
     drive_data : the drives themselves (for plots)
     timings_s : wall time of each stage (read, segments, the method's steps, bootstrap,
         validation)
+    diagnosis : the checks of the data against the model, before and after the fit
     """
 
     estimate: Estimate
@@ -235,6 +247,7 @@ class CalibrationResult:
     batch: SegmentBatch | None = field(default=None, repr=False)
     drive_data: tuple[Drive, ...] = field(default=(), repr=False)
     timings_s: dict[str, float] = field(default_factory=dict)
+    diagnosis: Diagnosis = field(default_factory=lambda: Diagnosis(()))
 
     @property
     def theta(self) -> Parameters:
@@ -274,6 +287,7 @@ class CalibrationResult:
         out["inputs"] = [d.to_dict() for d in self.drives]
         out["elapsed_s"] = self.elapsed_s
         out["timings_s"] = dict(self.timings_s)
+        out["diagnosis"] = self.diagnosis.to_dict()
         out["settings"] = self.settings.to_dict()
         out["bootstrap"] = self.bootstrap.to_dict() if self.bootstrap is not None else None
         if self.three_step is not None:
@@ -421,9 +435,23 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     clock = Stopwatch(progress)
     with clock.stage("read"):
         drive_list = load_drives(drives)
+    with clock.stage("checks"):
+        diagnosis = check_drives(drive_list, settings)
     with clock.stage("segments"):
         prep = prepare(drive_list, settings)
-    outcome, estimate, boot = _checked_by_bootstrap(method, prep, settings, clock)
+    boot = None
+    if diagnosis.fatal or diagnosis.standstill:
+        # the data contradict the model (or say nothing): no fit, and no time spent on one
+        reason = Reason.STANDSTILL if diagnosis.standstill else Reason.REJECTED
+        status = Status.NOTHING_IDENTIFIABLE if diagnosis.standstill else Status.REJECTED
+        outcome = MethodOutcome(estimate=refused_estimate(method, settings.identify, status,
+                                                          reason))
+        estimate = outcome.estimate
+    elif diagnosis.no_differential:
+        outcome = _run_distance_only(prep, settings, clock)
+        estimate = outcome.estimate
+    else:
+        outcome, estimate, boot = _checked_by_bootstrap(method, prep, settings, clock)
     warnings = [*prep.warnings, *outcome.warnings]
     if boot is not None and not all(boot.agree):
         warnings.append(boot.message)
@@ -434,6 +462,8 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
                              drive_list)
             datasheet = validation(estimate.datasheet, prep.validation,
                                    prep.validation_segments, drive_list)
+    if estimate.success:
+        diagnosis, estimate = _gated(diagnosis, estimate, settings, val, datasheet)
     for w in warnings:
         log.warning("%s", w)
     return CalibrationResult(
@@ -441,7 +471,41 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         segments=prep.segments, used=prep.used, drives=summarise(drive_list), settings=settings,
         warnings=tuple(warnings), elapsed_s=time.perf_counter() - started, bootstrap=boot,
         three_step=outcome.three_step, batch=prep.batch, drive_data=tuple(drive_list),
-        timings_s=dict(clock.seconds))
+        timings_s=dict(clock.seconds), diagnosis=diagnosis)
+
+
+def _run_distance_only(prep: Prepared, settings: Settings,
+                       progress: ProgressCallback | None) -> MethodOutcome:
+    """The wheels carry no differential signal: c_e alone, from the distance channel.
+
+    Every method but the inverse one takes the heading from the wheels, so none of them can use
+    such data; the inverse method's distance channel needs the wheels' mean only.
+    """
+    from odocal.inverse import inverse_calibration
+
+    held = {**prep.held, **{n: NotIdentified(Reason.NO_DIFFERENTIAL) for n in NEED_DIFFERENTIAL}}
+    est = inverse_calibration(prep.drives, settings=settings, held=held, distance_only=True,
+                              progress=progress)
+    return MethodOutcome(estimate=est)
+
+
+def _gated(diagnosis: Diagnosis, estimate: Estimate, settings: Settings,
+           val: ValidationResult | None, datasheet: ValidationResult | None,
+           ) -> tuple[Diagnosis, Estimate]:
+    """The quality gate after the fit: a failing check rejects the estimate (exit 3)."""
+    segment_m = settings.segments.validation_distance_m
+    if val is None or datasheet is None:
+        error = reference = None
+    elif diagnosis.no_differential:        # the wheels give no heading: judge the distance
+        error, reference = val.mean_distance_error_m, datasheet.mean_distance_error_m
+    else:
+        error, reference = val.mean_error_m, datasheet.mean_error_m
+    findings = gate(estimate.theta.as_array(), settings, error_m=error,
+                    datasheet_error_m=reference, segment_m=segment_m)
+    diagnosis = diagnosis.plus(findings)
+    if diagnosis.fatal:
+        estimate = dataclasses.replace(estimate, status=Status.REJECTED)
+    return diagnosis, estimate
 
 
 class Stopwatch:

@@ -93,8 +93,8 @@ def _print(text: str = "") -> None:
 def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
                   truth_error_m: float | None = None) -> None:
     """The calibration as a small table on stdout."""
-    from odocal.advice import reason_text
-    from odocal.estimate import NotIdentified, Status
+    from odocal.advice import finding_text, reason_text
+    from odocal.estimate import NotIdentified, Reason, Status
     from odocal.model import PARAMETER_NAMES, PARAMETER_UNITS
 
     est = result.estimate
@@ -142,14 +142,18 @@ def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
         _print("validation error E_p: not available (no validation segment)")
     if exact:
         _print(f"note: {est.message}")
+    for finding in result.diagnosis.findings:
+        kind = {0: "note", 1: "warning", 2: "error"}[int(finding.severity)]
+        _print(f"{kind}: {finding_text(finding, result.settings)}")
     for name, verdict in zip(PARAMETER_NAMES, est.verdicts, strict=True):
-        if isinstance(verdict, NotIdentified) and est.success:
+        if isinstance(verdict, NotIdentified) and verdict.reason not in (
+                Reason.REJECTED, Reason.STANDSTILL, Reason.FAILED):
             _print(f"note: {name} ({PARAMETER_UNITS[PARAMETER_NAMES.index(name)]}) is not "
                    f"identified: "
                    f"{reason_text(name, verdict, threshold_radps=segs.yaw_rate_threshold_radps)}")
     for warning in result.warnings:
         _print(f"warning: {warning}")
-    if not result.success:
+    if not result.success and est.status is not Status.NOTHING_IDENTIFIABLE:
         _print(f"calibration failed: {est.message}")
 
 
@@ -170,7 +174,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print_summary(result, truth=sim.true_parameters, truth_error_m=truth_error)
     if args.out:
         _write_outputs(result, args, inputs=())
-    return EXIT_OK if result.success else EXIT_FAILED
+    return exit_code(result)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -212,7 +216,11 @@ def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
         written += [report.html_path]
         report_numbers = report.data.to_dict()
     written.insert(0, write_calibration(result, out, report=report_numbers))
-    for fmt in getattr(args, "export", None) or []:
+    exports = getattr(args, "export", None) or []
+    if exports and not result.success:
+        _print("note: parameters not exported: the calibration did not succeed")
+        exports = []
+    for fmt in exports:
         written.append(export_parameters(result, out, fmt))
     if getattr(args, "save_inputs", False):
         path = write_compensated_inputs(result, out)
@@ -264,7 +272,16 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                                *([args.mapping] if getattr(args, "mapping", None) else [])])
     finally:
         progress.close()
-    return EXIT_OK if result.success else EXIT_FAILED
+    return exit_code(result)
+
+
+def exit_code(result: CalibrationResult) -> int:
+    """0 for an answer, or for data that are valid but identify nothing; 3 for a failure."""
+    from odocal.estimate import Status
+
+    if result.success or result.estimate.status is Status.NOTHING_IDENTIFIABLE:
+        return EXIT_OK
+    return EXIT_FAILED
 
 
 def cmd_convert(args: argparse.Namespace) -> int:

@@ -81,6 +81,10 @@ class Reason(enum.Enum):
     """Held at the starting value on request."""
     FAILED = "failed"
     """The estimation failed; nothing was determined."""
+    STANDSTILL = "standstill"
+    """The vehicle does not move: there is nothing to calibrate."""
+    REJECTED = "rejected"
+    """The data contradict the model (see the diagnosis): nothing is calibrated."""
 
 
 @dataclass(frozen=True)
@@ -306,10 +310,18 @@ def held_as_weak(std: FloatArray, mask: BoolArray,
 def failed_estimate(method: str, settings: IdentifySettings, status: Status, *,
                     details: Any = None) -> Estimate:
     """The datasheet values with no uncertainty and nothing identified: a failed estimation."""
+    return refused_estimate(method, settings, status, Reason.FAILED, details=details)
+
+
+def refused_estimate(method: str, settings: IdentifySettings, status: Status, reason: Reason,
+                     *, details: Any = None) -> Estimate:
+    """The datasheet values, nothing estimated, every parameter not identified for ``reason``."""
     theta0 = Parameters.from_array(settings.theta0)
+    limits = identifiability_limits(settings)
     return Estimate(method=method, theta=theta0, datasheet=theta0, covariance=np.zeros((4, 4)),
                     covariance_kind=CovarianceKind.NONE, free=(False, False, False, False),
-                    verdicts=(NotIdentified(Reason.FAILED),) * 4,
+                    verdicts=tuple(NotIdentified(reason, limit=float(v))  # type: ignore[arg-type]
+                                   for v in limits),
                     status=status, details=details)
 
 

@@ -189,8 +189,12 @@ class _Fit:
 
 
 def _solve(theta0: FloatArray, steps: _Steps, win: _Windows, shift: float, free: BoolArray,
-           noise: FloatArray, max_iterations: int, tolerance: float) -> _Fit:
-    """Weighted Gauss-Newton on the channel residuals (the model is nearly linear in theta)."""
+           noise: FloatArray, max_iterations: int, tolerance: float,
+           channels: FloatArray) -> _Fit:
+    """Weighted Gauss-Newton on the channel residuals (the model is nearly linear in theta).
+
+    ``channels`` (2,) scales the weights of the distance and yaw channels (0 leaves one out).
+    """
     theta = theta0.copy()
     history: list[float] = []
     iterations = 0
@@ -199,7 +203,7 @@ def _solve(theta0: FloatArray, steps: _Steps, win: _Windows, shift: float, free:
         pred, jac = _predict(theta, steps, win, shift)
         r = (win.measured - pred) @ _CHANNELS.T
         j = np.einsum("ci,wip->wcp", _CHANNELS, jac)
-        w = _weights(win.measured, r, noise)
+        w = _weights(win.measured, r, noise) * channels
         cost = float(np.sum(w * r**2))
         history.append(cost)
         fit = _Fit(theta, r, j, w, cost, iterations, history)
@@ -217,7 +221,7 @@ def _solve(theta0: FloatArray, steps: _Steps, win: _Windows, shift: float, free:
             pred, jac = _predict(theta, steps, win, shift)
             r = (win.measured - pred) @ _CHANNELS.T
             j = np.einsum("ci,wip->wcp", _CHANNELS, jac)
-            w = _weights(win.measured, r, noise)
+            w = _weights(win.measured, r, noise) * channels
             cost = float(np.sum(w * r**2))
             history.append(cost)
             fit = _Fit(theta, r, j, w, cost, iterations, history)
@@ -350,10 +354,13 @@ def heading_offset(drives: Sequence[Drive], *, min_speed_mps: float = 3.0,
 
 def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
                         held: Mapping[str, NotIdentified] | None = None,
+                        distance_only: bool = False,
                         progress: Callable[[str, int, int], None] | None = None) -> Estimate:
     """Calibrate theta by fitting the wheel revolutions the reference motion implies.
 
-    Returns an :class:`~odocal.estimate.Estimate` with :class:`InverseDetails`.
+    ``distance_only`` fits the distance channel alone (the wheels carry no differential signal:
+    hold c_d, t_r and d). Returns an :class:`~odocal.estimate.Estimate` with
+    :class:`InverseDetails`.
     """
     started = time.perf_counter()
     cfg = settings.inverse
@@ -374,20 +381,27 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         return _nothing(settings, datasheet, held, started, win)
 
     noise = np.array([[1e-3, 1e-3], [1e-3, 1e-3]])
+    channels = np.array([1.0, 0.0 if distance_only else 1.0])
+
+    def solve(theta: FloatArray, shift: float) -> _Fit:
+        # (free and noise as they are at the call)
+        return _solve(theta, steps, win, shift, free, noise, cfg.max_iterations, cfg.tolerance,
+                      channels)
+
     if progress:
         progress("inverse: fit", 0, 4)
-    fit = _solve(datasheet, steps, win, 0.0, free, noise, cfg.max_iterations, cfg.tolerance)
+    fit = solve(datasheet, 0.0)
     noise = _fit_noise(win.measured, fit.residual)
     shift, shift_std = 0.0, float("nan")
-    if cfg.delay == "estimate":
-        fit = _solve(fit.theta, steps, win, 0.0, free, noise, cfg.max_iterations, cfg.tolerance)
+    if cfg.delay == "estimate" and not distance_only:
+        fit = solve(fit.theta, 0.0)
         shift, shift_std = _scan_delay(fit.theta, steps, win, noise, margin - 1)
     if progress:
         progress("inverse: fit", 2, 4)
     for _ in range(2):                  # re-fit the noise model at the final shift
-        fit = _solve(fit.theta, steps, win, shift, free, noise, cfg.max_iterations, cfg.tolerance)
+        fit = solve(fit.theta, shift)
         noise = _fit_noise(win.measured, fit.residual)
-    fit = _solve(fit.theta, steps, win, shift, free, noise, cfg.max_iterations, cfg.tolerance)
+    fit = solve(fit.theta, shift)
     n_clusters = int(np.unique(win.cluster).size)
     for _ in range(len(PARAMETER_NAMES)):
         cov, info, scores = _covariance(fit, free, win.cluster, n_clusters)
@@ -405,7 +419,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
             free = free & ~too_weak
         theta = fit.theta.copy()
         theta[~free] = datasheet[~free]
-        fit = _solve(theta, steps, win, shift, free, noise, cfg.max_iterations, cfg.tolerance)
+        fit = solve(theta, shift)
         if not free.any():
             cov = np.zeros((4, 4))
             break

@@ -271,6 +271,62 @@ class InverseSettings:
 
 
 @dataclass(frozen=True)
+class GateSettings:
+    """The checks of the data against the model and the quality gate (README, "When odocal
+    refuses"). A calibration outside these limits fails (exit 3) with the reason."""
+
+    c_e_m: tuple[float, float] = (0.5, 5.0)
+    """Physical range of the effective wheel circumference, m."""
+    t_r_m: tuple[float, float] = (0.5, 3.0)
+    """Physical range of the rear track width, m."""
+    max_abs_c_d_fraction: float = 0.02
+    """|c_d| at most this fraction of c_e."""
+    max_abs_d: float = 0.02
+    """|d| at most this, m per m/s^2."""
+    worse_tolerance: float = 0.02
+    """A calibrated E_p more than this fraction above the datasheet values' fails."""
+    max_error_share: float = 0.05
+    """A calibrated E_p above this share of the validation distance fails (the model does not
+    describe the data)."""
+    min_distance_m: float = 5.0
+    """Less wheel travel than this: the vehicle does not move, nothing to calibrate."""
+    min_speed_mps: float = 2.0
+    """Windows slower than this are left out of the scale check."""
+    min_scale: float = 0.4
+    max_scale: float = 2.5
+    """Distance the wheels imply (datasheet c_e) over the reference's outside [min, max]: a unit
+    or scale mistake (rpm, radius for circumference, km/h)."""
+    datasheet_scale_note: float = 0.1
+    """Within the range but further than this from 1: a note that theta0 may not fit the car."""
+    bend_yaw_rate_radps: float = 0.1
+    """One-second windows turning faster than this count as bends for the wheel checks."""
+    min_bend_windows: int = 10
+    """Fewer bend windows than this: the wheels' differential signal is not checked."""
+    min_yaw_correlation: float = 0.5
+    """Correlation of the wheels' and the reference's yaw in bends: below minus this the wheels
+    are swapped, below this they carry no differential information."""
+    max_clock_offset_s: float = 0.5
+    """A lag between the wheel and pose streams beyond this fails (align the clocks)."""
+
+    def __post_init__(self) -> None:
+        s = "gate"
+        for key in ("c_e_m", "t_r_m"):
+            lo, hi = getattr(self, key)
+            _check(0 < lo < hi, s, key, getattr(self, key), "[low, high] with 0 < low < high")
+        for key in ("max_abs_c_d_fraction", "max_abs_d", "worse_tolerance", "max_error_share",
+                    "min_distance_m", "min_speed_mps", "datasheet_scale_note",
+                    "bend_yaw_rate_radps", "max_clock_offset_s"):
+            _check(0 < getattr(self, key) < float("inf"), s, key, getattr(self, key),
+                   "a positive finite number")
+        _check(0 < self.min_scale < 1 < self.max_scale < float("inf"), s, "min_scale/max_scale",
+               (self.min_scale, self.max_scale), "0 < min_scale < 1 < max_scale")
+        _check(self.min_bend_windows >= 1, s, "min_bend_windows", self.min_bend_windows,
+               "an integer >= 1")
+        _check(0 < self.min_yaw_correlation < 1, s, "min_yaw_correlation",
+               self.min_yaw_correlation, "a number in (0, 1)")
+
+
+@dataclass(frozen=True)
 class UncertaintySettings:
     """How sure a calibration is: the bootstrap over segments that checks the covariance."""
 
@@ -392,6 +448,7 @@ class Settings:
     uncertainty: UncertaintySettings = field(default_factory=UncertaintySettings)
     joint: JointSettings = field(default_factory=JointSettings)
     inverse: InverseSettings = field(default_factory=InverseSettings)
+    gate: GateSettings = field(default_factory=GateSettings)
     convert: ConvertSettings = field(default_factory=ConvertSettings)
     fusion: FusionSettings = field(default_factory=FusionSettings)
     sideslip: SideslipSettings = field(default_factory=SideslipSettings)

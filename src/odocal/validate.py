@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.model import Parameters, rollout_ragged
+from odocal.model import Parameters, body_rates, rollout_ragged
 from odocal.segments import RaggedSegments, SegmentSet
 from odocal.settings import MinimumSettings
 
@@ -31,24 +31,40 @@ class SegmentErrors:
         Position error at each segment's last sample, m.
     final_heading_rad : ndarray, shape (S,)
         Absolute heading error at each segment's last sample, rad.
+    distance_m : ndarray, shape (S,)
+        Absolute error of the distance travelled along the segment (the wheels' against the
+        reference's), m: the error that remains when the heading comes from elsewhere.
     """
 
     mean_m: FloatArray
     final_m: FloatArray
     final_heading_rad: FloatArray
+    distance_m: FloatArray
 
 
 def segment_errors(theta: FloatArray, data: RaggedSegments) -> SegmentErrors:
     """Validation errors of ``theta`` on every segment of ``data``."""
-    poses = rollout_ragged(np.asarray(theta, dtype=np.float64), data.inputs, data.initial,
-                           data.steps, data.t_s, segment=data.segment)
+    theta = np.asarray(theta, dtype=np.float64)
+    poses = rollout_ragged(theta, data.inputs, data.initial, data.steps, data.t_s,
+                           segment=data.segment)
     err = np.hypot(poses[:, 0] - data.reference[:, 0], poses[:, 1] - data.reference[:, 1])
     first = data.first
     last = first + data.steps - 1
     dpsi = np.abs(np.remainder(poses[last, 2] - data.reference[last, 2] + np.pi, 2 * np.pi)
                   - np.pi)
+    # distance along track: the wheels' (2a) against the reference's ((1) inverted)
+    before = np.empty_like(data.reference)
+    before[1:] = data.reference[:-1]
+    before[first] = data.initial
+    u = data.inputs
+    v, _ = body_rates(theta, u.n_rl, u.n_rr, u.a_y)
+    psi = np.unwrap(np.concatenate([before[:, 2:3], data.reference[:, 2:3]], axis=1), axis=1)
+    heading = 0.5 * (psi[:, 0] + psi[:, 1]) + u.beta
+    ds = ((data.reference[:, 0] - before[:, 0]) * np.cos(heading)
+          + (data.reference[:, 1] - before[:, 1]) * np.sin(heading))
+    distance = np.abs(np.add.reduceat(v * data.t_s - ds, first))
     return SegmentErrors(mean_m=np.add.reduceat(err, first) / data.steps, final_m=err[last],
-                         final_heading_rad=dpsi)
+                         final_heading_rad=dpsi, distance_m=distance)
 
 
 def mean_error(theta: FloatArray, data: RaggedSegments) -> float:
@@ -75,9 +91,15 @@ class ValidationResult:
     drive_names: tuple[str, ...]
     start_s: FloatArray
 
+    @property
+    def mean_distance_error_m(self) -> float:
+        """Mean over segments of the absolute along-track distance error, m."""
+        return float(self.errors.distance_m.mean())
+
     def to_dict(self) -> dict[str, object]:
         return {
             "E_p_m": self.mean_error_m,
+            "distance_error_m": self.mean_distance_error_m,
             "segments": len(self.segments),
             "distance_m": float(self.segments.distance_m.sum()),
             "per_segment": [

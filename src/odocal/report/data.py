@@ -67,7 +67,19 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
 
     ``raw_m`` is E_p of the raw estimate the three-step method computed alongside, if any.
     """
+    from odocal.advice import finding_text
+    from odocal.diagnose import Severity
+    from odocal.estimate import Status
+
     est = result.estimate
+    fatal = [f for f in result.diagnosis.findings if f.severity is Severity.FATAL]
+    if fatal:
+        return ("Do not use: " + "; ".join(finding_text(f, result.settings) for f in fatal)
+                + ".", "bad")
+    if result.diagnosis.standstill:
+        return "Nothing to calibrate: the vehicle does not move.", "partial"
+    if est.status is Status.NOTHING_IDENTIFIABLE:
+        return f"Nothing calibrated: {est.message}; see the identifiability notes.", "partial"
     if not result.success:
         return f"Calibration failed: {est.message}.", "bad"
     missing = est.unidentified

@@ -245,7 +245,12 @@ def _page(result: CalibrationResult, data: ReportData,
 
     cov = data.coverage
     boot = result.bootstrap
+    from odocal.advice import finding_text
+
     warnings = "".join(f"<li>{e(w)}</li>" for w in result.warnings)
+    checks = "".join(f"<li class='{['yes', 'partial', 'no'][int(f.severity)]}'>"
+                     f"{e(finding_text(f, result.settings))}</li>"
+                     for f in result.diagnosis.findings)
     advice = "".join(f"<li class='{'yes' if a.identified else 'no'}'><b>{a.name}</b>: "
                      f"<span style='color:#222'>{e(a.text)}</span></li>" for a in data.advice)
     drives = ", ".join(e(Path(d.name).name) for d in result.drives)
@@ -281,6 +286,8 @@ straight{f"; {cov['time_in_pieces_too_short_s']:.0f} s lie in pieces too short f
 {cov['bend_s']:.0f} s of {cov['moving_s']:.0f} s of driving are in bends.</p>
 {fig('coverage')}
 <h2>Identifiability</h2><ul id="identifiability">{advice}</ul>
+{"<h2>Checks of the data against the model</h2><ul id='checks'>" + checks + "</ul>"
+ if checks else ""}
 {"<h2>Warnings</h2><ul>" + warnings + "</ul>" if warnings else ""}
 <p class="meta">Every number on this page is in calibration.json.</p>
 </main></body></html>
