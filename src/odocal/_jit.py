@@ -33,7 +33,9 @@ def jit(func: F | None = None, *, parallel: bool = False, inline: bool = False) 
     """``@jit`` or ``@jit(parallel=True)``: nopython compilation, cached where possible."""
 
     def decorate(f: F) -> Any:
-        options: dict[str, Any] = {"parallel": parallel, "error_model": "numpy"}
+        # nogil: a kernel lets other threads run (the CLI loads the report's plotting library
+        # in the background while the model computes)
+        options: dict[str, Any] = {"parallel": parallel, "error_model": "numpy", "nogil": True}
         if inline:
             options["inline"] = "always"
         try:

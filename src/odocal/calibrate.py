@@ -25,7 +25,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,7 +43,6 @@ from odocal.estimate import (
     refused_estimate,
     weak,
 )
-from odocal.identify import gauss_newton, linearise
 from odocal.io.drivefile import load_drive
 from odocal.methods import DEFAULT_METHOD
 from odocal.model import PARAMETER_NAMES, Parameters
@@ -58,10 +57,13 @@ from odocal.segments import (
     validation_segments,
 )
 from odocal.settings import Settings
-from odocal.threestep import ThreeStepOutcome, three_step
 from odocal.uncertainty import BootstrapResult, bootstrap
 from odocal.validate import MinimumResult, ValidationResult, segment_errors
 
+if TYPE_CHECKING:
+    from odocal.threestep import ThreeStepOutcome
+
+# The estimators are imported where they are run: a calibration loads only its own method.
 log = logging.getLogger(__name__)
 
 #: ``progress(stage, done, total)``: called as long steps advance (the CLI draws bars from it).
@@ -147,6 +149,8 @@ class MethodOutcome:
 def _gn_terms(rates: SegmentBatch, estimate: Estimate, prep: Prepared, settings: Settings,
               **extra: Any) -> BootstrapTerms:
     """Bootstrap terms of a Gauss-Newton estimate on ``rates`` (the segments it used)."""
+    from odocal.identify import gauss_newton, linearise
+
     lin = linearise(rates, estimate.theta.as_array(), np.asarray(settings.identify.weights))
     held = {n: NotIdentified(Reason.HELD) for n, f in zip(PARAMETER_NAMES, estimate.free,
                                                          strict=True) if not f}
@@ -162,6 +166,8 @@ def _gn_terms(rates: SegmentBatch, estimate: Estimate, prep: Prepared, settings:
 
 def _run_raw(prep: Prepared, settings: Settings,
              progress: ProgressCallback | None) -> MethodOutcome:
+    from odocal.identify import gauss_newton
+
     if progress:
         progress("identify", 0, 1)
     est = gauss_newton(prep.batch, settings=settings.identify, clusters=prep.clusters,
@@ -173,6 +179,8 @@ def _run_raw(prep: Prepared, settings: Settings,
 
 def _run_compensated(prep: Prepared, settings: Settings,
                      progress: ProgressCallback | None) -> MethodOutcome:
+    from odocal.threestep import three_step
+
     outcome = three_step(prep.batch, prep.validation, settings=settings, clusters=prep.clusters,
                          held=prep.held, progress=progress)
     s1 = outcome.step1

@@ -196,9 +196,24 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _renderer(args: argparse.Namespace) -> Any:
+    """A report renderer started now (its helper loads matplotlib while we calibrate), or None.
+
+    Started before anything heavy is imported, so the helper forks from a light process; one
+    helper (importing matplotlib costs ~0.8 s, more than drawing the figures; a second helper
+    would compete with the calibration for the cores).
+    """
+    if getattr(args, "no_report", False) or not getattr(args, "out", None):
+        return None
+    from odocal.report.render import Renderer
+
+    return Renderer(1)
+
+
 def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
                    inputs: Sequence[str | Path],
-                   progress: Callable[[str, int, int], None] | None = None) -> None:
+                   progress: Callable[[str, int, int], None] | None = None,
+                   renderer: Any = None) -> None:
     from odocal.output import (
         export_parameters,
         prepare_output_dir,
@@ -212,7 +227,7 @@ def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
     if not getattr(args, "no_report", False):
         from odocal.report import write_report
 
-        report = write_report(result, out, progress=progress)
+        report = write_report(result, out, progress=progress, renderer=renderer)
         written += [report.html_path]
         report_numbers = report.data.to_dict()
     written.insert(0, write_calibration(result, out, report=report_numbers))
@@ -258,20 +273,23 @@ def _conversion_line(drive: Any) -> str:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from odocal.calibrate import calibrate
-
-    settings = _settings(args)
-    drives = _drives_from(args, settings)
+    renderer = _renderer(args)
     progress = _Progress(not args.quiet)
     try:
+        from odocal.calibrate import calibrate
+
+        settings = _settings(args)
+        drives = _drives_from(args, settings)
         result = calibrate(drives, settings=settings, method=args.method, progress=progress)
         if not args.quiet:
             print_summary(result)
-        _write_outputs(result, args, progress=progress,
+        _write_outputs(result, args, progress=progress, renderer=renderer,
                        inputs=[*args.logs, *([args.config] if args.config else []),
                                *([args.mapping] if getattr(args, "mapping", None) else [])])
     finally:
         progress.close()
+        if renderer is not None:
+            renderer.close()
     return exit_code(result)
 
 

@@ -41,6 +41,7 @@ from odocal.estimate import (
 from odocal.model import PARAMETER_NAMES, Parameters, segment_r_factors
 from odocal.segments import SegmentBatch
 from odocal.settings import IdentifySettings
+from odocal.uncertainty import robust_covariance
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -302,36 +303,6 @@ def _naive_covariance(lin: Linearisation, free: BoolArray) -> FloatArray:
     dof = max(3 * lin.samples - p, 1)
     rho = min(max(lin.lag1, 0.0), 0.999)
     return (lin.cost / dof) * (1 + rho) / (1 - rho) * information_inverse(lin.r_factor, free)
-
-
-def robust_covariance(h_inv: FloatArray, scores: FloatArray, free: BoolArray,
-                      clusters: IntArray) -> FloatArray:
-    """Sandwich ``H^-1 M H^-1`` with M the long-run covariance of per-cluster scores.
-
-    Residuals of one segment are strongly correlated (a rollout integrates its errors), and
-    overlapping segments share samples, so the white-noise covariance is too small. Scores are
-    summed into clusters of overlapping (or neighbouring) units; errors reach at most into the
-    neighbouring cluster (clusters are longer than the correlations they absorb), so ``M`` is the
-    clusters' outer products plus the neighbours' cross products at full weight. Full weight
-    matters where errors telescope (quantised counts, a reference's errors differenced over
-    windows): consecutive clusters' scores then cancel, and a down-weighted cross term would
-    count the cancelled part as uncertainty. ``M`` is made positive semi-definite by clipping
-    its eigenvalues.
-    """
-    labels, index = np.unique(clusters, return_inverse=True)
-    g = np.zeros((labels.shape[0], 4))
-    np.add.at(g, index, scores)
-    g[:, ~free] = 0.0
-    g -= g.mean(axis=0)
-    meat = g.T @ g
-    if g.shape[0] > 1:
-        cross = g[:-1].T @ g[1:]
-        meat += cross + cross.T
-        values, vectors = np.linalg.eigh(meat)
-        meat = (vectors * np.clip(values, 0.0, None)) @ vectors.T
-    c = g.shape[0]
-    correction = c / (c - 1) if c > 1 else 1.0
-    return correction * (h_inv @ meat @ h_inv)
 
 
 def _robust_covariance(lin: Linearisation, free: BoolArray, clusters: IntArray) -> FloatArray:

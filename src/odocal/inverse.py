@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal._jit import jit
 from odocal.drive import Drive
 from odocal.estimate import (
     CovarianceKind,
@@ -61,10 +62,10 @@ from odocal.estimate import (
     judge,
     weak,
 )
-from odocal.identify import robust_covariance
 from odocal.model import PARAMETER_NAMES, Parameters, inverse_revolutions, motion_increments
 from odocal.segments import common_sampling_time
 from odocal.settings import Settings
+from odocal.uncertainty import robust_covariance
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -153,6 +154,41 @@ def _windows(steps: _Steps, length: int, margin: int, cluster_steps: int) -> _Wi
                     cluster=cluster.astype(np.int64))
 
 
+@jit
+def _window_sums(values: FloatArray, start: IntArray, length: int, shift: float,
+                 out: FloatArray) -> None:  # pragma: no cover
+    """out[w] = sum of values over steps [start[w] - shift, start[w] - shift + length).
+
+    ``values`` (M, P); a fractional shift takes the fraction of the end steps (the cumulative
+    sum interpolated linearly).
+    """
+    p = values.shape[1]
+    for w in range(start.shape[0]):
+        lo = start[w] - shift
+        i0 = int(np.floor(lo))
+        f0 = lo - i0
+        hi = lo + length
+        i1 = int(np.floor(hi))
+        f1 = hi - i1
+        for c in range(p):
+            total = 0.0
+            for k in range(i0, i1):
+                total += values[k, c]
+            if f1 > 0.0:
+                total += f1 * values[i1, c]
+            if f0 > 0.0:
+                total -= f0 * values[i0, c]
+            out[w, c] = total
+
+
+def _sums(values: FloatArray, win: _Windows, shift: float) -> FloatArray:
+    """Window sums of per-step ``values`` (M, ...) at ``shift`` steps, shape (W, ...)."""
+    flat = np.ascontiguousarray(values.reshape(values.shape[0], -1))
+    out = np.empty((win.start.shape[0], flat.shape[1]))
+    _window_sums(flat, win.start, win.length, float(shift), out)
+    return out.reshape((win.start.shape[0], *values.shape[1:]))
+
+
 def _predict(theta: FloatArray, steps: _Steps, win: _Windows,
              shift: float) -> tuple[FloatArray, FloatArray]:
     """Predicted revolutions of each window (W, 2) and their Jacobian (W, 2, 4).
@@ -161,17 +197,7 @@ def _predict(theta: FloatArray, steps: _Steps, win: _Windows,
     [s, e) is compared with the motion over [s - shift, e - shift).
     """
     revs, jac = inverse_revolutions(theta, steps.ds, steps.dpsi, steps.a_y)
-    cum = np.concatenate([np.zeros((1, 2)), np.cumsum(revs, axis=0)])
-    cum_j = np.concatenate([np.zeros((1, 2, 4)), np.cumsum(jac, axis=0)])
-
-    def at(index: FloatArray, table: FloatArray) -> FloatArray:
-        lo = np.floor(index).astype(np.int64)
-        frac = (index - lo).reshape((-1,) + (1,) * (table.ndim - 1))
-        return table[lo] * (1.0 - frac) + table[np.minimum(lo + 1, table.shape[0] - 1)] * frac
-
-    s = win.start.astype(np.float64) - shift
-    e = s + win.length
-    return at(e, cum) - at(s, cum), at(e, cum_j) - at(s, cum_j)
+    return _sums(revs, win, shift), _sums(jac, win, shift)
 
 
 _CHANNELS = np.array([[0.5, 0.5], [-1.0, 1.0]])   # sum (distance) and difference (yaw) channels
@@ -487,9 +513,9 @@ def _scan_delay(theta: FloatArray, steps: _Steps, win: _Windows, noise: FloatArr
     """
     grid = np.arange(-limit, limit + 0.25, 0.5)
     costs = np.empty(grid.size)
+    revs, _ = inverse_revolutions(theta, steps.ds, steps.dpsi, steps.a_y)
     for i, shift in enumerate(grid):
-        pred, _ = _predict(theta, steps, win, float(shift))
-        r = (win.measured - pred) @ _CHANNELS.T
+        r = (win.measured - _sums(revs, win, float(shift))) @ _CHANNELS.T
         # the yaw channel times the wheels: slip that grows with acceleration is common to both
         # wheels and would pass for a lag in the distance channel
         costs[i] = float(np.sum((_weights(win.measured, r, noise) * r**2)[:, 1]))

@@ -697,3 +697,4 @@ def rollout_ragged(theta: FloatArray | Parameters, u: Inputs, x0: FloatArray,
                                     for f in ("n_rl", "n_rr", "beta", "a_y")),
                    _flat(x0, (steps.shape[0], 3)), first, steps, float(t_s), poses)
     return poses
+

@@ -16,10 +16,9 @@ from matplotlib.collections import PolyCollection
 from numpy.typing import NDArray
 
 from odocal.model import PARAMETER_DISPLAY, PARAMETER_NAMES
+from odocal.report.render import CALIBRATED, DATASHEET, RAW, REFERENCE, STEP1
 
 FloatArray = NDArray[np.float64]
-
-REFERENCE, DATASHEET, CALIBRATED, RAW, STEP1 = "#222222", "#d62728", "#1f77b4", "#ff7f0e", "#999999"
 #: Display scale and unit of each parameter (c_d and d read best in mm).
 DISPLAY = PARAMETER_DISPLAY
 
@@ -245,3 +244,8 @@ def plot_inverse_fit(ax: Axes, measured: FloatArray, residual: FloatArray, *,
     ax.legend(fontsize=8, loc="upper left")
     ax.grid(True, alpha=0.3)
     return artists
+
+
+def legend(ax: Axes, **kwargs: Any) -> list[Any]:
+    """The axes' legend (for figures whose first panel carries it)."""
+    return [ax.legend(**kwargs)]

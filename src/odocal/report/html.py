@@ -4,23 +4,18 @@ from __future__ import annotations
 
 import base64
 import html
-import io
-import multiprocessing
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from matplotlib.figure import Figure
 
 from odocal import __version__
 from odocal.calibrate import CalibrationResult
 from odocal.io.atomic import write_bytes, write_text
-from odocal.model import PARAMETER_LABELS
-from odocal.report import figures
+from odocal.model import PARAMETER_DISPLAY, PARAMETER_LABELS
 from odocal.report.data import ReportData, build, parameter_rows
-
-DPI = 110
+from odocal.report.render import CALIBRATED, RAW, Call, FigureSpec, Renderer
 
 
 @dataclass(frozen=True)
@@ -32,157 +27,118 @@ class Report:
     data: ReportData
 
 
-def _figure(width: float, height: float, nrows: int = 1, ncols: int = 1,
-            ) -> tuple[Figure, np.ndarray]:
-    """A figure of its own (no pyplot state), with a grid of axes."""
-    fig = Figure(figsize=(width, height), layout="constrained")
-    return fig, fig.subplots(nrows, ncols, squeeze=False)
+Spec = FigureSpec | None
 
 
-def _png(fig: Figure) -> bytes:
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=DPI, pil_kwargs={"compress_level": 3})
-    return buffer.getvalue()
-
-
-Rendered = tuple[str, bytes] | None
-
-
-def _map(result: CalibrationResult, data: ReportData) -> Rendered:
+def _map(result: CalibrationResult, data: ReportData) -> Spec:
     if not data.maps:
         return None
-    fig, axes = _figure(4.0 * len(data.maps), 4.0, 1, len(data.maps))
-    for ax, m in zip(axes[0], data.maps, strict=True):
-        figures.plot_map(ax, m.reference, m.datasheet, m.calibrated,
-                         title=f"{Path(m.drive).name} at {m.start_s:.0f} s, {m.distance_m:.0f} m")
-    axes[0][0].legend(fontsize=8, loc="best")
-    return ("Reference trajectory and dead reckoning with the datasheet and the calibrated "
-            "parameters, on the validation segments that turn most.", _png(fig))
+    calls = [Call("plot_map", (m.reference, m.datasheet, m.calibrated),
+                  {"title": f"{Path(m.drive).name} at {m.start_s:.0f} s, {m.distance_m:.0f} m"},
+                  col=i) for i, m in enumerate(data.maps)]
+    calls.append(Call("legend", kwargs={"fontsize": 8, "loc": "best"}))
+    return FigureSpec("map", "Reference trajectory and dead reckoning with the datasheet and the "
+                      "calibrated parameters, on the validation segments that turn most.",
+                      4.0 * len(data.maps), 4.0, tuple(calls), cols=len(data.maps))
 
 
-def _step1(result: CalibrationResult, data: ReportData) -> Rendered:
+def _step1(result: CalibrationResult, data: ReportData) -> Spec:
     ts = result.three_step
     if ts is None or not np.isfinite(ts.step1.validation_m).any():
         return None
     s1 = ts.step1
-    fig, axes = _figure(8.0, 3.4)
     ranks = [int(np.flatnonzero(s1.order == p)[0]) for p in s1.picked]
-    figures.plot_step1_sorted(
-        axes[0][0], s1.validation_m[s1.order], ranks,
-        final_m=result.validation.mean_error_m if result.validation else None,
-        raw_m=float(data.segment_errors["raw"].mean()) if "raw" in data.segment_errors else None)
-    return "Fig. 4 of the paper: validation errors of the step-1 batches.", _png(fig)
+    raw = float(data.segment_errors["raw"].mean()) if "raw" in data.segment_errors else None
+    return FigureSpec("step1", "Fig. 4 of the paper: validation errors of the step-1 batches.",
+                      8.0, 3.4, (Call("plot_step1_sorted", (s1.validation_m[s1.order], ranks), {
+                          "final_m": result.validation.mean_error_m if result.validation
+                          else None, "raw_m": raw}),))
 
 
-def _spread(result: CalibrationResult, data: ReportData) -> Rendered:
+def _spread(result: CalibrationResult, data: ReportData) -> Spec:
     ts = result.three_step
     if ts is None:
         return None
-    fig, axes = _figure(10.0, 3.2, 1, 4)
-    estimates = [("batch G-N, measured rates", ts.raw.theta.as_array(), ts.raw.std, figures.RAW),
+    estimates = [("batch G-N, measured rates", ts.raw.theta.as_array(), ts.raw.std, RAW),
                  ("three-step (calibrated)", result.theta.as_array(), result.estimate.std,
-                  figures.CALIBRATED)]
-    figures.plot_parameter_spread(list(axes[0]), ts.step1.thetas, list(ts.step1.picked),
-                                  estimates, result.estimate.datasheet.as_array())
-    return ("Figs. 5 and 7 of the paper: the parameters of every step-1 batch, and the final "
-            "estimates with one standard deviation.", _png(fig))
+                  CALIBRATED)]
+    return FigureSpec("spread", "Figs. 5 and 7 of the paper: the parameters of every step-1 "
+                      "batch, and the final estimates with one standard deviation.", 10.0, 3.2,
+                      (Call("plot_parameter_spread", (ts.step1.thetas, list(ts.step1.picked),
+                                                      estimates,
+                                                      result.estimate.datasheet.as_array()),
+                            row=None),), cols=4)
 
 
-def _rates(result: CalibrationResult, data: ReportData) -> Rendered:
+def _rates(result: CalibrationResult, data: ReportData) -> Spec:
     ts = result.three_step
     if ts is None or result.batch is None:
         return None
     u = result.batch.inputs
     busiest = int(np.argmax(np.abs(u.a_y).max(axis=1)))
     t = np.arange(u.n_rl.shape[1], dtype=np.float64) * result.batch.t_s
-    fig, axes = _figure(8.0, 3.2)
-    figures.plot_rates(axes[0][0], t, np.column_stack([u.n_rl[busiest], u.n_rr[busiest]]),
-                       np.column_stack([ts.compensation.n_rl[busiest],
-                                        ts.compensation.n_rr[busiest]]))
-    return ("Fig. 6 of the paper: measured and compensated wheel rates on the selected segment "
-            "with the highest lateral acceleration.", _png(fig))
+    return FigureSpec("rates", "Fig. 6 of the paper: measured and compensated wheel rates on the "
+                      "selected segment with the highest lateral acceleration.", 8.0, 3.2,
+                      (Call("plot_rates", (t, np.column_stack([u.n_rl[busiest],
+                                                               u.n_rr[busiest]]),
+                                           np.column_stack([ts.compensation.n_rl[busiest],
+                                                            ts.compensation.n_rr[busiest]]))),))
 
 
-def _inverse(result: CalibrationResult, data: ReportData) -> Rendered:
+def _inverse(result: CalibrationResult, data: ReportData) -> Spec:
     from odocal.inverse import InverseDetails
 
     d = result.estimate.details
     if not isinstance(d, InverseDetails) or d.windows == 0:
         return None
-    fig, axes = _figure(10.0, 3.6, 1, 2)
-    for channel in (0, 1):
-        figures.plot_inverse_fit(axes[0][channel], d.measured, d.residual, channel=channel)
-    return (f"The fit: each {d.window_s:.0f} s window's measured wheel revolutions against those "
-            "the reference motion implies with the calibrated parameters.", _png(fig))
+    calls = tuple(Call("plot_inverse_fit", (d.measured, d.residual), {"channel": c}, col=c)
+                  for c in (0, 1))
+    return FigureSpec("inverse", f"The fit: each {d.window_s:.0f} s window's measured wheel "
+                      "revolutions against those the reference motion implies with the "
+                      "calibrated parameters.", 10.0, 3.6, calls, cols=2)
 
 
-def _segments(result: CalibrationResult, data: ReportData) -> Rendered:
+def _segments(result: CalibrationResult, data: ReportData) -> Spec:
     if not data.segment_errors:
         return None
-    fig, axes = _figure(8.0, 3.4)
-    figures.plot_segment_errors(axes[0][0], data.segment_errors)
-    return "Fig. 8 of the paper: mean position error on each validation segment.", _png(fig)
+    return FigureSpec("segments", "Fig. 8 of the paper: mean position error on each validation "
+                      "segment.", 8.0, 3.4, (Call("plot_segment_errors", (data.segment_errors,)),))
 
 
-def _coverage(result: CalibrationResult, data: ReportData) -> Rendered:
+def _coverage(result: CalibrationResult, data: ReportData) -> Spec:
     threshold = result.settings.segments.yaw_rate_threshold_radps
-    fig, axes = _figure(10.0, 3.0, 1, 3)
-    figures.plot_histogram(axes[0][0], data.speed_hist[0], data.speed_hist[1],
-                           xlabel="speed [m/s]")
-    figures.plot_histogram(axes[0][1], data.yaw_hist[0], data.yaw_hist[1],
-                           xlabel="yaw rate [rad/s]", marks=(-threshold, threshold),
-                           mark_label="selection threshold")
-    figures.plot_selection(axes[0][2], result.segments.peak_yaw_rate_radps, threshold)
-    return ("Data coverage: time at each speed and yaw rate, and which segments the selection "
-            "rule kept.", _png(fig))
+    return FigureSpec("coverage", "Data coverage: time at each speed and yaw rate, and which "
+                      "segments the selection rule kept.", 10.0, 3.0, (
+                          Call("plot_histogram", data.speed_hist, {"xlabel": "speed [m/s]"}),
+                          Call("plot_histogram", data.yaw_hist,
+                               {"xlabel": "yaw rate [rad/s]", "marks": (-threshold, threshold),
+                                "mark_label": "selection threshold"}, col=1),
+                          Call("plot_selection", (result.segments.peak_yaw_rate_radps,
+                                                  threshold), col=2)), cols=3)
 
 
-def _uncertainty(result: CalibrationResult, data: ReportData) -> Rendered:
+def _uncertainty(result: CalibrationResult, data: ReportData) -> Spec:
     ident = result.settings.identify
-    fig, axes = _figure(6.0, 3.2)
-    figures.plot_uncertainty(axes[0][0], result.estimate.std,
-                             result.bootstrap.std if result.bootstrap is not None else None,
-                             np.asarray(ident.prior_std), result.estimate.identified,
-                             ident.identifiable_ratio)
-    return ("Standard deviations from the covariance and from the bootstrap, relative to the "
-            "datasheet uncertainty.", _png(fig))
+    return FigureSpec("uncertainty", "Standard deviations from the covariance and from the "
+                      "bootstrap, relative to the datasheet uncertainty.", 6.0, 3.2, (
+                          Call("plot_uncertainty", (
+                              result.estimate.std,
+                              result.bootstrap.std if result.bootstrap is not None else None,
+                              np.asarray(ident.prior_std), result.estimate.identified,
+                              ident.identifiable_ratio)),))
 
 
 #: Every figure of the page, in page order.
-FIGURES: dict[str, Callable[[CalibrationResult, ReportData], Rendered]] = {
+FIGURES: dict[str, Callable[[CalibrationResult, ReportData], Spec]] = {
     "map": _map, "inverse": _inverse, "step1": _step1, "spread": _spread, "rates": _rates,
     "segments": _segments, "coverage": _coverage, "uncertainty": _uncertainty}
 
-# The job the forked renderers draw from (set only while a pool renders).
-_JOB: tuple[CalibrationResult, ReportData] | None = None
 
-
-def _render(name: str) -> Rendered:
-    assert _JOB is not None
-    return FIGURES[name](*_JOB)
-
-
-def _figures(result: CalibrationResult, data: ReportData, *,
-             workers: int = 1) -> dict[str, tuple[str, bytes]]:
-    """name -> (caption, PNG bytes); rendered in ``workers`` forked processes where possible.
-
-    A figure is pure drawing from data already computed, so a forked child renders it from the
-    parent's memory and returns only the PNG's bytes.
-    """
-    global _JOB
-    names = list(FIGURES)
-    rendered: list[Rendered]
-    if workers > 1 and "fork" in multiprocessing.get_all_start_methods():
-        _JOB = (result, data)
-        try:
-            context = multiprocessing.get_context("fork")
-            with context.Pool(min(workers, len(names))) as pool:
-                rendered = pool.map(_render, names, chunksize=1)
-        finally:
-            _JOB = None
-    else:
-        rendered = [FIGURES[n](result, data) for n in names]
-    return {n: r for n, r in zip(names, rendered, strict=True) if r is not None}
+def _figures(result: CalibrationResult, data: ReportData,
+             renderer: Renderer) -> dict[str, tuple[str, bytes]]:
+    """name -> (caption, PNG bytes) of every figure this result has."""
+    specs = [spec for make in FIGURES.values() if (spec := make(result, data)) is not None]
+    return {s.name: (s.caption, png) for s, png in zip(specs, renderer.draw(specs), strict=True)}
 
 
 _CSS = """
@@ -208,9 +164,22 @@ ul { line-height: 1.5; } .no { color: #c62828; } .yes { color: #2e9b3e; }
 def _fmt(name: str, value: float | None) -> str:
     if value is None:
         return "-"
-    scale, unit = figures.DISPLAY[name]
+    scale, unit = PARAMETER_DISPLAY[name]
     digits = 3 if name in ("c_d", "d") else 5
     return f"{value * scale:.{digits}f} {unit}"
+
+
+class _borrowed:
+    """A renderer the caller owns: used, not closed."""
+
+    def __init__(self, renderer: Renderer) -> None:
+        self.renderer = renderer
+
+    def __enter__(self) -> Renderer:
+        return self.renderer
+
+    def __exit__(self, *exc: object) -> None:
+        return None
 
 
 def _page(result: CalibrationResult, data: ReportData,
@@ -295,15 +264,19 @@ straight{f"; {cov['time_in_pieces_too_short_s']:.0f} s lie in pieces too short f
 
 
 def write_report(result: CalibrationResult, out_dir: str | Path, *,
-                 progress: Callable[[str, int, int], None] | None = None) -> Report:
-    """Write ``report.html`` and ``figures/*.png`` into ``out_dir``."""
+                 progress: Callable[[str, int, int], None] | None = None,
+                 renderer: Renderer | None = None) -> Report:
+    """Write ``report.html`` and ``figures/*.png`` into ``out_dir``.
+
+    ``renderer`` draws the figures (start one early, see :class:`Renderer`); without one they
+    are drawn in this process.
+    """
     out = Path(out_dir)
     if progress:
         progress("report", 0, 1)
     data = build(result)
-    from odocal.parallel import resolve_workers
-
-    pngs = _figures(result, data, workers=resolve_workers(result.settings.calibrate.workers))
+    with Renderer() if renderer is None else _borrowed(renderer) as draw:
+        pngs = _figures(result, data, draw)
     paths = []
     for name, (_, png) in pngs.items():
         path = out / "figures" / f"{name}.png"
