@@ -40,6 +40,12 @@ def noisy_drive() -> SimulatedDrive:
     return odocal.simulate(duration_s=900.0, seed=12, noise="realistic")
 
 
+@pytest.fixture(scope="session")
+def short_drive() -> SimulatedDrive:
+    """A two-minute realistic drive (for importers and streams)."""
+    return odocal.simulate(duration_s=120, seed=2, noise="realistic")
+
+
 @pytest.fixture()
 def rng() -> np.random.Generator:
     return np.random.default_rng(1234)

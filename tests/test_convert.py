@@ -26,11 +26,6 @@ NO_OFFSET = Settings().replace(convert={"wheel_offset": "off"})
 COMPARED = ("n_rl", "n_rr", "a_y", "x", "y", "psi", "yaw_rate")
 
 
-@pytest.fixture(scope="module")
-def short_drive() -> SimulatedDrive:
-    return odocal.simulate(duration_s=120, seed=2, noise="realistic")
-
-
 @pytest.mark.parametrize("kind", ["ros1", "ros2", "mcap"])
 def test_bag_round_trip(short_drive: SimulatedDrive, tmp_path: Path, kind: str) -> None:
     drive = short_drive.drive

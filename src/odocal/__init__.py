@@ -45,6 +45,8 @@ if TYPE_CHECKING:
     from odocal.io import load_drive, save_drive
     from odocal.model import Parameters
     from odocal.noise import NOISE_PROFILES, NoiseProfile
+    from odocal.online import OnlineCalibrator
+    from odocal.replay import replay
     from odocal.reproduce import reproduce
     from odocal.settings import Settings, load_settings
     from odocal.simulate import TRUE_PARAMETERS, SimulatedDrive, simulate
@@ -69,6 +71,8 @@ _LAZY: dict[str, tuple[str, str]] = {
     "NOISE_PROFILES": ("odocal.noise", "NOISE_PROFILES"),
     "NoiseProfile": ("odocal.noise", "NoiseProfile"),
     "reproduce": ("odocal.reproduce", "reproduce"),
+    "OnlineCalibrator": ("odocal.online", "OnlineCalibrator"),
+    "replay": ("odocal.replay", "replay"),
     "Settings": ("odocal.settings", "Settings"),
     "load_settings": ("odocal.settings", "load_settings"),
     "TRUE_PARAMETERS": ("odocal.simulate", "TRUE_PARAMETERS"),
@@ -115,8 +119,8 @@ _logging.getLogger("odocal").addHandler(_logging.NullHandler())
 __all__ = [
     "NOISE_PROFILES", "TRUE_PARAMETERS", "CalibrationResult", "ConfigError", "DataError", "Drive",
     "Estimate", "Identified", "InputFileError", "MissingDependencyError", "NoiseProfile",
-    "NotIdentified", "OdocalError", "OutputError", "Parameters", "Reason", "Settings",
-    "SimulatedDrive", "SolverError", "Status", "__version__", "calibrate", "convert", "inspect",
-    "load_drive", "load_settings", "minimum", "reachable_minimum", "reproduce", "save_drive",
-    "simulate", "validate",
+    "NotIdentified", "OdocalError", "OnlineCalibrator", "OutputError", "Parameters", "Reason",
+    "Settings", "SimulatedDrive", "SolverError", "Status", "__version__", "calibrate", "convert",
+    "inspect", "load_drive", "load_settings", "minimum", "reachable_minimum", "replay",
+    "reproduce", "save_drive", "simulate", "validate",
 ]

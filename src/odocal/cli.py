@@ -404,6 +404,87 @@ def cmd_minimum(args: argparse.Namespace) -> int:
     return EXIT_OK if result.success else EXIT_FAILED
 
 
+def cmd_replay(args: argparse.Namespace) -> int:
+    """Stream a log through the online calibrator; write the estimate, its trace and alarms."""
+    renderer = _renderer(args)
+    try:
+        return _replay(args, renderer)
+    finally:
+        if renderer is not None:
+            renderer.close()
+
+
+def _replay(args: argparse.Namespace, renderer: Any) -> int:
+    import csv
+    import io
+
+    from odocal.io.atomic import refuse_inputs, write_text
+    from odocal.io.results import write_json
+    from odocal.model import PARAMETER_NAMES
+    from odocal.replay import TraceRow, replay
+    from odocal.report.replay import convergence_km, write_replay_report
+
+    settings = _settings(args)
+    inputs = [args.source, *([args.config] if args.config else []),
+              *([args.mapping] if args.mapping else [])]
+    out = Path(args.out)
+    refuse_inputs(out, inputs)
+
+    def show(row: TraceRow, est: Any) -> None:
+        if args.quiet:
+            return
+        parts = [f"{n} {_fmt_param(n, v)} {_fmt_std(n, s)}" if ok else f"{n} -"
+                 for n, v, s, ok in zip(PARAMETER_NAMES, row.theta, row.std, row.identified,
+                                        strict=True)]
+        _print(f"{row.t:9.1f} s {row.distance_km:8.2f} km  " + "  ".join(parts))
+
+    result = replay(args.source, fmt=args.source_format, settings=settings,
+                    mapping=args.mapping, on_update=show)
+    batch = None
+    if not args.no_batch and (args.source_format or "drive") == "drive":
+        from odocal.calibrate import calibrate
+
+        batch = calibrate(args.source, settings=settings).estimate
+    for alarm in result.alarms:
+        _print(f"change: {alarm.parameter} moved {alarm.relative_change * 100:+.3f}% at "
+               f"{alarm.distance_km:.2f} km (detected at {alarm.detected_distance_km:.2f} km, "
+               f"t = {alarm.detected_t:.0f} s)")
+    from odocal.output import prepare_output_dir
+
+    out = prepare_output_dir(out, inputs)
+    est = result.estimate
+    conv = convergence_km(result)
+    data = {"odocal_version": __version__, **est.to_dict(), "method": "online",
+            "alarms": [a.to_dict() for a in result.alarms],
+            "convergence_km": conv, "samples": result.samples, "duration_s": result.duration_s,
+            "distance_km": result.distance_km, "elapsed_s": result.elapsed_s,
+            "details": est.details.to_dict() if est.details is not None else None,
+            "batch": batch.to_dict() if batch is not None else None,
+            "inputs": [{"name": str(args.source)}], "settings": settings.to_dict()}
+    written = [write_json(out / "calibration.json", data)]
+    text = io.StringIO()
+    table = csv.writer(text)
+    table.writerow(TraceRow.header())
+    for row in result.trace:
+        table.writerow(row.values())
+    write_text(out / "trace.csv", text.getvalue())
+    written.append(out / "trace.csv")
+    written.append(write_json(out / "alarms.json", {"alarms": [a.to_dict()
+                                                               for a in result.alarms]}))
+    if not args.no_report:
+        written.append(write_replay_report(result, out, batch=batch, renderer=renderer))
+        written.append(out / "figures" / "trace.png")
+    if not args.quiet:
+        _print(f"replayed {result.duration_s / 60:.1f} min, {result.distance_km:.2f} km in "
+               f"{result.elapsed_s:.1f} s; c_e to 1 mm after "
+               + (f"{conv['c_e']:.2f} km" if conv["c_e"] is not None else "-")
+               + ", t_r to 20 mm after "
+               + (f"{conv['t_r']:.2f} km" if conv["t_r"] is not None else "-"))
+        for path in written:
+            _print(f"wrote {path}")
+    return EXIT_OK
+
+
 def cmd_reproduce(args: argparse.Namespace) -> int:
     from odocal.io.results import write_json
     from odocal.reproduce import format_report, reproduce
@@ -529,6 +610,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="JSON", help="write the numbers to this file")
     _add_common(p)
     p.set_defaults(func=cmd_reproduce)
+
+    p = sub.add_parser("replay", help="stream a log through the online calibrator")
+    p.add_argument("source", metavar="SOURCE",
+                   help="a drive file (.parquet, .csv), or a bag with --from rosbag")
+    p.add_argument("--from", dest="source_format", choices=("drive", "rosbag"),
+                   help="source format (default: a drive file)")
+    p.add_argument("--mapping", metavar="TOML", help="topics and fields of a bag (see README)")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="folder for calibration.json, trace.csv, alarms.json, report.html")
+    p.add_argument("--no-batch", action="store_true",
+                   help="skip the batch calibration of the whole log shown for comparison")
+    p.add_argument("--no-report", action="store_true", help="skip report.html")
+    _add_common(p)
+    p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("minimum", help="the reachable minimum validation error (global search)")
     p.add_argument("logs", nargs="+", metavar="LOG")

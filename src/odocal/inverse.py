@@ -41,6 +41,7 @@ What remains is done from the data:
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -400,7 +401,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         offset = 0.0
     steps = _steps(drives, heading_offset=offset)
     length = max(round(cfg.window_s / t_s), 1)
-    margin = int(np.ceil(cfg.max_delay_s / t_s)) + 1 if cfg.delay == "estimate" else 0
+    margin = math.ceil(cfg.max_delay_s / t_s - 1e-6) + 1 if cfg.delay == "estimate" else 0
     win = _windows(steps, length, margin, settings.segments.length)
     if win.start.size < 4:
         log.warning("inverse calibration: the drives hold fewer than four moving windows")

@@ -271,6 +271,40 @@ class InverseSettings:
 
 
 @dataclass(frozen=True)
+class OnlineSettings:
+    """The online calibrator (``odocal replay``, ``odocal.OnlineCalibrator``)."""
+
+    max_windows: int = 600
+    """Windows kept in memory for exact relinearisation (600 windows of 2 s: 20 minutes);
+    older ones are folded into the normal equations."""
+    forgetting_s: float | None = None
+    """Time constant with which older evidence fades (unset: none; the online estimate then
+    agrees with the batch one at the end of a drive)."""
+    warmup_clusters: int = 10
+    """Clusters (of a segment's length) the estimate takes in before the change detector
+    watches (after a start or a detected change)."""
+    cusum_k: float = 0.75
+    """The change detector's allowance, in standard deviations of one cluster's estimate."""
+    cusum_h: float = 8.0
+    """The change detector's threshold (larger: fewer false alarms, later detection)."""
+    chunk_s: float = 1.0
+    """Samples per push when ``odocal replay`` streams a log."""
+    update_s: float = 30.0
+    """How often ``odocal replay`` asks for the estimate (a row of trace.csv)."""
+
+    def __post_init__(self) -> None:
+        s = "online"
+        _check(self.max_windows >= 30, s, "max_windows", self.max_windows, "an integer >= 30")
+        _check(self.warmup_clusters >= 2, s, "warmup_clusters", self.warmup_clusters,
+               "an integer >= 2")
+        _check(self.forgetting_s is None or 0 < self.forgetting_s < float("inf"), s,
+               "forgetting_s", self.forgetting_s, "a positive time in s (or unset)")
+        for key in ("cusum_k", "cusum_h", "chunk_s", "update_s"):
+            _check(0 < getattr(self, key) < float("inf"), s, key, getattr(self, key),
+                   "a positive finite number")
+
+
+@dataclass(frozen=True)
 class GateSettings:
     """The checks of the data against the model and the quality gate (README, "When odocal
     refuses"). A calibration outside these limits fails (exit 3) with the reason."""
@@ -449,6 +483,7 @@ class Settings:
     joint: JointSettings = field(default_factory=JointSettings)
     inverse: InverseSettings = field(default_factory=InverseSettings)
     gate: GateSettings = field(default_factory=GateSettings)
+    online: OnlineSettings = field(default_factory=OnlineSettings)
     convert: ConvertSettings = field(default_factory=ConvertSettings)
     fusion: FusionSettings = field(default_factory=FusionSettings)
     sideslip: SideslipSettings = field(default_factory=SideslipSettings)

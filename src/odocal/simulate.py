@@ -76,7 +76,8 @@ class SimulatedDrive:
 
 def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoiseProfile = "realistic",
              theta: Parameters | None = None, t_s: float = 0.025,
-             name: str | None = None) -> SimulatedDrive:
+             name: str | None = None,
+             change: tuple[float, Parameters] | None = None) -> SimulatedDrive:
     """Simulate a city drive with known true parameters.
 
     Parameters
@@ -86,6 +87,8 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
     noise : a name in :data:`NOISE_PROFILES` or a :class:`NoiseProfile`
     theta : true parameters (default :data:`TRUE_PARAMETERS`)
     t_s : sampling time, s
+    change : ``(t, new_theta)``: from time t on, the wheels turn as ``new_theta`` makes them
+        (a tyre pressure change within the drive); ``true_parameters`` are those before
     """
     if isinstance(noise, str):
         if noise not in NOISE_PROFILES:
@@ -108,9 +111,18 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
     a_y = v * w                                        # lateral acceleration, m/s^2
     beta = kappa * (_L_R - _MASS_KG * _L_F * v**2 / (_C_REAR_NPRAD * (_L_F + _L_R)))
     n_rl, n_rr = wheel_rates_for(true_theta, v, w, a_y)
+    if change is not None:
+        if not (np.isfinite(change[0]) and 0 <= change[0]):
+            raise ConfigError(f"change time {change[0]} s must be a time within the drive")
+        after = np.arange(m) * t_s >= change[0]
+        later_rl, later_rr = wheel_rates_for(change[1].as_array(), v, w, a_y)
+        n_rl, n_rr = np.where(after, later_rl, n_rl), np.where(after, later_rr, n_rr)
 
     x0 = np.array([0.0, 0.0, rng.uniform(-np.pi, np.pi)])
-    poses = rollout(true_theta, Inputs(n_rl[:-1], n_rr[:-1], beta[:-1], a_y[:-1]), x0, t_s)
+    # the true motion (v, w) whatever the wheels: rolled out with the rates of the first theta
+    first_rl, first_rr = wheel_rates_for(true_theta, v, w, a_y)
+    poses = rollout(true_theta, Inputs(first_rl[:-1], first_rr[:-1], beta[:-1], a_y[:-1]), x0,
+                    t_s)
 
     meas_rl, meas_rr, meas_ay, meas_beta, ref = _corrupt(rng, profile, v, n_rl, n_rr, a_y,
                                                          beta, poses, t_s)

@@ -24,7 +24,7 @@ header) or the bag's receive time (``time = "receive"``).
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -119,6 +119,82 @@ def read_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,
                   origin_lla=origin[0] if origin else None,
                   metadata={"source_format": "rosbag", "bag": str(path),
                             "topics": {r: plan[r][0] for r in plan}})
+
+
+def iter_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,
+                circumference_m: float, chunk_s: float = 5.0) -> Iterator[dict[str, Stream]]:
+    """The streams of a bag in chunks of about ``chunk_s`` of receive time, message by message.
+
+    The bag is never loaded whole: each chunk holds the messages of its span, converted as
+    :func:`read_rosbag` converts them (encoder ticks, whose rates need neighbouring counts, are
+    not supported here). GNSS positions are not streamed (they need the whole log's fusion).
+    """
+    try:
+        from rosbags.highlevel import AnyReader
+    except ImportError:  # pragma: no cover - rosbags is a dependency
+        raise MissingDependencyError("reading ROS bags needs 'rosbags' (pip install rosbags)") \
+            from None
+    path = Path(source)
+    if not path.exists():
+        raise InputFileError(f"bag '{path}' does not exist")
+    try:
+        reader = AnyReader([path])
+        reader.open()
+    except Exception as exc:  # rosbags raises several kinds for a corrupt or unknown file
+        raise DataError(f"'{path}' cannot be read as a ROS bag or MCAP file: "
+                        f"{type(exc).__name__}: {exc}") from None
+    try:
+        topics = {c.topic: _normalise_type(c.msgtype) for c in reader.connections}
+        plan = {role: entry for role, entry in _plan(path, topics, mapping).items()
+                if role in ("wheels", "imu", "pose")}
+        if "pose" not in plan:
+            raise DataError(f"'{path}': replay needs a fused pose topic (nav_msgs/Odometry or "
+                            "geometry_msgs/PoseStamped); convert GNSS logs first (odocal convert)")
+        if plan["wheels"][1].get("unit") == "ticks":
+            raise DataError(f"'{path}': replay cannot stream encoder ticks; convert the log first "
+                            "(odocal convert)")
+        by_topic: dict[str, list[str]] = {}
+        for role, (topic, _) in plan.items():
+            by_topic.setdefault(topic, []).append(role)
+        conns = [c for c in reader.connections if c.topic in by_topic]
+        joint_index: dict[str, tuple[int, int]] = {}
+        columns: dict[str, dict[str, list[float]]] = {role: {} for role in plan}
+        chunk_end: float | None = None
+        for conn, receive_ns, data in reader.messages(connections=conns):
+            now = receive_ns * 1e-9
+            if chunk_end is None:
+                chunk_end = now + chunk_s
+            if now >= chunk_end:
+                yield _chunk_streams(columns, plan, circumference_m)
+                columns = {role: {} for role in plan}
+                chunk_end = now + chunk_s
+            msg = reader.deserialize(data, conn.msgtype)
+            for role in by_topic[conn.topic]:
+                section = plan[role][1]
+                stamp = _stamp(msg) if section["time"] == "header" else None
+                cols = columns[role]
+                cols.setdefault("time", []).append(stamp if stamp is not None else now)
+                for key, value in _extract(role, section, msg, joint_index, conn.topic).items():
+                    cols.setdefault(key, []).append(value)
+        yield _chunk_streams(columns, plan, circumference_m)
+    finally:
+        reader.close()
+
+
+def _chunk_streams(columns: Mapping[str, Mapping[str, list[float]]],
+                   plan: Mapping[str, tuple[str, dict[str, Any]]],
+                   circumference_m: float) -> dict[str, Stream]:
+    out: dict[str, Stream] = {}
+    for role, cols in columns.items():
+        if not cols.get("time"):
+            continue
+        topic, section = plan[role]
+        table = {k: np.asarray(v, dtype=np.float64) for k, v in cols.items()}
+        named = {**section, **{k: k for k in table}, "time_unit": "s"}
+        out[role] = stream_from_columns(role, table, named, name=f"{topic} ({role})",
+                                        path_label=Path(topic), circumference_m=circumference_m,
+                                        origin=[])
+    return out
 
 
 def _plan(path: Path, topics: Mapping[str, str], mapping: Mapping[str, Mapping[str, Any]]

@@ -249,3 +249,32 @@ def plot_inverse_fit(ax: Axes, measured: FloatArray, residual: FloatArray, *,
 def legend(ax: Axes, **kwargs: Any) -> list[Any]:
     """The axes' legend (for figures whose first panel carries it)."""
     return [ax.legend(**kwargs)]
+
+
+def plot_trace(ax: Axes, distance_km: FloatArray, value: FloatArray, std: FloatArray,
+               identified: FloatArray, *, name: str, batch: float | None = None,
+               batch_std: float | None = None, alarms_km: Sequence[float] = ()) -> list[Any]:
+    """One parameter of an online calibration against distance, with its one-sigma band."""
+    scale, unit = DISPLAY[name]
+    ok = np.asarray(identified, dtype=bool)
+    v, s = np.asarray(value) * scale, np.asarray(std) * scale
+    artists: list[Any] = []
+    if ok.any():
+        artists.append(ax.fill_between(distance_km, np.where(ok, v - s, np.nan),
+                                       np.where(ok, v + s, np.nan), color=CALIBRATED, alpha=0.25,
+                                       lw=0, label="online, one std"))
+    artists.append(ax.plot(distance_km, np.where(ok, v, np.nan), color=CALIBRATED, lw=1.4,
+                           label="online estimate")[0])
+    if batch is not None:
+        artists.append(ax.axhline(batch * scale, color=RAW, lw=1.2, ls="--",
+                                  label="batch (whole log)"))
+        if batch_std:
+            artists.append(ax.axhspan((batch - batch_std) * scale, (batch + batch_std) * scale,
+                                      color=RAW, alpha=0.12, lw=0))
+    for i, km in enumerate(alarms_km):
+        artists.append(ax.axvline(km, color=DATASHEET, lw=1.2,
+                                  label="change detected" if i == 0 else None))
+    ax.set_xlabel("distance driven [km]")
+    ax.set_ylabel(f"{name} [{unit}]")
+    ax.grid(True, alpha=0.3)
+    return artists

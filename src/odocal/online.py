@@ -1,0 +1,764 @@
+"""Calibrating while the vehicle drives: the default method, recursive and in bounded memory.
+
+The paper closes with this plan (section 7): re-calibrate online from the signals measured while
+driving. :class:`OnlineCalibrator` takes samples in any chunks (``push``) and answers at any time
+(``estimate``) with the same :class:`~odocal.estimate.Estimate` as the batch methods.
+
+It runs the default method's model (:mod:`odocal.inverse`): the wheel revolutions the reference
+motion implies, fitted to the measured ones, window by window. A window keeps only what the
+model needs to predict it for *any* theta: the measured revolutions and six moments of the
+reference motion (``sum ds a^j`` and ``sum dpsi a^j``, j = 0, 1, 2; the lateral acceleration
+enters the circumferences through ``d a``, and ``1 / (c + d a)`` is a geometric series in
+``d a / c`` whose third term is below 1e-7). So the fit is relinearised exactly over the recent
+windows; older windows are folded into the normal equations (linearised at the estimate of the
+moment: their error is of second order in how far theta has moved since, negligible once it
+has converged), together with their clusters' scores for the sandwich covariance and their
+residual moments for the noise model. Memory is a fixed ring of samples, a bounded list of
+recent windows and a few sums, whatever the drive's length.
+
+With ``forgetting_s`` set, older evidence fades with that time constant (a parameter that
+drifts is tracked). Independently, a two-sided CUSUM watches each completed cluster's own
+estimate of c_e and c_d against the running estimate: a step (tyre pressure, a tyre change)
+raises an alarm with when, where and how much, and the estimate restarts from the new level.
+
+The wheel stream's clock offset is found from running cross-products of the wheels' yaw signal
+and the reference's at lags up to ``[inverse] max_delay_s`` (the batch method scans the fit's
+cost instead; both find the lag of the yaw signals), and the reference heading's offset
+against the direction of travel from running sums on straight stretches, as in batch.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal.errors import DataError
+from odocal.estimate import (
+    CovarianceKind,
+    Estimate,
+    NotIdentified,
+    Reason,
+    Status,
+    few_clusters_inflation,
+    held_as_weak,
+    judge,
+    weak,
+)
+from odocal.model import PARAMETER_NAMES, Parameters
+from odocal.settings import Settings
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+_CHANNELS = np.array([[0.5, 0.5], [-1.0, 1.0]])     # distance and yaw channels, as in batch
+_HUBER = 4.0
+_COLUMNS = ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi")
+
+
+@dataclass(frozen=True)
+class Alarm:
+    """A change within the drive, found by the CUSUM on the clusters' own estimates.
+
+    parameter : ``c_e`` or ``c_d``
+    t : time of the first cluster after the change (the CUSUM's last reset), s
+    detected_t : when the alarm rose, s
+    distance_km, detected_distance_km : the same in driven distance
+    relative_change : the step over the estimate before it (c_d: over c_e)
+    sigmas : the step in standard deviations of one cluster's estimate
+    """
+
+    parameter: str
+    t: float
+    detected_t: float
+    distance_km: float
+    detected_distance_km: float
+    relative_change: float
+    sigmas: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"parameter": self.parameter, "t": self.t, "detected_t": self.detected_t,
+                "distance_km": self.distance_km, "detected_distance_km": self.detected_distance_km,
+                "relative_change": self.relative_change, "sigmas": self.sigmas}
+
+
+@dataclass(frozen=True)
+class OnlineDetails:
+    """What the online calibrator has seen and done."""
+
+    samples: int
+    windows: int
+    windows_in_memory: int
+    clusters: int
+    distance_km: float
+    delay_s: float
+    heading_offset_rad: float
+    noise: tuple[tuple[float, float], tuple[float, float]]
+    alarms: tuple[Alarm, ...]
+    forgetting_s: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"samples": self.samples, "windows": self.windows,
+                "windows_in_memory": self.windows_in_memory, "clusters": self.clusters,
+                "distance_km": self.distance_km, "delay_s": self.delay_s,
+                "heading_offset_rad": self.heading_offset_rad,
+                "noise": {"distance": {"s0_rev": self.noise[0][0], "f": self.noise[0][1]},
+                          "yaw": {"s0_rev": self.noise[1][0], "f": self.noise[1][1]}},
+                "alarms": [a.to_dict() for a in self.alarms],
+                "forgetting_s": self.forgetting_s}
+
+
+def window_prediction(theta: FloatArray, moments: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Predicted revolutions (W, 2) and their Jacobian (W, 2, 4) from window moments.
+
+    ``moments`` (W, 6): ``sum ds a^j`` (j = 0, 1, 2) then ``sum dpsi a^j``. With
+    ``c_rl = C_l + d a``, ``C_l = c_e + c_d/2`` (and ``c_rr = C_r - d a``), (2)-(3) inverted give
+    ``n_rl t_s = (ds - t_r dpsi / 2) / c_rl``; summed over the window and expanded to second order
+    in ``d a / C``.
+    """
+    c_e, c_d, t_r, d = theta
+    s0, s1, s2, q0, q1, q2 = moments.T
+    out = np.empty((moments.shape[0], 2))
+    jac = np.empty((moments.shape[0], 2, 4))
+    for w, (big, sign) in enumerate(((c_e + 0.5 * c_d, 1.0), (c_e - 0.5 * c_d, -1.0))):
+        e = sign * d / big                          # the load transfer, relative
+        a0 = s0 - e * s1 + e * e * s2                # sum ds / (1 + e a)
+        b0 = q0 - e * q1 + e * e * q2                # sum dpsi / (1 + e a)
+        half = -sign * 0.5 * t_r                     # -t_r/2 for the left wheel, +t_r/2 right
+        value = (a0 + half * b0) / big
+        out[:, w] = value
+        # derivatives of a0, b0 with respect to e, and of e with respect to big and d
+        da0 = -s1 + 2.0 * e * s2
+        db0 = -q1 + 2.0 * e * q2
+        de_dbig = -e / big
+        de_dd = sign / big
+        dvalue_dbig = -value / big + (da0 + half * db0) / big * de_dbig
+        dvalue_dd = (da0 + half * db0) / big * de_dd
+        jac[:, w, 0] = dvalue_dbig                   # d big / d c_e = 1
+        jac[:, w, 1] = sign * 0.5 * dvalue_dbig      # d big / d c_d = +-1/2
+        jac[:, w, 2] = -sign * 0.5 * b0 / big
+        jac[:, w, 3] = dvalue_dd
+    return out, jac
+
+
+@dataclass
+class _Folded:
+    """Older windows, folded: normal equations in information form, scores, residual moments."""
+
+    h: FloatArray = field(default_factory=lambda: np.zeros((4, 4)))
+    b: FloatArray = field(default_factory=lambda: np.zeros(4))       # g0 + H0 theta_lin
+    meat: FloatArray = field(default_factory=lambda: np.zeros((4, 4)))
+    last_score: FloatArray | None = None
+    clusters: int = 0
+    # noise-model sums per channel: n, sum rev^2, sum rev^4, sum r^2, sum r^2 rev^2
+    noise: FloatArray = field(default_factory=lambda: np.zeros((2, 5)))
+    scan: FloatArray | None = None          # the yaw channel's cost at each shift of the scan
+    cost: float = 0.0                        # weighted sum of squared residuals
+    count: int = 0                           # residuals in it
+
+    def decay(self, factor: float) -> None:
+        self.h *= factor
+        self.b *= factor
+        self.meat *= factor
+        self.noise *= factor
+        self.cost *= factor
+        if self.scan is not None:
+            self.scan *= factor
+
+
+@dataclass
+class _Cusum:
+    """Two-sided CUSUM on standardised innovations (k: allowance, h: threshold)."""
+
+    k: float
+    h: float
+    upper: float = 0.0
+    lower: float = 0.0
+    count: int = 0
+    total: float = 0.0
+    start_t: float = 0.0
+    start_km: float = 0.0
+
+    def update(self, z: float, t: float, km: float) -> bool:
+        if self.upper == 0.0 and self.lower == 0.0:
+            self.count, self.total, self.start_t, self.start_km = 0, 0.0, t, km
+        self.upper = max(0.0, self.upper + z - self.k)
+        self.lower = max(0.0, self.lower - z - self.k)
+        self.count += 1
+        self.total += z
+        return self.upper > self.h or self.lower > self.h
+
+    def reset(self) -> None:
+        self.upper = self.lower = 0.0
+
+
+class OnlineCalibrator:
+    """Calibrate while driving: ``push`` samples in any chunks, ``estimate`` at any time.
+
+    Parameters
+    ----------
+    settings : all settings (``[online]`` for the window memory, forgetting and the change
+        detector; ``[inverse]`` for the window length and the clock-offset range; ``[identify]``
+        for the datasheet values and the identifiability verdict)
+    theta0 : the starting estimate (default: the datasheet values ``[identify] theta0``)
+    """
+
+    def __init__(self, settings: Settings | None = None,
+                 theta0: Parameters | FloatArray | None = None) -> None:
+        self.settings = settings or Settings()
+        cfg = self.settings.online
+        start = (np.asarray(self.settings.identify.theta0, dtype=np.float64) if theta0 is None
+                 else (theta0.as_array() if isinstance(theta0, Parameters)
+                       else np.asarray(theta0, dtype=np.float64)))
+        if start.shape != (4,) or not np.all(np.isfinite(start)) or start[0] <= 0 \
+                or start[2] <= 0:
+            raise DataError(f"theta0 {start.tolist()} is not a usable starting estimate")
+        self.datasheet = np.asarray(self.settings.identify.theta0, dtype=np.float64)
+        self.theta = start.copy()
+        self._t_s: float | None = None
+        self._last: dict[str, float] | None = None     # the previous sample (continuity)
+        self._ring = np.zeros((0, 9))                   # steps not yet in a window
+        # windows in memory: head rows [t0, distance, cluster, measured rl, measured rr], the
+        # motion moments at every whole-step shift of the reference side, and a weight
+        self._head = np.zeros((0, 5))
+        self._moments = np.zeros((0, 0, 6))
+        self._weight = np.zeros(0)
+        self._shift_cache: tuple[int, float, float] | None = None
+        self._folded = _Folded()
+        self._noise = np.array([[1e-3, 1e-3], [1e-3, 1e-3]])
+        self._samples = 0
+        self._windows_total = 0
+        self._distance_m = 0.0
+        self._straight = np.zeros(2)                   # heading offset: sum lat, sum lon
+        self._alarms: list[Alarm] = []
+        self._clusters_done = 0
+        self._fit_cost = (0.0, 0)
+        self._cusum = {"c_e": _Cusum(cfg.cusum_k, cfg.cusum_h),
+                       "c_d": _Cusum(cfg.cusum_k, cfg.cusum_h)}
+        self._cluster_scale: dict[str, list[float]] = {"c_e": [], "c_d": []}
+        self._current_cluster = -1
+
+    # ---------------------------------------------------------------- input
+
+    def push(self, chunk: Mapping[str, Any] | Any) -> None:
+        """Add samples: a mapping of drive-format column names to arrays, or a pandas DataFrame.
+
+        Columns ``t, n_rl, n_rr, a_y, x, y, psi`` are required, ``beta`` is optional; ``t`` must
+        increase. A gap longer than 1.5 sampling steps ends the current piece (windows never
+        span a gap).
+        """
+        cols = {k: np.asarray(chunk[k], dtype=np.float64).ravel() for k in _COLUMNS
+                if _has(chunk, k)}
+        missing = [k for k in _COLUMNS if k not in cols]
+        if missing:
+            raise DataError(f"pushed samples lack column{'s' if len(missing) > 1 else ''} "
+                            f"{', '.join(missing)}")
+        n = cols["t"].size
+        if n == 0:
+            return
+        beta = np.asarray(chunk["beta"], dtype=np.float64).ravel() if _has(chunk, "beta") \
+            else np.zeros(n)
+        for key, values in (*cols.items(), ("beta", beta)):
+            if values.size != n:
+                raise DataError(f"pushed column {key} has {values.size} samples, t has {n}")
+            if not np.all(np.isfinite(values)):
+                raise DataError(f"pushed column {key} holds NaN or infinite values")
+        for key in ("n_rl", "n_rr"):
+            if np.any(np.abs(cols[key]) > 100.0):
+                raise DataError(f"pushed column {key} reaches {np.max(np.abs(cols[key])):.4g}: "
+                                "wheel rates must be in rev/s")
+        t = cols["t"]
+        if np.any(np.diff(t) <= 0) or (self._last is not None and t[0] <= self._last["t"]):
+            raise DataError("pushed samples' t must increase strictly (and continue the "
+                            "previous chunk)")
+        if self._t_s is None:
+            steps = np.diff(t) if n > 1 else (np.array([t[0] - self._last["t"]])
+                                              if self._last is not None else np.zeros(0))
+            if steps.size == 0:                          # one sample so far: wait for more
+                self._last = {k: float(v[0]) for k, v in cols.items()} | {"beta": float(beta[0])}
+                self._samples += 1
+                return
+            self._t_s = float(np.median(steps))
+        rows = np.column_stack([t, cols["n_rl"], cols["n_rr"], cols["a_y"], beta, cols["x"],
+                                cols["y"], cols["psi"]])
+        self._samples += n
+        if self._last is not None:
+            rows = np.vstack([self._last_row(), rows])
+        self._last = dict(zip(("t", "n_rl", "n_rr", "a_y", "beta", "x", "y", "psi"),
+                              rows[-1].tolist(), strict=True))
+        # runs of samples without a gap; a gap ends the piece (no step, no window across it)
+        gaps = np.flatnonzero(np.diff(rows[:, 0]) > 1.5 * self._t_s) + 1
+        for k, run in enumerate(np.split(rows, gaps)):
+            if k > 0:
+                self._ring = np.zeros((0, 9))
+            if run.shape[0] >= 2:
+                self._steps(run)
+
+    def _last_row(self) -> FloatArray:
+        assert self._last is not None
+        return np.array([[self._last[k] for k in ("t", "n_rl", "n_rr", "a_y", "beta", "x", "y",
+                                                  "psi")]])
+
+    def _steps(self, run: FloatArray) -> None:
+        """The steps between consecutive samples of a run: revolutions and reference motion."""
+        assert self._t_s is not None
+        t, n_rl, n_rr, a_y, beta, x, y, psi = run.T
+        dpsi = np.remainder(np.diff(psi) + np.pi, 2.0 * np.pi) - np.pi
+        h = psi[:-1] + 0.5 * dpsi + beta[:-1]
+        dx, dy = np.diff(x), np.diff(y)
+        ds = dx * np.cos(h) + dy * np.sin(h)
+        self._distance_m += float(np.hypot(dx, dy).sum())
+        # per step: time, measured revolutions (the rates at its start), motion, a_y, dx, dy, psi
+        steps = np.column_stack([t[:-1], n_rl[:-1] * self._t_s, n_rr[:-1] * self._t_s, ds, dpsi,
+                                 a_y[:-1], dx, dy, psi[:-1]])
+        self._ring = np.vstack([self._ring, steps])
+        length = max(round(self.settings.inverse.window_s / self._t_s), 1)
+        margin = self._max_lag()
+        while self._ring.shape[0] >= length + 2 * margin + 1:
+            self._window(length, margin)
+
+    def _max_lag(self) -> int:
+        """Whole steps the reference side may shift either way (``[inverse] max_delay_s``)."""
+        assert self._t_s is not None
+        return math.ceil(self.settings.inverse.max_delay_s / self._t_s - 1e-6)
+
+    def _window(self, length: int, margin: int) -> None:
+        """Close the oldest window of the ring: measured revolutions, and the motion moments
+        at every whole-step shift of the reference side (the lag is chosen when estimating)."""
+        assert self._t_s is not None
+        ring = self._ring[:length + 2 * margin + 1]
+        start = margin                                   # the window's wheel steps: [m, m + L)
+        measured = ring[start:start + length, 1:3].sum(axis=0)
+        offset = self.heading_offset()
+        ds = ring[:, 3] * math.cos(offset) + _lateral(ring) * math.sin(offset)
+        dpsi, a = ring[:, 4], ring[:, 5]
+        columns = np.column_stack([ds, ds * a, ds * a * a, dpsi, dpsi * a, dpsi * a * a])
+        cum = np.vstack([np.zeros((1, 6)), np.cumsum(columns, axis=0)])
+        shifts = np.arange(-margin, margin + 1)
+        moments = cum[start - shifts + length] - cum[start - shifts]       # (S, 6)
+        t0 = float(ring[start, 0])
+        cluster = math.floor(t0 / (self.settings.segments.length * self._t_s))
+        self._straight_sums(ring[start:start + length])
+        self._ring = self._ring[length:]
+        if not np.any(measured):                        # standing still: no information
+            return
+        distance = self._distance_m - float(np.hypot(self._ring[:, 6], self._ring[:, 7]).sum())
+        self._add_window(np.array([t0, distance, cluster, *measured]), moments)
+
+    def _rows(self, shift: float, keep: NDArray[np.bool_] | None = None) -> FloatArray:
+        """Windows in memory at a (fractional) shift: [t0, distance, cluster, measured (2),
+        moments (6), weight] per row."""
+        head, moments, weight = self._head, self._moments, self._weight
+        if keep is not None:
+            head, moments, weight = head[keep], moments[keep], weight[keep]
+        if head.shape[0] == 0:
+            return np.zeros((0, 12))
+        margin = (moments.shape[1] - 1) // 2
+        x = min(max(shift, -margin), margin) + margin
+        lo = min(math.floor(x), moments.shape[1] - 1)
+        frac = x - lo
+        at = moments[:, lo] if frac == 0 else \
+            moments[:, lo] * (1.0 - frac) + moments[:, lo + 1] * frac
+        return np.column_stack([head, at, weight])
+
+    def _grid(self) -> FloatArray:
+        limit = self._max_lag() if self._t_s is not None else 0
+        return np.arange(-limit, limit + 0.25, 0.5)
+
+    def _scan_costs(self, keep: NDArray[np.bool_] | None, theta: FloatArray) -> FloatArray:
+        """The yaw channel's weighted cost at each shift of the grid (windows ``keep``)."""
+        grid = self._grid()
+        head, moments, weight = self._head, self._moments, self._weight
+        if keep is not None:
+            head, moments, weight = head[keep], moments[keep], weight[keep]
+        if head.shape[0] == 0:
+            return np.zeros(grid.size)
+        margin = (moments.shape[1] - 1) // 2
+        x = grid + margin
+        lo = np.minimum(np.floor(x).astype(np.int64), moments.shape[1] - 1)
+        hi = np.minimum(lo + 1, moments.shape[1] - 1)
+        frac = (x - lo)[None, :, None]
+        at = moments[:, lo] * (1.0 - frac) + moments[:, hi] * frac       # (N, G, 6)
+        n, g = at.shape[0], at.shape[1]
+        measured = np.repeat(head[:, 3:5], g, axis=0)
+        pred, _ = window_prediction(theta, at.reshape(n * g, 6))
+        r = (measured - pred) @ _CHANNELS.T
+        w = _weights(measured, r, self._noise) * np.repeat(weight, g)[:, None]
+        return np.asarray((w[:, 1] * r[:, 1] ** 2).reshape(n, g).sum(axis=0))
+
+    def shift(self) -> tuple[float, float]:
+        """The reference side's shift (steps) that fits the wheels best, and its std.
+
+        As the batch method: the yaw channel's cost over a half-step grid (windows in memory
+        plus folded ones), the minimum refined by a parabola, applied only beyond three standard
+        deviations of zero.
+        """
+        if self._t_s is None or self.settings.inverse.delay == "off":
+            return 0.0, float("nan")
+        key = (self._windows_total, self._folded.clusters)
+        if self._shift_cache is not None and self._shift_cache[0] == hash(key):
+            return self._shift_cache[1], self._shift_cache[2]
+        grid = self._grid()
+        costs = self._scan_costs(None, self.theta)
+        if self._folded.scan is not None and self._folded.scan.size == grid.size:
+            costs = costs + self._folded.scan
+        best, std = 0.0, float("nan")
+        i = int(np.argmin(costs))
+        if 0 < i < grid.size - 1:
+            c0, c1, c2 = costs[i - 1:i + 2]
+            curvature = (c0 - 2.0 * c1 + c2) / 0.25
+            if curvature > 0:
+                std = float(np.sqrt(2.0 / curvature))
+                guess = float(grid[i] + 0.25 * (c0 - c2) / (c0 - 2.0 * c1 + c2))
+                best = guess if abs(guess) >= 3.0 * std else 0.0
+        self._shift_cache = (hash(key), best, std)
+        return best, std
+
+    def delay_s(self) -> float:
+        """The wheel stream's lag behind the reference that is applied (positive: late), s."""
+        return self.shift()[0] * (self._t_s or 0.0)
+
+    def heading_offset(self) -> float:
+        lat, lon = self._straight
+        if lon <= 200.0:                                 # less than 200 m of straights
+            return 0.0
+        return float(math.atan2(lat, lon))
+
+    def _straight_sums(self, steps: FloatArray) -> None:
+        assert self._t_s is not None
+        dt = steps.shape[0] * self._t_s
+        dx, dy = steps[:, 6].sum(), steps[:, 7].sum()
+        psi = steps[0, 8] + 0.5 * steps[:, 4].sum()
+        speed = math.hypot(dx, dy) / dt
+        if speed > 3.0 and abs(steps[:, 4].sum()) / dt < 0.02:
+            self._straight += [-dx * math.sin(psi) + dy * math.cos(psi),
+                               dx * math.cos(psi) + dy * math.sin(psi)]
+
+    # ---------------------------------------------------------------- windows and folding
+
+    def _add_window(self, head: FloatArray, moments: FloatArray) -> None:
+        cfg = self.settings.online
+        self._windows_total += 1
+        cluster = int(head[2])
+        if self._head.shape[0] and cluster != self._current_cluster \
+                and self._current_cluster >= 0:
+            self._cluster_done(self._current_cluster)
+        self._current_cluster = cluster
+        if cfg.forgetting_s:
+            factor = math.exp(-self.settings.inverse.window_s / cfg.forgetting_s)
+            self._folded.decay(factor)
+            self._weight = self._weight * factor
+        if self._moments.shape[0] == 0:
+            self._moments = np.zeros((0, *moments.shape))
+        self._head = np.vstack([self._head, head])
+        self._moments = np.concatenate([self._moments, moments[None]])
+        self._weight = np.append(self._weight, 1.0)
+        if self._head.shape[0] > cfg.max_windows:
+            self._fold()
+
+    def _cluster_done(self, cluster: int) -> None:
+        """A cluster is complete: the CUSUM compares its own estimate of c_e and c_d with the
+        estimate from the clusters before it, which then takes it in."""
+        shift = self.shift()[0]
+        rows = self._rows(shift, self._head[:, 2] == cluster)
+        self._clusters_done += 1
+        if rows.shape[0] >= 3 and self._clusters_done > self.settings.online.warmup_clusters:
+            self._watch(rows)
+        self.theta, _, _ = self._solve(self.theta, self._rows(shift), np.ones(4, dtype=bool))
+
+    def _watch(self, rows: FloatArray) -> None:
+        """The CUSUM step for one completed cluster's windows."""
+        theta = self.theta
+        pred, jac = window_prediction(theta, rows[:, 5:11])
+        r = (rows[:, 3:5] - pred) @ _CHANNELS.T
+        j = np.einsum("ci,wip->wcp", _CHANNELS, jac)
+        w = 1.0 / _variance(rows[:, 3:5], self._noise)
+        for p, name in ((0, "c_e"), (1, "c_d")):
+            info = float(np.sum(w * j[:, :, p] ** 2))
+            if info <= 0:
+                continue
+            step = float(np.sum(w * j[:, :, p] * r)) / info
+            z = step * math.sqrt(info)
+            seen = self._cluster_scale[name]
+            seen.append(z)
+            if len(seen) > 200:
+                seen.pop(0)
+            scale = max(float(np.sqrt(np.mean(np.square(seen)))), 1.0) if len(seen) >= 10 \
+                else 1.0 + 10.0 / len(seen)
+            cusum = self._cusum[name]
+            if cusum.update(z / scale, float(rows[0, 0]), float(rows[0, 1]) / 1000.0) \
+                    and len(seen) >= 10:
+                mean_z = cusum.total / max(cusum.count, 1)
+                change = mean_z * scale / math.sqrt(info)
+                self._alarms.append(Alarm(
+                    parameter=name, t=cusum.start_t, detected_t=float(rows[-1, 0]),
+                    distance_km=cusum.start_km, detected_distance_km=float(rows[-1, 1]) / 1000,
+                    relative_change=change / theta[0], sigmas=mean_z))
+                self._restart(p, change, cusum.start_t)
+                return
+
+    def _restart(self, index: int, change: float, since_t: float) -> None:
+        """After a change: forget the evidence before it, start from the new level."""
+        self.theta = self.theta.copy()
+        self.theta[index] += change
+        keep = self._head[:, 0] >= since_t
+        self._head, self._moments, self._weight = (self._head[keep], self._moments[keep],
+                                                   self._weight[keep])
+        self._folded = _Folded()
+        self._clusters_done = 0                          # a new warm-up before watching again
+        for c in self._cusum.values():
+            c.reset()
+
+    def _fold(self) -> None:
+        """Fold the oldest complete cluster into the running sums (linearised at theta now)."""
+        first = self._head[0, 2]
+        count = int(np.sum(self._head[:, 2] == first))
+        if count == self._head.shape[0]:
+            count //= 2                                  # (one huge cluster: fold half)
+        keep = np.arange(self._head.shape[0]) >= count
+        shift = self.shift()[0]
+        folded_scan = self._scan_costs(~keep, self.theta)
+        rows = self._rows(shift, ~keep)
+        self._head, self._moments, self._weight = (self._head[keep], self._moments[keep],
+                                                   self._weight[keep])
+        block = rows
+        theta = self.theta
+        pred, jac = window_prediction(theta, block[:, 5:11])
+        r = (block[:, 3:5] - pred) @ _CHANNELS.T
+        j = np.einsum("ci,wip->wcp", _CHANNELS, jac)
+        w = _weights(block[:, 3:5], r, self._noise) * block[:, -1:]
+        jw = j * w[..., None]
+        h = np.einsum("wcp,wcq->pq", jw, j)
+        g = np.einsum("wcp,wc->p", jw, r)
+        f = self._folded
+        f.h += h
+        f.b += g + h @ theta
+        f.meat += np.outer(g, g)
+        if f.last_score is not None:
+            cross = np.outer(f.last_score, g)
+            f.meat += cross + cross.T
+        f.last_score = g
+        f.clusters += 1
+        f.cost += float(np.sum(w * r**2))
+        f.count += r.size
+        f.scan = folded_scan if f.scan is None or f.scan.size != folded_scan.size \
+            else f.scan + folded_scan
+        rev2 = block[:, 3:5].mean(axis=1) ** 2
+        for c in range(2):
+            r2 = r[:, c] ** 2
+            f.noise[c] += [rows.shape[0], rev2.sum(), (rev2**2).sum(), r2.sum(),
+                           (r2 * rev2).sum()]
+
+    # ---------------------------------------------------------------- output
+
+    def estimate(self) -> Estimate:
+        """The estimate now: theta, covariance, verdicts, status (as the batch methods give)."""
+        ident = self.settings.identify
+        held: dict[str, NotIdentified] = {}
+        free = np.ones(4, dtype=bool)
+        if self._head.shape[0] + self._folded.clusters == 0:
+            return self._nothing(Reason.NO_INFORMATION)
+        rows = self._rows(self.shift()[0])
+        theta = self.theta.copy()
+        for _ in range(len(PARAMETER_NAMES) + 1):
+            theta, h, scores = self._solve(theta, rows, free)
+            cov, n_clusters = self._covariance(h, scores, rows, free)
+            std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+            if n_clusters < 2:
+                for j in np.flatnonzero(free):
+                    held[PARAMETER_NAMES[j]] = NotIdentified(Reason.ONE_CLUSTER, float(std[j]),
+                                                             detail=float(n_clusters))
+                free[:] = False
+                break
+            too_weak = weak(std, free, ident)
+            if not too_weak.any():
+                break
+            held.update(held_as_weak(std, too_weak, ident))
+            free = free & ~too_weak
+            theta[~free] = self.datasheet[~free]
+        if not free.any():
+            cov = np.zeros((4, 4))
+        theta[~free] = self.datasheet[~free]
+        if free.any():
+            self.theta = theta.copy()
+        std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        details = self._details()
+        return Estimate(method="online", theta=Parameters.from_array(theta),
+                        datasheet=Parameters.from_array(self.datasheet), covariance=cov,
+                        covariance_kind=CovarianceKind.RECURSIVE,
+                        free=tuple(bool(f) for f in free),  # type: ignore[arg-type]
+                        verdicts=judge(std, free, ident, held=held),
+                        status=Status.CONVERGED if free.any() else Status.NOTHING_IDENTIFIABLE,
+                        details=details)
+
+    def _solve(self, theta: FloatArray, rows: FloatArray,
+               free: BoolArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Gauss-Newton over the windows in memory and the folded normal equations."""
+        f = self._folded
+        h = np.zeros((4, 4))
+        scores = np.zeros((0, 4))
+        for _ in range(8):
+            if rows.shape[0]:
+                pred, jac = window_prediction(theta, rows[:, 5:11])
+                r = (rows[:, 3:5] - pred) @ _CHANNELS.T
+                j = np.einsum("ci,wip->wcp", _CHANNELS, jac)
+                self._noise = _fit_noise(rows[:, 3:5], r, f.noise)
+                w = _weights(rows[:, 3:5], r, self._noise) * rows[:, -1:]
+                jw = j * w[..., None]
+                h = np.einsum("wcp,wcq->pq", jw, j) + f.h
+                per_window = np.einsum("wcp,wc->wp", jw, r)
+                g = per_window.sum(axis=0) + f.b - f.h @ theta
+                scores = per_window
+                self._fit_cost = (float(np.sum(w * r**2)) + f.cost, r.size + f.count)
+            else:
+                h, g = f.h.copy(), f.b - f.h @ theta
+            cols = np.flatnonzero(free)
+            if cols.size == 0:
+                break
+            step = np.zeros(4)
+            step[cols] = np.linalg.lstsq(h[np.ix_(cols, cols)], g[cols], rcond=None)[0]
+            theta = theta + step
+            if np.max(np.abs(step) / np.maximum(np.abs(theta), 1e-3)) < 1e-10:
+                break
+        return theta, h, scores
+
+    def _covariance(self, h: FloatArray, scores: FloatArray, rows: FloatArray,
+                    free: BoolArray) -> tuple[FloatArray, int]:
+        """Sandwich: folded clusters' meat plus the clusters in memory (neighbours at full
+        weight), as :func:`odocal.uncertainty.robust_covariance`."""
+        f = self._folded
+        cols = np.flatnonzero(free)
+        h_inv = np.zeros((4, 4))
+        if cols.size:
+            h_inv[np.ix_(cols, cols)] = np.linalg.pinv(h[np.ix_(cols, cols)])
+        meat = f.meat.copy()
+        n_clusters = f.clusters
+        if rows.shape[0]:
+            labels, index = np.unique(rows[:, 2].astype(np.int64), return_inverse=True)
+            g = np.zeros((labels.size, 4))
+            np.add.at(g, index, scores)
+            n_clusters += labels.size
+            meat += g.T @ g
+            if labels.size > 1:
+                cross = g[:-1].T @ g[1:]
+                meat += cross + cross.T
+            if f.last_score is not None:
+                cross = np.outer(f.last_score, g[0])
+                meat += cross + cross.T
+        meat[~free, :] = 0.0
+        meat[:, ~free] = 0.0
+        values, vectors = np.linalg.eigh(meat)
+        meat = (vectors * np.clip(values, 0.0, None)) @ vectors.T
+        correction = n_clusters / (n_clusters - 1) if n_clusters > 1 else 1.0
+        cov = correction * (h_inv @ meat @ h_inv)
+        if n_clusters < 10:
+            # few clusters, as in batch: the larger of this and the residual-variance formula,
+            # widened for the clusters' small number
+            cost, count = self._fit_cost
+            naive = cost / max(count - int(free.sum()), 1) * h_inv
+            s_n = np.sqrt(np.clip(np.diag(naive), 0.0, None))
+            s_r = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                f_ = np.where(s_n > 0, np.maximum(s_n, s_r) / s_n, 1.0)
+            cov = naive * np.outer(f_, f_) * few_clusters_inflation(max(n_clusters, 2)) ** 2
+        return cov, n_clusters
+
+    def _details(self) -> OnlineDetails:
+        return OnlineDetails(
+            samples=self._samples, windows=self._windows_total,
+            windows_in_memory=int(self._head.shape[0]),
+            clusters=self._folded.clusters + int(np.unique(self._head[:, 2]).size),
+            distance_km=self._distance_m / 1000.0, delay_s=self.delay_s(),
+            heading_offset_rad=self.heading_offset(),
+            noise=((float(self._noise[0, 0]), float(self._noise[0, 1])),
+                   (float(self._noise[1, 0]), float(self._noise[1, 1]))),
+            alarms=tuple(self._alarms), forgetting_s=self.settings.online.forgetting_s)
+
+    def _nothing(self, reason: Reason) -> Estimate:
+        theta = Parameters.from_array(self.datasheet)
+        held = {n: NotIdentified(reason) for n in PARAMETER_NAMES}
+        return Estimate(method="online", theta=theta, datasheet=theta,
+                        covariance=np.zeros((4, 4)), covariance_kind=CovarianceKind.NONE,
+                        free=(False, False, False, False),
+                        verdicts=judge(np.zeros(4), np.zeros(4, dtype=bool),
+                                       self.settings.identify, held=held),
+                        status=Status.NOTHING_IDENTIFIABLE, details=self._details())
+
+    def details_samples(self) -> int:
+        """Samples pushed so far."""
+        return self._samples
+
+    @property
+    def alarms(self) -> tuple[Alarm, ...]:
+        return tuple(self._alarms)
+
+    @property
+    def distance_km(self) -> float:
+        return self._distance_m / 1000.0
+
+
+def _has(chunk: Any, key: str) -> bool:
+    try:
+        return key in chunk
+    except TypeError:
+        return False
+
+
+def _lateral(ring: FloatArray) -> FloatArray:
+    """Each step's displacement across the direction of travel (for a heading offset)."""
+    h = ring[:, 8] + 0.5 * ring[:, 4]
+    return -ring[:, 6] * np.sin(h) + ring[:, 7] * np.cos(h)
+
+
+def _fractional_sum(columns: FloatArray, lo: float, length: int) -> FloatArray:
+    """Sum of rows over [lo, lo + length), fractional ends taken in part."""
+    i0 = math.floor(lo)
+    f0 = lo - i0
+    hi = lo + length
+    i1 = math.floor(hi)
+    f1 = hi - i1
+    total = columns[i0:i1].sum(axis=0)
+    if f1 > 0:
+        total = total + f1 * columns[i1]
+    if f0 > 0:
+        total = total - f0 * columns[i0]
+    return np.asarray(total)
+
+
+def _variance(measured: FloatArray, noise: FloatArray) -> FloatArray:
+    rev = np.abs(measured.mean(axis=1))[:, None]
+    return noise[None, :, 0] ** 2 + (noise[None, :, 1] * rev) ** 2
+
+
+def _weights(measured: FloatArray, residual: FloatArray, noise: FloatArray) -> FloatArray:
+    w = 1.0 / _variance(measured, noise)
+    z = np.abs(residual) * np.sqrt(w)
+    return w * np.minimum(1.0, _HUBER / np.maximum(z, 1e-300))
+
+
+def _fit_noise(measured: FloatArray, residual: FloatArray, folded: FloatArray) -> FloatArray:
+    """``r^2 ~ s0^2 + f^2 rev^2`` per channel from the windows in memory and the folded sums."""
+    rev2 = measured.mean(axis=1) ** 2
+    out = np.empty((2, 2))
+    for c in range(2):
+        r2 = residual[:, c] ** 2
+        n, sx, sxx, sy, sxy = folded[c] + [r2.size, rev2.sum(), (rev2**2).sum(), r2.sum(),
+                                           (r2 * rev2).sum()]
+        det = n * sxx - sx * sx
+        a, b = (sy / max(n, 1.0), 0.0)
+        if det > 0:
+            a2 = (sxx * sy - sx * sxy) / det
+            b2 = (n * sxy - sx * sy) / det
+            if a2 >= 0 and b2 >= 0:
+                a, b = a2, b2
+            elif b2 < 0:
+                a, b = sy / max(n, 1.0), 0.0
+            else:
+                a, b = 0.0, max(sxy / max(sxx, 1e-300), 0.0)
+        floor = max(sy / max(n, 1.0) * 1e-3, 1e-24)
+        out[c] = math.sqrt(max(a, floor)), math.sqrt(max(b, 0.0))
+    return out

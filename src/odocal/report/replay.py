@@ -1,0 +1,117 @@
+"""The report of ``odocal replay``: the online estimate against distance, alarms, batch answer."""
+
+from __future__ import annotations
+
+import base64
+import html
+from pathlib import Path
+
+import numpy as np
+
+from odocal import __version__
+from odocal.estimate import Estimate
+from odocal.io.atomic import write_bytes, write_text
+from odocal.model import PARAMETER_DISPLAY, PARAMETER_LABELS, PARAMETER_NAMES
+from odocal.replay import ReplayResult
+from odocal.report.render import Call, FigureSpec, Renderer
+
+#: Convergence thresholds the report quotes: c_e to 1 mm, t_r to 20 mm.
+CONVERGED_STD = {"c_e": 1e-3, "t_r": 20e-3}
+
+
+def convergence_km(result: ReplayResult) -> dict[str, float | None]:
+    """Distance driven until each quoted parameter was identified within its threshold."""
+    out: dict[str, float | None] = {}
+    for name, limit in CONVERGED_STD.items():
+        j = PARAMETER_NAMES.index(name)
+        hit = [r.distance_km for r in result.trace if r.identified[j] and r.std[j] <= limit]
+        out[name] = hit[0] if hit else None
+    return out
+
+
+def _spec(result: ReplayResult, batch: Estimate | None) -> FigureSpec:
+    rows = result.trace
+    distance = np.array([r.distance_km for r in rows])
+    calls = []
+    for j, name in enumerate(PARAMETER_NAMES):
+        calls.append(Call("plot_trace", (distance, np.array([r.theta[j] for r in rows]),
+                                         np.array([r.std[j] for r in rows]),
+                                         np.array([r.identified[j] for r in rows])),
+                          {"name": name,
+                           "batch": float(batch.theta.as_array()[j])
+                           if batch is not None and batch.identified[j] else None,
+                           "batch_std": float(batch.std[j]) if batch is not None else None,
+                           "alarms_km": [a.detected_distance_km for a in result.alarms]},
+                          row=j // 2, col=j % 2))
+    calls.append(Call("legend", kwargs={"fontsize": 7, "loc": "best"}))
+    return FigureSpec("trace", "The online estimate of each parameter against the distance "
+                      "driven, with its one-standard-deviation band; the batch calibration of "
+                      "the whole log for comparison; red lines where a change was detected.",
+                      10.0, 6.0, tuple(calls), rows=2, cols=2)
+
+
+def _fmt(name: str, value: float) -> str:
+    scale, unit = PARAMETER_DISPLAY[name]
+    return f"{value * scale:.{3 if name in ('c_d', 'd') else 5}f} {unit}"
+
+
+def write_replay_report(result: ReplayResult, out_dir: str | Path, *,
+                        batch: Estimate | None = None,
+                        renderer: Renderer | None = None) -> Path:
+    """Write ``report.html`` and ``figures/trace.png`` into ``out_dir``."""
+    out = Path(out_dir)
+    spec = _spec(result, batch)
+    own = renderer is None
+    draw = Renderer() if renderer is None else renderer
+    try:
+        (png,) = draw.draw([spec])
+    finally:
+        if own:
+            draw.close()
+    write_bytes(out / "figures" / "trace.png", png)
+    e = html.escape
+    est = result.estimate
+    rows = []
+    for j, (name, label) in enumerate(zip(PARAMETER_NAMES, PARAMETER_LABELS, strict=True)):
+        online = (f"{_fmt(name, est.theta.as_array()[j])} &plusmn; {_fmt(name, est.std[j])}"
+                  if est.identified[j] else "not identified")
+        cmp = "-"
+        if batch is not None:
+            cmp = (f"{_fmt(name, batch.theta.as_array()[j])} &plusmn; {_fmt(name, batch.std[j])}"
+                   if batch.identified[j] else "not identified")
+        rows.append(f"<tr><td><b>{name}</b> {e(label)}</td><td>{online}</td><td>{cmp}</td></tr>")
+    alarms = "".join(
+        f"<tr><td>{a.parameter}</td><td>{a.t:.0f} s</td><td>{a.distance_km:.2f} km</td>"
+        f"<td>{a.detected_distance_km:.2f} km</td><td>{a.relative_change * 100:+.3f}%</td></tr>"
+        for a in result.alarms)
+    conv = convergence_km(result)
+    conv_text = "; ".join(f"{n} to {CONVERGED_STD[n] * 1000:.0f} mm after "
+                          + (f"{km:.2f} km" if km is not None else "not within this log")
+                          for n, km in conv.items())
+    uri = "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+    page = f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>odocal replay</title>
+<style>body{{font-family:system-ui,sans-serif;margin:0;background:#f6f7f9;color:#222}}
+main{{max-width:1100px;margin:0 auto;padding:24px}} table{{border-collapse:collapse;
+background:white}} th,td{{padding:6px 12px;border-bottom:1px solid #e2e4e8;text-align:right}}
+td:first-child,th:first-child{{text-align:left}} img{{max-width:100%}}
+.meta{{color:#666}}</style></head><body><main>
+<h1>Online calibration (replay)</h1>
+<p class="meta">{e(Path(result.source).name)} &middot; {result.duration_s / 60:.1f} min,
+{result.distance_km:.2f} km &middot; {result.samples} samples in {result.elapsed_s:.1f} s
+&middot; odocal {__version__}</p>
+<p id="convergence">Converged: {e(conv_text)}.</p>
+<table id="parameters"><tr><th>parameter</th><th>online (end of log)</th>
+<th>batch (whole log)</th></tr>{''.join(rows)}</table>
+<h2>Estimate against distance</h2>
+<figure id="fig-trace"><img alt="online estimate against distance" src="{uri}">
+<figcaption>{e(spec.caption)}</figcaption></figure>
+<h2>Changes detected</h2>
+{"<table id='alarms'><tr><th>parameter</th><th>since</th><th>at</th><th>detected at</th>"
+ "<th>change</th></tr>" + alarms + "</table>" if alarms else "<p id='alarms'>None.</p>"}
+<p class="meta">The numbers are in calibration.json, trace.csv and alarms.json.</p>
+</main></body></html>
+"""
+    path = out / "report.html"
+    write_text(path, page)
+    return path

@@ -1,0 +1,153 @@
+"""Calibrating while driving: the online calibrator and ``odocal replay`` (issue 13)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import odocal
+from odocal.cli import EXIT_ERROR, EXIT_OK, main
+from odocal.errors import DataError
+from odocal.estimate import CovarianceKind
+from odocal.model import Parameters, inverse_revolutions
+from odocal.online import OnlineCalibrator, window_prediction
+from odocal.simulate import SimulatedDrive
+
+from .bagwriter import write_bag
+
+
+def pushed(drive: odocal.Drive, step: int, calibrator: OnlineCalibrator | None = None,
+           ) -> OnlineCalibrator:
+    calibrator = calibrator or OnlineCalibrator()
+    cols = drive.columns()
+    for i in range(0, drive.n_samples, step):
+        calibrator.push({k: v[i:i + step] for k, v in cols.items()})
+    return calibrator
+
+
+def test_window_moments_predict_what_the_model_does(rng: np.random.Generator) -> None:
+    theta = np.array([1.95, -0.002, 1.53, 0.0008])
+    ds, dpsi, a = rng.uniform(0, 0.4, 80), rng.normal(0, 0.01, 80), rng.uniform(-4, 4, 80)
+    revs, jac = inverse_revolutions(theta, ds, dpsi, a)
+    moments = np.array([[ds.sum(), ds @ a, ds @ a**2, dpsi.sum(), dpsi @ a, dpsi @ a**2]])
+    pred, j = window_prediction(theta, moments)
+    np.testing.assert_allclose(pred[0], revs.sum(axis=0), rtol=1e-9)
+    np.testing.assert_allclose(j[0, :, :3], jac.sum(axis=0)[:, :3], rtol=1e-7)
+    # d's derivative drops the series' next term: close (the fit's fixed point is the
+    # prediction's, which is exact to (d a / c)^3)
+    np.testing.assert_allclose(j[0, :, 3], jac.sum(axis=0)[:, 3], rtol=2e-3)
+
+
+def test_agrees_with_batch_at_the_end_of_a_drive(noisy_drive: SimulatedDrive) -> None:
+    online = pushed(noisy_drive.drive, 40).estimate()
+    batch = odocal.calibrate(noisy_drive.drive).estimate
+    assert online.method == "online" and online.covariance_kind is CovarianceKind.RECURSIVE
+    assert online.identified == batch.identified == (True, True, True, True)
+    diff = (online.theta.as_array() - batch.theta.as_array()) / batch.std
+    assert np.all(np.abs(diff) < 1.0), diff
+    np.testing.assert_allclose(online.std, batch.std, rtol=0.5)
+
+
+def test_chunk_size_does_not_matter(noisy_drive: SimulatedDrive) -> None:
+    a = pushed(noisy_drive.drive, 7).estimate()
+    b = pushed(noisy_drive.drive, 4000).estimate()
+    np.testing.assert_allclose(a.theta.as_array(), b.theta.as_array(), rtol=1e-12, atol=1e-15)
+
+
+def test_memory_is_bounded_by_folding(noisy_drive: SimulatedDrive) -> None:
+    settings = odocal.Settings().replace(online={"max_windows": 60})
+    calibrator = pushed(noisy_drive.drive, 40, OnlineCalibrator(settings))
+    est = calibrator.estimate()
+    assert est.details.windows_in_memory <= 61 < est.details.windows
+    batch = odocal.calibrate(noisy_drive.drive).estimate
+    diff = (est.theta.as_array() - batch.theta.as_array()) / batch.std
+    assert np.all(np.abs(diff) < 1.0), diff
+
+
+def test_a_step_in_c_e_is_detected_and_the_estimate_follows() -> None:
+    true = odocal.TRUE_PARAMETERS
+    after = Parameters(true.c_e * 0.998, true.c_d - 0.0005, true.t_r, true.d)
+    sim = odocal.simulate(duration_s=2400, seed=2, noise="realistic", change=(1200.0, after))
+    calibrator = pushed(sim.drive, 40)
+    alarms = calibrator.alarms
+    assert alarms and alarms[0].detected_t > 1200.0
+    assert alarms[0].detected_t < 1200.0 + 600.0                 # within ten minutes
+    est = calibrator.estimate()
+    assert abs(est.theta.c_e - after.c_e) < 3 * est.std[0] + 1e-4
+
+
+def test_no_alarm_without_a_change(noisy_drive: SimulatedDrive) -> None:
+    assert pushed(noisy_drive.drive, 40).alarms == ()
+
+
+def test_gaps_split_pieces_and_bad_chunks_are_refused(noisy_drive: SimulatedDrive) -> None:
+    cols = noisy_drive.drive.columns()
+    calibrator = OnlineCalibrator()
+    half = noisy_drive.drive.n_samples // 2
+    calibrator.push({k: v[:half] for k, v in cols.items()})
+    later = {k: v[half:] for k, v in cols.items()}
+    later["t"] = later["t"] + 60.0                                 # a minute's gap
+    calibrator.push(later)
+    assert calibrator.estimate().success
+    with pytest.raises(DataError, match="t must increase"):
+        calibrator.push({k: v[:10] for k, v in cols.items()})
+    with pytest.raises(DataError, match="lack column psi"):
+        OnlineCalibrator().push({k: v for k, v in cols.items() if k != "psi"})
+    with pytest.raises(DataError, match="NaN"):
+        OnlineCalibrator().push({**cols, "a_y": np.full(cols["t"].size, np.nan)})
+    with pytest.raises(DataError, match="rev/s"):
+        OnlineCalibrator().push({**cols, "n_rl": cols["n_rl"] * 60})
+
+
+def test_replay_writes_its_files(noisy_drive: SimulatedDrive, tmp_path: Path,
+                                 capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "drive.parquet"
+    odocal.save_drive(noisy_drive.drive, path)
+    out = tmp_path / "r"
+    assert main(["replay", str(path), "--out", str(out)]) == EXIT_OK
+    stdout = capsys.readouterr().out
+    assert "c_e to 1 mm after" in stdout
+    data = json.loads((out / "calibration.json").read_text())
+    assert data["method"] == "online" and set(data["theta"]) == {"c_e", "c_d", "t_r", "d"}
+    assert np.array(data["covariance"]).shape == (4, 4)
+    assert data["batch"]["method"] == "inverse"
+    rows = list(csv.DictReader((out / "trace.csv").open()))
+    assert len(rows) >= 25 and {"t", "distance_km", "c_e", "c_e_std"} <= set(rows[0])
+    assert float(rows[-1]["distance_km"]) > float(rows[0]["distance_km"])
+    assert json.loads((out / "alarms.json").read_text()) == {"alarms": []}
+    assert (out / "figures" / "trace.png").stat().st_size > 5000
+    assert "Online calibration" in (out / "report.html").read_text()
+    # csv streams too, and gives the same answer
+    csv_path = tmp_path / "drive.csv"
+    odocal.save_drive(noisy_drive.drive, csv_path)
+    assert main(["replay", str(csv_path), "--out", str(tmp_path / "c"), "-q", "--no-batch",
+                 "--no-report"]) == EXIT_OK
+    again = json.loads((tmp_path / "c" / "calibration.json").read_text())
+    for name, value in data["theta"].items():
+        assert again["theta"][name] == pytest.approx(value, rel=1e-9, abs=1e-12)
+
+
+def test_replay_streams_a_bag(short_drive: SimulatedDrive, tmp_path: Path) -> None:
+    bag = write_bag(short_drive.drive, tmp_path / "d.mcap", "mcap")
+    out = tmp_path / "r"
+    assert main(["replay", str(bag), "--from", "rosbag", "--out", str(out), "-q"]) == EXIT_OK
+    data = json.loads((out / "calibration.json").read_text())
+    assert data["samples"] > 0.9 * short_drive.drive.n_samples
+    assert abs(data["theta"]["c_e"] - short_drive.true_parameters.c_e) < 5e-3
+
+
+def test_replay_bad_inputs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["replay", str(tmp_path / "none.parquet"), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == EXIT_ERROR and "does not exist" in err and err.count("\n") == 1
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,n_rl\n0,1\n")
+    code = main(["replay", str(bad), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == EXIT_ERROR and "lacks columns" in err
+    code = main(["replay", str(bad), "--out", str(bad)])
+    assert code == EXIT_ERROR and "would overwrite" in capsys.readouterr().err
