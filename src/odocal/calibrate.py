@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import logging
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -111,11 +112,15 @@ class Prepared:
     segments: SegmentSet
     used: BoolArray
     held: Mapping[str, NotIdentified]
-    batch: SegmentBatch
     clusters: IntArray
     validation_segments: SegmentSet
     validation: RaggedSegments | None
     warnings: tuple[str, ...]
+
+    @functools.cached_property
+    def batch(self) -> SegmentBatch:
+        """The used segments' data (gathered when a segment-based method asks for it)."""
+        return gather(self.drives, self.segments.subset(self.used))
 
 
 @dataclass(frozen=True)
@@ -368,7 +373,6 @@ def prepare(drives: Sequence[Drive], settings: Settings) -> Prepared:
         warnings += (f"the drives hold no validation segment of {shortest:.0f} m or more; "
                      "E_p is not available",)
     return Prepared(drives=tuple(drives), segments=id_segments, used=used, held=held,
-                    batch=gather(drives, id_segments.subset(used)),
                     clusters=segment_clusters(id_segments.subset(used), settings.segments.length),
                     validation_segments=val_segments, validation=val_data, warnings=warnings)
 
@@ -478,7 +482,8 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         estimate=estimate, validation=val, datasheet_validation=datasheet,
         segments=prep.segments, used=prep.used, drives=summarise(drive_list), settings=settings,
         warnings=tuple(warnings), elapsed_s=time.perf_counter() - started, bootstrap=boot,
-        three_step=outcome.three_step, batch=prep.batch, drive_data=tuple(drive_list),
+        three_step=outcome.three_step, batch=prep.__dict__.get("batch"),
+        drive_data=tuple(drive_list),
         timings_s=dict(clock.seconds), diagnosis=diagnosis)
 
 

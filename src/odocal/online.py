@@ -237,6 +237,7 @@ class OnlineCalibrator:
         self._alarms: list[Alarm] = []
         self._clusters_done = 0
         self._fit_cost = (0.0, 0)
+        self._peak_yaw = 0.0
         self._cusum = {"c_e": _Cusum(cfg.cusum_k, cfg.cusum_h),
                        "c_d": _Cusum(cfg.cusum_k, cfg.cusum_h)}
         self._cluster_scale: dict[str, list[float]] = {"c_e": [], "c_d": []}
@@ -343,6 +344,9 @@ class OnlineCalibrator:
         t0 = float(ring[start, 0])
         cluster = math.floor(t0 / (self.settings.segments.length * self._t_s))
         self._straight_sums(ring[start:start + length])
+        yaw = np.convolve(ring[start:start + length, 4] / self._t_s, np.full(5, 0.2), "valid")
+        if yaw.size:
+            self._peak_yaw = max(self._peak_yaw, float(np.max(np.abs(yaw))))
         self._ring = self._ring[length:]
         if not np.any(measured):                        # standing still: no information
             return
@@ -560,10 +564,16 @@ class OnlineCalibrator:
         ident = self.settings.identify
         held: dict[str, NotIdentified] = {}
         free = np.ones(4, dtype=bool)
+        if self._peak_yaw <= self.settings.segments.yaw_rate_threshold_radps:
+            # as in batch: t_r and d act on the yaw rate only in bends
+            for name in ("t_r", "d"):
+                held[name] = NotIdentified(Reason.NEEDS_BENDS, detail=self._peak_yaw)
+                free[PARAMETER_NAMES.index(name)] = False
         if self._head.shape[0] + self._folded.clusters == 0:
             return self._nothing(Reason.NO_INFORMATION)
         rows = self._rows(self.shift()[0])
         theta = self.theta.copy()
+        theta[~free] = self.datasheet[~free]
         for _ in range(len(PARAMETER_NAMES) + 1):
             theta, h, scores = self._solve(theta, rows, free)
             cov, n_clusters = self._covariance(h, scores, rows, free)

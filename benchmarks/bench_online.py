@@ -1,0 +1,203 @@
+"""The online calibrator: speed, latency, memory, agreement with batch, change detection.
+
+    python benchmarks/bench_online.py [--seeds 5] [--long-hours 10] [--profiles ...]
+                                      [--skip memory,matrix,changes,real]
+
+Printed:
+
+* **speed**: one hour of 40 Hz samples pushed one second at a time on one core (numba and BLAS
+  limited to one thread), total time and the 50th/99th percentile latency of a push;
+* **memory**: peak memory (PSS of the process) of ``odocal replay --no-batch`` on a 15-minute and
+  a ``--long-hours`` drive, and of the batch ``odocal calibrate --no-report`` on the long one;
+* **matrix**: for every noise profile and seed (20-minute drives), the online estimate at the end
+  against the batch default's (difference in batch standard deviations, largest over
+  parameters) and both against the truth (mean |error|);
+* **changes**: a 0.2% step in c_e (and 0.5 mm in c_d) halfway through a one-hour drive: how often
+  and how soon (distance) it is detected, over seeds; false alarms per hour on drives without;
+* **real**: distance until c_e is known to 1 mm and t_r to 20 mm on the shared real logs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import numpy as np
+from _measure import run_measured
+
+import odocal
+from odocal.model import PARAMETER_NAMES, Parameters
+from odocal.noise import NOISE_PROFILES
+from odocal.online import OnlineCalibrator
+
+
+def push_all(drive: odocal.Drive, step: int = 40,
+             calibrator: OnlineCalibrator | None = None) -> tuple[OnlineCalibrator, list[float]]:
+    calibrator = calibrator or OnlineCalibrator()
+    cols = drive.columns()
+    latencies = []
+    for i in range(0, drive.n_samples, step):
+        chunk = {k: v[i:i + step] for k, v in cols.items()}
+        started = time.perf_counter()
+        calibrator.push(chunk)
+        latencies.append(time.perf_counter() - started)
+    return calibrator, latencies
+
+
+def speed() -> None:
+    drive = odocal.simulate(duration_s=3600, seed=5).drive
+    push_all(odocal.simulate(duration_s=120, seed=6).drive)            # warm up
+    started = time.perf_counter()
+    calibrator, lat = push_all(drive)
+    total = time.perf_counter() - started
+    t0 = time.perf_counter()
+    calibrator.estimate()
+    est_ms = (time.perf_counter() - t0) * 1e3
+    print(f"speed: one hour ({drive.n_samples} samples) pushed in {total:.2f} s on one core "
+          f"({3600 / total:.0f}x real time); latency per one-second push: median "
+          f"{np.median(lat) * 1e3:.2f} ms, p99 {np.percentile(lat, 99) * 1e3:.2f} ms, max "
+          f"{np.max(lat) * 1e3:.1f} ms; estimate() {est_ms:.1f} ms")
+
+
+def memory(hours: float) -> None:
+    exe = str(Path(sys.executable).with_name("odocal"))
+    work = Path(tempfile.mkdtemp(prefix="odocal-online-"))
+    files = {}
+    for label, seconds in (("15 min", 900.0), (f"{hours:g} h", hours * 3600.0)):
+        path = work / f"{label.replace(' ', '')}.parquet"
+        odocal.save_drive(odocal.simulate(duration_s=seconds, seed=8).drive, path)
+        files[label] = path
+    for label, path in files.items():
+        wall, peak = run_measured([exe, "replay", str(path), "--out", str(work / f"r{label}"),
+                                   "--no-batch", "--no-report", "-q"])
+        print(f"memory: replay of a {label} drive: peak {peak:.0f} MB, {wall:.1f} s")
+    long = files[f"{hours:g} h"]
+    wall, peak = run_measured([exe, "calibrate", str(long), "--out", str(work / "batch"),
+                               "--no-report", "-q"])
+    print(f"memory: batch calibrate of the {hours:g} h drive: peak {peak:.0f} MB, {wall:.1f} s")
+
+
+def matrix(profiles: list[str], seeds: int) -> None:
+    print(f"matrix: online at the end vs batch default, {seeds} seeds of 20 minutes")
+    print(f"  {'profile':<18}{'max |online-batch|/std':>24}"
+          f"{'online mean|e| c_e,c_d,t_r,d (mm)':>44}{'batch mean|e|':>34}")
+    for profile in profiles:
+        diffs, e_on, e_ba = [], [], []
+        for seed in range(seeds):
+            sim = odocal.simulate(duration_s=1200, seed=seed, noise=profile)
+            online = push_all(sim.drive)[0].estimate()
+            batch = odocal.calibrate(sim.drive).estimate
+            truth = sim.true_parameters.as_array()
+            ok = np.array(batch.identified) & np.array(online.identified)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                d = np.abs(online.theta.as_array() - batch.theta.as_array()) / batch.std
+            diffs.append(float(np.max(np.where(ok, d, 0.0))))
+            e_on.append(np.abs(online.theta.as_array() - truth) * 1e3)
+            e_ba.append(np.abs(batch.theta.as_array() - truth) * 1e3)
+        print(f"  {profile:<18}{max(diffs):>24.2f}"
+              f"{' '.join(f'{v:8.3f}' for v in np.mean(e_on, axis=0)):>44}"
+              f"{' '.join(f'{v:8.3f}' for v in np.mean(e_ba, axis=0)):>34}", flush=True)
+
+
+def changes(seeds: int) -> None:
+    true = odocal.TRUE_PARAMETERS
+    after = Parameters(true.c_e * 0.998, true.c_d - 0.0005, true.t_r, true.d)
+    detected, delays_km, hours, false = 0, [], 0.0, 0
+    for seed in range(seeds):
+        sim = odocal.simulate(duration_s=3600, seed=100 + seed, noise="realistic",
+                              change=(1800.0, after))
+        cal = OnlineCalibrator()
+        cols = sim.drive.columns()
+        km_at_change = None
+        for i in range(0, sim.drive.n_samples, 40):
+            cal.push({k: v[i:i + 40] for k, v in cols.items()})
+            if km_at_change is None and cols["t"][min(i + 40, cols["t"].size - 1)] >= 1800.0:
+                km_at_change = cal.distance_km
+        hits = [a for a in cal.alarms if a.detected_t >= 1800.0]
+        false += len(cal.alarms) - len(hits)
+        hours += 0.5
+        if hits:
+            detected += 1
+            delays_km.append(hits[0].detected_distance_km - (km_at_change or 0.0))
+        clean = odocal.simulate(duration_s=3600, seed=200 + seed, noise="realistic")
+        false += len(push_all(clean.drive)[0].alarms)
+        hours += 1.0
+    print(f"changes: a 0.2% step in c_e (and -0.5 mm in c_d) halfway through a one-hour drive: "
+          f"detected in {detected} of {seeds} drives; distance from the change to the alarm: "
+          + (f"median {np.median(delays_km):.2f} km, max {np.max(delays_km):.2f} km"
+             if delays_km else "-")
+          + f"; false alarms: {false} in {hours:.1f} h of driving without a change")
+
+
+def real() -> None:
+    from odocal.convert import convert
+
+    data = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+    if not data.is_dir():
+        print("real: ../shared/data not found; skipped")
+        return
+    logs = {d.name: d for d in convert("nuscenes", [data / "nuscenes-can-bus-mini"])}
+    segment = data / "comma2k19-example" / "2018-08-02--08-34-47" / "40"
+    logs.update({f"comma2k19 {d.name}": d for d in convert("comma2k19", [segment])})
+    groups = {"nuScenes Singapore car (5 scenes)": ["scene-0061", "scene-0916", "scene-1077",
+                                                    "scene-0796", "scene-1100"],
+              "nuScenes Boston car (2 scenes)": ["scene-0103", "scene-0655"],
+              "comma2k19 segment": [n for n in logs if n.startswith("comma2k19")]}
+    print("real: distance until c_e is identified to 1 mm and t_r to 20 mm (online; a car's "
+          "logs pushed one after another)")
+    for label, names in groups.items():
+        cal = OnlineCalibrator()
+        first: dict[str, float | None] = {"c_e": None, "t_r": None}
+        offset = 0.0
+        for name in names:
+            cols = logs[name].columns()
+            cols = {**cols, "t": cols["t"] - cols["t"][0] + offset}   # the logs one after another
+            offset = float(cols["t"][-1]) + 100.0
+            for i in range(0, cols["t"].size, 40):
+                cal.push({k: v[i:i + 40] for k, v in cols.items()})
+                if i % 200 == 0:
+                    est = cal.estimate()
+                    for n, limit in (("c_e", 1e-3), ("t_r", 20e-3)):
+                        j = PARAMETER_NAMES.index(n)
+                        if first[n] is None and est.identified[j] and est.std[j] <= limit:
+                            first[n] = cal.distance_km
+        est = cal.estimate()
+        print(f"  {label:<36} {cal.distance_km:6.2f} km: c_e to 1 mm "
+              + (f"after {first['c_e']:.2f} km" if first["c_e"] is not None else "not reached")
+              + ", t_r to 20 mm "
+              + (f"after {first['t_r']:.2f} km" if first["t_r"] is not None else "not reached")
+              + "; at the end " + ", ".join(
+                  f"{n} {v:.4f}+-{sd:.4f}" if ok else f"{n} not identified"
+                  for n, v, sd, ok in zip(PARAMETER_NAMES, est.theta.as_array(), est.std,
+                                          est.identified, strict=True)))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--long-hours", type=float, default=10.0)
+    parser.add_argument("--profiles", default=",".join(p for p in NOISE_PROFILES if p != "none"))
+    parser.add_argument("--skip", default="")
+    args = parser.parse_args()
+    skip = set(args.skip.split(","))
+    speed()
+    if "memory" not in skip:
+        memory(args.long_hours)
+    if "matrix" not in skip:
+        matrix(args.profiles.split(","), args.seeds)
+    if "changes" not in skip:
+        changes(args.seeds)
+    if "real" not in skip:
+        real()
+
+
+if __name__ == "__main__":
+    main()
