@@ -66,6 +66,8 @@ _LAZY: dict[str, tuple[str, str]] = {
     "Reason": ("odocal.estimate", "Reason"),
     "Status": ("odocal.estimate", "Status"),
     "load_drive": ("odocal.io.drivefile", "load_drive"),
+    "calibrate_fleet": ("odocal.fleet.engine", "calibrate_fleet"),
+    "simulate_fleet": ("odocal.fleet.simulate", "simulate_fleet"),
     "save_drive": ("odocal.io.drivefile", "save_drive"),
     "Parameters": ("odocal.model", "Parameters"),
     "NOISE_PROFILES": ("odocal.noise", "NOISE_PROFILES"),
@@ -121,6 +123,6 @@ __all__ = [
     "Estimate", "Identified", "InputFileError", "MissingDependencyError", "NoiseProfile",
     "NotIdentified", "OdocalError", "OnlineCalibrator", "OutputError", "Parameters", "Reason",
     "Settings", "SimulatedDrive", "SolverError", "Status", "__version__", "calibrate", "convert",
-    "inspect", "load_drive", "load_settings", "minimum", "reachable_minimum", "replay",
-    "reproduce", "save_drive", "simulate", "validate",
+    "calibrate_fleet", "inspect", "load_drive", "load_settings", "minimum", "reachable_minimum", "replay",
+    "reproduce", "save_drive", "simulate", "simulate_fleet", "validate",
 ]

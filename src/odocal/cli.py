@@ -632,6 +632,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="JSON", help="write the result to this file")
     _add_common(p)
     p.set_defaults(func=cmd_minimum)
+
+    from odocal.fleet.cli import add_parsers
+
+    add_parsers(sub)
     return parser
 
 

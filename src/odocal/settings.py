@@ -305,6 +305,36 @@ class OnlineSettings:
 
 
 @dataclass(frozen=True)
+class FleetSettings:
+    """``odocal fleet``: the pooled calibrations and the drift detector (see
+    :mod:`odocal.fleet.drift`). Changing them reruns no drive."""
+
+    pooled_drives: int = 5
+    """Drives in each vehicle's pooled calibration (its latest, since its last change)."""
+    baseline_drives: int = 4
+    """Drives that form a baseline (after the start, a declared event or an alarm)."""
+    cusum_k: float = 1.0
+    """The detector's allowance, in standard deviations of one drive's estimate."""
+    cusum_h: float = 4.0
+    """The detector's threshold; one drive adds at most this much, so no single drive alarms."""
+    excess_floor: tuple[float, float, float, float] = (0.0002, 0.0002, 0.002, 0.0001)
+    """Least drive-to-drive scatter assumed beyond each estimate's own uncertainty (c_e, c_d,
+    t_r in m; d in m per m/s^2): loads and temperatures change a little from drive to drive."""
+
+    def __post_init__(self) -> None:
+        s = "fleet"
+        _check(self.pooled_drives >= 1, s, "pooled_drives", self.pooled_drives,
+               "an integer >= 1")
+        _check(self.baseline_drives >= 2, s, "baseline_drives", self.baseline_drives,
+               "an integer >= 2")
+        for key in ("cusum_k", "cusum_h"):
+            _check(0 < getattr(self, key) < float("inf"), s, key, getattr(self, key),
+                   "a positive finite number")
+        _check(len(self.excess_floor) == 4 and all(0 <= v < 1 for v in self.excess_floor), s,
+               "excess_floor", self.excess_floor, "four numbers in [0, 1)")
+
+
+@dataclass(frozen=True)
 class GateSettings:
     """The checks of the data against the model and the quality gate (README, "When odocal
     refuses"). A calibration outside these limits fails (exit 3) with the reason."""
@@ -484,6 +514,7 @@ class Settings:
     inverse: InverseSettings = field(default_factory=InverseSettings)
     gate: GateSettings = field(default_factory=GateSettings)
     online: OnlineSettings = field(default_factory=OnlineSettings)
+    fleet: FleetSettings = field(default_factory=FleetSettings)
     convert: ConvertSettings = field(default_factory=ConvertSettings)
     fusion: FusionSettings = field(default_factory=FusionSettings)
     sideslip: SideslipSettings = field(default_factory=SideslipSettings)

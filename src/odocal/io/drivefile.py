@@ -61,6 +61,29 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
     return columns
 
 
+def read_text_table(path: str | Path) -> dict[str, list[str | None]]:
+    """A CSV or Parquet file's columns as text (empty cells as None), for tables of names."""
+    p = Path(path)
+    fmt = _format_of(p)
+    if p.stat().st_size == 0:
+        raise DataError(f"'{p}' is empty")
+    try:
+        if fmt == "csv":
+            names = pacsv.read_csv(p, read_options=pacsv.ReadOptions(skip_rows_after_names=0)
+                                   ).column_names
+            table = pacsv.read_csv(p, convert_options=pacsv.ConvertOptions(
+                column_types={n: pa.string() for n in names}, strings_can_be_null=True))
+        else:
+            table = pq.read_table(p)
+    except (pa.ArrowInvalid, pa.ArrowTypeError, OSError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise DataError(f"'{p}' cannot be read as {fmt.upper()}: {first}") from None
+    if len(set(table.column_names)) != len(table.column_names):
+        raise DataError(f"'{p}' names a column twice")
+    return {name: [None if v is None else str(v) for v in table.column(name).to_pylist()]
+            for name in table.column_names}
+
+
 def _is_number(value: Any) -> bool:
     try:
         float(value)

@@ -278,3 +278,36 @@ def plot_trace(ax: Axes, distance_km: FloatArray, value: FloatArray, std: FloatA
     ax.set_ylabel(f"{name} [{unit}]")
     ax.grid(True, alpha=0.3)
     return artists
+
+
+def plot_history(ax: Axes, days: FloatArray, value: FloatArray, std: FloatArray,
+                 identified: FloatArray, *, name: str,
+                 baselines: Sequence[tuple[float, float, float, float]] = (),
+                 alarms: Sequence[float] = (), events: Sequence[float] = (),
+                 xlabel: str = "days") -> list[Any]:
+    """One parameter of one vehicle over its drives: estimates with one-std bars (hollow where
+    not identified), baselines (from, to, value, band) and alarms and declared events."""
+    scale, unit = DISPLAY[name]
+    ok = np.asarray(identified, dtype=bool)
+    v, s = np.asarray(value) * scale, np.asarray(std) * scale
+    artists: list[Any] = []
+    artists.append(ax.errorbar(days[ok], v[ok], yerr=s[ok], fmt="o", ms=3.5, color=CALIBRATED,
+                               lw=1, label="drive estimate, one std"))
+    if (~ok).any():
+        artists.append(ax.plot(days[~ok], v[~ok], "o", ms=3.5, mfc="none", color="#999999",
+                               label="not identified")[0])
+    for i, (start, stop, level, band) in enumerate(baselines):
+        artists.append(ax.fill_between([start, stop], (level - band) * scale,
+                                       (level + band) * scale, color=STEP1, alpha=0.25, lw=0,
+                                       label="baseline, with drive scatter" if i == 0 else None))
+        artists.append(ax.hlines(level * scale, start, stop, color=STEP1, lw=1.2))
+    for i, day in enumerate(alarms):
+        artists.append(ax.axvline(day, color=DATASHEET, lw=1.3,
+                                  label="change (alarm)" if i == 0 else None))
+    for i, day in enumerate(events):
+        artists.append(ax.axvline(day, color="#2e9b3e", lw=1.3, ls="--",
+                                  label="declared event" if i == 0 else None))
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(f"{name} [{unit}]")
+    ax.grid(True, alpha=0.3)
+    return artists

@@ -1,0 +1,132 @@
+"""The fleet's catalog: which drive of which vehicle, when, where its log lies.
+
+A catalog is a CSV or Parquet table with the columns ``vehicle`` (text), ``path`` (a drive file
+or a raw log, relative to the catalog's folder or absolute) and ``time`` (ISO 8601), and
+optionally ``odometer_km``, ``format`` (as ``--from``; empty: the drive format), ``mapping`` (a
+mapping file, for the ``table`` and ``rosbag`` formats) and ``event`` (free text, e.g.
+``tyre change``: that vehicle's baseline restarts from this drive on). A folder laid out as
+``VEHICLE/DATE_*.parquet`` (or ``.csv``) is a catalog too, the date read from each file name.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from odocal.errors import DataError, InputFileError
+from odocal.io.registry import FORMATS
+
+REQUIRED = ("vehicle", "path", "time")
+OPTIONAL = ("odometer_km", "format", "mapping", "event")
+_DATE = re.compile(r"^(\d{4}-\d{2}-\d{2}(?:[T_]\d{2}[-:]?\d{2}(?:[-:]?\d{2})?)?)")
+
+
+@dataclass(frozen=True)
+class CatalogEntry:
+    """One drive of the fleet."""
+
+    vehicle: str
+    path: Path
+    time: dt.datetime
+    odometer_km: float | None = None
+    format: str = "drive"
+    mapping: Path | None = None
+    event: str | None = None
+    row: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"vehicle": self.vehicle, "path": str(self.path), "time": self.time.isoformat(),
+                "odometer_km": self.odometer_km, "format": self.format,
+                "mapping": str(self.mapping) if self.mapping else None, "event": self.event,
+                "row": self.row}
+
+
+def parse_time(text: str, *, where: str) -> dt.datetime:
+    """ISO 8601 (a date, or date and time; UTC unless an offset is given)."""
+    value = text.strip().replace("_", "T")
+    m = re.fullmatch(r"(\d{4}-\d{2}-\d{2})T(\d{2})-?(\d{2})(?:-?(\d{2}))?", value)
+    if m:                                 # file-name times: 2026-03-02T08-15-00
+        value = f"{m[1]}T{m[2]}:{m[3]}:{m[4] or '00'}"
+    try:
+        stamp = dt.datetime.fromisoformat(value)
+    except ValueError:
+        raise DataError(f"{where}: time {text!r} is not an ISO 8601 date or time "
+                        "(e.g. 2026-03-02 or 2026-03-02T08:15:00)") from None
+    return stamp if stamp.tzinfo else stamp.replace(tzinfo=dt.UTC)
+
+
+def read_catalog(source: str | Path) -> list[CatalogEntry]:
+    """The catalog's drives, sorted by vehicle and time (see the module docstring)."""
+    path = Path(source)
+    if path.is_dir():
+        return _from_folder(path)
+    if not path.is_file():
+        raise InputFileError(f"catalog '{path}' does not exist")
+    from odocal.io.drivefile import read_text_table
+
+    columns = read_text_table(path)
+    missing = [c for c in REQUIRED if c not in columns]
+    if missing:
+        raise DataError(f"catalog '{path}' lacks column{'s' if len(missing) > 1 else ''} "
+                        f"{', '.join(missing)} (a catalog needs {', '.join(REQUIRED)})")
+    n = len(columns["vehicle"])
+    if n == 0:
+        raise DataError(f"catalog '{path}' lists no drive")
+    entries = []
+    for i in range(n):
+        where = f"catalog '{path}' row {i + 1}"
+        row = {k: (columns[k][i] if k in columns else None) for k in (*REQUIRED, *OPTIONAL)}
+        vehicle = (row["vehicle"] or "").strip()
+        if not vehicle:
+            raise DataError(f"{where}: the vehicle is empty")
+        text = (row["path"] or "").strip()
+        if not text:
+            raise DataError(f"{where}: the path is empty")
+        drive = _resolve(path.parent, text)
+        if not drive.exists():
+            raise InputFileError(f"{where}: '{drive}' does not exist")
+        fmt = (row["format"] or "").strip() or "drive"
+        if fmt != "drive" and fmt not in FORMATS:
+            raise DataError(f"{where}: unknown format {fmt!r}; use drive or one of "
+                            f"{', '.join(FORMATS)}")
+        mapping = (row["mapping"] or "").strip()
+        odometer = (row["odometer_km"] or "").strip()
+        try:
+            km = float(odometer) if odometer else None
+        except ValueError:
+            raise DataError(f"{where}: odometer_km {odometer!r} is not a number") from None
+        if km is not None and not (km >= 0 and km < 1e8):
+            raise DataError(f"{where}: odometer_km {odometer!r} is not a plausible reading")
+        event = (row["event"] or "").strip() or None
+        entries.append(CatalogEntry(vehicle=vehicle, path=drive,
+                                    time=parse_time(row["time"] or "", where=where),
+                                    odometer_km=km, format=fmt,
+                                    mapping=_resolve(path.parent, mapping) if mapping else None,
+                                    event=event, row=i + 1))
+    return sorted(entries, key=lambda e: (e.vehicle, e.time, e.row))
+
+
+def _resolve(base: Path, text: str) -> Path:
+    p = Path(text)
+    return (p if p.is_absolute() else base / p).resolve()
+
+
+def _from_folder(root: Path) -> list[CatalogEntry]:
+    entries: list[CatalogEntry] = []
+    for vehicle_dir in sorted(p for p in root.iterdir() if p.is_dir()):
+        for file in sorted(vehicle_dir.iterdir()):
+            if file.suffix.lower() not in (".parquet", ".csv"):
+                continue
+            m = _DATE.match(file.stem)
+            if not m:
+                raise DataError(f"'{file}': a fleet folder's files are named DATE_*.parquet "
+                                "(e.g. 2026-03-02_morning.parquet)")
+            entries.append(CatalogEntry(vehicle=vehicle_dir.name, path=file.resolve(),
+                                        time=parse_time(m[1], where=str(file)),
+                                        row=len(entries) + 1))
+    if not entries:
+        raise DataError(f"folder '{root}' holds no VEHICLE/DATE_*.parquet drive files")
+    return sorted(entries, key=lambda e: (e.vehicle, e.time, e.row))

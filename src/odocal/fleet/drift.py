@@ -1,0 +1,307 @@
+"""Drift and change detection over a vehicle's drive estimates.
+
+For each vehicle and parameter, the history is cut into stretches at declared events (a tyre
+change restarts the baseline) and at detected changes. Each stretch starts with a **baseline**:
+the first ``baseline_drives`` estimates, their weighted mean and the drive-to-drive scatter
+beyond the estimates' own uncertainty (the DerSimonian-Laird moment estimate, never below
+``excess_floor``: loads and temperatures move the parameters a little from drive to drive).
+
+Every later drive is standardised against it,
+``z = (x - baseline) / sqrt(std_drive^2 + excess^2 + std_baseline^2)``, clipped to +-``h``, and fed
+to a two-sided **CUSUM** with allowance ``k`` and threshold ``h`` (Page 1954): ``S+ = max(0, S+ +
+z - k)``, and mirrored. Because one drive adds at most ``h - k``, no single drive (a mis-mapped log
+that slipped through the checks, say) raises an alarm: it takes two drives that agree. The change
+starts at the drive that best splits the stretch into the baseline and a new level (the
+likelihood-ratio change point, Hinkley 1971); the change's size is the weighted mean
+of the drives since then minus the baseline, its confidence the normal probability of that
+difference given both means' uncertainties.
+
+Whether the change is a **step** (pressure, a tyre swap) or a **trend** (tread wear) is decided
+by which fits the stretch better: a level that jumps at the change, or a line against the
+odometer (or time, where no odometer is known). After an alarm the stretch restarts at the change.
+
+Parameters not identified by a drive (or drives that failed) are skipped; they never alarm.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from odocal.model import PARAMETER_NAMES, PARAMETER_UNITS
+from odocal.settings import FleetSettings
+
+#: What a change of each parameter usually means, and what to do (alarm messages).
+CAUSES = {
+    "c_e": "tyre pressure or a tyre change; recalibrate",
+    "c_d": "one tyre's pressure, or tyres of different wear; check the tyres and recalibrate",
+    "t_r": "a changed axle, wheels or tyres; recalibrate",
+    "d": "a changed load or suspension; recalibrate",
+}
+
+
+@dataclass(frozen=True)
+class Point:
+    """One drive's estimate of one parameter."""
+
+    index: int                 # position in the vehicle's history
+    time: dt.datetime
+    value: float
+    std: float
+    odometer_km: float | None
+    distance_km: float
+
+
+@dataclass(frozen=True)
+class Baseline:
+    vehicle: str
+    parameter: str
+    since: dt.datetime
+    value: float
+    std: float
+    excess_std: float
+    drives: int
+
+    def to_row(self) -> dict[str, Any]:
+        return {"vehicle": self.vehicle, "parameter": self.parameter,
+                "since": self.since.isoformat(), "value": self.value, "std": self.std,
+                "excess_std": self.excess_std, "drives": self.drives}
+
+
+@dataclass(frozen=True)
+class Alarm:
+    vehicle: str
+    parameter: str
+    kind: str                  # "step" or "trend"
+    time: dt.datetime          # the first drive after the change
+    detected_time: dt.datetime
+    change: float              # in the parameter's unit
+    relative_change: float     # of the baseline value (c_d: of the baseline c_e)
+    confidence: float
+    drives_to_detect: int
+    km_to_detect: float
+    message: str
+
+    def to_row(self) -> dict[str, Any]:
+        return {"vehicle": self.vehicle, "parameter": self.parameter, "kind": self.kind,
+                "time": self.time.isoformat(), "detected_time": self.detected_time.isoformat(),
+                "change": self.change, "relative_change": self.relative_change,
+                "confidence": self.confidence, "drives_to_detect": self.drives_to_detect,
+                "km_to_detect": self.km_to_detect, "message": self.message}
+
+
+@dataclass(frozen=True)
+class Analysis:
+    baselines: tuple[Baseline, ...]
+    alarms: tuple[Alarm, ...]
+
+
+def _weighted_mean(x: np.ndarray, var: np.ndarray) -> tuple[float, float]:
+    w = 1.0 / var
+    return float(np.sum(w * x) / np.sum(w)), float(math.sqrt(1.0 / np.sum(w)))
+
+
+def excess_scatter(x: np.ndarray, var: np.ndarray) -> float:
+    """DerSimonian-Laird estimate of the scatter beyond the estimates' own variances."""
+    if len(x) < 2:
+        return 0.0
+    w = 1.0 / var
+    mean = np.sum(w * x) / np.sum(w)
+    q = float(np.sum(w * (x - mean) ** 2))
+    denom = float(np.sum(w) - np.sum(w**2) / np.sum(w))
+    return math.sqrt(max(0.0, (q - (len(x) - 1)) / denom)) if denom > 0 else 0.0
+
+
+def parse_stamp(text: str) -> dt.datetime:
+    return dt.datetime.fromisoformat(text)
+
+
+def points(rows: Sequence[Mapping[str, Any]], parameter: str) -> tuple[list[Point], list[int]]:
+    """The usable estimates of one parameter, and the history indices where events reset."""
+    out: list[Point] = []
+    resets: list[int] = []
+    for i, r in enumerate(rows):
+        if r.get("event"):
+            resets.append(i)
+        value, std = r.get(parameter), r.get(f"{parameter}_std")
+        if not (r.get("success") and r.get(f"{parameter}_identified")):
+            continue
+        if value is None or std is None or not (math.isfinite(value) and std > 0):
+            continue
+        out.append(Point(index=i, time=parse_stamp(r["time"]), value=float(value), std=float(std),
+                         odometer_km=r.get("odometer_km"),
+                         distance_km=float(r.get("distance_km") or 0.0)))
+    return out, resets
+
+
+def analyse_vehicle(vehicle: str, rows: Sequence[Mapping[str, Any]],
+                    settings: FleetSettings) -> Analysis:
+    """Baselines and alarms of one vehicle (``rows``: its drive rows, in time order)."""
+    baselines: list[Baseline] = []
+    alarms: list[Alarm] = []
+    for j, name in enumerate(PARAMETER_NAMES):
+        pts, resets = points(rows, name)
+        floor = settings.excess_floor[j]
+        for stretch in _stretches(pts, resets):
+            b, a = _detect(vehicle, name, stretch, floor, settings, rows)
+            baselines += b
+            alarms += a
+    return Analysis(tuple(baselines), tuple(alarms))
+
+
+def _stretches(pts: list[Point], resets: list[int]) -> list[list[Point]]:
+    cuts = sorted(set(resets))
+    out: list[list[Point]] = []
+    current: list[Point] = []
+    k = 0
+    for p in pts:
+        while k < len(cuts) and p.index >= cuts[k]:
+            if current:
+                out.append(current)
+            current = []
+            k += 1
+        current.append(p)
+    if current:
+        out.append(current)
+    return out
+
+
+def _detect(vehicle: str, name: str, pts: list[Point], floor: float,
+            settings: FleetSettings, rows: Sequence[Mapping[str, Any]]
+            ) -> tuple[list[Baseline], list[Alarm]]:
+    baselines: list[Baseline] = []
+    alarms: list[Alarm] = []
+    start = 0
+    nb, k, h = settings.baseline_drives, settings.cusum_k, settings.cusum_h
+    while start + nb <= len(pts):
+        base = pts[start:start + nb]
+        x = np.array([p.value for p in base])
+        var = np.array([p.std**2 for p in base])
+        excess = max(excess_scatter(x, var), floor)
+        m0, se0 = _weighted_mean(x, var + excess**2)
+        baselines.append(Baseline(vehicle, name, base[0].time, m0, se0, excess, nb))
+        s_up = s_down = 0.0
+        alarm = None
+        for i in range(start + nb, len(pts)):
+            p = pts[i]
+            z = (p.value - m0) / math.sqrt(p.std**2 + excess**2 + se0**2)
+            z = min(max(z, -h), h)
+            s_up = max(0.0, s_up + z - k)
+            s_down = max(0.0, s_down - z - k)
+            if s_up > h or s_down > h:
+                first = _change_point(pts, start + nb, i, m0, excess)
+                alarm = _alarm(vehicle, name, pts, start, first, i, m0, se0, excess, rows)
+                break
+        if alarm is None:
+            break
+        alarms.append(alarm[0])
+        start = alarm[1]
+    return baselines, alarms
+
+
+def _change_point(pts: list[Point], lo: int, last: int, m0: float, excess: float) -> int:
+    """The most likely first drive of a step away from ``m0`` among drives ``lo..last``."""
+    x = np.array([p.value for p in pts[lo:last + 1]]) - m0
+    w = 1.0 / (np.array([p.std**2 for p in pts[lo:last + 1]]) + excess**2)
+    tail_sum = np.cumsum((w * x)[::-1])[::-1]
+    tail_w = np.cumsum(w[::-1])[::-1]
+    return lo + int(np.argmax(tail_sum**2 / tail_w))
+
+
+def _alarm(vehicle: str, name: str, pts: list[Point], start: int, first: int, last: int,
+           m0: float, se0: float, excess: float, rows: Sequence[Mapping[str, Any]]
+           ) -> tuple[Alarm, int]:
+    after = pts[first:last + 1]
+    x1 = np.array([p.value for p in after])
+    var1 = np.array([p.std**2 for p in after]) + excess**2
+    m1, se1 = _weighted_mean(x1, var1)
+    change = m1 - m0
+    z = abs(change) / math.sqrt(se0**2 + se1**2)
+    confidence = math.erf(z / math.sqrt(2.0))
+    reference = m0 if name != "c_d" else _baseline_ce(rows, pts[start].time, m0)
+    relative = change / abs(reference) if reference else float("nan")
+    kind, per_1000 = _kind(pts[start:last + 1], first - start, excess)
+    km = sum(p.distance_km for p in after)
+    since = pts[first].time.date().isoformat()
+    amount = _amount(name, change, relative)
+    verb = "fell" if change < 0 else "rose"
+    if kind == "trend":
+        rate = (f" ({abs(per_1000) * 100:.2f}% per 1000 km)" if per_1000 is not None
+                and name in ("c_e", "c_d") else "")
+        message = (f"{name} {verb} {amount} since {since}, gradually{rate}: "
+                   f"{'tread wear' if name == 'c_e' else 'a slow change'}; recalibrate")
+    else:
+        message = f"{name} {verb} {amount} since {since}: {CAUSES[name]}"
+    return (Alarm(vehicle=vehicle, parameter=name, kind=kind, time=pts[first].time,
+                  detected_time=pts[last].time, change=change, relative_change=relative,
+                  confidence=confidence, drives_to_detect=last - first + 1, km_to_detect=km,
+                  message=message), first)
+
+
+def _amount(name: str, change: float, relative: float) -> str:
+    if name in ("c_e", "c_d"):
+        return f"{abs(relative) * 100:.2f}% ({abs(change) * 1000:.2f} mm)"
+    if name == "t_r":
+        return f"{abs(change) * 1000:.1f} mm"
+    return f"{abs(change):.3g} {PARAMETER_UNITS[PARAMETER_NAMES.index(name)]}"
+
+
+def _baseline_ce(rows: Sequence[Mapping[str, Any]], since: dt.datetime, fallback: float) -> float:
+    for r in rows:
+        if r.get("c_e") and parse_stamp(r["time"]) >= since and r.get("success"):
+            return float(r["c_e"])
+    return fallback
+
+
+def _kind(pts: list[Point], change_at: int, excess: float) -> tuple[str, float | None]:
+    """'step' or 'trend': which explains the stretch better (weighted residuals)."""
+    x = np.array([p.value for p in pts])
+    w = 1.0 / (np.array([p.std**2 for p in pts]) + excess**2)
+    odometer = [p.odometer_km for p in pts]
+    has_km = all(o is not None for o in odometer)
+    t = (np.array(odometer, dtype=float) if has_km else
+         np.array([(p.time - pts[0].time).total_seconds() / 86400.0 for p in pts]))
+    if len(pts) < 4 or np.ptp(t) <= 0:
+        return "step", None
+    level = np.where(np.arange(len(pts)) < change_at, 0.0, 1.0)
+    step_rss = _wls_rss(np.column_stack([np.ones(len(pts)), level]), x, w)
+    line_design = np.column_stack([np.ones(len(pts)), t])
+    line_rss = _wls_rss(line_design, x, w)
+    if line_rss >= step_rss:
+        return "step", None
+    sw = np.sqrt(w)
+    coef = np.linalg.lstsq(line_design * sw[:, None], x * sw, rcond=None)[0]
+    per_1000 = float(coef[1] * 1000.0 / coef[0]) if has_km and coef[0] else None
+    return "trend", per_1000
+
+
+def _wls_rss(design: np.ndarray, x: np.ndarray, w: np.ndarray) -> float:
+    sw = np.sqrt(w)
+    coef, *_ = np.linalg.lstsq(design * sw[:, None], x * sw, rcond=None)
+    return float(np.sum(w * (x - design @ coef) ** 2))
+
+
+def analyse(rows: Sequence[Mapping[str, Any]], settings: FleetSettings) -> Analysis:
+    """Baselines and alarms of every vehicle in ``rows`` (drive rows, any order)."""
+    by_vehicle: dict[str, list[Mapping[str, Any]]] = {}
+    for r in sorted(rows, key=lambda r: (r["vehicle"], r["time"], r["task_key"])):
+        by_vehicle.setdefault(r["vehicle"], []).append(r)
+    baselines: list[Baseline] = []
+    alarms: list[Alarm] = []
+    for vehicle, history in by_vehicle.items():
+        result = analyse_vehicle(vehicle, history, settings)
+        baselines += result.baselines
+        alarms += result.alarms
+    return Analysis(tuple(baselines), tuple(alarms))
+
+
+def last_change(rows: Sequence[Mapping[str, Any]], alarms: Sequence[Alarm]) -> dt.datetime | None:
+    """When the vehicle's current state began: its latest declared event or detected change."""
+    times = [parse_stamp(r["time"]) for r in rows if r.get("event")]
+    times += [a.time for a in alarms]
+    return max(times) if times else None

@@ -1,0 +1,226 @@
+"""Calibrating a fleet on Dask: every drive a task, results stored as they arrive.
+
+The engine runs in the process that owns the store (SQLite has one writer): it reads the
+catalog, works out each drive's task key, submits the drives the store does not hold yet, and
+stores each result in its own transaction the moment it arrives. Killing the run at any moment
+loses nothing already stored; the rerun skips it. Then it recomputes baselines and alarms from
+the whole history, and calibrates each vehicle's latest drives together (pooled).
+
+By default the tasks run on an embedded Dask cluster on this machine (one single-threaded worker
+process per core, listening on the loopback address only); ``scheduler="tcp://HOST:PORT"`` runs
+them on an existing cluster, whose workers must have odocal installed and see the drive files
+at the catalog's paths.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from odocal.errors import ConfigError, DataError, OutputError
+from odocal.fleet.catalog import CatalogEntry, read_catalog
+from odocal.fleet.drift import Alarm, analyse, last_change, parse_stamp
+from odocal.fleet.store import Store, open_store
+from odocal.fleet.tasks import (
+    DriveTask,
+    PooledTask,
+    drive_task,
+    pooled_task,
+    run_drive_task,
+    run_pooled_task,
+)
+from odocal.io.atomic import refuse_inputs
+from odocal.methods import DEFAULT_METHOD, METHOD_NAMES
+from odocal.settings import Settings
+
+log = logging.getLogger(__name__)
+
+#: ``progress(stage, done, total)``, as for :func:`odocal.calibrate`.
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class FleetRun:
+    """What one ``fleet calibrate`` did."""
+
+    drives: int                  # in the catalog
+    stored_before: int           # of those, already in the store (skipped)
+    calibrated: int              # run now
+    failed: int                  # of all the catalog's drives, stored with an error
+    pooled: int                  # pooled calibrations run now
+    alarms: tuple[Alarm, ...]
+    dashboard: str | None
+    elapsed_s: float
+    written: tuple[Path, ...] = field(default=())
+
+
+@contextlib.contextmanager
+def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
+    """A Dask client: of an embedded local cluster (default), or of ``scheduler``."""
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="15s")
+        except (OSError, TimeoutError) as exc:
+            raise ConfigError(f"cannot reach the Dask scheduler at {scheduler}: "
+                              f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+                              ) from None
+        try:
+            yield client
+        finally:
+            client.close()
+        return
+    n = workers or os.cpu_count() or 1
+    if n < 1:
+        raise ConfigError(f"--workers must be at least 1, not {n}")
+    # workers inherit the environment: one compiled-kernel thread per single-threaded worker
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+    if not log.isEnabledFor(logging.INFO):
+        logging.getLogger("distributed").setLevel(logging.ERROR)
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR) as cluster, \
+            Client(cluster) as client:
+        yield client
+
+
+def _check_paths(store: Path, out: Path | None, catalog: Path,
+                 entries: Sequence[CatalogEntry]) -> None:
+    inputs: list[Path] = [catalog, *(e.path for e in entries),
+                          *(e.mapping for e in entries if e.mapping is not None)]
+    refuse_inputs(store, inputs)
+    if out is not None:
+        refuse_inputs(out, inputs)
+        if out.exists() and not out.is_dir():
+            raise OutputError(f"output '{out}' exists and is not a folder")
+
+
+def _unique(tasks: Sequence[DriveTask]) -> None:
+    seen: dict[str, DriveTask] = {}
+    for t in tasks:
+        if t.key in seen:
+            a, b = seen[t.key].entry, t.entry
+            raise DataError(f"catalog rows {a.row} and {b.row} are the same drive "
+                            f"('{a.path.name}' and '{b.path.name}' have the same content)")
+        seen[t.key] = t
+
+
+def calibrate_fleet(catalog: str | Path, store: str | Path, *,
+                    settings: Settings | None = None, method: str | None = None,
+                    scheduler: str | None = None, workers: int | None = None,
+                    out: str | Path | None = None, drive_reports: bool = True,
+                    client: Any = None, progress: Progress | None = None,
+                    echo: Callable[[str], None] | None = None) -> FleetRun:
+    """Calibrate every drive of a catalog into the store, then update baselines, alarms and the
+    pooled calibrations; with ``out``, write the fleet report (and each drive's report) there.
+
+    ``client``: an open Dask client to use instead of starting or joining a cluster.
+    """
+    started = time.perf_counter()
+    settings = settings or Settings()
+    method = method or DEFAULT_METHOD
+    if method not in METHOD_NAMES:
+        raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHOD_NAMES)}")
+    catalog_path, store_path = Path(catalog), Path(store)
+    out_path = Path(out) if out is not None else None
+    entries = read_catalog(catalog_path)
+    _check_paths(store_path, out_path, catalog_path, entries)
+    report_root = out_path / "drives" if out_path is not None and drive_reports else None
+    tasks = [drive_task(e, settings, method, report_root=report_root) for e in entries]
+    _unique(tasks)
+    with open_store(store_path) as db:
+        done = db.done_keys()
+        todo = [t for t in tasks if t.key not in done]
+        db.update_catalog_fields([t for t in tasks if t.key in done])
+        with (contextlib.nullcontext(client) if client is not None
+              else dask_client(scheduler, workers)) as c:
+            dashboard = getattr(c, "dashboard_link", None)
+            if echo is not None and dashboard:
+                echo(f"Dask dashboard: {dashboard}")
+            _run(c, todo, run_drive_task, db.add_drive, "drives", progress)
+            rows = db.drives()
+            analysis = analyse(rows, settings.fleet)
+            db.replace_analysis([b.to_row() for b in analysis.baselines],
+                                [a.to_row() for a in analysis.alarms])
+            pooled = [p for p in _pooled_tasks(tasks, rows, analysis.alarms, settings, method)
+                      if p.key not in db.pooled_keys()]
+            _run(c, pooled, run_pooled_task, db.add_pooled, "pooled", progress)
+        keys = {t.key for t in tasks}
+        failed = sum(1 for r in db.drives() if r["task_key"] in keys and not r["success"])
+        written: tuple[Path, ...] = ()
+        if out_path is not None:
+            from odocal.fleet.report import write_fleet_outputs
+            from odocal.model import Parameters
+
+            written = write_fleet_outputs(db, out_path,
+                                          datasheet=Parameters(*settings.identify.theta0))
+    return FleetRun(drives=len(tasks), stored_before=len(tasks) - len(todo),
+                    calibrated=len(todo), failed=failed, pooled=len(pooled),
+                    alarms=analysis.alarms, dashboard=dashboard,
+                    elapsed_s=time.perf_counter() - started, written=written)
+
+
+def _run(client: Any, tasks: Sequence[DriveTask] | Sequence[PooledTask],
+         function: Callable[[Any], dict[str, Any]], store: Callable[[dict[str, Any]], None],
+         stage: str, progress: Progress | None) -> None:
+    """Submit ``tasks``; store each result as it arrives (a lost worker is the task's error)."""
+    if not tasks:
+        return
+    from distributed import as_completed
+
+    futures = {client.submit(function, t, key=f"odocal-{stage}-{t.key}", pure=False,
+                             retries=0): t for t in tasks}
+    if progress:
+        progress(stage, 0, len(tasks))
+    for n, future in enumerate(as_completed(futures), start=1):
+        task = futures[future]
+        try:
+            row = future.result()
+        except Exception as exc:                 # the worker died or the task could not run
+            row = _lost(task, exc)
+        store(row)
+        future.release()
+        if progress:
+            progress(stage, n, len(tasks))
+
+
+def _lost(task: DriveTask | PooledTask, exc: BaseException) -> dict[str, Any]:
+    error = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+    if isinstance(task, PooledTask):
+        return {"task_key": task.key, "vehicle": task.vehicle,
+                "time": task.entries[-1].time.isoformat(), "drives": list(task.drive_keys),
+                "method": task.method, "status": "error", "success": False, "error": error}
+    e = task.entry
+    return {"task_key": task.key, "vehicle": e.vehicle, "time": e.time.isoformat(),
+            "odometer_km": e.odometer_km, "source": str(e.path), "format": e.format,
+            "event": e.event, "method": task.method, "status": "error", "success": False,
+            "message": "the task was lost", "error": error, "input_hashes": task.input_hashes,
+            "settings_hash": task.settings_hash}
+
+
+def _pooled_tasks(tasks: Sequence[DriveTask], rows: Sequence[dict[str, Any]],
+                  alarms: Sequence[Alarm], settings: Settings, method: str) -> list[PooledTask]:
+    """Per vehicle of the catalog: its latest successful drives since its latest change."""
+    by_key = {t.key: t for t in tasks}
+    out: list[PooledTask] = []
+    for vehicle in sorted({t.entry.vehicle for t in tasks}):
+        history = [r for r in rows if r["vehicle"] == vehicle]
+        since = last_change(history, [a for a in alarms if a.vehicle == vehicle])
+        usable = [by_key[r["task_key"]] for r in history
+                  if r["success"] and r["task_key"] in by_key
+                  and (since is None or parse_stamp(r["time"]) >= since)]
+        chosen = usable[-settings.fleet.pooled_drives:]
+        if chosen:
+            out.append(pooled_task(vehicle, chosen, settings, method))
+    return out
+
+
+def store_of(path: str | Path) -> Store:
+    """An existing store, for reading (``fleet alarms``, ``fleet history``)."""
+    return open_store(path, create=False)

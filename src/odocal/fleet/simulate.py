@@ -1,0 +1,149 @@
+"""A simulated fleet with known truth: vehicles, daily drives, and the events a fleet sees.
+
+Each vehicle gets its own parameters (the simulated car's, spread as tyres and builds spread),
+a little drive-to-drive scatter (load, temperature) and, by the plan, one event:
+
+``pressure``  the left rear tyre loses pressure at a random drive: c_e falls by ``size``
+              (relative) and c_d by twice that share of c_e (only one tyre shrinks); undeclared,
+              to be detected
+``wear``      tread wear: c_e falls linearly by ``wear`` (relative) over the vehicle's history
+``tyres``     a declared tyre change (``event = tyre change`` in the catalog): new tyres, new
+              parameters; the baseline restarts, no alarm is expected
+``mismapped`` one log with the left and right wheel columns swapped: the checks must reject it,
+              and it must raise no alarm
+
+The ``mixed`` plan cycles none, pressure, wear, tyres, with a mis-mapped log on every
+event-free vehicle; ``pressure`` and ``none`` give every vehicle that plan (for detection and
+false-alarm rates). Written: one drive file per drive (``VEHICLE/DATE_dNN.parquet``),
+``catalog.csv`` and ``truth.json`` (every drive's true parameters and every event).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from odocal.errors import ConfigError, OutputError
+from odocal.io.atomic import write_text
+from odocal.io.drivefile import save_drive
+from odocal.model import Parameters
+from odocal.simulate import TRUE_PARAMETERS, simulate
+
+PLANS = ("mixed", "pressure", "wear", "tyres", "none")
+_MIXED = ("none", "pressure", "wear", "tyres")
+START = dt.datetime(2026, 3, 2, 8, 0, tzinfo=dt.UTC)
+
+
+@dataclass(frozen=True)
+class FleetEvent:
+    vehicle: str
+    drive: int             # index of the first drive after the event
+    time: str
+    kind: str
+    size: float            # relative change of c_e
+    declared: bool
+
+
+@dataclass(frozen=True)
+class SimulatedFleet:
+    catalog: Path
+    truth: Path
+    drives: int
+    events: tuple[FleetEvent, ...]
+
+
+def _vehicle_theta(rng: np.random.Generator) -> np.ndarray:
+    base = TRUE_PARAMETERS.as_array().copy()
+    base[0] *= 1.0 + rng.normal(0.0, 0.003)
+    base[1] += rng.normal(0.0, 0.0005)
+    base[2] += rng.normal(0.0, 0.01)
+    base[3] *= 1.0 + rng.normal(0.0, 0.1)
+    return base
+
+
+def simulate_fleet(out: str | Path, *, vehicles: int = 4, drives: int = 12,
+                   duration_s: float = 600.0, seed: int = 0, noise: str = "realistic",
+                   plan: str = "mixed", size: float = 0.002, wear: float = 0.003,
+                   progress: Callable[[str, int, int], None] | None = None) -> SimulatedFleet:
+    """Write a simulated fleet into the folder ``out`` (see the module docstring)."""
+    if plan not in PLANS:
+        raise ConfigError(f"unknown fleet plan {plan!r}; choose one of {', '.join(PLANS)}")
+    if vehicles < 1 or drives < 2:
+        raise ConfigError("a simulated fleet needs at least 1 vehicle and 2 drives each")
+    root = Path(out)
+    if root.exists() and (not root.is_dir() or any(root.iterdir())):
+        raise OutputError(f"'{root}' exists and is not an empty folder; simulate-fleet writes a "
+                          "new fleet into a new folder")
+    root.mkdir(parents=True, exist_ok=True)
+    rows: list[dict[str, Any]] = []
+    truth: dict[str, Any] = {"plan": plan, "size": size, "wear": wear, "noise": noise,
+                             "duration_s": duration_s, "seed": seed, "vehicles": {}}
+    events: list[FleetEvent] = []
+    total = vehicles * drives
+    for v in range(vehicles):
+        name = f"car{v:03d}"
+        rng = np.random.default_rng([seed, v])
+        kind = _MIXED[v % len(_MIXED)] if plan == "mixed" else plan
+        theta = _vehicle_theta(rng)
+        at = int(rng.integers(6, max(7, drives - 4))) if kind in ("pressure", "tyres") else -1
+        mismapped = (int(rng.integers(2, drives)) if plan == "mixed" and kind == "none"
+                     else -1)
+        odometer = float(rng.uniform(5000.0, 50000.0))
+        history: list[dict[str, Any]] = []
+        (root / name).mkdir()
+        for i in range(drives):
+            when = START + dt.timedelta(days=i, hours=float(rng.uniform(0, 10)))
+            current = theta.copy()
+            event = ""
+            if kind == "pressure" and i >= at:
+                current[1] -= 2.0 * size * current[0]
+                current[0] *= 1.0 - size
+            elif kind == "wear":
+                current[0] *= 1.0 - wear * i / (drives - 1)
+            elif kind == "tyres" and i >= at:
+                if i == at:
+                    event = "tyre change"
+                    theta = _vehicle_theta(rng)
+                current = theta.copy()
+            current[0] *= 1.0 + rng.normal(0.0, 0.0001)     # load, temperature
+            current[1] += rng.normal(0.0, 0.0001)
+            sim = simulate(duration_s=duration_s, seed=int(rng.integers(2**31)), noise=noise,
+                           theta=Parameters(*current), name=f"{name}-{i:02d}")
+            drive = sim.drive
+            if i == mismapped:
+                drive = dataclasses.replace(drive, n_rl=drive.n_rr, n_rr=drive.n_rl)
+            path = root / name / f"{when.strftime('%Y-%m-%dT%H-%M')}_d{i:02d}.parquet"
+            save_drive(drive, path)
+            rows.append({"vehicle": name, "path": f"{name}/{path.name}",
+                         "time": when.isoformat(timespec="seconds"),
+                         "odometer_km": f"{odometer:.1f}", "event": event})
+            history.append({"drive": i, "time": when.isoformat(timespec="seconds"),
+                            "theta": Parameters(*current).as_dict(),
+                            "mismapped": i == mismapped})
+            odometer += drive.distance_m / 1000.0
+            if event or (kind == "pressure" and i == at) or i == mismapped:
+                events.append(FleetEvent(name, i, when.isoformat(timespec="seconds"),
+                                         "mismapped" if i == mismapped else kind,
+                                         0.0 if i == mismapped else
+                                         (-size if kind == "pressure" else 0.0),
+                                         declared=bool(event)))
+            if progress:
+                progress("simulate", v * drives + i + 1, total)
+        if kind == "wear":
+            events.append(FleetEvent(name, 0, str(history[0]["time"]), "wear", -wear, False))
+        truth["vehicles"][name] = {"plan": kind, "drives": history}
+    truth["events"] = [dataclasses.asdict(e) for e in events]
+    header = ["vehicle", "path", "time", "odometer_km", "event"]
+    lines = [",".join(header)] + [",".join(str(r[h]) for h in header) for r in rows]
+    catalog = root / "catalog.csv"
+    write_text(catalog, "\n".join(lines) + "\n")
+    truth_path = root / "truth.json"
+    write_text(truth_path, json.dumps(truth, indent=1) + "\n")
+    return SimulatedFleet(catalog=catalog, truth=truth_path, drives=total, events=tuple(events))

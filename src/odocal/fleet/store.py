@@ -1,0 +1,254 @@
+"""The fleet's history: one SQLite file, written by one process in transactions.
+
+SQLite because it is one file with no server, in the standard library (no extra dependency),
+queried by anyone with the ``sqlite3`` command-line shell, and it has transactions: a result is
+in the store whole or not at all, so a run killed at any moment loses nothing already stored.
+The file is opened in WAL mode (readers, such as ``odocal fleet alarms``, never block the
+writer).
+
+Schema (version :data:`SCHEMA_VERSION`; ``meta`` holds it, :func:`open_store` migrates older
+files in place):
+
+``drives``
+    one row per drive estimate: ``task_key`` (primary key: the hash of the inputs' content,
+    the settings, the method and odocal's version), ``vehicle``, ``time`` (ISO 8601),
+    ``odometer_km``, ``source``, ``format``, ``event``, ``method``, ``status``, ``success``,
+    ``message``, the four parameters and their standard deviations (``c_e``, ``c_e_std``, ...),
+    ``c_e_identified`` (...), ``covariance`` (JSON, 4x4 row-major in the order c_e, c_d, t_r,
+    d), ``e_p_m`` and ``datasheet_e_p_m`` (validation errors), ``distance_km``, ``duration_s``,
+    ``findings`` (JSON list of the checks' names), ``error``, ``input_hashes`` (JSON),
+    ``settings_hash``, ``odocal_version``, ``report`` (the drive's own report.html, when
+    written), ``stored_at``
+``pooled``
+    a calibration per vehicle over its last drives (``drives`` JSON list of task keys), same
+    parameter columns, and the calibrated odometry's speed and yaw-rate standard deviations
+    (``speed_std_mps``, ``yaw_rate_std_radps``) for the exported parameter files
+``baselines``
+    per vehicle and parameter, each stretch of history between changes: ``since`` (time of its
+    first drive), ``value``, ``std``, ``excess_std`` (the drive-to-drive scatter beyond the
+    estimates' own uncertainty), ``drives``
+``alarms``
+    ``vehicle``, ``parameter``, ``kind`` (``step`` or ``trend``), ``time`` (the first drive after
+    the change), ``detected_time``, ``change``, ``relative_change``, ``confidence``,
+    ``drives_to_detect``, ``km_to_detect``, ``message``
+``meta``
+    ``schema_version``, ``created_at``
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import json
+import sqlite3
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from odocal.errors import DataError, OutputError
+from odocal.model import PARAMETER_NAMES
+
+SCHEMA_VERSION = 2
+
+_PARAMS = ", ".join(f"{n} REAL, {n}_std REAL, {n}_identified INTEGER" for n in PARAMETER_NAMES)
+_SCHEMA = f"""
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS drives (
+    task_key TEXT PRIMARY KEY, vehicle TEXT NOT NULL, time TEXT NOT NULL, odometer_km REAL,
+    source TEXT NOT NULL, format TEXT, event TEXT, method TEXT, status TEXT NOT NULL,
+    success INTEGER NOT NULL, message TEXT, {_PARAMS}, covariance TEXT, e_p_m REAL,
+    datasheet_e_p_m REAL, distance_km REAL, duration_s REAL, findings TEXT, error TEXT,
+    input_hashes TEXT, settings_hash TEXT, odocal_version TEXT, report TEXT,
+    stored_at TEXT NOT NULL);
+CREATE INDEX IF NOT EXISTS drives_by_vehicle ON drives (vehicle, time);
+CREATE TABLE IF NOT EXISTS pooled (
+    task_key TEXT PRIMARY KEY, vehicle TEXT NOT NULL, time TEXT NOT NULL, drives TEXT NOT NULL,
+    method TEXT, status TEXT NOT NULL, success INTEGER NOT NULL, message TEXT, {_PARAMS},
+    covariance TEXT, e_p_m REAL, speed_std_mps REAL, yaw_rate_std_radps REAL, error TEXT,
+    stored_at TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS baselines (
+    vehicle TEXT NOT NULL, parameter TEXT NOT NULL, since TEXT NOT NULL, value REAL, std REAL,
+    excess_std REAL, drives INTEGER, PRIMARY KEY (vehicle, parameter, since));
+CREATE TABLE IF NOT EXISTS alarms (
+    vehicle TEXT NOT NULL, parameter TEXT NOT NULL, kind TEXT NOT NULL, time TEXT NOT NULL,
+    detected_time TEXT NOT NULL, change REAL, relative_change REAL, confidence REAL,
+    drives_to_detect INTEGER, km_to_detect REAL, message TEXT,
+    PRIMARY KEY (vehicle, parameter, kind, time));
+"""
+#: Columns of ``drives`` a task result fills (besides the bookkeeping ones).
+DRIVE_COLUMNS = ("task_key", "vehicle", "time", "odometer_km", "source", "format", "event",
+                 "method", "status", "success", "message",
+                 *(f"{n}{suffix}" for n in PARAMETER_NAMES for suffix in ("", "_std",
+                                                                          "_identified")),
+                 "covariance", "e_p_m", "datasheet_e_p_m", "distance_km", "duration_s",
+                 "findings", "error", "input_hashes", "settings_hash", "odocal_version",
+                 "report")
+POOLED_COLUMNS = ("task_key", "vehicle", "time", "drives", "method", "status", "success",
+                  "message", *(f"{n}{suffix}" for n in PARAMETER_NAMES
+                               for suffix in ("", "_std", "_identified")),
+                  "covariance", "e_p_m", "speed_std_mps", "yaw_rate_std_radps", "error")
+
+
+def _now() -> str:
+    return dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
+
+
+class Store:
+    """An open fleet database (use :func:`open_store`)."""
+
+    def __init__(self, connection: sqlite3.Connection, path: Path) -> None:
+        self.db = connection
+        self.path = path
+
+    def close(self) -> None:
+        self.db.close()
+
+    def __enter__(self) -> Store:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @contextlib.contextmanager
+    def transaction(self) -> Iterator[sqlite3.Connection]:
+        """Everything inside is stored together, or (on any error) not at all."""
+        try:
+            self.db.execute("BEGIN IMMEDIATE")
+            yield self.db
+            self.db.execute("COMMIT")
+        except BaseException:
+            self.db.execute("ROLLBACK")
+            raise
+
+    def done_keys(self) -> set[str]:
+        return {r[0] for r in self.db.execute("SELECT task_key FROM drives")}
+
+    def pooled_keys(self) -> set[str]:
+        return {r[0] for r in self.db.execute("SELECT task_key FROM pooled")}
+
+    def add_drive(self, row: Mapping[str, Any]) -> None:
+        """Store one drive's result (in its own transaction)."""
+        values = [_sql(row.get(c)) for c in DRIVE_COLUMNS]
+        with self.transaction() as db:
+            db.execute(f"INSERT OR REPLACE INTO drives ({', '.join(DRIVE_COLUMNS)}, stored_at) "
+                       f"VALUES ({', '.join('?' * len(DRIVE_COLUMNS))}, ?)", [*values, _now()])
+
+    def add_pooled(self, row: Mapping[str, Any]) -> None:
+        values = [_sql(row.get(c)) for c in POOLED_COLUMNS]
+        with self.transaction() as db:
+            db.execute(f"INSERT OR REPLACE INTO pooled ({', '.join(POOLED_COLUMNS)}, stored_at) "
+                       f"VALUES ({', '.join('?' * len(POOLED_COLUMNS))}, ?)", [*values, _now()])
+
+    def update_catalog_fields(self, tasks: Sequence[Any]) -> None:
+        """Catalog fields of drives already stored (a corrected time, odometer or event needs
+        no recalibration)."""
+        with self.transaction() as db:
+            db.executemany("UPDATE drives SET vehicle = ?, time = ?, odometer_km = ?, event = ?, "
+                           "source = ? WHERE task_key = ?",
+                           [(t.entry.vehicle, t.entry.time.isoformat(), t.entry.odometer_km,
+                             t.entry.event, str(t.entry.path), t.key) for t in tasks])
+
+    def drives(self, vehicle: str | None = None) -> list[dict[str, Any]]:
+        """Stored drive rows (of one vehicle), by vehicle and time."""
+        query = "SELECT * FROM drives" + (" WHERE vehicle = ?" if vehicle is not None else "") \
+            + " ORDER BY vehicle, time, task_key"
+        cursor = self.db.execute(query, (vehicle,) if vehicle is not None else ())
+        names = [c[0] for c in cursor.description]
+        return [dict(zip(names, r, strict=True)) for r in cursor]
+
+    def vehicles(self) -> list[str]:
+        return [r[0] for r in self.db.execute("SELECT DISTINCT vehicle FROM drives ORDER BY 1")]
+
+    def replace_analysis(self, baselines: Sequence[Mapping[str, Any]],
+                         alarms: Sequence[Mapping[str, Any]]) -> None:
+        """Baselines and alarms, recomputed from the history, replaced in one transaction."""
+        with self.transaction() as db:
+            db.execute("DELETE FROM baselines")
+            db.execute("DELETE FROM alarms")
+            db.executemany("INSERT INTO baselines VALUES (:vehicle, :parameter, :since, :value, "
+                           ":std, :excess_std, :drives)", baselines)
+            db.executemany("INSERT INTO alarms VALUES (:vehicle, :parameter, :kind, :time, "
+                           ":detected_time, :change, :relative_change, :confidence, "
+                           ":drives_to_detect, :km_to_detect, :message)", alarms)
+
+    def alarms(self, vehicle: str | None = None) -> list[dict[str, Any]]:
+        query = "SELECT * FROM alarms" + (" WHERE vehicle = ?" if vehicle else "") \
+            + " ORDER BY vehicle, time, parameter"
+        cursor = self.db.execute(query, (vehicle,) if vehicle else ())
+        names = [c[0] for c in cursor.description]
+        return [dict(zip(names, r, strict=True)) for r in cursor]
+
+    def baselines(self, vehicle: str | None = None) -> list[dict[str, Any]]:
+        query = "SELECT * FROM baselines" + (" WHERE vehicle = ?" if vehicle else "") \
+            + " ORDER BY vehicle, parameter, since"
+        cursor = self.db.execute(query, (vehicle,) if vehicle else ())
+        names = [c[0] for c in cursor.description]
+        return [dict(zip(names, r, strict=True)) for r in cursor]
+
+    def pooled(self, vehicle: str | None = None) -> list[dict[str, Any]]:
+        query = "SELECT * FROM pooled" + (" WHERE vehicle = ?" if vehicle else "") \
+            + " ORDER BY vehicle, time"
+        cursor = self.db.execute(query, (vehicle,) if vehicle else ())
+        names = [c[0] for c in cursor.description]
+        return [dict(zip(names, r, strict=True)) for r in cursor]
+
+
+def _sql(value: Any) -> Any:
+    if isinstance(value, list | tuple | dict):
+        return json.dumps(value)
+    if isinstance(value, bool):
+        return int(value)
+    if isinstance(value, float) and value != value:      # nan
+        return None
+    return value
+
+
+def open_store(path: str | Path, *, create: bool = True) -> Store:
+    """Open (or create) a fleet database, migrating an older schema in place."""
+    p = Path(path)
+    if not p.exists():
+        if not create:
+            raise DataError(f"fleet store '{p}' does not exist")
+        if not p.parent.exists():
+            raise OutputError(f"cannot create the fleet store '{p}': its folder does not exist")
+    elif p.is_dir():
+        raise DataError(f"fleet store '{p}' is a folder, not a database file")
+    try:
+        db = sqlite3.connect(p, isolation_level=None, timeout=30.0)
+        db.execute("PRAGMA journal_mode=WAL")
+        tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    except sqlite3.DatabaseError as exc:
+        raise DataError(f"'{p}' is not an odocal fleet store (SQLite: {exc})") from None
+    if tables and "meta" not in tables:
+        db.close()
+        raise DataError(f"'{p}' is an SQLite database, but not an odocal fleet store")
+    version = 0
+    if "meta" in tables:
+        row = db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
+        version = int(row[0]) if row else 0
+    if version > SCHEMA_VERSION:
+        db.close()
+        raise DataError(f"fleet store '{p}' has schema version {version}, newer than this "
+                        f"odocal's ({SCHEMA_VERSION}); upgrade odocal")
+    store = Store(db, p)
+    if version < SCHEMA_VERSION:
+        # SQLite's DDL is transactional: the migration and the new tables land together or not
+        with store.transaction() as tx:
+            if version == 1:
+                _migrate_1_to_2(tx)
+            for statement in _SCHEMA.split(";"):
+                if statement.strip():
+                    tx.execute(statement)
+            tx.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)",
+                       (str(SCHEMA_VERSION),))
+            tx.execute("INSERT OR IGNORE INTO meta VALUES ('created_at', ?)", (_now(),))
+    return store
+
+
+def _migrate_1_to_2(db: sqlite3.Connection) -> None:
+    """Version 1 kept no checks' findings and no report per drive, and no pooled calibrations
+    (the ``pooled`` table is created with the rest of the schema)."""
+    columns = {r[1] for r in db.execute("PRAGMA table_info(drives)")}
+    for name in ("findings", "report"):
+        if name not in columns:
+            db.execute(f"ALTER TABLE drives ADD COLUMN {name} TEXT")
