@@ -216,6 +216,7 @@ def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
                    renderer: Any = None) -> None:
     from odocal.output import (
         export_parameters,
+        export_stack,
         prepare_output_dir,
         write_calibration,
         write_compensated_inputs,
@@ -236,7 +237,10 @@ def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
         _print("note: parameters not exported: the calibration did not succeed")
         exports = []
     for fmt in exports:
-        written.append(export_parameters(result, out, fmt))
+        if fmt in ("yaml", "json"):
+            written.append(export_parameters(result, out, fmt))
+        else:
+            written += export_stack(result, out, fmt)
     if getattr(args, "save_inputs", False):
         path = write_compensated_inputs(result, out)
         if path is None:
@@ -571,9 +575,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="seed of the step-1 batch draw")
     p.add_argument("--save-inputs", action="store_true",
                    help="also write the compensated wheel rates (compensated_inputs.parquet)")
-    p.add_argument("--export", action="append", choices=("yaml", "json"),
+    p.add_argument("--export", action="append",
+                   choices=("yaml", "json", "autoware", "ros2_control", "robot_localization"),
                    help="also write the parameters for a localisation stack: yaml (a ROS 2 "
-                        "parameter file) or json, with their covariance (repeatable)")
+                        "parameter file) or json, with their covariance, or the parameter files "
+                        "of autoware, ros2_control, robot_localization (repeatable)")
     p.add_argument("--no-report", action="store_true", help="skip report.html and the figures")
     _add_common(p)
     p.set_defaults(func=cmd_calibrate)

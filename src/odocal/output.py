@@ -85,6 +85,19 @@ def export_parameters(result: CalibrationResult, out_dir: str | Path, fmt: str) 
     return path
 
 
+def export_stack(result: CalibrationResult, out_dir: str | Path, target: str) -> list[Path]:
+    """Parameter files for ``target`` (see :mod:`odocal.export`) in ``out_dir/target/``."""
+    from odocal.export import Calibrated, export, odometry_noise
+
+    est = result.estimate
+    calibrated = Calibrated(theta=est.theta, datasheet=est.datasheet,
+                            std=tuple(est.std.tolist()),
+                            identified=est.identified, method=result.method,
+                            noise=odometry_noise(result.drive_data, est.theta),
+                            source=", ".join(d.name for d in result.drives))
+    return export(calibrated, out_dir, [target])
+
+
 def write_compensated_inputs(result: CalibrationResult, out_dir: str | Path) -> Path | None:
     """Write the compensated wheel rates of every selected segment (``--save-inputs``).
 

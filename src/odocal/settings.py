@@ -313,6 +313,8 @@ class FleetSettings:
     """Drives in each vehicle's pooled calibration (its latest, since its last change)."""
     baseline_drives: int = 4
     """Drives that form a baseline (after the start, a declared event or an alarm)."""
+    baseline_max: int = 20
+    """The baseline grows with ordinary drives up to this many."""
     cusum_k: float = 1.0
     """The detector's allowance, in standard deviations of one drive's estimate."""
     cusum_h: float = 4.0
@@ -327,6 +329,8 @@ class FleetSettings:
                "an integer >= 1")
         _check(self.baseline_drives >= 2, s, "baseline_drives", self.baseline_drives,
                "an integer >= 2")
+        _check(self.baseline_max >= self.baseline_drives, s, "baseline_max", self.baseline_max,
+               "an integer >= baseline_drives")
         for key in ("cusum_k", "cusum_h"):
             _check(0 < getattr(self, key) < float("inf"), s, key, getattr(self, key),
                    "a positive finite number")

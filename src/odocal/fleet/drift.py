@@ -2,7 +2,8 @@
 
 For each vehicle and parameter, the history is cut into stretches at declared events (a tyre
 change restarts the baseline) and at detected changes. Each stretch starts with a **baseline**:
-the first ``baseline_drives`` estimates, their weighted mean and the drive-to-drive scatter
+its first ``baseline_drives`` estimates (growing, up to ``baseline_max``, with every later drive
+the detector has seen as ordinary), their weighted mean and the drive-to-drive scatter
 beyond the estimates' own uncertainty (the DerSimonian-Laird moment estimate, never below
 ``excess_floor``: loads and temperatures move the parameters a little from drive to drive).
 
@@ -171,32 +172,44 @@ def _stretches(pts: list[Point], resets: list[int]) -> list[list[Point]]:
     return out
 
 
+def _baseline(pts: list[Point], floor: float) -> tuple[float, float, float]:
+    x = np.array([p.value for p in pts])
+    var = np.array([p.std**2 for p in pts])
+    excess = max(excess_scatter(x, var), floor)
+    m0, se0 = _weighted_mean(x, var + excess**2)
+    return m0, se0, excess
+
+
 def _detect(vehicle: str, name: str, pts: list[Point], floor: float,
             settings: FleetSettings, rows: Sequence[Mapping[str, Any]]
             ) -> tuple[list[Baseline], list[Alarm]]:
+    """Baselines and alarms of one stretch; the baseline grows (up to ``baseline_max``) with
+    every drive that is not part of the CUSUM's current excursion."""
     baselines: list[Baseline] = []
     alarms: list[Alarm] = []
     start = 0
     nb, k, h = settings.baseline_drives, settings.cusum_k, settings.cusum_h
     while start + nb <= len(pts):
-        base = pts[start:start + nb]
-        x = np.array([p.value for p in base])
-        var = np.array([p.std**2 for p in base])
-        excess = max(excess_scatter(x, var), floor)
-        m0, se0 = _weighted_mean(x, var + excess**2)
-        baselines.append(Baseline(vehicle, name, base[0].time, m0, se0, excess, nb))
         s_up = s_down = 0.0
+        calm = start + nb                    # drives before this are the baseline's
         alarm = None
+        m0, se0, excess = _baseline(pts[start:calm], floor)
         for i in range(start + nb, len(pts)):
+            m0, se0, excess = _baseline(pts[start:min(calm, start + settings.baseline_max)],
+                                        floor)
             p = pts[i]
             z = (p.value - m0) / math.sqrt(p.std**2 + excess**2 + se0**2)
             z = min(max(z, -h), h)
             s_up = max(0.0, s_up + z - k)
             s_down = max(0.0, s_down - z - k)
             if s_up > h or s_down > h:
-                first = _change_point(pts, start + nb, i, m0, excess)
+                first = _change_point(pts, calm, i, m0, excess)
                 alarm = _alarm(vehicle, name, pts, start, first, i, m0, se0, excess, rows)
                 break
+            if s_up == 0.0 and s_down == 0.0:
+                calm = i + 1
+        used = min(calm, start + settings.baseline_max) - start
+        baselines.append(Baseline(vehicle, name, pts[start].time, m0, se0, excess, used))
         if alarm is None:
             break
         alarms.append(alarm[0])
