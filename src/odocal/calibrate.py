@@ -316,10 +316,15 @@ def load_drives(sources: Drive | str | Path | Sequence[Drive | str | Path]) -> l
     if not drives:
         raise DataError("no drives were given")
     common_sampling_time(drives)
-    names = [d.name for d in drives]
-    duplicates = sorted({n for n in names if names.count(n) > 1})
-    if duplicates and all(isinstance(s, str | Path) for s in sources):
-        raise DataError(f"the log '{duplicates[0]}' was given more than once")
+    seen: dict[str, str] = {}
+    for d in drives:                 # the same bytes twice (a copy, a link) would count twice
+        digest = d.metadata.get("sha256")
+        if digest is None:
+            continue
+        if digest in seen:
+            raise DataError(f"the logs '{seen[digest]}' and '{d.name}' are the same drive "
+                            "(identical content); give each drive once")
+        seen[digest] = d.name
     return drives
 
 
@@ -381,7 +386,10 @@ def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
                    theta: Parameters | NDArray[np.float64], *,
                    settings: Settings | None = None) -> ValidationResult:
     """E_p of ``theta`` on the validation segments of ``drives`` (METHOD 6)."""
+    from odocal.io.results import plausible
+
     settings = settings or Settings()
+    plausible(theta if isinstance(theta, Parameters) else Parameters.from_array(theta))
     drive_list = load_drives(drives)
     segs = validation_segments(drive_list, settings.segments)
     data = gather_ragged(drive_list, segs)

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from odocal import __version__
-from odocal.errors import OdocalError
+from odocal.errors import OdocalError, OutputError
 from odocal.methods import DEFAULT_METHOD, METHOD_NAMES
 from odocal.noise import NOISE_PROFILES
 from odocal.settings import Settings, load_settings
@@ -162,6 +162,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from odocal.simulate import simulate
 
     settings = _settings(args)
+    _check_out_dir(args, _inputs(args))
     _print(f"simulating a {args.duration / 60:.0f}-minute city drive (noise profile "
            f"'{args.noise}', seed {args.seed}) with known true parameters ...")
     sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
@@ -173,7 +174,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     truth_error = validate_theta(sim.drive, sim.true_parameters, settings=settings).mean_error_m
     print_summary(result, truth=sim.true_parameters, truth_error_m=truth_error)
     if args.out:
-        _write_outputs(result, args, inputs=())
+        _write_outputs(result, args, inputs=_inputs(args))
+    elif not args.quiet:
+        _print("(add --out DIR to write calibration.json and the report with its figures)")
     return exit_code(result)
 
 
@@ -186,6 +189,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     out = Path(args.out)
     truth_path = out.with_name(out.stem + ".truth.json")
     refuse_inputs(out, [])
+    other = [p for p in (out.with_suffix(".csv"), out.with_suffix(".parquet"))
+             if p != out and p.exists()]
+    if truth_path.exists() and other:
+        raise OutputError(f"'{truth_path}' is the truth of '{other[0]}'; writing '{out}' would "
+                          "replace it: choose another name")
     sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
     save_drive(sim.drive, out)
     write_json(truth_path, sim.truth_dict())
@@ -210,46 +218,70 @@ def _renderer(args: argparse.Namespace) -> Any:
     return Renderer(1)
 
 
+def _inputs(args: argparse.Namespace, *sources: Any) -> list[Any]:
+    """Everything a command reads: its sources, settings, mapping (and the files the mapping
+    names), parameters."""
+    from odocal.io.mapping import mapping_files
+
+    mapping = getattr(args, "mapping", None)
+    return [*sources, getattr(args, "config", None), mapping, *mapping_files(mapping),
+            getattr(args, "params", None)]
+
+
+def _check_out_dir(args: argparse.Namespace, inputs: Sequence[Any]) -> None:
+    """Before any computation: the results folder may replace nothing the run reads."""
+    from odocal.io.atomic import refuse_inputs
+
+    if getattr(args, "out", None):
+        refuse_inputs(args.out, inputs, folder=True)
+        out = Path(args.out)
+        if out.exists() and not out.is_dir():
+            raise OutputError(f"output '{out}' exists and is not a folder")
+
+
 def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
-                   inputs: Sequence[str | Path],
+                   inputs: Sequence[Any],
                    progress: Callable[[str, int, int], None] | None = None,
                    renderer: Any = None) -> None:
+    """The results folder, built beside ``--out`` and swapped in whole when complete."""
+    from odocal.io.atomic import results_folder
     from odocal.output import (
         export_parameters,
         export_stack,
-        prepare_output_dir,
         write_calibration,
         write_compensated_inputs,
     )
 
-    out = prepare_output_dir(args.out, inputs)
+    _check_out_dir(args, inputs)
+    out = Path(args.out)
     written: list[Path] = []
-    report_numbers = None
-    if not getattr(args, "no_report", False):
-        from odocal.report import write_report
+    with results_folder(out) as tmp:
+        report_numbers = None
+        if not getattr(args, "no_report", False):
+            from odocal.report import write_report
 
-        report = write_report(result, out, progress=progress, renderer=renderer)
-        written += [report.html_path]
-        report_numbers = report.data.to_dict()
-    written.insert(0, write_calibration(result, out, report=report_numbers))
-    exports = getattr(args, "export", None) or []
-    if exports and not result.success:
-        _print("note: parameters not exported: the calibration did not succeed")
-        exports = []
-    for fmt in exports:
-        if fmt in ("yaml", "json"):
-            written.append(export_parameters(result, out, fmt))
-        else:
-            written += export_stack(result, out, fmt)
-    if getattr(args, "save_inputs", False):
-        path = write_compensated_inputs(result, out)
-        if path is None:
-            _print("note: --save-inputs: this method does not compensate the wheel rates")
-        else:
-            written.append(path)
+            report = write_report(result, tmp, progress=progress, renderer=renderer)
+            written += [report.html_path, *report.figure_paths]
+            report_numbers = report.data.to_dict()
+        written.insert(0, write_calibration(result, tmp, report=report_numbers))
+        exports = getattr(args, "export", None) or []
+        if exports and not result.success:
+            _print("note: parameters not exported: the calibration did not succeed")
+            exports = []
+        for fmt in exports:
+            if fmt in ("yaml", "json"):
+                written.append(export_parameters(result, tmp, fmt))
+            else:
+                written += export_stack(result, tmp, fmt)
+        if getattr(args, "save_inputs", False):
+            path = write_compensated_inputs(result, tmp)
+            if path is None:
+                _print("note: --save-inputs: this method does not compensate the wheel rates")
+            else:
+                written.append(path)
     if not args.quiet:
         for path in written:
-            _print(f"wrote {path}")
+            _print(f"wrote {out / path.relative_to(tmp)}")
 
 
 def _drives_from(args: argparse.Namespace, settings: Settings) -> list[Any]:
@@ -283,13 +315,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         from odocal.calibrate import calibrate
 
         settings = _settings(args)
+        inputs = _inputs(args, *args.logs)
+        _check_out_dir(args, inputs)
         drives = _drives_from(args, settings)
         result = calibrate(drives, settings=settings, method=args.method, progress=progress)
         if not args.quiet:
             print_summary(result)
-        _write_outputs(result, args, progress=progress, renderer=renderer,
-                       inputs=[*args.logs, *([args.config] if args.config else []),
-                               *([args.mapping] if getattr(args, "mapping", None) else [])])
+        _write_outputs(result, args, progress=progress, renderer=renderer, inputs=inputs)
     finally:
         progress.close()
         if renderer is not None:
@@ -312,7 +344,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
 
     settings = _settings(args)
     out = Path(args.out)
-    inputs = [*args.logs, *([args.mapping] if args.mapping else [])]
+    inputs = _inputs(args, *args.logs)
     refuse_inputs(out, inputs)
     drives = _drives_from(args, settings)
     targets = [out] if len(drives) == 1 else \
@@ -388,6 +420,10 @@ def cmd_minimum(args: argparse.Namespace) -> int:
     from odocal.calibrate import minimum
 
     settings = _settings(args)
+    if args.out:
+        from odocal.io.atomic import refuse_inputs
+
+        refuse_inputs(args.out, _inputs(args, *args.logs))
     start = _parameters_from(args, settings)
     if not args.quiet:
         _print("searching the reachable minimum of E_p over the validation segments "
@@ -419,20 +455,15 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _replay(args: argparse.Namespace, renderer: Any) -> int:
-    import csv
-    import io
-
-    from odocal.io.atomic import refuse_inputs, write_text
-    from odocal.io.results import write_json
+    from odocal.io.atomic import results_folder
     from odocal.model import PARAMETER_NAMES
     from odocal.replay import TraceRow, replay
-    from odocal.report.replay import convergence_km, write_replay_report
+    from odocal.report.replay import convergence_km
 
     settings = _settings(args)
-    inputs = [args.source, *([args.config] if args.config else []),
-              *([args.mapping] if args.mapping else [])]
+    inputs = _inputs(args, args.source)
     out = Path(args.out)
-    refuse_inputs(out, inputs)
+    _check_out_dir(args, inputs)
 
     def show(row: TraceRow, est: Any) -> None:
         if args.quiet:
@@ -453,15 +484,37 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
         _print(f"change: {alarm.parameter} moved {alarm.relative_change * 100:+.3f}% at "
                f"{alarm.distance_km:.2f} km (detected at {alarm.detected_distance_km:.2f} km, "
                f"t = {alarm.detected_t:.0f} s)")
-    from odocal.output import prepare_output_dir
-
-    out = prepare_output_dir(out, inputs)
-    est = result.estimate
+    written: list[Path] = []
+    with results_folder(out) as tmp:
+        written += _replay_files(tmp, args, result, batch, settings, renderer)
     conv = convergence_km(result)
+    if not args.quiet:
+        _print(f"replayed {result.duration_s / 60:.1f} min, {result.distance_km:.2f} km in "
+               f"{result.elapsed_s:.1f} s; c_e to 1 mm after "
+               + (f"{conv['c_e']:.2f} km" if conv["c_e"] is not None else "-")
+               + ", t_r to 20 mm after "
+               + (f"{conv['t_r']:.2f} km" if conv["t_r"] is not None else "-"))
+        for path in written:
+            _print(f"wrote {out / path.relative_to(tmp)}")
+    return EXIT_OK
+
+
+def _replay_files(out: Path, args: argparse.Namespace, result: Any, batch: Any,
+                  settings: Settings, renderer: Any) -> list[Path]:
+    import csv
+    import io
+
+    from odocal.io.atomic import write_text
+    from odocal.io.results import write_json
+    from odocal.replay import TraceRow
+    from odocal.report.replay import convergence_km, write_replay_report
+
+    est = result.estimate
     data = {"odocal_version": __version__, **est.to_dict(), "method": "online",
             "alarms": [a.to_dict() for a in result.alarms],
-            "convergence_km": conv, "samples": result.samples, "duration_s": result.duration_s,
-            "distance_km": result.distance_km, "elapsed_s": result.elapsed_s,
+            "convergence_km": convergence_km(result), "samples": result.samples,
+            "duration_s": result.duration_s, "distance_km": result.distance_km,
+            "elapsed_s": result.elapsed_s,
             "details": est.details.to_dict() if est.details is not None else None,
             "batch": batch.to_dict() if batch is not None else None,
             "inputs": [{"name": str(args.source)}], "settings": settings.to_dict()}
@@ -478,15 +531,7 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
     if not args.no_report:
         written.append(write_replay_report(result, out, batch=batch, renderer=renderer))
         written.append(out / "figures" / "trace.png")
-    if not args.quiet:
-        _print(f"replayed {result.duration_s / 60:.1f} min, {result.distance_km:.2f} km in "
-               f"{result.elapsed_s:.1f} s; c_e to 1 mm after "
-               + (f"{conv['c_e']:.2f} km" if conv["c_e"] is not None else "-")
-               + ", t_r to 20 mm after "
-               + (f"{conv['t_r']:.2f} km" if conv["t_r"] is not None else "-"))
-        for path in written:
-            _print(f"wrote {path}")
-    return EXIT_OK
+    return written
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:

@@ -108,6 +108,15 @@ class Drive:
             covered = stop
         if covered != m:
             raise DataError(f"{self.name}: pieces {self.pieces} do not tile 0..{m}")
+        if not (np.isfinite(self.t_s) and self.t_s > 0):
+            raise DataError(f"{self.name}: the sampling time {self.t_s} must be positive")
+        for key in ("t", "n_rl", "n_rr", "a_y", "beta", "x", "y", "psi", "yaw_rate"):
+            bad = ~np.isfinite(getattr(self, key))
+            if bad.any():
+                raise DataError(f"{self.name}: column {key} contains {int(bad.sum())} NaN or "
+                                "infinite values")
+        if m > 1 and (np.diff(self.t) <= 0).any():
+            raise DataError(f"{self.name}: column t is not strictly increasing")
         for arr in (self.t, self.n_rl, self.n_rr, self.a_y, self.beta, self.x, self.y, self.psi,
                     self.yaw_rate):
             arr.flags.writeable = False
@@ -207,6 +216,13 @@ class Drive:
         pieces = _pieces(name, t, arrays.get("piece"))
         t_s = _sampling_time(name, t, pieces)
 
+        repaired: dict[str, int] = {}
+        for key, scale in _SPIKE_SCALE.items():
+            if key in arrays:
+                arrays[key], count = _repair_spikes(name, key, arrays[key], scale, pieces)
+                if count:
+                    repaired[key] = count
+        _check_limits(name, arrays)
         n_rl, n_rr = arrays["n_rl"], arrays["n_rr"]
         _check_wheel_units(name, n_rl, n_rr)
         psi = _unwrap_pieces(arrays["psi"], pieces)
@@ -234,7 +250,9 @@ class Drive:
         return cls(t=t, n_rl=n_rl, n_rr=n_rr, a_y=arrays["a_y"],
                    beta=arrays.get("beta", np.zeros(m)), x=x, y=y, psi=psi,
                    yaw_rate=_as_float_array(yaw_rate), t_s=t_s, pieces=pieces, name=name,
-                   pose_std=pose_std, metadata=MappingProxyType(dict(metadata or {})))
+                   pose_std=pose_std,
+                   metadata=MappingProxyType({**dict(metadata or {}),
+                                              **({"repaired": repaired} if repaired else {})}))
 
 
 def _pieces(name: str, t: FloatArray, piece: FloatArray | None) -> tuple[tuple[int, int], ...]:
@@ -291,6 +309,45 @@ def _derivative_pieces(values: FloatArray, t_s: float,
         if b - a >= 2:
             out[a:b] = np.gradient(values[a:b], t_s)
     return out
+
+
+#: Isolated spikes: a sample this far from both neighbours, whose neighbours agree within a
+#: tenth of it, is no physical motion (wheel rates in rev/s, a_y in m/s^2).
+_SPIKE_SCALE = {"n_rl": 5.0, "n_rr": 5.0, "a_y": 20.0}
+#: Share of a column's samples that may be repaired; beyond it the column is broken.
+_MAX_REPAIRED = 0.01
+#: Largest magnitudes a car's log can hold (README, "Input limits").
+LIMITS = {"a_y": (30.0, "m/s^2"), "beta": (0.8, "rad"), "x": (1e7, "m"), "y": (1e7, "m")}
+
+
+def _repair_spikes(name: str, key: str, arr: FloatArray, scale: float,
+                   pieces: tuple[tuple[int, int], ...]) -> tuple[FloatArray, int]:
+    """Isolated one-sample spikes replaced by the mean of their neighbours (counted)."""
+    prev, nxt = np.roll(arr, 1), np.roll(arr, -1)
+    spike = ((np.abs(arr - prev) > scale) & (np.abs(arr - nxt) > scale)
+             & (np.abs(prev - nxt) < 0.1 * np.minimum(np.abs(arr - prev), np.abs(arr - nxt))))
+    for start, stop in pieces:               # piece ends have one neighbour: left as they are
+        spike[start] = spike[stop - 1] = False
+    count = int(spike.sum())
+    if count == 0:
+        return arr, 0
+    if count > _MAX_REPAIRED * arr.size:
+        raise DataError(f"'{name}' column {key} jumps by more than {scale:g} and back in "
+                        f"{count} samples ({count / arr.size:.1%}); the log is corrupt or in "
+                        "another unit")
+    fixed = arr.copy()
+    fixed[spike] = 0.5 * (prev[spike] + nxt[spike])
+    return fixed, count
+
+
+def _check_limits(name: str, arrays: Mapping[str, FloatArray]) -> None:
+    for key, (limit, unit) in LIMITS.items():
+        if key not in arrays:
+            continue
+        peak = float(np.max(np.abs(arrays[key])))
+        if peak > limit:
+            raise DataError(f"'{name}' column {key} reaches {peak:.4g} {unit}, beyond any car "
+                            f"(limit {limit:g} {unit}); check its unit and the log")
 
 
 def _check_wheel_units(name: str, n_rl: FloatArray, n_rr: FloatArray) -> None:

@@ -5,7 +5,6 @@ Every file is written atomically, and no output may land on one of the inputs.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -14,26 +13,11 @@ import numpy as np
 from odocal import __version__
 from odocal.calibrate import CalibrationResult
 from odocal.errors import OutputError
-from odocal.io.atomic import refuse_inputs, write_text
+from odocal.io.atomic import write_text
 from odocal.io.results import write_json
 from odocal.model import PARAMETER_NAMES, PARAMETER_UNITS
 
 CALIBRATION_FILE = "calibration.json"
-
-
-def prepare_output_dir(out_dir: str | Path, inputs: Iterable[str | Path]) -> Path:
-    """Create ``out_dir`` (if needed), refusing a path that is one of the inputs."""
-    out = Path(out_dir)
-    inputs = list(inputs)
-    refuse_inputs(out, inputs)
-    refuse_inputs(out / CALIBRATION_FILE, inputs)
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"output '{out}' exists and is not a folder")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"cannot create the output folder '{out}': {exc.strerror}") from None
-    return out
 
 
 def write_calibration(result: CalibrationResult, out_dir: str | Path, *,

@@ -44,7 +44,8 @@ def map_chunks(func: Callable[[T], R], tasks: Sequence[T], *, workers: int = 1,
             if progress:
                 progress(done, total)
         return out
-    with ProcessPoolExecutor(max_workers=n_workers) as pool:
+    pool = ProcessPoolExecutor(max_workers=n_workers)
+    try:
         futures = [pool.submit(func, task) for task in tasks]
         results: list[R] = []
         for future, w in zip(futures, weights, strict=True):
@@ -52,4 +53,12 @@ def map_chunks(func: Callable[[T], R], tasks: Sequence[T], *, workers: int = 1,
             done += w
             if progress:
                 progress(done, total)
+    except BaseException:
+        # interrupted or failed: drop the queued work and stop the workers now, not after it
+        processes = list(getattr(pool, "_processes", {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.terminate()
+        raise
+    pool.shutdown()
     return results

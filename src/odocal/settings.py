@@ -17,6 +17,7 @@ Example ``odocal.toml``::
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 import types
 import typing
@@ -523,6 +524,18 @@ class Settings:
     fusion: FusionSettings = field(default_factory=FusionSettings)
     sideslip: SideslipSettings = field(default_factory=SideslipSettings)
 
+    def __post_init__(self) -> None:
+        # every number of every section must be finite, however the settings were built
+        for name in _SECTIONS:
+            section = getattr(self, name)
+            for f in dataclasses.fields(section):
+                value = getattr(section, f.name)
+                values = value if isinstance(value, tuple) else (value,)
+                for v in values:
+                    if isinstance(v, float) and not math.isfinite(v):
+                        raise ConfigError(f"setting [{name}] {f.name} = {value!r} is invalid: "
+                                          "expected finite numbers")
+
     def replace(self, **sections: Any) -> Settings:
         """A copy with whole sections or single keys replaced.
 
@@ -559,8 +572,8 @@ def _coerce(section: str, key: str, value: Any, hint: Any) -> Any:
     """Convert a TOML value to the annotated type, or raise ConfigError."""
     origin = typing.get_origin(hint)
     if hint is float:
-        _check(isinstance(value, int | float) and not isinstance(value, bool), section, key,
-               value, "a number")
+        _check(isinstance(value, int | float) and not isinstance(value, bool)
+               and math.isfinite(value), section, key, value, "a finite number")
         return float(value)
     if hint is int:
         _check(isinstance(value, int) and not isinstance(value, bool), section, key, value,

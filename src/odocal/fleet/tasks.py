@@ -182,13 +182,14 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
 
 
 def _write_drive_report(result: Any, out: Path) -> str:
-    from odocal.output import prepare_output_dir, write_calibration
+    from odocal.io.atomic import results_folder
+    from odocal.output import write_calibration
     from odocal.report import write_report
 
-    prepare_output_dir(out, [])
-    report = write_report(result, out)
-    write_calibration(result, out, report=report.data.to_dict())
-    return str(report.html_path)
+    with results_folder(out) as tmp:
+        report = write_report(result, tmp)
+        write_calibration(result, tmp, report=report.data.to_dict())
+    return str(out / "report.html")
 
 
 def run_pooled_task(task: PooledTask) -> dict[str, Any]:

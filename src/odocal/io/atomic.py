@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -11,14 +12,75 @@ from pathlib import Path
 from odocal.errors import OutputError
 
 
-def refuse_inputs(output: str | Path, inputs: Iterable[str | Path]) -> None:
-    """Raise OutputError if ``output`` is (or is inside) one of the ``inputs``."""
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def refuse_inputs(output: str | Path, inputs: Iterable[str | Path | None], *,
+                  folder: bool = False) -> None:
+    """Raise OutputError if writing ``output`` could change one of the ``inputs``.
+
+    Paths are compared resolved (symbolic links followed) and by identity (a hard link is the
+    same file). A ``folder`` output is replaced as a whole, so no input may lie inside it.
+    """
     out = Path(output).resolve()
     for item in inputs:
+        if item is None:
+            continue
         src = Path(item).resolve()
-        if out == src or (src in out.parents and src.is_file()):
-            raise OutputError(f"output '{output}' would overwrite the input '{item}'; "
+        inside = folder and out in src.parents
+        if out == src or _same(out, src) or (src in out.parents and src.is_file()) or inside:
+            what = "holds" if inside else "would overwrite"
+            raise OutputError(f"output '{output}' {what} the input '{item}'; "
                               "choose another output path")
+
+
+#: Marks a folder odocal wrote as a whole (and may therefore replace as a whole).
+RESULTS_MARKER = ".odocal-results"
+
+
+@contextlib.contextmanager
+def results_folder(target: str | Path, *, ours: Iterable[str] = ("calibration.json",)
+                   ) -> Iterator[Path]:
+    """Yield a new temporary folder beside ``target``; on success it replaces ``target`` whole.
+
+    A failed run leaves ``target`` as it was; a finished one leaves no file of an earlier run.
+    An existing ``target`` must be empty or a folder odocal wrote (it holds the marker file or
+    one of ``ours``): odocal never deletes a user's folder.
+    """
+    target = Path(target)
+    if target.exists():
+        if not target.is_dir():
+            raise OutputError(f"output '{target}' exists and is not a folder")
+        names = {p.name for p in target.iterdir()}
+        if names and RESULTS_MARKER not in names and not names & set(ours):
+            raise OutputError(f"output folder '{target}' holds files odocal did not write; "
+                              "choose a new or an empty folder")
+    parent = target.parent if str(target.parent) else Path(".")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".part", dir=parent))
+    except OSError as exc:
+        raise OutputError(f"cannot create the output folder '{target}': "
+                          f"{exc.strerror or exc}") from None
+    old = tmp.with_suffix(".old")
+    try:
+        yield tmp
+        (tmp / RESULTS_MARKER).write_text("written by odocal as a whole; replaced as a whole\n")
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)
+        if target.exists():
+            os.replace(target, old)
+        os.replace(tmp, target)
+    except OSError as exc:
+        raise OutputError(f"cannot write '{target}': {exc.strerror or exc}") from None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+        shutil.rmtree(old, ignore_errors=True)
 
 
 @contextlib.contextmanager

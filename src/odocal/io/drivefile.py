@@ -30,6 +30,8 @@ def _format_of(path: Path) -> str:
 def read_table(path: str | Path) -> dict[str, np.ndarray]:
     """Read a CSV or Parquet file into float columns (non-numeric columns raise DataError)."""
     p = Path(path)
+    if p.is_dir():
+        raise InputFileError(f"input '{p}' is a folder, not a drive file (.csv or .parquet)")
     if not p.is_file():
         raise InputFileError(f"input file '{p}' does not exist")
     fmt = _format_of(p)
@@ -40,24 +42,38 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
             table = pacsv.read_csv(p)
         else:
             table = pq.read_table(p)
-    except (pa.ArrowInvalid, pa.ArrowTypeError, OSError) as exc:
+    except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, UnicodeDecodeError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise DataError(f"'{p}' cannot be read as {fmt.upper()}: {first}") from None
+    try:
+        names = table.column_names
+    except UnicodeDecodeError:
+        raise DataError(f"'{p}' has column names that are not UTF-8 text") from None
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise DataError(f"'{p}' names the column {_printable(twice[0])} more than once")
     columns: dict[str, np.ndarray] = {}
-    for name in table.column_names:
+    for name in names:
         col = table.column(name)
-        if pa.types.is_integer(col.type) or pa.types.is_floating(col.type) \
-                or pa.types.is_boolean(col.type) or pa.types.is_null(col.type):
-            columns[name] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
-        else:
-            columns[name] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=object)
+        if pa.types.is_boolean(col.type):
+            raise DataError(f"'{p}' column {_printable(name)} holds true/false values, "
+                            "not numbers")
+        try:
+            numeric = pa.types.is_integer(col.type) or pa.types.is_floating(col.type) \
+                or pa.types.is_null(col.type)
+            columns[name] = np.asarray(col.to_numpy(zero_copy_only=False),
+                                       dtype=np.float64 if numeric else object)
+        except (UnicodeDecodeError, pa.ArrowInvalid):
+            raise DataError(f"'{p}' column {_printable(name)} holds values that are neither "
+                            "numbers nor text") from None
     for name, values in columns.items():
         if values.dtype == object:
             try:
                 columns[name] = np.array([np.nan if v is None else float(v) for v in values])
             except (TypeError, ValueError):
                 bad = next(v for v in values if not _is_number(v))
-                raise DataError(f"'{p}' column {name} holds a non-numeric value {bad!r}") from None
+                raise DataError(f"'{p}' column {_printable(name)} holds a non-numeric value "
+                                f"{_printable(str(bad))}") from None
     return columns
 
 
@@ -75,13 +91,22 @@ def read_text_table(path: str | Path) -> dict[str, list[str | None]]:
                 column_types={n: pa.string() for n in names}, strings_can_be_null=True))
         else:
             table = pq.read_table(p)
-    except (pa.ArrowInvalid, pa.ArrowTypeError, OSError) as exc:
+    except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, UnicodeDecodeError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise DataError(f"'{p}' cannot be read as {fmt.upper()}: {first}") from None
-    if len(set(table.column_names)) != len(table.column_names):
-        raise DataError(f"'{p}' names a column twice")
-    return {name: [None if v is None else str(v) for v in table.column(name).to_pylist()]
-            for name in table.column_names}
+    try:
+        if len(set(table.column_names)) != len(table.column_names):
+            raise DataError(f"'{p}' names a column twice")
+        return {name: [None if v is None else str(v) for v in table.column(name).to_pylist()]
+                for name in table.column_names}
+    except UnicodeDecodeError:
+        raise DataError(f"'{p}' holds text that is not UTF-8") from None
+
+
+def _printable(text: str, limit: int = 40) -> str:
+    """A value from a user's file, safe to print: control characters escaped, shortened."""
+    shown = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return repr(shown[:limit] + ("..." if len(shown) > limit else ""))
 
 
 def _is_number(value: Any) -> bool:

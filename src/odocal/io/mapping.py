@@ -53,7 +53,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from odocal.errors import ConfigError
+from odocal.errors import ConfigError, OdocalError
 from odocal.settings import read_toml
 
 _COMMON = {"offset_s", "file", "topic", "time", "time_unit", "type"}
@@ -104,3 +104,17 @@ def offsets(mapping: Mapping[str, Mapping[str, Any]]) -> dict[str, float]:
     """The per-role clock offsets the mapping sets."""
     return {role: float(section["offset_s"]) for role, section in mapping.items()
             if "offset_s" in section}
+
+
+def mapping_files(path: str | Path | None) -> list[Path]:
+    """The files a mapping file names (beside it), for checking outputs against; a mapping
+    that cannot be read names none (reading it later reports why)."""
+    if path is None:
+        return []
+    p = Path(path)
+    try:
+        data = read_toml(p, "mapping file")
+    except OdocalError:
+        return []
+    return [p.parent / str(section["file"]) for section in data.values()
+            if isinstance(section, dict) and "file" in section]

@@ -68,6 +68,20 @@ def read_parameters(path: str | Path) -> Parameters:
                 or not math.isfinite(value):
             raise DataError(f"'{path}' theta.{name} = {value!r} is not a finite number")
         values.append(float(value))
-    if values[0] <= 0 or values[2] <= 0:
-        raise DataError(f"'{path}' theta has a non-positive c_e or t_r: {values}")
-    return Parameters(*values)
+    try:
+        return plausible(Parameters(*values))
+    except DataError as exc:
+        raise DataError(f"'{path}': {exc}") from None
+
+
+def plausible(theta: Parameters) -> Parameters:
+    """``theta``, if a wheeled vehicle could have it (generous limits: a tenth of the gate's
+    lower and ten times its upper bounds), else a DataError."""
+    c_e, c_d, t_r, d = theta.as_array().tolist()
+    if not all(math.isfinite(v) for v in (c_e, c_d, t_r, d)):
+        raise DataError(f"parameters {theta.as_dict()} are not finite numbers")
+    if not (0.05 <= c_e <= 50.0 and 0.05 <= t_r <= 30.0 and abs(c_d) < c_e and abs(d) < 1.0):
+        raise DataError(f"parameters c_e = {c_e:.6g} m, c_d = {c_d:.6g} m, t_r = {t_r:.6g} m, "
+                        f"d = {d:.6g} are not those of a wheeled vehicle (c_e and t_r in "
+                        "0.05..50 m, |c_d| < c_e, |d| < 1)")
+    return theta
