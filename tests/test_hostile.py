@@ -328,3 +328,27 @@ def test_any_mapping_gives_a_mapping_or_a_config_error(data: dict[str, object]) 
         check_mapping(data)
     except OdocalError:
         pass
+
+
+# ---------------------------------------------------------------- smaller
+
+def test_small_cli_promises(short: Path, tmp_path: Path,
+                            capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(capsys, "calibrate", str(short), "--scene", "scene-0001", "--out",
+                       str(tmp_path / "o"))
+    assert code == EXIT_ERROR and "--scene" in err and "--from nuscenes" in err
+    code, out, err = run(capsys, "validate", str(short), "-q")
+    assert code == 0 and out == "" and err == ""
+    code, out, _ = run(capsys, "demo", "--duration", "300", "-q")
+    assert out == ""
+    code, out, _ = run(capsys, "demo", "--duration", "300")
+    assert "--out" in out
+    code, _, err = run(capsys, "inspect", "x", "--from", "table", "--workers", "2")
+    assert code == 2 and "unrecognized arguments: --workers" in err
+    # not a terminal: each stage announces itself on stderr
+    proc = subprocess.run([str(BIN / "odocal"), "calibrate", str(short), "--out",
+                           str(tmp_path / "o2"), "--no-report"], capture_output=True, text=True)
+    assert proc.returncode == 0 and "] read ..." in proc.stderr
+    assert "] validation ..." in proc.stderr
+    written = [line for line in proc.stdout.splitlines() if line.startswith("wrote ")]
+    assert written == [f"wrote {tmp_path / 'o2' / 'calibration.json'}"]

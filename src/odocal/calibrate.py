@@ -553,10 +553,14 @@ class Stopwatch:
     @contextlib.contextmanager
     def stage(self, name: str) -> Iterator[None]:
         begun = time.perf_counter()
+        if self.progress:
+            self.progress(name, 0, 1)
         try:
             yield
         finally:
             self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - begun
+        if self.progress:
+            self.progress(name, 1, 1)
 
 
 def _checked_by_bootstrap(method: str, prep: Prepared, settings: Settings,

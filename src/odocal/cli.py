@@ -10,12 +10,13 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from odocal import __version__
-from odocal.errors import OdocalError, OutputError
+from odocal.errors import ConfigError, OdocalError, OutputError
 from odocal.methods import DEFAULT_METHOD, METHOD_NAMES
 from odocal.noise import NOISE_PROFILES
 from odocal.settings import Settings, load_settings
@@ -32,13 +33,20 @@ EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_FAILED, EXIT_BUG = 0, 1, 2, 3, 4
 
 
 class _Progress:
-    """tqdm bars per stage on a terminal; silent otherwise (logs stay clean)."""
+    """tqdm bars per stage on a terminal; otherwise one line on stderr as each stage starts."""
 
     def __init__(self, enabled: bool) -> None:
         self.enabled = enabled and sys.stderr.isatty()
+        self.lines = enabled and not self.enabled
         self.bars: dict[str, Any] = {}
+        self.started = time.perf_counter()
 
     def __call__(self, stage: str, done: int, total: int) -> None:
+        if self.lines and stage not in self.bars:
+            # not a terminal (a log file, CI): one line as each stage starts
+            self.bars[stage] = None
+            sys.stderr.write(f"[{time.perf_counter() - self.started:6.1f} s] {stage} ...\n")
+            sys.stderr.flush()
         if not self.enabled:
             return
         from tqdm import tqdm
@@ -56,7 +64,8 @@ class _Progress:
 
     def close(self) -> None:
         for bar in self.bars.values():
-            bar.close()
+            if bar is not None:
+                bar.close()
 
 
 def _settings(args: argparse.Namespace) -> Settings:
@@ -163,8 +172,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     settings = _settings(args)
     _check_out_dir(args, _inputs(args))
-    _print(f"simulating a {args.duration / 60:.0f}-minute city drive (noise profile "
-           f"'{args.noise}', seed {args.seed}) with known true parameters ...")
+    if not args.quiet:
+        _print(f"simulating a {args.duration / 60:.0f}-minute city drive (noise profile "
+               f"'{args.noise}', seed {args.seed}) with known true parameters ...")
     sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
     progress = _Progress(not args.quiet)
     try:
@@ -172,7 +182,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     finally:
         progress.close()
     truth_error = validate_theta(sim.drive, sim.true_parameters, settings=settings).mean_error_m
-    print_summary(result, truth=sim.true_parameters, truth_error_m=truth_error)
+    if not args.quiet:
+        print_summary(result, truth=sim.true_parameters, truth_error_m=truth_error)
     if args.out:
         _write_outputs(result, args, inputs=_inputs(args))
     elif not args.quiet:
@@ -288,6 +299,8 @@ def _drives_from(args: argparse.Namespace, settings: Settings) -> list[Any]:
     """Drive files, or raw logs converted in memory with --from."""
     from odocal.calibrate import load_drives
 
+    if getattr(args, "scene", None) and getattr(args, "source_format", None) != "nuscenes":
+        raise ConfigError("--scene chooses nuScenes scenes: it needs --from nuscenes")
     if getattr(args, "source_format", None):
         from odocal.convert import convert
 
@@ -399,11 +412,11 @@ def cmd_validate(args: argparse.Namespace) -> int:
     settings = _settings(args)
     theta = _parameters_from(args, settings)
     result = validate_theta(args.logs, theta, settings=settings)
+    if args.quiet:
+        return EXIT_OK
     _print("parameters: " + ", ".join(f"{k} = {v:.6g}" for k, v in theta.as_dict().items()))
     _print(f"validation error E_p = {result.mean_error_m:.3f} m over {len(result.segments)} "
            f"segments ({result.segments.distance_m.sum() / 1000:.2f} km)")
-    if args.quiet:
-        return EXIT_OK
     _print(f"{'segment':>7} {'drive':<30} {'start [s]':>10} {'length [m]':>10} {'E_p [m]':>9} "
            f"{'end error [m]':>13}")
     drives = result.drive_names
@@ -429,6 +442,12 @@ def cmd_minimum(args: argparse.Namespace) -> int:
         _print("searching the reachable minimum of E_p over the validation segments "
                "(differential evolution) ...")
     result = minimum(args.logs, start=start, settings=settings)
+    if args.quiet:
+        if args.out:
+            from odocal.io.results import write_json
+
+            write_json(args.out, result.to_dict())
+        return EXIT_OK if result.success else EXIT_FAILED
     _print(f"start   E_p = {result.start_error_m:.3f} m at "
            + ", ".join(f"{k} = {v:.6g}" for k, v in start.as_dict().items()))
     _print(f"minimum E_p = {result.mean_error_m:.3f} m over {result.segments} segments at "
@@ -548,14 +567,15 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
                            settings=settings, minimum=not args.no_minimum, progress=progress)
     finally:
         progress.close()
-    _print(format_report(result))
+    if not args.quiet:
+        _print(format_report(result))
     if args.out:
         write_json(args.out, result.to_dict())
         _print(f"wrote {args.out}")
     return EXIT_OK
 
 
-def _add_source(p: argparse.ArgumentParser, *, required: bool) -> None:
+def _add_source(p: argparse.ArgumentParser, *, required: bool, converts: bool = True) -> None:
     from odocal.io.registry import FORMATS
 
     p.add_argument("--from", dest="source_format", choices=FORMATS, required=required,
@@ -564,16 +584,20 @@ def _add_source(p: argparse.ArgumentParser, *, required: bool) -> None:
                    help="which files/topics and columns/fields hold each stream (see README)")
     p.add_argument("--scene", action="append", metavar="NAME",
                    help="nuScenes scene to use (repeatable; default all)")
+    if not converts:
+        return
     p.add_argument("--reference", choices=("auto", "fused", "gnss-imu"),
                    help="reference pose: the log's fused pose, or odocal's GNSS/IMU fusion")
     p.add_argument("--circumference", type=float, metavar="M",
                    help="nominal wheel circumference for wheel speeds in m/s or km/h")
 
 
-def _add_common(p: argparse.ArgumentParser) -> None:
+def _add_common(p: argparse.ArgumentParser, *, workers: bool = True) -> None:
     p.add_argument("--config", metavar="TOML", help="settings file (see README, 'Settings')")
-    p.add_argument("--workers", type=int, metavar="N",
-                   help="processes for per-segment work (0 = every core; default from settings)")
+    if workers:
+        p.add_argument("--workers", type=int, metavar="N",
+                       help="processes for per-segment work (0 = every core; default from "
+                            "settings)")
     p.add_argument("-q", "--quiet", action="store_true", help="print only errors")
     p.add_argument("-v", "--verbose", action="count", default=0,
                    help="more log output (-vv for debug)")
@@ -641,8 +665,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("inspect", help="list the streams in raw logs before converting them")
     p.add_argument("logs", nargs="+", metavar="SOURCE")
-    _add_source(p, required=True)
-    _add_common(p)
+    _add_source(p, required=True, converts=False)
+    _add_common(p, workers=False)
     p.set_defaults(func=cmd_inspect)
 
     p = sub.add_parser("validate", help="validation error E_p of parameters on drive logs")
