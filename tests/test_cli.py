@@ -70,7 +70,7 @@ def test_several_logs_of_one_vehicle(drive_file: Path, tmp_path: Path,
 
 
 def test_demo_prints_truth_and_estimates(capsys: pytest.CaptureFixture[str]) -> None:
-    code, stdout, _ = run(capsys, "demo", "--duration", "600", "--method", "raw", "-q")
+    code, stdout, _ = run(capsys, "demo", "--duration", "600", "--method", "raw")
     assert code == EXIT_OK
     assert "true" in stdout and "datasheet" in stdout and "true parameters:" in stdout
 

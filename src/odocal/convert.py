@@ -8,6 +8,7 @@ logs, each raw log one drive (see :mod:`odocal.preprocess.pipeline`).
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,12 +17,11 @@ from typing import Any
 from odocal.drive import Drive
 from odocal.errors import ConfigError, DataError
 from odocal.io.mapping import check_mapping, load_mapping, offsets
+from odocal.io.registry import FORMATS, READERS, Reader, ReadOptions
 from odocal.io.streams import RawLog
 from odocal.preprocess.align import StreamReport, clean
 from odocal.preprocess.pipeline import build_drive
 from odocal.settings import Settings
-
-FORMATS = ("nuscenes", "comma2k19", "rosbag", "table")
 
 
 def _circumference(settings: Settings, mapping: Mapping[str, Mapping[str, Any]]) -> float:
@@ -47,21 +47,10 @@ def read_logs(fmt: str, sources: Sequence[str | Path], *,
     circumference = _circumference(settings, table)
     if scenes and fmt != "nuscenes":
         raise ConfigError("--scene applies to the nuscenes format only")
-    if fmt == "nuscenes":
-        from odocal.io.nuscenes import read_nuscenes
-
-        return read_nuscenes(sources, scenes=scenes)
-    if fmt == "comma2k19":
-        from odocal.io.comma2k19 import read_comma2k19
-
-        return [read_comma2k19(s, circumference_m=circumference) for s in sources]
-    if fmt == "rosbag":
-        from odocal.io.rosbag import read_rosbag
-
-        return [read_rosbag(s, table, circumference_m=circumference) for s in sources]
-    from odocal.io.table import read_table_log
-
-    return [read_table_log(sources, table, circumference_m=circumference)]
+    reader: Reader = importlib.import_module(READERS[fmt]).read
+    return reader(sources, mapping=table,
+                  options=ReadOptions(circumference_m=circumference,
+                                      scenes=tuple(scenes or ())))
 
 
 def convert(fmt: str, sources: Sequence[str | Path], *,

@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 import os
+import signal
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import TypeVar
 
 T = TypeVar("T")
 R = TypeVar("R")
+
+
+def ignore_interrupts() -> None:
+    """In a worker process: Ctrl-C is the parent's to handle (it stops the workers at once)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def resolve_workers(workers: int) -> int:
@@ -44,7 +50,7 @@ def map_chunks(func: Callable[[T], R], tasks: Sequence[T], *, workers: int = 1,
             if progress:
                 progress(done, total)
         return out
-    pool = ProcessPoolExecutor(max_workers=n_workers)
+    pool = ProcessPoolExecutor(max_workers=n_workers, initializer=ignore_interrupts)
     try:
         futures = [pool.submit(func, task) for task in tasks]
         results: list[R] = []

@@ -80,12 +80,14 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
     n = workers or os.cpu_count() or 1
     if n < 1:
         raise ConfigError(f"--workers must be at least 1, not {n}")
-    # workers inherit the environment: one compiled-kernel thread per single-threaded worker
-    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
     if not log.isEnabledFor(logging.INFO):
         logging.getLogger("distributed").setLevel(logging.ERROR)
+    # one compiled-kernel and BLAS thread per single-threaded worker process (set in the
+    # workers' environment, never in this process, whose threads may have started)
+    threads = {k: "1" for k in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
     with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR) as cluster, \
+                      dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR,
+                      env=threads) as cluster, \
             Client(cluster) as client:
         yield client
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import traceback
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -140,8 +139,11 @@ def _parameter_columns(result: Any) -> dict[str, Any]:
 
 
 def _limit_threads() -> None:
-    # one process per core: compiled kernels must not each start a thread per core
-    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+    # one process per core: compiled kernels must not each start a thread per core (also on
+    # workers started by hand, whose environment odocal does not set)
+    import numba
+
+    numba.set_num_threads(1)
 
 
 def run_drive_task(task: DriveTask) -> dict[str, Any]:

@@ -16,7 +16,9 @@ Times are device boot time in seconds. Positions become a local ENU frame about 
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,6 +26,7 @@ from scipy.spatial.transform import Rotation
 
 from odocal.errors import DataError, InputFileError
 from odocal.io.geodesy import check_lla, ecef_origin, ecef_to_enu, ecef_vectors_to_enu, lla_to_enu
+from odocal.io.registry import ReadOptions
 from odocal.io.streams import RawLog, Stream
 from odocal.io.units import wheel_rate_revps
 
@@ -107,3 +110,10 @@ def read_comma2k19(source: str | Path, *, circumference_m: float) -> RawLog:
                   origin_lla=origin,
                   metadata={"source_format": "comma2k19", "segment": str(folder),
                             "wheel_circumference_m": circumference_m})
+
+
+def read(sources: Sequence[str | Path], *, mapping: Mapping[str, Mapping[str, Any]],
+         options: ReadOptions) -> list[RawLog]:
+    """The :class:`odocal.io.registry.Reader` of comma2k19 segment folders."""
+    del mapping                                    # the format is fixed
+    return [read_comma2k19(s, circumference_m=options.circumference_m) for s in sources]

@@ -73,7 +73,7 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
             except (TypeError, ValueError):
                 bad = next(v for v in values if not _is_number(v))
                 raise DataError(f"'{p}' column {_printable(name)} holds a non-numeric value "
-                                f"{_printable(str(bad))}") from None
+                                f"'{_printable(str(bad))}'") from None
     return columns
 
 
@@ -106,7 +106,7 @@ def read_text_table(path: str | Path) -> dict[str, list[str | None]]:
 def _printable(text: str, limit: int = 40) -> str:
     """A value from a user's file, safe to print: control characters escaped, shortened."""
     shown = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
-    return repr(shown[:limit] + ("..." if len(shown) > limit else ""))
+    return shown[:limit] + ("..." if len(shown) > limit else "")
 
 
 def _is_number(value: Any) -> bool:

@@ -15,13 +15,14 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from odocal.errors import DataError, InputFileError
+from odocal.io.registry import ReadOptions
 from odocal.io.streams import RawLog, Stream
 from odocal.io.units import quaternion_yaw
 
@@ -124,3 +125,10 @@ def read_nuscenes(sources: Sequence[str | Path], *, scenes: Sequence[str] | None
         raise DataError(f"scene {unknown[0]} is not in {', '.join(str(s) for s in sources)}; "
                         f"found {', '.join(sorted(found))}")
     return [read_scene(s, found[s]) for s in wanted]
+
+
+def read(sources: Sequence[str | Path], *, mapping: Mapping[str, Mapping[str, Any]],
+         options: ReadOptions) -> list[RawLog]:
+    """The :class:`odocal.io.registry.Reader` of the nuScenes CAN bus expansion."""
+    del mapping                                    # the format is fixed
+    return read_nuscenes(sources, scenes=options.scenes or None)

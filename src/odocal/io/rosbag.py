@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.errors import ConfigError, DataError, InputFileError, MissingDependencyError
+from odocal.io.registry import ReadOptions
 from odocal.io.streams import RawLog, Stream
 from odocal.io.table import stream_from_columns
 from odocal.io.units import quaternion_yaw
@@ -308,3 +309,9 @@ def _joints(names: Sequence[str], section: Mapping[str, Any], topic: str) -> tup
                             f"{', '.join(names)}; name it in the mapping ([wheels] {side})")
         found.append(matches[0])
     return found[0], found[1]
+
+
+def read(sources: Sequence[str | Path], *, mapping: Mapping[str, Mapping[str, Any]],
+         options: ReadOptions) -> list[RawLog]:
+    """The :class:`odocal.io.registry.Reader` of ROS 1 bags, ROS 2 bags and MCAP files."""
+    return [read_rosbag(s, mapping, circumference_m=options.circumference_m) for s in sources]

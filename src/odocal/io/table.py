@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 from odocal.errors import ConfigError, DataError, InputFileError
 from odocal.io.drivefile import read_table
 from odocal.io.geodesy import check_lla, lla_to_enu
+from odocal.io.registry import ReadOptions
 from odocal.io.streams import RawLog, Stream
 from odocal.io.units import (
     accel_mps2,
@@ -181,3 +182,9 @@ def read_table_log(sources: Sequence[str | Path], mapping: Mapping[str, Mapping[
     label = name or (paths[0].stem if paths else "table")
     return RawLog(name=label, streams=streams, origin_lla=origin[0] if origin else None,
                   metadata={"source_format": "table", "files": [str(p) for p in paths]})
+
+
+def read(sources: Sequence[str | Path], *, mapping: Mapping[str, Mapping[str, Any]],
+         options: ReadOptions) -> list[RawLog]:
+    """The :class:`odocal.io.registry.Reader` of CSV/Parquet tables (one log from them all)."""
+    return [read_table_log(sources, mapping, circumference_m=options.circumference_m)]

@@ -65,6 +65,9 @@ def draw(spec: FigureSpec) -> bytes:
 
 
 def _preload() -> None:
+    from odocal.parallel import ignore_interrupts
+
+    ignore_interrupts()
     import matplotlib.backends.backend_agg
     import matplotlib.figure  # noqa: F401
 
