@@ -62,6 +62,7 @@ from odocal.uncertainty import BootstrapResult, bootstrap
 from odocal.validate import MinimumResult, ValidationResult, segment_errors
 
 if TYPE_CHECKING:
+    from odocal.compare import Comparison
     from odocal.threestep import ThreeStepOutcome
 
 # The estimators are imported where they are run: a calibration loads only its own method.
@@ -244,6 +245,7 @@ class CalibrationResult:
     timings_s : wall time of each stage (read, segments, the method's steps, bootstrap,
         validation)
     diagnosis : the checks of the data against the model, before and after the fit
+    comparison : every method scored on held-out data (``--compare``; see :mod:`odocal.compare`)
     """
 
     estimate: Estimate
@@ -261,6 +263,7 @@ class CalibrationResult:
     drive_data: tuple[Drive, ...] = field(default=(), repr=False)
     timings_s: dict[str, float] = field(default_factory=dict)
     diagnosis: Diagnosis = field(default_factory=lambda: Diagnosis(()))
+    comparison: Comparison | None = None
 
     @property
     def theta(self) -> Parameters:
@@ -305,6 +308,8 @@ class CalibrationResult:
         out["bootstrap"] = self.bootstrap.to_dict() if self.bootstrap is not None else None
         if self.three_step is not None:
             out["three_step"] = self.three_step.to_dict()
+        if self.comparison is not None:
+            out["comparison"] = self.comparison.to_dict()
         return out
 
 

@@ -182,6 +182,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     finally:
         progress.close()
     truth_error = validate_theta(sim.drive, sim.true_parameters, settings=settings).mean_error_m
+    if not args.no_compare:
+        result = _compared(result, [sim.drive], settings, sim.true_parameters, args.quiet)
     if not args.quiet:
         print_summary(result, truth=sim.true_parameters, truth_error_m=truth_error)
     if args.out:
@@ -189,6 +191,21 @@ def cmd_demo(args: argparse.Namespace) -> int:
     elif not args.quiet:
         _print("(add --out DIR to write calibration.json and the report with its figures)")
     return exit_code(result)
+
+
+def _compared(result: CalibrationResult, drives: Sequence[Any], settings: Settings,
+              truth: Parameters | None, quiet: bool) -> CalibrationResult:
+    """``result`` with every method scored on held-out blocks (printed unless quiet)."""
+    import dataclasses
+
+    from odocal.compare import compare, format_table
+
+    comparison = compare(drives, settings=settings, truth=truth)
+    if not quiet:
+        for line in format_table(comparison):
+            _print(line)
+        _print()
+    return dataclasses.replace(result, comparison=comparison)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -332,6 +349,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         _check_out_dir(args, inputs)
         drives = _drives_from(args, settings)
         result = calibrate(drives, settings=settings, method=args.method, progress=progress)
+        if args.compare:
+            result = _compared(result, drives, settings, None, args.quiet)
         if not args.quiet:
             print_summary(result)
         _write_outputs(result, args, progress=progress, renderer=renderer, inputs=inputs)
@@ -619,6 +638,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"calibration method (default {DEFAULT_METHOD})")
     p.add_argument("--out", metavar="DIR",
                    help="also write the results (calibration.json, report.html) to this folder")
+    p.add_argument("--no-compare", action="store_true",
+                   help="skip comparing every method on held-out parts of the drive")
     _add_common(p)
     p.set_defaults(func=cmd_demo)
 
@@ -650,6 +671,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "parameter file) or json, with their covariance, or the parameter files "
                         "of autoware, ros2_control, robot_localization (repeatable)")
     p.add_argument("--no-report", action="store_true", help="skip report.html and the figures")
+    p.add_argument("--compare", action="store_true",
+                   help="also score every method on held-out parts of the drives (slower)")
     _add_common(p)
     p.set_defaults(func=cmd_calibrate)
 

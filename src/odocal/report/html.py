@@ -182,6 +182,31 @@ class _borrowed:
         return None
 
 
+def _comparison(result: CalibrationResult) -> str:
+    """The methods compared on held-out data (``--compare``), or nothing."""
+    c = result.comparison
+    if c is None:
+        return ""
+    truth = any(s.truth_error is not None for s in c.scores)
+    head = "<tr><th>method</th><th>held-out E_p</th>" + (
+        "".join(f"<th>error {n}</th>" for n in ("c_e", "c_d", "t_r", "d")) if truth else "") \
+        + "<th>status</th></tr>"
+    rows = []
+    for s in c.scores:
+        cells = [f"<td><b>{html.escape(s.method)}</b></td>",
+                 f"<td>{s.held_out_e_p_m:.3f} m</td>" if s.held_out_e_p_m is not None
+                 else "<td>-</td>"]
+        if truth:
+            cells += [f"<td>{_fmt(n, s.truth_error[n])}</td>" if s.truth_error else "<td>-</td>"
+                      for n in ("c_e", "c_d", "t_r", "d")]
+        cells.append(f"<td>{html.escape(s.status)}</td>")
+        rows.append(f"<tr{' class=yes' if s.method in c.favoured else ''}>{''.join(cells)}</tr>")
+    return (f"<h2>The methods compared</h2><p id='compare-verdict'>{html.escape(c.verdict)}. "
+            f"Each method calibrated on alternate {c.block_s:.0f} s blocks and was validated on "
+            "the others (and the other way round).</p>"
+            f"<table id='compare'>{head}{''.join(rows)}</table>")
+
+
 def _page(result: CalibrationResult, data: ReportData,
           figs: dict[str, tuple[str, str]]) -> str:
     e = html.escape
@@ -223,6 +248,7 @@ def _page(result: CalibrationResult, data: ReportData,
     advice = "".join(f"<li class='{'yes' if a.identified else 'no'}'><b>{a.name}</b>: "
                      f"<span style='color:#222'>{e(a.text)}</span></li>" for a in data.advice)
     drives = ", ".join(e(Path(d.name).name) for d in result.drives)
+    comparison = _comparison(result)
     paper = fig("step1") + fig("spread") + fig("rates") if result.three_step else ""
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
@@ -241,6 +267,7 @@ def _page(result: CalibrationResult, data: ReportData,
 {e(boot.message[:1].upper() + boot.message[1:]) + '.' if boot is not None
  else 'No bootstrap.'}</p>
 {val}
+{comparison}
 <h2>Map</h2>{fig('map')}
 {"<h2>The fit</h2>" + fig('inverse') if 'inverse' in figs else ""}
 <h2>Validation</h2>{fig('segments')}
