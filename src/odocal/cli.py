@@ -628,6 +628,57 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"odocal {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
+    _add_simulation_commands(sub)
+    _add_calibration_commands(sub)
+    _add_checking_commands(sub)
+
+    from odocal.fleet.cli import add_parsers
+
+    add_parsers(sub)
+    return parser
+
+
+def _configure_logging(verbose: int, quiet: bool) -> None:
+    level = logging.ERROR if quiet else (logging.WARNING if verbose == 0 else
+                                         logging.INFO if verbose == 1 else logging.DEBUG)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s",
+                        stream=sys.stderr)
+    if verbose == 0:
+        # warnings are printed in the summary; keep the log for -v
+        logging.getLogger("odocal").setLevel(logging.ERROR)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    _configure_logging(args.verbose, args.quiet)
+    func: Callable[[argparse.Namespace], int] = args.func
+    try:
+        return func(args)
+    except OdocalError as exc:
+        sys.stderr.write(f"odocal {args.command}: error: {exc}\n")
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        sys.stderr.write(f"odocal {args.command}: interrupted\n")
+        return 130
+    except BrokenPipeError:  # the reader went away (| head): stop quietly
+        sys.stderr.close()
+        return EXIT_OK
+    except Exception as exc:  # a bug: say so in one line, with the traceback on request
+        if args.verbose:
+            raise
+        sys.stderr.write(f"odocal {args.command}: internal error: {type(exc).__name__}: {exc} "
+                         "(rerun with -v for the traceback)\n")
+        return EXIT_BUG
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
+
+
+
+def _add_simulation_commands(sub: Any) -> None:
+    """demo and simulate."""
     p = sub.add_parser("demo", help="simulate a drive with known parameters and calibrate it")
     p.add_argument("--duration", type=float, default=1200.0, metavar="S",
                    help="simulated drive length in seconds (default 1200)")
@@ -655,6 +706,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-v", "--verbose", action="count", default=0)
     p.set_defaults(func=cmd_simulate)
 
+
+def _add_calibration_commands(sub: Any) -> None:
+    """calibrate and convert."""
     p = sub.add_parser("calibrate", help="calibrate from drive logs of one vehicle")
     p.add_argument("logs", nargs="+", metavar="LOG",
                    help="drive-format files (.csv, .parquet), or raw logs with --from")
@@ -686,6 +740,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_common(p)
     p.set_defaults(func=cmd_convert)
 
+
+def _add_checking_commands(sub: Any) -> None:
+    """inspect, validate, reproduce, replay and minimum."""
     p = sub.add_parser("inspect", help="list the streams in raw logs before converting them")
     p.add_argument("logs", nargs="+", metavar="SOURCE")
     _add_source(p, required=True, converts=False)
@@ -730,46 +787,3 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="JSON", help="write the result to this file")
     _add_common(p)
     p.set_defaults(func=cmd_minimum)
-
-    from odocal.fleet.cli import add_parsers
-
-    add_parsers(sub)
-    return parser
-
-
-def _configure_logging(verbose: int, quiet: bool) -> None:
-    level = logging.ERROR if quiet else (logging.WARNING if verbose == 0 else
-                                         logging.INFO if verbose == 1 else logging.DEBUG)
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s",
-                        stream=sys.stderr)
-    if verbose == 0:
-        # warnings are printed in the summary; keep the log for -v
-        logging.getLogger("odocal").setLevel(logging.ERROR)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    _configure_logging(args.verbose, args.quiet)
-    func: Callable[[argparse.Namespace], int] = args.func
-    try:
-        return func(args)
-    except OdocalError as exc:
-        sys.stderr.write(f"odocal {args.command}: error: {exc}\n")
-        return EXIT_ERROR
-    except KeyboardInterrupt:
-        sys.stderr.write(f"odocal {args.command}: interrupted\n")
-        return 130
-    except BrokenPipeError:  # the reader went away (| head): stop quietly
-        sys.stderr.close()
-        return EXIT_OK
-    except Exception as exc:  # a bug: say so in one line, with the traceback on request
-        if args.verbose:
-            raise
-        sys.stderr.write(f"odocal {args.command}: internal error: {type(exc).__name__}: {exc} "
-                         "(rerun with -v for the traceback)\n")
-        return EXIT_BUG
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

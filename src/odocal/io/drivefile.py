@@ -27,6 +27,9 @@ def _format_of(path: Path) -> str:
     return fmt
 
 
+ROW_GROUP_ROWS = 1 << 16
+
+
 def read_table(path: str | Path) -> dict[str, np.ndarray]:
     """Read a CSV or Parquet file into float columns (non-numeric columns raise DataError)."""
     p = Path(path)
@@ -144,5 +147,7 @@ def save_drive(drive: Drive, path: str | Path) -> Path:
         if fmt == "csv":
             pacsv.write_csv(table, tmp)
         else:
-            pq.write_table(table, tmp)
+            # row groups of 65,536 rows (27 min at 40 Hz): readers that stream (odocal replay)
+            # hold one group in memory, not the whole drive
+            pq.write_table(table, tmp, row_group_size=ROW_GROUP_ROWS)
     return p
