@@ -672,11 +672,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_BUG
 
 
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
-
-
-
 def _add_simulation_commands(sub: Any) -> None:
     """demo and simulate."""
     p = sub.add_parser("demo", help="simulate a drive with known parameters and calibrate it")
@@ -787,3 +782,7 @@ def _add_checking_commands(sub: Any) -> None:
     p.add_argument("--out", metavar="JSON", help="write the result to this file")
     _add_common(p)
     p.set_defaults(func=cmd_minimum)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
