@@ -82,7 +82,12 @@ def stream_drive_file(path: str | Path, *, rows: int) -> Iterator[Chunk]:
         if suffix in (".parquet", ".pq"):
             pfile = pq.ParquetFile(p)
             names = pfile.schema_arrow.names
-            batches: Iterator[Any] = pfile.iter_batches(batch_size=max(rows, 8192))
+            wanted = [n for n in (*REQUIRED_COLUMNS, "beta") if n in names]
+            # one row group at a time (odocal writes groups of 65,536 rows): memory stays flat
+            batches: Iterator[Any] = (
+                batch for group in range(pfile.num_row_groups)
+                for batch in pfile.read_row_group(group, columns=wanted).to_batches(
+                    max_chunksize=max(rows, 8192)))
         elif suffix == ".csv":
             reader = pacsv.open_csv(p, read_options=pacsv.ReadOptions(block_size=1 << 20))
             names = reader.schema.names
