@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import odocal
 from odocal.cli import EXIT_ERROR, main
@@ -24,17 +25,9 @@ from odocal.io.drivefile import load_drive, read_table
 from odocal.io.mapping import check_mapping, mapping_files
 from odocal.settings import IdentifySettings, Settings, settings_from_dict
 from odocal.simulate import SimulatedDrive
+from tests.test_cli import run
 
 BIN = Path(sys.executable).parent
-
-
-def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
-    try:
-        code = main(list(argv))
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.fixture(scope="module")

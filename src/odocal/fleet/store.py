@@ -150,11 +150,7 @@ class Store:
 
     def drives(self, vehicle: str | None = None) -> list[dict[str, Any]]:
         """Stored drive rows (of one vehicle), by vehicle and time."""
-        query = "SELECT * FROM drives" + (" WHERE vehicle = ?" if vehicle is not None else "") \
-            + " ORDER BY vehicle, time, task_key"
-        cursor = self.db.execute(query, (vehicle,) if vehicle is not None else ())
-        names = [c[0] for c in cursor.description]
-        return [dict(zip(names, r, strict=True)) for r in cursor]
+        return self._select("drives", vehicle, "vehicle, time, task_key")
 
     def vehicles(self) -> list[str]:
         return [r[0] for r in self.db.execute("SELECT DISTINCT vehicle FROM drives ORDER BY 1")]
@@ -171,26 +167,21 @@ class Store:
                            ":detected_time, :change, :relative_change, :confidence, "
                            ":drives_to_detect, :km_to_detect, :message)", alarms)
 
-    def alarms(self, vehicle: str | None = None) -> list[dict[str, Any]]:
-        query = "SELECT * FROM alarms" + (" WHERE vehicle = ?" if vehicle else "") \
-            + " ORDER BY vehicle, time, parameter"
+    def _select(self, table: str, vehicle: str | None, order: str) -> list[dict[str, Any]]:
+        query = f"SELECT * FROM {table}" + (" WHERE vehicle = ?" if vehicle else "") \
+            + f" ORDER BY {order}"
         cursor = self.db.execute(query, (vehicle,) if vehicle else ())
         names = [c[0] for c in cursor.description]
         return [dict(zip(names, r, strict=True)) for r in cursor]
+
+    def alarms(self, vehicle: str | None = None) -> list[dict[str, Any]]:
+        return self._select("alarms", vehicle, "vehicle, time, parameter")
 
     def baselines(self, vehicle: str | None = None) -> list[dict[str, Any]]:
-        query = "SELECT * FROM baselines" + (" WHERE vehicle = ?" if vehicle else "") \
-            + " ORDER BY vehicle, parameter, since"
-        cursor = self.db.execute(query, (vehicle,) if vehicle else ())
-        names = [c[0] for c in cursor.description]
-        return [dict(zip(names, r, strict=True)) for r in cursor]
+        return self._select("baselines", vehicle, "vehicle, parameter, since")
 
     def pooled(self, vehicle: str | None = None) -> list[dict[str, Any]]:
-        query = "SELECT * FROM pooled" + (" WHERE vehicle = ?" if vehicle else "") \
-            + " ORDER BY vehicle, time"
-        cursor = self.db.execute(query, (vehicle,) if vehicle else ())
-        names = [c[0] for c in cursor.description]
-        return [dict(zip(names, r, strict=True)) for r in cursor]
+        return self._select("pooled", vehicle, "vehicle, time")
 
 
 def _sql(value: Any) -> Any:

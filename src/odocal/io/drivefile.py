@@ -30,6 +30,25 @@ def _format_of(path: Path) -> str:
 ROW_GROUP_ROWS = 1 << 16
 
 
+def _arrow_table(p: Path, *, text: bool) -> pa.Table:
+    """A CSV or Parquet file as an Arrow table (``text``: every CSV column as strings)."""
+    fmt = _format_of(p)
+    if p.stat().st_size == 0:
+        raise DataError(f"'{p}' is empty")
+    try:
+        if fmt != "csv":
+            return pq.read_table(p)
+        if not text:
+            return pacsv.read_csv(p)
+        names = pacsv.read_csv(p, read_options=pacsv.ReadOptions(skip_rows_after_names=0)
+                               ).column_names
+        return pacsv.read_csv(p, convert_options=pacsv.ConvertOptions(
+            column_types={n: pa.string() for n in names}, strings_can_be_null=True))
+    except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, UnicodeDecodeError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise DataError(f"'{p}' cannot be read as {fmt.upper()}: {first}") from None
+
+
 def read_table(path: str | Path) -> dict[str, np.ndarray]:
     """Read a CSV or Parquet file into float columns (non-numeric columns raise DataError)."""
     p = Path(path)
@@ -37,17 +56,7 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
         raise InputFileError(f"input '{p}' is a folder, not a drive file (.csv or .parquet)")
     if not p.is_file():
         raise InputFileError(f"input file '{p}' does not exist")
-    fmt = _format_of(p)
-    if p.stat().st_size == 0:
-        raise DataError(f"'{p}' is empty")
-    try:
-        if fmt == "csv":
-            table = pacsv.read_csv(p)
-        else:
-            table = pq.read_table(p)
-    except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, UnicodeDecodeError) as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise DataError(f"'{p}' cannot be read as {fmt.upper()}: {first}") from None
+    table = _arrow_table(p, text=False)
     try:
         names = table.column_names
     except UnicodeDecodeError:
@@ -83,20 +92,7 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
 def read_text_table(path: str | Path) -> dict[str, list[str | None]]:
     """A CSV or Parquet file's columns as text (empty cells as None), for tables of names."""
     p = Path(path)
-    fmt = _format_of(p)
-    if p.stat().st_size == 0:
-        raise DataError(f"'{p}' is empty")
-    try:
-        if fmt == "csv":
-            names = pacsv.read_csv(p, read_options=pacsv.ReadOptions(skip_rows_after_names=0)
-                                   ).column_names
-            table = pacsv.read_csv(p, convert_options=pacsv.ConvertOptions(
-                column_types={n: pa.string() for n in names}, strings_can_be_null=True))
-        else:
-            table = pq.read_table(p)
-    except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, UnicodeDecodeError) as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise DataError(f"'{p}' cannot be read as {fmt.upper()}: {first}") from None
+    table = _arrow_table(p, text=True)
     try:
         if len(set(table.column_names)) != len(table.column_names):
             raise DataError(f"'{p}' names a column twice")
