@@ -1,6 +1,6 @@
 """Evidence on the real data in ../shared/data (issues 4 and 6).
 
-    python benchmarks/bench_realdata.py [--data ../shared/data] [--methods raw,compensated]
+    python benchmarks/bench_realdata.py [--data ../shared/data] [--methods inverse,raw,compensated,joint]
 
 nuScenes (two Renault Zoe cars): the Singapore car calibrated on its turning scenes and validated
 on its other scenes; the Boston car calibrated on its two scenes; and, per car, leave-one-scene-out
@@ -119,7 +119,7 @@ def main() -> None:
     default = Path(os.environ.get("ODOCAL_SHARED_DATA",
                                   Path(__file__).resolve().parents[2] / "shared" / "data"))
     parser.add_argument("--data", type=Path, default=default)
-    parser.add_argument("--methods", default="raw,compensated")
+    parser.add_argument("--methods", default="inverse,raw,compensated,joint")
     args = parser.parse_args()
     methods = args.methods.split(",")
     nuscenes(args.data, methods)

@@ -77,9 +77,9 @@ class IdentifySettings:
     """METHOD 3: Gauss-Newton identification."""
 
     theta0: tuple[float, float, float, float] = DATASHEET_THETA
-    """Initial guess [c_e, c_d, t_r, d]: the datasheet values."""
+    """Initial guess [c_e, c_d, t_r, d]: the datasheet values, (13) of the paper."""
     weights: tuple[float, float, float] = (1.0, 1.0, 1600.0)
-    """Diagonal of W per sample, [w_px, w_py, w_psi] (the paper's [1, 1, 40^2])."""
+    """Diagonal of W per sample, [w_px, w_py, w_psi] (the paper's [1, 1, 40^2], section 4.3)."""
     max_iterations: int = 5
     """i_max: at most this many G-N iterations (the paper: 5)."""
     step_tolerance: float = 1e-12
@@ -115,13 +115,13 @@ class CompensateSettings:
     """METHOD 4: input compensation by optimal control (the QP)."""
 
     state_weights: tuple[float, float, float] = (1.0, 1.0, 10.0)
-    """Q = diag(...), weight of the pose tracking error [px, py, psi]."""
+    """Q = diag(...), weight of the pose tracking error [px, py, psi], (14) of the paper."""
     rate_change_weights: tuple[float, float] = (1000.0, 1000.0)
-    """R = diag(...), weight of the change of the estimated rates between samples."""
+    """R = diag(...), weight of the change of the estimated rates between samples, (14)."""
     state_bounds: tuple[float, float, float] = (5.0, 5.0, 0.5)
-    """|x_k - y~_k| <= these (m, m, rad)."""
+    """|x_k - y~_k| <= these (m, m, rad): the state bounds of (11)."""
     rate_bound: float = 0.05
-    """(1 - b) n~_k <= n_k <= (1 + b) n~_k for both wheels."""
+    """(1 - b) n~_k <= n_k <= (1 + b) n~_k for both wheels: the input bounds of (11)."""
     linearisations: int = 1
     """How many times the model is linearised and the QP solved (1 = the paper; more
     re-linearise around the trajectory of the previous solution)."""

@@ -2,7 +2,9 @@
 
 For a parameter set, every validation segment is rolled out with the *measured* wheel rates from its
 measured initial pose, and the per-sample position error ``sqrt(dx^2 + dy^2)`` is averaged over the
-segment's samples (k = 1..K). ``E_p`` is the mean over segments.
+segment's samples (k = 1..K). ``E_p`` is the mean over segments (the paper's overline E_p,
+section 6.1). Departure from the printed paper: it writes the per-segment error as a sum over k
+but reports metres; odocal takes the mean over k, which is what a length in metres means.
 """
 
 from __future__ import annotations
