@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import odocal
+from odocal.cli import main
 from odocal.simulate import SimulatedDrive
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -49,3 +50,32 @@ def short_drive() -> SimulatedDrive:
 @pytest.fixture()
 def rng() -> np.random.Generator:
     return np.random.default_rng(1234)
+
+
+# helpers shared by several test modules
+
+def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    try:
+        code = main(list(argv))
+    except SystemExit as exc:          # argparse usage errors
+        code = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def straight_drive(seconds: float = 240.0) -> odocal.Drive:
+    """A straight road with speed changes and noisy wheels: no bends at all."""
+    from odocal.model import Inputs, rollout, wheel_rates_for
+
+    theta = odocal.TRUE_PARAMETERS.as_array()
+    rng = np.random.default_rng(8)
+    t = np.arange(int(seconds * 40) + 1) * 0.025
+    v = 9.0 + 4.0 * np.sin(0.1 * t)
+    zero = np.zeros_like(t)
+    n_rl, n_rr = wheel_rates_for(theta, v, zero, zero)
+    poses = rollout(theta, Inputs(n_rl[:-1], n_rr[:-1], zero[:-1], zero[:-1]),
+                    np.array([0.0, 0.0, 0.3]), 0.025)
+    return odocal.Drive.from_columns(
+        {"t": t, "n_rl": n_rl + 0.02 * rng.standard_normal(t.size),
+         "n_rr": n_rr + 0.02 * rng.standard_normal(t.size), "a_y": zero,
+         "x": poses[:, 0], "y": poses[:, 1], "psi": poses[:, 2]}, name="straight")

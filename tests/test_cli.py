@@ -11,15 +11,7 @@ import pytest
 from odocal.cli import EXIT_ERROR, EXIT_OK, EXIT_USAGE, main
 from odocal.io import save_drive
 from odocal.simulate import SimulatedDrive
-
-
-def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
-    try:
-        code = main(list(argv))
-    except SystemExit as exc:          # argparse usage errors
-        code = int(exc.code or 0)
-    out, err = capsys.readouterr()
-    return code, out, err
+from tests.conftest import run
 
 
 @pytest.fixture(scope="module")

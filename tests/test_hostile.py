@@ -25,7 +25,7 @@ from odocal.io.drivefile import load_drive, read_table
 from odocal.io.mapping import check_mapping, mapping_files
 from odocal.settings import IdentifySettings, Settings, settings_from_dict
 from odocal.simulate import SimulatedDrive
-from tests.test_cli import run
+from tests.conftest import run
 
 BIN = Path(sys.executable).parent
 

@@ -81,7 +81,7 @@ def test_covariance_and_noise_in_calibration_json(noisy_drive: SimulatedDrive,
 
 
 def test_straight_drive_keeps_the_yaw_parameters() -> None:
-    from tests.test_report import straight_drive
+    from tests.conftest import straight_drive
 
     result = odocal.calibrate(straight_drive(), method="joint")
     assert set(result.estimate.unidentified) == {"t_r", "d"}

@@ -14,6 +14,7 @@ from odocal.cli import EXIT_OK, main
 from odocal.report import write_report
 from odocal.report.html import _fmt
 from odocal.simulate import SimulatedDrive
+from tests.conftest import straight_drive
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
 #: The figures each method's report shows.
@@ -84,24 +85,6 @@ def test_exports(calibrated: Path) -> None:
     params = yaml.safe_load(text)["wheel_odometry"]["ros__parameters"]
     assert params["effective_wheel_circumference"] == pytest.approx(data["theta"]["c_e"])
     assert len(params["covariance"]) == 16
-
-
-def straight_drive(seconds: float = 240.0) -> odocal.Drive:
-    """A straight road with speed changes and noisy wheels: no bends at all."""
-    from odocal.model import Inputs, rollout, wheel_rates_for
-
-    theta = odocal.TRUE_PARAMETERS.as_array()
-    rng = np.random.default_rng(8)
-    t = np.arange(int(seconds * 40) + 1) * 0.025
-    v = 9.0 + 4.0 * np.sin(0.1 * t)
-    zero = np.zeros_like(t)
-    n_rl, n_rr = wheel_rates_for(theta, v, zero, zero)
-    poses = rollout(theta, Inputs(n_rl[:-1], n_rr[:-1], zero[:-1], zero[:-1]),
-                    np.array([0.0, 0.0, 0.3]), 0.025)
-    return odocal.Drive.from_columns(
-        {"t": t, "n_rl": n_rl + 0.02 * rng.standard_normal(t.size),
-         "n_rr": n_rr + 0.02 * rng.standard_normal(t.size), "a_y": zero,
-         "x": poses[:, 0], "y": poses[:, 1], "psi": poses[:, 2]}, name="straight")
 
 
 def test_drive_without_bends_names_what_it_cannot_identify(tmp_path: Path) -> None:
