@@ -172,4 +172,5 @@ def test_relinearisation_lowers_the_nonlinear_cost(batch: SegmentBatch) -> None:
     p_last = build_problem(theta, inputs, ref, batch.t_s, CompensateSettings(),
                            nominal_rates=thrice.rates)
     zero = np.zeros(5 * p_last.steps)
-    assert p_last.objective(zero) <= problem(batch, 4, theta).objective(zero) * 1.05
+    # (three linearisations bring the nonlinear cost to well under a tenth of the first's)
+    assert p_last.objective(zero) < 0.1 * problem(batch, 4, theta).objective(zero)
