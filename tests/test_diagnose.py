@@ -165,3 +165,21 @@ def test_rejected_calibration_exits_3_with_one_line_reason(
     assert not (tmp_path / "o" / "odometry_parameters.json").exists()
     page = (tmp_path / "o" / "report.html").read_text()
     assert "Do not use: the yaw rate the wheels imply" in page
+
+
+def test_a_reference_heading_offset_does_not_decide_the_validation(
+        noisy_drive: SimulatedDrive) -> None:
+    """A fused pose whose heading is turned by a mounting yaw (1 degree): validation starts from
+    the corrected heading, so the true parameters validate as well as without the offset, and
+    the default method (which estimates the offset) is unmoved; raw Gauss-Newton, which fits the
+    turned heading, bends c_d to follow it and validates worse."""
+    turned = altered(noisy_drive, psi=lambda c: c["psi"] + np.radians(1.0))
+    truth = noisy_drive.true_parameters
+    assert odocal.validate(turned, truth).mean_error_m == pytest.approx(
+        odocal.validate(noisy_drive.drive, truth).mean_error_m, rel=0.02)
+    plain, off = odocal.calibrate(noisy_drive.drive), odocal.calibrate(turned)
+    assert off.validation is not None and plain.validation is not None
+    assert off.validation.mean_error_m == pytest.approx(plain.validation.mean_error_m, rel=0.02)
+    assert off.theta.c_d == pytest.approx(plain.theta.c_d, abs=1e-5)
+    raw = odocal.calibrate(turned, method="raw")
+    assert raw.validation is not None and raw.validation.mean_error_m > off.validation.mean_error_m

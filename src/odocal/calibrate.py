@@ -53,13 +53,12 @@ from odocal.segments import (
     SegmentSet,
     common_sampling_time,
     gather,
-    gather_ragged,
     identification_segments,
     validation_segments,
 )
 from odocal.settings import Settings
 from odocal.uncertainty import BootstrapResult, bootstrap
-from odocal.validate import MinimumResult, ValidationResult, segment_errors
+from odocal.validate import MinimumResult, ValidationResult, segment_errors, validation_data
 
 if TYPE_CHECKING:
     from odocal.compare import Comparison
@@ -376,7 +375,8 @@ def prepare(drives: Sequence[Drive], settings: Settings) -> Prepared:
     id_segments = identification_segments(drives, settings.segments)
     used, held, warnings = select_identification(id_segments, settings)
     val_segments = validation_segments(drives, settings.segments)
-    val_data = gather_ragged(drives, val_segments) if len(val_segments) else None
+    val_data = (validation_data(drives, val_segments, settings) if len(val_segments)
+                else None)
     if val_data is None:
         shortest = (settings.segments.validation_min_fraction
                     * settings.segments.validation_distance_m)
@@ -397,7 +397,7 @@ def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
     plausible(theta if isinstance(theta, Parameters) else Parameters.from_array(theta))
     drive_list = load_drives(drives)
     segs = validation_segments(drive_list, settings.segments)
-    data = gather_ragged(drive_list, segs)
+    data = validation_data(drive_list, segs, settings)
     return validation(theta, data, segs, drive_list)
 
 
@@ -413,7 +413,8 @@ def minimum(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
 
     settings = settings or Settings()
     drive_list = load_drives(drives)
-    data = gather_ragged(drive_list, validation_segments(drive_list, settings.segments))
+    data = validation_data(drive_list, validation_segments(drive_list, settings.segments),
+                           settings)
     centre = start.as_array() if start is not None else np.asarray(settings.identify.theta0)
     return reachable_minimum(data, centre, settings=settings.minimum,
                              seed=settings.calibrate.seed,

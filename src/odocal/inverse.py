@@ -67,6 +67,7 @@ from odocal.model import PARAMETER_NAMES, Parameters, inverse_revolutions, motio
 from odocal.segments import common_sampling_time
 from odocal.settings import Settings
 from odocal.uncertainty import robust_covariance
+from odocal.validate import heading_offset as reference_heading_offset
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -352,33 +353,6 @@ class InverseDetails:
                 "elapsed_s": self.elapsed_s}
 
 
-def heading_offset(drives: Sequence[Drive], *, min_speed_mps: float = 3.0,
-                   max_yaw_rate_radps: float = 0.02) -> tuple[float, int]:
-    """The reference heading's constant rotation against the direction of travel, on straights.
-
-    Returns the offset (rad; add it to the heading to get the course) and how many samples it
-    rests on. Over one-second stretches the course is the direction of the displacement.
-    """
-    lat = lon = 0.0
-    used = 0
-    for d in drives:
-        step = max(round(1.0 / d.t_s), 1)
-        for a, b in d.pieces:
-            idx = np.arange(a, b - step, step)
-            if idx.size == 0:
-                continue
-            dx = d.x[idx + step] - d.x[idx]
-            dy = d.y[idx + step] - d.y[idx]
-            psi = 0.5 * (d.psi[idx] + d.psi[idx + step])
-            speed = np.hypot(dx, dy) / (step * d.t_s)
-            turn = np.abs(d.psi[idx + step] - d.psi[idx]) / (step * d.t_s)
-            ok = (speed > min_speed_mps) & (turn < max_yaw_rate_radps)
-            lon += float(np.sum((dx * np.cos(psi) + dy * np.sin(psi))[ok]))
-            lat += float(np.sum((-dx * np.sin(psi) + dy * np.cos(psi))[ok]))
-            used += int(ok.sum()) * step
-    return (float(np.arctan2(lat, lon)) if lon > 0 else 0.0), used
-
-
 def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
                         held: Mapping[str, NotIdentified] | None = None,
                         distance_only: bool = False,
@@ -395,7 +369,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
     datasheet = np.asarray(settings.identify.theta0, dtype=np.float64)
     held = dict(held or {})
     free = np.array([name not in held for name in PARAMETER_NAMES])
-    offset, offset_samples = (heading_offset(drives) if cfg.heading_offset == "estimate"
+    offset, offset_samples = (reference_heading_offset(drives) if cfg.heading_offset == "estimate"
                               else (0.0, 0))
     if offset_samples < 200:          # five seconds of straight driving at least
         offset = 0.0
@@ -557,5 +531,7 @@ def _covariance(fit: _Fit, free: BoolArray, cluster: IntArray,
         s_r = np.sqrt(np.clip(np.diag(robust), 0.0, None))
         with np.errstate(divide="ignore", invalid="ignore"):
             f = np.where(s_n > 0, np.maximum(s_n, s_r) / s_n, 1.0)
-        cov = naive * np.outer(f, f) * few_clusters_inflation(n_clusters) ** 2
+        # one cluster: no spread to inflate (the one-cluster rule leaves nothing identified)
+        inflation = few_clusters_inflation(n_clusters) if n_clusters >= 2 else 1.0
+        cov = naive * np.outer(f, f) * inflation**2
     return cov, info, scores

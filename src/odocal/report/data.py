@@ -11,8 +11,7 @@ from numpy.typing import NDArray
 from odocal.advice import ParameterAdvice, advise, coverage
 from odocal.calibrate import CalibrationResult
 from odocal.model import PARAMETER_NAMES, Inputs, rollout
-from odocal.segments import gather_ragged
-from odocal.validate import segment_errors
+from odocal.validate import segment_errors, validation_data
 
 FloatArray = NDArray[np.float64]
 MAP_SEGMENTS = 3
@@ -131,7 +130,7 @@ def build(result: CalibrationResult) -> ReportData:
         errors["calibrated"] = result.validation.errors.mean_m
         segs = result.validation.segments
         if result.three_step is not None:
-            data = gather_ragged(drives, segs)
+            data = validation_data(drives, segs, settings)
             errors["raw"] = segment_errors(result.three_step.raw.theta.as_array(), data).mean_m
         maps = _maps(result, segs)
     line, level = verdict(result, float(errors["raw"].mean()) if "raw" in errors else None)
