@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -660,6 +661,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_ERROR
     except KeyboardInterrupt:
         sys.stderr.write(f"odocal {args.command}: interrupted\n")
+        sys.stderr.flush()
+        sys.stdout.flush()
+        if argv is None:
+            # the program itself (not a caller's main([...])): the work is stopped and cleaned
+            # up (pools terminated, temporary results removed); leave now rather than wait in
+            # exit handlers for the threads of a broken pool
+            os._exit(130)
         return 130
     except BrokenPipeError:  # the reader went away (| head): stop quietly
         sys.stderr.close()
