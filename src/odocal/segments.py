@@ -203,7 +203,7 @@ def gather(drives: Sequence[Drive], segments: SegmentSet) -> SegmentBatch:
         raise DataError("no segments to gather")
     k = int(segments.steps[0])
     if (segments.steps != k).any():
-        raise ValueError("gather needs segments of equal length; use gather_ragged")
+        raise DataError("gather needs segments of equal length; use gather_ragged")
     out = {key: np.empty((n, k)) for key in ("n_rl", "n_rr", "beta", "a_y")}
     reference = np.empty((n, k + 1, 3))
     offsets = np.arange(k + 1)

@@ -217,7 +217,7 @@ def _drive_along(kappa_s: FloatArray, vmax_s: FloatArray, stops: list[tuple[floa
     depart = arrive + dwell
     t_out = np.arange(m + 1) * t_s
     if depart[-1] < t_out[-1]:
-        raise ConfigError("internal: the route is too short for the duration")  # pragma: no cover
+        raise RuntimeError("the simulated route is too short for the duration")  # pragma: no cover
     j = np.clip(np.searchsorted(arrive, t_out, side="right") - 1, 0, n - 2)
     tau = np.clip(t_out - depart[j], 0.0, cell_time[j])    # negative while dwelling at point j
     s = j * _DS + v[j] * tau + 0.5 * accel[j] * tau**2

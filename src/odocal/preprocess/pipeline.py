@@ -82,11 +82,7 @@ def build_drive(log: RawLog, settings: Settings, *,
     offset_estimate = None
     if imu is not None and "yaw_rate" in imu.values and not (offsets and "wheels" in offsets) \
             and cs.wheel_offset == "estimate":
-        theta0 = settings.identify.theta0
-        offset_estimate = estimate_wheel_offset(
-            wheels, imu, circumference_m=theta0[0], track_m=theta0[2],
-            max_offset_s=cs.max_wheel_offset_s)
-        wheels = with_offset(wheels, offset_estimate.offset_s)
+        wheels, offset_estimate = _wheel_clock(wheels, imu, settings)
         reports["wheels"] = dataclasses.replace(reports["wheels"],
                                                 offset_s=offset_estimate.offset_s)
         notes.append(offset_estimate.message)
@@ -118,30 +114,9 @@ def build_drive(log: RawLog, settings: Settings, *,
             speed = np.hypot(pose["vx"], pose["vy"])
         yaw_rate = imu_values.get("yaw_rate")
     else:
-        gnss = reference_stream
-        heading = log.streams.get("heading")
-        x, y, psi = (np.empty(t.size) for _ in range(3))
-        std = np.empty((t.size, 3))
-        yaw_rate = np.empty(t.size)
-        speed = np.empty(t.size)
-        course = np.empty(t.size)
-        for a, b in piece_ranges:
-            tg = gnss.t + gnss.offset_s
-            inside = (tg >= t[a] - 1.0) & (tg <= t[b - 1] + 1.0)
-            ht = heading.t + heading.offset_s if heading is not None else None
-            fused = fuse(t[a:b], imu_values["yaw_rate"][a:b], gnss_t=tg[inside],
-                         east=gnss.values["east"][inside], north=gnss.values["north"][inside],
-                         gnss_speed=_opt(gnss, "speed", inside),
-                         gnss_course=_opt(gnss, "course", inside),
-                         gnss_std=_opt(gnss, "std", inside),
-                         heading_t=ht, heading=heading.values["psi"] if heading else None,
-                         settings=settings.fusion, name=log.name)
-            x[a:b], y[a:b], psi[a:b], std[a:b] = fused.x, fused.y, fused.psi, fused.std
-            yaw_rate[a:b] = imu_values["yaw_rate"][a:b] - fused.gyro_bias
-            speed[a:b] = fused.speed
-            course[a:b] = fused.psi + fused.sideslip      # the smoothed course over ground
-            fusion_summaries.append(fused.summary())
-        columns.update(x=x, y=y, psi=psi, x_std=std[:, 0], y_std=std[:, 1], psi_std=std[:, 2])
+        fused_columns, yaw_rate, speed, course, fusion_summaries = _gnss_imu_reference(
+            log, reference_stream, t, piece_ranges, imu_values, settings)
+        columns.update(fused_columns)
 
     if "a_y" in imu_values:
         columns["a_y"] = imu_values["a_y"]
@@ -152,24 +127,8 @@ def build_drive(log: RawLog, settings: Settings, *,
     if yaw_rate is not None:
         columns["yaw_rate"] = yaw_rate
 
-    sideslip = settings.sideslip
-    has_course = course is not None and speed is not None
-    if sideslip.mode == "on" and not has_course:
-        raise DataError(f"'{log.name}': sideslip estimation needs a course over ground "
-                        "independent of the heading (GNSS velocity or a pose velocity)")
-    if sideslip.mode == "off" or not has_course:
-        slip_note = "off" if sideslip.mode == "off" else \
-            "off: the log has no course over ground independent of the heading"
-        columns["beta"] = np.zeros(t.size)
-    else:
-        assert course is not None and speed is not None
-        rate = yaw_rate if yaw_rate is not None else np.gradient(np.unwrap(columns["psi"]),
-                                                                 1.0 / cs.rate_hz)
-        columns["beta"] = estimate_sideslip(course, np.unwrap(columns["psi"]), rate, speed,
-                                            rate_hz=cs.rate_hz, settings=sideslip)
-        slip_note = (f"estimated in bends (|yaw rate| > {sideslip.bend_yaw_rate_radps} rad/s): "
-                     f"{np.mean(columns['beta'] != 0) * 100:.1f}% of samples, max "
-                     f"{np.degrees(np.max(np.abs(columns['beta']))):.2f} deg")
+    columns["beta"], slip_note = _sideslip(log.name, columns, course, speed, yaw_rate,
+                                           settings)
 
     report = ConversionReport(
         log=log.name, streams=reports, reference=mode, wheel_offset=offset_estimate,
@@ -179,6 +138,78 @@ def build_drive(log: RawLog, settings: Settings, *,
     if log.origin_lla is not None:
         metadata["origin_lla"] = list(log.origin_lla)
     return Drive.from_columns(columns, name=log.name, metadata=metadata)
+
+
+def _wheel_clock(wheels: Stream, imu: Stream, settings: Settings
+                 ) -> tuple[Stream, OffsetEstimate]:
+    """The wheel stream shifted by its clock offset against the IMU yaw rate (estimated)."""
+    theta0 = settings.identify.theta0
+    estimate = estimate_wheel_offset(wheels, imu, circumference_m=theta0[0], track_m=theta0[2],
+                                     max_offset_s=settings.convert.max_wheel_offset_s)
+    return with_offset(wheels, estimate.offset_s), estimate
+
+
+def _gnss_imu_reference(log: RawLog, gnss: Stream, t: FloatArray,
+                        piece_ranges: list[tuple[int, int]], imu_values: dict[str, FloatArray],
+                        settings: Settings
+                        ) -> tuple[dict[str, FloatArray], FloatArray, FloatArray, FloatArray,
+                                   list[dict[str, Any]]]:
+    """odocal's own reference: GNSS and the IMU fused piece by piece (EKF and RTS smoother).
+
+    Returns the pose columns (with their standard deviations), the bias-corrected yaw rate,
+    the speed and course over ground, and each piece's fusion summary.
+    """
+    heading = log.streams.get("heading")
+    x, y, psi = (np.empty(t.size) for _ in range(3))
+    std = np.empty((t.size, 3))
+    yaw_rate = np.empty(t.size)
+    speed = np.empty(t.size)
+    course = np.empty(t.size)
+    summaries: list[dict[str, Any]] = []
+    for a, b in piece_ranges:
+        tg = gnss.t + gnss.offset_s
+        inside = (tg >= t[a] - 1.0) & (tg <= t[b - 1] + 1.0)
+        ht = heading.t + heading.offset_s if heading is not None else None
+        fused = fuse(t[a:b], imu_values["yaw_rate"][a:b], gnss_t=tg[inside],
+                     east=gnss.values["east"][inside], north=gnss.values["north"][inside],
+                     gnss_speed=_opt(gnss, "speed", inside),
+                     gnss_course=_opt(gnss, "course", inside),
+                     gnss_std=_opt(gnss, "std", inside),
+                     heading_t=ht, heading=heading.values["psi"] if heading else None,
+                     settings=settings.fusion, name=log.name)
+        x[a:b], y[a:b], psi[a:b], std[a:b] = fused.x, fused.y, fused.psi, fused.std
+        yaw_rate[a:b] = imu_values["yaw_rate"][a:b] - fused.gyro_bias
+        speed[a:b] = fused.speed
+        course[a:b] = fused.psi + fused.sideslip      # the smoothed course over ground
+        summaries.append(fused.summary())
+    columns = {"x": x, "y": y, "psi": psi, "x_std": std[:, 0], "y_std": std[:, 1],
+               "psi_std": std[:, 2]}
+    return columns, yaw_rate, speed, course, summaries
+
+
+def _sideslip(name: str, columns: dict[str, FloatArray], course: FloatArray | None,
+              speed: FloatArray | None, yaw_rate: FloatArray | None,
+              settings: Settings) -> tuple[FloatArray, str]:
+    """The sideslip column (course over ground against heading, in bends) and a note on it."""
+    sideslip, rate_hz = settings.sideslip, settings.convert.rate_hz
+    t_size = columns["t"].size
+    has_course = course is not None and speed is not None
+    if sideslip.mode == "on" and not has_course:
+        raise DataError(f"'{name}': sideslip estimation needs a course over ground "
+                        "independent of the heading (GNSS velocity or a pose velocity)")
+    if sideslip.mode == "off" or not has_course:
+        note = "off" if sideslip.mode == "off" else \
+            "off: the log has no course over ground independent of the heading"
+        return np.zeros(t_size), note
+    assert course is not None and speed is not None
+    rate = yaw_rate if yaw_rate is not None else np.gradient(np.unwrap(columns["psi"]),
+                                                             1.0 / rate_hz)
+    beta = estimate_sideslip(course, np.unwrap(columns["psi"]), rate, speed, rate_hz=rate_hz,
+                             settings=sideslip)
+    note = (f"estimated in bends (|yaw rate| > {sideslip.bend_yaw_rate_radps} rad/s): "
+            f"{np.mean(beta != 0) * 100:.1f}% of samples, max "
+            f"{np.degrees(np.max(np.abs(beta))):.2f} deg")
+    return beta, note
 
 
 def _opt(stream: Stream, key: str, mask: NDArray[np.bool_]) -> FloatArray | None:
