@@ -1,6 +1,7 @@
 """Evidence on the real data in ../shared/data (issues 4 and 6).
 
-    python benchmarks/bench_realdata.py [--data ../shared/data] [--methods inverse,raw,compensated,joint]
+    python benchmarks/bench_realdata.py [--data ../shared/data]
+                                        [--methods inverse,raw,compensated,joint]
 
 nuScenes (two Renault Zoe cars): the Singapore car calibrated on its turning scenes and validated
 on its other scenes; the Boston car calibrated on its two scenes; and, per car, leave-one-scene-out
