@@ -397,3 +397,32 @@ def test_exports_carry_each_targets_documented_keys(tmp_path: Path) -> None:
     assert [i for i, f in enumerate(ekf["odom0_config"]) if f] == [6, 11]   # vx, vyaw
     text = (tmp_path / "autoware" / "vehicle_info.param.yaml").read_text()
     assert "not identified by the data (datasheet values kept): d" in text
+
+
+def test_ctrl_c_stops_the_fleet_at_once_and_keeps_what_is_stored(fleet: Any,
+                                                                   tmp_path: Path) -> None:
+    store = tmp_path / "interrupted.db"
+    proc = subprocess.Popen([str(BIN / "odocal"), "fleet", "calibrate", str(fleet.catalog),
+                             "--store", str(store), "--workers", "1"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.monotonic() + 240
+    stored = 0
+    while time.monotonic() < deadline and stored < 2:
+        time.sleep(0.2)
+        if store.exists():
+            with sqlite3.connect(store, timeout=30) as db:
+                try:
+                    stored = db.execute("SELECT count(*) FROM drives").fetchone()[0]
+                except sqlite3.OperationalError:
+                    stored = 0
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        _, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        pytest.fail("Ctrl-C did not stop the fleet run")
+    assert proc.returncode == 130 and "interrupted" in err and "Traceback" not in err
+    with sqlite3.connect(store) as db:
+        assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        assert db.execute("SELECT count(*) FROM drives").fetchone()[0] >= stored

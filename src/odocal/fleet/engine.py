@@ -89,7 +89,25 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
                       dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR,
                       env=threads) as cluster, \
             Client(cluster) as client:
+        # Ctrl-C reaches the whole process group: the workers leave it to this process, which
+        # closes the cluster (no traceback from each worker)
+        client.register_plugin(_ignore_interrupts_plugin(), name="odocal-ignore-interrupts")
         yield client
+
+
+def _ignore_interrupts_plugin() -> Any:
+    """A Dask worker plugin: the worker process ignores SIGINT."""
+    from distributed import WorkerPlugin
+
+    class IgnoreInterrupts(WorkerPlugin):
+        def setup(self, worker: Any) -> None:
+            import signal
+            import threading
+
+            if threading.current_thread() is threading.main_thread():
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    return IgnoreInterrupts()
 
 
 def _check_paths(store: Path, out: Path | None, catalog: Path,

@@ -10,7 +10,6 @@ from __future__ import annotations
 import base64
 import html
 import json
-import shutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -123,8 +122,8 @@ def write_fleet_outputs(store: Store, out: Path, *, datasheet: Parameters | None
     with Renderer() as renderer:
         pngs = renderer.draw(specs)
     figures = out / "figures"
-    if figures.exists():
-        shutil.rmtree(figures)       # no figure of a vehicle no longer in the store stays
+    for old in figures.glob("history_*.png"):
+        old.unlink()                 # no figure of a vehicle no longer in the store stays
     written: list[Path] = []
     for spec, png in zip(specs, pngs, strict=True):
         path = figures / f"{spec.name}.png"
