@@ -147,7 +147,7 @@ def _page(out: Path, drives: Sequence[Mapping[str, Any]], alarms: Sequence[Mappi
         f"<td>{a['time'][:10]}</td><td>{a['detected_time'][:10]}</td>"
         f"<td>{a['relative_change'] * 100:+.3f}%</td><td>{a['confidence']:.3f}</td>"
         f"<td>{a['drives_to_detect']} / {a['km_to_detect']:.0f} km</td>"
-        f"<td>{html.escape(a['message'])}</td></tr>" for a in alarms)
+        f"<td class='text'>{html.escape(a['message'])}</td></tr>" for a in alarms)
     sections = []
     for v in vehicles:
         mine = [r for r in drives if r["vehicle"] == v]
@@ -176,12 +176,12 @@ def _page(out: Path, drives: Sequence[Mapping[str, Any]], alarms: Sequence[Mappi
                         f"<details><summary>drives</summary><ul>{''.join(links)}</ul></details>")
     recal = sorted({a["vehicle"] for a in alarms})
     recal_rows = "".join(
-        f"<tr><td><a href='#{_safe(v)}'>{html.escape(v)}</a></td><td>"
+        f"<tr><td><a href='#{_safe(v)}'>{html.escape(v)}</a></td><td class='text'>"
         f"{html.escape('; '.join(a['message'] for a in alarms if a['vehicle'] == v))}</td></tr>"
         for v in recal)
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width">
-<title>odocal fleet report</title><style>{_CSS}</style></head>
+<title>odocal fleet report</title><style>{_CSS} td.text {{ text-align: left; }}</style></head>
 <body><main>
 <h1>Fleet calibration report</h1>
 <p class="meta">odocal {__version__} &middot; {len(vehicles)} vehicles &middot; {len(drives)} drives
