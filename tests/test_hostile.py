@@ -118,13 +118,26 @@ def test_the_results_folder_is_written_whole(short: Path, tmp_path: Path,
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".r.")]
 
 
-def test_a_users_folder_is_never_replaced(tmp_path: Path) -> None:
+def test_a_users_folder_is_never_replaced(short: Path, tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
     mine = tmp_path / "home"
     mine.mkdir()
     (mine / "thesis.tex").write_text("precious")
     with pytest.raises(OutputError, match="did not write"), results_folder(mine):
         pass
     assert (mine / "thesis.tex").read_text() == "precious"
+    # a calibration.json among the user's files does not make the folder odocal's
+    (mine / "calibration.json").write_text("{}")
+    code, _, err = run(capsys, "calibrate", str(short), "--out", str(mine), "--no-report")
+    assert code == EXIT_ERROR and "did not write" in err
+    assert (mine / "thesis.tex").read_text() == "precious"
+    # an older results folder (no marker, only odocal's files) is replaced whole
+    older = tmp_path / "older"
+    (older / "figures").mkdir(parents=True)
+    (older / "calibration.json").write_text("{}")
+    (older / "figures" / "stale.png").write_bytes(b"x")
+    assert main(["calibrate", str(short), "--out", str(older), "--no-report", "-q"]) == 0
+    assert not (older / "figures").exists() and (older / RESULTS_MARKER).exists()
 
 
 # ---------------------------------------------------------------- values no sensor produces

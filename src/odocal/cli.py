@@ -259,13 +259,11 @@ def _inputs(args: argparse.Namespace, *sources: Any) -> list[Any]:
 
 def _check_out_dir(args: argparse.Namespace, inputs: Sequence[Any]) -> None:
     """Before any computation: the results folder may replace nothing the run reads."""
-    from odocal.io.atomic import refuse_inputs
+    from odocal.io.atomic import check_replaceable, refuse_inputs
 
     if getattr(args, "out", None):
         refuse_inputs(args.out, inputs, folder=True)
-        out = Path(args.out)
-        if out.exists() and not out.is_dir():
-            raise OutputError(f"output '{out}' exists and is not a folder")
+        check_replaceable(Path(args.out))
 
 
 def _write_outputs(result: CalibrationResult, args: argparse.Namespace,

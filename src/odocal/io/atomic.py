@@ -42,23 +42,36 @@ def refuse_inputs(output: str | Path, inputs: Iterable[str | Path | None], *,
 RESULTS_MARKER = ".odocal-results"
 
 
+#: What odocal writes into a results folder (an older one, written before the marker existed,
+#: may be replaced if it holds nothing else).
+RESULTS_NAMES = frozenset({
+    "calibration.json", "report.html", "figures", "odometry_parameters.yaml",
+    "odometry_parameters.json", "compensated_inputs.parquet", "autoware", "ros2_control",
+    "robot_localization", "trace.csv", "alarms.json"})
+
+
+def check_replaceable(target: Path) -> None:
+    """OutputError unless ``target`` is absent, empty, or a results folder odocal wrote."""
+    if not target.exists():
+        return
+    if not target.is_dir():
+        raise OutputError(f"output '{target}' exists and is not a folder")
+    names = {p.name for p in target.iterdir()}
+    if names and RESULTS_MARKER not in names and not names <= RESULTS_NAMES:
+        raise OutputError(f"output folder '{target}' holds files odocal did not write; "
+                          "choose a new or an empty folder")
+
+
 @contextlib.contextmanager
-def results_folder(target: str | Path, *, ours: Iterable[str] = ("calibration.json",)
-                   ) -> Iterator[Path]:
+def results_folder(target: str | Path) -> Iterator[Path]:
     """Yield a new temporary folder beside ``target``; on success it replaces ``target`` whole.
 
     A failed run leaves ``target`` as it was; a finished one leaves no file of an earlier run.
-    An existing ``target`` must be empty or a folder odocal wrote (it holds the marker file or
-    one of ``ours``): odocal never deletes a user's folder.
+    An existing ``target`` must be empty, hold the marker odocal leaves, or hold only what odocal
+    writes: odocal never deletes a folder with anything of the user's in it.
     """
     target = Path(target)
-    if target.exists():
-        if not target.is_dir():
-            raise OutputError(f"output '{target}' exists and is not a folder")
-        names = {p.name for p in target.iterdir()}
-        if names and RESULTS_MARKER not in names and not names & set(ours):
-            raise OutputError(f"output folder '{target}' holds files odocal did not write; "
-                              "choose a new or an empty folder")
+    check_replaceable(target)
     parent = target.parent if str(target.parent) else Path(".")
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -73,9 +86,15 @@ def results_folder(target: str | Path, *, ours: Iterable[str] = ("calibration.js
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o777 & ~umask)
-        if target.exists():
+        moved = target.exists()
+        if moved:
             os.replace(target, old)
-        os.replace(tmp, target)
+        try:
+            os.replace(tmp, target)
+        except OSError:
+            if moved:                    # put the earlier results back
+                os.replace(old, target)
+            raise
     except OSError as exc:
         raise OutputError(f"cannot write '{target}': {exc.strerror or exc}") from None
     finally:
