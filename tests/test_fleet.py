@@ -141,6 +141,21 @@ def test_unreachable_scheduler_is_one_clear_error(fleet: Any, tmp_path: Path,
     assert code == 1 and "cannot reach the Dask scheduler" in err and len(err.splitlines()) == 1
 
 
+def _wait_for_drives(store: Path, count: int, limit_s: float = 240.0) -> int:
+    """Poll a store another process writes until it holds ``count`` drives (or time runs out)."""
+    deadline = time.monotonic() + limit_s
+    stored = 0
+    while time.monotonic() < deadline and stored < count:
+        time.sleep(0.2)
+        if store.exists():
+            with sqlite3.connect(store, timeout=30) as db:
+                try:
+                    stored = db.execute("SELECT count(*) FROM drives").fetchone()[0]
+                except sqlite3.OperationalError:
+                    stored = 0
+    return int(stored)
+
+
 def test_sigkill_loses_nothing_stored_and_the_rerun_finishes(fleet: Any, tmp_path: Path) -> None:
     store = tmp_path / "killed.db"
     cmd = [str(BIN / "odocal"), "fleet", "calibrate", str(fleet.catalog), "--store", str(store),
@@ -148,16 +163,7 @@ def test_sigkill_loses_nothing_stored_and_the_rerun_finishes(fleet: Any, tmp_pat
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 240
-        stored = 0
-        while time.monotonic() < deadline and stored < 4:
-            time.sleep(0.2)
-            if store.exists():
-                with sqlite3.connect(store, timeout=30) as db:
-                    try:
-                        stored = db.execute("SELECT count(*) FROM drives").fetchone()[0]
-                    except sqlite3.OperationalError:
-                        stored = 0
+        stored = _wait_for_drives(store, 4)
         assert stored >= 4, "the run stored nothing in time"
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
@@ -406,16 +412,7 @@ def test_ctrl_c_stops_the_fleet_at_once_and_keeps_what_is_stored(fleet: Any,
                              "--store", str(store), "--workers", "1"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
-    deadline = time.monotonic() + 240
-    stored = 0
-    while time.monotonic() < deadline and stored < 2:
-        time.sleep(0.2)
-        if store.exists():
-            with sqlite3.connect(store, timeout=30) as db:
-                try:
-                    stored = db.execute("SELECT count(*) FROM drives").fetchone()[0]
-                except sqlite3.OperationalError:
-                    stored = 0
+    stored = _wait_for_drives(store, 2)
     os.killpg(proc.pid, signal.SIGINT)
     try:
         _, err = proc.communicate(timeout=30)
