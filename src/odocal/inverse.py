@@ -76,6 +76,8 @@ log = logging.getLogger(__name__)
 
 _HUBER = 4.0              # residuals beyond this many standard deviations are down-weighted
 _MIN_CLUSTERS_FOR_ROBUST = 10
+_MAX_MA = 0.95            # prewhitening stays a stable filter
+_P = 5                    # theta and the counting window's spread
 
 
 @dataclass(frozen=True)
@@ -137,23 +139,28 @@ class _Windows:
     length: int
     measured: FloatArray          # (W, 2) measured revolutions
     cluster: IntArray             # (W,) cluster label
+    follows: BoolArray            # (W,) the window starts where the one before it ends
 
 
 def _windows(steps: _Steps, length: int, margin: int, cluster_steps: int) -> _Windows:
-    starts = []
-    for a, b in zip(steps.piece_start, steps.piece_stop, strict=True):
+    starts, pieces = [], []
+    for k, (a, b) in enumerate(zip(steps.piece_start, steps.piece_stop, strict=True)):
         lo, hi = a + margin, b - margin
         n = (hi - lo) // length
         if n > 0:
             starts.append(lo + length * np.arange(n, dtype=np.int64))
+            pieces.append(np.full(n, k, dtype=np.int64))
     start = np.concatenate(starts) if starts else np.zeros(0, dtype=np.int64)
+    piece = np.concatenate(pieces) if pieces else np.zeros(0, dtype=np.int64)
     cum = np.concatenate([np.zeros((1, 2)), np.cumsum(steps.revs, axis=0)])
     measured = cum[start + length] - cum[start]
     moving = np.abs(measured).sum(axis=1) > 0       # a window at a standstill says nothing
-    start, measured = start[moving], measured[moving]
+    start, measured, piece = start[moving], measured[moving], piece[moving]
+    follows = np.zeros(start.size, dtype=bool)
+    follows[1:] = (np.diff(start) == length) & (np.diff(piece) == 0)
     cluster = steps.drive[start] * (10**9) + (start // max(cluster_steps, 1))
     return _Windows(start=start, length=length, measured=measured,
-                    cluster=cluster.astype(np.int64))
+                    cluster=cluster.astype(np.int64), follows=follows)
 
 
 @jit
@@ -191,15 +198,27 @@ def _sums(values: FloatArray, win: _Windows, shift: float) -> FloatArray:
     return out.reshape((win.start.shape[0], *values.shape[1:]))
 
 
-def _predict(theta: FloatArray, steps: _Steps, win: _Windows,
-             shift: float) -> tuple[FloatArray, FloatArray]:
-    """Predicted revolutions of each window (W, 2) and their Jacobian (W, 2, 4).
+def _predict(p: FloatArray, steps: _Steps, win: _Windows, shift: float,
+             smooth: bool) -> tuple[FloatArray, FloatArray]:
+    """Predicted revolutions of each window (W, 2) and their Jacobian (W, 2, 5).
 
+    ``p`` is theta and the counting window's spread ``kappa`` (half its variance, steps^2).
     ``shift`` (steps, may be fractional) moves the reference side back in time: the wheel window
-    [s, e) is compared with the motion over [s - shift, e - shift).
+    [s, e) is compared with the motion over [s - shift, e - shift). A wheel stream that is a
+    moving average of tick counts (as an ABS unit reports it) is the motion seen through a
+    kernel: its mean is the lag, and its spread adds ``kappa`` times the second difference of
+    the window sums in the shift (``smooth``). Left out, the spread biases c_e by about 1e-6
+    (the second difference correlates with the acceleration squared, which never averages out).
     """
-    revs, jac = inverse_revolutions(theta, steps.ds, steps.dpsi, steps.a_y)
-    return _sums(revs, win, shift), _sums(jac, win, shift)
+    revs, jac = inverse_revolutions(p[:4], steps.ds, steps.dpsi, steps.a_y)
+    pred = _sums(revs, win, shift)
+    out = np.zeros((pred.shape[0], 2, _P))
+    out[..., :4] = _sums(jac, win, shift)
+    if smooth:
+        second = _sums(revs, win, shift + 1.0) + _sums(revs, win, shift - 1.0) - 2.0 * pred
+        pred = pred + p[4] * second
+        out[..., 4] = second
+    return pred, out
 
 
 _CHANNELS = np.array([[0.5, 0.5], [-1.0, 1.0]])   # sum (distance) and difference (yaw) channels
@@ -207,54 +226,71 @@ _CHANNELS = np.array([[0.5, 0.5], [-1.0, 1.0]])   # sum (distance) and differenc
 
 @dataclass
 class _Fit:
-    theta: FloatArray
+    theta: FloatArray             # (5,): theta and the counting window's spread kappa
     residual: FloatArray          # (W, 2) channel residuals
-    jac: FloatArray               # (W, 2, 4) channel Jacobian
+    jac: FloatArray               # (W, 2, 5) channel Jacobian
     weight: FloatArray            # (W, 2)
+    white_residual: FloatArray    # (W, 2) standardised and prewhitened residuals
+    white_jac: FloatArray         # (W, 2, 5) their Jacobian
     cost: float
     iterations: int
     history: list[float] = field(default_factory=list)
 
 
-def _solve(theta0: FloatArray, steps: _Steps, win: _Windows, shift: float, free: BoolArray,
-           noise: FloatArray, max_iterations: int, tolerance: float,
-           channels: FloatArray) -> _Fit:
-    """Weighted Gauss-Newton on the channel residuals (the model is nearly linear in theta).
+@jit
+def _prewhiten(x: FloatArray, follows: BoolArray, ma: FloatArray,
+               out: FloatArray) -> None:  # pragma: no cover
+    """out[w] = x[w] - phi x[w - 1] + m out[w - 1] along runs of windows that follow one
+    another; ``ma`` (C, 2) holds each channel's ``m, phi``."""
+    for w in range(x.shape[0]):
+        for c in range(x.shape[1]):
+            for k in range(x.shape[2]):
+                v = x[w, c, k]
+                if follows[w]:
+                    v += ma[c, 0] * out[w - 1, c, k] - ma[c, 1] * x[w - 1, c, k]
+                out[w, c, k] = v
 
-    ``channels`` (2,) scales the weights of the distance and yaw channels (0 leaves one out).
+
+def _evaluate(p: FloatArray, steps: _Steps, win: _Windows, shift: float, smooth: bool,
+              noise: FloatArray, ma: FloatArray, channels: FloatArray, iterations: int,
+              history: list[float]) -> _Fit:
+    pred, jac = _predict(p, steps, win, shift, smooth)
+    r = (win.measured - pred) @ _CHANNELS.T
+    j = np.einsum("ci,wip->wcp", _CHANNELS, jac)
+    w = _weights(win.measured, r, noise) * channels
+    sw = np.sqrt(w)
+    stacked = np.concatenate([(r * sw)[..., None], j * sw[..., None]], axis=2)
+    white = np.empty_like(stacked)
+    _prewhiten(stacked, win.follows, ma, white)
+    cost = float(np.sum(white[..., 0] ** 2))
+    history.append(cost)
+    return _Fit(p, r, j, w, white[..., 0], white[..., 1:], cost, iterations, history)
+
+
+def _solve(p0: FloatArray, steps: _Steps, win: _Windows, shift: float, free: BoolArray,
+           noise: FloatArray, ma: FloatArray, max_iterations: int, tolerance: float,
+           channels: FloatArray) -> _Fit:
+    """Weighted Gauss-Newton on the prewhitened channel residuals (nearly linear in theta).
+
+    ``free`` (5,) marks the free parameters of ``p`` (theta and kappa); ``ma`` (2,) the
+    prewhitening of each channel (see :func:`_fit_ma`); ``channels`` (2,) scales the weights of
+    the distance and yaw channels (0 leaves one out).
     """
-    theta = theta0.copy()
+    p = p0.copy()
     history: list[float] = []
-    iterations = 0
-    fit: _Fit | None = None
-    for _ in range(max_iterations + 1):
-        pred, jac = _predict(theta, steps, win, shift)
-        r = (win.measured - pred) @ _CHANNELS.T
-        j = np.einsum("ci,wip->wcp", _CHANNELS, jac)
-        w = _weights(win.measured, r, noise) * channels
-        cost = float(np.sum(w * r**2))
-        history.append(cost)
-        fit = _Fit(theta, r, j, w, cost, iterations, history)
-        if iterations == max_iterations or not free.any():
+    smooth = bool(free[4])
+    fit = _evaluate(p, steps, win, shift, smooth, noise, ma, channels, 0, history)
+    for iterations in range(1, max_iterations + 1):
+        if not free.any():
             break
-        sw = np.sqrt(w)
-        a = (j * sw[..., None]).reshape(-1, 4)[:, free]
-        b = (r * sw).ravel()
-        step = np.zeros(4)
-        step[free] = np.linalg.lstsq(a, b, rcond=None)[0]
-        theta = theta + step
-        iterations += 1
-        scale = np.maximum(np.abs(theta), 1e-3)
+        step = np.zeros(_P)
+        a = fit.white_jac.reshape(-1, _P)[:, free]
+        step[free] = np.linalg.lstsq(a, fit.white_residual.ravel(), rcond=None)[0]
+        p = p + step
+        fit = _evaluate(p, steps, win, shift, smooth, noise, ma, channels, iterations, history)
+        scale = np.maximum(np.abs(p), 1e-3)
         if np.max(np.abs(step) / scale) < tolerance:
-            pred, jac = _predict(theta, steps, win, shift)
-            r = (win.measured - pred) @ _CHANNELS.T
-            j = np.einsum("ci,wip->wcp", _CHANNELS, jac)
-            w = _weights(win.measured, r, noise) * channels
-            cost = float(np.sum(w * r**2))
-            history.append(cost)
-            fit = _Fit(theta, r, j, w, cost, iterations, history)
             break
-    assert fit is not None
     return fit
 
 
@@ -269,6 +305,62 @@ def _variance(measured: FloatArray, noise: FloatArray) -> FloatArray:
     """``s0^2 + (f rev)^2`` per channel; ``noise`` is (2, 2): rows channels, columns s0, f."""
     rev = np.abs(measured.mean(axis=1))[:, None]
     return noise[None, :, 0] ** 2 + (noise[None, :, 1] * rev) ** 2
+
+
+def _fit_ma(fit: _Fit, follows: BoolArray) -> FloatArray:
+    """Each channel's prewhitening ``m, phi``: errors that telescope across windows.
+
+    Errors that are differences of something bounded (the rounding of integer tick counts, a
+    reference position or heading error differenced over each window) make consecutive
+    windows' residuals negatively correlated: the sum over a run of windows keeps only its ends.
+    Weighted least squares then wastes information, and a cluster covariance is a difference of
+    large, nearly cancelling terms (it can come out near zero). The standardised residuals are
+    modelled as ARMA(1, 1), ``u_w - phi u_(w-1) = e_w - m e_(w-1)`` with white ``e``: ``phi``
+    from the ratio of the lag-two and lag-one correlations (the bounded error's own memory:
+    0 for rounding, ``exp(-window / correlation time)`` for a smooth reference error), ``m``
+    from the lag-one correlation. The residuals and the Jacobian are then filtered by
+    ``(1 - phi L) / (1 - m L)`` (generalised least squares). A positive lag-one correlation
+    (slow errors), or one no larger than white errors would show by chance, is left to the
+    cluster covariance: no filter.
+    """
+    u = fit.residual * np.sqrt(fit.weight)
+    out = np.zeros((2, 2))
+    pairs = follows.copy()
+    pairs2 = np.zeros_like(follows)
+    pairs2[2:] = follows[2:] & follows[1:-1]
+    if pairs.sum() < 20 or pairs2.sum() < 20:
+        return out
+    for c in range(2):
+        x = u[:, c]
+        den = float(np.sum(x * x))
+        if den <= 0:
+            continue
+        rho1 = float(np.sum(x[1:][pairs[1:]] * x[:-1][pairs[1:]])) / den * x.size / pairs.sum()
+        rho2 = float(np.sum(x[2:][pairs2[2:]] * x[:-2][pairs2[2:]])) / den * x.size / pairs2.sum()
+        # white errors give correlations of about 1 / sqrt(pairs): filter only what stands out
+        if rho1 >= -3.0 / math.sqrt(pairs.sum()):
+            continue
+        phi = 0.0
+        if rho2 < -2.0 / math.sqrt(pairs2.sum()):
+            phi = min(rho2 / rho1, _MAX_MA - 0.05)
+        out[c] = _arma_ma(max(rho1, -0.4999), phi), phi
+    return out
+
+
+def _arma_ma(rho1: float, phi: float) -> float:
+    """The ``m`` in (phi, _MAX_MA] whose ARMA(1, 1) has lag-one correlation ``rho1`` (< 0)."""
+    def lag_one(m: float) -> float:
+        return (1.0 - phi * m) * (phi - m) / (1.0 + m * m - 2.0 * phi * m)
+    lo, hi = phi, _MAX_MA              # lag_one falls from phi's 0 as m grows
+    if lag_one(hi) >= rho1:
+        return hi
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if lag_one(mid) > rho1:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
 
 
 def _fit_noise(measured: FloatArray, residual: FloatArray) -> FloatArray:
@@ -339,6 +431,12 @@ class InverseDetails:
     """(W, 2): each window's measured revolutions in the distance and yaw channels."""
     residual: FloatArray = field(repr=False)
     """(W, 2): measured minus what the motion implies, same channels."""
+    prewhitening: tuple[float, float] = (0.0, 0.0)
+    """Each channel's moving-average coefficient of the errors that telescope across windows
+    (0: none; near 1: rounding or a reference's own errors, differenced per window)."""
+    smoothing_steps2: float = 0.0
+    """The variance of the wheel stream's counting window beyond the lag, steps^2 (a moving
+    average over w samples: (w^2 - 1) / 12)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"windows": self.windows, "window_s": self.window_s, "clusters": self.clusters,
@@ -350,6 +448,9 @@ class InverseDetails:
                 "cost_history": list(self.cost_history),
                 "residual_rms_rev": {"distance": self.residual_rms[0],
                                      "yaw": self.residual_rms[1]},
+                "prewhitening": {"distance": self.prewhitening[0],
+                                 "yaw": self.prewhitening[1]},
+                "smoothing_steps2": self.smoothing_steps2,
                 "elapsed_s": self.elapsed_s}
 
 
@@ -375,37 +476,41 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         offset = 0.0
     steps = _steps(drives, heading_offset=offset)
     length = max(round(cfg.window_s / t_s), 1)
-    margin = math.ceil(cfg.max_delay_s / t_s - 1e-6) + 1 if cfg.delay == "estimate" else 0
+    # room for the lag scan, plus one step either way for the counting window's spread
+    margin = math.ceil(cfg.max_delay_s / t_s - 1e-6) + 2 if cfg.delay == "estimate" else 0
     win = _windows(steps, length, margin, settings.segments.length)
     if win.start.size < 4:
         log.warning("inverse calibration: the drives hold fewer than four moving windows")
         return _nothing(settings, datasheet, held, started, win)
 
     noise = np.array([[1e-3, 1e-3], [1e-3, 1e-3]])
+    ma = np.zeros((2, 2))
     channels = np.array([1.0, 0.0 if distance_only else 1.0])
+    smooth = cfg.delay == "estimate" and not distance_only
 
-    def solve(theta: FloatArray, shift: float) -> _Fit:
-        # (free and noise as they are at the call)
-        return _solve(theta, steps, win, shift, free, noise, cfg.max_iterations, cfg.tolerance,
-                      channels)
+    def solve(p: FloatArray, shift: float) -> _Fit:
+        # (free, noise and ma as they are at the call)
+        return _solve(p, steps, win, shift, np.append(free, smooth), noise, ma,
+                      cfg.max_iterations, cfg.tolerance, channels)
 
     if progress:
         progress("inverse: fit", 0, 4)
-    fit = solve(datasheet, 0.0)
+    fit = solve(np.append(datasheet, 0.0), 0.0)
     noise = _fit_noise(win.measured, fit.residual)
     shift, shift_std = 0.0, float("nan")
     if cfg.delay == "estimate" and not distance_only:
         fit = solve(fit.theta, 0.0)
-        shift, shift_std = _scan_delay(fit.theta, steps, win, noise, margin - 1)
+        shift, shift_std = _scan_delay(fit.theta[:4], steps, win, noise, margin - 2)
     if progress:
         progress("inverse: fit", 2, 4)
     for _ in range(2):                  # re-fit the noise model at the final shift
         fit = solve(fit.theta, shift)
         noise = _fit_noise(win.measured, fit.residual)
+        ma = _fit_ma(fit, win.follows)
     fit = solve(fit.theta, shift)
     n_clusters = int(np.unique(win.cluster).size)
     for _ in range(len(PARAMETER_NAMES)):
-        cov, info, scores = _covariance(fit, free, win.cluster, n_clusters)
+        cov, info, scores = _covariance(fit, np.append(free, smooth), win.cluster, n_clusters)
         std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
         if n_clusters < 2 and free.any() and settings.identify.judge_identifiability:
             for j in np.flatnonzero(free):
@@ -418,9 +523,9 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
                 break
             held.update(held_as_weak(std, too_weak, settings.identify))
             free = free & ~too_weak
-        theta = fit.theta.copy()
-        theta[~free] = datasheet[~free]
-        fit = solve(theta, shift)
+        p = fit.theta.copy()
+        p[:4][~free] = datasheet[~free]
+        fit = solve(p, shift)
         if not free.any():
             cov = np.zeros((4, 4))
             break
@@ -437,7 +542,9 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         downweighted=int((z > _HUBER).any(axis=1).sum()), iterations=fit.iterations,
         cost_history=tuple(fit.history), residual_rms=(float(rms[0]), float(rms[1])),
         elapsed_s=time.perf_counter() - started, information=info, scores=scores,
-        cluster=win.cluster, measured=win.measured @ _CHANNELS.T, residual=fit.residual)
+        cluster=win.cluster, measured=win.measured @ _CHANNELS.T, residual=fit.residual,
+        prewhitening=(float(ma[0, 0]), float(ma[1, 0])),
+        smoothing_steps2=float(2.0 * fit.theta[4]))
     if not free.any():
         status = Status.NOTHING_IDENTIFIABLE
     elif float(np.max(rms)) < 1e-9:
@@ -445,7 +552,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
     else:
         status = Status.CONVERGED if fit.iterations < cfg.max_iterations \
             else Status.ITERATION_LIMIT
-    theta = fit.theta.copy()
+    theta = fit.theta[:4].copy()
     theta[~free] = datasheet[~free]
     return Estimate(method="inverse", theta=Parameters.from_array(theta),
                     datasheet=Parameters.from_array(datasheet), covariance=cov,
@@ -512,19 +619,21 @@ def _scan_delay(theta: FloatArray, steps: _Steps, win: _Windows, noise: FloatArr
 
 def _covariance(fit: _Fit, free: BoolArray, cluster: IntArray,
                 n_clusters: int) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Sandwich covariance over clusters of windows; per-window information and scores."""
-    jw = fit.jac * fit.weight[..., None]
-    info = np.einsum("wcp,wcq->wpq", jw, fit.jac)            # (W, 4, 4)
-    scores = np.einsum("wcp,wc->wp", jw, fit.residual)      # (W, 4)
+    """Sandwich covariance over clusters of windows, from the prewhitened residuals; theta's
+    (4, 4) block, with the counting window's spread (``free[4]``) profiled out. Also each
+    window's information and score in theta."""
+    jw = fit.white_jac
+    info = np.einsum("wcp,wcq->wpq", jw, jw)                   # (W, 5, 5)
+    scores = np.einsum("wcp,wc->wp", jw, fit.white_residual)   # (W, 5)
     h = info.sum(axis=0)
-    h_inv = np.zeros((4, 4))
+    h_inv = np.zeros((_P, _P))
     cols = np.flatnonzero(free)
     if cols.size:
         h_inv[np.ix_(cols, cols)] = np.linalg.pinv(h[np.ix_(cols, cols)])
     if n_clusters >= _MIN_CLUSTERS_FOR_ROBUST:
         cov = robust_covariance(h_inv, scores, free, cluster)
     else:
-        dof = max(fit.residual.size - int(free.sum()), 1)
+        dof = max(fit.white_residual.size - int(free.sum()), 1)
         naive = (fit.cost / dof) * h_inv
         robust = robust_covariance(h_inv, scores, free, cluster) if n_clusters >= 2 else naive
         s_n = np.sqrt(np.clip(np.diag(naive), 0.0, None))
@@ -534,4 +643,4 @@ def _covariance(fit: _Fit, free: BoolArray, cluster: IntArray,
         # one cluster: no spread to inflate (the one-cluster rule leaves nothing identified)
         inflation = few_clusters_inflation(n_clusters) if n_clusters >= 2 else 1.0
         cov = naive * np.outer(f, f) * inflation**2
-    return cov, info, scores
+    return cov[:4, :4], info[:, :4, :4], scores[:, :4]

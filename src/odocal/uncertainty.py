@@ -42,7 +42,7 @@ def robust_covariance(h_inv: FloatArray, scores: FloatArray, free: BoolArray,
     its eigenvalues.
     """
     labels, index = np.unique(clusters, return_inverse=True)
-    g = np.zeros((labels.shape[0], 4))
+    g = np.zeros((labels.shape[0], scores.shape[1]))
     np.add.at(g, index, scores)
     g[:, ~free] = 0.0
     g -= g.mean(axis=0)
