@@ -15,9 +15,8 @@ def _fit_of(u: np.ndarray) -> _Fit:
     w = u.shape[0]
     rng = np.random.default_rng(1)
     residual = np.column_stack([rng.standard_normal(w), u])
-    return _Fit(theta=np.zeros(5), residual=residual, jac=np.zeros((w, 2, 5)),
-                weight=np.ones((w, 2)), white_residual=residual, white_jac=np.zeros((w, 2, 5)),
-                cost=0.0, iterations=0)
+    return _Fit(theta=np.zeros(5), residual=residual, weight=np.ones((w, 2)),
+                white_residual=residual, white_jac=np.zeros((w, 2, 5)), cost=0.0, iterations=0)
 
 
 @pytest.mark.parametrize(("kind", "m", "phi"), [

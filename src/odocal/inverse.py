@@ -228,7 +228,6 @@ _CHANNELS = np.array([[0.5, 0.5], [-1.0, 1.0]])   # sum (distance) and differenc
 class _Fit:
     theta: FloatArray             # (5,): theta and the counting window's spread kappa
     residual: FloatArray          # (W, 2) channel residuals
-    jac: FloatArray               # (W, 2, 5) channel Jacobian
     weight: FloatArray            # (W, 2)
     white_residual: FloatArray    # (W, 2) standardised and prewhitened residuals
     white_jac: FloatArray         # (W, 2, 5) their Jacobian
@@ -264,7 +263,7 @@ def _evaluate(p: FloatArray, steps: _Steps, win: _Windows, shift: float, smooth:
     _prewhiten(stacked, win.follows, ma, white)
     cost = float(np.sum(white[..., 0] ** 2))
     history.append(cost)
-    return _Fit(p, r, j, w, white[..., 0], white[..., 1:], cost, iterations, history)
+    return _Fit(p, r, w, white[..., 0], white[..., 1:], cost, iterations, history)
 
 
 def _solve(p0: FloatArray, steps: _Steps, win: _Windows, shift: float, free: BoolArray,
