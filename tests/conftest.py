@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -79,3 +81,17 @@ def straight_drive(seconds: float = 240.0) -> odocal.Drive:
         {"t": t, "n_rl": n_rl + 0.02 * rng.standard_normal(t.size),
          "n_rr": n_rr + 0.02 * rng.standard_normal(t.size), "a_y": zero,
          "x": poses[:, 0], "y": poses[:, 1], "psi": poses[:, 2]}, name="straight")
+
+
+def interrupt(proc: subprocess.Popen[str], timeout: float, what: str) -> str:
+    """Ctrl-C to ``proc``'s process group (started with ``start_new_session``); its stderr.
+
+    Fails the test (after killing the group) when it has not ended within ``timeout`` s.
+    """
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        _, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        pytest.fail(f"Ctrl-C did not stop {what}")
+    return err

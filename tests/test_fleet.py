@@ -28,6 +28,7 @@ from odocal.fleet.engine import calibrate_fleet, dask_client
 from odocal.fleet.simulate import simulate_fleet
 from odocal.fleet.store import SCHEMA_VERSION, open_store
 from odocal.settings import FleetSettings
+from tests.conftest import interrupt
 
 BIN = Path(sys.executable).parent
 
@@ -413,12 +414,7 @@ def test_ctrl_c_stops_the_fleet_at_once_and_keeps_what_is_stored(fleet: Any,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
     stored = _wait_for_drives(store, 2)
-    os.killpg(proc.pid, signal.SIGINT)
-    try:
-        _, err = proc.communicate(timeout=30)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        pytest.fail("Ctrl-C did not stop the fleet run")
+    err = interrupt(proc, 30, "the fleet run")
     assert proc.returncode == 130 and "interrupted" in err and "Traceback" not in err
     with sqlite3.connect(store) as db:
         assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"

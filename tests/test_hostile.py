@@ -4,7 +4,6 @@ interrupts, and a fuzzer over the readers, the settings and the mappings."""
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -25,7 +24,7 @@ from odocal.io.drivefile import load_drive, read_table
 from odocal.io.mapping import check_mapping, mapping_files
 from odocal.settings import IdentifySettings, Settings, settings_from_dict
 from odocal.simulate import SimulatedDrive
-from tests.conftest import run
+from tests.conftest import interrupt, run
 
 BIN = Path(sys.executable).parent
 
@@ -252,12 +251,7 @@ def test_sigint_stops_a_run_promptly(tmp_path: Path) -> None:
     time.sleep(6.0)
     assert proc.poll() is None, "the run ended before it could be interrupted"
     sent = time.monotonic()
-    os.killpg(proc.pid, signal.SIGINT)
-    try:
-        _, err = proc.communicate(timeout=20)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        pytest.fail("SIGINT did not stop the run")
+    err = interrupt(proc, 20, "the run")
     stopped = time.monotonic() - sent
     assert proc.returncode == 130 and "interrupted" in err and "Traceback" not in err
     assert stopped < 20
