@@ -237,17 +237,41 @@ class _Fit:
 
 
 @jit
-def _prewhiten(x: FloatArray, follows: BoolArray, ma: FloatArray,
-               out: FloatArray) -> None:  # pragma: no cover
-    """out[w] = x[w] - phi x[w - 1] + m out[w - 1] along runs of windows that follow one
-    another; ``ma`` (C, 2) holds each channel's ``m, phi``."""
+def _prewhiten_kernel(x: FloatArray, follows: BoolArray, ma: FloatArray, prev_x: FloatArray,
+                      prev_out: FloatArray, out: FloatArray) -> None:  # pragma: no cover
     for w in range(x.shape[0]):
         for c in range(x.shape[1]):
             for k in range(x.shape[2]):
                 v = x[w, c, k]
                 if follows[w]:
-                    v += ma[c, 0] * out[w - 1, c, k] - ma[c, 1] * x[w - 1, c, k]
+                    before_x = x[w - 1, c, k] if w > 0 else prev_x[c, k]
+                    before_out = out[w - 1, c, k] if w > 0 else prev_out[c, k]
+                    v += ma[c, 0] * before_out - ma[c, 1] * before_x
                 out[w, c, k] = v
+
+
+def prewhiten(x: FloatArray, follows: BoolArray, ma: FloatArray,
+              before: tuple[FloatArray, FloatArray] | None = None) -> FloatArray:
+    """Filter rows by ``(1 - phi L) / (1 - m L)`` along runs of windows that follow one another.
+
+    ``x`` (W, C, K): per window and channel a residual and its Jacobian (any K columns);
+    ``follows`` (W,): the window starts where the one before it ended; ``ma`` (C, 2): each
+    channel's ``m, phi`` (:func:`arma_from_sums`). ``before`` continues a run from an earlier
+    call: the last window's row there, unfiltered and filtered (each (C, K)); it is used where
+    ``follows[0]`` is set. ``out[w] = x[w] - phi x[w - 1] + m out[w - 1]``.
+    """
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    out = np.empty_like(x)
+    if before is None:
+        follows = follows.copy()
+        if follows.size:
+            follows[0] = False
+        prev = np.zeros(x.shape[1:])
+        _prewhiten_kernel(x, follows, ma, prev, prev, out)
+    else:
+        _prewhiten_kernel(x, follows, ma, np.ascontiguousarray(before[0]),
+                          np.ascontiguousarray(before[1]), out)
+    return out
 
 
 def _evaluate(p: FloatArray, steps: _Steps, win: _Windows, shift: float, smooth: bool,
@@ -259,8 +283,7 @@ def _evaluate(p: FloatArray, steps: _Steps, win: _Windows, shift: float, smooth:
     w = _weights(win.measured, r, noise) * channels
     sw = np.sqrt(w)
     stacked = np.concatenate([(r * sw)[..., None], j * sw[..., None]], axis=2)
-    white = np.empty_like(stacked)
-    _prewhiten(stacked, win.follows, ma, white)
+    white = prewhiten(stacked, win.follows, ma)
     cost = float(np.sum(white[..., 0] ** 2))
     history.append(cost)
     return _Fit(p, r, w, white[..., 0], white[..., 1:], cost, iterations, history)
@@ -271,9 +294,9 @@ def _solve(p0: FloatArray, steps: _Steps, win: _Windows, shift: float, free: Boo
            channels: FloatArray) -> _Fit:
     """Weighted Gauss-Newton on the prewhitened channel residuals (nearly linear in theta).
 
-    ``free`` (5,) marks the free parameters of ``p`` (theta and kappa); ``ma`` (2,) the
-    prewhitening of each channel (see :func:`_fit_ma`); ``channels`` (2,) scales the weights of
-    the distance and yaw channels (0 leaves one out).
+    ``free`` (5,) marks the free parameters of ``p`` (theta and kappa); ``ma`` (2, 2) the
+    prewhitening of each channel (see :func:`arma_from_sums`); ``channels`` (2,) scales the
+    weights of the distance and yaw channels (0 leaves one out).
     """
     p = p0.copy()
     history: list[float] = []
@@ -306,7 +329,24 @@ def _variance(measured: FloatArray, noise: FloatArray) -> FloatArray:
     return noise[None, :, 0] ** 2 + (noise[None, :, 1] * rev) ** 2
 
 
-def _fit_ma(fit: _Fit, follows: BoolArray) -> FloatArray:
+def correlation_sums(u: FloatArray, follows: BoolArray) -> FloatArray:
+    """Sums that give each channel's lag-one and lag-two correlation (:func:`arma_from_sums`).
+
+    ``u`` (W, C): standardised residuals of consecutive windows. Returns (C, 6): sum u^2, count,
+    sum of lag-one products, their count, sum of lag-two products, their count (pairs only
+    within runs of windows that follow one another). Sums of parts add up.
+    """
+    one = follows[1:]
+    two = follows[2:] & follows[1:-1]
+    out = np.zeros((u.shape[1], 6))
+    for c in range(u.shape[1]):
+        x = u[:, c]
+        out[c] = (float(x @ x), x.size, float(np.sum(x[1:][one] * x[:-1][one])), one.sum(),
+                  float(np.sum(x[2:][two] * x[:-2][two])), two.sum())
+    return out
+
+
+def arma_from_sums(sums: FloatArray) -> FloatArray:
     """Each channel's prewhitening ``m, phi``: errors that telescope across windows.
 
     Errors that are differences of something bounded (the rounding of integer tick counts, a
@@ -318,29 +358,22 @@ def _fit_ma(fit: _Fit, follows: BoolArray) -> FloatArray:
     from the ratio of the lag-two and lag-one correlations (the bounded error's own memory:
     0 for rounding, ``exp(-window / correlation time)`` for a smooth reference error), ``m``
     from the lag-one correlation. The residuals and the Jacobian are then filtered by
-    ``(1 - phi L) / (1 - m L)`` (generalised least squares). A positive lag-one correlation
-    (slow errors), or one no larger than white errors would show by chance, is left to the
-    cluster covariance: no filter.
+    ``(1 - phi L) / (1 - m L)`` (:func:`prewhiten`: generalised least squares). A positive
+    lag-one correlation (slow errors), or one no larger than white errors would show by
+    chance, is left to the cluster covariance: no filter. ``sums`` from
+    :func:`correlation_sums`; returns (C, 2).
     """
-    u = fit.residual * np.sqrt(fit.weight)
-    out = np.zeros((2, 2))
-    pairs = follows.copy()
-    pairs2 = np.zeros_like(follows)
-    pairs2[2:] = follows[2:] & follows[1:-1]
-    if pairs.sum() < 20 or pairs2.sum() < 20:
-        return out
-    for c in range(2):
-        x = u[:, c]
-        den = float(np.sum(x * x))
-        if den <= 0:
+    out = np.zeros((sums.shape[0], 2))
+    for c, (sq, n, lag1, n1, lag2, n2) in enumerate(sums):
+        if n1 < 20 or n2 < 20 or sq <= 0:
             continue
-        rho1 = float(np.sum(x[1:][pairs[1:]] * x[:-1][pairs[1:]])) / den * x.size / pairs.sum()
-        rho2 = float(np.sum(x[2:][pairs2[2:]] * x[:-2][pairs2[2:]])) / den * x.size / pairs2.sum()
+        rho1 = (lag1 / n1) / (sq / n)
+        rho2 = (lag2 / n2) / (sq / n)
         # white errors give correlations of about 1 / sqrt(pairs): filter only what stands out
-        if rho1 >= -3.0 / math.sqrt(pairs.sum()):
+        if rho1 >= -3.0 / math.sqrt(n1):
             continue
         phi = 0.0
-        if rho2 < -2.0 / math.sqrt(pairs2.sum()):
+        if rho2 < -2.0 / math.sqrt(n2):
             phi = min(rho2 / rho1, _MAX_MA - 0.05)
         out[c] = _arma_ma(max(rho1, -0.4999), phi), phi
     return out
@@ -505,7 +538,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
     for _ in range(2):                  # re-fit the noise model at the final shift
         fit = solve(fit.theta, shift)
         noise = _fit_noise(win.measured, fit.residual)
-        ma = _fit_ma(fit, win.follows)
+        ma = arma_from_sums(correlation_sums(fit.residual * np.sqrt(fit.weight), win.follows))
     fit = solve(fit.theta, shift)
     n_clusters = int(np.unique(win.cluster).size)
     for _ in range(len(PARAMETER_NAMES)):
