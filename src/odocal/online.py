@@ -49,6 +49,7 @@ from odocal.estimate import (
     judge,
     weak,
 )
+from odocal.inverse import arma_from_sums, correlation_sums, prewhiten
 from odocal.model import PARAMETER_NAMES, Parameters
 from odocal.settings import Settings
 
@@ -57,6 +58,7 @@ BoolArray = NDArray[np.bool_]
 
 _CHANNELS = np.array([[0.5, 0.5], [-1.0, 1.0]])     # distance and yaw channels, as in batch
 _HUBER = 4.0
+_P = 5        # theta and the wheel unit's counting-window spread (kappa), as in batch
 _COLUMNS = ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi")
 
 
@@ -149,9 +151,9 @@ def window_prediction(theta: FloatArray, moments: FloatArray) -> tuple[FloatArra
 class _Folded:
     """Older windows, folded: normal equations in information form, scores, residual moments."""
 
-    h: FloatArray = field(default_factory=lambda: np.zeros((4, 4)))
-    b: FloatArray = field(default_factory=lambda: np.zeros(4))       # g0 + H0 theta_lin
-    meat: FloatArray = field(default_factory=lambda: np.zeros((4, 4)))
+    h: FloatArray = field(default_factory=lambda: np.zeros((_P, _P)))
+    b: FloatArray = field(default_factory=lambda: np.zeros(_P))       # g0 + H0 p_lin
+    meat: FloatArray = field(default_factory=lambda: np.zeros((_P, _P)))
     last_score: FloatArray | None = None
     clusters: int = 0
     # noise-model sums per channel: n, sum rev^2, sum rev^4, sum r^2, sum r^2 rev^2
@@ -159,12 +161,18 @@ class _Folded:
     scan: FloatArray | None = None          # the yaw channel's cost at each shift of the scan
     cost: float = 0.0                        # weighted sum of squared residuals
     count: int = 0                           # residuals in it
+    # the standardised residuals' correlation sums (prewhitening), per channel
+    correlation: FloatArray = field(default_factory=lambda: np.zeros((2, 6)))
+    # the last folded window, for the prewhitening to run on: p it was linearised at, its row
+    # unfiltered and filtered ((2, 1 + P) each: residual, Jacobian), its start time
+    last: tuple[FloatArray, FloatArray, FloatArray, float] | None = None
 
     def decay(self, factor: float) -> None:
         self.h *= factor
         self.b *= factor
         self.meat *= factor
         self.noise *= factor
+        self.correlation *= factor
         self.cost *= factor
         if self.scan is not None:
             self.scan *= factor
@@ -219,6 +227,12 @@ class OnlineCalibrator:
             raise DataError(f"theta0 {start.tolist()} is not a usable starting estimate")
         self.datasheet = np.asarray(self.settings.identify.theta0, dtype=np.float64)
         self.theta = start.copy()
+        # the batch method's wheel-stream model: the counting window's spread (fitted when the
+        # lag is) and the prewhitening of errors that telescope across windows
+        self._smooth = self.settings.inverse.delay == "estimate"
+        self._kappa = 0.0
+        self._ma = np.zeros((2, 2))
+        self._u = np.zeros((0, 2))                       # standardised residuals of the last fit
         self._t_s: float | None = None
         self._last: dict[str, float] | None = None     # the previous sample (continuity)
         self._ring = np.zeros((0, 9))                   # steps not yet in a window
@@ -318,7 +332,7 @@ class OnlineCalibrator:
                                  a_y[:-1], dx, dy, psi[:-1]])
         self._ring = np.vstack([self._ring, steps])
         length = max(round(self.settings.inverse.window_s / self._t_s), 1)
-        margin = self._max_lag()
+        margin = self._max_lag() + 1                     # one more step for kappa
         while self._ring.shape[0] >= length + 2 * margin + 1:
             self._window(length, margin)
 
@@ -355,19 +369,54 @@ class OnlineCalibrator:
 
     def _rows(self, shift: float, keep: NDArray[np.bool_] | None = None) -> FloatArray:
         """Windows in memory at a (fractional) shift: [t0, distance, cluster, measured (2),
-        moments (6), weight] per row."""
+        moments (6), weight, the moments' second difference in the shift (6)] per row."""
         head, moments, weight = self._head, self._moments, self._weight
         if keep is not None:
             head, moments, weight = head[keep], moments[keep], weight[keep]
         if head.shape[0] == 0:
-            return np.zeros((0, 12))
+            return np.zeros((0, 18))
         margin = (moments.shape[1] - 1) // 2
-        x = min(max(shift, -margin), margin) + margin
-        lo = min(math.floor(x), moments.shape[1] - 1)
-        frac = x - lo
-        at = moments[:, lo] if frac == 0 else \
-            moments[:, lo] * (1.0 - frac) + moments[:, lo + 1] * frac
-        return np.column_stack([head, at, weight])
+        x = min(max(shift, 1 - margin), margin - 1) + margin
+        at = _interpolate(moments, x)
+        second = _interpolate(moments, x + 1.0) + _interpolate(moments, x - 1.0) - 2.0 * at
+        return np.column_stack([head, at, weight, second])
+
+    def _follows(self, rows: FloatArray) -> BoolArray:
+        """Which windows start where the one before them ended (the first: the last folded)."""
+        assert self._t_s is not None
+        span = max(round(self.settings.inverse.window_s / self._t_s), 1) * self._t_s
+        t0 = rows[:, 0]
+        out = np.zeros(t0.size, dtype=bool)
+        out[1:] = np.abs(np.diff(t0) - span) < 0.5 * self._t_s
+        last = self._folded.last
+        if last is not None and t0.size:
+            out[0] = abs(t0[0] - last[3] - span) < 0.5 * self._t_s
+        return out
+
+    def _design(self, p: FloatArray, rows: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Channel residuals (W, 2) and their Jacobian in p (W, 2, P) of windows ``rows``."""
+        n = rows.shape[0]
+        both, jac = window_prediction(p[:4], np.concatenate([rows[:, 5:11], rows[:, 12:18]]))
+        pred, second, jac = both[:n] + p[4] * both[n:], both[n:], jac[:n]
+        r = (rows[:, 3:5] - pred) @ _CHANNELS.T
+        j = np.einsum("ci,wip->wcp", _CHANNELS,
+                      np.concatenate([jac, second[..., None]], axis=2))
+        return r, j
+
+    def _whiten(self, p: FloatArray, r: FloatArray, j: FloatArray, w: FloatArray,
+                follows: BoolArray) -> tuple[FloatArray, FloatArray]:
+        """Standardised rows ([residual, Jacobian] per channel), unfiltered and prewhitened, the
+        filter continuing from the last folded window (moved to ``p`` to first order)."""
+        sw = np.sqrt(w)
+        stacked = np.concatenate([(r * sw)[..., None], j * sw[..., None]], axis=2)
+        last = self._folded.last
+        before = None
+        if last is not None:
+            moved = p - last[0]
+            before = tuple(row - np.concatenate([(row[:, 1:] @ moved)[:, None],
+                                                 np.zeros_like(row[:, 1:])], axis=1)
+                           for row in (last[1], last[2]))
+        return stacked, prewhiten(stacked, follows, self._ma, before)
 
     def _grid(self) -> FloatArray:
         limit = self._max_lag() if self._t_s is not None else 0
@@ -472,14 +521,14 @@ class OnlineCalibrator:
         self._clusters_done += 1
         if rows.shape[0] >= 3 and self._clusters_done > self.settings.online.warmup_clusters:
             self._watch(rows)
-        self.theta, _, _ = self._solve(self.theta, self._rows(shift), np.ones(4, dtype=bool))
+        # a running update from a warm start (estimate() solves to convergence)
+        self.theta, _, _ = self._solve(self.theta, self._rows(shift), np.ones(4, dtype=bool),
+                                       iterations=3)
 
     def _watch(self, rows: FloatArray) -> None:
         """The CUSUM step for one completed cluster's windows."""
         theta = self.theta
-        pred, jac = window_prediction(theta, rows[:, 5:11])
-        r = (rows[:, 3:5] - pred) @ _CHANNELS.T
-        j = np.einsum("ci,wip->wcp", _CHANNELS, jac)
+        r, j = self._design(np.append(theta, self._kappa), rows)
         w = 1.0 / _variance(rows[:, 3:5], self._noise)
         for p, name in ((0, "c_e"), (1, "c_d")):
             info = float(np.sum(w * j[:, :, p] ** 2))
@@ -530,27 +579,29 @@ class OnlineCalibrator:
         self._head, self._moments, self._weight = (self._head[keep], self._moments[keep],
                                                    self._weight[keep])
         block = rows
-        theta = self.theta
-        pred, jac = window_prediction(theta, block[:, 5:11])
-        r = (block[:, 3:5] - pred) @ _CHANNELS.T
-        j = np.einsum("ci,wip->wcp", _CHANNELS, jac)
-        w = _weights(block[:, 3:5], r, self._noise) * block[:, -1:]
-        jw = j * w[..., None]
-        h = np.einsum("wcp,wcq->pq", jw, j)
-        g = np.einsum("wcp,wc->p", jw, r)
+        p = np.append(self.theta, self._kappa)
+        r, j = self._design(p, block)
+        w = _weights(block[:, 3:5], r, self._noise) * block[:, 11:12]
+        follows = self._follows(block)
+        stacked, white = self._whiten(p, r, j, w, follows)
+        jj, rr = white[..., 1:], white[..., 0]
+        h = np.einsum("wcp,wcq->pq", jj, jj)
+        g = np.einsum("wcp,wc->p", jj, rr)
         f = self._folded
         f.h += h
-        f.b += g + h @ theta
+        f.b += g + h @ p
         f.meat += np.outer(g, g)
         if f.last_score is not None:
             cross = np.outer(f.last_score, g)
             f.meat += cross + cross.T
         f.last_score = g
         f.clusters += 1
-        f.cost += float(np.sum(w * r**2))
+        f.cost += float(np.sum(rr**2))
         f.count += r.size
         f.scan = folded_scan if f.scan is None or f.scan.size != folded_scan.size \
             else f.scan + folded_scan
+        f.correlation += correlation_sums(r * np.sqrt(w), follows)
+        f.last = (p, stacked[-1].copy(), white[-1].copy(), float(block[-1, 0]))
         rev2 = block[:, 3:5].mean(axis=1) ** 2
         for c in range(2):
             r2 = r[:, c] ** 2
@@ -574,6 +625,11 @@ class OnlineCalibrator:
         rows = self._rows(self.shift()[0])
         theta = self.theta.copy()
         theta[~free] = self.datasheet[~free]
+        if rows.shape[0]:
+            # the prewhitening from the residuals (in memory and folded), as in batch
+            theta, _, _ = self._solve(theta, rows, free)
+            self._ma = arma_from_sums(self._folded.correlation
+                                      + correlation_sums(self._u, self._follows(rows)))
         for _ in range(len(PARAMETER_NAMES) + 1):
             theta, h, scores = self._solve(theta, rows, free)
             cov, n_clusters = self._covariance(h, scores, rows, free)
@@ -605,51 +661,59 @@ class OnlineCalibrator:
                         status=Status.CONVERGED if free.any() else Status.NOTHING_IDENTIFIABLE,
                         details=details)
 
-    def _solve(self, theta: FloatArray, rows: FloatArray,
-               free: BoolArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Gauss-Newton over the windows in memory and the folded normal equations."""
+    def _solve(self, theta: FloatArray, rows: FloatArray, free: BoolArray,
+               iterations: int = 8) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Gauss-Newton over the windows in memory and the folded normal equations, on the
+        prewhitened residuals; theta (4,), and the information and per-window scores in p
+        (theta and kappa, which it updates)."""
         f = self._folded
-        h = np.zeros((4, 4))
-        scores = np.zeros((0, 4))
-        for _ in range(8):
+        p = np.append(theta, self._kappa)
+        free_p = np.append(free, self._smooth)
+        h = np.zeros((_P, _P))
+        scores = np.zeros((0, _P))
+        follows = self._follows(rows) if rows.shape[0] else np.zeros(0, dtype=bool)
+        for _ in range(iterations):
             if rows.shape[0]:
-                pred, jac = window_prediction(theta, rows[:, 5:11])
-                r = (rows[:, 3:5] - pred) @ _CHANNELS.T
-                j = np.einsum("ci,wip->wcp", _CHANNELS, jac)
+                r, j = self._design(p, rows)
                 self._noise = _fit_noise(rows[:, 3:5], r, f.noise)
-                w = _weights(rows[:, 3:5], r, self._noise) * rows[:, -1:]
-                jw = j * w[..., None]
-                h = np.einsum("wcp,wcq->pq", jw, j) + f.h
-                per_window = np.einsum("wcp,wc->wp", jw, r)
-                g = per_window.sum(axis=0) + f.b - f.h @ theta
+                w = _weights(rows[:, 3:5], r, self._noise) * rows[:, 11:12]
+                _, white = self._whiten(p, r, j, w, follows)
+                jj, rr = white[..., 1:], white[..., 0]
+                h = np.einsum("wcp,wcq->pq", jj, jj) + f.h
+                per_window = np.einsum("wcp,wc->wp", jj, rr)
+                g = per_window.sum(axis=0) + f.b - f.h @ p
                 scores = per_window
-                self._fit_cost = (float(np.sum(w * r**2)) + f.cost, r.size + f.count)
+                self._fit_cost = (float(np.sum(rr**2)) + f.cost, r.size + f.count)
+                self._u = r * np.sqrt(w)
             else:
-                h, g = f.h.copy(), f.b - f.h @ theta
-            cols = np.flatnonzero(free)
+                h, g = f.h.copy(), f.b - f.h @ p
+            cols = np.flatnonzero(free_p)
             if cols.size == 0:
                 break
-            step = np.zeros(4)
+            step = np.zeros(_P)
             step[cols] = np.linalg.lstsq(h[np.ix_(cols, cols)], g[cols], rcond=None)[0]
-            theta = theta + step
-            if np.max(np.abs(step) / np.maximum(np.abs(theta), 1e-3)) < 1e-10:
+            p = p + step
+            if np.max(np.abs(step) / np.maximum(np.abs(p), 1e-3)) < 1e-10:
                 break
-        return theta, h, scores
+        if self._smooth:
+            self._kappa = float(p[4])
+        return p[:4], h, scores
 
     def _covariance(self, h: FloatArray, scores: FloatArray, rows: FloatArray,
                     free: BoolArray) -> tuple[FloatArray, int]:
         """Sandwich: folded clusters' meat plus the clusters in memory (neighbours at full
         weight), as :func:`odocal.uncertainty.robust_covariance`."""
         f = self._folded
+        free = np.append(free, self._smooth)
         cols = np.flatnonzero(free)
-        h_inv = np.zeros((4, 4))
+        h_inv = np.zeros((_P, _P))
         if cols.size:
             h_inv[np.ix_(cols, cols)] = np.linalg.pinv(h[np.ix_(cols, cols)])
         meat = f.meat.copy()
         n_clusters = f.clusters
         if rows.shape[0]:
             labels, index = np.unique(rows[:, 2].astype(np.int64), return_inverse=True)
-            g = np.zeros((labels.size, 4))
+            g = np.zeros((labels.size, _P))
             np.add.at(g, index, scores)
             n_clusters += labels.size
             meat += g.T @ g
@@ -675,7 +739,7 @@ class OnlineCalibrator:
             with np.errstate(divide="ignore", invalid="ignore"):
                 f_ = np.where(s_n > 0, np.maximum(s_n, s_r) / s_n, 1.0)
             cov = naive * np.outer(f_, f_) * few_clusters_inflation(max(n_clusters, 2)) ** 2
-        return cov, n_clusters
+        return cov[:4, :4], n_clusters
 
     def _details(self) -> OnlineDetails:
         return OnlineDetails(
@@ -722,6 +786,15 @@ def _lateral(ring: FloatArray) -> FloatArray:
     """Each step's displacement across the direction of travel (for a heading offset)."""
     h = ring[:, 8] + 0.5 * ring[:, 4]
     return -ring[:, 6] * np.sin(h) + ring[:, 7] * np.cos(h)
+
+
+def _interpolate(moments: FloatArray, x: float) -> FloatArray:
+    """Window moments (W, S, 6) at a fractional index ``x`` of their shifts."""
+    lo = min(math.floor(x), moments.shape[1] - 1)
+    frac = x - lo
+    if frac == 0:
+        return np.asarray(moments[:, lo])
+    return np.asarray(moments[:, lo] * (1.0 - frac) + moments[:, lo + 1] * frac)
 
 
 def _fractional_sum(columns: FloatArray, lo: float, length: int) -> FloatArray:
