@@ -508,8 +508,9 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         offset = 0.0
     steps = _steps(drives, heading_offset=offset)
     length = max(round(cfg.window_s / t_s), 1)
-    # room for the lag scan, plus one step either way for the counting window's spread
-    margin = math.ceil(cfg.max_delay_s / t_s - 1e-6) + 2 if cfg.delay == "estimate" else 0
+    # room for the lag scan and one step either way for the counting window's spread (the
+    # online calibrator's windows start where these do)
+    margin = math.ceil(cfg.max_delay_s / t_s - 1e-6) + 1 if cfg.delay == "estimate" else 0
     win = _windows(steps, length, margin, settings.segments.length)
     if win.start.size < 4:
         log.warning("inverse calibration: the drives hold fewer than four moving windows")
@@ -532,7 +533,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
     shift, shift_std = 0.0, float("nan")
     if cfg.delay == "estimate" and not distance_only:
         fit = solve(fit.theta, 0.0)
-        shift, shift_std = _scan_delay(fit.theta[:4], steps, win, noise, margin - 2)
+        shift, shift_std = _scan_delay(fit.theta[:4], steps, win, noise, margin - 1)
     if progress:
         progress("inverse: fit", 2, 4)
     for _ in range(2):                  # re-fit the noise model at the final shift

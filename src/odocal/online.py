@@ -625,7 +625,7 @@ class OnlineCalibrator:
         rows = self._rows(self.shift()[0])
         theta = self.theta.copy()
         theta[~free] = self.datasheet[~free]
-        if rows.shape[0]:
+        for _ in range(2 if rows.shape[0] else 0):
             # the prewhitening from the residuals (in memory and folded), as in batch
             theta, _, _ = self._solve(theta, rows, free)
             self._ma = arma_from_sums(self._folded.correlation
