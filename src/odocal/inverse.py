@@ -78,6 +78,8 @@ _HUBER = 4.0              # residuals beyond this many standard deviations are d
 _MIN_CLUSTERS_FOR_ROBUST = 10
 _MAX_MA = 0.95            # prewhitening stays a stable filter
 _P = 5                    # theta and the counting window's spread
+_SHIFT_ROUNDS = 6         # the lag scanned and theta refitted in turn at most so often
+_SHIFT_SETTLED = 1e-3     # steps
 
 
 @dataclass(frozen=True)
@@ -396,36 +398,44 @@ def _arma_ma(rho1: float, phi: float) -> float:
 
 
 def _fit_noise(measured: FloatArray, residual: FloatArray) -> FloatArray:
-    """The noise model ``s0, f`` of each channel, fitted to the squared residuals.
+    """The noise model ``s0, f`` of each channel (rows), fitted to the squared residuals."""
+    return noise_from_sums(noise_sums(measured, residual))
 
-    A least-squares fit of ``r^2 ~ s0^2 + f^2 rev^2`` with both terms kept non-negative, the
-    largest 1% of the squared residuals left out (they are the outliers the Huber weights deal
-    with).
+
+def noise_sums(measured: FloatArray, residual: FloatArray) -> FloatArray:
+    """Sums that fit ``r^2 ~ s0^2 + f^2 rev^2`` (:func:`noise_from_sums`); they add up over parts.
+
+    Returns (2, 5): per channel n, sum rev^2, sum rev^4, sum r^2, sum r^2 rev^2.
     """
     rev2 = measured.mean(axis=1) ** 2
-    out = np.empty((2, 2))
+    out = np.empty((2, 5))
     for c in range(2):
         r2 = residual[:, c] ** 2
-        keep = r2 <= np.quantile(r2, 0.99) if r2.size > 100 else np.ones(r2.size, dtype=bool)
-        coef = _nonnegative_line(rev2[keep], r2[keep])
-        floor = max(float(np.median(r2[keep])) * 1e-3, 1e-24)
-        out[c] = np.sqrt(max(coef[0], floor)), np.sqrt(coef[1])
+        out[c] = r2.size, rev2.sum(), (rev2**2).sum(), r2.sum(), (r2 * rev2).sum()
     return out
 
 
-def _nonnegative_line(x: FloatArray, y: FloatArray) -> tuple[float, float]:
-    """``y ~ a + b x`` by least squares with ``a, b >= 0`` (two unknowns: check the faces)."""
-    if x.size == 0:
-        return 0.0, 0.0
-    design = np.column_stack([np.ones(x.size), x])
-    a, b = np.linalg.lstsq(design, y, rcond=None)[0]
-    if a >= 0 and b >= 0:
-        return float(a), float(b)
-    only_a = (max(float(np.mean(y)), 0.0), 0.0)
-    xx = float(x @ x)
-    only_b = (0.0, max(float(x @ y) / xx, 0.0)) if xx > 0 else (0.0, 0.0)
-    cost = [float(np.sum((y - c[0] - c[1] * x) ** 2)) for c in (only_a, only_b)]
-    return only_a if cost[0] <= cost[1] else only_b
+def noise_from_sums(sums: FloatArray) -> FloatArray:
+    """Each channel's ``s0, f``: least squares of ``r^2 ~ s0^2 + f^2 rev^2`` with both terms
+    kept non-negative (a term that comes out negative is dropped and the other refitted), a
+    floor of 1e-3 of the mean square under ``s0^2``."""
+    out = np.empty((2, 2))
+    for c in range(2):
+        n, sx, sxx, sy, sxy = sums[c]
+        det = n * sxx - sx * sx
+        a, b = sy / max(n, 1.0), 0.0
+        if det > 0:
+            a2 = (sxx * sy - sx * sxy) / det
+            b2 = (n * sxy - sx * sy) / det
+            if a2 >= 0 and b2 >= 0:
+                a, b = a2, b2
+            elif b2 < 0:
+                a, b = sy / max(n, 1.0), 0.0
+            else:
+                a, b = 0.0, max(sxy / max(sxx, 1e-300), 0.0)
+        floor = max(sy / max(n, 1.0) * 1e-3, 1e-24)
+        out[c] = math.sqrt(max(a, floor)), math.sqrt(max(b, 0.0))
+    return out
 
 
 @dataclass(frozen=True)
@@ -540,6 +550,17 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         fit = solve(fit.theta, shift)
         noise = _fit_noise(win.measured, fit.residual)
         ma = arma_from_sums(correlation_sums(fit.residual * np.sqrt(fit.weight), win.follows))
+    for _ in range(_SHIFT_ROUNDS - 1 if cfg.delay == "estimate" and not distance_only else 0):
+        # the lag again with the theta fitted at it, until the two agree
+        again, again_std = _scan_delay(fit.theta[:4], steps, win, noise, margin - 1)
+        if abs(again - shift) < _SHIFT_SETTLED:
+            break
+        shift, shift_std = again, again_std
+        for _ in range(2):
+            fit = solve(fit.theta, shift)
+            noise = _fit_noise(win.measured, fit.residual)
+            ma = arma_from_sums(correlation_sums(fit.residual * np.sqrt(fit.weight),
+                                                 win.follows))
     fit = solve(fit.theta, shift)
     n_clusters = int(np.unique(win.cluster).size)
     for _ in range(len(PARAMETER_NAMES)):

@@ -49,7 +49,13 @@ from odocal.estimate import (
     judge,
     weak,
 )
-from odocal.inverse import arma_from_sums, correlation_sums, prewhiten
+from odocal.inverse import (
+    arma_from_sums,
+    correlation_sums,
+    noise_from_sums,
+    noise_sums,
+    prewhiten,
+)
 from odocal.model import PARAMETER_NAMES, Parameters
 from odocal.settings import Settings
 
@@ -59,6 +65,8 @@ BoolArray = NDArray[np.bool_]
 _CHANNELS = np.array([[0.5, 0.5], [-1.0, 1.0]])     # distance and yaw channels, as in batch
 _HUBER = 4.0
 _P = 5        # theta and the wheel unit's counting-window spread (kappa), as in batch
+_SHIFT_ROUNDS = 6       # lag and theta refitted in turn at most this often (as in batch)
+_SHIFT_SETTLED = 1e-3   # steps
 _COLUMNS = ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi")
 
 
@@ -239,7 +247,7 @@ class OnlineCalibrator:
         # windows in memory: head rows [t0, distance, cluster, measured rl, measured rr], the
         # motion moments at every whole-step shift of the reference side, and a weight
         self._head = np.zeros((0, 5))
-        self._moments = np.zeros((0, 0, 6))
+        self._moments = np.zeros((0, 0, 9))
         self._weight = np.zeros(0)
         self._shift_cache: tuple[int, float, float] | None = None
         self._folded = _Folded()
@@ -247,7 +255,10 @@ class OnlineCalibrator:
         self._samples = 0
         self._windows_total = 0
         self._distance_m = 0.0
-        self._straight = np.zeros(2)                   # heading offset: sum lat, sum lon
+        # heading offset, as validate.heading_offset: sums over one-second straight stretches
+        # (lat, lon, samples) and the steps of the stretch under way (dx, dy, dpsi, psi)
+        self._straight = np.zeros(3)
+        self._stretch = np.zeros((0, 4))
         self._alarms: list[Alarm] = []
         self._clusters_done = 0
         self._fit_cost = (0.0, 0)
@@ -309,7 +320,9 @@ class OnlineCalibrator:
         gaps = np.flatnonzero(np.diff(rows[:, 0]) > 1.5 * self._t_s) + 1
         for k, run in enumerate(np.split(rows, gaps)):
             if k > 0:
+                self._stretches(self._ring)              # the piece's last steps
                 self._ring = np.zeros((0, 9))
+                self._stretch = np.zeros((0, 4))
             if run.shape[0] >= 2:
                 self._steps(run)
 
@@ -348,19 +361,22 @@ class OnlineCalibrator:
         ring = self._ring[:length + 2 * margin + 1]
         start = margin                                   # the window's wheel steps: [m, m + L)
         measured = ring[start:start + length, 1:3].sum(axis=0)
-        offset = self.heading_offset()
-        ds = ring[:, 3] * math.cos(offset) + _lateral(ring) * math.sin(offset)
-        dpsi, a = ring[:, 4], ring[:, 5]
-        columns = np.column_stack([ds, ds * a, ds * a * a, dpsi, dpsi * a, dpsi * a * a])
-        cum = np.vstack([np.zeros((1, 6)), np.cumsum(columns, axis=0)])
+        # along and across the heading: the heading offset is applied when the windows are
+        # used (it is known better the longer the drive)
+        ds, lat, dpsi, a = ring[:, 3], _lateral(ring), ring[:, 4], ring[:, 5]
+        columns = np.column_stack([ds, ds * a, ds * a * a, dpsi, dpsi * a, dpsi * a * a,
+                                   lat, lat * a, lat * a * a])
+        cum = np.vstack([np.zeros((1, 9)), np.cumsum(columns, axis=0)])
         shifts = np.arange(-margin, margin + 1)
-        moments = cum[start - shifts + length] - cum[start - shifts]       # (S, 6)
+        moments = cum[start - shifts + length] - cum[start - shifts]       # (S, 9)
         t0 = float(ring[start, 0])
         cluster = math.floor(t0 / (self.settings.segments.length * self._t_s))
-        self._straight_sums(ring[start:start + length])
         yaw = np.convolve(ring[start:start + length, 4] / self._t_s, np.full(5, 0.2), "valid")
         if yaw.size:
             self._peak_yaw = max(self._peak_yaw, float(np.max(np.abs(yaw))))
+        # the straight stretches take the steps as they leave the ring (in step with the
+        # windows, whatever the chunks)
+        self._stretches(self._ring[:length])
         self._ring = self._ring[length:]
         if not np.any(measured):                        # standing still: no information
             return
@@ -375,11 +391,21 @@ class OnlineCalibrator:
             head, moments, weight = head[keep], moments[keep], weight[keep]
         if head.shape[0] == 0:
             return np.zeros((0, 18))
+        moments = self._rotated(moments)
         margin = (moments.shape[1] - 1) // 2
         x = min(max(shift, 1 - margin), margin - 1) + margin
         at = _interpolate(moments, x)
         second = _interpolate(moments, x + 1.0) + _interpolate(moments, x - 1.0) - 2.0 * at
         return np.column_stack([head, at, weight, second])
+
+    def _rotated(self, moments: FloatArray) -> FloatArray:
+        """Window moments (W, S, 9) as the model takes them (W, S, 6): the along-track ones
+        turned by the heading offset (``ds cos + lateral sin``)."""
+        offset = self.heading_offset()
+        if offset == 0.0:
+            return moments[..., :6]
+        along = moments[..., 0:3] * math.cos(offset) + moments[..., 6:9] * math.sin(offset)
+        return np.concatenate([along, moments[..., 3:6]], axis=-1)
 
     def _follows(self, rows: FloatArray) -> BoolArray:
         """Which windows start where the one before them ended (the first: the last folded)."""
@@ -430,6 +456,7 @@ class OnlineCalibrator:
             head, moments, weight = head[keep], moments[keep], weight[keep]
         if head.shape[0] == 0:
             return np.zeros(grid.size)
+        moments = self._rotated(moments)
         margin = (moments.shape[1] - 1) // 2
         x = grid + margin
         lo = np.minimum(np.floor(x).astype(np.int64), moments.shape[1] - 1)
@@ -443,20 +470,21 @@ class OnlineCalibrator:
         w = _weights(measured, r, self._noise) * np.repeat(weight, g)[:, None]
         return np.asarray((w[:, 1] * r[:, 1] ** 2).reshape(n, g).sum(axis=0))
 
-    def shift(self) -> tuple[float, float]:
+    def shift(self, theta: FloatArray | None = None) -> tuple[float, float]:
         """The reference side's shift (steps) that fits the wheels best, and its std.
 
         As the batch method: the yaw channel's cost over a half-step grid (windows in memory
-        plus folded ones), the minimum refined by a parabola, applied only beyond three standard
-        deviations of zero.
+        plus folded ones) at ``theta`` (default: the running estimate), the minimum refined by
+        a parabola, applied only beyond three standard deviations of zero.
         """
         if self._t_s is None or self.settings.inverse.delay == "off":
             return 0.0, float("nan")
         key = (self._windows_total, self._folded.clusters)
-        if self._shift_cache is not None and self._shift_cache[0] == hash(key):
+        if theta is None and self._shift_cache is not None \
+                and self._shift_cache[0] == hash(key):
             return self._shift_cache[1], self._shift_cache[2]
         grid = self._grid()
-        costs = self._scan_costs(None, self.theta)
+        costs = self._scan_costs(None, self.theta if theta is None else theta)
         if self._folded.scan is not None and self._folded.scan.size == grid.size:
             costs = costs + self._folded.scan
         best, std = 0.0, float("nan")
@@ -476,20 +504,30 @@ class OnlineCalibrator:
         return self.shift()[0] * (self._t_s or 0.0)
 
     def heading_offset(self) -> float:
-        lat, lon = self._straight
-        if lon <= 200.0:                                 # less than 200 m of straights
+        """The reference heading's rotation against the direction of travel (rad), as batch
+        finds it (:func:`odocal.validate.heading_offset`, applied from 200 samples of straights
+        on)."""
+        lat, lon, used = self._straight
+        if self.settings.inverse.heading_offset != "estimate" or used < 200 or lon <= 0:
             return 0.0
         return float(math.atan2(lat, lon))
 
-    def _straight_sums(self, steps: FloatArray) -> None:
+    def _stretches(self, steps: FloatArray) -> None:
+        """Add the one-second stretches these steps complete to the straight sums (stretches
+        start at the piece's first sample, as in batch; each summed whole, so that how the
+        samples were chunked does not matter)."""
         assert self._t_s is not None
-        dt = steps.shape[0] * self._t_s
-        dx, dy = steps[:, 6].sum(), steps[:, 7].sum()
-        psi = steps[0, 8] + 0.5 * steps[:, 4].sum()
-        speed = math.hypot(dx, dy) / dt
-        if speed > 3.0 and abs(steps[:, 4].sum()) / dt < 0.02:
-            self._straight += [-dx * math.sin(psi) + dy * math.cos(psi),
-                               dx * math.cos(psi) + dy * math.sin(psi)]
+        size = max(round(1.0 / self._t_s), 1)
+        pending = np.vstack([self._stretch, steps[:, [6, 7, 4, 8]]])
+        whole = pending.shape[0] // size
+        for part in pending[:whole * size].reshape(whole, size, 4):
+            dx, dy, turn = part[:, 0].sum(), part[:, 1].sum(), part[:, 2].sum()
+            dt = size * self._t_s
+            psi = part[0, 3] + 0.5 * turn
+            if math.hypot(dx, dy) / dt > 3.0 and abs(turn) / dt < 0.02:
+                self._straight += [-dx * math.sin(psi) + dy * math.cos(psi),
+                                   dx * math.cos(psi) + dy * math.sin(psi), size]
+        self._stretch = pending[whole * size:]
 
     # ---------------------------------------------------------------- windows and folding
 
@@ -602,11 +640,7 @@ class OnlineCalibrator:
             else f.scan + folded_scan
         f.correlation += correlation_sums(r * np.sqrt(w), follows)
         f.last = (p, stacked[-1].copy(), white[-1].copy(), float(block[-1, 0]))
-        rev2 = block[:, 3:5].mean(axis=1) ** 2
-        for c in range(2):
-            r2 = r[:, c] ** 2
-            f.noise[c] += [rows.shape[0], rev2.sum(), (rev2**2).sum(), r2.sum(),
-                           (r2 * rev2).sum()]
+        f.noise += noise_sums(block[:, 3:5], r)
 
     # ---------------------------------------------------------------- output
 
@@ -622,14 +656,22 @@ class OnlineCalibrator:
                 free[PARAMETER_NAMES.index(name)] = False
         if self._head.shape[0] + self._folded.clusters == 0:
             return self._nothing(Reason.NO_INFORMATION)
-        rows = self._rows(self.shift()[0])
+        shift = self.shift()[0]
+        rows = self._rows(shift)
         theta = self.theta.copy()
         theta[~free] = self.datasheet[~free]
-        for _ in range(2 if rows.shape[0] else 0):
-            # the prewhitening from the residuals (in memory and folded), as in batch
-            theta, _, _ = self._solve(theta, rows, free)
-            self._ma = arma_from_sums(self._folded.correlation
-                                      + correlation_sums(self._u, self._follows(rows)))
+        for _ in range(_SHIFT_ROUNDS if rows.shape[0] else 0):
+            for _ in range(2):
+                # the prewhitening from the residuals (in memory and folded), as in batch
+                theta, _, _ = self._solve(theta, rows, free)
+                self._ma = arma_from_sums(self._folded.correlation
+                                          + correlation_sums(self._u, self._follows(rows)))
+            # the lag again with this theta, until the two agree (as in batch)
+            again = self.shift(theta)[0]
+            if abs(again - shift) < _SHIFT_SETTLED:
+                break
+            shift = again
+            rows = self._rows(shift)
         for _ in range(len(PARAMETER_NAMES) + 1):
             theta, h, scores = self._solve(theta, rows, free)
             cov, n_clusters = self._covariance(h, scores, rows, free)
@@ -675,7 +717,7 @@ class OnlineCalibrator:
         for _ in range(iterations):
             if rows.shape[0]:
                 r, j = self._design(p, rows)
-                self._noise = _fit_noise(rows[:, 3:5], r, f.noise)
+                self._noise = noise_from_sums(f.noise + noise_sums(rows[:, 3:5], r))
                 w = _weights(rows[:, 3:5], r, self._noise) * rows[:, 11:12]
                 _, white = self._whiten(p, r, j, w, follows)
                 jj, rr = white[..., 1:], white[..., 0]
@@ -821,27 +863,3 @@ def _weights(measured: FloatArray, residual: FloatArray, noise: FloatArray) -> F
     w = 1.0 / _variance(measured, noise)
     z = np.abs(residual) * np.sqrt(w)
     return w * np.minimum(1.0, _HUBER / np.maximum(z, 1e-300))
-
-
-def _fit_noise(measured: FloatArray, residual: FloatArray, folded: FloatArray) -> FloatArray:
-    """``r^2 ~ s0^2 + f^2 rev^2`` per channel from the windows in memory and the folded sums."""
-    rev2 = measured.mean(axis=1) ** 2
-    out = np.empty((2, 2))
-    for c in range(2):
-        r2 = residual[:, c] ** 2
-        n, sx, sxx, sy, sxy = folded[c] + [r2.size, rev2.sum(), (rev2**2).sum(), r2.sum(),
-                                           (r2 * rev2).sum()]
-        det = n * sxx - sx * sx
-        a, b = (sy / max(n, 1.0), 0.0)
-        if det > 0:
-            a2 = (sxx * sy - sx * sxy) / det
-            b2 = (n * sxy - sx * sy) / det
-            if a2 >= 0 and b2 >= 0:
-                a, b = a2, b2
-            elif b2 < 0:
-                a, b = sy / max(n, 1.0), 0.0
-            else:
-                a, b = 0.0, max(sxy / max(sxx, 1e-300), 0.0)
-        floor = max(sy / max(n, 1.0) * 1e-3, 1e-24)
-        out[c] = math.sqrt(max(a, floor)), math.sqrt(max(b, 0.0))
-    return out
