@@ -29,13 +29,20 @@ What remains is done from the data:
 * **Clock offset.** A wheel stream that lags the reference (a logging delay, or the window an ABS
   unit counts its ticks over) biases the yaw terms in every bend. The lag is found by scanning
   the yaw channel's cost over shifts of the reference side (which carries no wheel noise) and
-  refining the minimum by a parabola; it is reported and applied. (The distance channel is left
-  out: slip that grows with acceleration looks like a lag there.)
+  refining the minimum by a parabola; theta is refitted at that lag and the scan repeated until
+  the lag settles (to 1e-3 steps: c_e is sensitive to it where the wheel errors are small). It
+  is reported and applied. (The distance channel is left out: slip that grows with
+  acceleration looks like a lag there.) A wheel unit that counts its ticks over a window
+  reports a moving average: a lag *and* a smoothing, whose spread is fitted with theta.
 * **Heading offset.** A reference heading rotated against the direction of travel (a mounting
   yaw) shortens every projected step by the cosine of the offset; it is measured on the straight
   stretches and applied.
+* **Telescoping errors.** Errors that are differences of something bounded (rounded tick
+  counts, a reference pose's own errors differenced per window) are found from the residuals'
+  lag-one and lag-two correlations and prewhitened (ARMA(1,1), generalised least squares).
 * **Uncertainty.** The covariance is a sandwich over clusters of windows (neighbouring clusters'
-  cross products included), so correlated and mis-weighted errors widen it rather than hide.
+  cross products included), on the prewhitened residuals, so correlated and mis-weighted errors
+  widen it rather than hide.
 """
 
 from __future__ import annotations

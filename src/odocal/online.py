@@ -6,8 +6,9 @@ driving. :class:`OnlineCalibrator` takes samples in any chunks (``push``) and an
 
 It runs the default method's model (:mod:`odocal.inverse`): the wheel revolutions the reference
 motion implies, fitted to the measured ones, window by window. A window keeps only what the
-model needs to predict it for *any* theta: the measured revolutions and six moments of the
-reference motion (``sum ds a^j`` and ``sum dpsi a^j``, j = 0, 1, 2; the lateral acceleration
+model needs to predict it for *any* theta: the measured revolutions and moments of the
+reference motion (``sum ds a^j``, ``sum dpsi a^j`` and the same across the heading, j = 0, 1,
+2, at every whole-step shift of the reference side; the lateral acceleration
 enters the circumferences through ``d a``, and ``1 / (c + d a)`` is a geometric series in
 ``d a / c`` whose third term is below 1e-7). So the fit is relinearised exactly over the recent
 windows; older windows are folded into the normal equations (linearised at the estimate of the
@@ -21,10 +22,13 @@ drifts is tracked). Independently, a two-sided CUSUM watches each completed clus
 estimate of c_e and c_d against the running estimate: a step (tyre pressure, a tyre change)
 raises an alarm with when, where and how much, and the estimate restarts from the new level.
 
-The wheel stream's clock offset is found from running cross-products of the wheels' yaw signal
-and the reference's at lags up to ``[inverse] max_delay_s`` (the batch method scans the fit's
-cost instead; both find the lag of the yaw signals), and the reference heading's offset
-against the direction of travel from running sums on straight stretches, as in batch.
+The wheel stream's clock offset is found as in batch: the yaw channel's cost scanned over
+shifts of the reference side (each window keeps its moments at every whole-step shift), theta
+refitted at the lag found and the scan repeated until the lag settles; the counting window's
+spread and the prewhitening of telescoping errors are the batch method's too (the filter runs
+on across folded windows). The reference heading's offset against the direction of travel
+comes from the same one-second straight stretches as in batch and is applied when windows are
+used (each keeps its moments across the heading as well), so it is never stale.
 """
 
 from __future__ import annotations
