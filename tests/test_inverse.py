@@ -8,6 +8,7 @@ import pytest
 import odocal
 from odocal.inverse import arma_from_sums, correlation_sums
 from odocal.noise import NoiseProfile
+from odocal.uncertainty import leverage_adjusted_scores
 
 
 @pytest.mark.parametrize(("kind", "m", "phi"), [
@@ -52,3 +53,17 @@ def test_a_wheel_stream_averaged_over_its_counting_window_leaves_c_e_unbiased() 
     assert np.all(np.abs(z) < 3.0), z
     assert 0.5 < est.details.smoothing_steps2 < 2.0
     assert est.details.delay_s == pytest.approx(1.5 * sim.drive.t_s, abs=0.2 * sim.drive.t_s)
+
+
+def test_leverage_scales_each_cluster_score_by_what_leaving_it_out_would_change() -> None:
+    info = np.tile(np.eye(2), (8, 1, 1))              # 8 windows, 2 per cluster, equal weight
+    scores = np.arange(16, dtype=float).reshape(8, 2)
+    clusters = np.repeat(np.array([5, 7, 9, 11]), 2)
+    adjusted, labels = leverage_adjusted_scores(info, scores, np.array([True, True]), clusters)
+    assert labels.tolist() == [5, 7, 9, 11]
+    plain = scores.reshape(4, 2, 2).sum(axis=1)
+    np.testing.assert_allclose(adjusted, plain * 4.0 / 3.0)      # H (H - H/4)^-1 = 4/3
+    # a cluster that holds most of a parameter's information is scaled up the most
+    info[:2, 1, 1] = 30.0
+    adjusted, _ = leverage_adjusted_scores(info, scores, np.array([True, True]), clusters)
+    assert adjusted[0, 1] / plain[0, 1] > 10.0 > adjusted[1, 1] / plain[1, 1]

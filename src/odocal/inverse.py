@@ -73,7 +73,7 @@ from odocal.estimate import (
 from odocal.model import PARAMETER_NAMES, Parameters, inverse_revolutions, motion_increments
 from odocal.segments import common_sampling_time
 from odocal.settings import Settings
-from odocal.uncertainty import robust_covariance
+from odocal.uncertainty import leverage_adjusted_scores, robust_covariance
 from odocal.validate import heading_offset as reference_heading_offset
 
 FloatArray = NDArray[np.float64]
@@ -680,9 +680,9 @@ def _scan_delay(theta: FloatArray, steps: _Steps, win: _Windows, noise: FloatArr
 
 def _covariance(fit: _Fit, free: BoolArray, cluster: IntArray,
                 n_clusters: int) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Sandwich covariance over clusters of windows, from the prewhitened residuals; theta's
-    (4, 4) block, with the counting window's spread (``free[4]``) profiled out. Also each
-    window's information and score in theta."""
+    """Sandwich covariance over clusters of windows, from the prewhitened residuals, each
+    cluster's score adjusted for its leverage; theta's (4, 4) block, with the counting window's
+    spread (``free[4]``) profiled out. Also each window's information and score in theta."""
     jw = fit.white_jac
     info = np.einsum("wcp,wcq->wpq", jw, jw)                   # (W, 5, 5)
     scores = np.einsum("wcp,wc->wp", jw, fit.white_residual)   # (W, 5)
@@ -692,7 +692,8 @@ def _covariance(fit: _Fit, free: BoolArray, cluster: IntArray,
     if cols.size:
         h_inv[np.ix_(cols, cols)] = np.linalg.pinv(h[np.ix_(cols, cols)])
     if n_clusters >= _MIN_CLUSTERS_FOR_ROBUST:
-        cov = robust_covariance(h_inv, scores, free, cluster)
+        adjusted, labels = leverage_adjusted_scores(info, scores, free, cluster)
+        cov = robust_covariance(h_inv, adjusted, free, labels)
     else:
         dof = max(fit.white_residual.size - int(free.sum()), 1)
         naive = (fit.cost / dof) * h_inv

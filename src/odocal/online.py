@@ -62,6 +62,7 @@ from odocal.inverse import (
 )
 from odocal.model import PARAMETER_NAMES, Parameters
 from odocal.settings import Settings
+from odocal.uncertainty import leverage_adjusted_scores
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -245,6 +246,9 @@ class OnlineCalibrator:
         self._kappa = 0.0
         self._ma = np.zeros((2, 2))
         self._u = np.zeros((0, 2))                       # standardised residuals of the last fit
+        # the last fit's prewhitened Jacobian per window and its whole information
+        self._white_jac = np.zeros((0, 2, _P))
+        self._h_all: FloatArray | None = None
         self._t_s: float | None = None
         self._last: dict[str, float] | None = None     # the previous sample (continuity)
         self._ring = np.zeros((0, 9))                   # steps not yet in a window
@@ -632,6 +636,11 @@ class OnlineCalibrator:
         f = self._folded
         f.h += h
         f.b += g + h @ p
+        # the cluster's score scaled up by its leverage in the whole fit so far (as in batch)
+        total = self._h_all if self._h_all is not None else f.h
+        g = leverage_adjusted_scores(h[None], g[None], np.append(np.ones(4, dtype=bool),
+                                                                  self._smooth),
+                                     np.zeros(1, dtype=np.int64), total=total)[0][0]
         f.meat += np.outer(g, g)
         if f.last_score is not None:
             cross = np.outer(f.last_score, g)
@@ -727,6 +736,7 @@ class OnlineCalibrator:
                 jj, rr = white[..., 1:], white[..., 0]
                 h = np.einsum("wcp,wcq->pq", jj, jj) + f.h
                 per_window = np.einsum("wcp,wc->wp", jj, rr)
+                self._white_jac, self._h_all = jj, h
                 g = per_window.sum(axis=0) + f.b - f.h @ p
                 scores = per_window
                 self._fit_cost = (float(np.sum(rr**2)) + f.cost, r.size + f.count)
@@ -758,9 +768,9 @@ class OnlineCalibrator:
         meat = f.meat.copy()
         n_clusters = f.clusters
         if rows.shape[0]:
-            labels, index = np.unique(rows[:, 2].astype(np.int64), return_inverse=True)
-            g = np.zeros((labels.size, _P))
-            np.add.at(g, index, scores)
+            info = np.einsum("wcp,wcq->wpq", self._white_jac, self._white_jac)
+            g, labels = leverage_adjusted_scores(info, scores, free, rows[:, 2].astype(np.int64),
+                                                 total=h)
             n_clusters += labels.size
             meat += g.T @ g
             if labels.size > 1:
