@@ -258,6 +258,7 @@ class OnlineCalibrator:
         self._moments = np.zeros((0, 0, 9))
         self._weight = np.zeros(0)
         self._shift_cache: tuple[int, float, float] | None = None
+        self._scan_centre: float | None = None          # where the last scan's minimum was
         self._folded = _Folded()
         self._noise = np.array([[1e-3, 1e-3], [1e-3, 1e-3]])
         self._samples = 0
@@ -456,9 +457,11 @@ class OnlineCalibrator:
         limit = self._max_lag() if self._t_s is not None else 0
         return np.arange(-limit, limit + 0.25, 0.5)
 
-    def _scan_costs(self, keep: NDArray[np.bool_] | None, theta: FloatArray) -> FloatArray:
-        """The yaw channel's weighted cost at each shift of the grid (windows ``keep``)."""
-        grid = self._grid()
+    def _scan_costs(self, keep: NDArray[np.bool_] | None, theta: FloatArray,
+                    index: NDArray[np.int64] | None = None) -> FloatArray:
+        """The yaw channel's weighted cost at each shift of the grid (or its points ``index``)
+        over windows ``keep``."""
+        grid = self._grid() if index is None else self._grid()[index]
         head, moments, weight = self._head, self._moments, self._weight
         if keep is not None:
             head, moments, weight = head[keep], moments[keep], weight[keep]
@@ -492,17 +495,28 @@ class OnlineCalibrator:
                 and self._shift_cache[0] == hash(key):
             return self._shift_cache[1], self._shift_cache[2]
         grid = self._grid()
-        costs = self._scan_costs(None, self.theta if theta is None else theta)
-        if self._folded.scan is not None and self._folded.scan.size == grid.size:
-            costs = costs + self._folded.scan
+        everywhere = np.arange(grid.size)
+        # while driving, the scan around the last minimum (two steps either way) is enough;
+        # estimate() scans the whole range, as batch does
+        index = everywhere
+        if theta is None and self._scan_centre is not None:
+            index = np.flatnonzero(np.abs(grid - self._scan_centre) <= 2.0)
+        for _ in range(2):
+            costs = self._scan_costs(None, self.theta if theta is None else theta, index)
+            if self._folded.scan is not None and self._folded.scan.size == grid.size:
+                costs = costs + self._folded.scan[index]
+            i = int(np.argmin(costs))
+            if index.size == grid.size or 0 < i < index.size - 1:
+                break
+            index = everywhere                          # the minimum moved: look everywhere
         best, std = 0.0, float("nan")
-        i = int(np.argmin(costs))
-        if 0 < i < grid.size - 1:
+        self._scan_centre = float(grid[index[i]])
+        if 0 < index[i] < grid.size - 1:
             c0, c1, c2 = costs[i - 1:i + 2]
             curvature = (c0 - 2.0 * c1 + c2) / 0.25
             if curvature > 0:
                 std = float(np.sqrt(2.0 / curvature))
-                guess = float(grid[i] + 0.25 * (c0 - c2) / (c0 - 2.0 * c1 + c2))
+                guess = float(grid[index[i]] + 0.25 * (c0 - c2) / (c0 - 2.0 * c1 + c2))
                 best = guess if abs(guess) >= 3.0 * std else 0.0
         self._shift_cache = (hash(key), best, std)
         return best, std
