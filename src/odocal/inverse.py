@@ -230,7 +230,7 @@ def _predict(p: FloatArray, steps: _Steps, win: _Windows, shift: float,
     return pred, out
 
 
-_CHANNELS = np.array([[0.5, 0.5], [-1.0, 1.0]])   # sum (distance) and difference (yaw) channels
+CHANNELS = np.array([[0.5, 0.5], [-1.0, 1.0]])   # sum (distance) and difference (yaw) channels
 
 
 @dataclass
@@ -287,9 +287,9 @@ def _evaluate(p: FloatArray, steps: _Steps, win: _Windows, shift: float, smooth:
               noise: FloatArray, ma: FloatArray, channels: FloatArray, iterations: int,
               history: list[float]) -> _Fit:
     pred, jac = _predict(p, steps, win, shift, smooth)
-    r = (win.measured - pred) @ _CHANNELS.T
-    j = np.einsum("ci,wip->wcp", _CHANNELS, jac)
-    w = _weights(win.measured, r, noise) * channels
+    r = (win.measured - pred) @ CHANNELS.T
+    j = np.einsum("ci,wip->wcp", CHANNELS, jac)
+    w = window_weights(win.measured, r, noise) * channels
     sw = np.sqrt(w)
     stacked = np.concatenate([(r * sw)[..., None], j * sw[..., None]], axis=2)
     white = prewhiten(stacked, win.follows, ma)
@@ -325,14 +325,14 @@ def _solve(p0: FloatArray, steps: _Steps, win: _Windows, shift: float, free: Boo
     return fit
 
 
-def _weights(measured: FloatArray, residual: FloatArray, noise: FloatArray) -> FloatArray:
+def window_weights(measured: FloatArray, residual: FloatArray, noise: FloatArray) -> FloatArray:
     """1 / variance per window and channel from the noise model, Huber-limited."""
-    w = 1.0 / _variance(measured, noise)
+    w = 1.0 / window_variance(measured, noise)
     z = np.abs(residual) * np.sqrt(w)
     return w * np.minimum(1.0, _HUBER / np.maximum(z, 1e-300))
 
 
-def _variance(measured: FloatArray, noise: FloatArray) -> FloatArray:
+def window_variance(measured: FloatArray, noise: FloatArray) -> FloatArray:
     """``s0^2 + (f rev)^2`` per channel; ``noise`` is (2, 2): rows channels, columns s0, f."""
     rev = np.abs(measured.mean(axis=1))[:, None]
     return noise[None, :, 0] ** 2 + (noise[None, :, 1] * rev) ** 2
@@ -594,7 +594,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         progress("inverse: fit", 4, 4)
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     rms = np.sqrt(np.mean(fit.residual**2, axis=0))
-    z = np.abs(fit.residual) * np.sqrt(1.0 / _variance(win.measured, noise))
+    z = np.abs(fit.residual) * np.sqrt(1.0 / window_variance(win.measured, noise))
     details = InverseDetails(
         windows=int(win.start.size), window_s=length * t_s, clusters=n_clusters,
         delay_s=shift * t_s, delay_std_s=shift_std * t_s, heading_offset_rad=offset,
@@ -603,7 +603,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         downweighted=int((z > _HUBER).any(axis=1).sum()), iterations=fit.iterations,
         cost_history=tuple(fit.history), residual_rms=(float(rms[0]), float(rms[1])),
         elapsed_s=time.perf_counter() - started, information=info, scores=scores,
-        cluster=win.cluster, measured=win.measured @ _CHANNELS.T, residual=fit.residual,
+        cluster=win.cluster, measured=win.measured @ CHANNELS.T, residual=fit.residual,
         prewhitening=(float(ma[0, 0]), float(ma[1, 0])),
         smoothing_steps2=float(2.0 * fit.theta[4]))
     if not free.any():
@@ -658,10 +658,10 @@ def _scan_delay(theta: FloatArray, steps: _Steps, win: _Windows, noise: FloatArr
     costs = np.empty(grid.size)
     revs, _ = inverse_revolutions(theta, steps.ds, steps.dpsi, steps.a_y)
     for i, shift in enumerate(grid):
-        r = (win.measured - _sums(revs, win, float(shift))) @ _CHANNELS.T
+        r = (win.measured - _sums(revs, win, float(shift))) @ CHANNELS.T
         # the yaw channel times the wheels: slip that grows with acceleration is common to both
         # wheels and would pass for a lag in the distance channel
-        costs[i] = float(np.sum((_weights(win.measured, r, noise) * r**2)[:, 1]))
+        costs[i] = float(np.sum((window_weights(win.measured, r, noise) * r**2)[:, 1]))
     i = int(np.argmin(costs))
     if i == 0 or i == grid.size - 1:
         log.warning("inverse calibration: the wheel clock offset lies at the edge of the search "

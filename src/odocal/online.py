@@ -54,11 +54,14 @@ from odocal.estimate import (
     weak,
 )
 from odocal.inverse import (
+    CHANNELS,
     arma_from_sums,
     correlation_sums,
     noise_from_sums,
     noise_sums,
     prewhiten,
+    window_variance,
+    window_weights,
 )
 from odocal.model import PARAMETER_NAMES, Parameters
 from odocal.settings import Settings
@@ -67,8 +70,6 @@ from odocal.uncertainty import leverage_adjusted_scores
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
-_CHANNELS = np.array([[0.5, 0.5], [-1.0, 1.0]])     # distance and yaw channels, as in batch
-_HUBER = 4.0
 _P = 5        # theta and the wheel unit's counting-window spread (kappa), as in batch
 _SHIFT_ROUNDS = 6       # lag and theta refitted in turn at most this often (as in batch)
 _SHIFT_SETTLED = 1e-3   # steps
@@ -433,8 +434,8 @@ class OnlineCalibrator:
         n = rows.shape[0]
         both, jac = window_prediction(p[:4], np.concatenate([rows[:, 5:11], rows[:, 12:18]]))
         pred, second, jac = both[:n] + p[4] * both[n:], both[n:], jac[:n]
-        r = (rows[:, 3:5] - pred) @ _CHANNELS.T
-        j = np.einsum("ci,wip->wcp", _CHANNELS,
+        r = (rows[:, 3:5] - pred) @ CHANNELS.T
+        j = np.einsum("ci,wip->wcp", CHANNELS,
                       np.concatenate([jac, second[..., None]], axis=2))
         return r, j
 
@@ -477,8 +478,8 @@ class OnlineCalibrator:
         n, g = at.shape[0], at.shape[1]
         measured = np.repeat(head[:, 3:5], g, axis=0)
         pred, _ = window_prediction(theta, at.reshape(n * g, 6))
-        r = (measured - pred) @ _CHANNELS.T
-        w = _weights(measured, r, self._noise) * np.repeat(weight, g)[:, None]
+        r = (measured - pred) @ CHANNELS.T
+        w = window_weights(measured, r, self._noise) * np.repeat(weight, g)[:, None]
         return np.asarray((w[:, 1] * r[:, 1] ** 2).reshape(n, g).sum(axis=0))
 
     def shift(self, theta: FloatArray | None = None) -> tuple[float, float]:
@@ -589,7 +590,7 @@ class OnlineCalibrator:
         """The CUSUM step for one completed cluster's windows."""
         theta = self.theta
         r, j = self._design(np.append(theta, self._kappa), rows)
-        w = 1.0 / _variance(rows[:, 3:5], self._noise)
+        w = 1.0 / window_variance(rows[:, 3:5], self._noise)
         for p, name in ((0, "c_e"), (1, "c_d")):
             info = float(np.sum(w * j[:, :, p] ** 2))
             if info <= 0:
@@ -641,7 +642,7 @@ class OnlineCalibrator:
         block = rows
         p = np.append(self.theta, self._kappa)
         r, j = self._design(p, block)
-        w = _weights(block[:, 3:5], r, self._noise) * block[:, 11:12]
+        w = window_weights(block[:, 3:5], r, self._noise) * block[:, 11:12]
         follows = self._follows(block)
         stacked, white = self._whiten(p, r, j, w, follows)
         jj, rr = white[..., 1:], white[..., 0]
@@ -745,7 +746,7 @@ class OnlineCalibrator:
             if rows.shape[0]:
                 r, j = self._design(p, rows)
                 self._noise = noise_from_sums(f.noise + noise_sums(rows[:, 3:5], r))
-                w = _weights(rows[:, 3:5], r, self._noise) * rows[:, 11:12]
+                w = window_weights(rows[:, 3:5], r, self._noise) * rows[:, 11:12]
                 _, white = self._whiten(p, r, j, w, follows)
                 jj, rr = white[..., 1:], white[..., 0]
                 h = np.einsum("wcp,wcq->pq", jj, jj) + f.h
@@ -865,29 +866,3 @@ def _interpolate(moments: FloatArray, x: float) -> FloatArray:
     if frac == 0:
         return np.asarray(moments[:, lo])
     return np.asarray(moments[:, lo] * (1.0 - frac) + moments[:, lo + 1] * frac)
-
-
-def _fractional_sum(columns: FloatArray, lo: float, length: int) -> FloatArray:
-    """Sum of rows over [lo, lo + length), fractional ends taken in part."""
-    i0 = math.floor(lo)
-    f0 = lo - i0
-    hi = lo + length
-    i1 = math.floor(hi)
-    f1 = hi - i1
-    total = columns[i0:i1].sum(axis=0)
-    if f1 > 0:
-        total = total + f1 * columns[i1]
-    if f0 > 0:
-        total = total - f0 * columns[i0]
-    return np.asarray(total)
-
-
-def _variance(measured: FloatArray, noise: FloatArray) -> FloatArray:
-    rev = np.abs(measured.mean(axis=1))[:, None]
-    return noise[None, :, 0] ** 2 + (noise[None, :, 1] * rev) ** 2
-
-
-def _weights(measured: FloatArray, residual: FloatArray, noise: FloatArray) -> FloatArray:
-    w = 1.0 / _variance(measured, noise)
-    z = np.abs(residual) * np.sqrt(w)
-    return w * np.minimum(1.0, _HUBER / np.maximum(z, 1e-300))
