@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import multiprocessing
+import os
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
+import psutil
 import pytest
 
 import odocal
 from odocal.cli import EXIT_OK, main
 from odocal.report import write_report
 from odocal.report.html import _fmt
+from odocal.report.render import Call, FigureSpec, Renderer, draw
 from odocal.simulate import SimulatedDrive
 from tests.conftest import straight_drive
 
@@ -147,3 +153,55 @@ def test_report_renders_in_headless_chromium(calibrated: Path) -> None:
         assert f["dark"] > 0.01, f                    # not blank: axes, lines, text drawn
     assert verdict.startswith("Calibrated: the validation error E_p falls from")
     assert (ARTIFACTS / "report.png").stat().st_size > 50_000
+
+
+def _spec(function: str = "plot_map") -> FigureSpec:
+    line = np.array([[0.0, 0.0], [3.0, 1.0], [5.0, 4.0]])
+    return FigureSpec("test", "", 3.0, 2.0, (Call(function, (line, line, line),
+                                                   {"title": "a test"}),))
+
+
+def test_the_helpers_draw_what_this_process_draws_and_leave_nothing_behind() -> None:
+    specs = [_spec(), _spec(), _spec()]
+    here = [draw(s) for s in specs]
+    renderer = Renderer(2)
+    assert renderer.draw(specs) == here
+    drawing = psutil.Process().children(recursive=True)
+    assert len(drawing) == 3                          # the host and its two drawing processes
+    with pytest.raises(AttributeError, match="no_such_figure"):
+        renderer.draw([_spec(), _spec("no_such_figure")])
+    assert renderer.draw(specs[:1]) == here[:1]       # still usable after a figure failed
+    renderer.close()
+    assert _gone([p.pid for p in drawing], 20)
+
+
+def _gone(pids: list[int], timeout: float) -> bool:
+    """Whether every process in ``pids`` has ended (a zombie has) within ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while True:
+        alive = []
+        for pid in pids:
+            with contextlib.suppress(psutil.NoSuchProcess):
+                if psutil.Process(pid).status() != psutil.STATUS_ZOMBIE:
+                    alive.append(pid)
+        if not alive or time.monotonic() > deadline:
+            return not alive
+        time.sleep(0.05)
+
+
+def _start_and_vanish(pids: Path) -> None:
+    renderer = Renderer(2)
+    renderer.draw([_spec(), _spec()])
+    pids.write_text(" ".join(str(p.pid) for p in psutil.Process().children(recursive=True)))
+    os._exit(0)                                       # no close(), no exit handlers
+
+
+def test_the_helpers_end_when_their_caller_dies_without_closing_them(tmp_path: Path) -> None:
+    pids = tmp_path / "pids"
+    caller = multiprocessing.get_context("fork").Process(target=_start_and_vanish, args=(pids,))
+    caller.start()
+    caller.join(120)
+    assert caller.exitcode == 0
+    helpers = [int(p) for p in pids.read_text().split()]
+    assert len(helpers) == 3
+    assert _gone(helpers, 20)

@@ -8,6 +8,7 @@ Exit codes: 0 done; 1 bad input, settings or output (one line on stderr, no trac
 from __future__ import annotations
 
 import argparse
+import gc
 import logging
 import os
 import sys
@@ -677,6 +678,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         sys.stderr.write(f"odocal {args.command}: internal error: {type(exc).__name__}: {exc} "
                          "(rerun with -v for the traceback)\n")
         return EXIT_BUG
+    finally:
+        if argv is None:
+            # the program ends here: what it made needs no collecting on the way out (the
+            # interpreter's last collection took 0.2 s after a one-hour calibration)
+            gc.freeze()
 
 
 def _add_simulation_commands(sub: Any) -> None:
