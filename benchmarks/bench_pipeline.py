@@ -34,7 +34,7 @@ from _measure import run_measured
 import odocal
 from odocal.methods import METHOD_NAMES
 
-STAGES = ("read", "segments", "inverse: fit", "step 1: batches", "step 2: compensation",
+STAGES = ("read", "checks", "segments", "inverse: fit", "step 1: batches", "step 2: compensation",
           "step 3: identification", "identify", "joint: noise estimation", "bootstrap",
           "validation")
 
