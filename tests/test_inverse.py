@@ -8,7 +8,8 @@ import pytest
 import odocal
 from odocal.inverse import arma_from_sums, correlation_sums
 from odocal.noise import NoiseProfile
-from odocal.uncertainty import leverage_adjusted_scores
+from odocal.online import _added_meat
+from odocal.uncertainty import NEWEY_WEST, leverage_adjusted_scores, long_run_meat
 
 
 @pytest.mark.parametrize(("kind", "m", "phi"), [
@@ -67,3 +68,25 @@ def test_leverage_scales_each_cluster_score_by_what_leaving_it_out_would_change(
     info[:2, 1, 1] = 30.0
     adjusted, _ = leverage_adjusted_scores(info, scores, np.array([True, True]), clusters)
     assert adjusted[0, 1] / plain[0, 1] > 10.0 > adjusted[1, 1] / plain[1, 1]
+
+
+def test_the_online_meat_built_cluster_by_cluster_is_the_batch_one() -> None:
+    g = np.random.default_rng(3).standard_normal((12, 5))
+    meat, recent = np.zeros((5, 5)), np.zeros((0, 5))
+    for row in g[:9]:                                  # folded one by one, as driving
+        meat += _added_meat(recent, row[None])
+        recent = np.vstack([recent, row])[-len(NEWEY_WEST):]
+    meat += _added_meat(recent, g[9:])                 # the clusters still in memory
+    np.testing.assert_allclose(meat, long_run_meat(g, NEWEY_WEST), rtol=1e-12, atol=1e-12)
+
+
+def test_the_weighted_long_run_covariance_cannot_come_out_negative() -> None:
+    # scores that alternate (the extreme of errors that telescope): at full weight the
+    # neighbours' cross products outweigh the clusters' own products
+    alternating = np.array([[1.0], [-1.0]] * 20)
+    assert long_run_meat(alternating)[0, 0] < 0
+    assert long_run_meat(alternating, NEWEY_WEST)[0, 0] >= 0
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        g = np.diff(rng.standard_normal((40, 3)), axis=0)
+        assert np.linalg.eigvalsh(long_run_meat(g, NEWEY_WEST)).min() > -1e-9

@@ -40,9 +40,9 @@ What remains is done from the data:
 * **Telescoping errors.** Errors that are differences of something bounded (rounded tick
   counts, a reference pose's own errors differenced per window) are found from the residuals'
   lag-one and lag-two correlations and prewhitened (ARMA(1,1), generalised least squares).
-* **Uncertainty.** The covariance is a sandwich over clusters of windows (neighbouring clusters'
-  cross products included), on the prewhitened residuals, so correlated and mis-weighted errors
-  widen it rather than hide.
+* **Uncertainty.** The covariance is a sandwich over clusters of windows (cross products of
+  clusters up to three apart included, with Newey and West's weights), on the prewhitened
+  residuals, so correlated and mis-weighted errors widen it rather than hide.
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ from odocal.estimate import (
 from odocal.model import PARAMETER_NAMES, Parameters, inverse_revolutions, motion_increments
 from odocal.segments import common_sampling_time
 from odocal.settings import Settings
-from odocal.uncertainty import leverage_adjusted_scores, robust_covariance
+from odocal.uncertainty import NEWEY_WEST, leverage_adjusted_scores, robust_covariance
 from odocal.validate import heading_offset as reference_heading_offset
 
 FloatArray = NDArray[np.float64]
@@ -693,11 +693,12 @@ def _covariance(fit: _Fit, free: BoolArray, cluster: IntArray,
         h_inv[np.ix_(cols, cols)] = np.linalg.pinv(h[np.ix_(cols, cols)])
     if n_clusters >= _MIN_CLUSTERS_FOR_ROBUST:
         adjusted, labels = leverage_adjusted_scores(info, scores, free, cluster)
-        cov = robust_covariance(h_inv, adjusted, free, labels)
+        cov = robust_covariance(h_inv, adjusted, free, labels, NEWEY_WEST)
     else:
         dof = max(fit.white_residual.size - int(free.sum()), 1)
         naive = (fit.cost / dof) * h_inv
-        robust = robust_covariance(h_inv, scores, free, cluster) if n_clusters >= 2 else naive
+        robust = robust_covariance(h_inv, scores, free, cluster, NEWEY_WEST) \
+            if n_clusters >= 2 else naive
         s_n = np.sqrt(np.clip(np.diag(naive), 0.0, None))
         s_r = np.sqrt(np.clip(np.diag(robust), 0.0, None))
         with np.errstate(divide="ignore", invalid="ignore"):

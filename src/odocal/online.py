@@ -65,7 +65,7 @@ from odocal.inverse import (
 )
 from odocal.model import PARAMETER_NAMES, Parameters
 from odocal.settings import Settings
-from odocal.uncertainty import leverage_adjusted_scores
+from odocal.uncertainty import NEWEY_WEST, leverage_adjusted_scores, long_run_meat
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -161,6 +161,13 @@ def window_prediction(theta: FloatArray, moments: FloatArray) -> tuple[FloatArra
     return out, jac
 
 
+def _added_meat(recent: FloatArray, new: FloatArray) -> FloatArray:
+    """What clusters ``new`` add to the long-run covariance of the scores after ``recent`` (the
+    latest clusters already counted): their outer products and cross products with each other
+    and with ``recent``."""
+    return long_run_meat(np.vstack([recent, new]), NEWEY_WEST) - long_run_meat(recent, NEWEY_WEST)
+
+
 @dataclass
 class _Folded:
     """Older windows, folded: normal equations in information form, scores, residual moments."""
@@ -168,7 +175,8 @@ class _Folded:
     h: FloatArray = field(default_factory=lambda: np.zeros((_P, _P)))
     b: FloatArray = field(default_factory=lambda: np.zeros(_P))       # g0 + H0 p_lin
     meat: FloatArray = field(default_factory=lambda: np.zeros((_P, _P)))
-    last_score: FloatArray | None = None
+    # the latest folded clusters' scores (as many as the covariance's cross products reach)
+    recent: FloatArray = field(default_factory=lambda: np.zeros((0, _P)))
     clusters: int = 0
     # noise-model sums per channel: n, sum rev^2, sum rev^4, sum r^2, sum r^2 rev^2
     noise: FloatArray = field(default_factory=lambda: np.zeros((2, 5)))
@@ -185,6 +193,7 @@ class _Folded:
         self.h *= factor
         self.b *= factor
         self.meat *= factor
+        self.recent *= math.sqrt(factor)     # their products with newer clusters decay alike
         self.noise *= factor
         self.correlation *= factor
         self.cost *= factor
@@ -656,11 +665,8 @@ class OnlineCalibrator:
         g = leverage_adjusted_scores(h[None], g[None], np.append(np.ones(4, dtype=bool),
                                                                   self._smooth),
                                      np.zeros(1, dtype=np.int64), total=total)[0][0]
-        f.meat += np.outer(g, g)
-        if f.last_score is not None:
-            cross = np.outer(f.last_score, g)
-            f.meat += cross + cross.T
-        f.last_score = g
+        f.meat += _added_meat(f.recent, g[None])
+        f.recent = np.vstack([f.recent, g])[-len(NEWEY_WEST):]
         f.clusters += 1
         f.cost += float(np.sum(rr**2))
         f.count += r.size
@@ -772,8 +778,9 @@ class OnlineCalibrator:
 
     def _covariance(self, h: FloatArray, scores: FloatArray, rows: FloatArray,
                     free: BoolArray) -> tuple[FloatArray, int]:
-        """Sandwich: folded clusters' meat plus the clusters in memory (neighbours at full
-        weight), as :func:`odocal.uncertainty.robust_covariance`."""
+        """Sandwich: folded clusters' meat plus the clusters in memory (cross products up to
+        three clusters apart, Newey-West weights), as
+        :func:`odocal.uncertainty.robust_covariance`."""
         f = self._folded
         free = np.append(free, self._smooth)
         cols = np.flatnonzero(free)
@@ -787,13 +794,7 @@ class OnlineCalibrator:
             g, labels = leverage_adjusted_scores(info, scores, free, rows[:, 2].astype(np.int64),
                                                  total=h)
             n_clusters += labels.size
-            meat += g.T @ g
-            if labels.size > 1:
-                cross = g[:-1].T @ g[1:]
-                meat += cross + cross.T
-            if f.last_score is not None:
-                cross = np.outer(f.last_score, g[0])
-                meat += cross + cross.T
+            meat += _added_meat(f.recent, g)
         meat[~free, :] = 0.0
         meat[:, ~free] = 0.0
         values, vectors = np.linalg.eigh(meat)
