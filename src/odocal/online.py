@@ -57,6 +57,7 @@ from odocal.inverse import (
     CHANNELS,
     arma_from_sums,
     correlation_sums,
+    expected_revolutions,
     noise_from_sums,
     noise_sums,
     prewhiten,
@@ -599,7 +600,7 @@ class OnlineCalibrator:
         """The CUSUM step for one completed cluster's windows."""
         theta = self.theta
         r, j = self._design(np.append(theta, self._kappa), rows)
-        w = 1.0 / window_variance(rows[:, 3:5], self._noise)
+        w = 1.0 / window_variance(expected_revolutions(rows[:, 3:5], r), self._noise)
         for p, name in ((0, "c_e"), (1, "c_d")):
             info = float(np.sum(w * j[:, :, p] ** 2))
             if info <= 0:
