@@ -164,9 +164,10 @@ def _spec(function: str = "plot_map") -> FigureSpec:
 def test_the_helpers_draw_what_this_process_draws_and_leave_nothing_behind() -> None:
     specs = [_spec(), _spec(), _spec()]
     here = [draw(s) for s in specs]
+    before = {p.pid for p in psutil.Process().children(recursive=True)}
     renderer = Renderer(2)
     assert renderer.draw(specs) == here
-    drawing = psutil.Process().children(recursive=True)
+    drawing = [p for p in psutil.Process().children(recursive=True) if p.pid not in before]
     assert len(drawing) == 3                          # the host and its two drawing processes
     with pytest.raises(AttributeError, match="no_such_figure"):
         renderer.draw([_spec(), _spec("no_such_figure")])
@@ -190,9 +191,11 @@ def _gone(pids: list[int], timeout: float) -> bool:
 
 
 def _start_and_vanish(pids: Path) -> None:
+    before = {p.pid for p in psutil.Process().children(recursive=True)}
     renderer = Renderer(2)
     renderer.draw([_spec(), _spec()])
-    pids.write_text(" ".join(str(p.pid) for p in psutil.Process().children(recursive=True)))
+    pids.write_text(" ".join(str(p.pid) for p in psutil.Process().children(recursive=True)
+                             if p.pid not in before))
     os._exit(0)                                       # no close(), no exit handlers
 
 
