@@ -12,11 +12,11 @@ computes: by the time the figures are wanted, the plotting library is loaded.
 
 from __future__ import annotations
 
-import contextlib
 import gc
 import io
 import multiprocessing
 import os
+import pickle
 import signal
 import weakref
 from collections.abc import Sequence
@@ -80,43 +80,80 @@ def _warm_up() -> None:
         Call("legend", kwargs={"fontsize": 8}))))
 
 
-def _stop(*_: object) -> None:
-    raise SystemExit(0)
-
-
 def _host(connection: Any, callers: Any, workers: int) -> None:
-    """The helper process: loads matplotlib once, forks ``workers`` drawing processes from
-    itself (they start with the library loaded), then draws each list of specs it receives and
-    sends back the PNGs, or the exception. ``None`` or the caller's end ends it; so does
-    SIGTERM, which stops the drawing processes too (the pool's ``with`` terminates them)."""
+    """The helper process: loads matplotlib once, then draws each list of specs it receives,
+    with ``workers - 1`` processes forked from itself for the time (they start with the library
+    loaded and warm), and sends back the PNGs, or the exception. ``None`` or the caller's end
+    ends it; SIGTERM ends it at once."""
     from odocal.parallel import ignore_interrupts
 
     callers.close()        # our copy of the caller's end: its EOF must reach us when it goes
     ignore_interrupts()
     # the caller's computation goes first while we prepare (its stages took 0.1 s longer)
     os.nice(5)
-    signal.signal(signal.SIGTERM, _stop)
     import matplotlib.backends.backend_agg
     import matplotlib.figure  # noqa: F401
 
     import odocal.report.figures  # noqa: F401
 
     _warm_up()
-    pool: Any = None
-    if workers > 1:
-        # what is loaded now is never collected: the drawing processes' collections then do
-        # not touch (and so copy) the pages they share with this one
-        gc.freeze()
-        pool = multiprocessing.get_context("fork").Pool(workers, initializer=_warm_worker)
-    with contextlib.nullcontext() if pool is None else pool:
-        while (specs := _receive(connection)) is not None:
+    # what is loaded now is never collected: the drawing processes' collections then do not
+    # touch (and so copy) the pages they share with this one
+    gc.freeze()
+    while (specs := _receive(connection)) is not None:
+        try:
+            pngs = _draw_forked(specs, workers)
+        except Exception as exc:  # sent to the caller, raised there
+            connection.send(exc)
+        else:
+            connection.send(pngs)
+
+
+def _draw_forked(specs: Sequence[FigureSpec], workers: int) -> list[bytes]:
+    """Every spec drawn by this process and ``workers - 1`` forked ones, which take the next
+    undrawn figure from a pipe of indices (a one-byte read is atomic: no locks to be left held
+    by a process that stops), and send back what they drew."""
+    helpers = min(workers, len(specs), 256) - 1
+    if helpers < 1 or "fork" not in multiprocessing.get_all_start_methods():
+        return [draw(s) for s in specs]
+    tasks_in, tasks_out = os.pipe()
+    os.write(tasks_out, bytes(range(len(specs))))
+    os.close(tasks_out)
+    children = []
+    for _ in range(helpers):
+        results_in, results_out = os.pipe()
+        pid = os.fork()
+        if pid == 0:                                       # a drawing process
+            os.close(results_in)
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            code = 0
             try:
-                pngs = [draw(s) for s in specs] if pool is None else \
-                    pool.map(draw, specs, chunksize=1)
-            except Exception as exc:  # sent to the caller, raised there
-                connection.send(exc)
-            else:
-                connection.send(pngs)
+                drawn = _take_and_draw(tasks_in, specs)
+                with os.fdopen(results_out, "wb") as out:
+                    pickle.dump(drawn, out)
+            except BaseException:                          # the parent draws them again
+                code = 1
+            finally:
+                os._exit(code)
+        os.close(results_out)
+        children.append((pid, results_in))
+    pngs = _take_and_draw(tasks_in, specs)
+    os.close(tasks_in)
+    for pid, results_in in children:
+        with os.fdopen(results_in, "rb") as answer:
+            data = answer.read()
+        os.waitpid(pid, 0)
+        if data:
+            pngs.update(pickle.loads(data))
+    # a figure a drawing process failed on is drawn here (and raises here if it fails again)
+    return [pngs[i] if i in pngs else draw(s) for i, s in enumerate(specs)]
+
+
+def _take_and_draw(tasks: int, specs: Sequence[FigureSpec]) -> dict[int, bytes]:
+    drawn: dict[int, bytes] = {}
+    while index := os.read(tasks, 1):
+        drawn[index[0]] = draw(specs[index[0]])
+    return drawn
 
 
 def _receive(connection: Any) -> Any:
@@ -127,26 +164,27 @@ def _receive(connection: Any) -> Any:
         return None
 
 
-def _warm_worker() -> None:
-    from odocal.parallel import ignore_interrupts
-
-    ignore_interrupts()
-    _warm_up()
-
-
 def _shut(process: Any, connection: Any) -> None:
     process.terminate()
-    process.join()
+    process.join(_STOP_WAIT_S)
+    if process.is_alive():                        # never let a figure helper hold up the exit
+        process.kill()
+        process.join()
     connection.close()
+
+
+#: Seconds a helper gets to stop its drawing processes before it is killed.
+_STOP_WAIT_S = 10.0
 
 
 class Renderer:
     """Draws figure specs, in helper processes (started now) or in this process
     (``workers = 0``).
 
-    One helper is forked at once; it loads matplotlib while the caller works and then forks
-    ``workers`` drawing processes from itself, so the library is imported once (importing it
-    in two helpers at once slowed a one-hour calibration by 0.8 s on two cores).
+    One helper is forked at once; it loads matplotlib while the caller works, and when figures
+    are wanted it draws them with ``workers - 1`` processes forked from itself, so the library
+    is imported once (importing it in two helpers at once slowed a one-hour calibration by
+    0.8 s on two cores).
 
     Use as a context manager; start it early (before heavy imports and computation) so that the
     helper forks from a light process and is ready when the figures are wanted.
