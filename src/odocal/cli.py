@@ -235,12 +235,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _renderer(args: argparse.Namespace) -> Any:
-    """A report renderer started now (its helpers load matplotlib while we calibrate), or None.
+    """A report renderer started now (its helper loads matplotlib while we calibrate), or None.
 
-    Started before anything heavy is imported, so the helpers fork from a light process. Two
-    helpers, one per core: on a one-hour drive the default method's report took 0.92-1.03 s
-    with two against 1.69-1.91 s with one (the five figures draw in parallel), and the whole
-    run 2.8-3.2 s against 3.4-4.6 s; the calibration itself was not slowed.
+    Started before anything heavy is imported, so the helper forks from a light process. It
+    draws with two processes, one per core (the five figures of the default's report draw in
+    parallel): on a one-hour drive the report adds 0.67-1.01 s (median 0.81 s) to a run of
+    1.08-1.22 s, and the calibration's stages are not slowed.
     """
     if getattr(args, "no_report", False) or not getattr(args, "out", None):
         return None

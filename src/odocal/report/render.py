@@ -5,9 +5,10 @@ of the plot functions in :mod:`odocal.report.figures` with their (numpy) argumen
 built without matplotlib and are small, so they travel to helper processes cheaply; the helpers
 draw them and send back PNG bytes.
 
-A :class:`Renderer` started before the calibration forks its helpers while the process is still
-light, and they import matplotlib at once, on the otherwise idle core, while the calibration
-computes: by the time the figures are wanted, the plotting library is loaded.
+A :class:`Renderer` started before the calibration forks its helper while the process is still
+light, and it imports matplotlib at once, on the otherwise idle core, while the calibration
+computes: by the time the figures are wanted, the plotting library is loaded, and the helper
+forks the processes that draw beside it from itself.
 """
 
 from __future__ import annotations
