@@ -197,8 +197,7 @@ class Renderer:
         if workers > 0 and "fork" in multiprocessing.get_all_start_methods():
             context = multiprocessing.get_context("fork")
             self._connection, theirs = context.Pipe()
-            # not a daemon: daemons may not have children (the drawing processes)
-            self._process = context.Process(target=_host,
+            self._process = context.Process(target=_host, daemon=True,
                                             args=(theirs, self._connection, workers))
             self._process.start()
             theirs.close()
