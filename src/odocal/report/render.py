@@ -114,8 +114,8 @@ def _draw_forked(specs: Sequence[FigureSpec], workers: int) -> list[bytes]:
     """Every spec drawn by this process and ``workers - 1`` forked ones, which take the next
     undrawn figure from a pipe of indices (a one-byte read is atomic: no locks to be left held
     by a process that stops), and send back what they drew."""
-    helpers = min(workers, len(specs), 256) - 1
-    if helpers < 1 or "fork" not in multiprocessing.get_all_start_methods():
+    helpers = min(workers, len(specs)) - 1
+    if helpers < 1 or len(specs) > 256:                 # (indices are single bytes)
         return [draw(s) for s in specs]
     tasks_in, tasks_out = os.pipe()
     os.write(tasks_out, bytes(range(len(specs))))
