@@ -67,6 +67,14 @@ class SimulatedDrive:
     profile: NoiseProfile
     seed: int
 
+    def cramer_rao_bound(self) -> FloatArray:
+        """The covariance no unbiased calibration of this drive can beat, shape (4, 4): the
+        wheel errors' Cramér-Rao bound (:mod:`odocal.bound`; the reference pose taken as
+        exact). For a drive simulated without a ``change``."""
+        from odocal.bound import information_bound
+        return information_bound(self.true_parameters.as_array(), self.true_n_rl,
+                                 self.true_n_rr, self.profile, self.drive.t_s)
+
     def truth_dict(self) -> dict[str, Any]:
         """The truth as written to ``<drive>.truth.json``."""
         return {"theta": self.true_parameters.as_dict(), "noise_profile": self.profile.as_dict(),
@@ -77,7 +85,8 @@ class SimulatedDrive:
 def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoiseProfile = "realistic",
              theta: Parameters | None = None, t_s: float = 0.025,
              name: str | None = None,
-             change: tuple[float, Parameters] | None = None) -> SimulatedDrive:
+             change: tuple[float, Parameters] | None = None,
+             noise_seed: int | None = None) -> SimulatedDrive:
     """Simulate a city drive with known true parameters.
 
     Parameters
@@ -89,6 +98,8 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
     t_s : sampling time, s
     change : ``(t, new_theta)``: from time t on, the wheels turn as ``new_theta`` makes them
         (a tyre pressure change within the drive); ``true_parameters`` are those before
+    noise_seed : draws the noise from its own seed, so one route (``seed``) can be driven with
+        many noise draws (a Monte Carlo over the noise alone); by default ``seed`` draws both
     """
     if isinstance(noise, str):
         if noise not in NOISE_PROFILES:
@@ -124,14 +135,18 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
     poses = rollout(true_theta, Inputs(first_rl[:-1], first_rr[:-1], beta[:-1], a_y[:-1]), x0,
                     t_s)
 
+    if noise_seed is not None:
+        rng = np.random.default_rng([seed, noise_seed])
     meas_rl, meas_rr, meas_ay, meas_beta, ref = _corrupt(rng, profile, v, n_rl, n_rr, a_y,
                                                          beta, poses, t_s)
     t = np.arange(m) * t_s
     drive = Drive.from_columns(
         {"t": t, "n_rl": meas_rl, "n_rr": meas_rr, "a_y": meas_ay, "beta": meas_beta,
          "x": ref[:, 0], "y": ref[:, 1], "psi": ref[:, 2]},
-        name=name or f"simulated-{profile.name}-seed{seed}",
+        name=name or (f"simulated-{profile.name}-seed{seed}"
+                      + ("" if noise_seed is None else f"-noise{noise_seed}")),
         metadata={"source": "odocal.simulate", "seed": seed, "noise_profile": profile.name,
+                  **({} if noise_seed is None else {"noise_seed": noise_seed}),
                   "true_theta": (theta or TRUE_PARAMETERS).as_dict()})
     return SimulatedDrive(drive=drive, true_parameters=Parameters.from_array(true_theta),
                           true_n_rl=n_rl, true_n_rr=n_rr, true_poses=poses, profile=profile,

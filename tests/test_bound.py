@@ -1,0 +1,138 @@
+"""The Cramér-Rao bound of a simulated drive, and the default method's distance from it."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import odocal
+from odocal.bound import information_bound, wheel_information
+from odocal.model import circumferences
+from odocal.noise import NOISE_PROFILES, NoiseProfile
+from odocal.settings import Settings
+from odocal.simulate import TRUE_PARAMETERS
+
+
+def _dense_information(sim: odocal.SimulatedDrive) -> np.ndarray:
+    """J' Sigma^-1 J with Sigma written out whole (each process's covariance phi^|i-j| std^2)."""
+    from odocal.bound import _motion, _rate_jacobian
+
+    p, t_s = sim.profile, sim.drive.t_s
+    theta = sim.true_parameters.as_array()
+    rates = np.column_stack([sim.true_n_rl, sim.true_n_rr])
+    m = rates.shape[0]
+    jac = _rate_jacobian(theta, *_motion(theta, rates[:, 0], rates[:, 1]))
+    lag = np.abs(np.arange(m)[:, None] - np.arange(m)[None, :])
+
+    def ar1(std: float, tau: float) -> np.ndarray:
+        return std**2 * np.exp(-t_s / tau) ** lag
+
+    sigma = np.diag(np.concatenate([p.wheel_white_revps**2
+                                    + (p.wheel_white_fraction * rates[:, i])**2
+                                    for i in range(2)]))
+    both = np.concatenate([rates[:, 0], rates[:, 1]])
+    if p.wheel_markov_revps:
+        block = ar1(p.wheel_markov_revps, p.wheel_markov_correlation_s)
+        sigma[:m, :m] += block
+        sigma[m:, m:] += block
+    if p.slip_fraction:
+        sigma += np.tile(ar1(p.slip_fraction, p.slip_correlation_s), (2, 2)) * np.outer(both,
+                                                                                       both)
+    if p.slip_differential:
+        own = ar1(p.slip_differential / np.sqrt(2.0), p.slip_correlation_s)
+        sigma[:m, :m] += own * np.outer(rates[:, 0], rates[:, 0])
+        sigma[m:, m:] += own * np.outer(rates[:, 1], rates[:, 1])
+    seen = both != 0.0
+    j = np.concatenate([jac[:, 0, :], jac[:, 1, :]])[seen]
+    return j.T @ np.linalg.solve(sigma[np.ix_(seen, seen)], j)
+
+
+@pytest.mark.parametrize("profile", ["white-rate", "slip-heavy", "everything"])
+def test_banded_elimination_matches_the_whole_covariance(profile: str) -> None:
+    sim = odocal.simulate(duration_s=40.0, seed=1, noise=profile)
+    banded = np.linalg.inv(wheel_information(sim.true_parameters.as_array(), sim.true_n_rl,
+                                             sim.true_n_rr, sim.profile, sim.drive.t_s))
+    dense = np.linalg.inv(_dense_information(sim))
+    scale = np.sqrt(np.outer(np.diag(dense), np.diag(dense)))
+    assert np.max(np.abs(banded - dense) / scale) < 1e-4        # the white floor: below 1e-4
+
+
+def test_coloured_noise_without_white_noise_is_bounded_through_the_floor() -> None:
+    # no white part: the white floor keeps the bound finite and moves it by less than 1e-3
+    sim = odocal.simulate(duration_s=40.0, seed=2, noise="markov")
+    banded = sim.cramer_rao_bound()
+    dense = np.linalg.inv(_dense_information(sim))
+    assert np.allclose(np.sqrt(np.diag(banded)), np.sqrt(np.diag(dense)), rtol=1e-3)
+
+
+def test_track_width_column_is_the_yaw_rate_over_the_circumference() -> None:
+    # white noise: information is J'J / sigma^2, and dn/dt_r = -+ w / (2 c)
+    sim = odocal.simulate(duration_s=60.0, seed=0, noise="white")
+    from odocal.bound import _motion, _rate_jacobian
+
+    theta = TRUE_PARAMETERS.as_array()
+    v, w, a_y = _motion(theta, sim.true_n_rl, sim.true_n_rr)
+    c_rl, c_rr = circumferences(theta, a_y)
+    jac = _rate_jacobian(theta, v, w, a_y)
+    assert np.allclose(jac[:, 0, 2], -0.5 * w / c_rl, atol=1e-9)
+    assert np.allclose(jac[:, 1, 2], 0.5 * w / c_rr, atol=1e-9)
+    sigma = NOISE_PROFILES["white"].wheel_white_revps
+    seen = np.column_stack([sim.true_n_rl, sim.true_n_rr]) != 0.0
+    expected = np.einsum("mi,mi->", jac[:, :, 2] ** 2, seen) / sigma**2
+    info = wheel_information(theta, sim.true_n_rl, sim.true_n_rr, sim.profile, sim.drive.t_s)
+    assert info[2, 2] == pytest.approx(expected, rel=1e-9)
+
+
+def test_more_noise_never_lowers_the_bound() -> None:
+    sim = odocal.simulate(duration_s=120.0, seed=3, noise="white")
+    args = (sim.true_parameters.as_array(), sim.true_n_rl, sim.true_n_rr)
+    white = NOISE_PROFILES["white"]
+    base = np.diag(information_bound(*args, white, sim.drive.t_s))
+    for extra in ({"wheel_markov_revps": 0.01}, {"slip_fraction": 0.005},
+                  {"slip_differential": 0.001}, {"wheel_white_fraction": 0.01}):
+        more = np.diag(information_bound(*args, dataclasses.replace(white, **extra),
+                                         sim.drive.t_s))
+        assert np.all(more > base), extra
+    doubled = np.diag(information_bound(*args, NOISE_PROFILES["white-2x"], sim.drive.t_s))
+    assert np.allclose(doubled, 4.0 * base, rtol=1e-9)
+
+
+def test_profiles_without_counted_wheel_errors_have_a_zero_bound() -> None:
+    sim = odocal.simulate(duration_s=60.0, seed=0, noise="reference")
+    assert not sim.cramer_rao_bound().any()
+    with pytest.raises(ValueError, match="no wheel error"):
+        wheel_information(sim.true_parameters.as_array(), sim.true_n_rl, sim.true_n_rr,
+                          NoiseProfile("quiet", "nothing"), sim.drive.t_s)
+
+
+def test_noise_seed_drives_one_route_with_other_noise() -> None:
+    first = odocal.simulate(duration_s=60.0, seed=4, noise="white")
+    again = odocal.simulate(duration_s=60.0, seed=4, noise="white", noise_seed=1)
+    other = odocal.simulate(duration_s=60.0, seed=4, noise="white", noise_seed=2)
+    assert np.array_equal(first.true_poses, again.true_poses)
+    assert np.array_equal(first.true_n_rl, other.true_n_rl)
+    assert not np.array_equal(again.drive.n_rl, other.drive.n_rl)
+    assert not np.array_equal(first.drive.n_rl, again.drive.n_rl)
+    repeat = odocal.simulate(duration_s=60.0, seed=4, noise="white", noise_seed=1)
+    assert np.array_equal(again.drive.n_rl, repeat.drive.n_rl)
+    assert again.drive.metadata["noise_seed"] == 1
+
+
+def test_the_default_method_reaches_the_bound_on_white_noise() -> None:
+    # one route, 40 draws of the noise: the default's error spread and its reported std both
+    # match the Cramér-Rao bound (with 40 draws a std is known to about 11%)
+    settings = Settings()
+    errors, stds = [], []
+    for k in range(40):
+        sim = odocal.simulate(duration_s=300.0, seed=5, noise="white-2x", noise_seed=k)
+        est = odocal.calibrate(sim.drive, settings=settings).estimate
+        assert all(est.identified)
+        errors.append(est.theta.as_array() - sim.true_parameters.as_array())
+        stds.append(est.std)
+    bound = np.sqrt(np.diag(sim.cramer_rao_bound()))
+    spread = np.std(errors, axis=0, ddof=1)
+    assert np.all(spread / bound > 0.75) and np.all(spread / bound < 1.35), spread / bound
+    reported = np.mean(stds, axis=0)
+    assert np.all(reported / bound > 0.85) and np.all(reported / bound < 1.2), reported / bound
