@@ -65,6 +65,15 @@ def test_demo_prints_truth_and_estimates(capsys: pytest.CaptureFixture[str]) -> 
     code, stdout, _ = run(capsys, "demo", "--duration", "600", "--method", "raw")
     assert code == EXIT_OK
     assert "true" in stdout and "datasheet" in stdout and "true parameters:" in stdout
+    assert "best std" in stdout and "Cramér-Rao" in stdout
+
+
+def test_demo_without_counted_wheel_errors_shows_no_bound(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    code, stdout, _ = run(capsys, "demo", "--duration", "300", "--noise", "reference",
+                          "--no-compare")
+    assert code == EXIT_OK
+    assert "best std" not in stdout
 
 
 def bad_drive(tmp_path: Path, sim: SimulatedDrive, name: str, change: object) -> Path:

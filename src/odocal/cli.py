@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import gc
 import logging
+import math
 import os
 import sys
 import time
@@ -102,8 +103,10 @@ def _print(text: str = "") -> None:
 
 
 def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
-                  truth_error_m: float | None = None) -> None:
-    """The calibration as a small table on stdout."""
+                  truth_error_m: float | None = None,
+                  best_std: Sequence[float] | None = None) -> None:
+    """The calibration as a small table on stdout; ``best_std`` (a simulated drive's
+    Cramér-Rao bound) is shown beside the reported std."""
     from odocal.advice import finding_text, reason_text
     from odocal.estimate import NotIdentified, Reason, Status
     from odocal.model import PARAMETER_NAMES, PARAMETER_UNITS
@@ -121,6 +124,8 @@ def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
            f"in {result.elapsed_s:.1f} s")
     _print()
     header = f"{'parameter':<10} {'datasheet':>16} {'calibrated':>16} {'std':>10}"
+    if best_std is not None:
+        header += f" {'best std':>10}"
     if truth is not None:
         header += f" {'true':>16} {'error':>10}"
     _print(header)
@@ -135,10 +140,15 @@ def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
         else:
             cal, sd = "not identified", ""
         line = f"{name:<10} {_fmt_param(name, theta0[name]):>16} {cal:>16} {sd:>10}"
+        if best_std is not None:
+            line += f" {_fmt_std(name, best_std[PARAMETER_NAMES.index(name)]):>10}"
         if true is not None:
             err = _fmt_std(name, abs(theta[name] - true[name])).replace("+-", "") if ok else ""
             line += f" {_fmt_param(name, true[name]):>16} {err:>10}"
         _print(line)
+    if best_std is not None:
+        _print("best std: the smallest std an unbiased calibration of this drive can have (its "
+               "wheel errors' Cramér-Rao bound, the reference taken as exact)")
     _print()
     if result.validation is not None and result.datasheet_validation is not None:
         seg = result.validation.segments
@@ -187,7 +197,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if not args.no_compare:
         result = _compared(result, [sim.drive], settings, sim.true_parameters, args.quiet)
     if not args.quiet:
-        print_summary(result, truth=sim.true_parameters, truth_error_m=truth_error)
+        bound = sim.cramer_rao_bound()
+        best = [math.sqrt(max(v, 0.0)) for v in bound.diagonal()] if bound.any() else None
+        print_summary(result, truth=sim.true_parameters, truth_error_m=truth_error,
+                      best_std=best)
     if args.out:
         _write_outputs(result, args, inputs=_inputs(args))
     elif not args.quiet:
