@@ -6,7 +6,15 @@ import numpy as np
 import pytest
 
 import odocal
-from odocal.inverse import arma_from_sums, correlation_sums
+from odocal.inverse import (
+    CHANNELS,
+    arma_from_sums,
+    correlation_sums,
+    coupling_from_sums,
+    coupling_gain,
+    coupling_sums,
+    decouple,
+)
 from odocal.noise import NoiseProfile
 from odocal.online import _added_meat
 from odocal.uncertainty import NEWEY_WEST, leverage_adjusted_scores, long_run_meat
@@ -107,3 +115,62 @@ def test_a_wheel_slip_around_its_mean_does_not_bias_c_e() -> None:
         estimate = odocal.calibrate(sim.drive).estimate
         offsets.append(estimate.theta.c_e - c_e / (1.0 + mean_slip))
     assert abs(np.mean(offsets)) < 1e-4                  # 0.1 mm
+
+
+def test_decoupling_takes_the_distance_channels_share_out_of_the_yaw_channel() -> None:
+    rng = np.random.default_rng(3)
+    measured = np.column_stack([rng.uniform(4, 6, 50), rng.uniform(4, 6, 50)])
+    residual = rng.standard_normal((50, 2)) * 1e-3
+    x = np.concatenate([residual[..., None], rng.standard_normal((50, 2, 3))], axis=2)
+    rev = measured - residual @ np.linalg.inv(CHANNELS).T
+    rho = (rev[:, 1] - rev[:, 0]) / rev.mean(axis=1)
+    gain = coupling_gain(measured, residual, np.array([0.8, 0.1]))
+    assert gain is not None
+    np.testing.assert_allclose(gain, 0.8 * rho + 0.1, rtol=1e-12)
+    out = decouple(x, gain)
+    np.testing.assert_array_equal(out[:, 0], x[:, 0])
+    np.testing.assert_allclose(out[:, 1], x[:, 1] - gain[:, None] * x[:, 0], rtol=1e-12)
+    assert coupling_gain(measured, residual, np.zeros(2)) is None
+    assert decouple(x, None) is x
+
+
+def test_the_coupling_is_found_where_it_stands_out_and_only_there() -> None:
+    rng = np.random.default_rng(5)
+    n = 3000
+    measured = np.column_stack([rng.uniform(3, 7, n), rng.uniform(3, 7, n)])
+    e_s = rng.standard_normal(n) * 1e-3                 # revolutions per window
+    independent = np.column_stack([e_s, rng.standard_normal(n) * 1e-3])
+    weight = np.full((n, 2), 1e6)                          # standardised
+    assert coupling_from_sums(coupling_sums(measured, independent, weight)).tolist() == [0, 0]
+    # a common error: the yaw channel carries rho times the distance channel's
+    rev = measured - independent @ np.linalg.inv(CHANNELS).T
+    rho = (rev[:, 1] - rev[:, 0]) / rev.mean(axis=1)
+    coupled = np.column_stack([e_s, rho * e_s + 5e-5 * rng.standard_normal(n)])
+    beta, gamma = coupling_from_sums(coupling_sums(measured, coupled, weight / 0.05**2))
+    assert beta == pytest.approx(1.0, abs=0.05) and abs(gamma) < 0.01
+    # sums of parts add up to the whole (the online calibrator folds them)
+    halves = coupling_sums(measured[:n // 2], coupled[:n // 2], weight[:n // 2]) \
+        + coupling_sums(measured[n // 2:], coupled[n // 2:], weight[n // 2:])
+    np.testing.assert_allclose(halves, coupling_sums(measured, coupled, weight), rtol=1e-12)
+
+
+def _no_coupling() -> odocal.Settings:
+    return odocal.Settings().replace(inverse={"common_wheel_error": "off"})
+
+
+def test_a_slip_common_to_both_wheels_is_taken_out_of_the_yaw_channel() -> None:
+    # a common slip is a yaw error in bends: the fit regresses it out (beta near 1) and t_r
+    # comes out closer over the same four noise draws than with the coupling held off
+    profile = NoiseProfile("common-slip", "common slip of 1%, correlated over 1 s, and white",
+                           slip_fraction=0.01, wheel_white_revps=0.005)
+    with_it, without = [], []
+    for k in range(4):
+        sim = odocal.simulate(duration_s=1200.0, seed=1, noise=profile, noise_seed=k)
+        est = odocal.calibrate(sim.drive).estimate
+        assert est.details.coupling[0] == pytest.approx(1.0, abs=0.25)
+        with_it.append(est.theta.t_r - sim.true_parameters.t_r)
+        off = odocal.calibrate(sim.drive, settings=_no_coupling()).estimate
+        without.append(off.theta.t_r - sim.true_parameters.t_r)
+    assert np.sqrt(np.mean(np.square(with_it))) < 0.7 * np.sqrt(np.mean(np.square(without)))
+    white = odocal.simulate(duration_s=600.0, seed=1, noise="white").drive
+    assert odocal.calibrate(white).estimate.details.coupling == (0.0, 0.0)

@@ -254,6 +254,9 @@ class InverseSettings:
     heading_offset: Literal["estimate", "off"] = "estimate"
     """Find a constant rotation of the reference heading against the direction of travel (a
     mounting yaw) on straight stretches and apply it."""
+    common_wheel_error: Literal["estimate", "off"] = "estimate"
+    """Find the share of the distance channel's errors that shows in the yaw channel (a slip
+    common to both wheels is a yaw error in bends) and take it out where it stands out."""
     max_iterations: int = 10
     tolerance: float = 1e-10
     """Stop when every relative parameter change is below this."""
@@ -266,6 +269,8 @@ class InverseSettings:
                "a time in (0, 2] s")
         _check(self.heading_offset in ("estimate", "off"), s, "heading_offset",
                self.heading_offset, "'estimate' or 'off'")
+        _check(self.common_wheel_error in ("estimate", "off"), s, "common_wheel_error",
+               self.common_wheel_error, "'estimate' or 'off'")
         _check(self.max_iterations >= 1, s, "max_iterations", self.max_iterations,
                "an integer >= 1")
         _check(self.tolerance >= 0, s, "tolerance", self.tolerance, "a number >= 0")
