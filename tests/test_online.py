@@ -63,6 +63,22 @@ def test_agrees_with_batch_where_errors_telescope(noise: str) -> None:
     assert np.all(np.abs(diff) < 1.0), diff
 
 
+def test_agrees_with_batch_where_a_common_slip_shows_in_the_yaw_channel() -> None:
+    """Both take the distance channel's share out of the yaw channel, from sums that fold.
+    (Windows are folded with the coupling of their time: with 4 minutes in memory instead of 8,
+    t_r came out 1.4 of its std from batch's on this drive.)"""
+    drive = odocal.simulate(duration_s=900, seed=4, noise="slip-heavy").drive
+    settings = odocal.Settings().replace(online={"max_windows": 240})
+    calibrator = pushed(drive, 40, OnlineCalibrator(settings))
+    online = calibrator.estimate()
+    batch = odocal.calibrate(drive).estimate
+    assert online.details.windows_in_memory < online.details.windows      # some folded
+    assert batch.details.coupling[0] == pytest.approx(1.0, abs=0.3)
+    np.testing.assert_allclose(online.details.coupling, batch.details.coupling, atol=0.1)
+    diff = (online.theta.as_array() - batch.theta.as_array()) / batch.std
+    assert np.all(np.abs(diff) < 1.0), diff
+
+
 def test_chunk_size_does_not_matter(noisy_drive: SimulatedDrive) -> None:
     a = pushed(noisy_drive.drive, 7).estimate()
     b = pushed(noisy_drive.drive, 4000).estimate()

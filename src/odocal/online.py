@@ -25,8 +25,12 @@ raises an alarm with when, where and how much, and the estimate restarts from th
 The wheel stream's clock offset is found as in batch: the yaw channel's cost scanned over
 shifts of the reference side (each window keeps its moments at every whole-step shift), theta
 refitted at the lag found and the scan repeated until the lag settles; the counting window's
-spread and the prewhitening of telescoping errors are the batch method's too (the filter runs
-on across folded windows). The reference heading's offset against the direction of travel
+spread, the prewhitening of telescoping errors (the filter runs on across folded windows) and
+the yaw channel's share of the distance channel's errors (from moments that fold and can be
+had at any later theta) are the batch method's too. Folded windows keep the weights, lag and
+coupling of their time: with the default memory (600 windows, 20 minutes) the end result
+agrees with batch's to a tenth of a standard deviation on the simulator's noise profiles; with
+a memory of a few minutes on a slip-dominated drive, t_r was 1.4 of its std from batch's. The reference heading's offset against the direction of travel
 comes from the same one-second straight stretches as in batch and is applied when windows are
 used (each keeps its moments across the heading as well), so it is never stale.
 """
@@ -57,6 +61,12 @@ from odocal.inverse import (
     CHANNELS,
     arma_from_sums,
     correlation_sums,
+    coupling_from_sums,
+    coupling_gain,
+    coupling_moments,
+    coupling_sums,
+    coupling_sums_at,
+    decouple,
     expected_revolutions,
     noise_from_sums,
     noise_sums,
@@ -117,6 +127,8 @@ class OnlineDetails:
     noise: tuple[tuple[float, float], tuple[float, float]]
     alarms: tuple[Alarm, ...]
     forgetting_s: float | None
+    coupling: tuple[float, float] = (0.0, 0.0)
+    """The yaw channel's share of the distance channel's errors, as the batch method's."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"samples": self.samples, "windows": self.windows,
@@ -126,7 +138,8 @@ class OnlineDetails:
                 "noise": {"distance": {"s0_rev": self.noise[0][0], "f": self.noise[0][1]},
                           "yaw": {"s0_rev": self.noise[1][0], "f": self.noise[1][1]}},
                 "alarms": [a.to_dict() for a in self.alarms],
-                "forgetting_s": self.forgetting_s}
+                "forgetting_s": self.forgetting_s,
+                "coupling": {"beta": self.coupling[0], "gamma": self.coupling[1]}}
 
 
 def window_prediction(theta: FloatArray, moments: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -181,6 +194,9 @@ class _Folded:
     clusters: int = 0
     # noise-model sums per channel: n, sum rev^2, sum rev^4, sum r^2, sum r^2 rev^2
     noise: FloatArray = field(default_factory=lambda: np.zeros((2, 5)))
+    # the yaw channel's regression on the distance channel's residuals, as moments that give
+    # its sums at any theta (inverse.coupling_moments)
+    coupling: FloatArray = field(default_factory=lambda: np.zeros((5, 1 + _P, 1 + _P)))
     scan: FloatArray | None = None          # the yaw channel's cost at each shift of the scan
     cost: float = 0.0                        # weighted sum of squared residuals
     count: int = 0                           # residuals in it
@@ -196,6 +212,7 @@ class _Folded:
         self.meat *= factor
         self.recent *= math.sqrt(factor)     # their products with newer clusters decay alike
         self.noise *= factor
+        self.coupling *= factor
         self.correlation *= factor
         self.cost *= factor
         if self.scan is not None:
@@ -256,6 +273,9 @@ class OnlineCalibrator:
         self._smooth = self.settings.inverse.delay == "estimate"
         self._kappa = 0.0
         self._ma = np.zeros((2, 2))
+        # the yaw channel's share of the distance channel's errors, and the last fit's sums for it
+        self._coupling = np.zeros(2)
+        self._coupling_sums = np.zeros((2, 3))
         self._u = np.zeros((0, 2))                       # standardised residuals of the last fit
         # the last fit's prewhitened Jacobian per window and its whole information
         self._white_jac = np.zeros((0, 2, _P))
@@ -489,8 +509,9 @@ class OnlineCalibrator:
         measured = np.repeat(head[:, 3:5], g, axis=0)
         pred, _ = window_prediction(theta, at.reshape(n * g, 6))
         r = (measured - pred) @ CHANNELS.T
-        w = window_weights(measured, r, self._noise) * np.repeat(weight, g)[:, None]
-        return np.asarray((w[:, 1] * r[:, 1] ** 2).reshape(n, g).sum(axis=0))
+        gain = coupling_gain(measured, r, self._coupling)
+        w = window_weights(measured, r, self._noise, gain) * np.repeat(weight, g)[:, None]
+        return np.asarray((w[:, 1] * decouple(r, gain)[:, 1] ** 2).reshape(n, g).sum(axis=0))
 
     def shift(self, theta: FloatArray | None = None) -> tuple[float, float]:
         """The reference side's shift (steps) that fits the wheels best, and its std.
@@ -592,15 +613,19 @@ class OnlineCalibrator:
         self._clusters_done += 1
         if rows.shape[0] >= 3 and self._clusters_done > self.settings.online.warmup_clusters:
             self._watch(rows)
-        # a running update from a warm start (estimate() solves to convergence)
+        # a running update from a warm start (estimate() solves to convergence), and of the
+        # coupling, so that windows are folded with a current one
         self.theta, _, _ = self._solve(self.theta, self._rows(shift), np.ones(4, dtype=bool),
                                        iterations=3)
+        self._update_coupling(self.theta)
 
     def _watch(self, rows: FloatArray) -> None:
         """The CUSUM step for one completed cluster's windows."""
         theta = self.theta
         r, j = self._design(np.append(theta, self._kappa), rows)
         w = 1.0 / window_variance(expected_revolutions(rows[:, 3:5], r), self._noise)
+        gain = coupling_gain(rows[:, 3:5], r, self._coupling)
+        r, j = decouple(r, gain), decouple(j, gain)
         for p, name in ((0, "c_e"), (1, "c_d")):
             info = float(np.sum(w * j[:, :, p] ** 2))
             if info <= 0:
@@ -652,9 +677,10 @@ class OnlineCalibrator:
         block = rows
         p = np.append(self.theta, self._kappa)
         r, j = self._design(p, block)
-        w = window_weights(block[:, 3:5], r, self._noise) * block[:, 11:12]
+        gain = coupling_gain(block[:, 3:5], r, self._coupling)
+        w = window_weights(block[:, 3:5], r, self._noise, gain) * block[:, 11:12]
         follows = self._follows(block)
-        stacked, white = self._whiten(p, r, j, w, follows)
+        stacked, white = self._whiten(p, decouple(r, gain), decouple(j, gain), w, follows)
         jj, rr = white[..., 1:], white[..., 0]
         h = np.einsum("wcp,wcq->pq", jj, jj)
         g = np.einsum("wcp,wc->p", jj, rr)
@@ -673,9 +699,10 @@ class OnlineCalibrator:
         f.count += r.size
         f.scan = folded_scan if f.scan is None or f.scan.size != folded_scan.size \
             else f.scan + folded_scan
-        f.correlation += correlation_sums(r * np.sqrt(w), follows)
+        f.correlation += correlation_sums(decouple(r, gain) * np.sqrt(w), follows)
         f.last = (p, stacked[-1].copy(), white[-1].copy(), float(block[-1, 0]))
-        f.noise += noise_sums(block[:, 3:5], r)
+        f.noise += noise_sums(block[:, 3:5], r, gain)
+        f.coupling += coupling_moments(block[:, 3:5], r, j, p, w)
 
     # ---------------------------------------------------------------- output
 
@@ -701,6 +728,7 @@ class OnlineCalibrator:
                 theta, _, _ = self._solve(theta, rows, free)
                 self._ma = arma_from_sums(self._folded.correlation
                                           + correlation_sums(self._u, self._follows(rows)))
+                self._update_coupling(theta)
             # the lag again with this theta, until the two agree (as in batch)
             again = self.shift(theta)[0]
             if abs(again - shift) < _SHIFT_SETTLED:
@@ -738,6 +766,14 @@ class OnlineCalibrator:
                         status=Status.CONVERGED if free.any() else Status.NOTHING_IDENTIFIABLE,
                         details=details)
 
+    def _update_coupling(self, theta: FloatArray) -> None:
+        """The coupling from the folded windows' moments and the last fit's windows in memory
+        (as batch, from the residuals at ``theta``)."""
+        if self.settings.inverse.common_wheel_error == "estimate":
+            self._coupling = coupling_from_sums(
+                coupling_sums_at(self._folded.coupling, np.append(theta, self._kappa))
+                + self._coupling_sums)
+
     def _solve(self, theta: FloatArray, rows: FloatArray, free: BoolArray,
                iterations: int = 8) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Gauss-Newton over the windows in memory and the folded normal equations, on the
@@ -752,9 +788,10 @@ class OnlineCalibrator:
         for _ in range(iterations):
             if rows.shape[0]:
                 r, j = self._design(p, rows)
-                self._noise = noise_from_sums(f.noise + noise_sums(rows[:, 3:5], r))
-                w = window_weights(rows[:, 3:5], r, self._noise) * rows[:, 11:12]
-                _, white = self._whiten(p, r, j, w, follows)
+                gain = coupling_gain(rows[:, 3:5], r, self._coupling)
+                self._noise = noise_from_sums(f.noise + noise_sums(rows[:, 3:5], r, gain))
+                w = window_weights(rows[:, 3:5], r, self._noise, gain) * rows[:, 11:12]
+                _, white = self._whiten(p, decouple(r, gain), decouple(j, gain), w, follows)
                 jj, rr = white[..., 1:], white[..., 0]
                 h = np.einsum("wcp,wcq->pq", jj, jj) + f.h
                 per_window = np.einsum("wcp,wc->wp", jj, rr)
@@ -762,7 +799,8 @@ class OnlineCalibrator:
                 g = per_window.sum(axis=0) + f.b - f.h @ p
                 scores = per_window
                 self._fit_cost = (float(np.sum(rr**2)) + f.cost, r.size + f.count)
-                self._u = r * np.sqrt(w)
+                self._u = decouple(r, gain) * np.sqrt(w)
+                self._coupling_sums = coupling_sums(rows[:, 3:5], r, w)
             else:
                 h, g = f.h.copy(), f.b - f.h @ p
             cols = np.flatnonzero(free_p)
@@ -823,7 +861,8 @@ class OnlineCalibrator:
             heading_offset_rad=self.heading_offset(),
             noise=((float(self._noise[0, 0]), float(self._noise[0, 1])),
                    (float(self._noise[1, 0]), float(self._noise[1, 1]))),
-            alarms=tuple(self._alarms), forgetting_s=self.settings.online.forgetting_s)
+            alarms=tuple(self._alarms), forgetting_s=self.settings.online.forgetting_s,
+            coupling=(float(self._coupling[0]), float(self._coupling[1])))
 
     def _nothing(self, reason: Reason) -> Estimate:
         theta = Parameters.from_array(self.datasheet)
