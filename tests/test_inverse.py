@@ -12,7 +12,9 @@ from odocal.inverse import (
     correlation_sums,
     coupling_from_sums,
     coupling_gain,
+    coupling_moments,
     coupling_sums,
+    coupling_sums_at,
     decouple,
 )
 from odocal.noise import NoiseProfile
@@ -174,3 +176,26 @@ def test_a_slip_common_to_both_wheels_is_taken_out_of_the_yaw_channel() -> None:
     assert np.sqrt(np.mean(np.square(with_it))) < 0.7 * np.sqrt(np.mean(np.square(without)))
     white = odocal.simulate(duration_s=600.0, seed=1, noise="white").drive
     assert odocal.calibrate(white).estimate.details.coupling == (0.0, 0.0)
+
+
+def test_coupling_moments_give_the_sums_at_a_later_theta() -> None:
+    # the online calibrator folds windows as moments linearised where theta was then; at a
+    # later theta they must give what the windows' residuals there give
+    rng = np.random.default_rng(9)
+    n = 400
+    measured = np.column_stack([rng.uniform(3, 7, n), rng.uniform(3, 7, n)])
+    residual = rng.standard_normal((n, 2)) * 1e-3
+    jac = rng.standard_normal((n, 2, 5))
+    weight = rng.uniform(0.5, 2.0, (n, 2)) * 1e6
+    p = np.array([1.95, -0.002, 1.5, 0.0008, 0.1])
+    q = p + rng.standard_normal(5) * 1e-5
+    moved = residual - jac @ (q - p)
+    origin = np.array([2.0, 0.0, 1.6, 0.0, 0.0])          # the datasheet's
+    halves = coupling_moments(measured[:200], residual[:200], jac[:200], p - origin,
+                              weight[:200]) \
+        + coupling_moments(measured[200:], residual[200:], jac[200:], p - origin, weight[200:])
+    np.testing.assert_allclose(coupling_sums_at(halves, p - origin),
+                               coupling_sums(measured, residual, weight), rtol=1e-7)
+    # (the windows' wheel ratio is kept from the linearisation point: it moves by ~1e-5)
+    np.testing.assert_allclose(coupling_sums_at(halves, q - origin),
+                               coupling_sums(measured, moved, weight), rtol=1e-3)

@@ -400,23 +400,26 @@ def coupling_sums(measured: FloatArray, residual: FloatArray, weight: FloatArray
     return np.column_stack([xw.T @ x, xw.T @ residual[:, 1]])
 
 
-def coupling_moments(measured: FloatArray, residual: FloatArray, jac: FloatArray, p: FloatArray,
-                     weight: FloatArray) -> FloatArray:
-    """What :func:`coupling_sums` needs, kept so that it can be had at any later ``q``
+def coupling_moments(measured: FloatArray, residual: FloatArray, jac: FloatArray,
+                     offset: FloatArray, weight: FloatArray) -> FloatArray:
+    """What :func:`coupling_sums` needs, kept so that it can be had at other parameters
     (:func:`coupling_sums_at`): the residuals move with the parameters as ``r - jac (q - p)``.
-    ``jac`` (W, 2, P): the channel predictions' Jacobian at ``p``. Returns (5, 1 + P, 1 + P);
-    moments of different windows and linearisation points add up."""
+    ``jac`` (W, 2, P): the channel predictions' Jacobian at ``p``; ``offset``: ``p`` less a
+    fixed origin near the answer (the moments are taken about it, so that they do not cancel
+    in rounding). Returns (5, 1 + P, 1 + P); moments of different windows and linearisation
+    points add up."""
     rho = _ratio(measured, residual)
-    rows = np.concatenate([(residual + jac @ p)[..., None], -jac], axis=2)   # r(q) = row . [1, q]
+    rows = np.concatenate([(residual + jac @ offset)[..., None], -jac], axis=2)
     s, d, w = rows[:, 0], rows[:, 1], weight[:, 1]
     return np.stack([np.einsum("w,wi,wj->ij", w * f, s, other)
                      for f, other in ((rho**2, s), (rho, s), (np.ones_like(rho), s), (rho, d),
                                       (np.ones_like(rho), d))])
 
 
-def coupling_sums_at(moments: FloatArray, q: FloatArray) -> FloatArray:
-    """:func:`coupling_sums` at parameters ``q`` from :func:`coupling_moments`, shape (2, 3)."""
-    v = np.append(1.0, q)
+def coupling_sums_at(moments: FloatArray, offset: FloatArray) -> FloatArray:
+    """:func:`coupling_sums` at the origin plus ``offset`` from :func:`coupling_moments`, shape
+    (2, 3)."""
+    v = np.append(1.0, offset)
     m = np.einsum("kij,i,j->k", moments, v, v)
     return np.array([[m[0], m[1], m[3]], [m[1], m[2], m[4]]])
 

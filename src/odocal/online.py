@@ -30,9 +30,10 @@ the yaw channel's share of the distance channel's errors (from moments that fold
 had at any later theta) are the batch method's too. Folded windows keep the weights, lag and
 coupling of their time: with the default memory (600 windows, 20 minutes) the end result
 agrees with batch's to a tenth of a standard deviation on the simulator's noise profiles; with
-a memory of a few minutes on a slip-dominated drive, t_r was 1.4 of its std from batch's. The reference heading's offset against the direction of travel
-comes from the same one-second straight stretches as in batch and is applied when windows are
-used (each keeps its moments across the heading as well), so it is never stale.
+a memory of a few minutes on a slip-dominated drive, t_r was 1.4 of its std from batch's.
+The reference heading's offset against the direction of travel comes from the same one-second
+straight stretches as in batch and is applied when windows are used (each keeps its moments
+across the heading as well), so it is never stale.
 """
 
 from __future__ import annotations
@@ -276,6 +277,7 @@ class OnlineCalibrator:
         # the yaw channel's share of the distance channel's errors, and the last fit's sums for it
         self._coupling = np.zeros(2)
         self._coupling_sums = np.zeros((2, 3))
+        self._origin = np.append(self.datasheet, 0.0)    # where the folded moments are taken
         self._u = np.zeros((0, 2))                       # standardised residuals of the last fit
         # the last fit's prewhitened Jacobian per window and its whole information
         self._white_jac = np.zeros((0, 2, _P))
@@ -702,7 +704,7 @@ class OnlineCalibrator:
         f.correlation += correlation_sums(decouple(r, gain) * np.sqrt(w), follows)
         f.last = (p, stacked[-1].copy(), white[-1].copy(), float(block[-1, 0]))
         f.noise += noise_sums(block[:, 3:5], r, gain)
-        f.coupling += coupling_moments(block[:, 3:5], r, j, p, w)
+        f.coupling += coupling_moments(block[:, 3:5], r, j, p - self._origin, w)
 
     # ---------------------------------------------------------------- output
 
@@ -771,7 +773,8 @@ class OnlineCalibrator:
         (as batch, from the residuals at ``theta``)."""
         if self.settings.inverse.common_wheel_error == "estimate":
             self._coupling = coupling_from_sums(
-                coupling_sums_at(self._folded.coupling, np.append(theta, self._kappa))
+                coupling_sums_at(self._folded.coupling,
+                                 np.append(theta, self._kappa) - self._origin)
                 + self._coupling_sums)
 
     def _solve(self, theta: FloatArray, rows: FloatArray, free: BoolArray,
