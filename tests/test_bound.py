@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import odocal
-from odocal.bound import information_bound, wheel_information
-from odocal.model import circumferences
+from odocal.bound import _processes, information_bound, wheel_information
+from odocal.model import circumferences, wheel_rates_for
 from odocal.noise import NOISE_PROFILES, NoiseProfile
 from odocal.settings import Settings
-from odocal.simulate import TRUE_PARAMETERS
+from odocal.simulate import TRUE_PARAMETERS, _wheel_errors
 
 
 def _dense_information(sim: odocal.SimulatedDrive) -> np.ndarray:
@@ -49,20 +49,24 @@ def _dense_information(sim: odocal.SimulatedDrive) -> np.ndarray:
     return j.T @ np.linalg.solve(sigma[np.ix_(seen, seen)], j)
 
 
-@pytest.mark.parametrize("profile", ["white-rate", "slip-heavy", "everything"])
-def test_banded_elimination_matches_the_whole_covariance(profile: str) -> None:
+@pytest.mark.parametrize(("profile", "floor"), [
+    ("white-rate", 1e-4), ("slip-heavy", 1e-4), ("heavy", 1e-4),
+    ("slip", 5e-3),                  # no white noise at all: the floor is all there is
+])
+def test_banded_elimination_matches_the_whole_covariance(profile: str, floor: float) -> None:
     sim = odocal.simulate(duration_s=40.0, seed=1, noise=profile)
     banded = np.linalg.inv(wheel_information(sim.true_parameters.as_array(), sim.true_n_rl,
                                              sim.true_n_rr, sim.profile, sim.drive.t_s))
     dense = np.linalg.inv(_dense_information(sim))
     scale = np.sqrt(np.outer(np.diag(dense), np.diag(dense)))
-    assert np.max(np.abs(banded - dense) / scale) < 1e-4        # the white floor: below 1e-4
+    assert np.max(np.abs(banded - dense) / scale) < floor
 
 
 def test_coloured_noise_without_white_noise_is_bounded_through_the_floor() -> None:
     # no white part: the white floor keeps the bound finite and moves it by less than 1e-3
     sim = odocal.simulate(duration_s=40.0, seed=2, noise="markov")
     banded = sim.cramer_rao_bound()
+    assert banded is not None
     dense = np.linalg.inv(_dense_information(sim))
     assert np.allclose(np.sqrt(np.diag(banded)), np.sqrt(np.diag(dense)), rtol=1e-3)
 
@@ -89,22 +93,71 @@ def test_more_noise_never_lowers_the_bound() -> None:
     sim = odocal.simulate(duration_s=120.0, seed=3, noise="white")
     args = (sim.true_parameters.as_array(), sim.true_n_rl, sim.true_n_rr)
     white = NOISE_PROFILES["white"]
-    base = np.diag(information_bound(*args, white, sim.drive.t_s))
+    def bound(profile: NoiseProfile) -> np.ndarray:
+        out = information_bound(*args, profile, sim.drive.t_s)
+        assert out is not None
+        return np.diag(out)
+
+    base = bound(white)
     for extra in ({"wheel_markov_revps": 0.01}, {"slip_fraction": 0.005},
                   {"slip_differential": 0.001}, {"wheel_white_fraction": 0.01}):
-        more = np.diag(information_bound(*args, dataclasses.replace(white, **extra),
-                                         sim.drive.t_s))
-        assert np.all(more > base), extra
-    doubled = np.diag(information_bound(*args, NOISE_PROFILES["white-2x"], sim.drive.t_s))
-    assert np.allclose(doubled, 4.0 * base, rtol=1e-9)
+        more = bound(dataclasses.replace(white, **extra))
+        assert np.all(more >= base), extra
+        # and by more than the white floor any process brings along (about 1e-6)
+        assert np.any(more > 1.01 * base), extra
+    assert np.allclose(bound(NOISE_PROFILES["white-2x"]), 4.0 * base, rtol=1e-9)
 
 
-def test_profiles_without_counted_wheel_errors_have_a_zero_bound() -> None:
-    sim = odocal.simulate(duration_s=60.0, seed=0, noise="reference")
-    assert not sim.cramer_rao_bound().any()
-    with pytest.raises(ValueError, match="no wheel error"):
+@pytest.mark.parametrize("profile", ["reference", "quantised", "realistic", "everything"])
+def test_no_bound_without_counted_wheel_errors_or_with_tick_counts(profile: str) -> None:
+    # tick counts: the noise is added to rates on the tick grid and can be rounded away
+    sim = odocal.simulate(duration_s=60.0, seed=0, noise=profile)
+    assert sim.cramer_rao_bound() is None
+    with pytest.raises(ValueError, match="does not apply"):
         wheel_information(sim.true_parameters.as_array(), sim.true_n_rl, sim.true_n_rr,
-                          NoiseProfile("quiet", "nothing"), sim.drive.t_s)
+                          sim.profile, sim.drive.t_s)
+
+
+def test_a_drive_without_bends_bounds_only_what_it_carries() -> None:
+    # no yaw rate: nothing about t_r and d (infinite), the circumferences still bounded
+    n = 4000
+    v = np.linspace(5.0, 15.0, n)
+    n_rl, n_rr = wheel_rates_for(TRUE_PARAMETERS.as_array(), v, np.zeros(n), np.zeros(n))
+    bound = information_bound(TRUE_PARAMETERS.as_array(), n_rl, n_rr, NOISE_PROFILES["white"],
+                              0.025)
+    assert bound is not None
+    assert np.all(np.isinf(np.diag(bound)[2:]))
+    assert np.all(np.isfinite(np.diag(bound)[:2])) and np.all(np.diag(bound)[:2] > 0)
+
+
+def test_a_drive_with_a_change_has_no_bound() -> None:
+    after = dataclasses.replace(TRUE_PARAMETERS, c_e=TRUE_PARAMETERS.c_e * 0.99)
+    sim = odocal.simulate(duration_s=60.0, seed=0, noise="white", change=(30.0, after))
+    with pytest.raises(odocal.ConfigError, match="change"):
+        sim.cramer_rao_bound()
+
+
+def test_the_bounds_error_model_is_what_the_simulator_draws() -> None:
+    # constant wheel rates: the simulated errors' variances, the wheels' covariance and the
+    # autocovariance at lags of 1 and 40 steps against the processes the bound integrates out
+    profile = NoiseProfile("mix", "white, coloured and slip", wheel_white_revps=0.01,
+                           wheel_markov_revps=0.015, slip_fraction=0.01,
+                           slip_differential=0.002)
+    t_s, m, rate = 0.025, 400_000, np.array([5.0, 6.0])
+    rng = np.random.default_rng(11)
+    errors = _wheel_errors(rng, profile, np.full(m, 10.0), np.tile(rate, (m, 1)), t_s) - rate
+    model = np.zeros((3, 2, 2))                             # lag 0, 1, 40: (wheel, wheel)
+    for lag_i, lag in enumerate((0, 1, 40)):
+        for std, phi, kind, wheel in _processes(profile, t_s):
+            scale = rate if kind == "slip" else np.ones(2)
+            part = std**2 * phi**lag * np.outer(scale, scale)
+            model[lag_i] += part if wheel < 0 else part * np.eye(2)[wheel][:, None] \
+                * np.eye(2)[wheel][None, :]
+        if lag == 0:
+            model[lag_i] += np.eye(2) * profile.wheel_white_revps**2
+    for lag_i, lag in enumerate((0, 1, 40)):
+        seen = errors[lag:].T @ errors[:m - lag] / (m - lag)
+        np.testing.assert_allclose(seen, model[lag_i], rtol=0.05, atol=2e-3 * model[0].max())
 
 
 def test_noise_seed_drives_one_route_with_other_noise() -> None:
@@ -131,7 +184,9 @@ def test_the_default_method_reaches_the_bound_on_white_noise() -> None:
         assert all(est.identified)
         errors.append(est.theta.as_array() - sim.true_parameters.as_array())
         stds.append(est.std)
-    bound = np.sqrt(np.diag(sim.cramer_rao_bound()))
+    covariance = sim.cramer_rao_bound()
+    assert covariance is not None
+    bound = np.sqrt(np.diag(covariance))
     spread = np.std(errors, axis=0, ddof=1)
     assert np.all(spread / bound > 0.75) and np.all(spread / bound < 1.35), spread / bound
     reported = np.mean(stds, axis=0)

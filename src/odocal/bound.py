@@ -3,8 +3,9 @@
 A simulated drive's wheel rates are the true ones plus errors whose law the noise profile gives.
 Their Fisher information about theta is ``J' Sigma^-1 J``: ``J`` the derivative of the true wheel
 rates (METHOD 1 inverted, at the true motion) with respect to theta, ``Sigma`` the covariance of
-the wheel errors. Its inverse bounds the covariance of every unbiased estimator from below, so a
-mean error that the bound already exceeds is out of reach for any method, not a fault of one.
+the wheel errors. Its inverse bounds the covariance of every unbiased estimator from below: an
+error spread the bound already exceeds is out of reach for any unbiased method, not the fault
+of one.
 
 The wheel errors counted are those a noise profile draws as Gaussian processes
 (:class:`odocal.noise.NoiseProfile`):
@@ -16,22 +17,34 @@ The wheel errors counted are those a noise profile draws as Gaussian processes
 They are written as latent first-order processes (banded precision) and integrated out:
 ``J' W^-1 J - B' A^-1 B`` with ``W`` the white variances, ``A = Q + H' W^-1 H`` banded in time
 (``Q`` the processes' precision, ``H`` how they enter the rates) and ``B = H' W^-1 J``. Everything
-else a profile does is left out, and each left-out part can only make the true bound larger:
+else a profile does is left out, and each of these left-out parts can only make the true bound
+larger:
 
 * the reference pose's errors (the bound takes the true motion as known), the IMU's and the
   sideslip's;
-* quantised tick counts (a rounding of the rates: information cannot grow by it);
-* a clock delay, the counting window and slip that follows the acceleration (taken as known).
+* a clock delay (taken as known).
 
-Two things go the other way, and each raises the computed bound by at most about 1e-4 of its
-std:
+White noise proportional to the rate is taken at the true rate (the simulator takes it at the
+rate after slip and coloured noise; no profile draws both).
 
-* the information in the errors' *level* is left out: where the noise is all proportional to
-  the rate (a fraction f of it), the level says about ``2 / c_e^2`` per sample of c_e against
-  ``1 / (f c_e)^2`` from the rates' mean (2e-4 of it at f = 1%), and less of the others;
+A profile that counts ticks (``ticks_per_rev``) has no bound here: the simulator adds its white
+and coloured noise *after* the tick count, to rates that sit on a grid of ``1 / (ticks window
+t_s)``, and noise much smaller than the grid step can be rounded away (on ``realistic`` every
+sample's white noise can), so the counted noise would not bound anything.
+
+Three things go the other way, and raise the computed bound above the true one a little:
+
+* the information in the errors' *level* is left out (the level follows the rate, and so
+  theta): where the noise is white and all proportional to the rate (a fraction f of it), the
+  level says about ``2 / c_e^2`` per sample of c_e against ``1 / (f c_e)^2`` from the rates'
+  mean (1e-4 of c_e's std at f = 1%); for slip, correlated over a second, it is far more:
+  leaving it out raises c_e's std by 0.4% (``slip``) and 0.6% (``slip-heavy``);
+* slip that follows the acceleration is left out; known, it would scale the signal by
+  ``1 + k a_x`` and lower the bound by up to 0.16% (t_r on ``slip-heavy``);
 * a white floor of 3% of the smallest process innovation's std keeps ``W`` invertible and the
   elimination well conditioned where a profile draws little or no white noise (a smaller
-  floor loses more to rounding in ``J' W^-1 J - B' A^-1 B``).
+  floor loses more to rounding in ``J' W^-1 J - B' A^-1 B``); it raises c_d's std by 5e-4 on
+  ``slip``, which draws none, and by less where there is white noise.
 
 Samples at rest are read as 0 exactly by the simulated encoders and carry nothing.
 """
@@ -47,7 +60,7 @@ from scipy.linalg import solveh_banded
 from odocal.model import body_rates, wheel_rates_for
 from odocal.noise import NoiseProfile
 
-__all__ = ["counted", "information_bound", "wheel_information"]
+__all__ = ["applies", "information_bound", "wheel_information"]
 
 FloatArray = NDArray[np.float64]
 
@@ -95,11 +108,12 @@ def _processes(profile: NoiseProfile, t_s: float) -> list[tuple[float, float, st
     return out
 
 
-def counted(profile: NoiseProfile) -> bool:
-    """Whether ``profile`` draws a wheel error this bound counts (else the bound is zero)."""
-    return bool(profile.wheel_white_revps or profile.wheel_white_fraction
-                or profile.wheel_markov_revps or profile.slip_fraction
-                or profile.slip_differential)
+def applies(profile: NoiseProfile) -> bool:
+    """Whether this bound applies to ``profile``: it draws a wheel error the bound counts, and
+    no tick counting that the counted noise is added to."""
+    return not profile.ticks_per_rev and bool(
+        profile.wheel_white_revps or profile.wheel_white_fraction or profile.wheel_markov_revps
+        or profile.slip_fraction or profile.slip_differential)
 
 
 def wheel_information(theta: FloatArray, n_rl: FloatArray, n_rr: FloatArray,
@@ -124,9 +138,10 @@ def wheel_information(theta: FloatArray, n_rl: FloatArray, n_rr: FloatArray,
                                                           else 1.0)
                        for std, phi, kind, _ in processes)
         white = white + (_FLOOR * smallest)**2
-    elif not counted(profile):
-        raise ValueError(f"noise profile {profile.name!r} draws no wheel error this bound counts")
-    inv_w = np.where(seen, 1.0 / white, 0.0)              # (M, 2)
+    if not applies(profile):
+        raise ValueError(f"the bound does not apply to noise profile {profile.name!r} (no "
+                         f"wheel error it counts, or tick counts under the noise)")
+    inv_w = np.divide(1.0, white, out=np.zeros_like(rates), where=seen)     # (M, 2)
 
     info = np.einsum("mip,mi,miq->pq", jac, inv_w, jac)
     if not processes:
@@ -159,10 +174,19 @@ def wheel_information(theta: FloatArray, n_rl: FloatArray, n_rr: FloatArray,
 
 
 def information_bound(theta: FloatArray, n_rl: FloatArray, n_rr: FloatArray,
-                      profile: NoiseProfile, t_s: float) -> FloatArray:
-    """The Cramér-Rao bound: the inverse of :func:`wheel_information`, shape (4, 4); zero for
-    a profile whose wheel errors are none this bound counts."""
-    if not counted(profile):
-        return np.zeros((4, 4))
+                      profile: NoiseProfile, t_s: float) -> FloatArray | None:
+    """The Cramér-Rao bound: the inverse of :func:`wheel_information`, shape (4, 4); infinite
+    on the diagonal for a parameter the drive carries no information on (no bend: t_r, d).
+    None where the bound does not apply (:func:`applies`)."""
+    if not applies(profile):
+        return None
     info = wheel_information(theta, n_rl, n_rr, profile, t_s)
-    return np.asarray(np.linalg.inv(info))
+    diag = np.diag(info)
+    some = diag > 1e-12 * max(float(diag.max()), 1e-300)
+    out = np.full((4, 4), np.nan)
+    np.fill_diagonal(out, np.inf)
+    try:
+        out[np.ix_(some, some)] = np.linalg.inv(info[np.ix_(some, some)])
+    except np.linalg.LinAlgError:
+        pass                                              # collinear: nothing bounded
+    return out

@@ -141,7 +141,8 @@ def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
             cal, sd = "not identified", ""
         line = f"{name:<10} {_fmt_param(name, theta0[name]):>16} {cal:>16} {sd:>10}"
         if best_std is not None:
-            line += f" {_fmt_std(name, best_std[PARAMETER_NAMES.index(name)]):>10}"
+            best = best_std[PARAMETER_NAMES.index(name)]
+            line += f" {_fmt_std(name, best) if math.isfinite(best) else '-':>10}"
         if true is not None:
             err = _fmt_std(name, abs(theta[name] - true[name])).replace("+-", "") if ok else ""
             line += f" {_fmt_param(name, true[name]):>16} {err:>10}"
@@ -198,7 +199,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         result = _compared(result, [sim.drive], settings, sim.true_parameters, args.quiet)
     if not args.quiet:
         bound = sim.cramer_rao_bound()
-        best = [math.sqrt(max(v, 0.0)) for v in bound.diagonal()] if bound.any() else None
+        best = None if bound is None else [math.sqrt(v) for v in bound.diagonal()]
         print_summary(result, truth=sim.true_parameters, truth_error_m=truth_error,
                       best_std=best)
     if args.out:

@@ -57,6 +57,7 @@ class SimulatedDrive:
     true_poses : noise-free poses, shape (M, 3)
     profile : the noise profile applied
     seed : the seed
+    changed : whether the wheels turn as another theta from some time on (``change``)
     """
 
     drive: Drive
@@ -66,12 +67,15 @@ class SimulatedDrive:
     true_poses: FloatArray
     profile: NoiseProfile
     seed: int
+    changed: bool = False
 
-    def cramer_rao_bound(self) -> FloatArray:
+    def cramer_rao_bound(self) -> FloatArray | None:
         """The covariance no unbiased calibration of this drive can beat, shape (4, 4): the
         wheel errors' Cramér-Rao bound (:mod:`odocal.bound`; the reference pose taken as
-        exact). For a drive simulated without a ``change``."""
+        exact), or None where it does not apply (no wheel error it counts, or tick counts)."""
         from odocal.bound import information_bound
+        if self.changed:
+            raise ConfigError("a drive simulated with a change has no one theta to bound")
         return information_bound(self.true_parameters.as_array(), self.true_n_rl,
                                  self.true_n_rr, self.profile, self.drive.t_s)
 
@@ -150,7 +154,7 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
                   "true_theta": (theta or TRUE_PARAMETERS).as_dict()})
     return SimulatedDrive(drive=drive, true_parameters=Parameters.from_array(true_theta),
                           true_n_rl=n_rl, true_n_rr=n_rr, true_poses=poses, profile=profile,
-                          seed=seed)
+                          seed=seed, changed=change is not None)
 
 
 def _route(rng: np.random.Generator, duration_s: float
