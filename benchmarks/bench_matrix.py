@@ -7,15 +7,17 @@ For every profile of :data:`odocal.noise.NOISE_PROFILES` and every seed, one sim
 (20 minutes by default) is calibrated by every method. Printed per profile and method, for each
 parameter (mm, d in mm per m/s^2): the mean error over seeds (bias), the spread (std over seeds),
 the mean absolute error, the RMS of error / reported std (1 is an honest uncertainty) and the
-largest |z|, and whether the parameter was identified in every seed. Above them, the drives'
-Cramér-Rao bound (:mod:`odocal.bound`: the smallest std any unbiased calibration can have with
-the profile's wheel errors, RMS over the seeds) and the mean |error| a normal error of that std
-has (0.80 of it). A closing table checks the targets of issue 9 for each method: mean |error| of
-c_e and c_d at most 0.3 mm and of t_r at most 10 mm, RMS z at most 1.5 and no |z| above 3; a
-target that the bound's mean |error| already exceeds is marked "bound" (no unbiased method can
-meet it on these drives). The last table counts |z| above 1, 2 and 3 over every profile, seed and
-parameter against a standard normal's rates (with 5 seeds, 300 values: an honest uncertainty
-gives |z| > 3 about once).
+largest |z|, and whether the parameter was identified in every seed. Above them, where it
+applies, the drives' Cramér-Rao bound (:mod:`odocal.bound`: the smallest std any unbiased
+calibration can have with the profile's wheel errors, RMS over the seeds) and the mean |error| a
+normal error of that std has (0.80 of it). A closing table checks the targets of issue 9 for
+each method: mean |error| of c_e and c_d at most 0.3 mm and of t_r at most 10 mm, RMS z at most
+1.5 and no |z| above 3. A missed target is marked "bound" where the bound's mean |error| already
+exceeds it (no unbiased method can meet it on these drives) *and* the method's mean |error| is
+within what the seeds' spread allows of the bound's (two standard errors of a mean |error| from
+that many seeds: 1.34 times it with 20, 1.68 with 5). The last table counts |z| above 1, 2 and
+3 over every profile, seed and parameter against a standard normal's rates (with 5 seeds, 300
+values: an honest uncertainty gives |z| > 3 about once).
 """
 
 from __future__ import annotations
@@ -43,8 +45,9 @@ def one_run(profile: str, seed: int, duration: float, methods: list[str],
             settings: Settings) -> dict[str, Any]:
     sim = odocal.simulate(duration_s=duration, seed=seed, noise=profile)
     truth = sim.true_parameters.as_array()
+    bound = sim.cramer_rao_bound()
     out: dict[str, Any] = {"profile": profile, "seed": seed, "methods": {},
-                           "bound": np.sqrt(np.diag(sim.cramer_rao_bound())).tolist()}
+                           "bound": None if bound is None else np.sqrt(np.diag(bound)).tolist()}
     for method in methods:
         started = time.perf_counter()
         result = odocal.calibrate(sim.drive, settings=settings, method=method)
@@ -61,9 +64,11 @@ def summarise(runs: list[dict[str, Any]], profile: str, methods: list[str]) -> d
     print(f"\n== {profile}: {NOISE_PROFILES[profile].description} ({len(rows)} seeds)")
     print(f"  {'method':<12}{'':>6}" + "".join(f"{n:>11}" for n in PARAMETER_NAMES)
           + f"{'s/run':>8}")
-    bound = np.sqrt(np.mean((np.array([r["bound"] for r in rows]) * MM)**2, axis=0))
-    summary: dict[str, Any] = {"bound": bound.tolist()}
-    if bound.any():
+    bounds = [r["bound"] for r in rows if r["bound"] is not None]
+    bound = np.sqrt(np.mean((np.array(bounds) * MM)**2, axis=0)) if len(bounds) == len(rows) \
+        else np.full(4, np.nan)
+    summary: dict[str, Any] = {"bound": bound.tolist(), "seeds": len(rows)}
+    if np.isfinite(bound).any():
         for label, values in (("bound", bound), ("mean|e|", HALF_NORMAL * bound)):
             print(f"  {'Cramér-Rao' if label == 'bound' else '':<12}{label:>8}"
                   + "".join(f"{v:>11.3f}" for v in values))
@@ -99,7 +104,10 @@ def targets(summaries: dict[str, dict[str, Any]], methods: list[str]) -> None:
     below_bound = []
     for profile, summary in summaries.items():
         cells = []
-        out_of_reach = HALF_NORMAL * np.array(summary["bound"]) > TARGET_ABS
+        at_bound = HALF_NORMAL * np.array(summary["bound"], dtype=float)
+        out_of_reach = np.nan_to_num(at_bound, nan=0.0) > TARGET_ABS
+        # a mean |error| from n seeds varies by 0.755 / sqrt(n) of itself (a normal error)
+        allowance = 1.0 + 2.0 * 0.755 / math.sqrt(summary["seeds"])
         if out_of_reach.any():
             below_bound.append(f"{profile} " + ", ".join(
                 f"{PARAMETER_NAMES[j]} {HALF_NORMAL * summary['bound'][j]:.3g}"
@@ -112,8 +120,10 @@ def targets(summaries: dict[str, dict[str, Any]], methods: list[str]) -> None:
             z_ok = np.all(np.nan_to_num(rms, nan=1.0) <= 1.5) and \
                 np.all(np.nan_to_num(np.array(s["max|z|"], dtype=float), nan=0.0) <= 3.0)
             honest = np.all(np.nan_to_num(rms, nan=1.0) >= 0.6)
+            mean_abs = np.array(s["mean|e|"], dtype=float)
+            near = np.all(mean_abs[missed] <= allowance * at_bound[missed])
             error = ("error ok" if abs_ok else "ERROR bound" if np.all(out_of_reach[missed])
-                     else "ERROR")
+                     and near else "ERROR")
             cells.append(error + ("/z ok" if z_ok and honest else "/z lo" if z_ok else "/Z"))
         print(f"  {profile:<18}" + "".join(f"{c:>18}" for c in cells))
     if below_bound:
