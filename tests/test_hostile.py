@@ -248,7 +248,12 @@ def test_sigint_stops_a_run_promptly(tmp_path: Path) -> None:
                              "compensated", "--out", str(tmp_path / "o"), "--workers", "2"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
-    time.sleep(6.0)
+    # interrupted once it is computing (its progress lines say where it is), however fast
+    # the machine: not after a fixed time
+    assert proc.stderr is not None
+    for line in proc.stderr:
+        if "step 2" in line:
+            break
     assert proc.poll() is None, "the run ended before it could be interrupted"
     sent = time.monotonic()
     err = interrupt(proc, 20, "the run")
