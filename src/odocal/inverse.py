@@ -38,13 +38,14 @@ What remains is done from the data:
   yaw) shortens every projected step by the cosine of the offset; it is measured on the straight
   stretches and applied.
 * **A wheel error common to both wheels.** A slip (or any error) that scales both wheels'
-  revolutions alike shows in the distance channel and, times the window's ratio of the
+  revolutions alike shows in the distance channel and, times the window's ratio ``rho`` of the
   wheels' difference to their mean, in the yaw channel: in bends it is a yaw error. The yaw
-  channel's residuals are regressed on the distance channel's, ``(beta rho + gamma) r_s``
-  (``rho`` that ratio; ``gamma`` takes a constant share, e.g. wheels of unequal noise), and where
-  the pair stands out (Wald statistic above 13.8) that part is taken out of the yaw channel and
-  its Jacobian: generalised least squares with the two channels' covariance, which took the
-  ``slip-heavy`` t_r error from 4.0 to 3.0 mm. Elsewhere it stays off, and nothing changes.
+  channel's residuals are regressed on ``rho`` times the distance channel's (``beta``: 1 for a
+  common slip, a little less with other noise), over windows that move one way, turn no
+  tighter than ``|rho| <= 0.5`` and are not outliers; where ``beta`` stands out (Wald statistic
+  above 10.83) and lies in [0.5, 1.5], that part is taken out of the yaw channel and its
+  Jacobian: generalised least squares with the two channels' covariance. On ``slip-heavy`` it
+  took the t_r error from 4.0 to 2.7 mm (20 seeds); where there is no common error it stays off.
 * **Telescoping errors.** Errors that are differences of something bounded (rounded tick
   counts, a reference pose's own errors differenced per window) are found from the residuals'
   lag-one and lag-two correlations and prewhitened (ARMA(1,1), generalised least squares).
@@ -95,7 +96,9 @@ _MAX_MA = 0.95            # prewhitening stays a stable filter
 _P = 5                    # theta and the counting window's spread
 _SHIFT_ROUNDS = 6         # the lag scanned and theta refitted in turn at most so often
 _SHIFT_SETTLED = 1e-3     # steps
-COUPLING_WALD = 13.8      # the yaw channel's share of the distance channel's errors: when used
+COUPLING_WALD = 10.83     # the common wheel error's share in the yaw channel: used where its
+COUPLING_RANGE = (0.5, 1.5)  # Wald statistic (chi-square, 1 dof, p = 0.001) and value allow
+_RHO_MAX = 0.5            # windows with a larger wheel difference over mean (reversing, spikes)
 
 
 @dataclass(frozen=True)
@@ -296,7 +299,7 @@ def prewhiten(x: FloatArray, follows: BoolArray, ma: FloatArray,
 
 
 def _evaluate(p: FloatArray, steps: _Steps, win: _Windows, shift: float, smooth: bool,
-              noise: FloatArray, ma: FloatArray, coupling: FloatArray, channels: FloatArray,
+              noise: FloatArray, ma: FloatArray, coupling: float, channels: FloatArray,
               iterations: int, history: list[float]) -> _Fit:
     pred, jac = _predict(p, steps, win, shift, smooth)
     r = (win.measured - pred) @ CHANNELS.T
@@ -313,13 +316,13 @@ def _evaluate(p: FloatArray, steps: _Steps, win: _Windows, shift: float, smooth:
 
 
 def _solve(p0: FloatArray, steps: _Steps, win: _Windows, shift: float, free: BoolArray,
-           noise: FloatArray, ma: FloatArray, coupling: FloatArray, max_iterations: int,
+           noise: FloatArray, ma: FloatArray, coupling: float, max_iterations: int,
            tolerance: float, channels: FloatArray) -> _Fit:
     """Weighted Gauss-Newton on the prewhitened channel residuals (nearly linear in theta).
 
     ``free`` (5,) marks the free parameters of ``p`` (theta and kappa); ``ma`` (2, 2) the
-    prewhitening of each channel (see :func:`arma_from_sums`); ``coupling`` (2,) the yaw
-    channel's share of the distance channel's errors (:func:`coupling_from_sums`);
+    prewhitening of each channel (see :func:`arma_from_sums`); ``coupling`` the common wheel
+    error's share in the yaw channel (``beta``, :func:`coupling_from_sums`);
     ``channels`` (2,) scales the weights of the distance and yaw channels (0 leaves one out).
     """
     p = p0.copy()
@@ -373,12 +376,13 @@ def _ratio(measured: FloatArray, residual: FloatArray) -> FloatArray:
 
 
 def coupling_gain(measured: FloatArray, residual: FloatArray,
-                  coupling: FloatArray) -> FloatArray | None:
-    """(W,): the share ``beta rho + gamma`` of each window's distance-channel error that shows in
-    its yaw channel (None where ``coupling`` is off)."""
-    if not np.any(coupling):
+                  beta: float) -> FloatArray | None:
+    """(W,): the share ``beta rho`` of each window's distance-channel error that shows in its
+    yaw channel (0 where ``|rho|`` is beyond a car's turning; None where ``beta`` is 0)."""
+    if beta == 0.0:
         return None
-    return np.asarray(coupling[0] * _ratio(measured, residual) + coupling[1])
+    rho = _ratio(measured, residual)
+    return np.asarray(np.where(np.abs(rho) <= _RHO_MAX, beta * rho, 0.0))
 
 
 def decouple(x: FloatArray, gain: FloatArray | None) -> FloatArray:
@@ -390,14 +394,25 @@ def decouple(x: FloatArray, gain: FloatArray | None) -> FloatArray:
     return out
 
 
+def _regressor(measured: FloatArray, residual: FloatArray,
+               weight: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Each window's ``rho`` and its weight in the coupling's regression: the yaw channel's,
+    or 0 for a window that reverses, turns tighter than ``|rho| = 0.5`` or is an outlier in the
+    distance channel (such windows would carry the regression alone)."""
+    rev = expected_revolutions(measured, residual)
+    rho = _ratio(measured, residual)
+    usable = ((rev[:, 0] * rev[:, 1] > 0) & (np.abs(rho) <= _RHO_MAX)
+              & (np.abs(residual[:, 0]) * np.sqrt(weight[:, 0]) <= _HUBER))
+    return rho, np.where(usable, weight[:, 1], 0.0)
+
+
 def coupling_sums(measured: FloatArray, residual: FloatArray, weight: FloatArray) -> FloatArray:
-    """Sums that regress the yaw channel's residuals on the distance channel's
+    """Sums that regress the yaw channel's residuals on ``rho`` times the distance channel's
     (:func:`coupling_from_sums`); they add up over parts. ``weight`` (W, 2): the windows'
-    weights (the yaw channel's are used). Returns (2, 3): ``X' W X`` beside ``X' W y``, with
-    ``X = [rho r_s, r_s]``, ``y = r_d``."""
-    x = np.column_stack([_ratio(measured, residual) * residual[:, 0], residual[:, 0]])
-    xw = x * weight[:, 1:2]
-    return np.column_stack([xw.T @ x, xw.T @ residual[:, 1]])
+    weights. Returns (2,): ``sum w x^2, sum w x y`` with ``x = rho r_s``, ``y = r_d``."""
+    rho, w = _regressor(measured, residual, weight)
+    x = rho * residual[:, 0]
+    return np.array([float(np.sum(w * x * x)), float(np.sum(w * x * residual[:, 1]))])
 
 
 def coupling_moments(measured: FloatArray, residual: FloatArray, jac: FloatArray,
@@ -406,37 +421,35 @@ def coupling_moments(measured: FloatArray, residual: FloatArray, jac: FloatArray
     (:func:`coupling_sums_at`): the residuals move with the parameters as ``r - jac (q - p)``.
     ``jac`` (W, 2, P): the channel predictions' Jacobian at ``p``; ``offset``: ``p`` less a
     fixed origin near the answer (the moments are taken about it, so that they do not cancel
-    in rounding). Returns (5, 1 + P, 1 + P); moments of different windows and linearisation
+    in rounding). Returns (2, 1 + P, 1 + P); moments of different windows and linearisation
     points add up."""
-    rho = _ratio(measured, residual)
+    rho, w = _regressor(measured, residual, weight)
     rows = np.concatenate([(residual + jac @ offset)[..., None], -jac], axis=2)
-    s, d, w = rows[:, 0], rows[:, 1], weight[:, 1]
-    return np.stack([np.einsum("w,wi,wj->ij", w * f, s, other)
-                     for f, other in ((rho**2, s), (rho, s), (np.ones_like(rho), s), (rho, d),
-                                      (np.ones_like(rho), d))])
+    s, d = rows[:, 0], rows[:, 1]
+    return np.stack([np.einsum("w,wi,wj->ij", w * rho**2, s, s),
+                     np.einsum("w,wi,wj->ij", w * rho, s, d)])
 
 
 def coupling_sums_at(moments: FloatArray, offset: FloatArray) -> FloatArray:
     """:func:`coupling_sums` at the origin plus ``offset`` from :func:`coupling_moments`, shape
-    (2, 3)."""
+    (2,)."""
     v = np.append(1.0, offset)
-    m = np.einsum("kij,i,j->k", moments, v, v)
-    return np.array([[m[0], m[1], m[3]], [m[1], m[2], m[4]]])
+    return np.asarray(np.einsum("kij,i,j->k", moments, v, v))
 
 
-def coupling_from_sums(sums: FloatArray) -> FloatArray:
-    """``beta, gamma`` of the yaw channel's share of the distance channel's errors, or zeros
-    where the pair does not stand out (Wald statistic below :data:`COUPLING_WALD`: the
-    weights standardise the residuals, so it is chi-square with two degrees of freedom where
-    there is no coupling, above 13.8 once in 1000 drives; a coupling used where there is none
-    costs a few per cent of t_r's precision, one left out where there is one up to 70%)."""
-    a, b = sums[:, :2], sums[:, 2]
-    if not np.all(np.isfinite(sums)) or np.linalg.det(a) <= 1e-12 * max(np.trace(a), 1e-300)**2:
-        return np.zeros(2)
-    coupling = np.linalg.solve(a, b)
-    if float(coupling @ a @ coupling) < COUPLING_WALD:
-        return np.zeros(2)
-    return np.asarray(coupling)
+def coupling_from_sums(sums: FloatArray) -> float:
+    """``beta``, the common wheel error's share in the yaw channel, or 0 where it does not stand
+    out (Wald statistic below :data:`COUPLING_WALD`; the weights standardise the residuals, so
+    it is chi-square with one degree of freedom where there is no such error) or lies outside
+    :data:`COUPLING_RANGE` (a common slip gives 1; what else correlates the channels, e.g.
+    rounded tick counts that telescope, can pass the Wald test with a beta of 2 to 12)."""
+    sxx, sxy = float(sums[0]), float(sums[1])
+    if not (math.isfinite(sxx) and math.isfinite(sxy)) or sxx <= 0.0:
+        return 0.0
+    beta = sxy / sxx
+    if beta * beta * sxx < COUPLING_WALD or not COUPLING_RANGE[0] <= beta <= COUPLING_RANGE[1]:
+        return 0.0
+    return beta
 
 
 def correlation_sums(u: FloatArray, follows: BoolArray) -> FloatArray:
@@ -591,10 +604,10 @@ class InverseDetails:
     smoothing_steps2: float = 0.0
     """The variance of the wheel stream's counting window beyond the lag, steps^2 (a moving
     average over w samples: (w^2 - 1) / 12)."""
-    coupling: tuple[float, float] = (0.0, 0.0)
-    """``beta, gamma``: the yaw channel's share of the distance channel's errors, ``beta``
-    times the window's wheel difference over their mean plus ``gamma`` (both 0: not used).
-    A slip common to both wheels gives ``beta`` 1."""
+    coupling: float = 0.0
+    """``beta``: the share of the distance channel's errors that shows in the yaw channel, times
+    the window's wheel difference over their mean (0: not used). A slip common to both wheels
+    gives about 1 (less where other errors dilute the regression)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"windows": self.windows, "window_s": self.window_s, "clusters": self.clusters,
@@ -609,7 +622,7 @@ class InverseDetails:
                 "prewhitening": {"distance": self.prewhitening[0],
                                  "yaw": self.prewhitening[1]},
                 "smoothing_steps2": self.smoothing_steps2,
-                "coupling": {"beta": self.coupling[0], "gamma": self.coupling[1]},
+                "coupling_beta": self.coupling,
                 "elapsed_s": self.elapsed_s}
 
 
@@ -645,7 +658,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
 
     noise = np.array([[1e-3, 1e-3], [1e-3, 1e-3]])
     ma = np.zeros((2, 2))
-    coupling = np.zeros(2)
+    coupling = 0.0
     channels = np.array([1.0, 0.0 if distance_only else 1.0])
     smooth = cfg.delay == "estimate" and not distance_only
 
@@ -654,9 +667,9 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         return _solve(p, steps, win, shift, np.append(free, smooth), noise, ma, coupling,
                       cfg.max_iterations, cfg.tolerance, channels)
 
-    def error_model(fit: _Fit) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def error_model(fit: _Fit) -> tuple[float, FloatArray, FloatArray]:
         """The coupling, noise model and prewhitening from a fit's residuals."""
-        new = np.zeros(2) if distance_only or cfg.common_wheel_error == "off" \
+        new = 0.0 if distance_only or cfg.common_wheel_error == "off" \
             else coupling_from_sums(
             coupling_sums(win.measured, fit.residual, fit.weight))
         return (new, _fit_noise(win.measured, fit.residual,
@@ -725,7 +738,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         cluster=win.cluster, measured=win.measured @ CHANNELS.T, residual=fit.residual,
         prewhitening=(float(ma[0, 0]), float(ma[1, 0])),
         smoothing_steps2=float(2.0 * fit.theta[4]),
-        coupling=(float(coupling[0]), float(coupling[1])))
+        coupling=float(coupling))
     if not free.any():
         status = Status.NOTHING_IDENTIFIABLE
     elif float(np.max(rms)) < 1e-9:
@@ -765,7 +778,7 @@ def _nothing(settings: Settings, datasheet: FloatArray, held: dict[str, NotIdent
 
 
 def _scan_delay(theta: FloatArray, steps: _Steps, win: _Windows, noise: FloatArray,
-                coupling: FloatArray, limit: int) -> tuple[float, float]:
+                coupling: float, limit: int) -> tuple[float, float]:
     """The shift (steps) of the reference side that fits the wheels best, and its std.
 
     The yaw channel's cost is scanned at half-step spacing with theta fixed, and the minimum
