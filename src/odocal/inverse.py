@@ -367,9 +367,8 @@ def window_variance(measured: FloatArray, noise: FloatArray) -> FloatArray:
     return noise[None, :, 0] ** 2 + (noise[None, :, 1] * rev) ** 2
 
 
-def _ratio(measured: FloatArray, residual: FloatArray) -> FloatArray:
-    """(W,): each window's difference of the wheels' explained revolutions over their mean."""
-    rev = expected_revolutions(measured, residual)
+def _ratio(rev: FloatArray) -> FloatArray:
+    """(W,): each window's difference of the wheels' revolutions ``rev`` over their mean."""
     mean = rev.mean(axis=1)
     safe = np.where(np.abs(mean) > 1e-9, mean, np.inf)
     return np.asarray((rev[:, 1] - rev[:, 0]) / safe)
@@ -381,7 +380,7 @@ def coupling_gain(measured: FloatArray, residual: FloatArray,
     yaw channel (0 where ``|rho|`` is beyond a car's turning; None where ``beta`` is 0)."""
     if beta == 0.0:
         return None
-    rho = _ratio(measured, residual)
+    rho = _ratio(expected_revolutions(measured, residual))
     return np.asarray(np.where(np.abs(rho) <= _RHO_MAX, beta * rho, 0.0))
 
 
@@ -400,7 +399,7 @@ def _regressor(measured: FloatArray, residual: FloatArray,
     or 0 for a window that reverses, turns tighter than ``|rho| = 0.5`` or is an outlier in the
     distance channel (such windows would carry the regression alone)."""
     rev = expected_revolutions(measured, residual)
-    rho = _ratio(measured, residual)
+    rho = _ratio(rev)
     usable = ((rev[:, 0] * rev[:, 1] > 0) & (np.abs(rho) <= _RHO_MAX)
               & (np.abs(residual[:, 0]) * np.sqrt(weight[:, 0]) <= _HUBER))
     return rho, np.where(usable, weight[:, 1], 0.0)
@@ -669,9 +668,9 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
 
     def error_model(fit: _Fit) -> tuple[float, FloatArray, FloatArray]:
         """The coupling, noise model and prewhitening from a fit's residuals."""
-        new = 0.0 if distance_only or cfg.common_wheel_error == "off" \
-            else coupling_from_sums(
-            coupling_sums(win.measured, fit.residual, fit.weight))
+        new = 0.0
+        if not distance_only and cfg.common_wheel_error == "estimate":
+            new = coupling_from_sums(coupling_sums(win.measured, fit.residual, fit.weight))
         return (new, _fit_noise(win.measured, fit.residual,
                                 coupling_gain(win.measured, fit.residual, new)),
                 arma_from_sums(correlation_sums(fit.decoupled * np.sqrt(fit.weight),
