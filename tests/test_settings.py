@@ -45,6 +45,8 @@ def test_toml_overrides_some_keys(tmp_path: Path) -> None:
     ("[identify]\ntheta0 = [2, 0, 1.6]\n", r"theta0 .* expected a list of 4 values"),
     ("[compensate]\nsolver = \"cvx\"\n", r"solver = 'cvx' is invalid"),
     ("[compensate]\nrate_bound = 1.5\n", r"rate_bound = 1.5 is invalid"),
+    ("[inverse]\ncommon_wheel_error = \"maybe\"\n",
+     r"common_wheel_error = 'maybe' is invalid: expected 'estimate' or 'off'"),
     ("segments = 3\n", r"\[segments\] must be a table"),
     ("[segments\n", r"is not valid TOML"),
 ])
