@@ -1,4 +1,4 @@
-"""Evidence (issues 3 and 6): raw batch G-N, the three-step method and the joint estimator.
+"""Evidence (issues 3 and 6): raw batch G-N and the three-step method.
 
     python benchmarks/bench_bias.py [--seeds 10] [--duration 1800] [--profiles white,slip,...]
                                     [--out results.json]
@@ -12,7 +12,6 @@ For every noisy simulator profile and seed, one calibration drive and one held-o
 * ``comp-10``      step 3 on the same batch of 10 with its compensated rates (theta_BF)
 * ``oracle``       step 3 on all segments with rates compensated with the *true* parameters: what
                    compensation gives when step 1 is perfect (a diagnostic of inheritance)
-* ``joint``        the joint errors-in-variables estimator on the whole drive
 
 Printed per profile: each parameter's error against the truth (mean and standard deviation over
 seeds), E_p on the held-out drives relative to the true parameters' E_p (mean over seeds), and for
@@ -36,8 +35,8 @@ from odocal.segments import gather, gather_ragged, identification_segments, vali
 from odocal.settings import Settings
 from odocal.validate import mean_error
 
-ARMS = ("raw", "compensated", "raw-10", "comp-10", "oracle", "joint")
-REPORTED = ("raw", "compensated", "joint")
+ARMS = ("raw", "compensated", "raw-10", "comp-10", "oracle")
+REPORTED = ("raw", "compensated")
 SCALE = np.array([1e3, 1e3, 1e3, 1e3])   # report every error in mm (or mm per m/s^2)
 
 
@@ -58,9 +57,7 @@ def one_run(profile: str, seed: int, duration: float, settings: Settings) -> dic
     thetas["raw"] = raw.theta.as_array()
     comp = odocal.calibrate(sim.drive, settings=settings, method="compensated")
     thetas["compensated"] = comp.theta.as_array()
-    joint = odocal.calibrate(sim.drive, settings=settings, method="joint")
-    thetas["joint"] = joint.theta.as_array()
-    for arm, result in (("raw", raw), ("compensated", comp), ("joint", joint)):
+    for arm, result in (("raw", raw), ("compensated", comp)):
         stds[arm] = result.estimate.std.tolist()
     outcome = comp.three_step
     assert outcome is not None

@@ -40,7 +40,7 @@ from odocal.methods import METHOD_NAMES
 #: Runs without the report per drive and method (each stage's best is kept).
 RUNS = 3
 STAGES = ("read", "checks", "segments", "inverse: fit", "step 1: batches", "step 2: compensation",
-          "step 3: identification", "identify", "joint: noise estimation", "bootstrap",
+          "step 3: identification", "identify", "bootstrap",
           "validation")
 
 

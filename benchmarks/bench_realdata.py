@@ -1,7 +1,7 @@
 """Evidence on the real data in ../shared/data (issues 4 and 6).
 
     python benchmarks/bench_realdata.py [--data ../shared/data]
-                                        [--methods inverse,raw,compensated,joint]
+                                        [--methods inverse,raw,compensated]
 
 nuScenes (two Renault Zoe cars): the Singapore car calibrated on its turning scenes and validated
 on its other scenes; the Boston car calibrated on its two scenes; and, per car, leave-one-scene-out
@@ -120,7 +120,7 @@ def main() -> None:
     default = Path(os.environ.get("ODOCAL_SHARED_DATA",
                                   Path(__file__).resolve().parents[2] / "shared" / "data"))
     parser.add_argument("--data", type=Path, default=default)
-    parser.add_argument("--methods", default="inverse,raw,compensated,joint")
+    parser.add_argument("--methods", default="inverse,raw,compensated")
     args = parser.parse_args()
     methods = args.methods.split(",")
     nuscenes(args.data, methods)

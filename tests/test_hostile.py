@@ -180,7 +180,7 @@ def test_non_finite_settings_and_parameters(short: Path, tmp_path: Path,
                                             capsys: pytest.CaptureFixture[str]) -> None:
     for bad in ({"identify": {"theta0": [float("nan"), 0.0, 1.5, 0.0]}},
                 {"segments": {"validation_distance_m": float("inf")}},
-                {"joint": {"block_s": float("nan")}}):
+                {"inverse": {"window_s": float("nan")}}):
         with pytest.raises(ConfigError, match="finite"):
             settings_from_dict(bad)
     with pytest.raises(ConfigError, match="theta0"):
@@ -307,10 +307,10 @@ _values = st.recursive(st.one_of(st.integers(), st.floats(), st.text(max_size=5)
 
 
 @_quiet
-@given(st.dictionaries(st.sampled_from(["identify", "segments", "joint", "inverse", "gate",
+@given(st.dictionaries(st.sampled_from(["identify", "segments", "inverse", "gate",
                                         "fleet", "online", "nonsense"]),
                        st.dictionaries(st.text(min_size=1, max_size=24), _values, max_size=3)
-                       | st.dictionaries(st.sampled_from(["theta0", "max_iterations", "block_s",
+                       | st.dictionaries(st.sampled_from(["theta0", "max_iterations",
                                                           "window_s", "cusum_h",
                                                           "validation_distance_m"]),
                                          _values, max_size=3),

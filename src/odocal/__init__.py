@@ -2,8 +2,8 @@
 
 Implements Fazekas, Gáspár and Németh, "Wheel Odometry Model Calibration with Input Compensation
 by Optimal Control" (IFAC PapersOnLine 55-24, 2022): Gauss-Newton identification, input
-compensation by a QP, and the three-step calibration architecture; plus a joint
-errors-in-variables estimator.
+compensation by a QP, and the three-step calibration architecture; plus an
+errors-in-variables estimator (the default).
 
 The public API::
 

@@ -12,8 +12,6 @@ Methods (:data:`METHODS`)
     The paper's three-step architecture (see :mod:`odocal.threestep`): step-1 batches on measured
     rates, input compensation of every selected segment with five step-1 parameter sets, and a
     final batch Gauss-Newton on all selected segments with the compensated rates.
-``joint``
-    The errors-in-variables MAP estimator over the whole drive (see :mod:`odocal.joint`).
 """
 
 from __future__ import annotations
@@ -207,22 +205,11 @@ def _run_inverse(prep: Prepared, settings: Settings,
     return MethodOutcome(estimate=est)
 
 
-def _run_joint(prep: Prepared, settings: Settings,
-               progress: ProgressCallback | None) -> MethodOutcome:
-    from odocal.joint import JointDetails, joint_calibration
-
-    est = joint_calibration(prep.drives, settings=settings, held=prep.held, progress=progress)
-    details = est.details
-    return MethodOutcome(estimate=est, warnings=details.warnings
-                         if isinstance(details, JointDetails) else ())
-
-
 #: The estimator behind each name of :data:`odocal.methods.METHOD_NAMES`.
 METHODS: Mapping[str, Callable[[Prepared, Settings, ProgressCallback | None], MethodOutcome]] = {
     "inverse": _run_inverse,
     "compensated": _run_compensated,
     "raw": _run_raw,
-    "joint": _run_joint,
 }
 
 

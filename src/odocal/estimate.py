@@ -4,7 +4,7 @@ An :class:`Estimate` is theta with its covariance, which parameters were estimat
 a verdict per parameter (:class:`Identified` or :class:`NotIdentified` with the reason and the
 numbers behind it), a :class:`Status` code with a message table (as scipy's ``least_squares``
 reports its status), and typed method-specific details. The batch methods (raw Gauss-Newton, the
-three-step method, the joint estimator, the default errors-in-variables method), the online
+three-step method, the default errors-in-variables method), the online
 calibrator and the fleet's per-drive tasks all produce it; sentences are made from it only in
 :mod:`odocal.report` and :mod:`odocal.cli`.
 
@@ -125,11 +125,6 @@ class CovarianceKind(enum.Enum):
     few clusters for the robust form)."""
     THREE_STEP = "cluster-robust + step-1 spread"
     """Step 3's robust covariance plus the spread the compensated rates inherit from step 1."""
-    JOINT = "joint normal equations"
-    """The inverse Schur complement of the joint problem's normal equations."""
-    BIAS_CORRECTED = "cluster-robust + bias-correction spread"
-    """The robust covariance of the base fit plus the spread of the simulated bias correction
-    and the uncertainty of the noise model it rests on."""
     RECURSIVE = "recursive information"
     """Accumulated Gauss-Newton information of the segments seen so far (online)."""
     NONE = "none"

@@ -13,7 +13,6 @@ METHOD_SUMMARIES: MappingProxyType[str, str] = MappingProxyType({
                "to the measured ones (wheel noise of any kind cannot bias it)",
     "compensated": "the paper's three-step architecture (batch G-N, input compensation, G-N)",
     "raw": "batch Gauss-Newton on all selected segments with the measured wheel rates",
-    "joint": "the joint errors-in-variables MAP estimator over the whole drive",
 })
 METHOD_NAMES: tuple[str, ...] = tuple(METHOD_SUMMARIES)
 #: The method a calibration uses unless told otherwise.

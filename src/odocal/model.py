@@ -16,8 +16,8 @@ and their derivatives once, in :func:`_increment_derivatives` (with respect to t
 and theta, holding the heading fixed; the derivative with respect to the heading is
 ``d(p+)/d psi = [-dy, dx]``). Every rollout is built from these compiled pieces: the plain rollout
 (:func:`rollout`, :func:`rollout_ragged`: validation, simulation, plots), the Gauss-Newton
-linearisation (:func:`segment_r_factors`), the QP's step Jacobians (:func:`step_jacobians`), the
-joint estimator's block rollouts (:func:`block_rollout`). A Jacobian ``J = d x_k / d p``
+linearisation (:func:`segment_r_factors`), the QP's step Jacobians (:func:`step_jacobians`). A
+Jacobian ``J = d x_k / d p``
 propagates as ``J+ = A_k J + B_k`` with ``A_k = I + [0, 0, -dy; 0, 0, dx; 0, 0, 0]``: a cumulative
 sum along the rollout, computed in one compiled pass per segment. The model run backwards, the
 wheel revolutions a step's motion implies (:func:`_inverse_step`, :func:`inverse_revolutions`,
@@ -27,8 +27,7 @@ with (1) inverted by :func:`motion_increments`), serves the default errors-in-va
 **What else depends on the sizes.** Changing the vehicle model means changing this module, and:
 the compensation QP's solvers (:mod:`odocal.compensate.riccati`, :mod:`.structured`) are written
 for 3 states and 2 controlled inputs (the stage layout ``[dn (2), dx (3)]``, fixed loops over 3
-and 5); the joint estimator (:mod:`odocal.joint`) orders its unknowns ``[x_b (3), dn_b (2)]`` per
-block with a band of half-width 7; :data:`PARAMETER_NAMES` (4 parameters) sizes every covariance.
+and 5); :data:`PARAMETER_NAMES` (4 parameters) sizes every covariance.
 """
 
 from __future__ import annotations
@@ -351,42 +350,6 @@ def _step_jacobian_kernel(th: FloatArray, n_rl: FloatArray, n_rr: FloatArray, be
             a_out[s, k, 1, 2] = dx
 
 
-@jit(parallel=True)
-def _block_kernel(th: FloatArray, n_rl: FloatArray, n_rr: FloatArray, beta: FloatArray,
-                  a_y: FloatArray, start: FloatArray, dn: FloatArray, t_s: float,
-                  end: FloatArray, jac: FloatArray) -> None:  # pragma: no cover
-    """Each block's rollout from start (B, 3) with rates n + dn (dn (B, 2) per block).
-
-    end (B, 3); jac (B, 3, 9) = d end / d[x_b (3), dn_b (2), theta (4)].
-    """
-    n_blocks, length = n_rl.shape
-    for b in prange(n_blocks):
-        d = np.empty((3, 6))
-        j9 = np.zeros((3, 9))
-        j9[0, 0] = j9[1, 1] = j9[2, 2] = 1.0
-        x, y, psi = start[b, 0], start[b, 1], start[b, 2]
-        for k in range(length):
-            nl = n_rl[b, k] + dn[b, 0]
-            nr = n_rr[b, k] + dn[b, 1]
-            v, w, c_rl, c_rr = _body(th, nl, nr, a_y[b, k])
-            dx, dy, dpsi, ct, st = _increment(psi, v, w, beta[b, k], t_s)
-            _increment_derivatives(th, nl, nr, a_y[b, k], v, w, c_rl, c_rr, dx, dy, ct, st,
-                                   t_s, d)
-            for j in range(9):
-                jpsi = j9[2, j]
-                j9[0, j] += -dy * jpsi
-                j9[1, j] += dx * jpsi
-            for p in range(6):                     # columns 3..8: dn (2), theta (4)
-                j9[0, 3 + p] += d[0, p]
-                j9[1, 3 + p] += d[1, p]
-                j9[2, 3 + p] += d[2, p]
-            x += dx
-            y += dy
-            psi += dpsi
-        end[b, 0], end[b, 1], end[b, 2] = x, y, psi
-        jac[b] = j9
-
-
 @jit(inline=True)
 def _inverse_step(th: FloatArray, ds: float, dpsi: float, a_y: float,
                   d: FloatArray) -> tuple[float, float]:  # pragma: no cover
@@ -586,30 +549,6 @@ def step_jacobians(theta: FloatArray | Parameters, u: Inputs, poses: FloatArray,
     _step_jacobian_kernel(_theta(theta), n_rl, n_rr, beta, a_y,
                           _flat(poses, (*lead, k + 1, 3)).reshape(n, k + 1, 3), float(t_s), a, b)
     return StepJacobians(A=a.reshape(*lead, k, 3, 3), B=b.reshape(*lead, k, 3, 2))
-
-
-def block_rollout(theta: FloatArray | Parameters, u: Inputs, start: FloatArray,
-                  correction: FloatArray, t_s: float) -> tuple[FloatArray, FloatArray]:
-    """Roll out blocks from their start poses with a constant wheel-rate correction each.
-
-    Parameters
-    ----------
-    u : Inputs with arrays of shape (B, L): the measured rates (and beta, a_y) of each block
-    start : ndarray, shape (B, 3)
-    correction : ndarray, shape (B, 2), added to [n_rl, n_rr] over the whole block
-
-    Returns
-    -------
-    end : ndarray, shape (B, 3), the pose after the block's L steps
-    jac : ndarray, shape (B, 3, 9), d end / d[start (3), correction (2), theta (4)]
-    """
-    _, (n_rl, n_rr, beta, a_y) = _as_batch(u)
-    n = n_rl.shape[0]
-    end = np.empty((n, 3))
-    jac = np.empty((n, 3, 9))
-    _block_kernel(_theta(theta), n_rl, n_rr, beta, a_y, _flat(start, (n, 3)),
-                  _flat(correction, (n, 2)), float(t_s), end, jac)
-    return end, jac
 
 
 def motion_increments(x: FloatArray, y: FloatArray, psi: FloatArray,

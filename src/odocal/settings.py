@@ -196,49 +196,6 @@ class MinimumSettings:
 
 
 @dataclass(frozen=True)
-class JointSettings:
-    """The joint errors-in-variables estimator (``--method joint``).
-
-    Noise levels are standard deviations per block (the wheel level is that of a block's mean
-    rate error). Those left unset (omitted from the TOML) are estimated from the data by
-    variance-component estimation.
-    """
-
-    block_s: float = 5.0
-    """Length of the blocks the true wheel rates are corrected per (the measured rates plus one
-    correction per block). One sample (0.025) gives a correction per sample. Shorter blocks let
-    the noise estimation confuse reference-heading noise with wheel noise, which biases t_r
-    (white wheel noise, 3 seeds: +36 mm at 0.25 s, +11 mm at 1 s, +3 mm at 3 s, -0.3 mm at 5 s;
-    benchmarks/README.md)."""
-    wheel_noise_revps: float | None = None
-    """Noise of a block's mean measured wheel rate, rev/s."""
-    reference_position_m: float | None = None
-    """Noise of the reference position, m (a fused pose's own std is used when it has one)."""
-    reference_heading_rad: float | None = None
-    process_position_m: float | None = None
-    """Model-step noise (what the model leaves out, such as errors in beta and a_y), m."""
-    process_heading_rad: float | None = None
-    max_iterations: int = 30
-    """Gauss-Newton iterations per noise estimate."""
-    noise_rounds: int = 10
-    """Rounds of variance-component estimation at most."""
-    trace_probes: int = 24
-    """Random probes of the Hutchinson estimate of each noise group's redundancy."""
-    sensitivity: bool = True
-    """Also solve with the wheel-noise level halved and doubled and report how theta moves."""
-
-    def __post_init__(self) -> None:
-        s = "joint"
-        for key in ("wheel_noise_revps", "reference_position_m", "reference_heading_rad",
-                    "process_position_m", "process_heading_rad"):
-            value = getattr(self, key)
-            _check(value is None or value > 0, s, key, value, "a positive number (or unset)")
-        for key in ("max_iterations", "noise_rounds", "trace_probes"):
-            _check(getattr(self, key) >= 1, s, key, getattr(self, key), "an integer >= 1")
-        _check(self.block_s > 0, s, "block_s", self.block_s, "a positive time in s")
-
-
-@dataclass(frozen=True)
 class InverseSettings:
     """The default method (``inverse``): the wheel revolutions the reference motion implies,
     fitted to the measured ones over short windows."""
@@ -520,7 +477,6 @@ class Settings:
     calibrate: CalibrateSettings = field(default_factory=CalibrateSettings)
     minimum: MinimumSettings = field(default_factory=MinimumSettings)
     uncertainty: UncertaintySettings = field(default_factory=UncertaintySettings)
-    joint: JointSettings = field(default_factory=JointSettings)
     inverse: InverseSettings = field(default_factory=InverseSettings)
     gate: GateSettings = field(default_factory=GateSettings)
     online: OnlineSettings = field(default_factory=OnlineSettings)

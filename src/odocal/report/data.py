@@ -107,7 +107,7 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
     if raw_m is not None and result.validation is not None \
             and raw_m < 0.98 * result.validation.mean_error_m:
         base += (f". Batch G-N on the measured rates validates better ({raw_m:.2f} m): "
-                 "consider --method raw or joint")
+                 "consider --method raw")
         level = "partial" if level == "good" else level
     return base + ".", level
 
