@@ -28,12 +28,17 @@ from typing import Any
 import numpy as np
 
 import odocal
-from odocal.compensate import compensate_batch
-from odocal.identify import gauss_newton
-from odocal.model import PARAMETER_NAMES
-from odocal.segments import gather, gather_ragged, identification_segments, validation_segments
+from odocal.data.segments import (
+    gather,
+    gather_ragged,
+    identification_segments,
+    validation_segments,
+)
+from odocal.estimators.compensation import compensate_batch
+from odocal.estimators.gauss_newton import gauss_newton
+from odocal.estimators.validation import mean_error
+from odocal.model.parameters import PARAMETER_NAMES
 from odocal.settings import Settings
-from odocal.validate import mean_error
 
 ARMS = ("raw", "compensated", "raw-10", "comp-10", "oracle")
 REPORTED = ("raw", "compensated")

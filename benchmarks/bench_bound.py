@@ -5,15 +5,15 @@
 
 For each profile, one simulated route (``--route`` seeds it) is driven with ``--draws`` draws of
 the profile's noise (``simulate(noise_seed=...)``) and calibrated by each method. Printed per
-parameter (mm, d in mm per m/s^2): the route's Cramér-Rao bound (:mod:`odocal.bound`: the
+parameter (mm, d in mm per m/s^2): the route's Cramér-Rao bound (:mod:`odocal.sim.bound`: the
 smallest std any unbiased calibration can have with these wheel errors), the method's error std
 over the draws, its mean error with the mean's standard error, the mean reported std, the
 efficiency (bound^2 / error variance: 1 is the best any unbiased method can do; below 1, the
 share of the data's information the method uses) and the mean |error|. The bound applies to
-profiles whose wheel errors it counts and that count no ticks (:func:`odocal.bound.applies`);
+profiles whose wheel errors it counts and that count no ticks (:func:`odocal.sim.bound.applies`);
 with the reference pose exact and the wheel errors only the ones the bound counts, an
 efficiency near 1 says nothing is left to gain on that profile (the bound is above the true one
-by at most 0.6% of a std: see :mod:`odocal.bound`).
+by at most 0.6% of a std: see :mod:`odocal.sim.bound`).
 """
 
 from __future__ import annotations
@@ -24,10 +24,10 @@ import time
 import numpy as np
 
 import odocal
-from odocal.bound import applies
-from odocal.model import PARAMETER_NAMES
-from odocal.noise import NOISE_PROFILES
+from odocal.model.parameters import PARAMETER_NAMES
 from odocal.settings import Settings
+from odocal.sim.bound import applies
+from odocal.sim.noise import NOISE_PROFILES
 
 MM = 1e3
 PROFILES = "white-5x,markov,heavy,slip,slip-heavy"

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 import odocal
-from odocal.identify import gauss_newton
-from odocal.segments import gather, identification_segments
+from odocal.data.segments import gather, identification_segments
+from odocal.estimators.gauss_newton import gauss_newton
 from odocal.settings import Settings
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -53,7 +53,7 @@ def calibrate_command(duration: float) -> None:
         odocal.save_drive(odocal.simulate(duration_s=duration, seed=1, noise="realistic").drive,
                           drive)
         for method in ("raw", "compensated"):
-            wall, peak_mb = run_measured([sys.executable, "-m", "odocal.cli", "calibrate",
+            wall, peak_mb = run_measured([sys.executable, "-m", "odocal", "calibrate",
                                           str(drive), "--out", str(Path(tmp) / method),
                                           "--method", method, "-q", "--no-report"])
             print(f"odocal calibrate --method {method} --no-report, "

@@ -3,12 +3,13 @@
     python benchmarks/bench_matrix.py [--seeds 5] [--duration 1200] [--methods inverse,raw,...]
                                       [--profiles white,slip,...] [--out runs.json]
 
-For every profile of :data:`odocal.noise.NOISE_PROFILES` and every seed, one simulated city drive
+For every profile of :data:`odocal.sim.noise.NOISE_PROFILES` and every seed, one simulated city
+drive
 (20 minutes by default) is calibrated by every method. Printed per profile and method, for each
 parameter (mm, d in mm per m/s^2): the mean error over seeds (bias), the spread (std over seeds),
 the mean absolute error, the RMS of error / reported std (1 is an honest uncertainty) and the
 largest |z|, and whether the parameter was identified in every seed. Above them, where it
-applies, the drives' Cramér-Rao bound (:mod:`odocal.bound`: the smallest std any unbiased
+applies, the drives' Cramér-Rao bound (:mod:`odocal.sim.bound`: the smallest std any unbiased
 calibration can have with the profile's wheel errors, RMS over the seeds) and the mean |error| a
 normal error of that std has (0.80 of it). A closing table checks the targets of issue 9 for
 each method: mean |error| of c_e and c_d at most 0.3 mm and of t_r at most 10 mm, RMS z at most
@@ -31,10 +32,10 @@ from typing import Any
 import numpy as np
 
 import odocal
-from odocal.methods import METHOD_NAMES
-from odocal.model import PARAMETER_NAMES
-from odocal.noise import NOISE_PROFILES
+from odocal.estimators import METHOD_NAMES
+from odocal.model.parameters import PARAMETER_NAMES
 from odocal.settings import Settings
+from odocal.sim.noise import NOISE_PROFILES
 
 TARGET_ABS = np.array([0.3, 0.3, 10.0, np.inf])      # mm (d is not targeted)
 MM = 1e3

@@ -34,9 +34,9 @@ import numpy as np
 from _measure import run_measured
 
 import odocal
-from odocal.model import PARAMETER_NAMES, Parameters
-from odocal.noise import NOISE_PROFILES
-from odocal.online import OnlineCalibrator
+from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.online.calibrator import OnlineCalibrator
+from odocal.sim.noise import NOISE_PROFILES
 
 
 def push_all(drive: odocal.Drive, step: int = 40,
@@ -138,7 +138,7 @@ def changes(seeds: int) -> None:
 
 
 def real() -> None:
-    from odocal.convert import convert
+    from odocal.preprocess.convert import convert
 
     data = Path(__file__).resolve().parents[1].parent / "shared" / "data"
     if not data.is_dir():

@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _measure import run_measured
 
 import odocal
-from odocal.methods import METHOD_NAMES
+from odocal.estimators import METHOD_NAMES
 
 #: Runs without the report per drive and method (each stage's best is kept).
 RUNS = 3

@@ -17,11 +17,11 @@ import time
 import numpy as np
 
 import odocal
-from odocal.compensate import STATUS_NAMES, build_problem, solve_qp
-from odocal.compensate.reference import solve_osqp
-from odocal.identify import gauss_newton
-from odocal.model import Inputs
-from odocal.segments import gather, identification_segments
+from odocal.data.segments import gather, identification_segments
+from odocal.estimators.compensation import STATUS_NAMES, build_problem, solve_qp
+from odocal.estimators.compensation.reference import solve_osqp
+from odocal.estimators.gauss_newton import gauss_newton
+from odocal.model.parameters import Inputs
 from odocal.settings import Settings
 
 

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 import odocal
-from odocal.convert import convert
-from odocal.model import PARAMETER_NAMES
-from odocal.segments import validation_segments
+from odocal.data.segments import validation_segments
+from odocal.model.parameters import PARAMETER_NAMES
+from odocal.preprocess.convert import convert
 from odocal.settings import Settings
 
 SINGAPORE_TURNS = ("scene-0061", "scene-0916", "scene-1077")

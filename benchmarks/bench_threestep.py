@@ -37,7 +37,7 @@ def main() -> None:
             path = Path(tmp) / "drive.parquet"
             odocal.save_drive(odocal.simulate(duration_s=minutes * 60, seed=1).drive, path)
             out = Path(tmp) / "out"
-            wall, peak = run_measured([sys.executable, "-m", "odocal.cli", "calibrate", str(path),
+            wall, peak = run_measured([sys.executable, "-m", "odocal", "calibrate", str(path),
                                        "--out", str(out), "--method", args.method, "-q",
                                        *extra])
             data = json.loads((out / "calibration.json").read_text())

@@ -10,7 +10,7 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
-from odocal.drive import Drive
+from odocal.data.drive import Drive
 
 EPOCH = 1_700_000_000.0
 JOINTS = ["front_left_wheel", "front_right_wheel", "rear_left_wheel", "rear_right_wheel"]

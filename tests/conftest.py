@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import odocal
-from odocal.cli import main
-from odocal.simulate import SimulatedDrive
+from odocal.cli.main import main
+from odocal.sim.simulate import SimulatedDrive
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -67,7 +67,8 @@ def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
 
 def straight_drive(seconds: float = 240.0) -> odocal.Drive:
     """A straight road with speed changes and noisy wheels: no bends at all."""
-    from odocal.model import Inputs, rollout, wheel_rates_for
+    from odocal.model.kinematics import rollout, wheel_rates_for
+    from odocal.model.parameters import Inputs
 
     theta = odocal.TRUE_PARAMETERS.as_array()
     rng = np.random.default_rng(8)

@@ -8,16 +8,16 @@ import numpy as np
 import pytest
 
 import odocal
-from odocal.bound import _processes, information_bound, wheel_information
-from odocal.model import circumferences, wheel_rates_for
-from odocal.noise import NOISE_PROFILES, NoiseProfile
+from odocal.model.kinematics import circumferences, wheel_rates_for
 from odocal.settings import Settings
-from odocal.simulate import TRUE_PARAMETERS, _wheel_errors
+from odocal.sim.bound import _processes, information_bound, wheel_information
+from odocal.sim.noise import NOISE_PROFILES, NoiseProfile
+from odocal.sim.simulate import TRUE_PARAMETERS, _wheel_errors
 
 
 def _dense_information(sim: odocal.SimulatedDrive) -> np.ndarray:
     """J' Sigma^-1 J with Sigma written out whole (each process's covariance phi^|i-j| std^2)."""
-    from odocal.bound import _motion, _rate_jacobian
+    from odocal.sim.bound import _motion, _rate_jacobian
 
     p, t_s = sim.profile, sim.drive.t_s
     theta = sim.true_parameters.as_array()
@@ -74,7 +74,7 @@ def test_coloured_noise_without_white_noise_is_bounded_through_the_floor() -> No
 def test_track_width_column_is_the_yaw_rate_over_the_circumference() -> None:
     # white noise: information is J'J / sigma^2, and dn/dt_r = -+ w / (2 c)
     sim = odocal.simulate(duration_s=60.0, seed=0, noise="white")
-    from odocal.bound import _motion, _rate_jacobian
+    from odocal.sim.bound import _motion, _rate_jacobian
 
     theta = TRUE_PARAMETERS.as_array()
     v, w, a_y = _motion(theta, sim.true_n_rl, sim.true_n_rr)

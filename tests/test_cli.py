@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from odocal.cli import EXIT_ERROR, EXIT_OK, EXIT_USAGE, main
+from odocal.cli.main import EXIT_ERROR, EXIT_OK, EXIT_USAGE, main
 from odocal.io import save_drive
-from odocal.simulate import SimulatedDrive
+from odocal.sim.simulate import SimulatedDrive
 from tests.conftest import run
 
 
@@ -176,7 +176,7 @@ def test_help_and_version_load_nothing_heavy() -> None:
     import subprocess
     import sys
 
-    code = ("import sys; import odocal.cli as c; c.build_parser().format_help(); "
+    code = ("import sys; import odocal.cli.main as c; c.build_parser().format_help(); "
             "heavy = [m for m in ('numpy', 'scipy', 'numba', 'matplotlib', 'pyarrow') "
             "if m in sys.modules]; print(heavy); assert not heavy")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
@@ -184,7 +184,7 @@ def test_help_and_version_load_nothing_heavy() -> None:
 
 
 def test_every_method_name_has_an_estimator() -> None:
-    from odocal.calibrate import METHODS
-    from odocal.methods import DEFAULT_METHOD, METHOD_NAMES
+    from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
+    from odocal.pipeline.calibrate import METHODS
 
     assert tuple(METHODS) == METHOD_NAMES and DEFAULT_METHOD in METHOD_NAMES

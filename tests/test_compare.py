@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from odocal.cli import main
-from odocal.compare import compare, folds
+from odocal.cli.main import main
+from odocal.estimators import METHOD_NAMES
 from odocal.io import save_drive
-from odocal.methods import METHOD_NAMES
-from odocal.simulate import SimulatedDrive
+from odocal.pipeline.compare import compare, folds
+from odocal.sim.simulate import SimulatedDrive
 
 
 def test_folds_are_disjoint_alternate_blocks(noisy_drive: SimulatedDrive) -> None:

@@ -7,7 +7,8 @@ import logging
 import numpy as np
 import pytest
 
-from odocal.compensate import (
+from odocal.data.segments import SegmentBatch, gather, identification_segments
+from odocal.estimators.compensation import (
     FAILED,
     INFEASIBLE,
     SOLVED_FAST,
@@ -18,14 +19,13 @@ from odocal.compensate import (
     compensate_segment,
     solve_qp,
 )
-from odocal.compensate.problem import CompensationProblem
-from odocal.compensate.reference import solve_osqp, sparse_qp
-from odocal.compensate.riccati import solve_riccati
-from odocal.compensate.structured import solve_structured
-from odocal.model import Inputs
-from odocal.segments import SegmentBatch, gather, identification_segments
+from odocal.estimators.compensation.problem import CompensationProblem
+from odocal.estimators.compensation.reference import solve_osqp, sparse_qp
+from odocal.estimators.compensation.riccati import solve_riccati
+from odocal.estimators.compensation.structured import solve_structured
+from odocal.model.parameters import Inputs
 from odocal.settings import CompensateSettings, Settings
-from odocal.simulate import SimulatedDrive
+from odocal.sim.simulate import SimulatedDrive
 
 
 @pytest.fixture(scope="module")
@@ -123,7 +123,7 @@ def test_infeasible_problem_keeps_measured_rates(batch: SegmentBatch,
     seg = compensate_segment(theta, inputs, ref, batch.t_s, settings)
     assert seg.status in (INFEASIBLE, FAILED) and not seg.solved
     np.testing.assert_array_equal(seg.rates[:, 0], inputs.n_rl)
-    with caplog.at_level(logging.WARNING, logger="odocal.compensate"):
+    with caplog.at_level(logging.WARNING, logger="odocal.estimators.compensation"):
         out = compensate_batch(batch.take(slice(3, 5)), theta[None, :], settings)
     assert out.fell_back.all()
     assert "keep their measured wheel rates" in caplog.text

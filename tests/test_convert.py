@@ -11,15 +11,15 @@ import pyarrow.csv as pacsv
 import pytest
 
 import odocal
-from odocal.cli import EXIT_ERROR, EXIT_OK, main
-from odocal.convert import convert, inspect
+from odocal.cli.main import EXIT_ERROR, EXIT_OK, main
 from odocal.errors import ConfigError, DataError
-from odocal.estimate import Reason
+from odocal.estimators.estimate import Reason
 from odocal.io.streams import RawLog, Stream
 from odocal.preprocess.align import clean, common_grid, estimate_wheel_offset
+from odocal.preprocess.convert import convert, inspect
 from odocal.preprocess.pipeline import build_drive
 from odocal.settings import Settings
-from odocal.simulate import SimulatedDrive
+from odocal.sim.simulate import SimulatedDrive
 
 from .bagwriter import EPOCH, write_bag
 

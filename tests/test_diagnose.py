@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 import odocal
-from odocal.cli import EXIT_FAILED, EXIT_OK, main
-from odocal.diagnose import Check, Severity, check_drives, gate
-from odocal.estimate import Reason, Status
+from odocal.checks.diagnosis import Check, Severity, check_drives, gate
+from odocal.cli.main import EXIT_FAILED, EXIT_OK, main
+from odocal.estimators.estimate import Reason, Status
 from odocal.settings import Settings
-from odocal.simulate import SimulatedDrive
+from odocal.sim.simulate import SimulatedDrive
 
 
 def altered(sim: SimulatedDrive, **changes: Any) -> odocal.Drive:
@@ -90,7 +90,7 @@ def test_wheel_unit_mistake_is_named(noisy_drive: SimulatedDrive) -> None:
     (finding,) = result.diagnosis.findings
     assert finding.check is Check.SPEED_SCALE and finding.severity is Severity.FATAL
     assert finding.value == pytest.approx(3.6 * 2.0 / odocal.TRUE_PARAMETERS.c_e, rel=0.01)
-    from odocal.advice import finding_text
+    from odocal.report.advice import finding_text
 
     assert "km/h given as m/s" in finding_text(finding, result.settings)
     # wheel speeds in m/s given as rev/s: the factor is the circumference, a note, not a failure

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from odocal.drive import Drive
+from odocal.data.drive import Drive
 from odocal.errors import DataError, InputFileError
 from odocal.io import load_drive, save_drive
-from odocal.simulate import SimulatedDrive
+from odocal.sim.simulate import SimulatedDrive
 
 
 @pytest.fixture()

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import yaml
 
-from odocal.cli import main
+from odocal.cli.main import main
 from odocal.errors import DataError, OdocalError
 from odocal.fleet.catalog import read_catalog
 from odocal.fleet.drift import analyse
@@ -372,8 +372,8 @@ def _ros_params(path: Path, node: str) -> dict[str, Any]:
 
 
 def test_exports_carry_each_targets_documented_keys(tmp_path: Path) -> None:
-    from odocal.export import Calibrated, OdometryNoise, export
-    from odocal.model import Parameters
+    from odocal.model.parameters import Parameters
+    from odocal.output.export import Calibrated, OdometryNoise, export
 
     theta = Parameters(c_e=1.952, c_d=-0.0021, t_r=1.527, d=0.00076)
     c = Calibrated(theta=theta, datasheet=Parameters(2.0, 0.0, 1.6, 0.0),

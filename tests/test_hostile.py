@@ -15,15 +15,15 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import odocal
-from odocal.cli import EXIT_ERROR, main
-from odocal.drive import Drive
+from odocal.cli.main import EXIT_ERROR, main
+from odocal.data.drive import Drive
 from odocal.errors import ConfigError, DataError, OdocalError, OutputError
 from odocal.io import save_drive
 from odocal.io.atomic import RESULTS_MARKER, refuse_inputs, results_folder
 from odocal.io.drivefile import load_drive, read_table
 from odocal.io.mapping import check_mapping, mapping_files
 from odocal.settings import IdentifySettings, Settings, settings_from_dict
-from odocal.simulate import SimulatedDrive
+from odocal.sim.simulate import SimulatedDrive
 from tests.conftest import interrupt, run
 
 BIN = Path(sys.executable).parent

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 import odocal
-from odocal.estimate import (
+from odocal.data.segments import SegmentBatch, gather, identification_segments
+from odocal.estimators.estimate import (
     CovarianceKind,
     GaussNewtonDetails,
     Identified,
@@ -13,11 +14,11 @@ from odocal.estimate import (
     Reason,
     Status,
 )
-from odocal.identify import gauss_newton
-from odocal.model import Inputs, rollout, wheel_rates_for
-from odocal.segments import SegmentBatch, gather, identification_segments
+from odocal.estimators.gauss_newton import gauss_newton
+from odocal.model.kinematics import rollout, wheel_rates_for
+from odocal.model.parameters import Inputs
 from odocal.settings import IdentifySettings, Settings
-from odocal.simulate import SimulatedDrive
+from odocal.sim.simulate import SimulatedDrive
 
 
 def selected_batch(sim: SimulatedDrive) -> SegmentBatch:

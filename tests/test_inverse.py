@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 import odocal
-from odocal.inverse import (
+from odocal.estimators.covariance import NEWEY_WEST, leverage_adjusted_scores, long_run_meat
+from odocal.estimators.inverse import (
     CHANNELS,
     arma_from_sums,
     correlation_sums,
@@ -17,9 +18,8 @@ from odocal.inverse import (
     coupling_sums_at,
     decouple,
 )
-from odocal.noise import NoiseProfile
-from odocal.online import _added_meat
-from odocal.uncertainty import NEWEY_WEST, leverage_adjusted_scores, long_run_meat
+from odocal.online.calibrator import _added_meat
+from odocal.sim.noise import NoiseProfile
 
 
 @pytest.mark.parametrize(("kind", "m", "phi"), [

@@ -6,9 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from odocal.model import (
-    Inputs,
-    Parameters,
+from odocal.model.kinematics import (
     body_rates,
     rollout,
     rollout_ragged,
@@ -17,6 +15,7 @@ from odocal.model import (
     wheel_rates_for,
     wrap_angle,
 )
+from odocal.model.parameters import Inputs, Parameters
 
 THETA = np.array([1.95, -0.002, 1.53, 0.0008])
 T_S = 0.025

@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 
 import odocal
-from odocal.cli import EXIT_ERROR, EXIT_OK, main
+from odocal.cli.main import EXIT_ERROR, EXIT_OK, main
 from odocal.errors import DataError
-from odocal.estimate import CovarianceKind
-from odocal.model import Parameters, inverse_revolutions
-from odocal.online import OnlineCalibrator, window_prediction
-from odocal.simulate import SimulatedDrive
+from odocal.estimators.estimate import CovarianceKind
+from odocal.model.kinematics import inverse_revolutions
+from odocal.model.parameters import Parameters
+from odocal.online.calibrator import OnlineCalibrator, window_prediction
+from odocal.sim.simulate import SimulatedDrive
 
 from .bagwriter import write_bag
 

@@ -15,11 +15,11 @@ import psutil
 import pytest
 
 import odocal
-from odocal.cli import EXIT_OK, main
+from odocal.cli.main import EXIT_OK, main
 from odocal.report import write_report
 from odocal.report.html import _fmt
 from odocal.report.render import Call, FigureSpec, Renderer, draw
-from odocal.simulate import SimulatedDrive
+from odocal.sim.simulate import SimulatedDrive
 from tests.conftest import straight_drive
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"

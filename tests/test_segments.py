@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from odocal.drive import Drive
-from odocal.segments import (
+from odocal.data.drive import Drive
+from odocal.data.segments import (
     gather,
     gather_ragged,
     identification_segments,
     validation_segments,
 )
 from odocal.settings import SegmentSettings
-from odocal.simulate import SimulatedDrive
+from odocal.sim.simulate import SimulatedDrive
 
 
 def test_identification_segments_follow_the_paper(clean_drive: SimulatedDrive) -> None:

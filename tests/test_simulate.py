@@ -7,8 +7,9 @@ import pytest
 
 import odocal
 from odocal.errors import ConfigError
-from odocal.model import Inputs, rollout
-from odocal.noise import NOISE_PROFILES
+from odocal.model.kinematics import rollout
+from odocal.model.parameters import Inputs
+from odocal.sim.noise import NOISE_PROFILES
 
 
 def test_deterministic_for_a_seed() -> None:

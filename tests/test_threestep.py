@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 import odocal
-from odocal.cli import EXIT_OK, main
-from odocal.reproduce import format_report, reproduce
-from odocal.segments import gather_ragged, validation_segments
+from odocal.cli.main import EXIT_OK, main
+from odocal.data.segments import gather_ragged, validation_segments
+from odocal.estimators.compensated import draw_batches, pick_at_equal_steps
+from odocal.estimators.validation import mean_error, reachable_minimum
+from odocal.pipeline.reproduce import format_report, reproduce
 from odocal.settings import MinimumSettings, Settings
-from odocal.simulate import SimulatedDrive
-from odocal.threestep import draw_batches, pick_at_equal_steps
-from odocal.validate import mean_error, reachable_minimum
+from odocal.sim.simulate import SimulatedDrive
 
 
 def test_batches_are_independent_and_seeded() -> None:

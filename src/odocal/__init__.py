@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import importlib
 import logging as _logging
-import sys
-import types
 from typing import TYPE_CHECKING, Any
 
 from odocal.errors import (
@@ -37,51 +35,51 @@ from odocal.errors import (
 __version__ = "0.1.0"
 
 if TYPE_CHECKING:
-    from odocal.calibrate import CalibrationResult, calibrate, minimum
-    from odocal.calibrate import validate_theta as validate
-    from odocal.convert import convert, inspect
-    from odocal.drive import Drive
-    from odocal.estimate import Estimate, Identified, NotIdentified, Reason, Status
+    from odocal.data.drive import Drive
+    from odocal.estimators.estimate import Estimate, Identified, NotIdentified, Reason, Status
+    from odocal.estimators.validation import reachable_minimum
     from odocal.io import load_drive, save_drive
-    from odocal.model import Parameters
-    from odocal.noise import NOISE_PROFILES, NoiseProfile
-    from odocal.online import OnlineCalibrator
-    from odocal.replay import replay
-    from odocal.reproduce import reproduce
+    from odocal.model.parameters import Parameters
+    from odocal.online.calibrator import OnlineCalibrator
+    from odocal.online.replay import replay
+    from odocal.pipeline.calibrate import CalibrationResult, calibrate, minimum
+    from odocal.pipeline.calibrate import validate_theta as validate
+    from odocal.pipeline.reproduce import reproduce
+    from odocal.preprocess.convert import convert, inspect
     from odocal.settings import Settings, load_settings
-    from odocal.simulate import TRUE_PARAMETERS, SimulatedDrive, simulate
-    from odocal.validate import reachable_minimum
+    from odocal.sim.noise import NOISE_PROFILES, NoiseProfile
+    from odocal.sim.simulate import TRUE_PARAMETERS, SimulatedDrive, simulate
 
 #: public name -> (module, attribute)
 _LAZY: dict[str, tuple[str, str]] = {
-    "CalibrationResult": ("odocal.calibrate", "CalibrationResult"),
-    "calibrate": ("odocal.calibrate", "calibrate"),
-    "validate": ("odocal.calibrate", "validate_theta"),
-    "convert": ("odocal.convert", "convert"),
-    "inspect": ("odocal.convert", "inspect"),
-    "Drive": ("odocal.drive", "Drive"),
-    "Estimate": ("odocal.estimate", "Estimate"),
-    "Identified": ("odocal.estimate", "Identified"),
-    "NotIdentified": ("odocal.estimate", "NotIdentified"),
-    "Reason": ("odocal.estimate", "Reason"),
-    "Status": ("odocal.estimate", "Status"),
+    "CalibrationResult": ("odocal.pipeline.calibrate", "CalibrationResult"),
+    "calibrate": ("odocal.pipeline.calibrate", "calibrate"),
+    "validate": ("odocal.pipeline.calibrate", "validate_theta"),
+    "convert": ("odocal.preprocess.convert", "convert"),
+    "inspect": ("odocal.preprocess.convert", "inspect"),
+    "Drive": ("odocal.data.drive", "Drive"),
+    "Estimate": ("odocal.estimators.estimate", "Estimate"),
+    "Identified": ("odocal.estimators.estimate", "Identified"),
+    "NotIdentified": ("odocal.estimators.estimate", "NotIdentified"),
+    "Reason": ("odocal.estimators.estimate", "Reason"),
+    "Status": ("odocal.estimators.estimate", "Status"),
     "load_drive": ("odocal.io.drivefile", "load_drive"),
     "calibrate_fleet": ("odocal.fleet.engine", "calibrate_fleet"),
     "simulate_fleet": ("odocal.fleet.simulate", "simulate_fleet"),
     "save_drive": ("odocal.io.drivefile", "save_drive"),
     "Parameters": ("odocal.model", "Parameters"),
-    "NOISE_PROFILES": ("odocal.noise", "NOISE_PROFILES"),
-    "NoiseProfile": ("odocal.noise", "NoiseProfile"),
-    "reproduce": ("odocal.reproduce", "reproduce"),
-    "OnlineCalibrator": ("odocal.online", "OnlineCalibrator"),
-    "replay": ("odocal.replay", "replay"),
+    "NOISE_PROFILES": ("odocal.sim.noise", "NOISE_PROFILES"),
+    "NoiseProfile": ("odocal.sim.noise", "NoiseProfile"),
+    "reproduce": ("odocal.pipeline.reproduce", "reproduce"),
+    "OnlineCalibrator": ("odocal.online.calibrator", "OnlineCalibrator"),
+    "replay": ("odocal.online.replay", "replay"),
     "Settings": ("odocal.settings", "Settings"),
     "load_settings": ("odocal.settings", "load_settings"),
-    "TRUE_PARAMETERS": ("odocal.simulate", "TRUE_PARAMETERS"),
-    "SimulatedDrive": ("odocal.simulate", "SimulatedDrive"),
-    "simulate": ("odocal.simulate", "simulate"),
-    "reachable_minimum": ("odocal.validate", "reachable_minimum"),
-    "minimum": ("odocal.calibrate", "minimum"),
+    "TRUE_PARAMETERS": ("odocal.sim.simulate", "TRUE_PARAMETERS"),
+    "SimulatedDrive": ("odocal.sim.simulate", "SimulatedDrive"),
+    "simulate": ("odocal.sim.simulate", "simulate"),
+    "reachable_minimum": ("odocal.estimators.validation", "reachable_minimum"),
+    "minimum": ("odocal.pipeline.calibrate", "minimum"),
 }
 
 
@@ -96,23 +94,6 @@ def __getattr__(name: str) -> Any:
 
 def __dir__() -> list[str]:
     return sorted([*globals(), *_LAZY])
-
-
-class _Package(types.ModuleType):
-    """The package module: ``odocal.calibrate`` and its likes name the functions.
-
-    Importing a submodule sets it as an attribute of its package; where a public function has
-    its module's name (calibrate, simulate, convert, reproduce, validate), the function keeps the
-    name, as it would with eager ``from odocal.calibrate import calibrate`` imports.
-    """
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        if isinstance(value, types.ModuleType) and name in _LAZY:
-            return
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _Package
 
 
 # A library stays quiet unless the application configures logging (the CLI does).

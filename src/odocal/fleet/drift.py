@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from odocal.model import PARAMETER_NAMES, PARAMETER_UNITS
+from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS
 from odocal.settings import FleetSettings
 
 #: What a change of each parameter usually means, and what to do (alarm messages).

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from odocal.errors import ConfigError, DataError, OutputError
+from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
 from odocal.fleet.catalog import CatalogEntry, read_catalog
 from odocal.fleet.drift import Alarm, analyse, last_change, parse_stamp
 from odocal.fleet.store import Store, open_store
@@ -36,12 +37,11 @@ from odocal.fleet.tasks import (
     run_pooled_task,
 )
 from odocal.io.atomic import refuse_inputs
-from odocal.methods import DEFAULT_METHOD, METHOD_NAMES
 from odocal.settings import Settings
 
 log = logging.getLogger(__name__)
 
-#: ``progress(stage, done, total)``, as for :func:`odocal.calibrate`.
+#: ``progress(stage, done, total)``, as for :func:`odocal.pipeline.calibrate`.
 Progress = Callable[[str, int, int], None]
 
 
@@ -176,7 +176,7 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
         written: tuple[Path, ...] = ()
         if out_path is not None:
             from odocal.fleet.report import write_fleet_outputs
-            from odocal.model import Parameters
+            from odocal.model.parameters import Parameters
 
             written = write_fleet_outputs(db, out_path,
                                           datasheet=Parameters(*settings.identify.theta0))

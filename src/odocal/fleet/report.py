@@ -17,11 +17,11 @@ from typing import Any
 import numpy as np
 
 from odocal import __version__
-from odocal.export import Calibrated, OdometryNoise, export
 from odocal.fleet.drift import parse_stamp
 from odocal.fleet.store import Store
 from odocal.io.atomic import write_bytes, write_text
-from odocal.model import PARAMETER_DISPLAY, PARAMETER_NAMES, Parameters
+from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES, Parameters
+from odocal.output.export import Calibrated, OdometryNoise, export
 from odocal.report.html import _CSS
 from odocal.report.render import Call, FigureSpec, Renderer
 

@@ -33,8 +33,8 @@ import numpy as np
 from odocal.errors import ConfigError, OutputError
 from odocal.io.atomic import write_text
 from odocal.io.drivefile import save_drive
-from odocal.model import Parameters
-from odocal.simulate import TRUE_PARAMETERS, simulate
+from odocal.model.parameters import Parameters
+from odocal.sim.simulate import TRUE_PARAMETERS, simulate
 
 PLANS = ("mixed", "pressure", "wear", "tyres", "none")
 _MIXED = ("none", "pressure", "wear", "tyres")

@@ -46,7 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from odocal.errors import DataError, OutputError
-from odocal.model import PARAMETER_NAMES
+from odocal.model.parameters import PARAMETER_NAMES
 
 SCHEMA_VERSION = 2
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from odocal import __version__
 from odocal.fleet.catalog import CatalogEntry
-from odocal.model import PARAMETER_NAMES
+from odocal.model.parameters import PARAMETER_NAMES
 from odocal.settings import Settings, settings_from_dict
 
 
@@ -109,14 +109,14 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _read(entries: Sequence[CatalogEntry], settings: Settings) -> list[Any]:
-    from odocal.calibrate import load_drives
+    from odocal.pipeline.calibrate import load_drives
 
     drives: list[Any] = []
     for e in entries:
         if e.format == "drive":
             drives += load_drives(e.path)
         else:
-            from odocal.convert import convert
+            from odocal.preprocess.convert import convert
 
             drives += convert(e.format, [e.path], mapping=e.mapping, settings=settings)
     return drives
@@ -156,7 +156,7 @@ def run_drive_task(task: DriveTask) -> dict[str, Any]:
         "event": e.event, "method": task.method, "input_hashes": task.input_hashes,
         "settings_hash": task.settings_hash, "odocal_version": __version__}
     try:
-        from odocal.calibrate import calibrate
+        from odocal.pipeline.calibrate import calibrate
 
         settings = settings_from_dict(task.settings)
         drives = _read([e], settings)
@@ -185,7 +185,7 @@ def _expected_errors() -> tuple[type[BaseException], ...]:
 
 def _write_drive_report(result: Any, out: Path) -> str:
     from odocal.io.atomic import results_folder
-    from odocal.output import write_calibration
+    from odocal.output.results import write_calibration
     from odocal.report import write_report
 
     with results_folder(out) as tmp:
@@ -202,14 +202,14 @@ def run_pooled_task(task: PooledTask) -> dict[str, Any]:
                            "time": last.time.isoformat(), "drives": list(task.drive_keys),
                            "method": task.method}
     try:
-        from odocal.calibrate import calibrate
+        from odocal.pipeline.calibrate import calibrate
 
         settings = settings_from_dict(task.settings)
         drives = _read(task.entries, settings)
         result = calibrate(drives, settings=settings, method=task.method)
         row.update(_parameter_columns(result))
         if result.success:
-            from odocal.export import odometry_noise
+            from odocal.output.export import odometry_noise
 
             noise = odometry_noise(drives, result.theta)
             if noise is not None:

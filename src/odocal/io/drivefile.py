@@ -12,7 +12,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from odocal.drive import Drive
+from odocal.data.drive import Drive
 from odocal.errors import DataError, InputFileError
 from odocal.io.atomic import atomic_path
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from odocal.errors import DataError, InputFileError
 from odocal.io.atomic import write_text
-from odocal.model import PARAMETER_NAMES, Parameters
+from odocal.model.parameters import PARAMETER_NAMES, Parameters
 
 
 def _plain(obj: Any) -> Any:

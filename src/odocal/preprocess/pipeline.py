@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.drive import Drive
+from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.io.streams import RawLog, Stream
 from odocal.preprocess.align import (

@@ -8,10 +8,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.advice import ParameterAdvice, advise, coverage
-from odocal.calibrate import CalibrationResult
-from odocal.model import PARAMETER_NAMES, Inputs, rollout
-from odocal.validate import segment_errors, validation_data
+from odocal.estimators.validation import segment_errors, validation_data
+from odocal.model.kinematics import rollout
+from odocal.model.parameters import PARAMETER_NAMES, Inputs
+from odocal.pipeline.calibrate import CalibrationResult
+from odocal.report.advice import ParameterAdvice, advise, coverage
 
 FloatArray = NDArray[np.float64]
 MAP_SEGMENTS = 3
@@ -66,9 +67,9 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
 
     ``raw_m`` is E_p of the raw estimate the three-step method computed alongside, if any.
     """
-    from odocal.advice import finding_text
-    from odocal.diagnose import Severity
-    from odocal.estimate import Status
+    from odocal.checks.diagnosis import Severity
+    from odocal.estimators.estimate import Status
+    from odocal.report.advice import finding_text
 
     est = result.estimate
     fatal = [f for f in result.diagnosis.findings if f.severity is Severity.FATAL]

@@ -15,7 +15,7 @@ from matplotlib.axes import Axes
 from matplotlib.collections import PolyCollection
 from numpy.typing import NDArray
 
-from odocal.model import PARAMETER_DISPLAY, PARAMETER_NAMES
+from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES
 from odocal.report.render import CALIBRATED, DATASHEET, RAW, REFERENCE, STEP1
 
 FloatArray = NDArray[np.float64]

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from odocal import __version__
-from odocal.calibrate import CalibrationResult
 from odocal.io.atomic import write_bytes, write_text
-from odocal.model import PARAMETER_DISPLAY, PARAMETER_LABELS
+from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_LABELS
+from odocal.pipeline.calibrate import CalibrationResult
 from odocal.report.data import ReportData, build, parameter_rows
 from odocal.report.render import CALIBRATED, RAW, Call, FigureSpec, Renderer
 
@@ -86,7 +86,7 @@ def _rates(result: CalibrationResult, data: ReportData) -> Spec:
 
 
 def _inverse(result: CalibrationResult, data: ReportData) -> Spec:
-    from odocal.inverse import InverseDetails
+    from odocal.estimators.inverse import InverseDetails
 
     d = result.estimate.details
     if not isinstance(d, InverseDetails) or d.windows == 0:
@@ -239,7 +239,7 @@ def _page(result: CalibrationResult, data: ReportData,
 
     cov = data.coverage
     boot = result.bootstrap
-    from odocal.advice import finding_text
+    from odocal.report.advice import finding_text
 
     warnings = "".join(f"<li>{e(w)}</li>" for w in result.warnings)
     checks = "".join(f"<li class='{['yes', 'partial', 'no'][int(f.severity)]}'>"

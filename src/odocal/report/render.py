@@ -86,7 +86,7 @@ def _host(connection: Any, callers: Any, workers: int) -> None:
     with ``workers - 1`` processes forked from itself for the time (they start with the library
     loaded and warm), and sends back the PNGs, or the exception. ``None`` or the caller's end
     ends it; SIGTERM ends it at once."""
-    from odocal.parallel import ignore_interrupts
+    from odocal.estimators.parallel import ignore_interrupts
 
     callers.close()        # our copy of the caller's end: its EOF must reach us when it goes
     ignore_interrupts()

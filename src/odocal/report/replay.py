@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 
 from odocal import __version__
-from odocal.estimate import Estimate
+from odocal.estimators.estimate import Estimate
 from odocal.io.atomic import write_bytes, write_text
-from odocal.model import PARAMETER_DISPLAY, PARAMETER_LABELS, PARAMETER_NAMES
-from odocal.replay import ReplayResult
+from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_LABELS, PARAMETER_NAMES
+from odocal.online.replay import ReplayResult
 from odocal.report.render import Call, FigureSpec, Renderer
 
 #: Convergence thresholds the report quotes: c_e to 1 mm, t_r to 20 mm.

@@ -1,0 +1,245 @@
+"""``odocal fleet ...`` and ``odocal simulate-fleet`` (Dask and the store load only when run)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
+
+
+def _print(text: str = "") -> None:
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()
+
+
+def _progress(args: argparse.Namespace) -> Any:
+    if args.quiet:
+        return None
+    from odocal.cli.main import _Progress
+
+    return _Progress(True)
+
+
+def _settings(args: argparse.Namespace) -> Any:
+    from odocal.settings import load_settings
+
+    return load_settings(getattr(args, "config", None))
+
+
+def _summary(run: Any) -> None:
+    _print(f"{run.drives} drives in the catalog: {run.stored_before} already stored, "
+           f"{run.calibrated} calibrated now, {run.failed} could not be calibrated; "
+           f"{run.pooled} pooled calibrations; {run.elapsed_s:.1f} s")
+    if run.alarms:
+        _print(f"{len(run.alarms)} alarm(s):")
+        for a in run.alarms:
+            _print(f"  {a.vehicle} {a.parameter}: {a.message} "
+                   f"(confidence {a.confidence:.3f}, detected after {a.drives_to_detect} "
+                   f"drives, {a.km_to_detect:.0f} km)")
+    else:
+        _print("no alarms")
+
+
+def cmd_fleet_calibrate(args: argparse.Namespace) -> int:
+    from odocal.fleet.engine import calibrate_fleet
+
+    progress = _progress(args)
+    try:
+        run = calibrate_fleet(args.catalog, args.store, settings=_settings(args),
+                              method=args.method, scheduler=args.scheduler,
+                              workers=args.workers, out=args.out,
+                              drive_reports=not args.no_drive_reports, progress=progress,
+                              echo=None if args.quiet else _print)
+    finally:
+        if progress is not None:
+            progress.close()
+    if not args.quiet:
+        _summary(run)
+        if args.out:
+            _print(f"wrote {Path(args.out) / 'report.html'} and {len(run.written) - 1} more files")
+    return 0
+
+
+def cmd_fleet_demo(args: argparse.Namespace) -> int:
+    from odocal.fleet.engine import calibrate_fleet
+    from odocal.fleet.simulate import simulate_fleet
+
+    with tempfile.TemporaryDirectory(prefix="odocal-fleet-") as tmp:
+        root = Path(tmp) / "fleet"
+        out = Path(args.out) if args.out else None
+        if out is not None and out.exists() and any(out.iterdir()):
+            from odocal.errors import OutputError
+
+            raise OutputError(f"'{out}' exists and is not empty; the demo writes a new folder")
+        progress = _progress(args)
+        try:
+            fleet = simulate_fleet(root, vehicles=4, drives=args.drives, duration_s=300.0,
+                                   seed=args.seed, plan="mixed", size=0.004, progress=progress)
+            store = (out / "fleet.db") if out is not None else Path(tmp) / "fleet.db"
+            if out is not None:
+                out.mkdir(parents=True, exist_ok=True)
+            run = calibrate_fleet(fleet.catalog, store, workers=args.workers, out=out,
+                                  drive_reports=False, progress=progress,
+                                  echo=None if args.quiet else _print)
+        finally:
+            if progress is not None:
+                progress.close()
+        if not args.quiet:
+            _print("Simulated: 4 vehicles; car001 loses 0.4% of c_e (left rear tyre pressure), "
+                   "car002 wears, car003 gets new tyres (declared), car000 has one mis-mapped "
+                   "log.")
+            for e in fleet.events:
+                _print(f"  truth: {e.vehicle} {e.kind} from drive {e.drive} ({e.time[:10]})")
+            _summary(run)
+            if out is not None:
+                _print(f"wrote {out / 'report.html'} and the store {store}")
+    return 0
+
+
+def cmd_fleet_alarms(args: argparse.Namespace) -> int:
+    from odocal.fleet.engine import store_of
+
+    with store_of(args.store) as db:
+        alarms = db.alarms(args.vehicle)
+    if args.json:
+        _print(json.dumps(alarms, indent=1))
+    elif not alarms:
+        _print("no alarms")
+    else:
+        for a in alarms:
+            _print(f"{a['vehicle']} {a['parameter']} {a['kind']} since {a['time'][:10]}: "
+                   f"{a['message']} (confidence {a['confidence']:.3f})")
+    return 0
+
+
+def cmd_fleet_history(args: argparse.Namespace) -> int:
+    from odocal.errors import DataError
+    from odocal.fleet.engine import store_of
+    from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES
+
+    with store_of(args.store) as db:
+        rows = db.drives(args.vehicle)
+        if not rows:
+            known = ", ".join(db.vehicles()[:10]) or "none"
+            raise DataError(f"no drive of vehicle {args.vehicle!r} in '{args.store}' "
+                            f"(vehicles: {known})")
+    if args.json:
+        for r in rows:
+            for key in ("covariance", "findings", "input_hashes"):
+                if isinstance(r.get(key), str):
+                    r[key] = json.loads(r[key])
+        _print(json.dumps(rows, indent=1))
+        return 0
+    head = "time              status      " + "".join(
+        f"{n + ' [' + PARAMETER_DISPLAY[n][1] + ']':>24}" for n in PARAMETER_NAMES) + "   E_p m"
+    _print(head)
+    for r in rows:
+        cells = []
+        for n in PARAMETER_NAMES:
+            scale = PARAMETER_DISPLAY[n][0]
+            if r[n] is None:
+                cells.append(f"{'-':>24}")
+            else:
+                mark = "" if r[f"{n}_identified"] else "*"
+                cells.append(f"{r[n] * scale:>13.6g} ± {r[f'{n}_std'] * scale:<7.2g}{mark:1}")
+        e_p = f"{r['e_p_m']:.3f}" if r["e_p_m"] is not None else "-"
+        _print(f"{r['time'][:16]:17} {r['status'][:11]:11} {''.join(cells)}   {e_p}"
+               + (f"   event: {r['event']}" if r["event"] else "")
+               + (f"   error: {r['error']}" if r["error"] else ""))
+    _print("* not identified by that drive (datasheet value)")
+    return 0
+
+
+def cmd_simulate_fleet(args: argparse.Namespace) -> int:
+    from odocal.fleet.simulate import simulate_fleet
+
+    progress = _progress(args)
+    try:
+        fleet = simulate_fleet(args.out, vehicles=args.vehicles, drives=args.drives,
+                               duration_s=args.duration, seed=args.seed, noise=args.noise,
+                               plan=args.plan, size=args.size, wear=args.wear,
+                               progress=progress)
+    finally:
+        if progress is not None:
+            progress.close()
+    if not args.quiet:
+        _print(f"wrote {fleet.drives} drives, {fleet.catalog} and {fleet.truth}")
+    return 0
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+    p.add_argument("-v", "--verbose", action="count", default=0)
+
+
+def add_parsers(sub: Any) -> None:
+    """Register ``fleet`` and ``simulate-fleet`` on the main parser's subcommands."""
+    from odocal.sim.noise import NOISE_PROFILES
+
+    fleet = sub.add_parser("fleet", help="calibrate many vehicles' drives, keep their history, "
+                                         "detect drift")
+    fsub = fleet.add_subparsers(dest="fleet_command", required=True, metavar="ACTION")
+    p = fsub.add_parser("calibrate", help="calibrate a catalog of drives into the store")
+    p.add_argument("catalog", metavar="CATALOG",
+                   help="CSV/Parquet catalog (vehicle, path, time, ...) or a VEHICLE/DATE_* "
+                        "folder")
+    p.add_argument("--store", required=True, metavar="DB", help="the fleet's SQLite file")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a running Dask scheduler (tcp://HOST:PORT); default: a local cluster")
+    p.add_argument("--workers", type=int, metavar="N",
+                   help="local cluster worker processes (default: one per core)")
+    p.add_argument("--method", choices=METHOD_NAMES,
+                   help=f"calibration method (default {DEFAULT_METHOD})")
+    p.add_argument("--out", metavar="DIR",
+                   help="write the fleet report, each drive's report and parameter files here")
+    p.add_argument("--no-drive-reports", action="store_true",
+                   help="with --out, skip each drive's own report")
+    p.add_argument("--config", metavar="TOML", help="settings file (README, 'Settings')")
+    _common(p)
+    p.set_defaults(func=cmd_fleet_calibrate)
+
+    p = fsub.add_parser("alarms", help="list the alarms in the store")
+    p.add_argument("--store", required=True, metavar="DB")
+    p.add_argument("--vehicle", metavar="ID")
+    p.add_argument("--json", action="store_true", help="a JSON list, one object per alarm")
+    _common(p)
+    p.set_defaults(func=cmd_fleet_alarms)
+
+    p = fsub.add_parser("history", help="one vehicle's estimates over time")
+    p.add_argument("--store", required=True, metavar="DB")
+    p.add_argument("--vehicle", required=True, metavar="ID")
+    p.add_argument("--json", action="store_true")
+    _common(p)
+    p.set_defaults(func=cmd_fleet_history)
+
+    p = fsub.add_parser("demo", help="simulate a small fleet with events and calibrate it "
+                                     "(under a minute)")
+    p.add_argument("--out", metavar="DIR", help="keep the store and the fleet report here")
+    p.add_argument("--drives", type=int, default=10, help="drives per vehicle (default 10)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, metavar="N")
+    _common(p)
+    p.set_defaults(func=cmd_fleet_demo)
+
+    p = sub.add_parser("simulate-fleet", help="write a simulated fleet with known truth and "
+                                              "events")
+    p.add_argument("--out", required=True, metavar="DIR", help="new folder for the fleet")
+    p.add_argument("--vehicles", type=int, default=8)
+    p.add_argument("--drives", type=int, default=12, help="drives per vehicle")
+    p.add_argument("--duration", type=float, default=900.0, metavar="S",
+                   help="length of each drive (default 900)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic")
+    p.add_argument("--plan", choices=("mixed", "pressure", "wear", "tyres", "none"),
+                   default="mixed", help="which events (default mixed: one kind per vehicle)")
+    p.add_argument("--size", type=float, default=0.002,
+                   help="relative c_e loss of a pressure event (default 0.002)")
+    p.add_argument("--wear", type=float, default=0.003,
+                   help="relative c_e loss by wear over a vehicle's history (default 0.003)")
+    _common(p)
+    p.set_defaults(func=cmd_simulate_fleet)

@@ -1,0 +1,815 @@
+"""The ``odocal`` command line: a thin shell around the library.
+
+Exit codes: 0 done; 1 bad input, settings or output (one line on stderr, no traceback);
+2 bad command-line usage; 3 the calibration ran but could not identify anything;
+4 an internal error (a bug: rerun with -v for the traceback and report it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import logging
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from odocal import __version__
+from odocal.errors import ConfigError, OdocalError, OutputError
+from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
+from odocal.settings import Settings, load_settings
+from odocal.sim.noise import NOISE_PROFILES
+
+if TYPE_CHECKING:
+    from odocal.model.parameters import Parameters
+    from odocal.pipeline.calibrate import CalibrationResult
+
+# numpy, scipy and numba load only in the commands that compute: --help and --version stay fast.
+
+log = logging.getLogger("odocal")
+
+EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_FAILED, EXIT_BUG = 0, 1, 2, 3, 4
+
+
+class _Progress:
+    """tqdm bars per stage on a terminal; otherwise one line on stderr as each stage starts."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled and sys.stderr.isatty()
+        self.lines = enabled and not self.enabled
+        self.bars: dict[str, Any] = {}
+        self.started = time.perf_counter()
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if self.lines and stage not in self.bars:
+            # not a terminal (a log file, CI): one line as each stage starts
+            self.bars[stage] = None
+            sys.stderr.write(f"[{time.perf_counter() - self.started:6.1f} s] {stage} ...\n")
+            sys.stderr.flush()
+        if not self.enabled:
+            return
+        from tqdm import tqdm
+
+        bar = self.bars.get(stage)
+        if bar is None:
+            bar = tqdm(total=total, desc=stage, unit="", leave=True, file=sys.stderr,
+                       dynamic_ncols=True)
+            self.bars[stage] = bar
+        bar.total = total
+        bar.n = done
+        bar.refresh()
+        if done >= total:
+            bar.close()
+
+    def close(self) -> None:
+        for bar in self.bars.values():
+            if bar is not None:
+                bar.close()
+
+
+def _settings(args: argparse.Namespace) -> Settings:
+    settings = load_settings(getattr(args, "config", None))
+    overrides: dict[str, dict[str, Any]] = {}
+    if getattr(args, "workers", None) is not None:
+        overrides.setdefault("calibrate", {})["workers"] = args.workers
+    if getattr(args, "seed", None) is not None and args.command in ("calibrate", "minimum",
+                                                                    "reproduce"):
+        overrides.setdefault("calibrate", {})["seed"] = args.seed
+    if getattr(args, "reference", None):
+        overrides.setdefault("convert", {})["reference"] = args.reference
+    if getattr(args, "circumference", None) is not None:
+        overrides.setdefault("convert", {})["wheel_circumference_m"] = args.circumference
+    return settings.replace(**overrides) if overrides else settings
+
+
+def _fmt_param(name: str, value: float) -> str:
+    if name in ("c_d", "d"):
+        return f"{value * 1000:+.3f} mm" if name == "c_d" else f"{value * 1000:+.3f} mm/(m/s^2)"
+    return f"{value:.5f} m"
+
+
+def _fmt_std(name: str, std: float) -> str:
+    if name in ("c_d", "d"):
+        return f"+-{std * 1000:.3f}"
+    return f"+-{std:.5f}"
+
+
+def _print(text: str = "") -> None:
+    sys.stdout.write(text + "\n")
+
+
+def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
+                  truth_error_m: float | None = None,
+                  best_std: Sequence[float] | None = None) -> None:
+    """The calibration as a small table on stdout; ``best_std`` (a simulated drive's
+    Cramér-Rao bound) is shown beside the reported std."""
+    from odocal.estimators.estimate import NotIdentified, Reason, Status
+    from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS
+    from odocal.report.advice import finding_text, reason_text
+
+    est = result.estimate
+    drives = result.drives
+    total_km = sum(d.distance_m for d in drives) / 1000
+    total_min = sum(d.duration_s for d in drives) / 60
+    segs = result.settings.segments
+    _print(f"read {len(drives)} drive(s): {total_min:.1f} min, {total_km:.2f} km; "
+           f"{len(result.segments)} segments of {segs.length} samples, "
+           f"{int(result.segments.selected.sum())} with bends "
+           f"(peak yaw rate > {segs.yaw_rate_threshold_radps} rad/s)")
+    _print(f"method: {result.method}, identified from {result.segments_used} segments "
+           f"in {result.elapsed_s:.1f} s")
+    _print()
+    header = f"{'parameter':<10} {'datasheet':>16} {'calibrated':>16} {'std':>10}"
+    if best_std is not None:
+        header += f" {'best std':>10}"
+    if truth is not None:
+        header += f" {'true':>16} {'error':>10}"
+    _print(header)
+    theta0, theta = est.datasheet.as_dict(), est.theta.as_dict()
+    true = truth.as_dict() if truth is not None else None
+    std = dict(zip(PARAMETER_NAMES, est.std, strict=True))
+    exact = est.status is Status.EXACT
+    for name, ok in zip(PARAMETER_NAMES, est.identified, strict=True):
+        if ok:
+            cal = _fmt_param(name, theta[name])
+            sd = "exact" if exact else _fmt_std(name, std[name])
+        else:
+            cal, sd = "not identified", ""
+        line = f"{name:<10} {_fmt_param(name, theta0[name]):>16} {cal:>16} {sd:>10}"
+        if best_std is not None:
+            best = best_std[PARAMETER_NAMES.index(name)]
+            line += f" {_fmt_std(name, best) if math.isfinite(best) else '-':>10}"
+        if true is not None:
+            err = _fmt_std(name, abs(theta[name] - true[name])).replace("+-", "") if ok else ""
+            line += f" {_fmt_param(name, true[name]):>16} {err:>10}"
+        _print(line)
+    if best_std is not None:
+        _print("best std: the smallest std an unbiased calibration of this drive can have (its "
+               "wheel errors' Cramér-Rao bound, the reference taken as exact)")
+    _print()
+    if result.validation is not None and result.datasheet_validation is not None:
+        seg = result.validation.segments
+        line = (f"validation error E_p over {len(seg)} segments of "
+                f"~{segs.validation_distance_m:.0f} m: "
+                f"datasheet {result.datasheet_validation.mean_error_m:.2f} m -> calibrated "
+                f"{result.validation.mean_error_m:.2f} m")
+        if truth_error_m is not None:
+            line += f" (true parameters: {truth_error_m:.2f} m)"
+        _print(line)
+    else:
+        _print("validation error E_p: not available (no validation segment)")
+    if exact:
+        _print(f"note: {est.message}")
+    for finding in result.diagnosis.findings:
+        kind = {0: "note", 1: "warning", 2: "error"}[int(finding.severity)]
+        _print(f"{kind}: {finding_text(finding, result.settings)}")
+    for name, verdict in zip(PARAMETER_NAMES, est.verdicts, strict=True):
+        if isinstance(verdict, NotIdentified) and verdict.reason not in (
+                Reason.REJECTED, Reason.STANDSTILL, Reason.FAILED):
+            _print(f"note: {name} ({PARAMETER_UNITS[PARAMETER_NAMES.index(name)]}) is not "
+                   f"identified: "
+                   f"{reason_text(name, verdict, threshold_radps=segs.yaw_rate_threshold_radps)}")
+    for warning in result.warnings:
+        _print(f"warning: {warning}")
+    if not result.success and est.status is not Status.NOTHING_IDENTIFIABLE:
+        _print(f"calibration failed: {est.message}")
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from odocal.pipeline.calibrate import calibrate, validate_theta
+    from odocal.sim.simulate import simulate
+
+    settings = _settings(args)
+    _check_out_dir(args, _inputs(args))
+    if not args.quiet:
+        _print(f"simulating a {args.duration / 60:.0f}-minute city drive (noise profile "
+               f"'{args.noise}', seed {args.seed}) with known true parameters ...")
+    sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
+    progress = _Progress(not args.quiet)
+    try:
+        result = calibrate(sim.drive, settings=settings, method=args.method, progress=progress)
+    finally:
+        progress.close()
+    truth_error = validate_theta(sim.drive, sim.true_parameters, settings=settings).mean_error_m
+    if not args.no_compare:
+        result = _compared(result, [sim.drive], settings, sim.true_parameters, args.quiet)
+    if not args.quiet:
+        bound = sim.cramer_rao_bound()
+        best = None if bound is None else [math.sqrt(v) for v in bound.diagonal()]
+        print_summary(result, truth=sim.true_parameters, truth_error_m=truth_error,
+                      best_std=best)
+    if args.out:
+        _write_outputs(result, args, inputs=_inputs(args))
+    elif not args.quiet:
+        _print("(add --out DIR to write calibration.json and the report with its figures)")
+    return exit_code(result)
+
+
+def _compared(result: CalibrationResult, drives: Sequence[Any], settings: Settings,
+              truth: Parameters | None, quiet: bool) -> CalibrationResult:
+    """``result`` with every method scored on held-out blocks (printed unless quiet)."""
+    import dataclasses
+
+    from odocal.pipeline.compare import compare, format_table
+
+    comparison = compare(drives, settings=settings, truth=truth)
+    if not quiet:
+        for line in format_table(comparison):
+            _print(line)
+        _print()
+    return dataclasses.replace(result, comparison=comparison)
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from odocal.io import save_drive
+    from odocal.io.atomic import refuse_inputs
+    from odocal.io.results import write_json
+    from odocal.sim.simulate import simulate
+
+    out = Path(args.out)
+    truth_path = out.with_name(out.stem + ".truth.json")
+    refuse_inputs(out, [])
+    other = [p for p in (out.with_suffix(".csv"), out.with_suffix(".parquet"))
+             if p != out and p.exists()]
+    if truth_path.exists() and other:
+        raise OutputError(f"'{truth_path}' is the truth of '{other[0]}'; writing '{out}' would "
+                          "replace it: choose another name")
+    sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
+    save_drive(sim.drive, out)
+    write_json(truth_path, sim.truth_dict())
+    if not args.quiet:
+        d = sim.drive
+        _print(f"wrote {out} ({d.n_samples} samples, {d.duration_s / 60:.1f} min, "
+               f"{d.distance_m / 1000:.2f} km, noise '{args.noise}') and {truth_path}")
+    return EXIT_OK
+
+
+def _renderer(args: argparse.Namespace) -> Any:
+    """A report renderer started now (its helper loads matplotlib while we calibrate), or None.
+
+    Started before anything heavy is imported, so the helper forks from a light process. It
+    draws with two processes, one per core (the five figures of the default's report draw in
+    parallel): on a one-hour drive the report adds 0.67-1.01 s (median 0.81 s) to a run of
+    1.08-1.22 s, and the calibration's stages are not slowed.
+    """
+    if getattr(args, "no_report", False) or not getattr(args, "out", None):
+        return None
+    from odocal.report.render import Renderer
+
+    return Renderer(2)
+
+
+def _inputs(args: argparse.Namespace, *sources: Any) -> list[Any]:
+    """Everything a command reads: its sources, settings, mapping (and the files the mapping
+    names), parameters."""
+    from odocal.io.mapping import mapping_files
+
+    mapping = getattr(args, "mapping", None)
+    return [*sources, getattr(args, "config", None), mapping, *mapping_files(mapping),
+            getattr(args, "params", None)]
+
+
+def _check_out_dir(args: argparse.Namespace, inputs: Sequence[Any]) -> None:
+    """Before any computation: the results folder may replace nothing the run reads."""
+    from odocal.io.atomic import check_replaceable, refuse_inputs
+
+    if getattr(args, "out", None):
+        refuse_inputs(args.out, inputs, folder=True)
+        check_replaceable(Path(args.out))
+
+
+def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
+                   inputs: Sequence[Any],
+                   progress: Callable[[str, int, int], None] | None = None,
+                   renderer: Any = None) -> None:
+    """The results folder, built beside ``--out`` and swapped in whole when complete."""
+    from odocal.io.atomic import results_folder
+    from odocal.output.results import (
+        export_parameters,
+        export_stack,
+        write_calibration,
+        write_compensated_inputs,
+    )
+
+    _check_out_dir(args, inputs)
+    out = Path(args.out)
+    written: list[Path] = []
+    with results_folder(out) as tmp:
+        report_numbers = None
+        if not getattr(args, "no_report", False):
+            from odocal.report import write_report
+
+            report = write_report(result, tmp, progress=progress, renderer=renderer)
+            written += [report.html_path, *report.figure_paths]
+            report_numbers = report.data.to_dict()
+        written.insert(0, write_calibration(result, tmp, report=report_numbers))
+        exports = getattr(args, "export", None) or []
+        if exports and not result.success:
+            _print("note: parameters not exported: the calibration did not succeed")
+            exports = []
+        for fmt in exports:
+            if fmt in ("yaml", "json"):
+                written.append(export_parameters(result, tmp, fmt))
+            else:
+                written += export_stack(result, tmp, fmt)
+        if getattr(args, "save_inputs", False):
+            path = write_compensated_inputs(result, tmp)
+            if path is None:
+                _print("note: --save-inputs: this method does not compensate the wheel rates")
+            else:
+                written.append(path)
+    if not args.quiet:
+        for path in written:
+            _print(f"wrote {out / path.relative_to(tmp)}")
+
+
+def _drives_from(args: argparse.Namespace, settings: Settings) -> list[Any]:
+    """Drive files, or raw logs converted in memory with --from."""
+    from odocal.pipeline.calibrate import load_drives
+
+    if getattr(args, "scene", None) and getattr(args, "source_format", None) != "nuscenes":
+        raise ConfigError("--scene chooses nuScenes scenes: it needs --from nuscenes")
+    if getattr(args, "source_format", None):
+        from odocal.preprocess.convert import convert
+
+        drives = convert(args.source_format, args.logs, mapping=args.mapping,
+                         scenes=args.scene, settings=settings)
+        if not args.quiet:
+            for d in drives:
+                _print(_conversion_line(d))
+        return drives
+    return load_drives(args.logs)
+
+
+def _conversion_line(drive: Any) -> str:
+    c = drive.metadata.get("conversion", {})
+    offset = (c.get("wheel_offset") or {}).get("message", "no wheel offset estimate")
+    return (f"converted {drive.name}: {drive.duration_s:.1f} s, {drive.distance_m:.0f} m, "
+            f"{len(drive.pieces)} piece(s), reference {c.get('reference')}; {offset}; "
+            f"sideslip {c.get('sideslip')}")
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    renderer = _renderer(args)
+    progress = _Progress(not args.quiet)
+    try:
+        from odocal.pipeline.calibrate import calibrate
+
+        settings = _settings(args)
+        inputs = _inputs(args, *args.logs)
+        _check_out_dir(args, inputs)
+        drives = _drives_from(args, settings)
+        result = calibrate(drives, settings=settings, method=args.method, progress=progress)
+        if args.compare:
+            result = _compared(result, drives, settings, None, args.quiet)
+        if not args.quiet:
+            print_summary(result)
+        _write_outputs(result, args, progress=progress, renderer=renderer, inputs=inputs)
+    finally:
+        progress.close()
+        if renderer is not None:
+            renderer.close()
+    return exit_code(result)
+
+
+def exit_code(result: CalibrationResult) -> int:
+    """0 for an answer, or for data that are valid but identify nothing; 3 for a failure."""
+    from odocal.estimators.estimate import Status
+
+    if result.success or result.estimate.status is Status.NOTHING_IDENTIFIABLE:
+        return EXIT_OK
+    return EXIT_FAILED
+
+
+def cmd_convert(args: argparse.Namespace) -> int:
+    from odocal.io import save_drive
+    from odocal.io.atomic import refuse_inputs
+
+    settings = _settings(args)
+    out = Path(args.out)
+    inputs = _inputs(args, *args.logs)
+    refuse_inputs(out, inputs)
+    drives = _drives_from(args, settings)
+    targets = [out] if len(drives) == 1 else \
+        [out.with_name(f"{out.stem}-{_safe(d.name)}{out.suffix}") for d in drives]
+    for drive, target in zip(drives, targets, strict=True):
+        refuse_inputs(target, inputs)
+        save_drive(drive, target)
+        if not args.quiet:
+            _print(f"wrote {target} ({drive.n_samples} samples at "
+                   f"{1 / drive.t_s:.0f} Hz)")
+    return EXIT_OK
+
+
+def _safe(name: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in Path(name).name)
+
+
+def cmd_inspect(args: argparse.Namespace) -> int:
+    from odocal.preprocess.convert import inspect
+
+    settings = _settings(args)
+    for found in inspect(args.source_format, args.logs, mapping=args.mapping, scenes=args.scene,
+                         settings=settings):
+        _print(f"{found.log.name} ({found.log.metadata.get('source_format')}):")
+        _print(f"  {'role':<8} {'stream':<34} {'samples':>8} {'rate Hz':>8} {'span s':>8} "
+               f"{'gaps':>5} {'longest gap s':>13} {'repaired':>9}  units")
+        for role, r in found.streams.items():
+            repaired = f"{r.out_of_order}o/{r.duplicates}d/{r.missing}m"
+            units = ", ".join(f"{k} {v}" for k, v in r.units.items())
+            _print(f"  {role:<8} {r.name[:34]:<34} {r.samples:>8} {r.rate_hz:>8.1f} "
+                   f"{r.end_s - r.start_s:>8.2f} {r.gaps:>5} {r.longest_gap_s:>13.3f} "
+                   f"{repaired:>9}  {units}")
+        spans = [(r.start_s, r.end_s) for r in found.streams.values()]
+        overlap = min(b for _, b in spans) - max(a for a, _ in spans)
+        _print(f"  common span {max(overlap, 0.0):.2f} s "
+               "(repaired: out-of-order / duplicate stamps / samples with missing values)")
+    return EXIT_OK
+
+
+def _parameters_from(args: argparse.Namespace, settings: Settings) -> Parameters:
+    from odocal.io.results import read_parameters
+    from odocal.model.parameters import Parameters
+
+    if args.params:
+        return read_parameters(args.params)
+    return Parameters.from_array(settings.identify.theta0)
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    from odocal.pipeline.calibrate import validate_theta
+
+    settings = _settings(args)
+    theta = _parameters_from(args, settings)
+    result = validate_theta(args.logs, theta, settings=settings)
+    if args.quiet:
+        return EXIT_OK
+    _print("parameters: " + ", ".join(f"{k} = {v:.6g}" for k, v in theta.as_dict().items()))
+    _print(f"validation error E_p = {result.mean_error_m:.3f} m over {len(result.segments)} "
+           f"segments ({result.segments.distance_m.sum() / 1000:.2f} km)")
+    _print(f"{'segment':>7} {'drive':<30} {'start [s]':>10} {'length [m]':>10} {'E_p [m]':>9} "
+           f"{'end error [m]':>13}")
+    drives = result.drive_names
+    for i, (d, t0, dist, e, f) in enumerate(zip(result.segments.drive, result.start_s,
+                                                 result.segments.distance_m,
+                                                 result.errors.mean_m, result.errors.final_m,
+                                                 strict=True)):
+        _print(f"{i:>7} {Path(drives[int(d)]).name[:30]:<30} {t0:>10.1f} {dist:>10.1f} {e:>9.3f} "
+               f"{f:>13.3f}")
+    return EXIT_OK
+
+
+def cmd_minimum(args: argparse.Namespace) -> int:
+    from odocal.pipeline.calibrate import minimum
+
+    settings = _settings(args)
+    if args.out:
+        from odocal.io.atomic import refuse_inputs
+
+        refuse_inputs(args.out, _inputs(args, *args.logs))
+    start = _parameters_from(args, settings)
+    if not args.quiet:
+        _print("searching the reachable minimum of E_p over the validation segments "
+               "(differential evolution) ...")
+    result = minimum(args.logs, start=start, settings=settings)
+    if args.quiet:
+        if args.out:
+            from odocal.io.results import write_json
+
+            write_json(args.out, result.to_dict())
+        return EXIT_OK if result.success else EXIT_FAILED
+    _print(f"start   E_p = {result.start_error_m:.3f} m at "
+           + ", ".join(f"{k} = {v:.6g}" for k, v in start.as_dict().items()))
+    _print(f"minimum E_p = {result.mean_error_m:.3f} m over {result.segments} segments at "
+           + ", ".join(f"{k} = {v:.6g}" for k, v in result.theta.as_dict().items()))
+    if not args.quiet:
+        _print(f"({result.evaluations} evaluations; {result.message})")
+    if args.out:
+        from odocal.io.results import write_json
+
+        write_json(args.out, result.to_dict())
+        if not args.quiet:
+            _print(f"wrote {args.out}")
+    return EXIT_OK if result.success else EXIT_FAILED
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """Stream a log through the online calibrator; write the estimate, its trace and alarms."""
+    renderer = _renderer(args)
+    try:
+        return _replay(args, renderer)
+    finally:
+        if renderer is not None:
+            renderer.close()
+
+
+def _replay(args: argparse.Namespace, renderer: Any) -> int:
+    from odocal.io.atomic import results_folder
+    from odocal.model.parameters import PARAMETER_NAMES
+    from odocal.online.replay import TraceRow, replay
+    from odocal.report.replay import convergence_km
+
+    settings = _settings(args)
+    inputs = _inputs(args, args.source)
+    out = Path(args.out)
+    _check_out_dir(args, inputs)
+
+    def show(row: TraceRow, est: Any) -> None:
+        if args.quiet:
+            return
+        parts = [f"{n} {_fmt_param(n, v)} {_fmt_std(n, s)}" if ok else f"{n} -"
+                 for n, v, s, ok in zip(PARAMETER_NAMES, row.theta, row.std, row.identified,
+                                        strict=True)]
+        _print(f"{row.t:9.1f} s {row.distance_km:8.2f} km  " + "  ".join(parts))
+
+    result = replay(args.source, fmt=args.source_format, settings=settings,
+                    mapping=args.mapping, on_update=show)
+    batch = None
+    if not args.no_batch and (args.source_format or "drive") == "drive":
+        from odocal.pipeline.calibrate import calibrate
+
+        batch = calibrate(args.source, settings=settings).estimate
+    for alarm in result.alarms:
+        _print(f"change: {alarm.parameter} moved {alarm.relative_change * 100:+.3f}% at "
+               f"{alarm.distance_km:.2f} km (detected at {alarm.detected_distance_km:.2f} km, "
+               f"t = {alarm.detected_t:.0f} s)")
+    written: list[Path] = []
+    with results_folder(out) as tmp:
+        written += _replay_files(tmp, args, result, batch, settings, renderer)
+    conv = convergence_km(result)
+    if not args.quiet:
+        _print(f"replayed {result.duration_s / 60:.1f} min, {result.distance_km:.2f} km in "
+               f"{result.elapsed_s:.1f} s; c_e to 1 mm after "
+               + (f"{conv['c_e']:.2f} km" if conv["c_e"] is not None else "-")
+               + ", t_r to 20 mm after "
+               + (f"{conv['t_r']:.2f} km" if conv["t_r"] is not None else "-"))
+        for path in written:
+            _print(f"wrote {out / path.relative_to(tmp)}")
+    return EXIT_OK
+
+
+def _replay_files(out: Path, args: argparse.Namespace, result: Any, batch: Any,
+                  settings: Settings, renderer: Any) -> list[Path]:
+    import csv
+    import io
+
+    from odocal.io.atomic import write_text
+    from odocal.io.results import write_json
+    from odocal.online.replay import TraceRow
+    from odocal.report.replay import convergence_km, write_replay_report
+
+    est = result.estimate
+    data = {"odocal_version": __version__, **est.to_dict(), "method": "online",
+            "alarms": [a.to_dict() for a in result.alarms],
+            "convergence_km": convergence_km(result), "samples": result.samples,
+            "duration_s": result.duration_s, "distance_km": result.distance_km,
+            "elapsed_s": result.elapsed_s,
+            "details": est.details.to_dict() if est.details is not None else None,
+            "batch": batch.to_dict() if batch is not None else None,
+            "inputs": [{"name": str(args.source)}], "settings": settings.to_dict()}
+    written = [write_json(out / "calibration.json", data)]
+    text = io.StringIO()
+    table = csv.writer(text)
+    table.writerow(TraceRow.header())
+    for row in result.trace:
+        table.writerow(row.values())
+    write_text(out / "trace.csv", text.getvalue())
+    written.append(out / "trace.csv")
+    written.append(write_json(out / "alarms.json", {"alarms": [a.to_dict()
+                                                               for a in result.alarms]}))
+    if not args.no_report:
+        written.append(write_replay_report(result, out, batch=batch, renderer=renderer))
+        written.append(out / "figures" / "trace.png")
+    return written
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from odocal.io.results import write_json
+    from odocal.pipeline.reproduce import format_report, reproduce
+
+    settings = _settings(args)
+    if not args.quiet:
+        _print(f"reproducing the paper's experiment on a simulated {args.distance_km:g} km drive "
+               f"(seed {args.seed}, noise '{args.noise}') ...")
+    progress = _Progress(not args.quiet)
+    try:
+        result = reproduce(seed=args.seed, noise=args.noise, distance_km=args.distance_km,
+                           settings=settings, minimum=not args.no_minimum, progress=progress)
+    finally:
+        progress.close()
+    if not args.quiet:
+        _print(format_report(result))
+    if args.out:
+        write_json(args.out, result.to_dict())
+        _print(f"wrote {args.out}")
+    return EXIT_OK
+
+
+def _add_source(p: argparse.ArgumentParser, *, required: bool, converts: bool = True) -> None:
+    from odocal.io.registry import FORMATS
+
+    p.add_argument("--from", dest="source_format", choices=FORMATS, required=required,
+                   help="raw log format")
+    p.add_argument("--mapping", metavar="TOML",
+                   help="which files/topics and columns/fields hold each stream (see README)")
+    p.add_argument("--scene", action="append", metavar="NAME",
+                   help="nuScenes scene to use (repeatable; default all)")
+    if not converts:
+        return
+    p.add_argument("--reference", choices=("auto", "fused", "gnss-imu"),
+                   help="reference pose: the log's fused pose, or odocal's GNSS/IMU fusion")
+    p.add_argument("--circumference", type=float, metavar="M",
+                   help="nominal wheel circumference for wheel speeds in m/s or km/h")
+
+
+def _add_common(p: argparse.ArgumentParser, *, workers: bool = True) -> None:
+    p.add_argument("--config", metavar="TOML", help="settings file (see README, 'Settings')")
+    if workers:
+        p.add_argument("--workers", type=int, metavar="N",
+                       help="processes for per-segment work (0 = every core; default from "
+                            "settings)")
+    p.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+    p.add_argument("-v", "--verbose", action="count", default=0,
+                   help="more log output (-vv for debug)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="odocal", description="Calibrate a vehicle's wheel-odometry model from logged drives.")
+    parser.add_argument("--version", action="version", version=f"odocal {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    _add_simulation_commands(sub)
+    _add_calibration_commands(sub)
+    _add_checking_commands(sub)
+
+    from odocal.cli.fleet import add_parsers
+
+    add_parsers(sub)
+    return parser
+
+
+def _configure_logging(verbose: int, quiet: bool) -> None:
+    level = logging.ERROR if quiet else (logging.WARNING if verbose == 0 else
+                                         logging.INFO if verbose == 1 else logging.DEBUG)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s",
+                        stream=sys.stderr)
+    if verbose == 0:
+        # warnings are printed in the summary; keep the log for -v
+        logging.getLogger("odocal").setLevel(logging.ERROR)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    _configure_logging(args.verbose, args.quiet)
+    func: Callable[[argparse.Namespace], int] = args.func
+    try:
+        return func(args)
+    except OdocalError as exc:
+        sys.stderr.write(f"odocal {args.command}: error: {exc}\n")
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        sys.stderr.write(f"odocal {args.command}: interrupted\n")
+        sys.stderr.flush()
+        sys.stdout.flush()
+        if argv is None:
+            # the program itself (not a caller's main([...])): the work is stopped and cleaned
+            # up (pools terminated, temporary results removed); leave now rather than wait in
+            # exit handlers for the threads of a broken pool
+            os._exit(130)
+        return 130
+    except BrokenPipeError:  # the reader went away (| head): stop quietly
+        sys.stderr.close()
+        return EXIT_OK
+    except Exception as exc:  # a bug: say so in one line, with the traceback on request
+        if args.verbose:
+            raise
+        sys.stderr.write(f"odocal {args.command}: internal error: {type(exc).__name__}: {exc} "
+                         "(rerun with -v for the traceback)\n")
+        return EXIT_BUG
+    finally:
+        if argv is None:
+            # the program ends here: what it made needs no collecting on the way out (the
+            # interpreter's last collection took 0.2 s after a one-hour calibration)
+            gc.freeze()
+
+
+def _add_simulation_commands(sub: Any) -> None:
+    """demo and simulate."""
+    p = sub.add_parser("demo", help="simulate a drive with known parameters and calibrate it")
+    p.add_argument("--duration", type=float, default=1200.0, metavar="S",
+                   help="simulated drive length in seconds (default 1200)")
+    p.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
+    p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic",
+                   help="noise profile (default realistic)")
+    p.add_argument("--method", choices=METHOD_NAMES,
+                   help=f"calibration method (default {DEFAULT_METHOD})")
+    p.add_argument("--out", metavar="DIR",
+                   help="also write the results (calibration.json, report.html) to this folder")
+    p.add_argument("--no-compare", action="store_true",
+                   help="skip comparing every method on held-out parts of the drive")
+    _add_common(p)
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("simulate", help="write a simulated drive and its truth")
+    p.add_argument("--out", required=True, metavar="FILE",
+                   help="drive file to write (.csv or .parquet); the truth goes to "
+                        "FILE.truth.json beside it")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--duration", type=float, default=1800.0, metavar="S")
+    p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic",
+                   metavar="PROFILE", help=f"one of {', '.join(NOISE_PROFILES)}")
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-v", "--verbose", action="count", default=0)
+    p.set_defaults(func=cmd_simulate)
+
+
+def _add_calibration_commands(sub: Any) -> None:
+    """calibrate and convert."""
+    p = sub.add_parser("calibrate", help="calibrate from drive logs of one vehicle")
+    p.add_argument("logs", nargs="+", metavar="LOG",
+                   help="drive-format files (.csv, .parquet), or raw logs with --from")
+    _add_source(p, required=False)
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for calibration.json")
+    p.add_argument("--method", choices=METHOD_NAMES,
+                   help=f"calibration method (default {DEFAULT_METHOD}; README, 'Methods')")
+    p.add_argument("--seed", type=int, help="seed of the step-1 batch draw")
+    p.add_argument("--save-inputs", action="store_true",
+                   help="also write the compensated wheel rates (compensated_inputs.parquet)")
+    p.add_argument("--export", action="append",
+                   choices=("yaml", "json", "autoware", "ros2_control", "robot_localization"),
+                   help="also write the parameters for a localisation stack: yaml (a ROS 2 "
+                        "parameter file) or json, with their covariance, or the parameter files "
+                        "of autoware, ros2_control, robot_localization (repeatable)")
+    p.add_argument("--no-report", action="store_true", help="skip report.html and the figures")
+    p.add_argument("--compare", action="store_true",
+                   help="also score every method on held-out parts of the drives (slower)")
+    _add_common(p)
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("convert", help="turn raw logs into the drive format")
+    p.add_argument("logs", nargs="+", metavar="SOURCE",
+                   help="nuScenes folders, comma2k19 segment folders, bags or table files")
+    _add_source(p, required=True)
+    p.add_argument("--out", required=True, metavar="FILE",
+                   help="drive file (.csv or .parquet); with several logs, one file each named "
+                        "FILE-<log>")
+    _add_common(p)
+    p.set_defaults(func=cmd_convert)
+
+
+def _add_checking_commands(sub: Any) -> None:
+    """inspect, validate, reproduce, replay and minimum."""
+    p = sub.add_parser("inspect", help="list the streams in raw logs before converting them")
+    p.add_argument("logs", nargs="+", metavar="SOURCE")
+    _add_source(p, required=True, converts=False)
+    _add_common(p, workers=False)
+    p.set_defaults(func=cmd_inspect)
+
+    p = sub.add_parser("validate", help="validation error E_p of parameters on drive logs")
+    p.add_argument("logs", nargs="+", metavar="LOG")
+    p.add_argument("--params", metavar="JSON",
+                   help="calibration.json to validate (default: the datasheet parameters)")
+    _add_common(p)
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("reproduce", help="the paper's experiment on a simulated ~24 km drive")
+    p.add_argument("--seed", type=int, default=0, help="simulation and batch seed (default 0)")
+    p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic")
+    p.add_argument("--distance-km", type=float, default=24.0, help="drive length (default 24)")
+    p.add_argument("--no-minimum", action="store_true",
+                   help="skip the global search for the reachable minimum")
+    p.add_argument("--out", metavar="JSON", help="write the numbers to this file")
+    _add_common(p)
+    p.set_defaults(func=cmd_reproduce)
+
+    p = sub.add_parser("replay", help="stream a log through the online calibrator")
+    p.add_argument("source", metavar="SOURCE",
+                   help="a drive file (.parquet, .csv), or a bag with --from rosbag")
+    p.add_argument("--from", dest="source_format", choices=("drive", "rosbag"),
+                   help="source format (default: a drive file)")
+    p.add_argument("--mapping", metavar="TOML", help="topics and fields of a bag (see README)")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="folder for calibration.json, trace.csv, alarms.json, report.html")
+    p.add_argument("--no-batch", action="store_true",
+                   help="skip the batch calibration of the whole log shown for comparison")
+    p.add_argument("--no-report", action="store_true", help="skip report.html")
+    _add_common(p)
+    p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("minimum", help="the reachable minimum validation error (global search)")
+    p.add_argument("logs", nargs="+", metavar="LOG")
+    p.add_argument("--params", metavar="JSON", help="centre of the search box (default datasheet)")
+    p.add_argument("--seed", type=int, help="optimiser seed")
+    p.add_argument("--out", metavar="JSON", help="write the result to this file")
+    _add_common(p)
+    p.set_defaults(func=cmd_minimum)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

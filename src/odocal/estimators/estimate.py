@@ -1,0 +1,333 @@
+"""The one value every estimator hands on, and the one identifiability verdict.
+
+An :class:`Estimate` is theta with its covariance, which parameters were estimated (``free``),
+a verdict per parameter (:class:`Identified` or :class:`NotIdentified` with the reason and the
+numbers behind it), a :class:`Status` code with a message table (as scipy's ``least_squares``
+reports its status), and typed method-specific details. The batch methods (raw Gauss-Newton, the
+three-step method, the default errors-in-variables method), the online
+calibrator and the fleet's per-drive tasks all produce it; sentences are made from it only in
+:mod:`odocal.report` and :mod:`odocal.cli.main`.
+
+The verdict (:func:`judge`) is the same for every method: a parameter the data determine to a
+standard deviation no larger than ``identifiable_ratio`` times its datasheet uncertainty
+(``[identify] prior_std``) is identified; one held at its datasheet value keeps the reason it was
+held (no bends, no information, the wheels carry no differential signal, ...).
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.settings import IdentifySettings
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+
+class Status(enum.IntEnum):
+    """How an estimation ended. Positive: an answer; zero or negative: no usable answer."""
+
+    CONVERGED = 1
+    SETTLED = 2
+    ITERATION_LIMIT = 3
+    EXACT = 4
+    NO_IMPROVEMENT = 0
+    NOTHING_IDENTIFIABLE = -1
+    SOLVER_FAILED = -2
+    REJECTED = -3
+
+    @property
+    def success(self) -> bool:
+        return self.value > 0
+
+
+#: What each status means, in words (the CLI and the report print these).
+STATUS_MESSAGES: Mapping[Status, str] = {
+    Status.CONVERGED: "converged: the step fell below the tolerance",
+    Status.SETTLED: "converged: the cost no longer decreases",
+    Status.ITERATION_LIMIT: "stopped at the iteration limit while the cost still decreased "
+                            "slightly",
+    Status.EXACT: "the data fit the model exactly (noise-free): the parameters are exact to "
+                  "numerical precision",
+    Status.NO_IMPROVEMENT: "could not improve on the initial parameters",
+    Status.NOTHING_IDENTIFIABLE: "no parameter is identifiable from these drives",
+    Status.SOLVER_FAILED: "the solver failed (a factorisation broke down)",
+    Status.REJECTED: "the result failed the quality gate: the data contradict the model",
+}
+
+
+class Reason(enum.Enum):
+    """Why a parameter is not identified."""
+
+    NEEDS_BENDS = "needs-bends"
+    """t_r and d act on the yaw rate only in bends, and the drives hold too few."""
+    NO_INFORMATION = "no-information"
+    """The segments carry no information on it (rank-deficient normal equations)."""
+    WEAK = "weak"
+    """The data determine it, but not better than the identifiability limit."""
+    NO_DIFFERENTIAL = "no-differential"
+    """The two wheel signals carry no differential information (locked axle, one speed signal,
+    a copied column): only the distance scale c_e can be calibrated."""
+    ONE_CLUSTER = "one-cluster"
+    """All segments overlap in time: one piece of independent evidence is not enough."""
+    HELD = "held"
+    """Held at the starting value on request."""
+    FAILED = "failed"
+    """The estimation failed; nothing was determined."""
+    STANDSTILL = "standstill"
+    """The vehicle does not move: there is nothing to calibrate."""
+    REJECTED = "rejected"
+    """The data contradict the model (see the diagnosis): nothing is calibrated."""
+
+
+@dataclass(frozen=True)
+class Identified:
+    """The data identify the parameter: its standard deviation is within the limit."""
+
+    std: float
+    limit: float
+
+
+@dataclass(frozen=True)
+class NotIdentified:
+    """The parameter keeps its datasheet value.
+
+    reason : why
+    std : what the data determine it to (nan when they give no number)
+    limit : the identifiability limit (``identifiable_ratio * prior_std``)
+    detail : a number behind the reason: the largest peak yaw rate (NEEDS_BENDS, rad/s), the
+        number of independent segment clusters (ONE_CLUSTER); nan otherwise
+    """
+
+    reason: Reason
+    std: float = float("nan")
+    limit: float = float("nan")
+    detail: float = float("nan")
+
+
+Verdict = Identified | NotIdentified
+
+
+class CovarianceKind(enum.Enum):
+    """Where an estimate's covariance comes from."""
+
+    CLUSTER_ROBUST = "cluster-robust"
+    """Sandwich over clusters of overlapping segments (rollout residuals are correlated)."""
+    RESIDUAL = "residual"
+    """The residual variance with the white-noise formula, inflated for autocorrelation (too
+    few clusters for the robust form)."""
+    THREE_STEP = "cluster-robust + step-1 spread"
+    """Step 3's robust covariance plus the spread the compensated rates inherit from step 1."""
+    RECURSIVE = "recursive information"
+    """Accumulated Gauss-Newton information of the segments seen so far (online)."""
+    NONE = "none"
+    """Nothing was estimated."""
+
+
+@dataclass(frozen=True)
+class GaussNewtonDetails:
+    """What a (batch) Gauss-Newton identification did.
+
+    iterations : accepted G-N steps
+    cost_history : V at the initial guess and after each accepted step
+    segments : number of segments identified from
+    clusters : number of independent clusters of overlapping segments
+    residual_rms : RMS of the p_x, p_y (m) and psi (rad) residuals at the final theta
+    covariance_naive : ``sigma^2 (J^T W J)^-1`` inflated for the residuals' autocorrelation
+    segment_scores : per-segment ``J^T W R`` at the final theta, shape (N, 4)
+    """
+
+    iterations: int
+    cost_history: tuple[float, ...]
+    segments: int
+    clusters: int
+    residual_rms: tuple[float, float, float]
+    covariance_naive: FloatArray = field(repr=False)
+    segment_scores: FloatArray = field(repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"iterations": self.iterations, "cost_history": list(self.cost_history),
+                "segments": self.segments, "clusters": self.clusters,
+                "residual_rms": {"p_x_m": self.residual_rms[0], "p_y_m": self.residual_rms[1],
+                                 "psi_rad": self.residual_rms[2]},
+                "covariance_naive": self.covariance_naive.tolist()}
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """theta, how sure, what is identified and why, and how the estimation ended.
+
+    method : the estimator that produced it
+    theta : the estimate (parameters not identified keep their datasheet values)
+    datasheet : the datasheet values (the starting point)
+    covariance : ndarray, shape (4, 4), order c_e, c_d, t_r, d; zero rows and columns for
+        parameters that were not estimated
+    covariance_kind : where the covariance comes from
+    free : which parameters were estimated from the data
+    verdicts : per parameter, :class:`Identified` or :class:`NotIdentified`
+    status : how the estimation ended (see :data:`STATUS_MESSAGES`)
+    details : the method's own record (typed per method)
+    widening : ndarray, shape (4,), the factor by which each standard deviation was widened
+        beyond the covariance formula (to the bootstrap spread, or for the sensitivity to the
+        noise model); 1 where not widened. ``covariance`` already includes it.
+    """
+
+    method: str
+    theta: Parameters
+    datasheet: Parameters
+    covariance: FloatArray
+    covariance_kind: CovarianceKind
+    free: tuple[bool, bool, bool, bool]
+    verdicts: tuple[Verdict, Verdict, Verdict, Verdict]
+    status: Status
+    details: Any = field(default=None, repr=False)
+    widening: FloatArray = field(default_factory=lambda: np.ones(4))
+
+    @property
+    def success(self) -> bool:
+        return self.status.success
+
+    @property
+    def message(self) -> str:
+        return STATUS_MESSAGES[self.status]
+
+    @property
+    def std(self) -> FloatArray:
+        """Standard deviations of c_e, c_d, t_r, d (zero where not estimated)."""
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+    @property
+    def identified(self) -> tuple[bool, bool, bool, bool]:
+        return tuple(isinstance(v, Identified) for v in self.verdicts)  # type: ignore[return-value]
+
+    @property
+    def unidentified(self) -> tuple[str, ...]:
+        return tuple(n for n, ok in zip(PARAMETER_NAMES, self.identified, strict=True) if not ok)
+
+    def verdict(self, name: str) -> Verdict:
+        return self.verdicts[PARAMETER_NAMES.index(name)]
+
+    def with_covariance(self, covariance: FloatArray, kind: CovarianceKind, *,
+                        widening: FloatArray | None = None) -> Estimate:
+        """A copy with another covariance; identified parameters carry its standard deviations.
+
+        Whether they are still within the limit is the caller's to judge (see :func:`weak`).
+        """
+        std = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+        verdicts = tuple(Identified(float(std[j]), v.limit) if isinstance(v, Identified) else v
+                         for j, v in enumerate(self.verdicts))
+        return _replace(self, covariance=covariance, covariance_kind=kind, verdicts=verdicts,
+                        widening=self.widening if widening is None else widening)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The estimate as plain data (the top of calibration.json)."""
+        return {
+            "method": self.method,
+            "theta": self.theta.as_dict(),
+            "std": dict(zip(PARAMETER_NAMES, self.std.tolist(), strict=True)),
+            "covariance": self.covariance.tolist(),
+            "covariance_kind": self.covariance_kind.value,
+            "std_widening": dict(zip(PARAMETER_NAMES, np.asarray(self.widening).tolist(),
+                                     strict=True)),
+            "free": dict(zip(PARAMETER_NAMES, self.free, strict=True)),
+            "identified": dict(zip(PARAMETER_NAMES, self.identified, strict=True)),
+            "verdicts": {n: verdict_dict(v) for n, v in zip(PARAMETER_NAMES, self.verdicts,
+                                                            strict=True)},
+            "status": {"code": int(self.status), "name": self.status.name.lower(),
+                       "success": self.success, "message": self.message},
+            "datasheet": self.datasheet.as_dict(),
+        }
+
+
+def _replace(estimate: Estimate, **changes: Any) -> Estimate:
+    import dataclasses
+
+    return dataclasses.replace(estimate, **changes)
+
+
+def verdict_dict(v: Verdict) -> dict[str, Any]:
+    if isinstance(v, Identified):
+        return {"identified": True, "std": v.std, "limit": v.limit}
+    return {"identified": False, "reason": v.reason.value, "std": v.std, "limit": v.limit,
+            "detail": v.detail}
+
+
+def identifiability_limits(settings: IdentifySettings) -> FloatArray:
+    """The largest standard deviation at which each parameter counts as identified."""
+    return settings.identifiable_ratio * np.asarray(settings.prior_std, dtype=np.float64)
+
+
+def weak(std: FloatArray, free: BoolArray | tuple[bool, ...],
+         settings: IdentifySettings) -> BoolArray:
+    """Free parameters whose standard deviation exceeds the identifiability limit."""
+    if not settings.judge_identifiability:
+        return np.zeros(4, dtype=bool)
+    std = np.asarray(std, dtype=np.float64)
+    return np.asarray(free, dtype=bool) & ~(std <= identifiability_limits(settings))
+
+
+def judge(std: FloatArray, free: BoolArray | tuple[bool, ...], settings: IdentifySettings, *,
+          held: Mapping[str, NotIdentified] | None = None,
+          ) -> tuple[Verdict, Verdict, Verdict, Verdict]:
+    """The verdict per parameter: held ones keep their reason, free ones are judged by std."""
+    held = held or {}
+    limits = identifiability_limits(settings)
+    too_weak = weak(std, free, settings)
+    out: list[Verdict] = []
+    for j, name in enumerate(PARAMETER_NAMES):
+        if name in held:
+            h = held[name]
+            out.append(NotIdentified(h.reason, h.std, float(limits[j]), h.detail))
+        elif not free[j]:
+            out.append(NotIdentified(Reason.HELD, float("nan"), float(limits[j])))
+        elif too_weak[j]:
+            out.append(NotIdentified(Reason.WEAK, float(std[j]), float(limits[j])))
+        else:
+            out.append(Identified(float(std[j]), float(limits[j])))
+    return tuple(out)  # type: ignore[return-value]
+
+
+def held_as_weak(std: FloatArray, mask: BoolArray,
+                 settings: IdentifySettings) -> dict[str, NotIdentified]:
+    """NotIdentified(WEAK) for the parameters in ``mask``, with the std the data gave."""
+    limits = identifiability_limits(settings)
+    return {PARAMETER_NAMES[j]: NotIdentified(Reason.WEAK, float(std[j]), float(limits[j]))
+            for j in np.flatnonzero(mask)}
+
+
+def failed_estimate(method: str, settings: IdentifySettings, status: Status, *,
+                    details: Any = None) -> Estimate:
+    """The datasheet values with no uncertainty and nothing identified: a failed estimation."""
+    return refused_estimate(method, settings, status, Reason.FAILED, details=details)
+
+
+def refused_estimate(method: str, settings: IdentifySettings, status: Status, reason: Reason,
+                     *, details: Any = None) -> Estimate:
+    """The datasheet values, nothing estimated, every parameter not identified for ``reason``."""
+    theta0 = Parameters.from_array(settings.theta0)
+    limits = identifiability_limits(settings)
+    return Estimate(method=method, theta=theta0, datasheet=theta0, covariance=np.zeros((4, 4)),
+                    covariance_kind=CovarianceKind.NONE, free=(False, False, False, False),
+                    verdicts=tuple(NotIdentified(reason, limit=float(v))  # type: ignore[arg-type]
+                                   for v in limits),
+                    status=status, details=details)
+
+
+#: The one-standard-deviation quantile (0.8413) of Student's t with 1..8 degrees of freedom
+#: (``scipy.special.stdtrit(dof, 0.8413447)``): how much wider a standard deviation estimated
+#: from only 2..9 independent clusters must be to cover as often as one from many.
+_T_ONE_SIGMA = (1.8373, 1.3213, 1.1969, 1.1416, 1.1105, 1.0906, 1.0767, 1.0665)
+
+
+def few_clusters_inflation(clusters: int) -> float:
+    """Factor for standard deviations estimated from ``clusters`` independent clusters."""
+    if clusters < 2:
+        return float("inf")
+    return _T_ONE_SIGMA[clusters - 2] if clusters - 2 < len(_T_ONE_SIGMA) else 1.0

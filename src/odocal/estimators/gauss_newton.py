@@ -1,0 +1,340 @@
+"""METHOD 3: Gauss-Newton identification of theta from segments (pure and batch).
+
+Minimises ``V(theta) = sum_k (y~_k - y^_k)^T W (y~_k - y^_k)`` over the segments of a batch
+(one segment: *pure* G-N; several: *batch* G-N, their J and R stacked). Each iteration solves the
+weighted linear least-squares problem (7)-(8) by QR: every segment's ``[sqrt(W) J | sqrt(W) R]``
+is reduced to a 5x5 R factor in the compiled model kernel (:func:`odocal.model.segment_r_factors`),
+and the stacked factors once more (a tall-skinny QR), iterating while the cost decreases, at most
+``i_max`` times. A step that would raise the cost is halved until it does not (up to ten times)
+before the iteration stops; near the solution the full step is always taken, so this only guards
+the first steps from a poor initial guess.
+
+Parameters the data cannot identify are found two ways and kept at their initial values:
+numerically (the scaled normal equations are rank deficient, e.g. no bends at all) and
+statistically (the data's standard deviation of a parameter is not much smaller than the datasheet
+uncertainty ``prior_std``: :func:`odocal.estimators.estimate.judge`). The verdict is applied
+however the
+iteration ended.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import qr, solve_triangular
+
+from odocal.data.segments import SegmentBatch
+from odocal.estimators.covariance import robust_covariance
+from odocal.estimators.estimate import (
+    CovarianceKind,
+    Estimate,
+    GaussNewtonDetails,
+    NotIdentified,
+    Reason,
+    Status,
+    few_clusters_inflation,
+    held_as_weak,
+    judge,
+    weak,
+)
+from odocal.model.kinematics import segment_r_factors
+from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.settings import IdentifySettings
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+log = logging.getLogger(__name__)
+
+_MIN_CLUSTERS_FOR_ROBUST = 10
+_MAX_HALVINGS = 10
+#: A weighted RMS residual below this (m, or rad times the heading weight's root) is numerically
+#: zero: the data fit the model exactly.
+_EXACT_RMS = 1e-9
+#: Relative changes of the cost below this are its rounding (sums over millions of samples
+#: vary by about 1e-12 from the order of summation); a step predicted to gain less is at most
+#: about 0.01 of a standard deviation even on a 4 h drive.
+_COST_ROUNDING = 1e-11
+
+
+@dataclass(frozen=True)
+class Linearisation:
+    """The weighted least-squares problem of one G-N iteration at ``theta``.
+
+    cost : V(theta)
+    r_factor : ndarray, shape (5, 5)
+        Upper-triangular R of the QR factorisation of ``[sqrt(W) J | sqrt(W) R]``.
+    segment_r : ndarray, shape (N, 5, 5)
+        The same per segment.
+    residual_ss : ndarray, shape (3,)
+        Unweighted sums of squared residuals of p_x, p_y, psi.
+    samples : int
+        Number of residual samples (segments times K).
+    lag1 : float
+        Lag-1 autocorrelation of the weighted residuals along each segment (pooled).
+    """
+
+    theta: FloatArray
+    cost: float
+    r_factor: FloatArray
+    segment_r: FloatArray
+    residual_ss: FloatArray
+    samples: int
+    lag1: float
+
+    @property
+    def scores(self) -> FloatArray:
+        """Per-segment ``J_s^T W R_s``, shape (N, 4)."""
+        return np.einsum("nij,ni->nj", self.segment_r[:, :4, :4], self.segment_r[:, :4, 4])
+
+    @property
+    def information(self) -> FloatArray:
+        """Per-segment ``J_s^T W J_s``, shape (N, 4, 4)."""
+        a = self.segment_r[:, :4, :4]
+        return np.einsum("nki,nkj->nij", a, a)
+
+
+def linearise(batch: SegmentBatch, theta: FloatArray, weights: FloatArray) -> Linearisation:
+    """Residuals and Jacobians of every segment at ``theta``, reduced to R factors."""
+    segment_r, stats = segment_r_factors(theta, batch.inputs, batch.reference, batch.t_s, weights)
+    stacked = segment_r.reshape(-1, 5)
+    r_factor = qr(stacked, mode="r", check_finite=False)[0][:5]
+    if r_factor.shape[0] < 5:  # fewer rows than columns (a degenerate, tiny batch)
+        r_factor = np.vstack([r_factor, np.zeros((5 - r_factor.shape[0], 5))])
+    cost = float(stats[:, 0].sum())
+    lagged = float(stats[:, 4].sum())
+    return Linearisation(theta=np.asarray(theta, dtype=np.float64).copy(), cost=cost,
+                         r_factor=r_factor, segment_r=segment_r,
+                         residual_ss=stats[:, 1:4].sum(axis=0), samples=len(batch) * batch.steps,
+                         lag1=lagged / cost if cost > 0 else 0.0)
+
+
+def segment_information(batch: SegmentBatch, theta: FloatArray,
+                        weights: FloatArray) -> FloatArray:
+    """Per-segment ``J_s^T W J_s`` at ``theta``, shape (N, 4, 4) (for bootstrap and diagnostics)."""
+    return linearise(batch, theta, weights).information
+
+
+@dataclass(frozen=True)
+class _Iteration:
+    theta: FloatArray
+    lin: Linearisation
+    history: list[float]
+    iterations: int
+    status: Status
+
+
+def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
+                 start: FloatArray | None = None, clusters: IntArray | None = None,
+                 held: Mapping[str, NotIdentified] | None = None,
+                 method: str = "raw") -> Estimate:
+    """Pure (one segment) or batch (several) Gauss-Newton identification.
+
+    Parameters
+    ----------
+    batch : the segments, with the wheel rates to identify from (measured or compensated)
+    settings : weights, iteration limit, identifiability thresholds; ``settings.theta0`` holds the
+        datasheet values, which parameters the data cannot identify keep
+    start : initial guess (default: the datasheet values)
+    clusters : ndarray of int, shape (N,), optional
+        Group label of each segment for the cluster-robust covariance: segments that overlap in
+        time belong together. Each segment is its own group when None.
+    held : parameters to keep at their datasheet values regardless of the data, with the reason
+    method : the method name the estimate carries
+
+    Returns
+    -------
+    Estimate
+        With :class:`~odocal.estimate.GaussNewtonDetails`.
+    """
+    datasheet = np.asarray(settings.theta0, dtype=np.float64)
+    theta_init = datasheet.copy() if start is None else np.array(start, dtype=np.float64)
+    weights = np.asarray(settings.weights, dtype=np.float64)
+    prior = np.asarray(settings.prior_std, dtype=np.float64)
+    held = dict(held or {})
+    free = np.array([name not in held for name in PARAMETER_NAMES])
+    if clusters is None:
+        clusters = np.arange(len(batch), dtype=np.int64)
+    n_clusters = int(np.unique(clusters).shape[0])
+
+    theta_init[~free] = datasheet[~free]
+    lin0 = linearise(batch, theta_init, weights)
+    numeric_free = _numerically_free(lin0.r_factor, prior, settings.rcond, free)
+    for j in np.flatnonzero(free & ~numeric_free):
+        held[PARAMETER_NAMES[j]] = NotIdentified(Reason.NO_INFORMATION)
+    if not np.array_equal(numeric_free, free):
+        free = numeric_free
+        theta_init[~free] = datasheet[~free]
+        lin0 = linearise(batch, theta_init, weights)
+
+    while True:
+        it = _iterate(batch, theta_init, lin0, free, weights, settings)
+        cov_naive = _naive_covariance(it.lin, free)
+        cov = cov_naive
+        kind = CovarianceKind.RESIDUAL
+        if n_clusters >= _MIN_CLUSTERS_FOR_ROBUST:
+            cov, kind = _robust_covariance(it.lin, free, clusters), CovarianceKind.CLUSTER_ROBUST
+        elif n_clusters >= 2:
+            cov = _larger(cov_naive, _robust_covariance(it.lin, free, clusters)) \
+                * few_clusters_inflation(n_clusters) ** 2
+        if n_clusters < 2 and free.any() and settings.judge_identifiability:
+            # one cluster of overlapping segments is one piece of evidence: no spread to judge by
+            std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+            for j in np.flatnonzero(free):
+                held[PARAMETER_NAMES[j]] = NotIdentified(Reason.ONE_CLUSTER, float(std[j]),
+                                                         detail=float(n_clusters))
+            free = np.zeros(4, dtype=bool)
+        else:
+            std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+            too_weak = weak(std, free, settings)
+            if not too_weak.any():
+                break
+            held.update(held_as_weak(std, too_weak, settings))
+            free = free & ~too_weak
+        theta_init = it.theta.copy()
+        theta_init[~free] = datasheet[~free]
+        if not free.any():
+            lin = linearise(batch, theta_init, weights)
+            it = _Iteration(theta_init, lin, [lin.cost], 0, Status.NOTHING_IDENTIFIABLE)
+            cov = cov_naive = np.zeros((4, 4))
+            kind = CovarianceKind.NONE
+            break
+        lin0 = linearise(batch, theta_init, weights)
+
+    lin = it.lin
+    rms = np.sqrt(lin.residual_ss / max(lin.samples, 1))
+    if not it.status.success:
+        log.warning("identification: %s", it.status.name)
+    details = GaussNewtonDetails(
+        iterations=it.iterations, cost_history=tuple(it.history), segments=len(batch),
+        clusters=n_clusters, residual_rms=(float(rms[0]), float(rms[1]), float(rms[2])),
+        covariance_naive=cov_naive, segment_scores=lin.scores)
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return Estimate(
+        method=method, theta=Parameters.from_array(it.theta),
+        datasheet=Parameters.from_array(datasheet), covariance=cov, covariance_kind=kind,
+        free=tuple(bool(f) for f in free),  # type: ignore[arg-type]
+        verdicts=judge(std, free, settings, held=held), status=it.status, details=details)
+
+
+def _iterate(batch: SegmentBatch, theta_init: FloatArray, lin0: Linearisation,
+             free: BoolArray, weights: FloatArray, settings: IdentifySettings) -> _Iteration:
+    """G-N iterations (8) on the free parameters, from ``theta_init``."""
+    theta, lin = theta_init.copy(), lin0
+    history = [lin.cost]
+    scale = np.maximum(np.abs(theta_init), np.asarray(settings.prior_std))
+    status = Status.ITERATION_LIMIT
+    iterations = 0
+    for _ in range(settings.max_iterations):
+        delta = np.zeros(4)
+        delta[free] = _solve_step(lin.r_factor, free)
+        if _predicted_decrease(lin.r_factor, delta) <= _COST_ROUNDING * lin.cost:
+            # the cost cannot tell this step from none (on a 4 h drive halving it took 14
+            # linearisations): the G-N step, which is exact this close, is taken unverified
+            theta = theta + delta
+            lin = linearise(batch, theta, weights)
+            history.append(lin.cost)
+            iterations += 1
+            status = Status.CONVERGED
+            break
+        trial: Linearisation | None = None
+        # (8), with the step halved while it would raise the cost (the full step when it does not)
+        for _halving in range(_MAX_HALVINGS + 1):
+            candidate = theta + delta
+            if np.isfinite(candidate).all() and candidate[0] > 0 and candidate[2] > 0:
+                trial = linearise(batch, candidate, weights)
+                if np.isfinite(trial.cost) and trial.cost < lin.cost:
+                    break
+            trial = None
+            delta = 0.5 * delta
+        if trial is None:
+            status = Status.SETTLED
+            break
+        theta, lin = theta + delta, trial
+        history.append(lin.cost)
+        iterations += 1
+        if np.max(np.abs(delta) / scale) < settings.step_tolerance:
+            status = Status.CONVERGED
+            break
+    if np.sqrt(lin.cost / max(3 * lin.samples, 1)) < _EXACT_RMS:
+        status = Status.EXACT
+    elif iterations == 0:
+        status = Status.NO_IMPROVEMENT
+    return _Iteration(theta, lin, history, iterations, status)
+
+
+def _predicted_decrease(r_factor: FloatArray, delta: FloatArray) -> float:
+    """The cost decrease the linearisation predicts for ``delta``: ``||r||^2 - ||r - A d||^2``
+    in terms of the R factor of ``[A | r]``."""
+    after = r_factor[:, 4] - r_factor[:, :4] @ delta
+    return float(r_factor[:, 4] @ r_factor[:, 4] - after @ after)
+
+
+def _solve_step(r_factor: FloatArray, free: BoolArray) -> FloatArray:
+    """Least-squares step of the free parameters from the R factor of ``[A | r]``.
+
+    Since ``[A | r] = Q R``, ``min ||A_F d - r||`` equals ``min ||R[:, F] d - R[:, 4]||``.
+    """
+    cols = np.flatnonzero(free)
+    step, *_ = np.linalg.lstsq(r_factor[:, cols], r_factor[:, 4], rcond=None)
+    return np.asarray(step)
+
+
+def _numerically_free(r_factor: FloatArray, prior: FloatArray, rcond: float,
+                      free: BoolArray) -> BoolArray:
+    """Drop parameters until the scaled normal equations of the rest have full rank."""
+    free = free.copy()
+    while free.any():
+        cols = np.flatnonzero(free)
+        a = r_factor[:4, cols] * prior[cols]          # columns in units of the prior std
+        _, s, vt = np.linalg.svd(a)
+        s_max = s[0] if s.size else 0.0
+        if s_max > 0 and s[-1] > rcond * s_max:
+            break
+        worst = cols[int(np.argmax(np.abs(vt[-1])))] if s_max > 0 else cols[0]
+        free[worst] = False
+    return free
+
+
+def information_inverse(r_factor: FloatArray, free: BoolArray) -> FloatArray:
+    """(J^T W J)^-1 of the free parameters from an R factor, embedded in 4x4."""
+    cols = np.flatnonzero(free)
+    out = np.zeros((4, 4))
+    if cols.size == 0:
+        return out
+    _, r = np.linalg.qr(r_factor[:4, cols])
+    if np.min(np.abs(np.diag(r))) == 0.0:
+        return out
+    r_inv = solve_triangular(r, np.eye(cols.size))
+    out[np.ix_(cols, cols)] = r_inv @ r_inv.T
+    return out
+
+
+def _naive_covariance(lin: Linearisation, free: BoolArray) -> FloatArray:
+    """``sigma^2 (J^T W J)^-1``, inflated for the residuals' autocorrelation.
+
+    Rollout residuals are far from white (errors integrate along a segment); with lag-1
+    autocorrelation rho, the residuals carry about (1 - rho) / (1 + rho) as much independent
+    information as white ones, so the white-noise covariance is scaled by (1 + rho) / (1 - rho).
+    """
+    p = int(free.sum())
+    dof = max(3 * lin.samples - p, 1)
+    rho = min(max(lin.lag1, 0.0), 0.999)
+    return (lin.cost / dof) * (1 + rho) / (1 - rho) * information_inverse(lin.r_factor, free)
+
+
+def _robust_covariance(lin: Linearisation, free: BoolArray, clusters: IntArray) -> FloatArray:
+    return robust_covariance(information_inverse(lin.r_factor, free), lin.scores, free, clusters)
+
+
+def _larger(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``a`` with each standard deviation raised to the larger of ``a``'s and ``b``'s."""
+    sa = np.sqrt(np.clip(np.diag(a), 0.0, None))
+    sb = np.sqrt(np.clip(np.diag(b), 0.0, None))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(sa > 0, np.maximum(sa, sb) / sa, 1.0)
+    return a * np.outer(f, f)

@@ -1,0 +1,248 @@
+"""Streaming a log through the online calibrator (``odocal replay``).
+
+Drive files (Parquet, CSV) are read batch by batch; ROS bags and MCAP files message by message
+(:func:`odocal.io.rosbag.iter_rosbag`), their streams put onto the drive's grid as they arrive
+(:class:`GridResampler`). Neither is ever loaded whole: memory stays flat however long the log.
+Every ``[online] update_s`` of data the estimate is taken and handed to ``on_update`` (the CLI
+prints it and writes trace.csv).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal.data.drive import REQUIRED_COLUMNS
+from odocal.errors import ConfigError, DataError, InputFileError
+from odocal.estimators.estimate import Estimate
+from odocal.io.streams import Stream
+from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.online.calibrator import Alarm, OnlineCalibrator
+from odocal.settings import Settings
+
+FloatArray = NDArray[np.float64]
+Chunk = dict[str, FloatArray]
+
+#: Formats replay streams: the drive format (by file suffix) and bags.
+REPLAY_FORMATS = ("drive", "rosbag")
+
+
+@dataclass(frozen=True)
+class TraceRow:
+    """The estimate at one moment of the replay."""
+
+    t: float
+    distance_km: float
+    theta: tuple[float, float, float, float]
+    std: tuple[float, float, float, float]
+    identified: tuple[bool, bool, bool, bool]
+
+    @staticmethod
+    def header() -> list[str]:
+        return ["t", "distance_km", *PARAMETER_NAMES, *(f"{n}_std" for n in PARAMETER_NAMES),
+                *(f"{n}_identified" for n in PARAMETER_NAMES)]
+
+    def values(self) -> list[float | bool]:
+        return [self.t, self.distance_km, *self.theta, *self.std, *self.identified]
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    """The final estimate, its history and the alarms."""
+
+    source: str
+    estimate: Estimate
+    trace: tuple[TraceRow, ...]
+    alarms: tuple[Alarm, ...]
+    samples: int
+    duration_s: float
+    distance_km: float
+    elapsed_s: float
+
+
+def stream_drive_file(path: str | Path, *, rows: int) -> Iterator[Chunk]:
+    """A drive-format file (Parquet or CSV) in batches of about ``rows`` rows."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(f"input file '{p}' does not exist"
+                             + (" (it is a folder)" if p.is_dir() else ""))
+    suffix = p.suffix.lower()
+    try:
+        if suffix in (".parquet", ".pq"):
+            pfile = pq.ParquetFile(p)
+            names = pfile.schema_arrow.names
+            wanted = [n for n in (*REQUIRED_COLUMNS, "beta") if n in names]
+            # one row group at a time (odocal writes groups of 65,536 rows): memory stays flat
+            batches: Iterator[Any] = (
+                batch for group in range(pfile.num_row_groups)
+                for batch in pfile.read_row_group(group, columns=wanted).to_batches(
+                    max_chunksize=max(rows, 8192)))
+        elif suffix == ".csv":
+            reader = pacsv.open_csv(p, read_options=pacsv.ReadOptions(block_size=1 << 20))
+            names = reader.schema.names
+            batches = iter(reader)
+        else:
+            raise DataError(f"'{p}': replay streams .parquet and .csv drive files (or bags with "
+                            "--from rosbag)")
+        missing = [c for c in REQUIRED_COLUMNS if c not in names]
+        if missing:
+            raise DataError(f"'{p}' lacks column{'s' if len(missing) > 1 else ''} "
+                            f"{', '.join(missing)}")
+        for batch in batches:           # read in large batches, handed on in chunks of ``rows``
+            cols = {name: np.asarray(batch.column(name).to_numpy(zero_copy_only=False),
+                                     dtype=np.float64)
+                    for name in (*REQUIRED_COLUMNS, "beta") if name in names}
+            for lo in range(0, batch.num_rows, rows):
+                yield {k: v[lo:lo + rows] for k, v in cols.items()}
+    except (pa.ArrowInvalid, pa.ArrowTypeError, ValueError, TypeError) as exc:
+        if isinstance(exc, DataError):
+            raise
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise DataError(f"'{p}' cannot be read as a drive file: {first}") from None
+
+
+class GridResampler:
+    """Raw streams (wheels, imu, pose) onto the drive's uniform grid, as they arrive.
+
+    A grid time is emitted once every stream has samples on both sides of it; where a stream
+    has a gap longer than ``max_gap_s`` the grid skips (the calibrator starts a new piece).
+    """
+
+    def __init__(self, *, t_s: float, max_gap_s: float) -> None:
+        self.t_s = t_s
+        self.max_gap_s = max_gap_s
+        self.buffers: dict[str, dict[str, FloatArray]] = {}
+        self.next_t: float | None = None
+        self.last_psi: float | None = None
+
+    def add(self, streams: Mapping[str, Stream]) -> Chunk | None:
+        for role, stream in streams.items():
+            order = np.argsort(stream.t, kind="stable")
+            new = {"t": stream.t[order], **{k: v[order] for k, v in stream.values.items()}}
+            old = self.buffers.get(role)
+            if old is not None:
+                new = {k: np.concatenate([old[k], new[k]]) for k in new if k in old}
+            keep = np.concatenate([[True], np.diff(new["t"]) > 0])
+            self.buffers[role] = {k: v[keep] for k, v in new.items()}
+        if not {"wheels", "pose"} <= set(self.buffers):
+            return None
+        roles = [r for r in ("wheels", "pose", "imu") if r in self.buffers]
+        if self.next_t is None:
+            start = max(float(self.buffers[r]["t"][0]) for r in roles)
+            self.next_t = math.ceil(start / self.t_s) * self.t_s
+        horizon = min(float(self.buffers[r]["t"][-1]) for r in roles)
+        grid = np.arange(self.next_t, horizon, self.t_s)
+        if grid.size == 0:
+            return None
+        self.next_t = float(grid[-1] + self.t_s)
+        valid = np.ones(grid.size, dtype=bool)
+        out: Chunk = {"t": grid}
+        for role in roles:
+            buf = self.buffers[role]
+            t = buf["t"]
+            after = np.clip(np.searchsorted(t, grid), 1, t.size - 1)
+            valid &= (t[after] - t[after - 1] <= self.max_gap_s) & (grid >= t[0])
+            for key, values in buf.items():
+                if key == "t":
+                    continue
+                if key == "psi":
+                    values = np.unwrap(values)
+                out[key] = np.interp(grid, t, values)
+            # keep what the next grid times still need
+            cut = max(int(np.searchsorted(t, grid[-1])) - 1, 0)
+            self.buffers[role] = {k: v[cut:] for k, v in buf.items()}
+        if "psi" in out:
+            if self.last_psi is not None and out["psi"].size:
+                # continue the unwrapping across chunks
+                out["psi"] += 2 * np.pi * np.round((self.last_psi - out["psi"][0]) / (2 * np.pi))
+            if out["psi"].size:
+                self.last_psi = float(out["psi"][-1])
+        if "a_y" not in out:
+            out["a_y"] = np.zeros(grid.size)
+        chunk = {k: v[valid] for k, v in out.items()
+                 if k in ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi")}
+        return chunk if chunk["t"].size else None
+
+
+def stream_source(source: str | Path, *, fmt: str | None, settings: Settings,
+                  mapping: str | Path | Mapping[str, Mapping[str, Any]] | None = None,
+                  ) -> Iterator[Chunk]:
+    """Drive-format chunks from a drive file or a bag."""
+    fmt = fmt or "drive"
+    if fmt not in REPLAY_FORMATS:
+        raise ConfigError(f"replay reads {' and '.join(REPLAY_FORMATS)} sources, not {fmt!r}; "
+                          "convert other logs first (odocal convert)")
+    if fmt == "drive":
+        rows = max(int(settings.online.chunk_s * settings.convert.rate_hz), 1)
+        yield from stream_drive_file(source, rows=rows)
+        return
+    from odocal.io.mapping import check_mapping, load_mapping
+    from odocal.io.rosbag import iter_rosbag
+
+    table = check_mapping(mapping) if isinstance(mapping, Mapping) else load_mapping(mapping)
+    circumference = settings.convert.wheel_circumference_m or settings.identify.theta0[0]
+    grid = GridResampler(t_s=1.0 / settings.convert.rate_hz, max_gap_s=settings.convert.max_gap_s)
+    for streams in iter_rosbag(source, table, circumference_m=circumference,
+                               chunk_s=settings.online.chunk_s):
+        chunk = grid.add(streams)
+        if chunk is not None:
+            yield chunk
+
+
+def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | None = None,
+           mapping: str | Path | Mapping[str, Mapping[str, Any]] | None = None,
+           theta0: Parameters | None = None,
+           on_update: Callable[[TraceRow, Estimate], None] | None = None) -> ReplayResult:
+    """Stream ``source`` through an :class:`~odocal.online.OnlineCalibrator`.
+
+    ``on_update(row, estimate)`` is called every ``[online] update_s`` of data and at the end.
+    The trace returned holds those rows (one per update: a few thousand for a day of driving).
+    """
+    started = time.perf_counter()
+    settings = settings or Settings()
+    calibrator = OnlineCalibrator(settings, theta0)
+    trace: list[TraceRow] = []
+    first_t: float | None = None
+    last_t = 0.0
+    next_update: float | None = None
+
+    def update(t: float) -> None:
+        est = calibrator.estimate()
+        row = TraceRow(t=t, distance_km=calibrator.distance_km,
+                       theta=tuple(est.theta.as_array().tolist()),
+                       std=tuple(est.std.tolist()),
+                       identified=est.identified)
+        trace.append(row)
+        if on_update is not None:
+            on_update(row, est)
+
+    for chunk in stream_source(source, fmt=fmt, settings=settings, mapping=mapping):
+        if chunk["t"].size == 0:
+            continue
+        calibrator.push(chunk)
+        last_t = float(chunk["t"][-1])
+        if first_t is None:
+            first_t = float(chunk["t"][0])
+            next_update = first_t + settings.online.update_s
+        assert next_update is not None
+        if last_t >= next_update:
+            update(last_t)
+            next_update = last_t + settings.online.update_s
+    if first_t is None:
+        raise DataError(f"'{source}' holds no samples")
+    update(last_t)
+    return ReplayResult(source=str(source), estimate=calibrator.estimate(), trace=tuple(trace),
+                        alarms=calibrator.alarms, samples=calibrator.details_samples(),
+                        duration_s=last_t - first_t, distance_km=calibrator.distance_km,
+                        elapsed_s=time.perf_counter() - started)

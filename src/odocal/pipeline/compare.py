@@ -1,0 +1,185 @@
+"""Every method on the user's own drive, judged on data it did not see (``--compare``).
+
+The drives are cut into time blocks (``block_s``, five minutes by default) that alternate
+between two folds. Each method calibrates on one fold and is validated (E_p, METHOD 6) on the
+other, and the other way round; its score is the mean of the two held-out E_p. Blocks are
+pieces of their own, so no segment spans two blocks or crosses from one fold into the other. On
+a simulated drive the error against the true parameters is given too.
+
+The held-out E_p says which method the data favour; it is noisy on short drives (it rests on
+half the validation segments each way), so methods within a few percent of each other are
+called equal.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from odocal.data.drive import Drive
+from odocal.errors import DataError, OdocalError
+from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
+from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.settings import Settings
+
+#: Held-out E_p within this share of the best counts as equally good.
+TIE = 0.03
+
+
+@dataclass(frozen=True)
+class MethodScore:
+    method: str
+    theta: Parameters
+    std: tuple[float, ...]
+    identified: tuple[bool, ...]
+    status: str
+    held_out_e_p_m: float | None
+    folds_e_p_m: tuple[float | None, ...]
+    truth_error: dict[str, float] | None
+    elapsed_s: float
+    error: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"method": self.method, "theta": self.theta.as_dict(),
+                "std": dict(zip(PARAMETER_NAMES, self.std, strict=True)),
+                "identified": dict(zip(PARAMETER_NAMES, self.identified, strict=True)),
+                "status": self.status, "held_out_E_p_m": self.held_out_e_p_m,
+                "folds_E_p_m": list(self.folds_e_p_m), "truth_error": self.truth_error,
+                "elapsed_s": self.elapsed_s, "error": self.error}
+
+
+@dataclass(frozen=True)
+class Comparison:
+    scores: tuple[MethodScore, ...]
+    block_s: float
+    favoured: tuple[str, ...]          # the best held-out E_p, and those within TIE of it
+    datasheet_e_p_m: float | None
+
+    @property
+    def verdict(self) -> str:
+        usable = [s for s in self.scores if s.held_out_e_p_m is not None]
+        if not usable:
+            return "no method could be validated on held-out data"
+        best = min(usable, key=lambda s: s.held_out_e_p_m or 0.0)
+        default = next((s for s in usable if s.method == DEFAULT_METHOD), None)
+        if len(self.favoured) > 1:
+            text = (f"held-out E_p: {', '.join(self.favoured)} are equally good "
+                    f"(within {TIE:.0%} of {best.held_out_e_p_m:.3f} m)")
+        else:
+            text = f"held-out E_p favours {best.method} ({best.held_out_e_p_m:.3f} m)"
+        if default is not None and DEFAULT_METHOD not in self.favoured:
+            text += f"; the default {DEFAULT_METHOD} reaches {default.held_out_e_p_m:.3f} m"
+        return text
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"block_s": self.block_s, "favoured": list(self.favoured),
+                "verdict": self.verdict, "datasheet_held_out_E_p_m": self.datasheet_e_p_m,
+                "methods": [s.to_dict() for s in self.scores]}
+
+
+def folds(drives: Sequence[Drive], block_s: float) -> tuple[list[Drive], list[Drive]]:
+    """The drives' alternate time blocks, as two lists of drives (blocks are pieces)."""
+    out: tuple[list[Drive], list[Drive]] = ([], [])
+    for d in drives:
+        cols = d.columns()
+        piece = cols.get("piece", np.zeros(d.n_samples))
+        block = np.floor((d.t - d.t[0]) / block_s)
+        key = piece * 1e6 + block
+        for k in (0, 1):
+            keep = (block % 2) == k
+            if keep.sum() < 10:
+                continue
+            sub = {name: np.asarray(v)[keep] for name, v in cols.items()}
+            sub["piece"] = key[keep]
+            try:
+                out[k].append(Drive.from_columns(sub, name=f"{d.name} (fold {k + 1})"))
+            except DataError:
+                continue
+    return out
+
+
+def compare(drives: Sequence[Drive], *, settings: Settings | None = None,
+            truth: Parameters | None = None, methods: Sequence[str] = METHOD_NAMES,
+            block_s: float = 300.0) -> Comparison:
+    """Score every method by held-out E_p (see the module docstring)."""
+    from odocal.pipeline.calibrate import calibrate, validate_theta
+
+    settings = settings or Settings()
+    duration = sum(d.duration_s for d in drives)
+    block = min(block_s, max(duration / 6.0, 30.0))
+    halves = folds(drives, block)
+    if not halves[0] or not halves[1]:
+        raise DataError("the drives are too short to hold out a part for comparing methods")
+
+    def held_out(theta: Parameters, k: int) -> float | None:
+        try:
+            return validate_theta(halves[1 - k], theta, settings=settings).mean_error_m
+        except OdocalError:
+            return None
+
+    scores = []
+    for method in methods:
+        started = time.perf_counter()
+        per_fold: list[float | None] = []
+        error = None
+        try:
+            for k in (0, 1):
+                fit = calibrate(halves[k], settings=settings, method=method)
+                per_fold.append(held_out(fit.theta, k) if fit.success else None)
+            whole = calibrate(list(drives), settings=settings, method=method)
+        except OdocalError as exc:
+            error = str(exc)
+            scores.append(MethodScore(method, Parameters(*settings.identify.theta0),
+                                      (0.0,) * 4, (False,) * 4, "error", None, tuple(per_fold),
+                                      None, time.perf_counter() - started, error))
+            continue
+        est = whole.estimate
+        ok = [v for v in per_fold if v is not None]
+        truth_error = None
+        if truth is not None:
+            diff = est.theta.as_array() - truth.as_array()
+            truth_error = dict(zip(PARAMETER_NAMES, diff.tolist(), strict=True))
+        scores.append(MethodScore(
+            method=method, theta=est.theta, std=tuple(est.std.tolist()),
+            identified=est.identified, status=est.status.name.lower(),
+            held_out_e_p_m=float(np.mean(ok)) if len(ok) == 2 else None,
+            folds_e_p_m=tuple(per_fold), truth_error=truth_error,
+            elapsed_s=time.perf_counter() - started))
+    datasheet = [held_out(Parameters(*settings.identify.theta0), k) for k in (0, 1)]
+    data_ok = [v for v in datasheet if v is not None]
+    held = sorted((s.held_out_e_p_m, s.method) for s in scores if s.held_out_e_p_m is not None)
+    favoured = tuple(m for e_p, m in held if e_p <= held[0][0] * (1.0 + TIE))
+    return Comparison(scores=tuple(scores), block_s=block, favoured=favoured,
+                      datasheet_e_p_m=float(np.mean(data_ok)) if len(data_ok) == 2 else None)
+
+
+def format_table(comparison: Comparison) -> list[str]:
+    """The comparison as text lines (the CLI's)."""
+    from odocal.model.parameters import PARAMETER_DISPLAY
+
+    truth = any(s.truth_error is not None for s in comparison.scores)
+    head = f"{'method':<12} {'held-out E_p':>12}"
+    if truth:
+        head += "".join(f" {'err ' + n + ' [' + PARAMETER_DISPLAY[n][1] + ']':>20}"
+                        for n in PARAMETER_NAMES)
+    head += f" {'time s':>7}"
+    lines = [f"comparing the methods on held-out time blocks of {comparison.block_s:.0f} s:",
+             head]
+    for s in comparison.scores:
+        e_p = f"{s.held_out_e_p_m:.3f} m" if s.held_out_e_p_m is not None else "-"
+        row = f"{s.method:<12} {e_p:>12}"
+        if truth:
+            row += "".join(f" {s.truth_error[n] * PARAMETER_DISPLAY[n][0]:>20.4g}"
+                           if s.truth_error else f" {'-':>20}" for n in PARAMETER_NAMES)
+        row += f" {s.elapsed_s:>7.1f}"
+        if s.error:
+            row += f"  ({s.error})"
+        lines.append(row)
+    if comparison.datasheet_e_p_m is not None:
+        lines.append(f"{'datasheet':<12} {comparison.datasheet_e_p_m:>10.3f} m")
+    lines.append(comparison.verdict)
+    return lines

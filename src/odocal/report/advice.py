@@ -1,0 +1,254 @@
+"""Identifiability in plain words: what a drive determines, and what more driving would.
+
+The standard deviation of an estimate shrinks about as one over the square root of the data
+that informs it. c_e is informed by distance travelled, c_d by heading drift (any driving),
+t_r and d by bends (segments whose yaw rate exceeds the selection threshold). For a parameter
+that is not identified, or only loosely, the advice scales the informative driving this drive
+had to what would bring the standard deviation to the identifiability limit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from odocal.checks.diagnosis import Check, Finding, Severity
+from odocal.data.drive import Drive
+from odocal.data.segments import SegmentSet
+from odocal.estimators.estimate import Estimate, Identified, NotIdentified, Reason
+from odocal.model.parameters import PARAMETER_LABELS, PARAMETER_NAMES
+from odocal.settings import Settings
+
+#: What informs each parameter.
+NEEDS = {"c_e": "distance", "c_d": "driving", "t_r": "bends", "d": "bends"}
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """How much of each kind of driving the drives hold."""
+
+    duration_s: float
+    distance_m: float
+    moving_s: float
+    bend_s: float
+    segments: int
+    selected: int
+    short_pieces_s: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"duration_s": self.duration_s, "distance_m": self.distance_m,
+                "moving_s": self.moving_s, "bend_s": self.bend_s, "segments": self.segments,
+                "selected": self.selected, "not_selected": self.segments - self.selected,
+                "time_in_pieces_too_short_s": self.short_pieces_s}
+
+
+def coverage(drives: Sequence[Drive], segments: SegmentSet, settings: Settings) -> Coverage:
+    threshold = settings.segments.yaw_rate_threshold_radps
+    moving = bend = duration = distance = short = 0.0
+    k = settings.segments.length
+    for d in drives:
+        speed = np.hypot(np.gradient(d.x), np.gradient(d.y)) / d.t_s
+        moving += float(np.sum(speed > 0.5) * d.t_s)
+        bend += float(np.sum((np.abs(d.yaw_rate) > threshold) & (speed > 0.5)) * d.t_s)
+        duration += d.duration_s
+        distance += d.distance_m
+        short += sum((b - a) * d.t_s for a, b in d.pieces if b - a < k + 1)
+    return Coverage(duration_s=duration, distance_m=distance, moving_s=moving, bend_s=bend,
+                    segments=len(segments), selected=int(segments.selected.sum()),
+                    short_pieces_s=short)
+
+
+@dataclass(frozen=True)
+class ParameterAdvice:
+    name: str
+    label: str
+    identified: bool
+    text: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "label": self.label, "identified": self.identified,
+                "text": self.text}
+
+
+def _amount(what: str, cov: Coverage) -> tuple[float, str]:
+    if what == "distance":
+        return cov.distance_m, f"{cov.distance_m / 1000:.2f} km"
+    if what == "bends":
+        return cov.bend_s, f"{cov.bend_s:.0f} s in bends"
+    return cov.moving_s, f"{cov.moving_s / 60:.1f} min of driving"
+
+
+def _more(what: str, amount: float, factor: float) -> str:
+    extra = amount * max(factor - 1.0, 0.0)
+    if what == "distance":
+        return f"about {extra / 1000:.1f} km more"
+    if what == "bends":
+        return f"about {extra / 60:.1f} more minutes in bends"
+    return f"about {extra / 60:.0f} more minutes of driving"
+
+
+def advise(estimate: Estimate, cov: Coverage, settings: Settings,
+           segment_s: float) -> list[ParameterAdvice]:
+    """One sentence or two per parameter, from the typed verdicts.
+
+    ``segment_s`` is the duration of one identification segment (K times the drive's sampling
+    time).
+    """
+    threshold = settings.segments.yaw_rate_threshold_radps
+    prior = np.asarray(settings.identify.prior_std)
+    out = []
+    for j, (name, verdict) in enumerate(zip(PARAMETER_NAMES, estimate.verdicts, strict=True)):
+        label = PARAMETER_LABELS[j]
+        what = NEEDS[name]
+        amount, have = _amount(what, cov)
+        if isinstance(verdict, Identified):
+            factor = (verdict.std / verdict.limit) ** 2 if verdict.limit > 0 else 0.0
+            text = (f"{label} is identified to +-{format_value(name, verdict.std)} from {have}; "
+                    f"the limit for calling it identified is "
+                    f"+-{format_value(name, verdict.limit)}")
+            if factor > 0.25:
+                text += (f". It is close to that limit: {_more(what, amount, 4 * factor)} "
+                         "would halve the uncertainty")
+            out.append(ParameterAdvice(name, label, True, text + "."))
+            continue
+        out.append(ParameterAdvice(name, label, False, _not_identified(
+            name, label, verdict, cov, have, what, amount, threshold, segment_s, prior[j])))
+    return out
+
+
+def _not_identified(name: str, label: str, verdict: NotIdentified, cov: Coverage, have: str,
+                    what: str, amount: float, threshold: float, segment_s: float,
+                    prior: float) -> str:
+    reason = verdict.reason
+    if reason is Reason.NEEDS_BENDS:
+        return (f"{label} needs bends: its effect shows only when the vehicle turns, and this "
+                f"drive's yaw rate exceeds {threshold} rad/s for {cov.bend_s:.0f} s (the "
+                f"largest segment peak is {verdict.detail:.3f} rad/s). Drive through at least "
+                f"10 bends or junction turns (each in a {segment_s:.0f} s segment, as the "
+                "method's batches use) or a few roundabouts, then calibrate again.")
+    if reason is Reason.WEAK:
+        factor = (verdict.std / verdict.limit) ** 2 if verdict.limit > 0 else float("inf")
+        return (f"{label} is determined only to +-{format_value(name, verdict.std)} by {have}, "
+                f"not well below the datasheet uncertainty (+-{format_value(name, prior)}): "
+                f"{_more(what, amount, factor)} would identify it (about {factor:.0f} times "
+                "this drive's).")
+    if reason is Reason.NO_INFORMATION:
+        return (f"{label} leaves no trace in these segments ({have}). "
+                f"It needs {'bends' if what == 'bends' else 'more varied driving'}.")
+    if reason is Reason.NO_DIFFERENTIAL:
+        return (f"{label} is not calibrated: the two wheel signals carry no differential "
+                "information (a locked axle, a single speed signal, or one column copied into "
+                "the other), so only the distance scale c_e can be.")
+    if reason is Reason.ONE_CLUSTER:
+        return (f"{label} is not identified: all {cov.selected} segments overlap in time, one "
+                "piece of independent evidence, which cannot say how uncertain the estimate "
+                f"is. Drive at least {2 * segment_s:.0f} s more with bends.")
+    if reason is Reason.FAILED:
+        return f"{label} is not identified: the estimation failed."
+    if reason is Reason.STANDSTILL:
+        return f"{label} is not identified: the vehicle does not move."
+    if reason is Reason.REJECTED:
+        return f"{label} is not calibrated: the data contradict the model (see the checks)."
+    return f"{label} is held at its datasheet value, as requested."
+
+
+def reason_text(name: str, verdict: NotIdentified, *, threshold_radps: float) -> str:
+    """Why a parameter is not identified, in one clause (for the CLI and warnings)."""
+    reason = verdict.reason
+    if reason is Reason.NEEDS_BENDS:
+        return (f"needs bends: no segment has a peak yaw rate above {threshold_radps} rad/s "
+                f"(the largest is {verdict.detail:.3f} rad/s); kept at the datasheet value")
+    if reason is Reason.WEAK:
+        return (f"the data determine {name} only to +-{format_value(name, verdict.std)} (the "
+                f"limit is +-{format_value(name, verdict.limit)}); kept at the datasheet value")
+    if reason is Reason.NO_INFORMATION:
+        return "these segments carry no information on it; kept at the datasheet value"
+    if reason is Reason.NO_DIFFERENTIAL:
+        return ("the wheel signals carry no differential information; only c_e is calibrated")
+    if reason is Reason.ONE_CLUSTER:
+        return ("all segments overlap in time (one piece of independent evidence); kept at the "
+                "datasheet value")
+    if reason is Reason.FAILED:
+        return "the estimation failed"
+    if reason is Reason.STANDSTILL:
+        return "the vehicle does not move"
+    if reason is Reason.REJECTED:
+        return "the data contradict the model"
+    return "held at the datasheet value"
+
+
+def format_value(name: str, value: float) -> str:
+    """A parameter value (or standard deviation) in the unit it reads best in."""
+    if name == "c_d":
+        return f"{value * 1000:.3g} mm"
+    if name == "d":
+        return f"{value * 1000:.3g} mm per m/s^2"
+    return f"{value * 1000:.3g} mm" if value < 0.1 else f"{value:.3g} m"
+
+
+#: Factors a wheel-speed unit or scale mistake produces, and what would cause them.
+_SCALE_HINTS = ((60.0, "rpm given as rev/s"), (1 / 60.0, "rev/s given as rpm"),
+                (2 * np.pi, "rad/s given as rev/s, or the radius given as the circumference"),
+                (1 / (2 * np.pi), "rev/s given as rad/s, or the circumference as the radius"),
+                (3.6, "km/h given as m/s"), (1 / 3.6, "m/s given as km/h"),
+                (2.0, "the diameter given as the radius"), (0.5, "the radius as the diameter"))
+
+
+def finding_text(finding: Finding, settings: Settings) -> str:
+    """One finding of the checks in plain words."""
+    c, v, ref = finding.check, finding.value, finding.reference
+    if c is Check.STANDSTILL:
+        return (f"the vehicle does not move (the wheels turn {v:.1f} m in all): there is "
+                "nothing to calibrate")
+    if c is Check.WHEELS_SWAPPED:
+        return (f"the yaw rate the wheels imply turns against the reference's in bends "
+                f"(correlation {v:+.2f}): the left and right wheel columns are swapped, or the "
+                "heading is mirrored; fix the mapping and calibrate again")
+    if c is Check.WHEELS_IDENTICAL:
+        return ("the two wheel signals are identical (one column copied into the other, or one "
+                "speed signal for both wheels): they carry no yaw, so only c_e is calibrated")
+    if c is Check.NO_DIFFERENTIAL:
+        return (f"the yaw rate the wheels imply does not follow the reference's in bends "
+                f"(correlation {v:+.2f}): a locked axle or a single speed signal? Only c_e is "
+                "calibrated")
+    if c is Check.SPEED_SCALE:
+        if finding.severity is Severity.NOTE:
+            c_e = settings.identify.theta0[0]
+            speeds = (" Or are they wheel speeds in m/s given as rev/s?"
+                      if abs(np.log(v / c_e)) < 0.25 else "")
+            return (f"with the datasheet c_e ({c_e:g} m) the wheels imply {v:.3f} times the "
+                    "distance the reference travels: is [identify] theta0 set for this "
+                    f"vehicle?{speeds}")
+        factor, cause = min(_SCALE_HINTS, key=lambda h: abs(np.log(v / h[0])))
+        hint = f" ({cause}?)" if abs(np.log(v / factor)) < 0.25 else ""
+        return (f"the wheels imply {v:.3g} times the distance the reference travels: a wrong "
+                f"wheel-speed unit or scale{hint}")
+    if c is Check.LATERAL_SIGN:
+        return (f"a_y has the wrong sign against speed times yaw rate (slope {v:+.2f}): the "
+                "lateral acceleration must be positive to the left")
+    if c is Check.LATERAL_SCALE:
+        hint = " (in g instead of m/s^2?)" if 0.07 < v < 0.14 else ""
+        return f"a_y is {v:.3g} times speed times yaw rate{hint}"
+    if c is Check.CLOCK_OFFSET:
+        if finding.severity is Severity.FATAL:
+            return (f"the wheel stream lags the pose stream by {v:+.2f} s: align the clocks "
+                    "(the mapping's offset_s) and calibrate again")
+        return (f"the wheel stream lags the pose stream by {v * 1000:+.0f} ms, more than the "
+                f"{settings.inverse.max_delay_s:g} s the calibration corrects: align the clocks")
+    if c is Check.PARAMETER_RANGE:
+        return (f"{finding.name} = {format_value(finding.name, abs(v))}"
+                f"{' (negative)' if v < 0 else ''} lies outside its physical range (limit "
+                f"{format_value(finding.name, abs(ref))}, [gate] in the settings)")
+    if c is Check.WORSE_THAN_DATASHEET:
+        return (f"the calibrated parameters validate worse than the datasheet values "
+                f"({v:.2f} m against {ref:.2f} m)")
+    if c is Check.LARGE_ERROR:
+        return (f"the validation error ({v:.2f} m) is a large share of the "
+                f"{settings.segments.validation_distance_m:.0f} m segments (the limit is "
+                f"{ref:.1f} m): the model does not describe these data")
+    if c is Check.DATA_REPAIRED:
+        return f"{finding.name}: {v:.0f} isolated spike(s) repaired"
+    return c.value
