@@ -22,6 +22,7 @@ import importlib
 import logging as _logging
 from typing import TYPE_CHECKING, Any
 
+from odocal._version import __version__
 from odocal.errors import (
     ConfigError,
     DataError,
@@ -32,8 +33,6 @@ from odocal.errors import (
     SolverError,
 )
 
-__version__ = "0.1.0"
-
 if TYPE_CHECKING:
     from odocal.data.drive import Drive
     from odocal.estimators.estimate import Estimate, Identified, NotIdentified, Reason, Status
@@ -42,9 +41,10 @@ if TYPE_CHECKING:
     from odocal.model.parameters import Parameters
     from odocal.online.calibrator import OnlineCalibrator
     from odocal.online.replay import replay
-    from odocal.pipeline.calibrate import CalibrationResult, calibrate, minimum
+    from odocal.pipeline.calibrate import calibrate, minimum
     from odocal.pipeline.calibrate import validate_theta as validate
     from odocal.pipeline.reproduce import reproduce
+    from odocal.pipeline.result import CalibrationResult
     from odocal.preprocess.convert import convert, inspect
     from odocal.settings import Settings, load_settings
     from odocal.sim.noise import NOISE_PROFILES, NoiseProfile
@@ -52,7 +52,7 @@ if TYPE_CHECKING:
 
 #: public name -> (module, attribute)
 _LAZY: dict[str, tuple[str, str]] = {
-    "CalibrationResult": ("odocal.pipeline.calibrate", "CalibrationResult"),
+    "CalibrationResult": ("odocal.pipeline.result", "CalibrationResult"),
     "calibrate": ("odocal.pipeline.calibrate", "calibrate"),
     "validate": ("odocal.pipeline.calibrate", "validate_theta"),
     "convert": ("odocal.preprocess.convert", "convert"),

@@ -20,9 +20,9 @@ def _print(text: str = "") -> None:
 def _progress(args: argparse.Namespace) -> Any:
     if args.quiet:
         return None
-    from odocal.cli.main import _Progress
+    from odocal.cli.progress import Progress
 
-    return _Progress(True)
+    return Progress(True)
 
 
 def _settings(args: argparse.Namespace) -> Any:

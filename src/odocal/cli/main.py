@@ -13,12 +13,12 @@ import logging
 import math
 import os
 import sys
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from odocal import __version__
+from odocal._version import __version__
+from odocal.cli.progress import Progress
 from odocal.errors import ConfigError, OdocalError, OutputError
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
 from odocal.settings import Settings, load_settings
@@ -26,49 +26,13 @@ from odocal.sim.noise import NOISE_PROFILES
 
 if TYPE_CHECKING:
     from odocal.model.parameters import Parameters
-    from odocal.pipeline.calibrate import CalibrationResult
+    from odocal.pipeline.result import CalibrationResult
 
 # numpy, scipy and numba load only in the commands that compute: --help and --version stay fast.
 
 log = logging.getLogger("odocal")
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_FAILED, EXIT_BUG = 0, 1, 2, 3, 4
-
-
-class _Progress:
-    """tqdm bars per stage on a terminal; otherwise one line on stderr as each stage starts."""
-
-    def __init__(self, enabled: bool) -> None:
-        self.enabled = enabled and sys.stderr.isatty()
-        self.lines = enabled and not self.enabled
-        self.bars: dict[str, Any] = {}
-        self.started = time.perf_counter()
-
-    def __call__(self, stage: str, done: int, total: int) -> None:
-        if self.lines and stage not in self.bars:
-            # not a terminal (a log file, CI): one line as each stage starts
-            self.bars[stage] = None
-            sys.stderr.write(f"[{time.perf_counter() - self.started:6.1f} s] {stage} ...\n")
-            sys.stderr.flush()
-        if not self.enabled:
-            return
-        from tqdm import tqdm
-
-        bar = self.bars.get(stage)
-        if bar is None:
-            bar = tqdm(total=total, desc=stage, unit="", leave=True, file=sys.stderr,
-                       dynamic_ncols=True)
-            self.bars[stage] = bar
-        bar.total = total
-        bar.n = done
-        bar.refresh()
-        if done >= total:
-            bar.close()
-
-    def close(self) -> None:
-        for bar in self.bars.values():
-            if bar is not None:
-                bar.close()
 
 
 def _settings(args: argparse.Namespace) -> Settings:
@@ -189,7 +153,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         _print(f"simulating a {args.duration / 60:.0f}-minute city drive (noise profile "
                f"'{args.noise}', seed {args.seed}) with known true parameters ...")
     sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
-    progress = _Progress(not args.quiet)
+    progress = Progress(not args.quiet)
     try:
         result = calibrate(sim.drive, settings=settings, method=args.method, progress=progress)
     finally:
@@ -355,7 +319,7 @@ def _conversion_line(drive: Any) -> str:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     renderer = _renderer(args)
-    progress = _Progress(not args.quiet)
+    progress = Progress(not args.quiet)
     try:
         from odocal.pipeline.calibrate import calibrate
 
@@ -595,7 +559,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     if not args.quiet:
         _print(f"reproducing the paper's experiment on a simulated {args.distance_km:g} km drive "
                f"(seed {args.seed}, noise '{args.noise}') ...")
-    progress = _Progress(not args.quiet)
+    progress = Progress(not args.quiet)
     try:
         result = reproduce(seed=args.seed, noise=args.noise, distance_km=args.distance_km,
                            settings=settings, minimum=not args.no_minimum, progress=progress)

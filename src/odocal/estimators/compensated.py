@@ -23,9 +23,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.data.segments import RaggedSegments, SegmentBatch
+from odocal.estimators.base import MethodOutcome, Prepared, ProgressCallback
 from odocal.estimators.compensation import BatchCompensation, compensate_batch
 from odocal.estimators.estimate import CovarianceKind, Estimate, NotIdentified, held_as_weak, weak
-from odocal.estimators.gauss_newton import gauss_newton
+from odocal.estimators.gauss_newton import bootstrap_terms, gauss_newton
 from odocal.estimators.parallel import map_chunks, resolve_workers
 from odocal.estimators.validation import mean_error
 from odocal.model.parameters import PARAMETER_NAMES
@@ -268,3 +269,16 @@ def _with_inheritance(final: Estimate, step1_thetas: FloatArray, sets: int) -> E
     free = np.array(final.free)
     inherit = np.cov(step1_thetas.T) / max(sets, 1) * np.outer(free, free)
     return final.with_covariance(final.covariance + inherit, CovarianceKind.THREE_STEP)
+
+
+def run(prep: Prepared, settings: Settings,
+        progress: ProgressCallback | None = None) -> MethodOutcome:
+    """The three-step calibration of the selected segments (``--method compensated``)."""
+    outcome = three_step(prep.batch, prep.validation, settings=settings, clusters=prep.clusters,
+                         held=prep.held, progress=progress)
+    s1 = outcome.step1
+    rates = prep.batch.with_wheel_rates(outcome.compensation.n_rl, outcome.compensation.n_rr)
+    return MethodOutcome(estimate=outcome.final, three_step=outcome, warnings=outcome.warnings,
+                         bootstrap=bootstrap_terms(rates, outcome.final, prep.clusters, settings,
+                                                   step1_thetas=s1.thetas[s1.success],
+                                                   step1_sets=int(s1.picked.size)))

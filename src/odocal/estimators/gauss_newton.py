@@ -19,15 +19,18 @@ iteration ended.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import qr, solve_triangular
 
 from odocal.data.segments import SegmentBatch
+from odocal.estimators.base import BootstrapTerms
 from odocal.estimators.covariance import robust_covariance
 from odocal.estimators.estimate import (
     CovarianceKind,
@@ -43,7 +46,7 @@ from odocal.estimators.estimate import (
 )
 from odocal.model.kinematics import segment_r_factors
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
-from odocal.settings import IdentifySettings
+from odocal.settings import IdentifySettings, Settings
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -338,3 +341,20 @@ def _larger(a: FloatArray, b: FloatArray) -> FloatArray:
     with np.errstate(divide="ignore", invalid="ignore"):
         f = np.where(sa > 0, np.maximum(sa, sb) / sa, 1.0)
     return a * np.outer(f, f)
+
+
+def bootstrap_terms(rates: SegmentBatch, estimate: Estimate, clusters: IntArray,
+                    settings: Settings, **extra: Any) -> BootstrapTerms:
+    """What the bootstrap resamples for a Gauss-Newton estimate on ``rates`` (the segments it
+    used, with their ``clusters``): per-segment information and scores, and a refit."""
+    lin = linearise(rates, estimate.theta.as_array(), np.asarray(settings.identify.weights))
+    held = {n: NotIdentified(Reason.HELD) for n, f in zip(PARAMETER_NAMES, estimate.free,
+                                                         strict=True) if not f}
+    loose = dataclasses.replace(settings.identify, judge_identifiability=False, max_iterations=3)
+
+    def refit(take: IntArray) -> FloatArray:
+        return gauss_newton(rates.take(take), settings=loose, start=estimate.theta.as_array(),
+                            held=held).theta.as_array()
+
+    return BootstrapTerms(information=lin.information, scores=lin.scores, clusters=clusters,
+                          refit=refit, **extra)

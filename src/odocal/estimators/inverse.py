@@ -68,6 +68,7 @@ from numpy.typing import NDArray
 
 from odocal.data.drive import Drive
 from odocal.data.segments import common_sampling_time
+from odocal.estimators.base import NEED_DIFFERENTIAL, MethodOutcome, Prepared, ProgressCallback
 from odocal.estimators.covariance import NEWEY_WEST, leverage_adjusted_scores, robust_covariance
 from odocal.estimators.estimate import (
     CovarianceKind,
@@ -842,3 +843,25 @@ def _covariance(fit: _Fit, free: BoolArray, cluster: IntArray,
         inflation = few_clusters_inflation(n_clusters) if n_clusters >= 2 else 1.0
         cov = naive * np.outer(f, f) * inflation**2
     return cov[:4, :4], info[:, :4, :4], scores[:, :4]
+
+
+def run(prep: Prepared, settings: Settings,
+        progress: ProgressCallback | None = None) -> MethodOutcome:
+    """The default method on the prepared drives (every window of every piece, not only the
+    selected segments). No bootstrap: its errors telescope (quantised counts, a reference's
+    errors differenced over windows), which resampling clusters cannot see; the sandwich's
+    neighbour terms do, and the noise matrix checks it against the truth."""
+    return MethodOutcome(estimate=inverse_calibration(prep.drives, settings=settings,
+                                                      held=prep.held, progress=progress))
+
+
+def run_distance_only(prep: Prepared, settings: Settings,
+                      progress: ProgressCallback | None = None) -> MethodOutcome:
+    """The wheels carry no differential signal: c_e alone, from the distance channel.
+
+    Every other method takes the heading from the wheels, so none of them can use such data;
+    the distance channel needs the wheels' mean only.
+    """
+    held = {**prep.held, **{n: NotIdentified(Reason.NO_DIFFERENTIAL) for n in NEED_DIFFERENTIAL}}
+    return MethodOutcome(estimate=inverse_calibration(prep.drives, settings=settings, held=held,
+                                                      distance_only=True, progress=progress))

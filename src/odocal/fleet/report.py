@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from odocal import __version__
+from odocal._version import __version__
 from odocal.fleet.drift import parse_stamp
 from odocal.fleet.store import Store
 from odocal.io.atomic import write_bytes, write_text

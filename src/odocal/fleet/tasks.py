@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from odocal import __version__
+from odocal._version import __version__
 from odocal.fleet.catalog import CatalogEntry
 from odocal.model.parameters import PARAMETER_NAMES
 from odocal.settings import Settings, settings_from_dict

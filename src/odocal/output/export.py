@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from odocal import __version__
+from odocal._version import __version__
 from odocal.data.drive import Drive
 from odocal.errors import ConfigError
 from odocal.io.atomic import write_text

@@ -10,12 +10,12 @@ from typing import Any
 
 import numpy as np
 
-from odocal import __version__
+from odocal._version import __version__
 from odocal.errors import OutputError
 from odocal.io.atomic import write_text
 from odocal.io.results import write_json
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS
-from odocal.pipeline.calibrate import CalibrationResult
+from odocal.pipeline.result import CalibrationResult
 
 CALIBRATION_FILE = "calibration.json"
 

@@ -4,8 +4,8 @@
 identification and validation segments, runs the chosen method (the one place a method is
 chosen) and validates the answer.
 
-Methods (:data:`METHODS`)
--------------------------
+Methods (:data:`METHODS`; each is a module of :mod:`odocal.estimators` with the same ``run``)
+-----------------------------------------------------------------------------------------------
 ``raw``
     Batch Gauss-Newton on every selected segment with the measured wheel rates.
 ``compensated``
@@ -19,35 +19,28 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import functools
 import logging
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal import __version__
 from odocal.checks.diagnosis import Diagnosis, check_drives, gate
 from odocal.data.drive import Drive
 from odocal.data.segments import (
     RaggedSegments,
-    SegmentBatch,
     SegmentSet,
     common_sampling_time,
-    gather,
-    identification_segments,
     validation_segments,
 )
 from odocal.errors import ConfigError, DataError
 from odocal.estimators import DEFAULT_METHOD
+from odocal.estimators.base import MethodOutcome, Prepared, ProgressCallback, prepare
 from odocal.estimators.covariance import BootstrapResult, bootstrap
 from odocal.estimators.estimate import (
     Estimate,
-    NotIdentified,
     Reason,
     Status,
     held_as_weak,
@@ -62,248 +55,38 @@ from odocal.estimators.validation import (
 )
 from odocal.io.drivefile import load_drive
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.pipeline.result import CalibrationResult, summarise
 from odocal.settings import Settings
 
-if TYPE_CHECKING:
-    from odocal.estimators.compensated import ThreeStepOutcome
-    from odocal.pipeline.compare import Comparison
-
-# The estimators are imported where they are run: a calibration loads only its own method.
 log = logging.getLogger(__name__)
-
-#: ``progress(stage, done, total)``: called as long steps advance (the CLI draws bars from it).
-ProgressCallback = Callable[[str, int, int], None]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
-
-#: Parameters observable only through the yaw equation in bends (METHOD 2).
-NEED_BENDS = ("t_r", "d")
-#: Parameters that need the two wheels' difference (all but the distance scale).
-NEED_DIFFERENTIAL = ("c_d", "t_r", "d")
+Runner = Callable[[Prepared, Settings, ProgressCallback | None], MethodOutcome]
 
 
-@dataclass(frozen=True)
-class DriveSummary:
-    """What a calibration read: one entry per drive."""
+def _inverse(prep: Prepared, settings: Settings, progress: ProgressCallback | None
+             ) -> MethodOutcome:
+    from odocal.estimators.inverse import run
 
-    name: str
-    samples: int
-    duration_s: float
-    distance_m: float
-    pieces: int
-    sha256: str | None
-
-    def to_dict(self) -> dict[str, object]:
-        return {"name": self.name, "samples": self.samples, "duration_s": self.duration_s,
-                "distance_m": self.distance_m, "pieces": self.pieces, "sha256": self.sha256}
+    return run(prep, settings, progress)
 
 
-@dataclass(frozen=True)
-class Prepared:
-    """The drives cut into segments, ready for any method.
+def _raw(prep: Prepared, settings: Settings, progress: ProgressCallback | None) -> MethodOutcome:
+    from odocal.estimators.raw import run
 
-    drives : the drives
-    segments : every identification segment (with the selection rule's verdict)
-    used : mask over ``segments`` of those to identify from
-    held : parameters the selection already knows the data cannot identify (no bends)
-    batch : the used segments' data, measured rates
-    clusters : cluster label of each used segment (overlapping segments share one)
-    validation_segments, validation : the validation segments and their data (None without any)
-    warnings : what the user should know about the data
-    """
-
-    drives: tuple[Drive, ...]
-    segments: SegmentSet
-    used: BoolArray
-    held: Mapping[str, NotIdentified]
-    clusters: IntArray
-    validation_segments: SegmentSet
-    validation: RaggedSegments | None
-    warnings: tuple[str, ...]
-
-    @functools.cached_property
-    def batch(self) -> SegmentBatch:
-        """The used segments' data (gathered when a segment-based method asks for it)."""
-        return gather(self.drives, self.segments.subset(self.used))
+    return run(prep, settings, progress)
 
 
-@dataclass(frozen=True)
-class BootstrapTerms:
-    """What the bootstrap resamples: per-unit information and scores at the estimate.
+def _compensated(prep: Prepared, settings: Settings, progress: ProgressCallback | None
+                 ) -> MethodOutcome:
+    from odocal.estimators.compensated import run
 
-    information : ndarray, shape (N, 4, 4); scores : ndarray, shape (N, 4); clusters : (N,)
-    refit : theta from a resample of the units (``bootstrap_mode = "full"``), or None
-    step1_thetas, step1_sets : the three-step method's step-1 sets (redrawn too)
-    """
-
-    information: NDArray[np.float64]
-    scores: NDArray[np.float64]
-    clusters: IntArray
-    refit: Callable[[IntArray], NDArray[np.float64]] | None = None
-    step1_thetas: NDArray[np.float64] | None = None
-    step1_sets: int = 0
+    return run(prep, settings, progress)
 
 
-@dataclass(frozen=True)
-class MethodOutcome:
-    """What a method returns to the front door."""
-
-    estimate: Estimate
-    three_step: ThreeStepOutcome | None = None
-    warnings: tuple[str, ...] = ()
-    bootstrap: BootstrapTerms | None = None
-    """What to bootstrap over; None: the method has no bootstrap."""
-
-
-def _gn_terms(rates: SegmentBatch, estimate: Estimate, prep: Prepared, settings: Settings,
-              **extra: Any) -> BootstrapTerms:
-    """Bootstrap terms of a Gauss-Newton estimate on ``rates`` (the segments it used)."""
-    from odocal.estimators.gauss_newton import gauss_newton, linearise
-
-    lin = linearise(rates, estimate.theta.as_array(), np.asarray(settings.identify.weights))
-    held = {n: NotIdentified(Reason.HELD) for n, f in zip(PARAMETER_NAMES, estimate.free,
-                                                         strict=True) if not f}
-    loose = dataclasses.replace(settings.identify, judge_identifiability=False, max_iterations=3)
-
-    def refit(take: IntArray) -> NDArray[np.float64]:
-        return gauss_newton(rates.take(take), settings=loose, start=estimate.theta.as_array(),
-                            held=held).theta.as_array()
-
-    return BootstrapTerms(information=lin.information, scores=lin.scores,
-                          clusters=prep.clusters, refit=refit, **extra)
-
-
-def _run_raw(prep: Prepared, settings: Settings,
-             progress: ProgressCallback | None) -> MethodOutcome:
-    from odocal.estimators.gauss_newton import gauss_newton
-
-    if progress:
-        progress("identify", 0, 1)
-    est = gauss_newton(prep.batch, settings=settings.identify, clusters=prep.clusters,
-                       held=prep.held, method="raw")
-    if progress:
-        progress("identify", 1, 1)
-    return MethodOutcome(estimate=est, bootstrap=_gn_terms(prep.batch, est, prep, settings))
-
-
-def _run_compensated(prep: Prepared, settings: Settings,
-                     progress: ProgressCallback | None) -> MethodOutcome:
-    from odocal.estimators.compensated import three_step
-
-    outcome = three_step(prep.batch, prep.validation, settings=settings, clusters=prep.clusters,
-                         held=prep.held, progress=progress)
-    s1 = outcome.step1
-    rates = prep.batch.with_wheel_rates(outcome.compensation.n_rl, outcome.compensation.n_rr)
-    return MethodOutcome(estimate=outcome.final, three_step=outcome, warnings=outcome.warnings,
-                         bootstrap=_gn_terms(rates, outcome.final, prep, settings,
-                                             step1_thetas=s1.thetas[s1.success],
-                                             step1_sets=int(s1.picked.size)))
-
-
-def _run_inverse(prep: Prepared, settings: Settings,
-                 progress: ProgressCallback | None) -> MethodOutcome:
-    from odocal.estimators.inverse import inverse_calibration
-
-    # No bootstrap: its errors telescope (quantised counts, a reference's errors differenced
-    # over windows), which resampling clusters cannot see; the sandwich's full neighbour term
-    # does, and the noise matrix checks it against the truth (benchmarks/bench_matrix.py).
-    est = inverse_calibration(prep.drives, settings=settings, held=prep.held, progress=progress)
-    return MethodOutcome(estimate=est)
-
-
-#: The estimator behind each name of :data:`odocal.estimators.METHOD_NAMES`.
-METHODS: Mapping[str, Callable[[Prepared, Settings, ProgressCallback | None], MethodOutcome]] = {
-    "inverse": _run_inverse,
-    "compensated": _run_compensated,
-    "raw": _run_raw,
-}
-
-
-@dataclass(frozen=True)
-class CalibrationResult:
-    """Everything a calibration found, and how.
-
-    estimate : the calibrated parameters, their covariance and the identifiability verdicts
-    validation : E_p of the estimate on the validation segments (None without any)
-    datasheet_validation : E_p of the datasheet values on the same segments
-    segments : the identification segments (with the selection rule's verdict)
-    used : mask over ``segments`` of those identified from
-    drives : what was read
-    warnings : things the user should know (weak data, failed solves, fallbacks)
-    bootstrap : the bootstrap check of the covariance (None when off or not applicable)
-    three_step : the three-step method's intermediate results (``compensated`` only)
-    batch : the identification segments' data with the measured rates
-    drive_data : the drives themselves (for plots)
-    timings_s : wall time of each stage (read, segments, the method's steps, bootstrap,
-        validation)
-    diagnosis : the checks of the data against the model, before and after the fit
-    comparison : every method scored on held-out data (``--compare``; see
-    :mod:`odocal.pipeline.compare`)
-    """
-
-    estimate: Estimate
-    validation: ValidationResult | None
-    datasheet_validation: ValidationResult | None
-    segments: SegmentSet
-    used: BoolArray
-    drives: tuple[DriveSummary, ...]
-    settings: Settings
-    warnings: tuple[str, ...]
-    elapsed_s: float
-    bootstrap: BootstrapResult | None = None
-    three_step: ThreeStepOutcome | None = None
-    batch: SegmentBatch | None = field(default=None, repr=False)
-    drive_data: tuple[Drive, ...] = field(default=(), repr=False)
-    timings_s: dict[str, float] = field(default_factory=dict)
-    diagnosis: Diagnosis = field(default_factory=lambda: Diagnosis(()))
-    comparison: Comparison | None = None
-
-    @property
-    def theta(self) -> Parameters:
-        return self.estimate.theta
-
-    @property
-    def method(self) -> str:
-        return self.estimate.method
-
-    @property
-    def success(self) -> bool:
-        return self.estimate.success
-
-    @property
-    def segments_used(self) -> int:
-        return int(self.used.sum())
-
-    def to_dict(self) -> dict[str, Any]:
-        """The content of ``calibration.json``."""
-        est = self.estimate
-        out: dict[str, Any] = {"odocal_version": __version__, **est.to_dict()}
-        out["unidentified_reasons"] = {n: est.verdict(n).reason.value  # type: ignore[union-attr]
-                                       for n in est.unidentified}
-        out["segments_used"] = self.segments_used
-        out["segments_total"] = len(self.segments)
-        out["segments_selected"] = int(self.segments.selected.sum())
-        out["validation"] = (self.validation.to_dict() if self.validation is not None
-                             else {"E_p_m": None, "segments": 0})
-        out["datasheet"] = {
-            "theta": est.datasheet.as_dict(),
-            "validation": ({"E_p_m": self.datasheet_validation.mean_error_m,
-                            "segments": len(self.datasheet_validation.segments)}
-                           if self.datasheet_validation is not None else None)}
-        out["status"]["warnings"] = list(self.warnings)
-        details = est.details
-        out["details"] = details.to_dict() if hasattr(details, "to_dict") else None
-        out["inputs"] = [d.to_dict() for d in self.drives]
-        out["elapsed_s"] = self.elapsed_s
-        out["timings_s"] = dict(self.timings_s)
-        out["diagnosis"] = self.diagnosis.to_dict()
-        out["settings"] = self.settings.to_dict()
-        out["bootstrap"] = self.bootstrap.to_dict() if self.bootstrap is not None else None
-        if self.three_step is not None:
-            out["three_step"] = self.three_step.to_dict()
-        if self.comparison is not None:
-            out["comparison"] = self.comparison.to_dict()
-        return out
+#: The estimator behind each name of :data:`odocal.estimators.METHOD_NAMES`; each module is
+#: imported when its method runs, so a calibration loads only its own.
+METHODS: Mapping[str, Runner] = {"inverse": _inverse, "compensated": _compensated, "raw": _raw}
 
 
 def load_drives(sources: Drive | str | Path | Sequence[Drive | str | Path]) -> list[Drive]:
@@ -324,61 +107,6 @@ def load_drives(sources: Drive | str | Path | Sequence[Drive | str | Path]) -> l
                             "(identical content); give each drive once")
         seen[digest] = d.name
     return drives
-
-
-def summarise(drives: Sequence[Drive]) -> tuple[DriveSummary, ...]:
-    return tuple(DriveSummary(name=d.name, samples=d.n_samples, duration_s=d.duration_s,
-                              distance_m=d.distance_m, pieces=len(d.pieces),
-                              sha256=d.metadata.get("sha256")) for d in drives)
-
-
-def segment_clusters(segments: SegmentSet, block: int) -> IntArray:
-    """Group label per segment: segments starting in the same ``block`` samples of a drive.
-
-    Segments in one group overlap in time; the robust covariance treats each group as one
-    independent observation.
-    """
-    return (segments.drive * (10**9) + segments.start // max(block, 1)).astype(np.int64)
-
-
-def select_identification(segments: SegmentSet, settings: Settings
-                          ) -> tuple[BoolArray, dict[str, NotIdentified], tuple[str, ...]]:
-    """The selection rule, with the weak-data fallback to every segment.
-
-    Returns the mask of segments to identify from, the parameters to keep at their datasheet
-    values (without bends, t_r and d are not observable: the load transfer and the track width
-    act on the yaw rate only when the vehicle turns), and warnings.
-    """
-    seg = settings.segments
-    if len(segments) == 0:
-        raise DataError(
-            f"no drive is long enough for one identification segment of K = {seg.length} steps "
-            f"({seg.length} samples); shorten [segments] length or give longer logs")
-    selected = segments.selected
-    if int(selected.sum()) >= seg.min_selected:
-        return selected.copy(), {}, ()
-    peak = float(segments.peak_yaw_rate_radps.max())
-    warning = (f"only {int(selected.sum())} of {len(segments)} segments have a peak yaw rate "
-               f"above {seg.yaw_rate_threshold_radps} rad/s; identifying from all of them")
-    held = {name: NotIdentified(Reason.NEEDS_BENDS, detail=peak) for name in NEED_BENDS}
-    return np.ones(len(segments), dtype=bool), held, (warning,)
-
-
-def prepare(drives: Sequence[Drive], settings: Settings) -> Prepared:
-    """Cut the drives into identification and validation segments (METHOD 2)."""
-    id_segments = identification_segments(drives, settings.segments)
-    used, held, warnings = select_identification(id_segments, settings)
-    val_segments = validation_segments(drives, settings.segments)
-    val_data = (validation_data(drives, val_segments, settings) if len(val_segments)
-                else None)
-    if val_data is None:
-        shortest = (settings.segments.validation_min_fraction
-                    * settings.segments.validation_distance_m)
-        warnings += (f"the drives hold no validation segment of {shortest:.0f} m or more; "
-                     "E_p is not available",)
-    return Prepared(drives=tuple(drives), segments=id_segments, used=used, held=held,
-                    clusters=segment_clusters(id_segments.subset(used), settings.segments.length),
-                    validation_segments=val_segments, validation=val_data, warnings=warnings)
 
 
 def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
@@ -468,7 +196,9 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
                                                           reason))
         estimate = outcome.estimate
     elif diagnosis.no_differential:
-        outcome = _run_distance_only(prep, settings, clock)
+        from odocal.estimators.inverse import run_distance_only
+
+        outcome = run_distance_only(prep, settings, clock)
         estimate = outcome.estimate
     else:
         outcome, estimate, boot = _checked_by_bootstrap(method, prep, settings, clock)
@@ -493,21 +223,6 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         three_step=outcome.three_step, batch=prep.__dict__.get("batch"),
         drive_data=tuple(drive_list),
         timings_s=dict(clock.seconds), diagnosis=diagnosis)
-
-
-def _run_distance_only(prep: Prepared, settings: Settings,
-                       progress: ProgressCallback | None) -> MethodOutcome:
-    """The wheels carry no differential signal: c_e alone, from the distance channel.
-
-    Every method but the inverse one takes the heading from the wheels, so none of them can use
-    such data; the inverse method's distance channel needs the wheels' mean only.
-    """
-    from odocal.estimators.inverse import inverse_calibration
-
-    held = {**prep.held, **{n: NotIdentified(Reason.NO_DIFFERENTIAL) for n in NEED_DIFFERENTIAL}}
-    est = inverse_calibration(prep.drives, settings=settings, held=held, distance_only=True,
-                              progress=progress)
-    return MethodOutcome(estimate=est)
 
 
 def _gated(diagnosis: Diagnosis, estimate: Estimate, settings: Settings,

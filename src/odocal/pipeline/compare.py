@@ -15,70 +15,15 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from odocal.data.drive import Drive
 from odocal.errors import DataError, OdocalError
-from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
+from odocal.estimators import METHOD_NAMES
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.pipeline.result import TIE, Comparison, MethodScore
 from odocal.settings import Settings
-
-#: Held-out E_p within this share of the best counts as equally good.
-TIE = 0.03
-
-
-@dataclass(frozen=True)
-class MethodScore:
-    method: str
-    theta: Parameters
-    std: tuple[float, ...]
-    identified: tuple[bool, ...]
-    status: str
-    held_out_e_p_m: float | None
-    folds_e_p_m: tuple[float | None, ...]
-    truth_error: dict[str, float] | None
-    elapsed_s: float
-    error: str | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"method": self.method, "theta": self.theta.as_dict(),
-                "std": dict(zip(PARAMETER_NAMES, self.std, strict=True)),
-                "identified": dict(zip(PARAMETER_NAMES, self.identified, strict=True)),
-                "status": self.status, "held_out_E_p_m": self.held_out_e_p_m,
-                "folds_E_p_m": list(self.folds_e_p_m), "truth_error": self.truth_error,
-                "elapsed_s": self.elapsed_s, "error": self.error}
-
-
-@dataclass(frozen=True)
-class Comparison:
-    scores: tuple[MethodScore, ...]
-    block_s: float
-    favoured: tuple[str, ...]          # the best held-out E_p, and those within TIE of it
-    datasheet_e_p_m: float | None
-
-    @property
-    def verdict(self) -> str:
-        usable = [s for s in self.scores if s.held_out_e_p_m is not None]
-        if not usable:
-            return "no method could be validated on held-out data"
-        best = min(usable, key=lambda s: s.held_out_e_p_m or 0.0)
-        default = next((s for s in usable if s.method == DEFAULT_METHOD), None)
-        if len(self.favoured) > 1:
-            text = (f"held-out E_p: {', '.join(self.favoured)} are equally good "
-                    f"(within {TIE:.0%} of {best.held_out_e_p_m:.3f} m)")
-        else:
-            text = f"held-out E_p favours {best.method} ({best.held_out_e_p_m:.3f} m)"
-        if default is not None and DEFAULT_METHOD not in self.favoured:
-            text += f"; the default {DEFAULT_METHOD} reaches {default.held_out_e_p_m:.3f} m"
-        return text
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"block_s": self.block_s, "favoured": list(self.favoured),
-                "verdict": self.verdict, "datasheet_held_out_E_p_m": self.datasheet_e_p_m,
-                "methods": [s.to_dict() for s in self.scores]}
 
 
 def folds(drives: Sequence[Drive], block_s: float) -> tuple[list[Drive], list[Drive]]:

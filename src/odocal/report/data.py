@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 from odocal.estimators.validation import segment_errors, validation_data
 from odocal.model.kinematics import rollout
 from odocal.model.parameters import PARAMETER_NAMES, Inputs
-from odocal.pipeline.calibrate import CalibrationResult
+from odocal.pipeline.result import CalibrationResult
 from odocal.report.advice import ParameterAdvice, advise, coverage
 
 FloatArray = NDArray[np.float64]

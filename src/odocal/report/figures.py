@@ -16,7 +16,7 @@ from matplotlib.collections import PolyCollection
 from numpy.typing import NDArray
 
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES
-from odocal.report.render import CALIBRATED, DATASHEET, RAW, REFERENCE, STEP1
+from odocal.report.style import CALIBRATED, DATASHEET, RAW, REFERENCE, STEP1
 
 FloatArray = NDArray[np.float64]
 #: Display scale and unit of each parameter (c_d and d read best in mm).

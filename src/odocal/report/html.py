@@ -10,12 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from odocal import __version__
+from odocal._version import __version__
 from odocal.io.atomic import write_bytes, write_text
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_LABELS
-from odocal.pipeline.calibrate import CalibrationResult
+from odocal.pipeline.result import CalibrationResult
 from odocal.report.data import ReportData, build, parameter_rows
-from odocal.report.render import CALIBRATED, RAW, Call, FigureSpec, Renderer
+from odocal.report.render import Call, FigureSpec, Renderer
+from odocal.report.style import CALIBRATED, RAW
 
 
 @dataclass(frozen=True)

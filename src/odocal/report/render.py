@@ -25,8 +25,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 DPI = 110
-#: The report's colours: reference, datasheet, calibrated, raw G-N, step-1 batches.
-REFERENCE, DATASHEET, CALIBRATED, RAW, STEP1 = "#222222", "#d62728", "#1f77b4", "#ff7f0e", "#999999"
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from odocal import __version__
+from odocal._version import __version__
 from odocal.estimators.estimate import Estimate
 from odocal.io.atomic import write_bytes, write_text
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_LABELS, PARAMETER_NAMES

@@ -1,0 +1,193 @@
+"""What a calibration hands on: the result types of the pipeline.
+
+:class:`CalibrationResult` holds everything :func:`odocal.pipeline.calibrate.calibrate` found;
+:class:`Comparison` every method scored on held-out data (``--compare``). Words are made from
+them in :mod:`odocal.report` and :mod:`odocal.cli`, files in :mod:`odocal.output`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal._version import __version__
+from odocal.checks.diagnosis import Diagnosis
+from odocal.data.drive import Drive
+from odocal.data.segments import SegmentBatch, SegmentSet
+from odocal.estimators import DEFAULT_METHOD
+from odocal.estimators.compensated import ThreeStepOutcome
+from odocal.estimators.covariance import BootstrapResult
+from odocal.estimators.estimate import Estimate
+from odocal.estimators.validation import ValidationResult
+from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.settings import Settings
+
+BoolArray = NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class DriveSummary:
+    """What a calibration read: one entry per drive."""
+
+    name: str
+    samples: int
+    duration_s: float
+    distance_m: float
+    pieces: int
+    sha256: str | None
+
+    def to_dict(self) -> dict[str, object]:
+        return {"name": self.name, "samples": self.samples, "duration_s": self.duration_s,
+                "distance_m": self.distance_m, "pieces": self.pieces, "sha256": self.sha256}
+
+
+def summarise(drives: Sequence[Drive]) -> tuple[DriveSummary, ...]:
+    return tuple(DriveSummary(name=d.name, samples=d.n_samples, duration_s=d.duration_s,
+                              distance_m=d.distance_m, pieces=len(d.pieces),
+                              sha256=d.metadata.get("sha256")) for d in drives)
+
+
+#: Held-out E_p within this share of the best counts as equally good.
+TIE = 0.03
+
+
+@dataclass(frozen=True)
+class MethodScore:
+    method: str
+    theta: Parameters
+    std: tuple[float, ...]
+    identified: tuple[bool, ...]
+    status: str
+    held_out_e_p_m: float | None
+    folds_e_p_m: tuple[float | None, ...]
+    truth_error: dict[str, float] | None
+    elapsed_s: float
+    error: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"method": self.method, "theta": self.theta.as_dict(),
+                "std": dict(zip(PARAMETER_NAMES, self.std, strict=True)),
+                "identified": dict(zip(PARAMETER_NAMES, self.identified, strict=True)),
+                "status": self.status, "held_out_E_p_m": self.held_out_e_p_m,
+                "folds_E_p_m": list(self.folds_e_p_m), "truth_error": self.truth_error,
+                "elapsed_s": self.elapsed_s, "error": self.error}
+
+
+@dataclass(frozen=True)
+class Comparison:
+    scores: tuple[MethodScore, ...]
+    block_s: float
+    favoured: tuple[str, ...]          # the best held-out E_p, and those within TIE of it
+    datasheet_e_p_m: float | None
+
+    @property
+    def verdict(self) -> str:
+        usable = [s for s in self.scores if s.held_out_e_p_m is not None]
+        if not usable:
+            return "no method could be validated on held-out data"
+        best = min(usable, key=lambda s: s.held_out_e_p_m or 0.0)
+        default = next((s for s in usable if s.method == DEFAULT_METHOD), None)
+        if len(self.favoured) > 1:
+            text = (f"held-out E_p: {', '.join(self.favoured)} are equally good "
+                    f"(within {TIE:.0%} of {best.held_out_e_p_m:.3f} m)")
+        else:
+            text = f"held-out E_p favours {best.method} ({best.held_out_e_p_m:.3f} m)"
+        if default is not None and DEFAULT_METHOD not in self.favoured:
+            text += f"; the default {DEFAULT_METHOD} reaches {default.held_out_e_p_m:.3f} m"
+        return text
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"block_s": self.block_s, "favoured": list(self.favoured),
+                "verdict": self.verdict, "datasheet_held_out_E_p_m": self.datasheet_e_p_m,
+                "methods": [s.to_dict() for s in self.scores]}
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """Everything a calibration found, and how.
+
+    estimate : the calibrated parameters, their covariance and the identifiability verdicts
+    validation : E_p of the estimate on the validation segments (None without any)
+    datasheet_validation : E_p of the datasheet values on the same segments
+    segments : the identification segments (with the selection rule's verdict)
+    used : mask over ``segments`` of those identified from
+    drives : what was read
+    warnings : things the user should know (weak data, failed solves, fallbacks)
+    bootstrap : the bootstrap check of the covariance (None when off or not applicable)
+    three_step : the three-step method's intermediate results (``compensated`` only)
+    batch : the identification segments' data with the measured rates
+    drive_data : the drives themselves (for plots)
+    timings_s : wall time of each stage (read, segments, the method's steps, bootstrap,
+        validation)
+    diagnosis : the checks of the data against the model, before and after the fit
+    comparison : every method scored on held-out data (``--compare``; see
+    :mod:`odocal.pipeline.compare`)
+    """
+
+    estimate: Estimate
+    validation: ValidationResult | None
+    datasheet_validation: ValidationResult | None
+    segments: SegmentSet
+    used: BoolArray
+    drives: tuple[DriveSummary, ...]
+    settings: Settings
+    warnings: tuple[str, ...]
+    elapsed_s: float
+    bootstrap: BootstrapResult | None = None
+    three_step: ThreeStepOutcome | None = None
+    batch: SegmentBatch | None = field(default=None, repr=False)
+    drive_data: tuple[Drive, ...] = field(default=(), repr=False)
+    timings_s: dict[str, float] = field(default_factory=dict)
+    diagnosis: Diagnosis = field(default_factory=lambda: Diagnosis(()))
+    comparison: Comparison | None = None
+
+    @property
+    def theta(self) -> Parameters:
+        return self.estimate.theta
+
+    @property
+    def method(self) -> str:
+        return self.estimate.method
+
+    @property
+    def success(self) -> bool:
+        return self.estimate.success
+
+    @property
+    def segments_used(self) -> int:
+        return int(self.used.sum())
+
+    def to_dict(self) -> dict[str, Any]:
+        """The content of ``calibration.json``."""
+        est = self.estimate
+        out: dict[str, Any] = {"odocal_version": __version__, **est.to_dict()}
+        out["unidentified_reasons"] = {n: est.verdict(n).reason.value  # type: ignore[union-attr]
+                                       for n in est.unidentified}
+        out["segments_used"] = self.segments_used
+        out["segments_total"] = len(self.segments)
+        out["segments_selected"] = int(self.segments.selected.sum())
+        out["validation"] = (self.validation.to_dict() if self.validation is not None
+                             else {"E_p_m": None, "segments": 0})
+        out["datasheet"] = {
+            "theta": est.datasheet.as_dict(),
+            "validation": ({"E_p_m": self.datasheet_validation.mean_error_m,
+                            "segments": len(self.datasheet_validation.segments)}
+                           if self.datasheet_validation is not None else None)}
+        out["status"]["warnings"] = list(self.warnings)
+        details = est.details
+        out["details"] = details.to_dict() if hasattr(details, "to_dict") else None
+        out["inputs"] = [d.to_dict() for d in self.drives]
+        out["elapsed_s"] = self.elapsed_s
+        out["timings_s"] = dict(self.timings_s)
+        out["diagnosis"] = self.diagnosis.to_dict()
+        out["settings"] = self.settings.to_dict()
+        out["bootstrap"] = self.bootstrap.to_dict() if self.bootstrap is not None else None
+        if self.three_step is not None:
+            out["three_step"] = self.three_step.to_dict()
+        if self.comparison is not None:
+            out["comparison"] = self.comparison.to_dict()
+        return out
