@@ -6,8 +6,13 @@ import numpy as np
 import pytest
 
 import odocal
-from odocal.estimators.covariance import NEWEY_WEST, leverage_adjusted_scores, long_run_meat
-from odocal.estimators.inverse import (
+from odocal.estimators.covariance import (
+    NEWEY_WEST,
+    added_meat,
+    leverage_adjusted_scores,
+    long_run_meat,
+)
+from odocal.estimators.error_model import (
     CHANNELS,
     arma_from_sums,
     correlation_sums,
@@ -18,7 +23,6 @@ from odocal.estimators.inverse import (
     coupling_sums_at,
     decouple,
 )
-from odocal.online.calibrator import _added_meat
 from odocal.sim.noise import NoiseProfile
 
 
@@ -84,9 +88,9 @@ def test_the_online_meat_built_cluster_by_cluster_is_the_batch_one() -> None:
     g = np.random.default_rng(3).standard_normal((12, 5))
     meat, recent = np.zeros((5, 5)), np.zeros((0, 5))
     for row in g[:9]:                                  # folded one by one, as driving
-        meat += _added_meat(recent, row[None])
+        meat += added_meat(recent, row[None])
         recent = np.vstack([recent, row])[-len(NEWEY_WEST):]
-    meat += _added_meat(recent, g[9:])                 # the clusters still in memory
+    meat += added_meat(recent, g[9:])                 # the clusters still in memory
     np.testing.assert_allclose(meat, long_run_meat(g, NEWEY_WEST), rtol=1e-12, atol=1e-12)
 
 

@@ -13,9 +13,10 @@ import odocal
 from odocal.cli.main import EXIT_ERROR, EXIT_OK, main
 from odocal.errors import DataError
 from odocal.estimators.estimate import CovarianceKind
+from odocal.estimators.windows import SERIES, predict
 from odocal.model.kinematics import inverse_revolutions
 from odocal.model.parameters import Parameters
-from odocal.online.calibrator import OnlineCalibrator, window_prediction
+from odocal.online.calibrator import OnlineCalibrator
 from odocal.sim.simulate import SimulatedDrive
 
 from .bagwriter import write_bag
@@ -34,13 +35,22 @@ def test_window_moments_predict_what_the_model_does(rng: np.random.Generator) ->
     theta = np.array([1.95, -0.002, 1.53, 0.0008])
     ds, dpsi, a = rng.uniform(0, 0.4, 80), rng.normal(0, 0.01, 80), rng.uniform(-4, 4, 80)
     revs, jac = inverse_revolutions(theta, ds, dpsi, a)
-    moments = np.array([[ds.sum(), ds @ a, ds @ a**2, dpsi.sum(), dpsi @ a, dpsi @ a**2]])
-    pred, j = window_prediction(theta, moments)
-    np.testing.assert_allclose(pred[0], revs.sum(axis=0), rtol=1e-9)
-    np.testing.assert_allclose(j[0, :, :3], jac.sum(axis=0)[:, :3], rtol=1e-7)
-    # d's derivative drops the series' next term: close (the fit's fixed point is the
-    # prediction's, which is exact to (d a / c)^3)
-    np.testing.assert_allclose(j[0, :, 3], jac.sum(axis=0)[:, 3], rtol=2e-3)
+    powers = a[:, None] ** np.arange(SERIES)
+    moments = np.concatenate([ds @ powers, dpsi @ powers])[None, :]
+    pred, j = predict(theta, moments)
+    # exact to (d a / c)^4 (below 1e-12 here); the derivative in d to (d a / c)^3
+    np.testing.assert_allclose(pred[0], revs.sum(axis=0), rtol=1e-11)
+    exact = jac.sum(axis=0)
+    np.testing.assert_allclose(j[0, :, :3], exact[:, :3], rtol=1e-10)
+    np.testing.assert_allclose(j[0, :, 3], exact[:, 3], atol=1e-5 * np.abs(exact[:, 3]).max())
+    # the moments' own derivative, by finite differences, for every parameter
+    for k in range(4):
+        h = 1e-5 * max(abs(theta[k]), (0.05, 0.01, 0.1, 0.005)[k])
+        up, down = theta.copy(), theta.copy()
+        up[k] += h
+        down[k] -= h
+        fd = (predict(up, moments)[0] - predict(down, moments)[0]) / (2 * h)
+        np.testing.assert_allclose(j[0, :, k], fd[0], rtol=1e-6, atol=1e-8)
 
 
 def test_agrees_with_batch_at_the_end_of_a_drive(noisy_drive: SimulatedDrive) -> None:

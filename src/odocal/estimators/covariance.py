@@ -50,6 +50,14 @@ def long_run_meat(g: FloatArray, weights: Sequence[float] = (1.0,)) -> FloatArra
     return meat
 
 
+def added_meat(recent: FloatArray, new: FloatArray,
+               weights: Sequence[float] = NEWEY_WEST) -> FloatArray:
+    """What clusters ``new`` add to :func:`long_run_meat` after ``recent`` (the latest clusters
+    already counted): their outer products, and their cross products with each other and with
+    ``recent``. Folded cluster by cluster, it builds the batch meat exactly."""
+    return long_run_meat(np.vstack([recent, new]), weights) - long_run_meat(recent, weights)
+
+
 def robust_covariance(h_inv: FloatArray, scores: FloatArray, free: BoolArray,
                       clusters: IntArray, weights: Sequence[float] = (1.0,)) -> FloatArray:
     """Sandwich ``H^-1 M H^-1`` with M the long-run covariance of per-cluster scores.

@@ -331,3 +331,25 @@ def few_clusters_inflation(clusters: int) -> float:
     if clusters < 2:
         return float("inf")
     return _T_ONE_SIGMA[clusters - 2] if clusters - 2 < len(_T_ONE_SIGMA) else 1.0
+
+
+#: Relative singular value of the scaled information's root below which it is rank deficient.
+_RANK_RCOND = 1e-7
+
+
+def numerically_free(information: FloatArray, prior_std: tuple[float, ...] | FloatArray,
+                     free: BoolArray) -> BoolArray:
+    """``free`` less the parameters the information (4, 4) cannot tell apart from the others:
+    dropped one by one (the one that carries the null direction most, in units of its datasheet
+    uncertainty) until the rest has full rank."""
+    prior = np.asarray(prior_std, dtype=np.float64)
+    free = np.asarray(free, dtype=bool).copy()
+    while free.any():
+        cols = np.flatnonzero(free)
+        scaled = information[np.ix_(cols, cols)] * np.outer(prior[cols], prior[cols])
+        values, vectors = np.linalg.eigh(scaled)
+        top = float(values[-1])
+        if top > 0 and values[0] > (_RANK_RCOND**2) * top:
+            break
+        free[cols[int(np.argmax(np.abs(vectors[:, 0])))] if top > 0 else cols] = False
+    return free

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from odocal.data.drive import Drive
 from odocal.data.segments import RaggedSegments, SegmentSet, gather_ragged
+from odocal.estimators.windows import drives_heading_offset
 from odocal.model.kinematics import body_rates, rollout_ragged
 from odocal.model.parameters import Parameters
 from odocal.settings import MinimumSettings, Settings
@@ -187,33 +188,6 @@ def reachable_minimum(data: RaggedSegments, start: FloatArray, *, settings: Mini
                          evaluations=int(result.nfev), bounds=bounds, segments=len(data))
 
 
-def heading_offset(drives: Sequence[Drive], *, min_speed_mps: float = 3.0,
-                   max_yaw_rate_radps: float = 0.02) -> tuple[float, int]:
-    """The reference heading's constant rotation against the direction of travel, on straights.
-
-    Returns the offset (rad; add it to the heading to get the course) and how many samples it
-    rests on. Over one-second stretches the course is the direction of the displacement.
-    """
-    lat = lon = 0.0
-    used = 0
-    for d in drives:
-        step = max(round(1.0 / d.t_s), 1)
-        for a, b in d.pieces:
-            idx = np.arange(a, b - step, step)
-            if idx.size == 0:
-                continue
-            dx = d.x[idx + step] - d.x[idx]
-            dy = d.y[idx + step] - d.y[idx]
-            psi = 0.5 * (d.psi[idx] + d.psi[idx + step])
-            speed = np.hypot(dx, dy) / (step * d.t_s)
-            turn = np.abs(d.psi[idx + step] - d.psi[idx]) / (step * d.t_s)
-            ok = (speed > min_speed_mps) & (turn < max_yaw_rate_radps)
-            lon += float(np.sum((dx * np.cos(psi) + dy * np.sin(psi))[ok]))
-            lat += float(np.sum((-dx * np.sin(psi) + dy * np.cos(psi))[ok]))
-            used += int(ok.sum()) * step
-    return (float(np.arctan2(lat, lon)) if lon > 0 else 0.0), used
-
-
 def validation_data(drives: Sequence[Drive], segments: SegmentSet,
                     settings: Settings) -> RaggedSegments:
     """The validation segments' data, with the reference heading's constant offset removed.
@@ -222,15 +196,15 @@ def validation_data(drives: Sequence[Drive], segments: SegmentSet,
     antenna's mounting yaw in a fused pose) would start every validation rollout pointing off
     by that much, and E_p would favour parameters that curve the rollout back (a biased c_d)
     over the right ones. Where ``[inverse] heading_offset = "estimate"`` and at least five
-    seconds of straight driving show it (:func:`heading_offset`), every validation, of every
+    seconds of straight driving show it (as the default method finds it), every validation, of every
     method and of the datasheet values alike, starts from the corrected heading. Departure from
     the paper, which starts from the measured pose as it is.
     """
     data = gather_ragged(drives, segments)
     if settings.inverse.heading_offset != "estimate":
         return data
-    offset, used = heading_offset(drives)
-    if used < 200 or offset == 0.0:
+    offset, _ = drives_heading_offset(drives)
+    if offset == 0.0:
         return data
     initial = data.initial.copy()
     reference = data.reference.copy()

@@ -24,7 +24,8 @@ from odocal.errors import ConfigError, DataError, InputFileError
 from odocal.estimators.estimate import Estimate
 from odocal.io.streams import Stream
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
-from odocal.online.calibrator import Alarm, OnlineCalibrator
+from odocal.online.calibrator import OnlineCalibrator
+from odocal.online.changes import Alarm
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]

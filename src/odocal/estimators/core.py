@@ -1,0 +1,530 @@
+"""The default method's core, for batch and live alike: one procedure over a window set.
+
+The windows (:mod:`odocal.estimators.windows`) predict their revolutions for any theta; this
+module fits them. Batch calibration hands it every window of the drives and nothing folded;
+the online calibrator hands it the windows in memory and the older ones folded into sums
+(:class:`Folded`): normal equations linearised at the estimate of their time, the clusters'
+scores for the covariance, and the error model's sums. With nothing folded, the two are the
+same computation, to the last digit.
+
+The procedure (:func:`fit`):
+
+1. Gauss-Newton on the windows' channel residuals (distance and yaw), weighted by the error
+   model and prewhitened (:mod:`odocal.estimators.error_model`), from the datasheet values;
+   ``p = [theta, kappa]``, with ``kappa`` the spread of the window the wheel unit counts its ticks
+   over (half its variance, steps^2; fitted with the lag).
+2. **The lag.** A wheel stream that lags the reference biases the yaw terms in every bend. The
+   yaw channel's cost is scanned over a half-step grid of shifts of the reference side (which
+   carries no wheel noise), the minimum refined by a parabola. It is applied only where the data
+   determine it: beyond three standard deviations of zero, and only if it holds out, i.e. the
+   lag found on either half of the clusters (alternate ones) lowers the other half's cost too.
+   theta is refitted at the lag and the scan repeated until the lag settles.
+3. The error model refitted twice at each lag; then the covariance, a sandwich over clusters of
+   windows (Newey-West weights on neighbours, each cluster's score scaled by its leverage), and
+   the identifiability verdict: parameters the data do not determine well enough keep their
+   datasheet values and are named, and the rest is refitted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal.estimators.covariance import NEWEY_WEST, added_meat, leverage_adjusted_scores
+from odocal.estimators.error_model import (
+    CHANNELS,
+    ErrorModel,
+    arma_from_sums,
+    correlation_sums,
+    coupling_from_sums,
+    coupling_gain,
+    coupling_moments,
+    coupling_sums,
+    coupling_sums_at,
+    decouple,
+    noise_from_sums,
+    noise_sums,
+    prewhiten,
+    window_weights,
+)
+from odocal.estimators.estimate import (
+    NotIdentified,
+    Reason,
+    few_clusters_inflation,
+    held_as_weak,
+    numerically_free,
+    weak,
+)
+from odocal.estimators.windows import WindowSet, predict
+from odocal.model.parameters import PARAMETER_NAMES
+from odocal.settings import Settings
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+log = logging.getLogger(__name__)
+
+#: theta and the counting window's spread kappa.
+P = 5
+#: Fewer clusters than this: the covariance is the larger of the sandwich and the residual
+#: formula, widened for the clusters' small number.
+MIN_CLUSTERS_FOR_ROBUST = 10
+_SHIFT_ROUNDS = 6         # the lag scanned and theta refitted in turn at most so often
+_SHIFT_SETTLED = 1e-3     # steps
+_LAG_SIGMAS = 3.0         # a lag within this many standard deviations of zero is not applied
+
+
+@dataclass(frozen=True)
+class Folded:
+    """Windows folded into sums (the online calibrator's older evidence); empty in batch.
+
+    h, b : normal equations in information form (``b = g0 + H0 p_lin``)
+    meat, recent : the sandwich's long-run covariance of cluster scores, and the latest folded
+        clusters' scores (as many as its cross products reach)
+    clusters : clusters folded
+    noise, coupling, correlation : the error model's sums (see
+        :func:`~odocal.estimators.error_model.noise_sums`,
+        :func:`~odocal.estimators.error_model.coupling_moments` about ``origin``,
+        :func:`~odocal.estimators.error_model.correlation_sums`)
+    scan : (2, G) the yaw channel's cost on the lag grid, per half of the clusters, or None
+    cost, count : the weighted sum of squared residuals and their number
+    last : the last folded window, for the prewhitening to run on: the p it was linearised at,
+        its row unfiltered and filtered ((2, 1 + P) each: residual, Jacobian)
+    peak_yaw_radps : the largest window yaw rate folded
+    """
+
+    origin: FloatArray
+    h: FloatArray = field(default_factory=lambda: np.zeros((P, P)))
+    b: FloatArray = field(default_factory=lambda: np.zeros(P))
+    meat: FloatArray = field(default_factory=lambda: np.zeros((P, P)))
+    recent: FloatArray = field(default_factory=lambda: np.zeros((0, P)))
+    clusters: int = 0
+    noise: FloatArray = field(default_factory=lambda: np.zeros((2, 5)))
+    coupling: FloatArray = field(default_factory=lambda: np.zeros((2, 1 + P, 1 + P)))
+    correlation: FloatArray = field(default_factory=lambda: np.zeros((2, 6)))
+    scan: FloatArray | None = None
+    cost: float = 0.0
+    count: int = 0
+    last: tuple[FloatArray, FloatArray, FloatArray] | None = None
+    peak_yaw_radps: float = 0.0
+
+    def decayed(self, factor: float) -> Folded:
+        """The sums with older evidence faded by ``factor`` (forgetting)."""
+        return dataclasses.replace(
+            self, h=self.h * factor, b=self.b * factor, meat=self.meat * factor,
+            recent=self.recent * math.sqrt(factor), noise=self.noise * factor,
+            coupling=self.coupling * factor, correlation=self.correlation * factor,
+            scan=None if self.scan is None else self.scan * factor, cost=self.cost * factor)
+
+
+@dataclass(frozen=True)
+class View:
+    """The windows as the model takes them at one shift and heading offset."""
+
+    windows: WindowSet
+    shift: float
+    at: FloatArray          # (W, 2 SERIES)
+    second: FloatArray      # (W, 2 SERIES): the moments' second difference in the shift
+
+    @staticmethod
+    def of(windows: WindowSet, shift: float, heading_offset: float) -> View:
+        at, second = windows.at(shift, heading_offset)
+        return View(windows, shift, at, second)
+
+
+@dataclass(frozen=True)
+class Fit:
+    """The windows' residuals at ``p`` and what Gauss-Newton needs of them.
+
+    residual : (W, 2) channel residuals, before the common wheel error is taken out
+    jac : (W, 2, P) their Jacobian in p
+    weight : (W, 2) the error model's weights
+    stacked, white : (W, 2, 1 + P) the standardised rows ``[residual, Jacobian]``, before and
+        after prewhitening
+    cost : the weighted sum of squares of the windows (the folded ones' is in Folded.cost)
+    """
+
+    p: FloatArray
+    residual: FloatArray
+    jac: FloatArray
+    weight: FloatArray
+    stacked: FloatArray
+    white: FloatArray
+    cost: float
+    iterations: int = 0
+    history: tuple[float, ...] = ()
+
+    @property
+    def decoupled(self) -> FloatArray:
+        """(W, 2): the standardised residuals, the common wheel error taken out."""
+        return np.asarray(self.stacked[..., 0] / np.sqrt(np.maximum(self.weight, 1e-300)))
+
+    def normal_equations(self, folded: Folded) -> tuple[FloatArray, FloatArray]:
+        """``H`` and ``g`` of the step, windows and folded sums together."""
+        jj, rr = self.white[..., 1:], self.white[..., 0]
+        h = np.einsum("wcp,wcq->pq", jj, jj) + folded.h
+        g = np.einsum("wcp,wc->p", jj, rr) + folded.b - folded.h @ self.p
+        return h, g
+
+
+def evaluate(p: FloatArray, view: View, model: ErrorModel, folded: Folded,
+             channels: FloatArray, *, smooth: bool) -> Fit:
+    """Residuals, weights and prewhitened rows of every window at ``p``."""
+    win = view.windows
+    pred, jac4 = predict(p[:4], view.at)
+    spread = np.zeros_like(pred)
+    if smooth:
+        spread, _ = predict(p[:4], view.second)
+        pred = pred + p[4] * spread
+    jac = np.concatenate([jac4, spread[..., None]], axis=2)
+    r = (win.measured - pred) @ CHANNELS.T
+    j = np.einsum("ci,wip->wcp", CHANNELS, jac)
+    gain = coupling_gain(win.measured, r, model.coupling)
+    w = window_weights(win.measured, r, model.noise, gain) * channels * win.weight[:, None]
+    stacked = decouple(np.concatenate([r[..., None], j], axis=2), gain) * np.sqrt(w)[..., None]
+    before = None
+    if folded.last is not None:
+        # the filter runs on from the last folded window, moved to p to first order
+        moved = p - folded.last[0]
+        before = tuple(row - np.concatenate([(row[:, 1:] @ moved)[:, None],
+                                             np.zeros_like(row[:, 1:])], axis=1)
+                       for row in folded.last[1:])
+    white = prewhiten(stacked, win.follows, model.ma, before)
+    return Fit(p=p, residual=r, jac=j, weight=w, stacked=stacked, white=white,
+               cost=float(np.sum(white[..., 0] ** 2)))
+
+
+def solve(p0: FloatArray, view: View, free: BoolArray, model: ErrorModel, folded: Folded,
+          channels: FloatArray, *, max_iterations: int, tolerance: float) -> Fit:
+    """Gauss-Newton on the prewhitened residuals of the windows and the folded normal
+    equations (nearly linear in p); ``free`` (P,) marks the free parameters of p."""
+    smooth = bool(free[4])
+    p = p0.copy()
+    fit = evaluate(p, view, model, folded, channels, smooth=smooth)
+    history = [fit.cost]
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):
+        if not free.any():
+            iterations = 0
+            break
+        h, g = fit.normal_equations(folded)
+        cols = np.flatnonzero(free)
+        scale = np.sqrt(np.maximum(np.diag(h)[cols], 1e-300))
+        step = np.zeros(P)
+        step[cols] = np.linalg.lstsq(h[np.ix_(cols, cols)] / np.outer(scale, scale),
+                                     g[cols] / scale, rcond=None)[0] / scale
+        p = p + step
+        fit = evaluate(p, view, model, folded, channels, smooth=smooth)
+        history.append(fit.cost)
+        if np.max(np.abs(step) / np.maximum(np.abs(p), 1e-3)) < tolerance:
+            break
+    return dataclasses.replace(fit, iterations=iterations, history=tuple(history))
+
+
+@dataclass(frozen=True)
+class LagScan:
+    """The yaw channel's cost on the lag grid (steps), per half of the clusters (2, G)."""
+
+    grid: FloatArray
+    costs: FloatArray
+
+
+def scan_lag(windows: WindowSet, theta: FloatArray, heading_offset: float, model: ErrorModel,
+             folded: Folded) -> LagScan:
+    """The yaw channel's weighted cost at every half step of shift of the reference side, with
+    theta fixed (the distance channel is left out: a slip that grows with acceleration is
+    common to both wheels and would pass for a lag there)."""
+    limit = windows.shifts
+    grid = np.arange(-limit, limit + 0.25, 0.5)
+    half = (windows.cluster % 2).astype(np.int64)
+    costs = np.zeros((2, grid.size))
+    for i, shift in enumerate(grid):
+        at, _ = windows.at(float(shift), heading_offset)
+        pred, _ = predict(theta, at)
+        r = (windows.measured - pred) @ CHANNELS.T
+        gain = coupling_gain(windows.measured, r, model.coupling)
+        w = window_weights(windows.measured, r, model.noise, gain) * windows.weight[:, None]
+        cost = w[:, 1] * decouple(r, gain)[:, 1] ** 2
+        costs[:, i] = np.bincount(half, weights=cost, minlength=2)[:2]
+    if folded.scan is not None and folded.scan.shape == costs.shape:
+        costs = costs + folded.scan
+    return LagScan(grid=grid, costs=costs)
+
+
+@dataclass(frozen=True)
+class Lag:
+    """The lag found: ``shift`` steps applied (0: none), its standard deviation (nan: not
+    determined), and why it was not applied where it was not."""
+
+    shift: float = 0.0
+    std: float = float("nan")
+    found: float = 0.0
+    note: str = ""
+
+
+def _minimum(grid: FloatArray, costs: FloatArray) -> tuple[float, float] | None:
+    """The parabola's minimum through the lowest grid point and its neighbours, and its std
+    (the cost is a weighted sum of squares with unit-variance residuals near the minimum);
+    None at the edge of the grid or where the cost is flat."""
+    i = int(np.argmin(costs))
+    if i == 0 or i == grid.size - 1:
+        return None
+    c0, c1, c2 = costs[i - 1:i + 2]
+    curvature = (c0 - 2.0 * c1 + c2) / 0.25            # d^2 cost / d shift^2 (half steps)
+    if curvature <= 0:
+        return None
+    return (float(grid[i] + 0.25 * (c0 - c2) / (c0 - 2.0 * c1 + c2)),
+            float(math.sqrt(2.0 / curvature)))
+
+
+def choose_lag(scan: LagScan) -> Lag:
+    """The lag to apply: determined by the data (beyond three standard deviations of zero) and
+    holding out (see the module docstring); else none, with the reason."""
+    total = scan.costs.sum(axis=0)
+    found = _minimum(scan.grid, total)
+    if found is None:
+        i = int(np.argmin(total))
+        if 0 < i < total.size - 1:
+            return Lag(note="flat")                    # no turning to time the wheels by
+        log.warning("the wheel clock offset lies at the edge of the search range; none applied "
+                    "(widen [inverse] max_delay_s)")
+        return Lag(note="edge")
+    best, std = found
+    if abs(best) < _LAG_SIGMAS * std:
+        return Lag(std=std, found=best, note="within noise")
+    for half in (0, 1):
+        mine, other = scan.costs[half], scan.costs[1 - half]
+        if not other.any() or not mine.any():
+            continue                                    # one half only: nothing to hold out
+        own = _minimum(scan.grid, mine)
+        if own is None or np.interp(own[0], scan.grid, other) >= np.interp(0.0, scan.grid,
+                                                                           other):
+            return Lag(std=std, found=best, note="does not hold out")
+    return Lag(shift=best, std=std, found=best)
+
+
+@dataclass(frozen=True)
+class CoreFit:
+    """What :func:`fit` found.
+
+    fit : the final fit (theta and kappa in ``fit.p``)
+    free : (4,) the parameters estimated; ``held`` why the others were not
+    covariance : (4, 4) of theta
+    clusters : independent clusters of windows (folded ones included)
+    lag : the wheel stream's lag behind the reference, in steps
+    model : the error model of the final fit
+    heading_offset : the reference heading's offset applied (rad)
+    """
+
+    fit: Fit
+    free: BoolArray
+    held: dict[str, NotIdentified]
+    covariance: FloatArray
+    clusters: int
+    lag: Lag
+    model: ErrorModel
+    heading_offset: float
+    window_information: FloatArray
+    window_scores: FloatArray
+
+    @property
+    def theta(self) -> FloatArray:
+        return np.asarray(self.fit.p[:4])
+
+
+def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offset: float,
+        held: Mapping[str, NotIdentified] | None = None, distance_only: bool = False) -> CoreFit:
+    """The default method's estimate from ``windows`` and ``folded`` (see the module docstring).
+
+    ``distance_only`` fits the distance channel alone (the wheels carry no differential signal:
+    c_d, t_r and d held by the caller).
+    """
+    cfg = settings.inverse
+    datasheet = np.asarray(settings.identify.theta0, dtype=np.float64)
+    held = dict(held or {})
+    peak = max(float(windows.peak_yaw_radps.max(initial=0.0)), folded.peak_yaw_radps)
+    if peak <= settings.segments.yaw_rate_threshold_radps:
+        # t_r and d act on the yaw rate only in bends (METHOD 2)
+        for name in ("t_r", "d"):
+            held.setdefault(name, NotIdentified(Reason.NEEDS_BENDS, detail=peak))
+    free = np.array([name not in held for name in PARAMETER_NAMES])
+    lag_on = cfg.delay == "estimate" and not distance_only and windows.shifts > 0
+    free_p = np.append(free, lag_on)
+    channels = np.array([1.0, 0.0 if distance_only else 1.0])
+    coupling = not distance_only and cfg.common_wheel_error == "estimate"
+    p = np.append(datasheet, 0.0)
+
+    def solve_at(p: FloatArray, lag: Lag, model: ErrorModel, free_p: BoolArray) -> Fit:
+        return solve(p, View.of(windows, lag.shift, heading_offset), free_p, model, folded,
+                     channels, max_iterations=cfg.max_iterations, tolerance=cfg.tolerance)
+
+    model = ErrorModel()
+    lag = Lag()
+    current = solve_at(p, lag, model, free_p)
+    h, _ = current.normal_equations(folded)
+    informed = numerically_free(h[:4, :4], settings.identify.prior_std, free)
+    if not np.array_equal(informed, free):
+        # a parameter the windows say nothing about (a_y zero throughout: d): named, not fitted
+        for j in np.flatnonzero(free & ~informed):
+            held[PARAMETER_NAMES[j]] = NotIdentified(Reason.NO_INFORMATION)
+        free = informed
+        free_p = np.append(free, lag_on)
+        current = solve_at(p, lag, model, free_p)
+    model = dataclasses.replace(model, noise=noise_from_sums(
+        folded.noise + noise_sums(windows.measured, current.residual)))
+    if lag_on:
+        current = solve_at(current.p, lag, model, free_p)
+        lag = choose_lag(scan_lag(windows, current.p[:4], heading_offset, model, folded))
+    for _ in range(2):                  # the error model refitted at the lag
+        current = solve_at(current.p, lag, model, free_p)
+        model = _refit(current, windows, folded, coupling)
+    for _ in range(_SHIFT_ROUNDS - 1 if lag_on else 0):
+        # the lag again with the theta fitted at it, until the two agree
+        again = choose_lag(scan_lag(windows, current.p[:4], heading_offset, model, folded))
+        if abs(again.shift - lag.shift) < _SHIFT_SETTLED:
+            break
+        lag = again
+        for _ in range(2):
+            current = solve_at(current.p, lag, model, free_p)
+            model = _refit(current, windows, folded, coupling)
+    current = solve_at(current.p, lag, model, free_p)
+    free, held, current, cov, clusters, info, scores = _identified(
+        current, windows, folded, settings, free, held, lambda p, f: solve_at(
+            p, lag, model, np.append(f, lag_on)), lag_on)
+    return CoreFit(fit=current, free=free, held=held, covariance=cov, clusters=clusters,
+                   lag=lag, model=model, heading_offset=heading_offset,
+                   window_information=info, window_scores=scores)
+
+
+def _refit(current: Fit, windows: WindowSet, folded: Folded, coupling: bool) -> ErrorModel:
+    """The error model from the residuals of ``current`` (and the folded windows' sums)."""
+    beta = 0.0
+    if coupling:
+        beta = coupling_from_sums(coupling_sums_at(folded.coupling, current.p - folded.origin)
+                                  + coupling_sums(windows.measured, current.residual,
+                                                  current.weight))
+    gain = coupling_gain(windows.measured, current.residual, beta)
+    noise = noise_from_sums(folded.noise + noise_sums(windows.measured, current.residual, gain))
+    # the prewhitening from the residuals as the fit standardised them (with its own coupling)
+    ma = arma_from_sums(folded.correlation
+                        + correlation_sums(current.stacked[..., 0], windows.follows))
+    return ErrorModel(noise=noise, ma=ma, coupling=beta)
+
+
+def _identified(current: Fit, windows: WindowSet, folded: Folded, settings: Settings,
+                free: BoolArray, held: dict[str, NotIdentified],
+                refit: Callable[[FloatArray, BoolArray], Fit], lag_on: bool,
+                ) -> tuple[BoolArray, dict[str, NotIdentified], Fit, FloatArray, int,
+                           FloatArray, FloatArray]:
+    """The identifiability verdict: parameters the data do not determine within the limit keep
+    their datasheet values (named), and the rest is refitted, until every free one passes."""
+    datasheet = np.asarray(settings.identify.theta0, dtype=np.float64)
+    free = free.copy()
+    for _ in range(len(PARAMETER_NAMES)):
+        cov, clusters, info, scores = covariance(current, windows, folded,
+                                                 np.append(free, lag_on))
+        std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        if clusters < 2 and free.any() and settings.identify.judge_identifiability:
+            for j in np.flatnonzero(free):
+                held[PARAMETER_NAMES[j]] = NotIdentified(Reason.ONE_CLUSTER, float(std[j]),
+                                                         detail=float(clusters))
+            free[:] = False
+        else:
+            too_weak = weak(std, free, settings.identify)
+            if not too_weak.any():
+                return free, held, current, cov, clusters, info, scores
+            held.update(held_as_weak(std, too_weak, settings.identify))
+            free = free & ~too_weak
+        p = current.p.copy()
+        p[:4][~free] = datasheet[~free]
+        current = refit(p, free)
+        if not free.any():
+            break
+    return free, held, current, np.zeros((4, 4)), clusters, info, scores
+
+
+def covariance(current: Fit, windows: WindowSet, folded: Folded,
+               free: BoolArray) -> tuple[FloatArray, int, FloatArray, FloatArray]:
+    """Sandwich covariance of theta over clusters of windows (folded clusters' meat included),
+    from the prewhitened rows, each cluster's score scaled by its leverage, cross products of
+    clusters up to three apart with Newey and West's weights; kappa (``free[4]``) profiled
+    out. With fewer than :data:`MIN_CLUSTERS_FOR_ROBUST` clusters, the larger of it and the
+    residual-variance formula, widened by Student's t for the clusters' number.
+
+    Returns the (4, 4) covariance, the clusters, and each window's information (W, 4, 4) and
+    score (W, 4) in theta.
+    """
+    jw, rw = current.white[..., 1:], current.white[..., 0]
+    info = np.einsum("wcp,wcq->wpq", jw, jw)
+    scores = np.einsum("wcp,wc->wp", jw, rw)
+    h = info.sum(axis=0) + folded.h
+    cols = np.flatnonzero(free)
+    h_inv = np.zeros((P, P))
+    if cols.size:
+        h_inv[np.ix_(cols, cols)] = np.linalg.pinv(h[np.ix_(cols, cols)])
+    meat = folded.meat.copy()
+    clusters = folded.clusters
+    if windows.size:
+        adjusted, labels = leverage_adjusted_scores(info, scores, free, windows.cluster, total=h)
+        clusters += labels.size
+        meat += added_meat(folded.recent, adjusted)
+    meat[~free, :] = 0.0
+    meat[:, ~free] = 0.0
+    values, vectors = np.linalg.eigh(meat)
+    meat = (vectors * np.clip(values, 0.0, None)) @ vectors.T
+    correction = clusters / (clusters - 1) if clusters > 1 else 1.0
+    cov = correction * (h_inv @ meat @ h_inv)
+    if clusters < MIN_CLUSTERS_FOR_ROBUST:
+        count = current.white[..., 0].size + folded.count
+        naive = (current.cost + folded.cost) / max(count - int(free.sum()), 1) * h_inv
+        s_n = np.sqrt(np.clip(np.diag(naive), 0.0, None))
+        s_r = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.where(s_n > 0, np.maximum(s_n, s_r) / s_n, 1.0)
+        # one cluster: no spread to inflate (the one-cluster rule leaves nothing identified)
+        inflation = few_clusters_inflation(clusters) if clusters >= 2 else 1.0
+        cov = naive * np.outer(f, f) * inflation**2
+    return cov[:4, :4], clusters, info[:, :4, :4], scores[:, :4]
+
+
+def fold(folded: Folded, windows: WindowSet, p: FloatArray, shift: float, heading_offset: float,
+         model: ErrorModel, *, smooth: bool, total_h: FloatArray | None,
+         scan: LagScan | None) -> Folded:
+    """``folded`` with ``windows`` (one complete cluster, the oldest) folded in, linearised at
+    ``p`` with the error model and lag of now; ``total_h`` the information of the whole fit so
+    far (for the cluster's leverage), ``scan`` the windows' own lag-grid costs."""
+    channels = np.ones(2)
+    current = evaluate(p, View.of(windows, shift, heading_offset), model, folded, channels,
+                       smooth=smooth)
+    jj, rr = current.white[..., 1:], current.white[..., 0]
+    h = np.einsum("wcp,wcq->pq", jj, jj)
+    g = np.einsum("wcp,wc->p", jj, rr)
+    free = np.append(np.ones(4, dtype=bool), smooth)
+    adjusted = leverage_adjusted_scores(h[None], g[None], free, np.zeros(1, dtype=np.int64),
+                                        total=total_h if total_h is not None else h + folded.h
+                                        )[0][0]
+    gain = coupling_gain(windows.measured, current.residual, model.coupling)
+    folded_scan = None if scan is None else (scan.costs if folded.scan is None
+                                             else folded.scan + scan.costs)
+    return dataclasses.replace(
+        folded, h=folded.h + h, b=folded.b + g + h @ p,
+        meat=folded.meat + added_meat(folded.recent, adjusted[None]),
+        recent=np.vstack([folded.recent, adjusted])[-len(NEWEY_WEST):],
+        clusters=folded.clusters + 1,
+        noise=folded.noise + noise_sums(windows.measured, current.residual, gain),
+        coupling=folded.coupling + coupling_moments(windows.measured, current.residual,
+                                                    current.jac, p - folded.origin,
+                                                    current.weight),
+        correlation=folded.correlation + correlation_sums(current.stacked[..., 0],
+                                                          windows.follows),
+        scan=folded_scan, cost=folded.cost + current.cost,
+        count=folded.count + current.white[..., 0].size,
+        last=(p.copy(), current.stacked[-1].copy(), current.white[-1].copy()),
+        peak_yaw_radps=max(folded.peak_yaw_radps,
+                           float(windows.peak_yaw_radps.max(initial=0.0))))

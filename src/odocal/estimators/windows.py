@@ -1,0 +1,388 @@
+"""The window set: what the default method fits, in batch and live alike.
+
+A window is ``window_s`` of wheel revolutions (the measurement) beside the reference motion over
+the same time (the model's input), summed. The model run backwards (METHOD 1, (1)-(3)) gives
+the revolutions each rear wheel turns over a step of ``ds`` along track and ``dpsi`` of heading::
+
+    n_rl t_s = (ds - t_r dpsi / 2) / c_rl,      n_rr t_s = (ds + t_r dpsi / 2) / c_rr
+
+with ``c_rl = C_l + d a``, ``C_l = c_e + c_d / 2`` (``c_rr = C_r - d a``, ``C_r = c_e - c_d / 2``).
+``1 / (C + d a)`` is a geometric series in ``d a / C`` (below 1e-2 for any car), so a window
+keeps only moments of the motion, ``sum ds a^j``, ``sum dpsi a^j`` and ``sum lat a^j`` (the
+displacement across the heading) for ``j = 0 .. 3``, and predicts its revolutions for *any*
+theta to a relative ``(d a / C)^4`` (below 1e-8). The moments are kept at every whole-step shift
+of the reference side within ``margin`` steps (the wheel stream's clock offset is chosen when
+fitting, by linear interpolation between them), and those across the heading let a constant
+heading offset of the reference be applied when the windows are used.
+
+Every quantity is a sum: windows of different drives, chunks or times concatenate, and the
+online calibrator folds the oldest into normal equations (:mod:`odocal.estimators.core`).
+:class:`WindowBuilder` makes windows from samples in any chunks, piece by piece;
+:func:`windows_from_drives` is the same builder fed whole drives.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal.data.drive import Drive
+from odocal.settings import Settings
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
+#: Powers of the lateral acceleration kept in the moments (the series' terms).
+SERIES = 4
+#: Moment columns: ``ds a^j``, ``dpsi a^j``, ``lat a^j`` for j < SERIES.
+COLUMNS = 3 * SERIES
+#: Straight stretches for the heading offset: one second long, faster than this (m/s) ...
+STRAIGHT_SPEED_MPS = 3.0
+#: ... and turning slower than this (rad/s).
+STRAIGHT_YAW_RADPS = 0.02
+#: Samples of straight stretches below which no heading offset is applied (five seconds).
+STRAIGHT_MIN_SAMPLES = 200
+#: Steps of a window that set its peak yaw rate by their moving average (noise is not a bend).
+_YAW_SMOOTHING = 5
+#: Per-step columns the builder keeps: t, revolutions rl, rr, ds, dpsi, lat, a, dx, dy, psi.
+_T, _RL, _RR, _DS, _DPSI, _LAT, _A, _DX, _DY, _PSI = range(10)
+
+
+@dataclass(frozen=True)
+class WindowSet:
+    """Windows of wheel revolutions and reference-motion moments.
+
+    t0 : (W,) time of each window's first wheel step, s
+    distance_m : (W,) reference distance travelled before the window (since the first sample)
+    cluster : (W,) label of the group of neighbouring windows (one segment length of a drive)
+    measured : (W, 2) measured revolutions of the rear-left and rear-right wheel
+    moments : (W, S, COLUMNS) motion moments at the reference side's shifts ``-margin..margin``
+    follows : (W,) the window starts where the one before it in the set ended (same piece)
+    weight : (W,) the window's weight (1; less where forgetting fades older evidence)
+    peak_yaw_radps : (W,) the largest smoothed reference yaw rate within the window
+    length, margin : steps per window, and the most the reference side shifts either way
+    t_s : sampling time, s
+    """
+
+    t0: FloatArray
+    distance_m: FloatArray
+    cluster: IntArray
+    measured: FloatArray
+    moments: FloatArray
+    follows: BoolArray
+    weight: FloatArray
+    peak_yaw_radps: FloatArray
+    length: int
+    margin: int
+    t_s: float
+
+    @property
+    def size(self) -> int:
+        return int(self.t0.shape[0])
+
+    @property
+    def shifts(self) -> int:
+        """Whole steps the reference side can be shifted either way with the second difference
+        of the moments still at hand (the lag scan's limit)."""
+        return max(self.margin - 1, 0)
+
+    def take(self, index: BoolArray | IntArray) -> WindowSet:
+        """The windows at ``index``, each with its ``follows`` as it was (whether it continues
+        the window before it in time, kept or folded elsewhere)."""
+        return replace(self, t0=self.t0[index], distance_m=self.distance_m[index],
+                       cluster=self.cluster[index], measured=self.measured[index],
+                       moments=self.moments[index], follows=self.follows[index],
+                       weight=self.weight[index], peak_yaw_radps=self.peak_yaw_radps[index])
+
+    def scaled(self, factor: float) -> WindowSet:
+        """The same windows with their weights times ``factor`` (forgetting)."""
+        return replace(self, weight=self.weight * factor)
+
+    def at(self, shift: float, heading_offset: float) -> tuple[FloatArray, FloatArray]:
+        """The moments the model takes, ``[along_j, dpsi_j]`` (W, 2 SERIES), at a (fractional)
+        shift of the reference side (steps; linear between whole steps, kept within
+        :attr:`shifts`), with the along-track ones turned by the heading offset; and their second
+        difference in the shift (the counting window's spread; zero without a margin)."""
+        moments = self.moments
+        if moments.shape[1] < 3:
+            m = _rotated(moments[:, 0], heading_offset)
+            return m, np.zeros_like(m)
+        limit = self.shifts
+        x = min(max(shift, -limit), limit) + self.margin
+        at = _interpolate(moments, x)
+        second = _interpolate(moments, x + 1.0) + _interpolate(moments, x - 1.0) - 2.0 * at
+        return _rotated(at, heading_offset), _rotated(second, heading_offset)
+
+    @staticmethod
+    def concat(sets: Sequence[WindowSet]) -> WindowSet:
+        """Windows of several sets, in order (each window's ``follows`` as its set says: a
+        builder's windows know whether they continue its previous ones)."""
+        sets = [s for s in sets if s.size] or list(sets[:1])
+        first = sets[0]
+
+        def cat(name: str) -> FloatArray:
+            return np.concatenate([getattr(s, name) for s in sets])
+
+        return replace(first, t0=cat("t0"), distance_m=cat("distance_m"),
+                       cluster=cat("cluster").astype(np.int64), measured=cat("measured"),
+                       moments=cat("moments"), follows=cat("follows").astype(bool),
+                       weight=cat("weight"), peak_yaw_radps=cat("peak_yaw_radps"))
+
+
+def empty_windows(*, length: int, margin: int, t_s: float) -> WindowSet:
+    """A window set with no windows."""
+    return WindowSet(t0=np.zeros(0), distance_m=np.zeros(0), cluster=np.zeros(0, dtype=np.int64),
+                     measured=np.zeros((0, 2)),
+                     moments=np.zeros((0, 2 * margin + 1, COLUMNS)),
+                     follows=np.zeros(0, dtype=bool), weight=np.zeros(0),
+                     peak_yaw_radps=np.zeros(0), length=length, margin=margin, t_s=t_s)
+
+
+def _interpolate(moments: FloatArray, x: float) -> FloatArray:
+    """Moments (W, S, C) at a fractional index ``x`` of their shifts."""
+    lo = min(math.floor(x), moments.shape[1] - 1)
+    frac = x - lo
+    if frac == 0.0:
+        return np.asarray(moments[:, lo])
+    return np.asarray(moments[:, lo] * (1.0 - frac) + moments[:, lo + 1] * frac)
+
+
+def _rotated(moments: FloatArray, offset: float) -> FloatArray:
+    """``[along_j, dpsi_j]`` from ``[ds_j, dpsi_j, lat_j]`` (..., COLUMNS): the step along the
+    direction of travel when the reference heading is ``offset`` short of it (``ds cos + lat
+    sin``: (1) projected on the turned heading, exactly)."""
+    ds, dpsi, lat = (moments[..., k * SERIES:(k + 1) * SERIES] for k in range(3))
+    along = ds if offset == 0.0 else ds * math.cos(offset) + lat * math.sin(offset)
+    return np.concatenate([along, dpsi], axis=-1)
+
+
+def predict(theta: FloatArray, moments: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Each window's revolutions (N, 2) and their Jacobian in theta (N, 2, 4), from the model
+    moments ``[along_j, dpsi_j]`` (N, 2 SERIES) of :meth:`WindowSet.at`.
+
+    For a wheel with ``C`` (``c_e +- c_d / 2``), ``s`` (+1 left, -1 right) and ``e = s d / C``:
+    ``revs = sum_j (-e)^j (A_j - s t_r Q_j / 2) / C``, the series of (2)-(3) inverted.
+    """
+    c_e, c_d, t_r, d = (float(v) for v in theta)
+    along, turn = moments[:, :SERIES], moments[:, SERIES:]
+    out = np.empty((moments.shape[0], 2))
+    jac = np.empty((moments.shape[0], 2, 4))
+    powers = np.arange(SERIES)
+    for w, sign in enumerate((1.0, -1.0)):
+        big = c_e + 0.5 * sign * c_d
+        e = sign * d / big
+        coef = (-e) ** powers                               # (-e)^j
+        dcoef = -powers * (-e) ** np.maximum(powers - 1, 0)  # d(-e)^j / de
+        half = -0.5 * sign * t_r
+        combined = along + half * turn                      # M_j = A_j + h Q_j
+        series = combined @ coef
+        value = series / big
+        dseries_de = combined @ dcoef
+        out[:, w] = value
+        dvalue_dbig = -value / big - dseries_de * e / (big * big)     # de/dC = -e / C
+        jac[:, w, 0] = dvalue_dbig
+        jac[:, w, 1] = 0.5 * sign * dvalue_dbig
+        jac[:, w, 2] = -0.5 * sign * (turn @ coef) / big
+        jac[:, w, 3] = dseries_de * sign / (big * big)                  # de/dd = s / C
+    return out, jac
+
+
+class WindowBuilder:
+    """Windows from samples as they arrive, piece by piece (batch: whole drives; live: chunks).
+
+    Parameters
+    ----------
+    t_s : the sampling time, s
+    length : steps per window
+    margin : steps kept on either side of a window for the reference side's shift
+    cluster_steps : steps per cluster of neighbouring windows (a segment's length)
+    drive : index of the drive (batch), part of each cluster's label
+    """
+
+    def __init__(self, *, t_s: float, length: int, margin: int, cluster_steps: int,
+                 drive: int = 0) -> None:
+        self.t_s, self.length, self.margin = t_s, length, margin
+        self.cluster_span_s = max(cluster_steps, 1) * t_s
+        self.drive = drive
+        self.origin: float | None = None
+        self.straight = np.zeros(3)            # heading offset: sums lat, lon, samples
+        self.distance_m = 0.0                   # reference distance of every step added
+        self._left_m = 0.0                      # ... of the steps that have left the ring
+        self._ring = np.zeros((0, 10))          # steps of the current piece not yet windowed
+        self._last: FloatArray | None = None    # the piece's last sample (t, n_rl, ..., psi)
+        self._stretch = np.zeros((0, 4))        # steps of the straight stretch under way
+        self._follows = False                   # the next window follows the last one made
+        self._done: list[WindowSet] = []
+
+    def add(self, t: FloatArray, n_rl: FloatArray, n_rr: FloatArray, a_y: FloatArray,
+            beta: FloatArray, x: FloatArray, y: FloatArray, psi: FloatArray) -> None:
+        """Samples (M,) each, continuing the current piece; a gap of more than 1.5 steps in
+        ``t`` (from the last sample added) ends the piece there."""
+        samples = np.column_stack([t, n_rl, n_rr, a_y, beta, x, y, psi]).astype(np.float64)
+        if samples.shape[0] == 0:
+            return
+        if self.origin is None:
+            self.origin = float(samples[0, 0])
+        if self._last is not None:
+            samples = np.vstack([self._last, samples])
+        gaps = np.flatnonzero(np.diff(samples[:, 0]) > 1.5 * self.t_s) + 1
+        for k, run in enumerate(np.split(samples, gaps)):
+            if k > 0:
+                self.end_piece()
+            if run.shape[0] >= 2:
+                self._steps(run)
+            self._last = run[-1].copy()
+
+    def end_piece(self) -> None:
+        """The piece ends: no step and no window across this point."""
+        self._to_stretches(self._ring)
+        self._left_m += float(np.hypot(self._ring[:, _DX], self._ring[:, _DY]).sum())
+        self._ring = np.zeros((0, 10))
+        self._stretch = np.zeros((0, 4))
+        self._last = None
+        self._follows = False
+
+    def windows(self) -> WindowSet:
+        """The windows completed since the last call."""
+        done = self._done
+        self._done = []
+        if not done:
+            return empty_windows(length=self.length, margin=self.margin, t_s=self.t_s)
+        return WindowSet.concat(done)
+
+    def _steps(self, run: FloatArray) -> None:
+        """The steps between consecutive samples of a run: revolutions and reference motion."""
+        t, n_rl, n_rr, a_y, beta, x, y, psi = run.T
+        dpsi = np.remainder(np.diff(psi) + np.pi, 2.0 * np.pi) - np.pi
+        h = psi[:-1] + 0.5 * dpsi + beta[:-1]               # (1): the midpoint heading
+        dx, dy = np.diff(x), np.diff(y)
+        cos, sin = np.cos(h), np.sin(h)
+        steps = np.column_stack([t[:-1], n_rl[:-1] * self.t_s, n_rr[:-1] * self.t_s,
+                                 dx * cos + dy * sin, dpsi, -dx * sin + dy * cos, a_y[:-1],
+                                 dx, dy, psi[:-1]])
+        self.distance_m += float(np.hypot(dx, dy).sum())
+        self._ring = np.vstack([self._ring, steps])
+        self._close()
+
+    def _close(self) -> None:
+        """Close every window the ring holds with its margins: measured revolutions and the
+        motion moments at every whole-step shift of the reference side."""
+        length, margin = self.length, self.margin
+        count = (self._ring.shape[0] - 2 * margin - length) // length + 1
+        if count <= 0:
+            return
+        ring = self._ring[:2 * margin + count * length]
+        start = margin + length * np.arange(count)
+        a = ring[:, _A]
+        power = a[:, None] ** np.arange(SERIES)[None, :]
+        columns = np.concatenate([ring[:, _DS, None] * power, ring[:, _DPSI, None] * power,
+                                  ring[:, _LAT, None] * power], axis=1)
+        cum = np.vstack([np.zeros((1, COLUMNS)), np.cumsum(columns, axis=0)])
+        lo = start[:, None] - np.arange(-margin, margin + 1)[None, :]
+        moments = cum[lo + length] - cum[lo]                  # (count, S, COLUMNS)
+        revs = np.vstack([np.zeros((1, 2)), np.cumsum(ring[:, _RL:_RR + 1], axis=0)])
+        measured = revs[start + length] - revs[start]
+        yaw = ring[:, _DPSI] / self.t_s
+        smooth = np.convolve(yaw, np.full(_YAW_SMOOTHING, 1.0 / _YAW_SMOOTHING), "same")
+        peak = np.abs(smooth[start[:, None] + np.arange(length)[None, :]]).max(axis=1)
+        step_m = np.hypot(ring[:, _DX], ring[:, _DY])
+        before = np.concatenate([[0.0], np.cumsum(step_m)])
+        t0 = ring[start, _T]
+        assert self.origin is not None
+        cluster = (self.drive * 10**9
+                   + np.floor((t0 - self.origin) / self.cluster_span_s)).astype(np.int64)
+        moving = np.abs(measured).sum(axis=1) > 0             # standing still says nothing
+        follows = np.ones(count, dtype=bool)
+        follows[0] = self._follows
+        follows[1:] &= moving[:-1]
+        self._follows = bool(moving[-1])
+        keep = moving
+        self._done.append(WindowSet(
+            t0=t0[keep], distance_m=(self._left_m + before[start])[keep], cluster=cluster[keep],
+            measured=measured[keep], moments=moments[keep], follows=follows[keep],
+            weight=np.ones(int(keep.sum())), peak_yaw_radps=peak[keep], length=length,
+            margin=margin, t_s=self.t_s))
+        leaving = count * length
+        self._to_stretches(self._ring[:leaving])
+        self._left_m += float(step_m[:leaving].sum())
+        self._ring = self._ring[leaving:]
+
+    def _to_stretches(self, steps: FloatArray) -> None:
+        """Add the one-second straight stretches these steps complete (stretches start at the
+        piece's first step; whatever the chunks, each is summed whole)."""
+        pending = np.vstack([self._stretch, steps[:, [_DX, _DY, _DPSI, _PSI]]])
+        size = max(round(1.0 / self.t_s), 1)
+        whole = pending.shape[0] // size
+        self.straight += straight_sums(pending[:whole * size], size, self.t_s)
+        self._stretch = pending[whole * size:]
+
+
+def straight_sums(steps: FloatArray, size: int, t_s: float) -> FloatArray:
+    """Sums over whole stretches of ``size`` steps that are straight and fast: the displacement
+    across and along the heading at the stretch's middle, and the samples. ``steps`` (N, 4):
+    dx, dy, dpsi, psi at each step's start; N a multiple of ``size``."""
+    parts = steps.reshape(-1, size, 4)
+    dx, dy, turn = parts[:, :, 0].sum(axis=1), parts[:, :, 1].sum(axis=1), parts[:, :, 2].sum(1)
+    dt = size * t_s
+    psi = parts[:, 0, 3] + 0.5 * turn
+    ok = (np.hypot(dx, dy) / dt > STRAIGHT_SPEED_MPS) & (np.abs(turn) / dt < STRAIGHT_YAW_RADPS)
+    return np.array([float(np.sum((-dx * np.sin(psi) + dy * np.cos(psi))[ok])),
+                     float(np.sum((dx * np.cos(psi) + dy * np.sin(psi))[ok])),
+                     float(ok.sum() * size)])
+
+
+def heading_offset(straight: FloatArray) -> float:
+    """The reference heading's constant rotation against the direction of travel (rad; added to
+    the heading it gives the course), from :func:`straight_sums`; 0 on less than five seconds of
+    straight driving."""
+    lat, lon, used = (float(v) for v in straight)
+    if used < STRAIGHT_MIN_SAMPLES or lon <= 0:
+        return 0.0
+    return math.atan2(lat, lon)
+
+
+def builder_for(settings: Settings, t_s: float, *, drive: int = 0) -> WindowBuilder:
+    """A builder with the default method's window length and margin (``[inverse]``)."""
+    cfg = settings.inverse
+    length = max(round(cfg.window_s / t_s), 1)
+    # room for the lag scan and one step either way for the counting window's spread
+    margin = math.ceil(cfg.max_delay_s / t_s - 1e-6) + 1 if cfg.delay == "estimate" else 0
+    return WindowBuilder(t_s=t_s, length=length, margin=margin,
+                         cluster_steps=settings.segments.length, drive=drive)
+
+
+def windows_from_drives(drives: Sequence[Drive], settings: Settings, *,
+                        chunk: int = 65536) -> tuple[WindowSet, FloatArray]:
+    """Every window of every piece of the drives, and their straight-stretch sums (the builder
+    fed each piece in chunks: memory stays bounded however long the drive)."""
+    sets, straight = [], np.zeros(3)
+    for k, d in enumerate(drives):
+        builder = builder_for(settings, d.t_s, drive=k)
+        for a, b in d.pieces:
+            for lo in range(a, b, chunk):
+                hi = min(lo + chunk, b)
+                builder.add(d.t[lo:hi], d.n_rl[lo:hi], d.n_rr[lo:hi], d.a_y[lo:hi],
+                            d.beta[lo:hi], d.x[lo:hi], d.y[lo:hi], d.psi[lo:hi])
+            builder.end_piece()
+            sets.append(builder.windows())
+        straight += builder.straight
+    return WindowSet.concat(sets), straight
+
+
+def drives_heading_offset(drives: Sequence[Drive]) -> tuple[float, int]:
+    """The reference heading's offset against the direction of travel on the drives' straight
+    stretches (rad), and the samples it rests on (as the window builder finds it)."""
+    straight = np.zeros(3)
+    for d in drives:
+        size = max(round(1.0 / d.t_s), 1)
+        for a, b in d.pieces:
+            dpsi = np.diff(d.psi[a:b])
+            steps = np.column_stack([np.diff(d.x[a:b]), np.diff(d.y[a:b]), dpsi, d.psi[a:b - 1]])
+            whole = steps.shape[0] // size
+            straight += straight_sums(steps[:whole * size], size, d.t_s)
+    return heading_offset(straight), int(straight[2])
