@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 import odocal
-from odocal.checks.diagnosis import Check, Severity, check_drives, gate
+from odocal.checks.diagnosis import check_drives
+from odocal.checks.findings import Check, Severity
+from odocal.checks.gate import gate
 from odocal.cli.main import EXIT_FAILED, EXIT_OK, main
 from odocal.estimators.estimate import Reason, Status
 from odocal.settings import Settings

@@ -67,7 +67,7 @@ _LAZY: dict[str, tuple[str, str]] = {
     "calibrate_fleet": ("odocal.fleet.engine", "calibrate_fleet"),
     "simulate_fleet": ("odocal.fleet.simulate", "simulate_fleet"),
     "save_drive": ("odocal.io.drivefile", "save_drive"),
-    "Parameters": ("odocal.model", "Parameters"),
+    "Parameters": ("odocal.model.parameters", "Parameters"),
     "NOISE_PROFILES": ("odocal.sim.noise", "NOISE_PROFILES"),
     "NoiseProfile": ("odocal.sim.noise", "NoiseProfile"),
     "reproduce": ("odocal.pipeline.reproduce", "reproduce"),

@@ -1,136 +1,88 @@
-"""Checks of the data against the model, before and after a fit, and the quality gate.
+"""The data against the model, before any fit: what every entry point checks first.
 
-Before the fit (:func:`check_drives`), with the datasheet parameters, one-second windows of the
-drives are compared with the model's expectations:
+:func:`check_drives` runs on whole drives (``calibrate``, the fleet's tasks) and on the recent
+samples of a live stream (the online calibrator, ``replay``) alike. With the datasheet
+parameters, one-second windows of the drives are compared with the model's expectations, in
+this order (a reference that is wrong says nothing about the wheels, so the reference comes
+first):
 
-* the yaw rate the wheels imply against the reference's: a negative correlation in bends means
-  the left and right wheels are swapped (or the heading is mirrored); identical wheel signals, or
-  no correlation at all while the reference turns, mean the wheels carry no differential
-  information (a column copied into the other, a locked axle, a single speed signal);
-* the distance the wheels imply against the reference's: a ratio far from one is a unit or scale
-  mistake (rpm for rev/s, radius for circumference, km/h for m/s);
-* the lateral acceleration against speed times yaw rate: a negative slope is a flipped sign, a
-  slope near 1/9.81 an acceleration in g;
-* the clock offset between the wheel and pose streams, by cross-correlating their yaw rates;
+* **the reference itself**: a position that jumps (a relocalisation, a glitch); a heading that
+  does not point along the direction of travel on straights (x and y swapped, a compass
+  heading, another frame); a reference whose speed does not follow the wheels' (out of sync by
+  more than the clock check reaches, or another drive's);
+* **the wheels' distance** against the reference's: a ratio far from one is a unit or scale
+  mistake (rpm or rad/s for rev/s, radius for circumference, km/h for m/s); one wheel that reads
+  zero while the other turns is a dead sensor;
+* **the wheels' yaw** against the reference's in bends: turning the wrong way means the wheels
+  are swapped (or the heading mirrored); identical wheel signals or none of the reference's
+  turning in them mean the wheels carry no differential information (a copied column, a locked
+  axle, one speed signal), and only c_e is calibrated;
+* **the lateral acceleration** against speed times yaw rate: a flipped sign, a unit (g), a
+  delay, or none at all (zero, constant, unplugged: then d is not fitted);
+* **the clock offset** between the wheel and pose streams, by cross-correlating their yaw rates;
 * a vehicle that does not move at all.
 
-After the fit (:func:`gate`): parameters outside physical ranges, a validation error worse than
-the datasheet values', or one that is a large share of the segments' length fail the calibration.
-
-Findings carry numbers and a :class:`Check` code; words are made from them in
-:mod:`odocal.report.advice` (for the CLI and the report).
+Findings carry numbers and a :class:`~odocal.checks.findings.Check` code; words are made from
+them in :mod:`odocal.report.advice` (for the CLI and the report).
 """
 
 from __future__ import annotations
 
-import enum
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.model.kinematics import body_rates, motion_increments
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
 
-
-class Check(enum.Enum):
-    """What a finding is about."""
-
-    STANDSTILL = "standstill"
-    WHEELS_SWAPPED = "wheels-swapped"
-    WHEELS_IDENTICAL = "wheels-identical"
-    NO_DIFFERENTIAL = "no-differential"
-    SPEED_SCALE = "speed-scale"
-    LATERAL_SIGN = "lateral-sign"
-    LATERAL_SCALE = "lateral-scale"
-    CLOCK_OFFSET = "clock-offset"
-    HEADING_OFFSET = "heading-offset"
-    PARAMETER_RANGE = "parameter-range"
-    WORSE_THAN_DATASHEET = "worse-than-datasheet"
-    LARGE_ERROR = "large-error"
-    DATA_REPAIRED = "data-repaired"
-
-
-class Severity(enum.IntEnum):
-    NOTE = 0
-    """Worth knowing; the calibration stands."""
-    FALLBACK = 1
-    """The calibration does less than asked, and says what (e.g. c_e alone)."""
-    FATAL = 2
-    """The data contradict the model: the calibration fails (exit 3)."""
-
-
-@dataclass(frozen=True)
-class Finding:
-    """One check's outcome.
-
-    check : what was checked
-    severity : what it means for the calibration
-    value : the number behind it (a correlation, a ratio, seconds, metres, ...)
-    reference : what the value should be near (for the words)
-    name : the parameter, column or drive concerned, where one is
-    """
-
-    check: Check
-    severity: Severity
-    value: float = float("nan")
-    reference: float = float("nan")
-    name: str = ""
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"check": self.check.value, "severity": self.severity.name.lower(),
-                "value": self.value, "reference": self.reference, "name": self.name}
-
-
-@dataclass(frozen=True)
-class Diagnosis:
-    """Every finding of the checks before (and after) the fit."""
-
-    findings: tuple[Finding, ...]
-
-    @property
-    def fatal(self) -> bool:
-        return any(f.severity is Severity.FATAL for f in self.findings)
-
-    @property
-    def no_differential(self) -> bool:
-        return any(f.check in (Check.WHEELS_IDENTICAL, Check.NO_DIFFERENTIAL)
-                   for f in self.findings)
-
-    @property
-    def standstill(self) -> bool:
-        return any(f.check is Check.STANDSTILL for f in self.findings)
-
-    def plus(self, more: Sequence[Finding]) -> Diagnosis:
-        return Diagnosis(findings=(*self.findings, *more))
-
-    def to_dict(self) -> list[dict[str, Any]]:
-        return [f.to_dict() for f in self.findings]
+#: A reference step that moves this much further (m) than the wheels say is a jump.
+MAX_POSE_JUMP_M = 5.0
+#: On straights, a median gap this large (rad) between the reference heading and its course.
+MAX_HEADING_GAP_RAD = 0.5
+#: Below this correlation of the wheels' and the reference's speed the reference is out of step.
+MIN_SPEED_CORRELATION = 0.5
+#: ... where the speed varies by at least this much (m/s, standard deviation over seconds).
+MIN_SPEED_SPREAD_MPS = 0.5
+#: The lag search for a reference out of step reaches this far either way, s.
+MAX_SYNC_SEARCH_S = 600.0
+#: Share of the moving seconds in which one wheel reads nothing while the other turns.
+MAX_DEAD_WHEEL_SHARE = 0.2
+#: a_y's spread in bends below this share of speed times yaw rate's: no lateral acceleration.
+MIN_LATERAL_SPREAD = 0.1
+#: A lag of a_y behind speed times yaw rate beyond this is named (s).
+MAX_LATERAL_LAG_S = 0.25
 
 
 @dataclass(frozen=True)
 class _Windows:
     """One-second windows of every drive: reference and wheel quantities."""
 
+    t: FloatArray             # start time, s
     ds: FloatArray            # reference along-track distance, m
     dpsi: FloatArray          # reference heading change, rad
+    course_gap: FloatArray    # the reference's course less its heading (and sideslip), rad
     wheel_ds: FloatArray      # distance the wheels imply (datasheet theta), m
     wheel_dpsi: FloatArray    # heading change the wheels imply, rad
     diff_revs: FloatArray     # right minus left revolutions
+    left_revs: FloatArray     # revolutions of each wheel
+    right_revs: FloatArray
     a_y: FloatArray           # mean lateral acceleration, m/s^2
     v_w: FloatArray           # mean of speed times yaw rate (reference), m/s^2
-    duration_s: float
+    series: FloatArray        # index of the run of consecutive windows each belongs to
 
 
 def _windows(drives: Sequence[Drive], theta: FloatArray) -> _Windows:
-    parts: dict[str, list[FloatArray]] = {k: [] for k in ("ds", "dpsi", "wds", "wdpsi", "diff",
-                                                           "ay", "vw")}
-    duration = 0.0
+    names = ("t", "ds", "dpsi", "gap", "wds", "wdpsi", "diff", "left", "right", "ay", "vw",
+             "series")
+    parts: dict[str, list[FloatArray]] = {k: [] for k in names}
+    series = 0
     for d in drives:
         length = max(round(1.0 / d.t_s), 1)
         for a, b in d.pieces:
@@ -144,18 +96,30 @@ def _windows(drives: Sequence[Drive], theta: FloatArray) -> _Windows:
             def wsum(x: FloatArray, cut: int = cut, length: int = length) -> FloatArray:
                 return x[:cut].reshape(-1, length).sum(axis=1)
 
+            starts = a + length * np.arange(n)
+            dx = d.x[starts + length] - d.x[starts]
+            dy = d.y[starts + length] - d.y[starts]
+            turn = d.psi[starts + length] - d.psi[starts]
+            heading = d.psi[starts] + 0.5 * turn + wsum(d.beta[a:b - 1]) / length
+            gap = np.remainder(np.arctan2(dy, dx) - heading + np.pi, 2 * np.pi) - np.pi
+            parts["t"].append(d.t[starts])
             parts["ds"].append(wsum(ds))
             parts["dpsi"].append(wsum(dpsi))
+            parts["gap"].append(gap)
             parts["wds"].append(wsum(v * d.t_s))
             parts["wdpsi"].append(wsum(w * d.t_s))
             parts["diff"].append(wsum((d.n_rr[a:b - 1] - d.n_rl[a:b - 1]) * d.t_s))
+            parts["left"].append(wsum(d.n_rl[a:b - 1] * d.t_s))
+            parts["right"].append(wsum(d.n_rr[a:b - 1] * d.t_s))
             parts["ay"].append(wsum(d.a_y[a:b - 1]) / length)
             parts["vw"].append(wsum(ds * dpsi) / (length * d.t_s**2))
-            duration += cut * d.t_s
+            parts["series"].append(np.full(n, float(series)))
+            series += 1
     cat = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
-    return _Windows(ds=cat["ds"], dpsi=cat["dpsi"], wheel_ds=cat["wds"],
-                    wheel_dpsi=cat["wdpsi"], diff_revs=cat["diff"], a_y=cat["ay"],
-                    v_w=cat["vw"], duration_s=duration)
+    return _Windows(t=cat["t"], ds=cat["ds"], dpsi=cat["dpsi"], course_gap=cat["gap"],
+                    wheel_ds=cat["wds"], wheel_dpsi=cat["wdpsi"], diff_revs=cat["diff"],
+                    left_revs=cat["left"], right_revs=cat["right"], a_y=cat["ay"],
+                    v_w=cat["vw"], series=cat["series"])
 
 
 def _correlation(a: FloatArray, b: FloatArray) -> float:
@@ -165,116 +129,221 @@ def _correlation(a: FloatArray, b: FloatArray) -> float:
     return float(a @ b) / denominator if denominator > 0 else 0.0
 
 
+def _agreement(a: FloatArray, b: FloatArray) -> float:
+    """The cosine of the angle between two series (their correlation about zero, not about
+    their means): a car circling at one rate agrees with its reference, whatever the spread."""
+    denominator = float(np.sqrt((a @ a) * (b @ b)))
+    return float(a @ b) / denominator if denominator > 0 else 0.0
+
+
 def check_drives(drives: Sequence[Drive], settings: Settings) -> Diagnosis:
     """The checks before the fit (see the module docstring)."""
     lim = settings.gate
     theta = np.asarray(settings.identify.theta0, dtype=np.float64)
     win = _windows(drives, theta)
-    findings: list[Finding] = []
-    for d in drives:
-        repaired = d.metadata.get("repaired")
-        if isinstance(repaired, dict):
-            for column, count in repaired.items():
-                findings.append(Finding(Check.DATA_REPAIRED, Severity.NOTE, float(count),
-                                        name=f"{d.name}:{column}"))
+    findings = _repaired(drives)
     wheel_m = float(np.abs(win.wheel_ds).sum())
     if wheel_m < lim.min_distance_m:
         findings.append(Finding(Check.STANDSTILL, Severity.FALLBACK, wheel_m,
                                 lim.min_distance_m))
         return Diagnosis(tuple(findings))
     moving = np.abs(win.ds) > lim.min_speed_mps * 1.0        # windows of one second
-    ratio = float(np.median(win.wheel_ds[moving] / win.ds[moving])) if moving.sum() >= 5 \
-        else float(np.abs(win.wheel_ds).sum() / max(np.abs(win.ds).sum(), 1e-9))
-    if not lim.min_scale <= ratio <= lim.max_scale:
-        findings.append(Finding(Check.SPEED_SCALE, Severity.FATAL, ratio, 1.0))
-    elif abs(ratio - 1.0) > lim.datasheet_scale_note:
-        findings.append(Finding(Check.SPEED_SCALE, Severity.NOTE, ratio, 1.0))
-
+    reference = _pose_jumps(drives)
+    if not reference:                                         # a jump would distort the rest
+        reference = [*_heading(win, moving), *_sync(win)]
+    findings += reference
+    if any(f.severity is Severity.FATAL for f in reference):
+        return Diagnosis(tuple(findings))                     # the rest would compare nonsense
+    findings += _distance(win, moving, settings)
+    if any(f.severity is Severity.FATAL for f in findings):
+        return Diagnosis(tuple(findings))
     bends = moving & (np.abs(win.dpsi) > lim.bend_yaw_rate_radps)
     if not np.any(np.abs(win.diff_revs) > 1e-12):
         findings.append(Finding(Check.WHEELS_IDENTICAL, Severity.FALLBACK, 0.0))
     elif bends.sum() >= lim.min_bend_windows:
-        corr = _correlation(win.wheel_dpsi[bends], win.dpsi[bends])
-        if corr < -lim.min_yaw_correlation:
-            findings.append(Finding(Check.WHEELS_SWAPPED, Severity.FATAL, corr, 1.0))
-        elif corr < lim.min_yaw_correlation:
-            findings.append(Finding(Check.NO_DIFFERENTIAL, Severity.FALLBACK, corr, 1.0))
+        agree = _agreement(win.wheel_dpsi[bends], win.dpsi[bends])
+        if agree < -lim.min_yaw_correlation:
+            findings.append(Finding(Check.WHEELS_SWAPPED, Severity.FATAL, agree, 1.0))
+        elif agree < lim.min_yaw_correlation:
+            findings.append(Finding(Check.NO_DIFFERENTIAL, Severity.FALLBACK, agree, 1.0))
         else:
-            findings += _lateral(win, bends, lim.min_yaw_correlation)
+            lateral = _lateral(win, bends, lim.min_yaw_correlation)
+            findings += lateral or _lateral_lag(drives)
             findings += _clock(drives, theta, settings)
     return Diagnosis(tuple(findings))
 
 
-def _lateral(win: _Windows, bends: NDArray[np.bool_], min_correlation: float) -> list[Finding]:
-    """a_y against speed times yaw rate, in bends: sign and unit."""
-    if not np.any(np.abs(win.a_y) > 0):
+def _repaired(drives: Sequence[Drive]) -> list[Finding]:
+    out: list[Finding] = []
+    for d in drives:
+        repaired = d.metadata.get("repaired")
+        if isinstance(repaired, dict):
+            for column, count in repaired.items():
+                out.append(Finding(Check.DATA_REPAIRED, Severity.NOTE, float(count),
+                                   name=f"{d.name}:{column}"))
+    return out
+
+
+def _pose_jumps(drives: Sequence[Drive]) -> list[Finding]:
+    """Reference steps that move much further than the wheels turn: value the jump (m),
+    reference the time of the largest (s), name the drive."""
+    out = []
+    for d in drives:
+        worst, when = 0.0, float("nan")
+        for a, b in d.pieces:
+            if b - a < 2:
+                continue
+            step = np.hypot(np.diff(d.x[a:b]), np.diff(d.y[a:b]))
+            wheels = 0.5 * np.abs(d.n_rl[a:b - 1] + d.n_rr[a:b - 1]) * d.t_s * 2.5  # generous
+            excess = step - wheels
+            k = int(np.argmax(excess))
+            if excess[k] > worst:
+                worst, when = float(step[k]), float(d.t[a + k + 1])
+        if worst > MAX_POSE_JUMP_M:
+            out.append(Finding(Check.POSE_JUMP, Severity.FATAL, worst, when, d.name))
+    return out
+
+
+def _heading(win: _Windows, moving: BoolArray) -> list[Finding]:
+    """On straight seconds, the reference heading against the direction it moves in."""
+    straight = moving & (np.abs(win.dpsi) < 0.05) & (np.abs(win.ds) > 3.0)
+    if straight.sum() < 10:
         return []
-    corr = _correlation(win.a_y[bends], win.v_w[bends])
-    vw = win.v_w[bends]
-    slope = float(win.a_y[bends] @ vw / max(float(vw @ vw), 1e-12))
-    if corr < -min_correlation:
+    gap = float(np.median(np.abs(win.course_gap[straight])))
+    if gap > MAX_HEADING_GAP_RAD:
+        return [Finding(Check.REFERENCE_HEADING, Severity.FATAL, gap, 0.0)]
+    return []
+
+
+def _sync(win: _Windows) -> list[Finding]:
+    """The reference's speed against the wheels' (second by second): a reference out of step
+    with the wheels, by more than the clock check reaches, shows as no correlation at lag 0;
+    the lag that restores it is searched within :data:`MAX_SYNC_SEARCH_S` (value: the lag, s,
+    positive where the reference is late; nan where none does)."""
+    wheels, ref = np.abs(win.wheel_ds), np.abs(win.ds)
+    if wheels.size < 30 or ref.std() < MIN_SPEED_SPREAD_MPS or wheels.std() < MIN_SPEED_SPREAD_MPS:
+        return []
+    here = _correlation(wheels, ref)
+    if here >= MIN_SPEED_CORRELATION:
+        return []
+    best, lag = here, float("nan")
+    reach = min(int(MAX_SYNC_SEARCH_S), wheels.size // 2)
+    for k in range(-reach, reach + 1):
+        if k == 0:
+            continue
+        a, b = (wheels[:wheels.size - k], ref[k:]) if k > 0 else (wheels[-k:], ref[:k])
+        same = win.series[:win.series.size - abs(k)] == win.series[abs(k):]
+        if same.sum() < 30:
+            continue
+        c = _correlation(a[same], b[same])
+        if c > best:
+            best, lag = c, float(k)
+    if best < 0.8:
+        lag = float("nan")
+    return [Finding(Check.REFERENCE_SYNC, Severity.FATAL, lag, here)]
+
+
+def _distance(win: _Windows, moving: BoolArray, settings: Settings) -> list[Finding]:
+    """The wheels' distance against the reference's: scale and units, and a dead wheel."""
+    lim = settings.gate
+    out = []
+    for name, mine, other in (("n_rl", win.left_revs, win.right_revs),
+                              ("n_rr", win.right_revs, win.left_revs)):
+        turning = moving & (np.abs(other) > 0.1)
+        dead = turning & (np.abs(mine) < 0.01 * np.abs(other))
+        if turning.sum() >= 5 and dead.sum() > MAX_DEAD_WHEEL_SHARE * turning.sum():
+            out.append(Finding(Check.WHEEL_DEAD, Severity.FATAL, dead.sum() / turning.sum(),
+                               MAX_DEAD_WHEEL_SHARE, name))
+    if out:
+        return out
+    ratio = (float(np.median(win.wheel_ds[moving] / win.ds[moving])) if moving.sum() >= 5
+             else float(np.abs(win.wheel_ds).sum() / max(np.abs(win.ds).sum(), 1e-9)))
+    if not lim.min_scale <= ratio <= lim.max_scale:
+        return [Finding(Check.SPEED_SCALE, Severity.FATAL, ratio, 1.0)]
+    if abs(ratio - 1.0) > lim.datasheet_scale_note:
+        return [Finding(Check.SPEED_SCALE, Severity.NOTE, ratio, 1.0)]
+    return []
+
+
+def _lateral(win: _Windows, bends: BoolArray, min_correlation: float) -> list[Finding]:
+    """a_y against speed times yaw rate, in bends: present, sign and unit.
+
+    Missing: a_y's size about zero is a small share of speed times yaw rate's, or a_y does not
+    vary where speed times yaw rate does (stuck at a constant). Sign and unit: their agreement
+    about zero (a car circling at one rate has no spread to correlate) and the slope.
+    """
+    ay, vw = win.a_y[bends], win.v_w[bends]
+    size = float(np.sqrt(np.mean(ay**2) / max(float(np.mean(vw**2)), 1e-12)))
+    spread = float(np.std(ay) / max(float(np.std(vw)), 1e-12))
+    if size < MIN_LATERAL_SPREAD or (np.std(vw) > 0.3 and spread < MIN_LATERAL_SPREAD):
+        return [Finding(Check.LATERAL_MISSING, Severity.FALLBACK, min(size, spread),
+                        MIN_LATERAL_SPREAD, "a_y")]
+    agree = _agreement(ay, vw)
+    slope = float(ay @ vw / max(float(vw @ vw), 1e-12))
+    if agree < -min_correlation:
         return [Finding(Check.LATERAL_SIGN, Severity.FATAL, slope, 1.0, "a_y")]
-    if corr > min_correlation and not 0.5 <= slope <= 2.0:
+    if agree > min_correlation and not 0.5 <= slope <= 2.0:
         return [Finding(Check.LATERAL_SCALE, Severity.FATAL, slope, 1.0, "a_y")]
     return []
 
 
-def _clock(drives: Sequence[Drive], theta: FloatArray, settings: Settings) -> list[Finding]:
-    """Lag of the wheels' yaw rate behind the reference's, by cross-correlation (up to 2 s).
+def _lag(pairs: Sequence[tuple[FloatArray, FloatArray]], span: int, t_s: float) -> float | None:
+    """The lag (s) of ``b`` behind ``a`` within ``span`` steps either way that correlates them
+    best, summed over the pairs of series; None where even the best correlation is weak (a
+    signal that hardly varies, a circle at one rate, has no timing to find)."""
+    scores = np.zeros(2 * span + 1)
+    energy_a = energy_b = 0.0
+    for a, b in pairs:
+        a, b = a - a.mean(), b - b.mean()
+        n = a.size
+        for i, k in enumerate(range(-span, span + 1)):
+            scores[i] += float(np.dot(a[max(-k, 0):n - max(k, 0)], b[max(k, 0):n + min(k, 0)]))
+        energy_a, energy_b = energy_a + float(a @ a), energy_b + float(b @ b)
+    best = int(np.argmax(scores))
+    if scores[best] < 0.5 * np.sqrt(energy_a * energy_b):
+        return None
+    return float((best - span) * t_s)
 
-    The cross products are summed over every piece of at least 20 s; a positive lag means the
-    wheel stream is late.
-    """
-    lim = settings.gate
-    t_s = drives[0].t_s
-    span = round(2.0 / t_s)
-    lags = np.arange(-span, span + 1)
-    scores = np.zeros(lags.size)
-    used = 0
-    for d in drives:
-        for a, b in d.pieces:
-            if b - a < round(20.0 / d.t_s):
-                continue
-            _, w = body_rates(theta, d.n_rl[a:b], d.n_rr[a:b], d.a_y[a:b])
-            ref = np.gradient(d.psi[a:b], d.t_s)
-            wc, rc = w - w.mean(), ref - ref.mean()
-            n = wc.size
-            for i, k in enumerate(lags):
-                scores[i] += float(np.dot(wc[max(k, 0):n + min(k, 0)],
-                                          rc[max(-k, 0):n - max(k, 0)]))
-            used += 1
-    if not used:
+
+def _pieces_of(drives: Sequence[Drive], seconds: float) -> list[tuple[Drive, int, int]]:
+    return [(d, a, b) for d in drives for a, b in d.pieces if b - a >= round(seconds / d.t_s)]
+
+
+def _lateral_lag(drives: Sequence[Drive]) -> list[Finding]:
+    """The lag of a_y behind speed times the reference yaw rate (up to 2 s), by
+    cross-correlation over every piece of at least 20 s (value: the lag, s; positive: a_y
+    late)."""
+    pieces = _pieces_of(drives, 20.0)
+    if not pieces:
         return []
-    lag = float(lags[int(np.argmax(scores))] * t_s)
+    t_s = drives[0].t_s
+    pairs = []
+    for d, a, b in pieces:
+        ds, dpsi = motion_increments(d.x[a:b], d.y[a:b], d.psi[a:b], d.beta[a:b])
+        pairs.append((ds * dpsi / t_s**2, d.a_y[a:b - 1]))
+    lag = _lag(pairs, round(2.0 / t_s), t_s)
+    if lag is not None and abs(lag) > MAX_LATERAL_LAG_S:
+        return [Finding(Check.LATERAL_DELAY, Severity.NOTE, lag, 0.0, "a_y")]
+    return []
+
+
+def _clock(drives: Sequence[Drive], theta: FloatArray, settings: Settings) -> list[Finding]:
+    """Lag of the wheels' yaw rate behind the reference's, by cross-correlation (up to 2 s)
+    summed over every piece of at least 20 s; a positive lag means the wheel stream is late."""
+    lim = settings.gate
+    pieces = _pieces_of(drives, 20.0)
+    if not pieces:
+        return []
+    t_s = drives[0].t_s
+    pairs = []
+    for d, a, b in pieces:
+        _, w = body_rates(theta, d.n_rl[a:b], d.n_rr[a:b], d.a_y[a:b])
+        pairs.append((np.gradient(d.psi[a:b], d.t_s), w))
+    lag = _lag(pairs, round(2.0 / t_s), t_s)
+    if lag is None:
+        return []
     if abs(lag) > lim.max_clock_offset_s:
         return [Finding(Check.CLOCK_OFFSET, Severity.FATAL, lag, 0.0)]
     if abs(lag) > settings.inverse.max_delay_s:
         return [Finding(Check.CLOCK_OFFSET, Severity.NOTE, lag, 0.0)]
     return []
-
-
-def gate(theta: FloatArray, settings: Settings, *, error_m: float | None,
-         datasheet_error_m: float | None, segment_m: float | None) -> list[Finding]:
-    """The checks after the fit: physical ranges and the validation error."""
-    lim = settings.gate
-    out: list[Finding] = []
-    ranges = {"c_e": lim.c_e_m, "t_r": lim.t_r_m}
-    for j, name in ((0, "c_e"), (2, "t_r")):
-        lo, hi = ranges[name]
-        if not lo <= theta[j] <= hi:
-            out.append(Finding(Check.PARAMETER_RANGE, Severity.FATAL, float(theta[j]),
-                               float(hi if theta[j] > hi else lo), name))
-    if abs(theta[1]) > lim.max_abs_c_d_fraction * abs(theta[0]):
-        out.append(Finding(Check.PARAMETER_RANGE, Severity.FATAL, float(theta[1]),
-                           lim.max_abs_c_d_fraction * abs(theta[0]), "c_d"))
-    if abs(theta[3]) > lim.max_abs_d:
-        out.append(Finding(Check.PARAMETER_RANGE, Severity.FATAL, float(theta[3]),
-                           lim.max_abs_d, "d"))
-    if error_m is not None and datasheet_error_m is not None:
-        if error_m > datasheet_error_m * (1.0 + lim.worse_tolerance) + 1e-6:
-            out.append(Finding(Check.WORSE_THAN_DATASHEET, Severity.FATAL, error_m,
-                               datasheet_error_m))
-        if segment_m and error_m > lim.max_error_share * segment_m:
-            out.append(Finding(Check.LARGE_ERROR, Severity.FATAL, error_m,
-                               lim.max_error_share * segment_m))
-    return out

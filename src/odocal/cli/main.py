@@ -492,8 +492,9 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
 
     result = replay(args.source, fmt=args.source_format, settings=settings,
                     mapping=args.mapping, on_update=show)
+    rejected = _replay_rejection(result.estimate, settings)
     batch = None
-    if not args.no_batch and (args.source_format or "drive") == "drive":
+    if not rejected and not args.no_batch and (args.source_format or "drive") == "drive":
         from odocal.pipeline.calibrate import calibrate
 
         batch = calibrate(args.source, settings=settings).estimate
@@ -504,6 +505,10 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
     written: list[Path] = []
     with results_folder(out) as tmp:
         written += _replay_files(tmp, args, result, batch, settings, renderer)
+    if rejected:
+        for line in rejected:
+            _print(line)
+        return EXIT_FAILED
     conv = convergence_km(result)
     if not args.quiet:
         _print(f"replayed {result.duration_s / 60:.1f} min, {result.distance_km:.2f} km in "
@@ -514,6 +519,18 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
         for path in written:
             _print(f"wrote {out / path.relative_to(tmp)}")
     return EXIT_OK
+
+
+def _replay_rejection(estimate: Any, settings: Settings) -> list[str]:
+    """The lines that say why the online calibrator publishes no estimate (none: it does)."""
+    from odocal.estimators.estimate import Status
+    from odocal.report.advice import finding_text
+
+    if estimate.status is not Status.REJECTED:
+        return []
+    fatal = [f for f in estimate.details.findings if int(f.severity) == 2]
+    return ([f"error: {finding_text(f, settings)}" for f in fatal]
+            or [f"calibration failed: {estimate.message}"])
 
 
 def _replay_files(out: Path, args: argparse.Namespace, result: Any, batch: Any,

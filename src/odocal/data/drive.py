@@ -354,7 +354,12 @@ def _check_wheel_units(name: str, n_rl: FloatArray, n_rr: FloatArray) -> None:
     for key, n in (("n_rl", n_rl), ("n_rr", n_rr)):
         peak = float(np.percentile(np.abs(n), 99))
         if peak > _MAX_WHEEL_RATE_REVPS:
-            hint = " (it looks like rpm: divide by 60)" if peak < 60 * _MAX_WHEEL_RATE_REVPS else ""
+            if peak <= 2 * np.pi * _MAX_WHEEL_RATE_REVPS:
+                hint = " (it looks like rad/s: divide by 2 pi; or rpm: divide by 60)"
+            elif peak < 60 * _MAX_WHEEL_RATE_REVPS:
+                hint = " (it looks like rpm: divide by 60)"
+            else:
+                hint = ""
             raise DataError(f"'{name}' column {key} reaches {peak:.4g}: wheel rates must be in "
                             f"rev/s{hint}")
 

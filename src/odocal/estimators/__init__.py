@@ -4,8 +4,9 @@
 :class:`~odocal.estimators.estimate.Estimate`. This module only names them (light: the command
 line lists them without loading numpy); the pipeline runs them by these names.
 
-May import: :mod:`odocal.data`, :mod:`odocal.model` and the leaves (:mod:`odocal.settings`,
-:mod:`odocal.errors`); never :mod:`odocal.checks` or anything above.
+May import: :mod:`odocal.checks` (what the data allow a method to fit), :mod:`odocal.data`,
+:mod:`odocal.model` and the leaves (:mod:`odocal.settings`, :mod:`odocal.errors`); nothing
+above.
 """
 
 from __future__ import annotations

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal.checks.findings import Diagnosis
 from odocal.data.drive import Drive
 from odocal.data.segments import (
     RaggedSegments,
@@ -152,3 +153,15 @@ def prepare(drives: Sequence[Drive], settings: Settings) -> Prepared:
 
 
 
+
+
+def held_by_checks(diagnosis: Diagnosis) -> dict[str, NotIdentified]:
+    """The parameters the checks already say the data cannot show: without a differential
+    signal in the wheels, all but c_e; without a lateral acceleration, d (its datasheet
+    uncertainty then widens t_r's, in the default method)."""
+    held: dict[str, NotIdentified] = {}
+    if diagnosis.no_differential:
+        held.update({n: NotIdentified(Reason.NO_DIFFERENTIAL) for n in NEED_DIFFERENTIAL})
+    elif diagnosis.lateral_missing:
+        held["d"] = NotIdentified(Reason.NO_LATERAL)
+    return held

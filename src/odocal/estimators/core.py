@@ -61,7 +61,7 @@ from odocal.estimators.estimate import (
     numerically_free,
     weak,
 )
-from odocal.estimators.windows import WindowSet, predict
+from odocal.estimators.windows import WindowSet, load_transfer_column, predict
 from odocal.model.parameters import PARAMETER_NAMES
 from odocal.settings import Settings
 
@@ -78,6 +78,8 @@ MIN_CLUSTERS_FOR_ROBUST = 10
 _SHIFT_ROUNDS = 6         # the lag scanned and theta refitted in turn at most so often
 _SHIFT_SETTLED = 1e-3     # steps
 _LAG_SIGMAS = 3.0         # a lag within this many standard deviations of zero is not applied
+#: Why a held parameter is unseen by the windows (its uncertainty then widens the free ones').
+_UNSEEN = (Reason.NO_LATERAL, Reason.NO_INFORMATION)
 
 
 @dataclass(frozen=True)
@@ -174,10 +176,15 @@ class Fit:
 
 
 def evaluate(p: FloatArray, view: View, model: ErrorModel, folded: Folded,
-             channels: FloatArray, *, smooth: bool) -> Fit:
-    """Residuals, weights and prewhitened rows of every window at ``p``."""
+             channels: FloatArray, *, smooth: bool, unseen_d: bool = False) -> Fit:
+    """Residuals, weights and prewhitened rows of every window at ``p``. ``unseen_d``: the a_y
+    column carries no lateral acceleration, so d's Jacobian is taken with the reference's own
+    (``v w``): what a load transfer the data cannot show would do (d is held, its datasheet
+    uncertainty widens the others')."""
     win = view.windows
     pred, jac4 = predict(p[:4], view.at)
+    if unseen_d:
+        jac4[..., 3] = load_transfer_column(p[:4], view.at)
     spread = np.zeros_like(pred)
     if smooth:
         spread, _ = predict(p[:4], view.second)
@@ -201,12 +208,17 @@ def evaluate(p: FloatArray, view: View, model: ErrorModel, folded: Folded,
 
 
 def solve(p0: FloatArray, view: View, free: BoolArray, model: ErrorModel, folded: Folded,
-          channels: FloatArray, *, max_iterations: int, tolerance: float) -> Fit:
+          channels: FloatArray, *, max_iterations: int, tolerance: float,
+          unseen_d: bool = False) -> Fit:
     """Gauss-Newton on the prewhitened residuals of the windows and the folded normal
     equations (nearly linear in p); ``free`` (P,) marks the free parameters of p."""
     smooth = bool(free[4])
     p = p0.copy()
-    fit = evaluate(p, view, model, folded, channels, smooth=smooth)
+
+    def evaluate_at(p: FloatArray) -> Fit:
+        return evaluate(p, view, model, folded, channels, smooth=smooth, unseen_d=unseen_d)
+
+    fit = evaluate_at(p)
     history = [fit.cost]
     iterations = 0
     for iterations in range(1, max_iterations + 1):
@@ -220,7 +232,7 @@ def solve(p0: FloatArray, view: View, free: BoolArray, model: ErrorModel, folded
         step[cols] = np.linalg.lstsq(h[np.ix_(cols, cols)] / np.outer(scale, scale),
                                      g[cols] / scale, rcond=None)[0] / scale
         p = p + step
-        fit = evaluate(p, view, model, folded, channels, smooth=smooth)
+        fit = evaluate_at(p)
         history.append(fit.cost)
         if np.max(np.abs(step) / np.maximum(np.abs(p), 1e-3)) < tolerance:
             break
@@ -315,8 +327,7 @@ class CoreFit:
 
     fit : the final fit (theta and kappa in ``fit.p``)
     free : (4,) the parameters estimated; ``held`` why the others were not
-    covariance : (4, 4) of theta
-    clusters : independent clusters of windows (folded ones included)
+    uncertainty : the covariance of theta and what it rests on
     lag : the wheel stream's lag behind the reference, in steps
     model : the error model of the final fit
     heading_offset : the reference heading's offset applied (rad)
@@ -325,17 +336,22 @@ class CoreFit:
     fit: Fit
     free: BoolArray
     held: dict[str, NotIdentified]
-    covariance: FloatArray
-    clusters: int
+    uncertainty: Uncertainty
     lag: Lag
     model: ErrorModel
     heading_offset: float
-    window_information: FloatArray
-    window_scores: FloatArray
 
     @property
     def theta(self) -> FloatArray:
         return np.asarray(self.fit.p[:4])
+
+    @property
+    def covariance(self) -> FloatArray:
+        return self.uncertainty.covariance
+
+    @property
+    def clusters(self) -> int:
+        return self.uncertainty.clusters
 
 
 def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offset: float,
@@ -360,9 +376,12 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
     coupling = not distance_only and cfg.common_wheel_error == "estimate"
     p = np.append(datasheet, 0.0)
 
+    unseen_d = "d" in held and held["d"].reason is Reason.NO_LATERAL
+
     def solve_at(p: FloatArray, lag: Lag, model: ErrorModel, free_p: BoolArray) -> Fit:
         return solve(p, View.of(windows, lag.shift, heading_offset), free_p, model, folded,
-                     channels, max_iterations=cfg.max_iterations, tolerance=cfg.tolerance)
+                     channels, max_iterations=cfg.max_iterations, tolerance=cfg.tolerance,
+                     unseen_d=unseen_d)
 
     model = ErrorModel()
     lag = Lag()
@@ -383,7 +402,7 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
         lag = choose_lag(scan_lag(windows, current.p[:4], heading_offset, model, folded))
     for _ in range(2):                  # the error model refitted at the lag
         current = solve_at(current.p, lag, model, free_p)
-        model = _refit(current, windows, folded, coupling)
+        model = refit_model(current, windows, folded, coupling=coupling)
     for _ in range(_SHIFT_ROUNDS - 1 if lag_on else 0):
         # the lag again with the theta fitted at it, until the two agree
         again = choose_lag(scan_lag(windows, current.p[:4], heading_offset, model, folded))
@@ -392,17 +411,17 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
         lag = again
         for _ in range(2):
             current = solve_at(current.p, lag, model, free_p)
-            model = _refit(current, windows, folded, coupling)
+            model = refit_model(current, windows, folded, coupling=coupling)
     current = solve_at(current.p, lag, model, free_p)
-    free, held, current, cov, clusters, info, scores = _identified(
+    free, held, current, uncertainty = _identified(
         current, windows, folded, settings, free, held, lambda p, f: solve_at(
             p, lag, model, np.append(f, lag_on)), lag_on)
-    return CoreFit(fit=current, free=free, held=held, covariance=cov, clusters=clusters,
-                   lag=lag, model=model, heading_offset=heading_offset,
-                   window_information=info, window_scores=scores)
+    return CoreFit(fit=current, free=free, held=held, uncertainty=uncertainty, lag=lag,
+                   model=model, heading_offset=heading_offset)
 
 
-def _refit(current: Fit, windows: WindowSet, folded: Folded, coupling: bool) -> ErrorModel:
+def refit_model(current: Fit, windows: WindowSet, folded: Folded, *,
+                coupling: bool) -> ErrorModel:
     """The error model from the residuals of ``current`` (and the folded windows' sums)."""
     beta = 0.0
     if coupling:
@@ -420,25 +439,30 @@ def _refit(current: Fit, windows: WindowSet, folded: Folded, coupling: bool) -> 
 def _identified(current: Fit, windows: WindowSet, folded: Folded, settings: Settings,
                 free: BoolArray, held: dict[str, NotIdentified],
                 refit: Callable[[FloatArray, BoolArray], Fit], lag_on: bool,
-                ) -> tuple[BoolArray, dict[str, NotIdentified], Fit, FloatArray, int,
-                           FloatArray, FloatArray]:
+                ) -> tuple[BoolArray, dict[str, NotIdentified], Fit, Uncertainty]:
     """The identifiability verdict: parameters the data do not determine within the limit keep
-    their datasheet values (named), and the rest is refitted, until every free one passes."""
+    their datasheet values (named), and the rest is refitted, until every free one passes.
+    Parameters held because the windows cannot see them widen the free ones by their datasheet
+    uncertainty (:func:`covariance`)."""
     datasheet = np.asarray(settings.identify.theta0, dtype=np.float64)
+    prior = np.asarray(settings.identify.prior_std, dtype=np.float64)
+    # parameters the windows cannot see at all, yet the free ones are sensitive to (a_y
+    # missing: d; one turning rate: t_r against c_d), widen them by their datasheet uncertainty
+    unseen = np.array([n in held and held[n].reason in _UNSEEN for n in PARAMETER_NAMES])
     free = free.copy()
     for _ in range(len(PARAMETER_NAMES)):
-        cov, clusters, info, scores = covariance(current, windows, folded,
-                                                 np.append(free, lag_on))
-        std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        if clusters < 2 and free.any() and settings.identify.judge_identifiability:
+        found = covariance(current, windows, folded, np.append(free, lag_on),
+                           np.where(unseen & ~free, prior, 0.0))
+        std = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))
+        if found.clusters < 2 and free.any() and settings.identify.judge_identifiability:
             for j in np.flatnonzero(free):
                 held[PARAMETER_NAMES[j]] = NotIdentified(Reason.ONE_CLUSTER, float(std[j]),
-                                                         detail=float(clusters))
+                                                         detail=float(found.clusters))
             free[:] = False
         else:
             too_weak = weak(std, free, settings.identify)
             if not too_weak.any():
-                return free, held, current, cov, clusters, info, scores
+                return free, held, current, found
             held.update(held_as_weak(std, too_weak, settings.identify))
             free = free & ~too_weak
         p = current.p.copy()
@@ -446,19 +470,35 @@ def _identified(current: Fit, windows: WindowSet, folded: Folded, settings: Sett
         current = refit(p, free)
         if not free.any():
             break
-    return free, held, current, np.zeros((4, 4)), clusters, info, scores
+    return free, held, current, dataclasses.replace(found, covariance=np.zeros((4, 4)),
+                                                    widening=np.ones(4))
 
 
-def covariance(current: Fit, windows: WindowSet, folded: Folded,
-               free: BoolArray) -> tuple[FloatArray, int, FloatArray, FloatArray]:
+@dataclass(frozen=True)
+class Uncertainty:
+    """The covariance of theta (4, 4), the clusters it rests on, each window's information
+    (W, 4, 4) and score (W, 4), and how much each standard deviation was widened for the
+    parameters held at their datasheet values (1: not)."""
+
+    covariance: FloatArray
+    clusters: int
+    information: FloatArray
+    scores: FloatArray
+    widening: FloatArray
+
+
+def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray,
+               nuisance: FloatArray | None = None) -> Uncertainty:
     """Sandwich covariance of theta over clusters of windows (folded clusters' meat included),
     from the prewhitened rows, each cluster's score scaled by its leverage, cross products of
     clusters up to three apart with Newey and West's weights; kappa (``free[4]``) profiled
     out. With fewer than :data:`MIN_CLUSTERS_FOR_ROBUST` clusters, the larger of it and the
     residual-variance formula, widened by Student's t for the clusters' number.
 
-    Returns the (4, 4) covariance, the clusters, and each window's information (W, 4, 4) and
-    score (W, 4) in theta.
+    ``nuisance`` (4,): the datasheet uncertainty of each parameter held at its datasheet value
+    (0 for the free ones). A held parameter that is wrong by that much moves the free ones by
+    ``-H_ff^-1 H_fj`` times it: that spread is added, so a free parameter that cannot be told
+    apart from a held one (a circle at one rate, a missing a_y) carries its uncertainty.
     """
     jw, rw = current.white[..., 1:], current.white[..., 0]
     info = np.einsum("wcp,wcq->wpq", jw, jw)
@@ -490,7 +530,15 @@ def covariance(current: Fit, windows: WindowSet, folded: Folded,
         # one cluster: no spread to inflate (the one-cluster rule leaves nothing identified)
         inflation = few_clusters_inflation(clusters) if clusters >= 2 else 1.0
         cov = naive * np.outer(f, f) * inflation**2
-    return cov[:4, :4], clusters, info[:, :4, :4], scores[:, :4]
+    base = np.sqrt(np.clip(np.diag(cov)[:4], 0.0, None))
+    if nuisance is not None:
+        for j in np.flatnonzero(nuisance[:4] > 0):
+            shift = -h_inv @ h[:, j]                   # d p_free / d theta_j (held)
+            cov = cov + nuisance[j] ** 2 * np.outer(shift, shift)
+    std = np.sqrt(np.clip(np.diag(cov)[:4], 0.0, None))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        widening = np.where(base > 0, std / base, 1.0)
+    return Uncertainty(cov[:4, :4], clusters, info[:, :4, :4], scores[:, :4], widening)
 
 
 def fold(folded: Folded, windows: WindowSet, p: FloatArray, shift: float, heading_offset: float,

@@ -75,6 +75,9 @@ class Reason(enum.Enum):
     NO_DIFFERENTIAL = "no-differential"
     """The two wheel signals carry no differential information (locked axle, one speed signal,
     a copied column): only the distance scale c_e can be calibrated."""
+    NO_LATERAL = "no-lateral"
+    """The lateral acceleration column carries none (zero, constant, a sensor unplugged): d
+    cannot be seen, and the load transfer it would explain widens t_r's uncertainty."""
     ONE_CLUSTER = "one-cluster"
     """All segments overlap in time: one piece of independent evidence is not enough."""
     HELD = "held"

@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 from odocal.data.drive import Drive
 from odocal.data.segments import common_sampling_time
 from odocal.estimators import core
-from odocal.estimators.base import NEED_DIFFERENTIAL, MethodOutcome, Prepared, ProgressCallback
+from odocal.estimators.base import MethodOutcome, Prepared, ProgressCallback
 from odocal.estimators.error_model import (
     CHANNELS,
     HUBER,
@@ -188,8 +188,8 @@ def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
                                                           float(noise[1, 1]))),
         downweighted=int((z > HUBER).any(axis=1).sum()), iterations=fit.iterations,
         cost_history=fit.history, residual_rms=(float(rms[0]), float(rms[1])),
-        elapsed_s=time.perf_counter() - started, information=found.window_information,
-        scores=found.window_scores, cluster=windows.cluster,
+        elapsed_s=time.perf_counter() - started, information=found.uncertainty.information,
+        scores=found.uncertainty.scores, cluster=windows.cluster,
         measured=windows.measured @ CHANNELS.T, residual=fit.residual,
         prewhitening=(float(found.model.ma[0, 0]), float(found.model.ma[1, 0])),
         smoothing_steps2=float(2.0 * fit.p[4]), coupling=float(found.model.coupling),
@@ -211,7 +211,7 @@ def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
                                      else CovarianceKind.RESIDUAL),
                     free=tuple(bool(f) for f in free),  # type: ignore[arg-type]
                     verdicts=judge(std, free, settings.identify, held=found.held),
-                    status=status, details=details)
+                    status=status, details=details, widening=found.uncertainty.widening)
 
 
 def _nothing(settings: Settings, held: dict[str, NotIdentified], started: float,
@@ -246,11 +246,13 @@ def run(prep: Prepared, settings: Settings,
 
 def run_distance_only(prep: Prepared, settings: Settings,
                       progress: ProgressCallback | None = None) -> MethodOutcome:
-    """The wheels carry no differential signal: c_e alone, from the distance channel.
+    """The wheels carry no differential signal: c_e alone, from the distance channel (the
+    parameters that need it are held in ``prep.held``, :func:`~odocal.estimators.base.
+    held_by_checks`).
 
     Every other method takes the heading from the wheels, so none of them can use such data;
     the distance channel needs the wheels' mean only.
     """
-    held = {**prep.held, **{n: NotIdentified(Reason.NO_DIFFERENTIAL) for n in NEED_DIFFERENTIAL}}
-    return MethodOutcome(estimate=inverse_calibration(prep.drives, settings=settings, held=held,
-                                                      distance_only=True, progress=progress))
+    return MethodOutcome(estimate=inverse_calibration(prep.drives, settings=settings,
+                                                      held=prep.held, distance_only=True,
+                                                      progress=progress))

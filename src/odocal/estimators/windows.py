@@ -39,8 +39,10 @@ BoolArray = NDArray[np.bool_]
 
 #: Powers of the lateral acceleration kept in the moments (the series' terms).
 SERIES = 4
-#: Moment columns: ``ds a^j``, ``dpsi a^j``, ``lat a^j`` for j < SERIES.
-COLUMNS = 3 * SERIES
+#: Moment columns: ``ds a^j``, ``dpsi a^j``, ``lat a^j`` for j < SERIES, then the same three
+#: times the reference's own lateral acceleration ``v w`` (where a_y is missing, the load
+#: transfer d it cannot show is still felt: :func:`load_transfer_column`).
+COLUMNS = 3 * SERIES + 3
 #: Straight stretches for the heading offset: one second long, faster than this (m/s) ...
 STRAIGHT_SPEED_MPS = 3.0
 #: ... and turning slower than this (rad/s).
@@ -104,10 +106,11 @@ class WindowSet:
         return replace(self, weight=self.weight * factor)
 
     def at(self, shift: float, heading_offset: float) -> tuple[FloatArray, FloatArray]:
-        """The moments the model takes, ``[along_j, dpsi_j]`` (W, 2 SERIES), at a (fractional)
-        shift of the reference side (steps; linear between whole steps, kept within
-        :attr:`shifts`), with the along-track ones turned by the heading offset; and their second
-        difference in the shift (the counting window's spread; zero without a margin)."""
+        """The moments the model takes, ``[along_j, dpsi_j, along v w, dpsi v w]`` (W, 2 SERIES
+        + 2), at a (fractional) shift of the reference side (steps; linear between whole steps,
+        kept within :attr:`shifts`), the along-track ones turned by the heading offset; and
+        their second difference in the shift (the counting window's spread; zero without a
+        margin)."""
         moments = self.moments
         if moments.shape[1] < 3:
             m = _rotated(moments[:, 0], heading_offset)
@@ -153,23 +156,26 @@ def _interpolate(moments: FloatArray, x: float) -> FloatArray:
 
 
 def _rotated(moments: FloatArray, offset: float) -> FloatArray:
-    """``[along_j, dpsi_j]`` from ``[ds_j, dpsi_j, lat_j]`` (..., COLUMNS): the step along the
-    direction of travel when the reference heading is ``offset`` short of it (``ds cos + lat
-    sin``: (1) projected on the turned heading, exactly)."""
+    """``[along_j, dpsi_j, along a_ref, dpsi a_ref]`` from the stored columns (..., COLUMNS):
+    the step along the direction of travel when the reference heading is ``offset`` short of
+    it (``ds cos + lat sin``: (1) projected on the turned heading, exactly)."""
     ds, dpsi, lat = (moments[..., k * SERIES:(k + 1) * SERIES] for k in range(3))
-    along = ds if offset == 0.0 else ds * math.cos(offset) + lat * math.sin(offset)
-    return np.concatenate([along, dpsi], axis=-1)
+    rds, rdpsi, rlat = (moments[..., 3 * SERIES + k, None] for k in range(3))
+    if offset != 0.0:
+        c, s = math.cos(offset), math.sin(offset)
+        ds, rds = ds * c + lat * s, rds * c + rlat * s
+    return np.concatenate([ds, dpsi, rds, rdpsi], axis=-1)
 
 
 def predict(theta: FloatArray, moments: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Each window's revolutions (N, 2) and their Jacobian in theta (N, 2, 4), from the model
-    moments ``[along_j, dpsi_j]`` (N, 2 SERIES) of :meth:`WindowSet.at`.
+    moments ``[along_j, dpsi_j, ...]`` (N, 2 SERIES + 2) of :meth:`WindowSet.at`.
 
     For a wheel with ``C`` (``c_e +- c_d / 2``), ``s`` (+1 left, -1 right) and ``e = s d / C``:
     ``revs = sum_j (-e)^j (A_j - s t_r Q_j / 2) / C``, the series of (2)-(3) inverted.
     """
     c_e, c_d, t_r, d = (float(v) for v in theta)
-    along, turn = moments[:, :SERIES], moments[:, SERIES:]
+    along, turn = moments[:, :SERIES], moments[:, SERIES:2 * SERIES]
     out = np.empty((moments.shape[0], 2))
     jac = np.empty((moments.shape[0], 2, 4))
     powers = np.arange(SERIES)
@@ -190,6 +196,19 @@ def predict(theta: FloatArray, moments: FloatArray) -> tuple[FloatArray, FloatAr
         jac[:, w, 2] = -0.5 * sign * (turn @ coef) / big
         jac[:, w, 3] = dseries_de * sign / (big * big)                  # de/dd = s / C
     return out, jac
+
+
+def load_transfer_column(theta: FloatArray, moments: FloatArray) -> FloatArray:
+    """The windows' revolutions' derivative in d (N, 2) as if their lateral acceleration were
+    the reference's own, ``v w`` (at d = 0: ``-s (A' - s t_r Q' / 2) / C^2`` with ``A', Q'`` the
+    moments times ``v w``): how a load transfer the a_y column does not show would move them."""
+    c_e, c_d, t_r, _ = (float(v) for v in theta)
+    along, turn = moments[:, 2 * SERIES], moments[:, 2 * SERIES + 1]
+    out = np.empty((moments.shape[0], 2))
+    for w, sign in enumerate((1.0, -1.0)):
+        big = c_e + 0.5 * sign * c_d
+        out[:, w] = -sign * (along - 0.5 * sign * t_r * turn) / (big * big)
+    return out
 
 
 class WindowBuilder:
@@ -247,6 +266,14 @@ class WindowBuilder:
         self._last = None
         self._follows = False
 
+    def straight_so_far(self) -> FloatArray:
+        """The straight-stretch sums of every step added so far (those not yet in a window
+        included), as :func:`windows_from_drives` gives them for a whole drive."""
+        pending = np.vstack([self._stretch, self._ring[:, [_DX, _DY, _DPSI, _PSI]]])
+        size = max(round(1.0 / self.t_s), 1)
+        whole = pending.shape[0] // size
+        return self.straight + straight_sums(pending[:whole * size], size, self.t_s)
+
     def windows(self) -> WindowSet:
         """The windows completed since the last call."""
         done = self._done
@@ -280,13 +307,18 @@ class WindowBuilder:
         start = margin + length * np.arange(count)
         a = ring[:, _A]
         power = a[:, None] ** np.arange(SERIES)[None, :]
+        a_ref = (ring[:, _DS] * ring[:, _DPSI] / self.t_s**2)[:, None]      # v w
         columns = np.concatenate([ring[:, _DS, None] * power, ring[:, _DPSI, None] * power,
-                                  ring[:, _LAT, None] * power], axis=1)
-        cum = np.vstack([np.zeros((1, COLUMNS)), np.cumsum(columns, axis=0)])
-        lo = start[:, None] - np.arange(-margin, margin + 1)[None, :]
-        moments = cum[lo + length] - cum[lo]                  # (count, S, COLUMNS)
-        revs = np.vstack([np.zeros((1, 2)), np.cumsum(ring[:, _RL:_RR + 1], axis=0)])
-        measured = revs[start + length] - revs[start]
+                                  ring[:, _LAT, None] * power,
+                                  ring[:, [_DS, _DPSI, _LAT]] * a_ref], axis=1)
+        # each window's sums from its own steps (a running sum over the whole ring would leave
+        # rounding of its size in every difference, and depend on how the samples came)
+        span = length + 2 * margin
+        local = columns[start[:, None] - margin + np.arange(span)[None, :]]   # (count, span, C)
+        cum = np.concatenate([np.zeros((count, 1, COLUMNS)), np.cumsum(local, axis=1)], axis=1)
+        lo = margin - np.arange(-margin, margin + 1)                            # (S,)
+        moments = cum[:, lo + length] - cum[:, lo]                             # (count, S, C)
+        measured = ring[start[:, None] + np.arange(length)[None, :], _RL:_RR + 1].sum(axis=1)
         yaw = ring[:, _DPSI] / self.t_s
         smooth = np.convolve(yaw, np.full(_YAW_SMOOTHING, 1.0 / _YAW_SMOOTHING), "same")
         peak = np.abs(smooth[start[:, None] + np.arange(length)[None, :]]).max(axis=1)

@@ -30,15 +30,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal.checks.diagnosis import check_drives
+from odocal.checks.findings import Check, Diagnosis, Finding, Severity
+from odocal.checks.gate import gate
+from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.estimators import core
+from odocal.estimators.base import held_by_checks
 from odocal.estimators.error_model import ErrorModel
 from odocal.estimators.estimate import (
     CovarianceKind,
@@ -63,8 +68,15 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
 _COLUMNS = ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi")
+_SAMPLE = ("t", "n_rl", "n_rr", "a_y", "beta", "x", "y", "psi")
 #: Wheel rates beyond this (rev/s) in a pushed chunk are in another unit, whatever else.
 _MAX_PUSHED_RATE_REVPS = 100.0
+#: The checks look at this much of the latest driving (s) ...
+CHECK_WINDOW_S = 600.0
+#: ... every time this much more has arrived (s), and before every estimate.
+CHECK_EVERY_S = 60.0
+#: The running update scans the lag every this many completed clusters.
+_LAG_EVERY = 4
 
 
 @dataclass(frozen=True)
@@ -83,6 +95,10 @@ class OnlineDetails:
     forgetting_s: float | None
     coupling: float = 0.0
     """The common wheel error's share in the yaw channel (``beta``), as the batch method's."""
+    findings: tuple[Finding, ...] = ()
+    """The checks' findings on the latest driving (and the quality gate's on the estimate)."""
+    halted: bool = False
+    """The data contradicted the model: the calibrator stopped updating (see ``findings``)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"samples": self.samples, "windows": self.windows,
@@ -93,7 +109,8 @@ class OnlineDetails:
                           "yaw": {"s0_rev": self.noise[1][0], "f": self.noise[1][1]}},
                 "alarms": [a.to_dict() for a in self.alarms],
                 "forgetting_s": self.forgetting_s,
-                "coupling_beta": self.coupling}
+                "coupling_beta": self.coupling,
+                "diagnosis": [f.to_dict() for f in self.findings], "halted": self.halted}
 
 
 class OnlineCalibrator:
@@ -135,6 +152,11 @@ class OnlineCalibrator:
         self._current_cluster: int | None = None
         cfg = self.settings.online
         self._changes = ChangeDetector(k=cfg.cusum_k, h=cfg.cusum_h)
+        # the checks: the latest samples as they came, what they found, and whether they halted
+        self._recent: list[FloatArray] = []
+        self._checked_t = -math.inf
+        self._diagnosis = Diagnosis(())
+        self._halted = False
 
     # ---------------------------------------------------------------- input
 
@@ -153,6 +175,9 @@ class OnlineCalibrator:
             raise DataError("pushed samples' t must increase strictly (and continue the "
                             "previous chunk)")
         self._samples += t.size
+        self._keep_recent(cols)
+        if self._halted:
+            return                       # the data contradicted the model: nothing more is used
         if self._t_s is None:
             if self._pending is not None:
                 cols = {k: np.concatenate([[self._pending[k]], v]) for k, v in cols.items()}
@@ -170,6 +195,39 @@ class OnlineCalibrator:
         self._builder.add(cols["t"], cols["n_rl"], cols["n_rr"], cols["a_y"], cols["beta"],
                           cols["x"], cols["y"], cols["psi"])
         self._take(self._builder.windows())
+        if self._last_t - self._checked_t >= CHECK_EVERY_S:
+            self._check()
+
+    def _keep_recent(self, cols: Mapping[str, FloatArray]) -> None:
+        """The latest samples, as pushed, for the checks (the last CHECK_WINDOW_S)."""
+        self._recent.append(np.column_stack([cols[k] for k in _SAMPLE]))
+        newest = float(self._recent[-1][-1, 0])
+        while len(self._recent) > 1 and float(self._recent[1][0, 0]) <= newest - CHECK_WINDOW_S:
+            self._recent.pop(0)
+
+    def _check(self) -> Diagnosis:
+        """The checks every path goes through, on the latest samples; a contradiction halts
+        the calibrator (it publishes the finding instead of an estimate from then on)."""
+        samples = np.vstack(self._recent) if self._recent else np.zeros((0, len(_SAMPLE)))
+        samples = samples[samples[:, 0] > samples[-1, 0] - CHECK_WINDOW_S] if samples.size \
+            else samples
+        self._checked_t = float(samples[-1, 0]) if samples.size else self._checked_t
+        if samples.shape[0] < 3:
+            return self._diagnosis
+        step = self._t_s or float(np.median(np.diff(samples[:, 0])))
+        piece = np.cumsum(np.concatenate([[0], np.diff(samples[:, 0]) > 1.5 * step]))
+        columns = {k: samples[:, i] for i, k in enumerate(_SAMPLE)} | {"piece": piece}
+        try:
+            drive = Drive.from_columns(columns, name="live samples")
+        except DataError as exc:
+            diagnosis = Diagnosis((Finding(Check.INVALID_INPUT, Severity.FATAL,
+                                           name=str(exc)),))
+        else:
+            diagnosis = check_drives([drive], self.settings)
+        self._diagnosis = diagnosis
+        if diagnosis.fatal:
+            self._halted = True
+        return diagnosis
 
     def _take(self, new: WindowSet) -> None:
         """Add new windows cluster by cluster: a completed cluster is watched for a change and
@@ -215,9 +273,16 @@ class OnlineCalibrator:
                 self._alarms.append(alarm)
                 self._restart(index, change, alarm.t)
                 return
-        # a running update from a warm start (estimate() solves to convergence)
+        # a running update from a warm start (estimate() solves to convergence): theta, the
+        # error model, and every few clusters the lag, so that the change detector and the
+        # folding work with current ones
         current = self._solve(max_iterations=3)
         self.theta, self._kappa = current.p[:4].copy(), float(current.p[4])
+        coupling = self.settings.inverse.common_wheel_error == "estimate"
+        self._model = core.refit_model(current, self._windows, self._folded, coupling=coupling)
+        if self._smooth and self._clusters_done % _LAG_EVERY == 0:
+            self._lag = core.choose_lag(core.scan_lag(self._windows, self.theta, offset,
+                                                      self._model, self._folded))
 
     def _restart(self, index: int, change: float, since_t: float) -> None:
         """After a change: forget the evidence before it, start from the new level."""
@@ -271,10 +336,13 @@ class OnlineCalibrator:
         self._windows = windows.take(~oldest)
 
     def _refit(self) -> core.CoreFit:
-        """The core on everything so far; the running estimate, error model and lag follow it."""
+        """The core on everything so far (with what the checks hold back, as batch); the
+        running estimate, error model and lag follow it."""
         assert self._windows is not None
         found = core.fit(self._windows, self._folded, self.settings,
-                         heading_offset=self.heading_offset())
+                         heading_offset=self.heading_offset(),
+                         held=held_by_checks(self._diagnosis),
+                         distance_only=self._diagnosis.no_differential)
         if found.free.any():
             self.theta = found.theta.copy()
             self._kappa = float(found.fit.p[4])
@@ -285,7 +353,18 @@ class OnlineCalibrator:
     # ---------------------------------------------------------------- output
 
     def estimate(self) -> Estimate:
-        """The estimate now: theta, covariance, verdicts, status (as the batch methods give)."""
+        """The estimate now: theta, covariance, verdicts, status (as the batch methods give).
+
+        The latest samples are checked first (as every path checks its data); where they
+        contradict the model, or the estimate fails the quality gate, the status is
+        ``REJECTED`` and the findings are in ``details.findings``.
+        """
+        if self._last_t is not None and self._last_t > self._checked_t:
+            self._check()
+        if self._halted:
+            return self._nothing(Reason.REJECTED, Status.REJECTED)
+        if self._diagnosis.standstill and self._folded.clusters == 0:
+            return self._nothing(Reason.STANDSTILL)
         if self._windows is None or self._windows.size + self._folded.clusters == 0:
             return self._nothing(Reason.NO_INFORMATION)
         found = self._refit()
@@ -293,13 +372,28 @@ class OnlineCalibrator:
         theta = found.theta.copy()
         theta[~free] = self.datasheet[~free]
         std = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))
+        status = Status.CONVERGED if free.any() else Status.NOTHING_IDENTIFIABLE
+        refused = gate(theta, self.settings, error_m=None, datasheet_error_m=None,
+                       segment_m=None)
+        if refused:
+            status = Status.REJECTED
         return Estimate(method="online", theta=Parameters.from_array(theta),
                         datasheet=Parameters.from_array(self.datasheet),
                         covariance=found.covariance, covariance_kind=CovarianceKind.RECURSIVE,
                         free=tuple(bool(f) for f in free),  # type: ignore[arg-type]
                         verdicts=judge(std, free, self.settings.identify, held=found.held),
-                        status=Status.CONVERGED if free.any() else Status.NOTHING_IDENTIFIABLE,
-                        details=self._details(found.clusters))
+                        status=status, details=self._details(found.clusters, refused),
+                        widening=found.uncertainty.widening)
+
+    @property
+    def diagnosis(self) -> Diagnosis:
+        """What the checks found on the latest samples."""
+        return self._diagnosis
+
+    @property
+    def halted(self) -> bool:
+        """Whether the data contradicted the model and the calibrator stopped updating."""
+        return self._halted
 
     def delay_s(self) -> float:
         """The wheel stream's lag behind the reference that is applied (positive: late), s."""
@@ -310,9 +404,9 @@ class OnlineCalibrator:
         straight stretches as batch finds it."""
         if self._builder is None or self.settings.inverse.heading_offset != "estimate":
             return 0.0
-        return heading_offset(self._builder.straight)
+        return heading_offset(self._builder.straight_so_far())
 
-    def _details(self, clusters: int) -> OnlineDetails:
+    def _details(self, clusters: int, more: Sequence[Finding] = ()) -> OnlineDetails:
         noise = self._model.noise
         return OnlineDetails(
             samples=self._samples, windows=self._windows_total,
@@ -322,9 +416,11 @@ class OnlineCalibrator:
             noise=((float(noise[0, 0]), float(noise[0, 1])),
                    (float(noise[1, 0]), float(noise[1, 1]))),
             alarms=tuple(self._alarms), forgetting_s=self.settings.online.forgetting_s,
-            coupling=float(self._model.coupling))
+            coupling=float(self._model.coupling),
+            findings=(*self._diagnosis.findings, *more), halted=self._halted)
 
-    def _nothing(self, reason: Reason) -> Estimate:
+    def _nothing(self, reason: Reason,
+                 status: Status = Status.NOTHING_IDENTIFIABLE) -> Estimate:
         theta = Parameters.from_array(self.datasheet)
         held = {n: NotIdentified(reason) for n in PARAMETER_NAMES}
         return Estimate(method="online", theta=theta, datasheet=theta,
@@ -332,7 +428,7 @@ class OnlineCalibrator:
                         free=(False, False, False, False),
                         verdicts=judge(np.zeros(4), np.zeros(4, dtype=bool),
                                        self.settings.identify, held=held),
-                        status=Status.NOTHING_IDENTIFIABLE, details=self._details(0))
+                        status=status, details=self._details(0))
 
     def details_samples(self) -> int:
         """Samples pushed so far."""

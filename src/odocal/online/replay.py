@@ -205,10 +205,12 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
            mapping: str | Path | Mapping[str, Mapping[str, Any]] | None = None,
            theta0: Parameters | None = None,
            on_update: Callable[[TraceRow, Estimate], None] | None = None) -> ReplayResult:
-    """Stream ``source`` through an :class:`~odocal.online.OnlineCalibrator`.
+    """Stream ``source`` through an :class:`~odocal.online.calibrator.OnlineCalibrator`.
 
     ``on_update(row, estimate)`` is called every ``[online] update_s`` of data and at the end.
     The trace returned holds those rows (one per update: a few thousand for a day of driving).
+    Where the checks find the data contradicting the model, the replay stops there: the final
+    estimate is ``REJECTED`` with the findings in ``estimate.details.findings``.
     """
     started = time.perf_counter()
     settings = settings or Settings()
@@ -232,6 +234,11 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
         if chunk["t"].size == 0:
             continue
         calibrator.push(chunk)
+        if calibrator.halted:
+            # the data contradict the model: the calibrator publishes that, not an estimate
+            last_t = float(chunk["t"][-1])
+            first_t = float(chunk["t"][0]) if first_t is None else first_t
+            break
         last_t = float(chunk["t"][-1])
         if first_t is None:
             first_t = float(chunk["t"][0])

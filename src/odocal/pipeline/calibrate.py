@@ -27,7 +27,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.checks.diagnosis import Diagnosis, check_drives, gate
+from odocal.checks.diagnosis import check_drives
+from odocal.checks.findings import Diagnosis
+from odocal.checks.gate import gate
 from odocal.data.drive import Drive
 from odocal.data.segments import (
     RaggedSegments,
@@ -37,7 +39,13 @@ from odocal.data.segments import (
 )
 from odocal.errors import ConfigError, DataError
 from odocal.estimators import DEFAULT_METHOD
-from odocal.estimators.base import MethodOutcome, Prepared, ProgressCallback, prepare
+from odocal.estimators.base import (
+    MethodOutcome,
+    Prepared,
+    ProgressCallback,
+    held_by_checks,
+    prepare,
+)
 from odocal.estimators.covariance import BootstrapResult, bootstrap
 from odocal.estimators.estimate import (
     Estimate,
@@ -187,6 +195,7 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         diagnosis = check_drives(drive_list, settings)
     with clock.stage("segments"):
         prep = prepare(drive_list, settings)
+        prep = dataclasses.replace(prep, held={**prep.held, **held_by_checks(diagnosis)})
     boot = None
     if diagnosis.fatal or diagnosis.standstill:
         # the data contradict the model (or say nothing): no fit, and no time spent on one

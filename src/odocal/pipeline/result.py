@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal._version import __version__
-from odocal.checks.diagnosis import Diagnosis
+from odocal.checks.findings import Diagnosis
 from odocal.data.drive import Drive
 from odocal.data.segments import SegmentBatch, SegmentSet
 from odocal.estimators import DEFAULT_METHOD

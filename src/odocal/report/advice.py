@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from odocal.checks.diagnosis import Check, Finding, Severity
+from odocal.checks.findings import Check, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.data.segments import SegmentSet
 from odocal.estimators.estimate import Estimate, Identified, NotIdentified, Reason
@@ -142,6 +142,13 @@ def _not_identified(name: str, label: str, verdict: NotIdentified, cov: Coverage
         return (f"{label} is not calibrated: the two wheel signals carry no differential "
                 "information (a locked axle, a single speed signal, or one column copied into "
                 "the other), so only the distance scale c_e can be.")
+    if reason is Reason.NO_LATERAL:
+        return (f"{label} is not calibrated: the lateral acceleration a_y carries none (zero or "
+                "constant: a missing or unplugged sensor, or a mapping that names no a_y). The "
+                f"load transfer it stands for is still there: its datasheet uncertainty "
+                f"(+-{format_value(name, prior)}) is carried by the other parameters' "
+                "uncertainty, t_r's above all. Map a lateral acceleration (the IMU's) and "
+                "calibrate again.")
     if reason is Reason.ONE_CLUSTER:
         return (f"{label} is not identified: all {cov.selected} segments overlap in time, one "
                 "piece of independent evidence, which cannot say how uncertain the estimate "
@@ -168,6 +175,9 @@ def reason_text(name: str, verdict: NotIdentified, *, threshold_radps: float) ->
         return "these segments carry no information on it; kept at the datasheet value"
     if reason is Reason.NO_DIFFERENTIAL:
         return ("the wheel signals carry no differential information; only c_e is calibrated")
+    if reason is Reason.NO_LATERAL:
+        return ("a_y carries no lateral acceleration (zero or constant), so the load transfer "
+                "cannot be seen; its datasheet uncertainty widens the others' (t_r's above all)")
     if reason is Reason.ONE_CLUSTER:
         return ("all segments overlap in time (one piece of independent evidence); kept at the "
                 "datasheet value")
@@ -251,4 +261,39 @@ def finding_text(finding: Finding, settings: Settings) -> str:
                 f"{ref:.1f} m): the model does not describe these data")
     if c is Check.DATA_REPAIRED:
         return f"{finding.name}: {v:.0f} isolated spike(s) repaired"
+    return _reference_and_sensor_text(finding)
+
+
+def _reference_and_sensor_text(finding: Finding) -> str:
+    """The checks of the reference pose and of single sensors, in plain words."""
+    c, v, ref = finding.check, finding.value, finding.reference
+    if c is Check.WHEEL_DEAD:
+        side = {"n_rl": "rear-left", "n_rr": "rear-right"}.get(finding.name, finding.name)
+        return (f"the {side} wheel speed ({finding.name}) reads nothing while the other wheel "
+                f"turns, in {v:.0%} of the moving seconds: a dead wheel sensor or an unmapped "
+                "signal; fix the log or the mapping (nothing is calibrated from it)")
+    if c is Check.LATERAL_MISSING:
+        return ("a_y carries no lateral acceleration (it is zero or constant while the "
+                "vehicle turns: a missing or unplugged sensor?); d is not calibrated and its "
+                "uncertainty widens t_r's")
+    if c is Check.LATERAL_DELAY:
+        return (f"a_y lags speed times the reference yaw rate by {v:+.2f} s: align the IMU "
+                "stream's clock (the mapping's offset_s); d is biased by it")
+    if c is Check.REFERENCE_SYNC:
+        lag = (f"it matches them {abs(v):.0f} s {'later' if v > 0 else 'earlier'}: "
+               "the pose stream's clock is off by that much"
+               if np.isfinite(v) else "no shift of up to 10 minutes makes them match")
+        return (f"the reference pose's speed does not follow the wheels' (correlation "
+                f"{ref:+.2f}); {lag}. Align the clocks or give the matching logs")
+    if c is Check.REFERENCE_HEADING:
+        return (f"the reference heading does not point where the reference moves: on straights "
+                f"they are {np.degrees(v):.0f} degrees apart (x and y swapped? a compass heading "
+                "in the 'enu' convention? another frame?); fix the mapping")
+    if c is Check.POSE_JUMP:
+        where = f" in '{finding.name}'" if finding.name else ""
+        return (f"the reference pose jumps by {v:.1f} m at t = {ref:.2f} s{where}, far beyond "
+                "what the wheels turn: a relocalisation or a glitch; split the log there (a "
+                "'piece' column) or repair the reference")
+    if c is Check.INVALID_INPUT:
+        return finding.name
     return c.value

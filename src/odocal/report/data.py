@@ -67,7 +67,7 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
 
     ``raw_m`` is E_p of the raw estimate the three-step method computed alongside, if any.
     """
-    from odocal.checks.diagnosis import Severity
+    from odocal.checks.findings import Severity
     from odocal.estimators.estimate import Status
     from odocal.report.advice import finding_text
 

@@ -1,0 +1,139 @@
+"""One estimator core for batch and live (issue 24): the same windows, the same fit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import odocal
+from odocal.checks.diagnosis import check_drives
+from odocal.checks.findings import Check, Severity
+from odocal.estimators.estimate import Status
+from odocal.estimators.inverse import inverse_calibration
+from odocal.estimators.windows import WindowBuilder, windows_from_drives
+from odocal.online.calibrator import OnlineCalibrator
+from odocal.settings import Settings
+from odocal.sim.simulate import SimulatedDrive
+
+
+def pushed(drive: odocal.Drive, step: int, settings: Settings | None = None) -> OnlineCalibrator:
+    calibrator = OnlineCalibrator(settings)
+    cols = drive.columns()
+    for i in range(0, drive.n_samples, step):
+        calibrator.push({k: v[i:i + step] for k, v in cols.items()})
+    return calibrator
+
+
+@pytest.mark.parametrize("noise", ["realistic", "quantised-coarse", "slip-heavy", "delay"])
+def test_live_with_nothing_folded_is_the_batch_estimate(noise: str) -> None:
+    """The online calibrator runs the batch method's core on the same windows: with the whole
+    drive in memory, the two answers are one computation."""
+    drive = odocal.simulate(duration_s=600, seed=5, noise=noise).drive
+    live = pushed(drive, 37).estimate()
+    batch = inverse_calibration([drive], settings=Settings())
+    assert live.details.windows_in_memory == live.details.windows
+    np.testing.assert_allclose(live.theta.as_array(), batch.theta.as_array(), rtol=1e-9,
+                               atol=1e-12)
+    np.testing.assert_allclose(live.std, batch.std, rtol=1e-6)
+    assert live.details.delay_s == pytest.approx(batch.details.delay_s, abs=1e-9)
+    assert live.details.coupling == pytest.approx(batch.details.coupling, abs=1e-9)
+
+
+def test_windows_do_not_depend_on_how_the_samples_came(short_drive: SimulatedDrive) -> None:
+    drive = short_drive.drive
+    whole, straight = windows_from_drives([drive], Settings())
+    builder = WindowBuilder(t_s=drive.t_s, length=whole.length, margin=whole.margin,
+                            cluster_steps=650)
+    rng = np.random.default_rng(4)
+    i = 0
+    while i < drive.n_samples:
+        j = i + int(rng.integers(1, 200))
+        builder.add(drive.t[i:j], drive.n_rl[i:j], drive.n_rr[i:j], drive.a_y[i:j],
+                    drive.beta[i:j], drive.x[i:j], drive.y[i:j], drive.psi[i:j])
+        i = j
+    builder.end_piece()
+    chunks = builder.windows()
+    np.testing.assert_allclose(chunks.moments, whole.moments, rtol=1e-10, atol=1e-12)
+    np.testing.assert_array_equal(chunks.follows, whole.follows)
+    np.testing.assert_array_equal(chunks.cluster, whole.cluster)
+    np.testing.assert_allclose(builder.straight, straight, rtol=1e-10)
+
+
+def test_a_noise_free_drive_gives_the_true_parameters(clean_drive: SimulatedDrive) -> None:
+    est = inverse_calibration([clean_drive.drive], settings=Settings())
+    assert est.status is Status.EXACT
+    np.testing.assert_allclose(est.theta.as_array(), clean_drive.true_parameters.as_array(),
+                               rtol=1e-8, atol=1e-10)
+
+
+@pytest.mark.parametrize("degrees", [1.0, -2.0])
+def test_a_turned_reference_heading_is_found_with_its_sign_online_and_in_batch(
+        noisy_drive: SimulatedDrive, degrees: float) -> None:
+    cols = {k: v.copy() for k, v in noisy_drive.drive.columns().items()}
+    cols["psi"] = cols["psi"] + np.radians(degrees)
+    drive = odocal.Drive.from_columns(cols, name="turned")
+    batch = inverse_calibration([drive], settings=Settings())
+    # the offset is added to the heading to give the course: the opposite of the turn
+    assert batch.details.heading_offset_rad == pytest.approx(-np.radians(degrees), abs=2e-3)
+    live = pushed(drive, 40).estimate()
+    assert live.details.heading_offset_rad == pytest.approx(batch.details.heading_offset_rad,
+                                                            rel=1e-12)
+    np.testing.assert_allclose(live.theta.as_array(), batch.theta.as_array(), rtol=1e-9)
+    plain = inverse_calibration([noisy_drive.drive], settings=Settings())
+    assert abs(batch.theta.c_e - plain.theta.c_e) < 0.2 * plain.std[0]
+
+
+def test_folded_sums_keep_the_noise_model_of_older_driving() -> None:
+    """Windows folded out of memory keep their part of the noise model: a noisy first half and a
+    quiet second give the batch answer's noise level, not the last minutes' alone."""
+    noisy = odocal.simulate(duration_s=600, seed=6, noise="white-5x").drive
+    quiet = odocal.simulate(duration_s=600, seed=7, noise="white").drive
+    later = quiet.columns()
+    later["t"] = later["t"] + noisy.t[-1] + 60.0
+    cols = {k: np.concatenate([v, later[k]]) for k, v in noisy.columns().items()}
+    cols["piece"] = np.concatenate([np.zeros(noisy.n_samples), np.ones(quiet.n_samples)])
+    both = odocal.Drive.from_columns(cols, name="two halves")
+    batch = inverse_calibration([both], settings=Settings())
+    settings = Settings().replace(online={"max_windows": 120})
+    live = pushed(both, 40, settings).estimate()
+    assert live.details.windows_in_memory < live.details.windows / 3
+    for channel in (0, 1):
+        assert live.details.noise[channel][0] == pytest.approx(batch.details.noise[channel][0],
+                                                               rel=0.2)
+
+
+def test_forgetting_follows_a_parameter_that_moved() -> None:
+    """With forgetting, older evidence fades: after a step in c_e that the change detector is
+    told not to see, the estimate follows the new value; without, it stays between."""
+    true = odocal.TRUE_PARAMETERS
+    after = odocal.Parameters(true.c_e * 0.997, true.c_d, true.t_r, true.d)
+    sim = odocal.simulate(duration_s=2400, seed=3, noise="realistic", change=(1200.0, after))
+    blind = {"cusum_h": 1e9}
+    keep = pushed(sim.drive, 40, Settings().replace(online=blind)).estimate()
+    fade = pushed(sim.drive, 40, Settings().replace(
+        online={**blind, "forgetting_s": 300.0})).estimate()
+    assert abs(fade.theta.c_e - after.c_e) < 3 * fade.std[0]
+    assert abs(fade.theta.c_e - after.c_e) < 0.5 * abs(keep.theta.c_e - after.c_e)
+    # on a drive that does not change, forgetting costs precision: less evidence counts
+    steady = odocal.simulate(duration_s=1800, seed=3, noise="realistic").drive
+    all_of_it = pushed(steady, 40).estimate()
+    recent = pushed(steady, 40, Settings().replace(online={"forgetting_s": 300.0})).estimate()
+    assert np.all(recent.std > 1.3 * all_of_it.std)
+
+
+def test_a_clock_offset_beyond_the_correction_range_is_a_note(
+        noisy_drive: SimulatedDrive) -> None:
+    late = {k: v.copy() for k, v in noisy_drive.drive.columns().items()}
+    for key in ("n_rl", "n_rr"):
+        late[key] = np.concatenate([late[key][:12], late[key][:-12]])      # 0.3 s late
+    drive = odocal.Drive.from_columns(late, name="late")
+    (finding,) = [f for f in check_drives([drive], Settings()).findings
+                  if f.check is Check.CLOCK_OFFSET]
+    assert finding.severity is Severity.NOTE
+    assert finding.value == pytest.approx(0.3, abs=0.03)
+
+
+def test_every_public_name_resolves() -> None:
+    """The lazy public API (``odocal.X``) points at where each name lives after the layout."""
+    for name in odocal.__all__:
+        assert getattr(odocal, name) is not None, name
