@@ -174,39 +174,9 @@ class Drive:
         ``columns`` maps the names of the drive format (see :data:`REQUIRED_COLUMNS` and
         :data:`OPTIONAL_COLUMNS`) to 1-D arrays; unknown columns are ignored.
         """
-        missing = [c for c in REQUIRED_COLUMNS if c not in columns]
-        if missing:
-            raise DataError(f"'{name}' lacks column{'s' if len(missing) > 1 else ''} "
-                            f"{', '.join(missing)} (the drive format needs "
-                            f"{', '.join(REQUIRED_COLUMNS)})")
-        arrays: dict[str, FloatArray] = {}
-        for key in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS):
-            if key not in columns:
-                continue
-            try:
-                arr = _as_float_array(columns[key])
-            except (TypeError, ValueError):
-                raise DataError(f"'{name}' column {key} is not numeric") from None
-            if arr.ndim != 1:
-                raise DataError(f"'{name}' column {key} must be one-dimensional")
-            arrays[key] = arr
+        arrays = _columns(columns, name)
         m = arrays["t"].shape[0]
-        if m == 0:
-            raise DataError(f"'{name}' has no rows")
-        if m < 3:
-            raise DataError(f"'{name}' has only {m} rows; a drive needs many samples")
         t = arrays["t"]
-        for key, arr in arrays.items():
-            if arr.shape[0] != m:
-                raise DataError(f"'{name}' column {key} has {arr.shape[0]} rows, t has {m}")
-            bad = ~np.isfinite(arr)
-            if bad.any():
-                first = int(np.argmax(bad))
-                where = f"t={t[first]:.3f} s" if key != "t" and np.isfinite(t[first]) \
-                    else f"row {first}"
-                raise DataError(f"'{name}' column {key} contains {int(bad.sum())} NaN or "
-                                f"infinite values (first at {where})")
-
         dt = np.diff(t)
         if (dt <= 0).any():
             first = int(np.argmax(dt <= 0))
@@ -253,6 +223,44 @@ class Drive:
                    pose_std=pose_std,
                    metadata=MappingProxyType({**dict(metadata or {}),
                                               **({"repaired": repaired} if repaired else {})}))
+
+
+def _columns(columns: Mapping[str, Any], name: str) -> dict[str, FloatArray]:
+    """The drive format's columns as float arrays, each checked: present, numeric, one row per
+    sample, finite."""
+    missing = [c for c in REQUIRED_COLUMNS if c not in columns]
+    if missing:
+        raise DataError(f"'{name}' lacks column{'s' if len(missing) > 1 else ''} "
+                        f"{', '.join(missing)} (the drive format needs "
+                        f"{', '.join(REQUIRED_COLUMNS)})")
+    arrays: dict[str, FloatArray] = {}
+    for key in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS):
+        if key not in columns:
+            continue
+        try:
+            arr = _as_float_array(columns[key])
+        except (TypeError, ValueError):
+            raise DataError(f"'{name}' column {key} is not numeric") from None
+        if arr.ndim != 1:
+            raise DataError(f"'{name}' column {key} must be one-dimensional")
+        arrays[key] = arr
+    m = arrays["t"].shape[0]
+    if m == 0:
+        raise DataError(f"'{name}' has no rows")
+    if m < 3:
+        raise DataError(f"'{name}' has only {m} rows; a drive needs many samples")
+    t = arrays["t"]
+    for key, arr in arrays.items():
+        if arr.shape[0] != m:
+            raise DataError(f"'{name}' column {key} has {arr.shape[0]} rows, t has {m}")
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            first = int(np.argmax(bad))
+            where = f"t={t[first]:.3f} s" if key != "t" and np.isfinite(t[first]) \
+                else f"row {first}"
+            raise DataError(f"'{name}' column {key} contains {int(bad.sum())} NaN or "
+                            f"infinite values (first at {where})")
+    return arrays
 
 
 def _pieces(name: str, t: FloatArray, piece: FloatArray | None) -> tuple[tuple[int, int], ...]:

@@ -57,9 +57,8 @@ from odocal.estimators.estimate import (
     NotIdentified,
     Reason,
     few_clusters_inflation,
-    held_as_weak,
+    hold_unidentified,
     numerically_free,
-    weak,
 )
 from odocal.estimators.windows import WindowSet, load_transfer_column, predict
 from odocal.model.parameters import PARAMETER_NAMES
@@ -440,38 +439,32 @@ def _identified(current: Fit, windows: WindowSet, folded: Folded, settings: Sett
                 free: BoolArray, held: dict[str, NotIdentified],
                 refit: Callable[[FloatArray, BoolArray], Fit], lag_on: bool,
                 ) -> tuple[BoolArray, dict[str, NotIdentified], Fit, Uncertainty]:
-    """The identifiability verdict: parameters the data do not determine within the limit keep
-    their datasheet values (named), and the rest is refitted, until every free one passes.
-    Parameters held because the windows cannot see them widen the free ones by their datasheet
-    uncertainty (:func:`covariance`)."""
+    """The identifiability verdict (:func:`~odocal.estimators.estimate.hold_unidentified`)
+    with this core's covariance. Parameters held because the windows cannot see them widen the
+    free ones by their datasheet uncertainty (:func:`covariance`)."""
     datasheet = np.asarray(settings.identify.theta0, dtype=np.float64)
     prior = np.asarray(settings.identify.prior_std, dtype=np.float64)
     # parameters the windows cannot see at all, yet the free ones are sensitive to (a_y
     # missing: d; one turning rate: t_r against c_d), widen them by their datasheet uncertainty
     unseen = np.array([n in held and held[n].reason in _UNSEEN for n in PARAMETER_NAMES])
-    free = free.copy()
-    for _ in range(len(PARAMETER_NAMES)):
-        found = covariance(current, windows, folded, np.append(free, lag_on),
-                           np.where(unseen & ~free, prior, 0.0))
-        std = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))
-        if found.clusters < 2 and free.any() and settings.identify.judge_identifiability:
-            for j in np.flatnonzero(free):
-                held[PARAMETER_NAMES[j]] = NotIdentified(Reason.ONE_CLUSTER, float(std[j]),
-                                                         detail=float(found.clusters))
-            free[:] = False
-        else:
-            too_weak = weak(std, free, settings.identify)
-            if not too_weak.any():
-                return free, held, current, found
-            held.update(held_as_weak(std, too_weak, settings.identify))
-            free = free & ~too_weak
-        p = current.p.copy()
+    fits, uncertainties = [current], []
+
+    def covariance_of(free: BoolArray) -> tuple[FloatArray, int]:
+        uncertainties.append(covariance(fits[-1], windows, folded, np.append(free, lag_on),
+                                        np.where(unseen & ~free, prior, 0.0)))
+        return uncertainties[-1].covariance, uncertainties[-1].clusters
+
+    def refit_at(free: BoolArray) -> None:
+        p = fits[-1].p.copy()
         p[:4][~free] = datasheet[~free]
-        current = refit(p, free)
-        if not free.any():
-            break
-    return free, held, current, dataclasses.replace(found, covariance=np.zeros((4, 4)),
-                                                    widening=np.ones(4))
+        fits.append(refit(p, free))
+
+    free, held = hold_unidentified(free, held, settings.identify, covariance_of=covariance_of,
+                                   refit=refit_at)
+    found = uncertainties[-1]
+    if not free.any():
+        found = dataclasses.replace(found, covariance=np.zeros((4, 4)), widening=np.ones(4))
+    return free, held, fits[-1], found
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ held (no bends, no information, the wheels carry no differential signal, ...).
 from __future__ import annotations
 
 import enum
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -295,6 +295,41 @@ def judge(std: FloatArray, free: BoolArray | tuple[bool, ...], settings: Identif
         else:
             out.append(Identified(float(std[j]), float(limits[j])))
     return tuple(out)  # type: ignore[return-value]
+
+
+def hold_unidentified(free: BoolArray, held: Mapping[str, NotIdentified],
+                      settings: IdentifySettings, *,
+                      covariance_of: Callable[[BoolArray], tuple[FloatArray, int]],
+                      refit: Callable[[BoolArray], None],
+                      ) -> tuple[BoolArray, dict[str, NotIdentified]]:
+    """The identifiability verdict, the same for every method: parameters the data do not
+    determine within the limit (:func:`weak`) keep their datasheet values and are named, and
+    the rest is refitted (``refit(free)``), until every free one passes. Where the evidence is
+    one cluster of overlapping data only, nothing is identified (no spread to judge by).
+
+    ``covariance_of(free)`` gives the (4, 4) covariance of the latest fit and the number of
+    independent clusters it rests on. Returns the free parameters and why the others are held.
+    """
+    free = np.asarray(free, dtype=bool).copy()
+    held = dict(held)
+    for _ in range(len(PARAMETER_NAMES)):
+        cov, clusters = covariance_of(free)
+        std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        if clusters < 2 and free.any() and settings.judge_identifiability:
+            for j in np.flatnonzero(free):
+                held[PARAMETER_NAMES[j]] = NotIdentified(Reason.ONE_CLUSTER, float(std[j]),
+                                                         detail=float(clusters))
+            free[:] = False
+        else:
+            too_weak = weak(std, free, settings)
+            if not too_weak.any():
+                break
+            held.update(held_as_weak(std, too_weak, settings))
+            free = free & ~too_weak
+        refit(free)
+        if not free.any():
+            break
+    return free, held
 
 
 def held_as_weak(std: FloatArray, mask: BoolArray,

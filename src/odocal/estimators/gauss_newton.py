@@ -40,9 +40,8 @@ from odocal.estimators.estimate import (
     Reason,
     Status,
     few_clusters_inflation,
-    held_as_weak,
+    hold_unidentified,
     judge,
-    weak,
 )
 from odocal.model.kinematics import segment_r_factors
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
@@ -174,40 +173,28 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
         theta_init[~free] = datasheet[~free]
         lin0 = linearise(batch, theta_init, weights)
 
-    while True:
-        it = _iterate(batch, theta_init, lin0, free, weights, settings)
-        cov_naive = _naive_covariance(it.lin, free)
-        cov = cov_naive
-        kind = CovarianceKind.RESIDUAL
-        if n_clusters >= _MIN_CLUSTERS_FOR_ROBUST:
-            cov, kind = _robust_covariance(it.lin, free, clusters), CovarianceKind.CLUSTER_ROBUST
-        elif n_clusters >= 2:
-            cov = _larger(cov_naive, _robust_covariance(it.lin, free, clusters)) \
-                * few_clusters_inflation(n_clusters) ** 2
-        if n_clusters < 2 and free.any() and settings.judge_identifiability:
-            # one cluster of overlapping segments is one piece of evidence: no spread to judge by
-            std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-            for j in np.flatnonzero(free):
-                held[PARAMETER_NAMES[j]] = NotIdentified(Reason.ONE_CLUSTER, float(std[j]),
-                                                         detail=float(n_clusters))
-            free = np.zeros(4, dtype=bool)
-        else:
-            std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-            too_weak = weak(std, free, settings)
-            if not too_weak.any():
-                break
-            held.update(held_as_weak(std, too_weak, settings))
-            free = free & ~too_weak
-        theta_init = it.theta.copy()
-        theta_init[~free] = datasheet[~free]
-        if not free.any():
-            lin = linearise(batch, theta_init, weights)
-            it = _Iteration(theta_init, lin, [lin.cost], 0, Status.NOTHING_IDENTIFIABLE)
-            cov = cov_naive = np.zeros((4, 4))
-            kind = CovarianceKind.NONE
-            break
-        lin0 = linearise(batch, theta_init, weights)
+    fits = [_iterate(batch, theta_init, lin0, free, weights, settings)]
+    kinds: list[tuple[FloatArray, FloatArray, CovarianceKind]] = []
 
+    def covariance_of(free: BoolArray) -> tuple[FloatArray, int]:
+        kinds.append(_covariance(fits[-1].lin, free, clusters, n_clusters))
+        return kinds[-1][0], n_clusters
+
+    def refit(free: BoolArray) -> None:
+        theta = fits[-1].theta.copy()
+        theta[~free] = datasheet[~free]
+        if free.any():
+            fits.append(_iterate(batch, theta, linearise(batch, theta, weights), free,
+                                 weights, settings))
+        else:
+            lin = linearise(batch, theta, weights)
+            fits.append(_Iteration(theta, lin, [lin.cost], 0, Status.NOTHING_IDENTIFIABLE))
+
+    free, held = hold_unidentified(free, held, settings, covariance_of=covariance_of,
+                                   refit=refit)
+    it = fits[-1]
+    cov, cov_naive, kind = kinds[-1] if free.any() else (np.zeros((4, 4)), np.zeros((4, 4)),
+                                                         CovarianceKind.NONE)
     lin = it.lin
     rms = np.sqrt(lin.residual_ss / max(lin.samples, 1))
     if not it.status.success:
@@ -268,6 +255,20 @@ def _iterate(batch: SegmentBatch, theta_init: FloatArray, lin0: Linearisation,
     elif iterations == 0:
         status = Status.NO_IMPROVEMENT
     return _Iteration(theta, lin, history, iterations, status)
+
+
+def _covariance(lin: Linearisation, free: BoolArray, clusters: IntArray,
+                n_clusters: int) -> tuple[FloatArray, FloatArray, CovarianceKind]:
+    """The covariance of a fit (cluster-robust with enough clusters; else the larger of it and
+    the residual formula, widened for the clusters' small number), the residual formula's, and
+    which it is."""
+    naive = _naive_covariance(lin, free)
+    if n_clusters >= _MIN_CLUSTERS_FOR_ROBUST:
+        return _robust_covariance(lin, free, clusters), naive, CovarianceKind.CLUSTER_ROBUST
+    if n_clusters >= 2:
+        return (_larger(naive, _robust_covariance(lin, free, clusters))
+                * few_clusters_inflation(n_clusters) ** 2, naive, CovarianceKind.RESIDUAL)
+    return naive, naive, CovarianceKind.RESIDUAL
 
 
 def _predicted_decrease(r_factor: FloatArray, delta: FloatArray) -> float:

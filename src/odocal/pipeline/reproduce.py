@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 
 from odocal.data.drive import Drive
 from odocal.data.segments import (
+    SegmentBatch,
     gather,
     gather_ragged,
     identification_segments,
@@ -165,30 +166,8 @@ def reproduce(*, seed: int = 0, noise: str = "realistic", distance_km: float = 2
                             progress=stage("step 2: examined batch"))
     exam_comp = exam.with_wheel_rates(comp.n_rl, comp.n_rr)
 
-    # pure G-N shows the raw per-segment estimates, however loose (as the paper's Fig. 7)
-    loose = dataclasses.replace(settings.identify, judge_identifiability=False)
-    seg = min(EXAMINED_SEGMENT, len(exam) - 1)
-    one = slice(seg, seg + 1)
-    table1 = (
-        estimate(f"segment {seg + 1} with measured rates",
-                 gauss_newton(exam.take(one), settings=loose)),
-        estimate(f"segment {seg + 1} with compensated rates",
-                 gauss_newton(exam_comp.take(one), settings=loose)),
-        estimate("batch with measured rates", s1.results[examined]),
-        estimate("batch with compensated rates (theta_BF)",
-                 gauss_newton(exam_comp, settings=settings.identify)),
-    )
-    per_raw = tuple(estimate(f"segment {i + 1}", gauss_newton(exam.take(slice(i, i + 1)),
-                                                              settings=loose))
-                    for i in range(len(exam)))
-    per_comp = tuple(estimate(f"segment {i + 1}", gauss_newton(exam_comp.take(slice(i, i + 1)),
-                                                               settings=loose))
-                     for i in range(len(exam)))
-    n3 = settings.calibrate.step3_batch_size
-    step3 = tuple(estimate(f"segments {lo + 1}-{min(lo + n3, len(exam))}",
-                           gauss_newton(exam_comp.take(slice(lo, lo + n3)),
-                                        settings=settings.identify))
-                  for lo in range(0, len(exam), n3))
+    table1, per_raw, per_comp, step3 = _examined(exam, exam_comp, s1.results[examined],
+                                                 settings, estimate)
 
     whole_raw = estimate("all selected segments, measured rates",
                          gauss_newton(batch, settings=settings.identify))
@@ -218,6 +197,38 @@ def reproduce(*, seed: int = 0, noise: str = "realistic", distance_km: float = 2
                                                               exam.inputs.n_rr]))
                                            / np.maximum(np.abs(np.stack(
                                                [exam.inputs.n_rl, exam.inputs.n_rr])), 0.5))))
+
+
+def _examined(exam: SegmentBatch, exam_comp: SegmentBatch, step1_result: Estimate,
+              settings: Settings, estimate: Callable[[str, Estimate], Reproduced],
+              ) -> tuple[tuple[Reproduced, ...], ...]:
+    """The examined batch, as the paper's Table 1 and Fig. 7 show it: one segment and the
+    batch with measured and compensated rates, every segment alone (pure G-N shows the raw
+    per-segment estimates, however loose), and step 3's batches."""
+    loose = dataclasses.replace(settings.identify, judge_identifiability=False)
+    seg = min(EXAMINED_SEGMENT, len(exam) - 1)
+    one = slice(seg, seg + 1)
+    table1 = (
+        estimate(f"segment {seg + 1} with measured rates",
+                 gauss_newton(exam.take(one), settings=loose)),
+        estimate(f"segment {seg + 1} with compensated rates",
+                 gauss_newton(exam_comp.take(one), settings=loose)),
+        estimate("batch with measured rates", step1_result),
+        estimate("batch with compensated rates (theta_BF)",
+                 gauss_newton(exam_comp, settings=settings.identify)),
+    )
+    per_raw = tuple(estimate(f"segment {i + 1}", gauss_newton(exam.take(slice(i, i + 1)),
+                                                              settings=loose))
+                    for i in range(len(exam)))
+    per_comp = tuple(estimate(f"segment {i + 1}", gauss_newton(exam_comp.take(slice(i, i + 1)),
+                                                               settings=loose))
+                     for i in range(len(exam)))
+    n3 = settings.calibrate.step3_batch_size
+    step3 = tuple(estimate(f"segments {lo + 1}-{min(lo + n3, len(exam))}",
+                           gauss_newton(exam_comp.take(slice(lo, lo + n3)),
+                                        settings=settings.identify))
+                  for lo in range(0, len(exam), n3))
+    return table1, per_raw, per_comp, step3
 
 
 def _mm(value: float) -> str:

@@ -208,8 +208,8 @@ def _comparison(result: CalibrationResult) -> str:
             f"<table id='compare'>{head}{''.join(rows)}</table>")
 
 
-def _page(result: CalibrationResult, data: ReportData,
-          figs: dict[str, tuple[str, str]]) -> str:
+def _parameter_rows(result: CalibrationResult) -> list[str]:
+    """The result table's rows: each parameter, datasheet, calibrated, std, verdict."""
     e = html.escape
     rows = []
     for row, label in zip(parameter_rows(result), PARAMETER_LABELS, strict=True):
@@ -221,15 +221,27 @@ def _page(result: CalibrationResult, data: ReportData,
             f"<td>{cal}</td><td>{_fmt(name, row['std']) if ident else '-'}</td>"
             f"<td>{_fmt(name, row['bootstrap_std']) if ident else '-'}</td>"
             f"<td class='{'yes' if ident else 'no'}'>{'yes' if ident else 'no'}</td></tr>")
-    val = ""
-    if result.validation is not None and result.datasheet_validation is not None:
-        parts = [f"datasheet {result.datasheet_validation.mean_error_m:.3f} m"]
-        if "raw" in data.segment_errors:
-            parts.append(f"batch G-N on measured rates {data.segment_errors['raw'].mean():.3f} m")
-        parts.append(f"<b>calibrated {result.validation.mean_error_m:.3f} m</b>")
-        val = (f"<p>Validation error E_p over {len(result.validation.segments)} segments "
-               f"({result.validation.segments.distance_m.sum() / 1000:.2f} km): "
-               + " &rarr; ".join(parts) + "</p>")
+    return rows
+
+
+def _validation(result: CalibrationResult, data: ReportData) -> str:
+    """E_p of the datasheet values, raw G-N and the calibration, in one line."""
+    if result.validation is None or result.datasheet_validation is None:
+        return ""
+    parts = [f"datasheet {result.datasheet_validation.mean_error_m:.3f} m"]
+    if "raw" in data.segment_errors:
+        parts.append(f"batch G-N on measured rates {data.segment_errors['raw'].mean():.3f} m")
+    parts.append(f"<b>calibrated {result.validation.mean_error_m:.3f} m</b>")
+    return (f"<p>Validation error E_p over {len(result.validation.segments)} segments "
+            f"({result.validation.segments.distance_m.sum() / 1000:.2f} km): "
+            + " &rarr; ".join(parts) + "</p>")
+
+
+def _page(result: CalibrationResult, data: ReportData,
+          figs: dict[str, tuple[str, str]]) -> str:
+    e = html.escape
+    rows = _parameter_rows(result)
+    val = _validation(result, data)
 
     def fig(name: str) -> str:
         if name not in figs:

@@ -129,6 +129,28 @@ def _runs(mask: NDArray[np.bool_], k: int) -> list[IntArray]:
     return runs
 
 
+def _kkt_solve(base: FloatArray, rhs_base: FloatArray, z_index: NDArray[np.int64],
+               act_lo: NDArray[np.bool_], act_hi: NDArray[np.bool_], lower: FloatArray,
+               upper: FloatArray) -> tuple[FloatArray, int]:
+    """The banded KKT system with the working set's variables fixed at their bounds (their
+    rows replaced by ``z_i = bound``), solved by banded LU; the solution and LAPACK's info."""
+    n = base.shape[1]
+    active = act_lo | act_hi
+    ab = base.copy()
+    rhs = rhs_base.copy()
+    if active.any():
+        kkt_rows = z_index[active]
+        band_cols = kkt_rows[:, None] + np.arange(-_KL, _KU + 1)[None, :]
+        ok = (band_cols >= 0) & (band_cols < n)
+        rr = np.broadcast_to(kkt_rows[:, None], band_cols.shape)[ok]
+        cc = band_cols[ok]
+        ab[_KL + _KU + rr - cc, cc] = 0.0
+        ab[_KL + _KU, kkt_rows] = 1.0
+        rhs[kkt_rows] = np.where(act_lo[active], lower[active], upper[active])
+    _, _, x, info = lapack.dgbsv(_KL, _KU, ab, rhs, overwrite_ab=True, overwrite_b=True)
+    return np.asarray(x), int(info)
+
+
 def solve_structured(p: CompensationProblem, *, max_iterations: int = 50,
                      initial_active: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None,
                      ) -> StructuredSolution:
@@ -165,7 +187,6 @@ def solve_structured(p: CompensationProblem, *, max_iterations: int = 50,
     else:
         act_lo = initial_active[0] | fixed
         act_hi = initial_active[1] & ~act_lo
-    offsets = np.arange(-_KL, _KU + 1)
     seen: set[bytes] = set()
     z = np.zeros(STAGE * k)
     message = "iteration limit"
@@ -177,18 +198,7 @@ def solve_structured(p: CompensationProblem, *, max_iterations: int = 50,
             message = "the working set cycles"
             break
         seen.add(key)
-        ab = base.copy()
-        rhs = rhs_base.copy()
-        if active.any():
-            kkt_rows = z_index[active]
-            band_cols = kkt_rows[:, None] + offsets[None, :]
-            ok = (band_cols >= 0) & (band_cols < n)
-            rr = np.broadcast_to(kkt_rows[:, None], band_cols.shape)[ok]
-            cc = band_cols[ok]
-            ab[_KL + _KU + rr - cc, cc] = 0.0
-            ab[_KL + _KU, kkt_rows] = 1.0
-            rhs[kkt_rows] = np.where(act_lo[active], lower[active], upper[active])
-        _, _, x, info = lapack.dgbsv(_KL, _KU, ab, rhs, overwrite_ab=True, overwrite_b=True)
+        x, info = _kkt_solve(base, rhs_base, z_index, act_lo, act_hi, lower, upper)
         if info != 0:
             return StructuredSolution(z=z, converged=False, iterations=iteration,
                                       active=int(active.sum()),
