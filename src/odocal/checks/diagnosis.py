@@ -58,6 +58,10 @@ MAX_DEAD_WHEEL_SHARE = 0.2
 MIN_LATERAL_SPREAD = 0.1
 #: A lag of a_y behind speed times yaw rate beyond this is named (s).
 MAX_LATERAL_LAG_S = 0.25
+#: Drives whose wheels differ on straights by more than this share (of their mean) apart ...
+MAX_WHEEL_RATIO_GAP = 0.005
+#: ... each judged on at least this many seconds of gentle turning, are not one vehicle.
+MIN_STRAIGHT_SECONDS = 8
 
 
 @dataclass(frozen=True)
@@ -76,14 +80,15 @@ class _Windows:
     a_y: FloatArray           # mean lateral acceleration, m/s^2
     v_w: FloatArray           # mean of speed times yaw rate (reference), m/s^2
     series: FloatArray        # index of the run of consecutive windows each belongs to
+    drive: FloatArray         # index of the drive each belongs to
 
 
 def _windows(drives: Sequence[Drive], theta: FloatArray) -> _Windows:
     names = ("t", "ds", "dpsi", "gap", "wds", "wdpsi", "diff", "left", "right", "ay", "vw",
-             "series")
+             "series", "drive")
     parts: dict[str, list[FloatArray]] = {k: [] for k in names}
     series = 0
-    for d in drives:
+    for index, d in enumerate(drives):
         length = max(round(1.0 / d.t_s), 1)
         for a, b in d.pieces:
             n = (b - a - 1) // length
@@ -114,12 +119,13 @@ def _windows(drives: Sequence[Drive], theta: FloatArray) -> _Windows:
             parts["ay"].append(wsum(d.a_y[a:b - 1]) / length)
             parts["vw"].append(wsum(ds * dpsi) / (length * d.t_s**2))
             parts["series"].append(np.full(n, float(series)))
+            parts["drive"].append(np.full(n, float(index)))
             series += 1
     cat = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
     return _Windows(t=cat["t"], ds=cat["ds"], dpsi=cat["dpsi"], course_gap=cat["gap"],
                     wheel_ds=cat["wds"], wheel_dpsi=cat["wdpsi"], diff_revs=cat["diff"],
                     left_revs=cat["left"], right_revs=cat["right"], a_y=cat["ay"],
-                    v_w=cat["vw"], series=cat["series"])
+                    v_w=cat["vw"], series=cat["series"], drive=cat["drive"])
 
 
 def _correlation(a: FloatArray, b: FloatArray) -> float:
@@ -155,6 +161,7 @@ def check_drives(drives: Sequence[Drive], settings: Settings) -> Diagnosis:
     if any(f.severity is Severity.FATAL for f in reference):
         return Diagnosis(tuple(findings))                     # the rest would compare nonsense
     findings += _distance(win, moving, settings)
+    findings += _vehicles(drives, win, moving, theta)
     if any(f.severity is Severity.FATAL for f in findings):
         return Diagnosis(tuple(findings))
     bends = moving & (np.abs(win.dpsi) > lim.bend_yaw_rate_radps)
@@ -263,6 +270,45 @@ def _distance(win: _Windows, moving: BoolArray, settings: Settings) -> list[Find
     if abs(ratio - 1.0) > lim.datasheet_scale_note:
         return [Finding(Check.SPEED_SCALE, Severity.NOTE, ratio, 1.0)]
     return []
+
+
+def _wheel_ratio(win: _Windows, mask: BoolArray, theta: FloatArray) -> tuple[float, float]:
+    """The wheels' difference over their mean, less what the reference's turning explains
+    (``t_r dpsi / c_e``, datasheet values): about ``-c_d / c_e``. Its median over the seconds of
+    ``mask`` and that median's standard error."""
+    left, right, turn = win.left_revs[mask], win.right_revs[mask], win.dpsi[mask]
+    ratio = (left - right + theta[2] * turn / theta[0]) / (0.5 * (left + right))
+    median = float(np.median(ratio))
+    spread = 1.4826 * float(np.median(np.abs(ratio - median)))
+    return median, 1.2533 * spread / np.sqrt(ratio.size)
+
+
+def _vehicles(drives: Sequence[Drive], win: _Windows, moving: BoolArray,
+              theta: FloatArray) -> list[Finding]:
+    """Drives that disagree on the vehicle: their wheels differ by other amounts where the
+    turning does not explain it (two cars, or wheels swapped or re-tyred between the logs). One
+    calibration would average them; value the difference, name the two drives."""
+    usable = moving & (np.abs(win.dpsi) < 0.1) & (np.minimum(win.left_revs,
+                                                             win.right_revs) > 0.5)
+    ratios = {}
+    for k in range(len(drives)):
+        mine = usable & (win.drive == k)
+        if mine.sum() >= MIN_STRAIGHT_SECONDS:
+            ratios[k] = _wheel_ratio(win, mine, theta)
+    worst: tuple[float, int, int] | None = None
+    for i in ratios:
+        for j in ratios:
+            if j <= i:
+                continue
+            gap = abs(ratios[i][0] - ratios[j][0])
+            noise = float(np.hypot(ratios[i][1], ratios[j][1]))
+            if gap > max(MAX_WHEEL_RATIO_GAP, 5.0 * noise) and (worst is None or gap > worst[0]):
+                worst = (gap, i, j)
+    if worst is None:
+        return []
+    gap, i, j = worst
+    return [Finding(Check.VEHICLES_DIFFER, Severity.FATAL, gap, MAX_WHEEL_RATIO_GAP,
+                    f"{drives[i].name}|{drives[j].name}")]
 
 
 def _lateral(win: _Windows, bends: BoolArray, min_correlation: float) -> list[Finding]:

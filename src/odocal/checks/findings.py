@@ -30,6 +30,7 @@ class Check(enum.Enum):
     REFERENCE_SYNC = "reference-sync"
     REFERENCE_HEADING = "reference-heading"
     POSE_JUMP = "pose-jump"
+    VEHICLES_DIFFER = "vehicles-differ"
     INVALID_INPUT = "invalid-input"
     PARAMETER_RANGE = "parameter-range"
     WORSE_THAN_DATASHEET = "worse-than-datasheet"

@@ -84,7 +84,7 @@ def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
            f"{len(result.segments)} segments of {segs.length} samples, "
            f"{int(result.segments.selected.sum())} with bends "
            f"(peak yaw rate > {segs.yaw_rate_threshold_radps} rad/s)")
-    _print(f"method: {result.method}, identified from {result.segments_used} segments "
+    _print(f"method: {result.method}, identified from {result.used_text()} "
            f"in {result.elapsed_s:.1f} s")
     _print()
     header = f"{'parameter':<10} {'datasheet':>16} {'calibrated':>16} {'std':>10}"
@@ -332,6 +332,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             result = _compared(result, drives, settings, None, args.quiet)
         if not args.quiet:
             print_summary(result)
+        else:
+            rejected = _rejection(result.estimate, result.diagnosis.findings, settings)
+            if rejected:                             # -q prints errors only, and this one
+                _print(rejected)
         _write_outputs(result, args, progress=progress, renderer=renderer, inputs=inputs)
     finally:
         progress.close()
@@ -492,7 +496,7 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
 
     result = replay(args.source, fmt=args.source_format, settings=settings,
                     mapping=args.mapping, on_update=show)
-    rejected = _replay_rejection(result.estimate, settings)
+    rejected = _rejection(result.estimate, result.estimate.details.findings, settings)
     batch = None
     if not rejected and not args.no_batch and (args.source_format or "drive") == "drive":
         from odocal.pipeline.calibrate import calibrate
@@ -506,8 +510,7 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
     with results_folder(out) as tmp:
         written += _replay_files(tmp, args, result, batch, settings, renderer)
     if rejected:
-        for line in rejected:
-            _print(line)
+        _print(rejected)
         return EXIT_FAILED
     conv = convergence_km(result)
     if not args.quiet:
@@ -521,16 +524,19 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
     return EXIT_OK
 
 
-def _replay_rejection(estimate: Any, settings: Settings) -> list[str]:
-    """The lines that say why the online calibrator publishes no estimate (none: it does)."""
+def _rejection(estimate: Any, findings: Sequence[Any], settings: Settings) -> str | None:
+    """One line that says why a calibration publishes no parameters (None: it does): the first
+    contradiction the checks found, and how many more the report lists."""
     from odocal.estimators.estimate import Status
     from odocal.report.advice import finding_text
 
     if estimate.status is not Status.REJECTED:
-        return []
-    fatal = [f for f in estimate.details.findings if int(f.severity) == 2]
-    return ([f"error: {finding_text(f, settings)}" for f in fatal]
-            or [f"calibration failed: {estimate.message}"])
+        return None
+    fatal = [f for f in findings if int(f.severity) == 2]
+    if not fatal:
+        return f"calibration failed: {estimate.message}"
+    more = f" (and {len(fatal) - 1} more: see the report)" if len(fatal) > 1 else ""
+    return f"error: {finding_text(fatal[0], settings)}{more}"
 
 
 def _replay_files(out: Path, args: argparse.Namespace, result: Any, batch: Any,

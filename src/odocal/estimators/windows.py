@@ -378,14 +378,33 @@ def heading_offset(straight: FloatArray) -> float:
     return math.atan2(lat, lon)
 
 
-def builder_for(settings: Settings, t_s: float, *, drive: int = 0) -> WindowBuilder:
-    """A builder with the default method's window length and margin (``[inverse]``)."""
+def builder_for(settings: Settings, t_s: float, *, drive: int = 0,
+                cluster_steps: int | None = None) -> WindowBuilder:
+    """A builder with the default method's window length and margin (``[inverse]``); clusters
+    of a segment's length unless ``cluster_steps`` says otherwise."""
     cfg = settings.inverse
     length = max(round(cfg.window_s / t_s), 1)
     # room for the lag scan and one step either way for the counting window's spread
     margin = math.ceil(cfg.max_delay_s / t_s - 1e-6) + 1 if cfg.delay == "estimate" else 0
     return WindowBuilder(t_s=t_s, length=length, margin=margin,
-                         cluster_steps=settings.segments.length, drive=drive)
+                         cluster_steps=cluster_steps or settings.segments.length, drive=drive)
+
+
+#: Short drives are clustered finer so that they give at least this many clusters ...
+MIN_CLUSTERS = 10
+#: ... of at least this many windows each.
+MIN_CLUSTER_WINDOWS = 2
+
+
+def cluster_steps_for(drives: Sequence[Drive], settings: Settings) -> int:
+    """Steps per cluster of windows: a segment's length (``[segments] length``), or less where
+    the drives are too short for :data:`MIN_CLUSTERS` of them, down to two windows. A 20 s
+    scene is then five clusters of 4 s, not one: its evidence is judged (with the few-clusters
+    widening) rather than refused as a single piece."""
+    steps = sum(b - a - 1 for d in drives for a, b in d.pieces)
+    window = max(round(settings.inverse.window_s / drives[0].t_s), 1) if drives else 1
+    return int(min(settings.segments.length,
+                   max(MIN_CLUSTER_WINDOWS * window, steps // MIN_CLUSTERS)))
 
 
 def windows_from_drives(drives: Sequence[Drive], settings: Settings, *,
@@ -393,8 +412,9 @@ def windows_from_drives(drives: Sequence[Drive], settings: Settings, *,
     """Every window of every piece of the drives, and their straight-stretch sums (the builder
     fed each piece in chunks: memory stays bounded however long the drive)."""
     sets, straight = [], np.zeros(3)
+    cluster_steps = cluster_steps_for(drives, settings)
     for k, d in enumerate(drives):
-        builder = builder_for(settings, d.t_s, drive=k)
+        builder = builder_for(settings, d.t_s, drive=k, cluster_steps=cluster_steps)
         for a, b in d.pieces:
             for lo in range(a, b, chunk):
                 hi = min(lo + chunk, b)

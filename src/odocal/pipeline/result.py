@@ -22,6 +22,7 @@ from odocal.estimators import DEFAULT_METHOD
 from odocal.estimators.compensated import ThreeStepOutcome
 from odocal.estimators.covariance import BootstrapResult
 from odocal.estimators.estimate import Estimate
+from odocal.estimators.inverse import InverseDetails
 from odocal.estimators.validation import ValidationResult
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.settings import Settings
@@ -159,7 +160,31 @@ class CalibrationResult:
 
     @property
     def segments_used(self) -> int:
+        """Identification segments the segment-based methods fitted (see :attr:`used_data`)."""
         return int(self.used.sum())
+
+    @property
+    def used_data(self) -> dict[str, Any]:
+        """What the method really fitted: the default method its windows (every one of every
+        drive, straight or not), the segment methods their selected segments; with the
+        independent clusters they form and the drives they come from."""
+        details = self.estimate.details
+        if isinstance(details, InverseDetails):
+            return {"unit": "windows", "count": details.windows,
+                    "length_s": details.window_s, "clusters": details.clusters,
+                    "drives": len(self.drives)}
+        clusters = getattr(details, "clusters", None)
+        steps = int(self.segments.steps[0]) if len(self.segments) else 0
+        return {"unit": "segments", "count": self.segments_used,
+                "length_s": steps * (self.drive_data[0].t_s if self.drive_data else 0.0),
+                "clusters": clusters, "drives": len(self.drives)}
+
+    def used_text(self) -> str:
+        """:attr:`used_data` in a few words ("39 windows of 2 s, 8 clusters, 5 drives")."""
+        u = self.used_data
+        clusters = f", {u['clusters']} clusters" if u["clusters"] is not None else ""
+        return (f"{u['count']} {u['unit']} of {u['length_s']:.3g} s{clusters}, "
+                f"{u['drives']} drive{'s' if u['drives'] != 1 else ''}")
 
     def to_dict(self) -> dict[str, Any]:
         """The content of ``calibration.json``."""
@@ -167,6 +192,7 @@ class CalibrationResult:
         out: dict[str, Any] = {"odocal_version": __version__, **est.to_dict()}
         out["unidentified_reasons"] = {n: est.verdict(n).reason.value  # type: ignore[union-attr]
                                        for n in est.unidentified}
+        out["used"] = self.used_data
         out["segments_used"] = self.segments_used
         out["segments_total"] = len(self.segments)
         out["segments_selected"] = int(self.segments.selected.sum())

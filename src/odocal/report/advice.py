@@ -294,6 +294,12 @@ def _reference_and_sensor_text(finding: Finding) -> str:
         return (f"the reference pose jumps by {v:.1f} m at t = {ref:.2f} s{where}, far beyond "
                 "what the wheels turn: a relocalisation or a glitch; split the log there (a "
                 "'piece' column) or repair the reference")
+    if c is Check.VEHICLES_DIFFER:
+        first, _, second = finding.name.partition("|")
+        return (f"the logs '{first}' and '{second}' disagree on the vehicle: on straights their "
+                f"wheels differ by {v:.2%} of their mean more in one than in the other (the "
+                f"limit is {ref:.1%}): two vehicles, or wheels changed between them? Calibrate "
+                "each vehicle on its own logs")
     if c is Check.INVALID_INPUT:
         return finding.name
     return c.value
