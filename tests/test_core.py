@@ -10,7 +10,7 @@ from odocal.checks.diagnosis import check_drives
 from odocal.checks.findings import Check, Severity
 from odocal.estimators.estimate import Status
 from odocal.estimators.inverse import inverse_calibration
-from odocal.estimators.windows import WindowBuilder, windows_from_drives
+from odocal.estimators.windows import WindowBuilder, cluster_steps_for, windows_from_drives
 from odocal.online.calibrator import OnlineCalibrator
 from odocal.settings import Settings
 from odocal.sim.simulate import SimulatedDrive
@@ -43,7 +43,7 @@ def test_windows_do_not_depend_on_how_the_samples_came(short_drive: SimulatedDri
     drive = short_drive.drive
     whole, straight = windows_from_drives([drive], Settings())
     builder = WindowBuilder(t_s=drive.t_s, length=whole.length, margin=whole.margin,
-                            cluster_steps=650)
+                            cluster_steps=cluster_steps_for([drive], Settings()))
     rng = np.random.default_rng(4)
     i = 0
     while i < drive.n_samples:

@@ -6,12 +6,11 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from odocal.model.compiled import rollout_with_jacobian, step_jacobians
 from odocal.model.kinematics import (
     body_rates,
     rollout,
     rollout_ragged,
-    rollout_with_jacobian,
-    step_jacobians,
     wheel_rates_for,
     wrap_angle,
 )

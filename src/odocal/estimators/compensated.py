@@ -28,7 +28,7 @@ from odocal.estimators.compensation import BatchCompensation, compensate_batch
 from odocal.estimators.estimate import CovarianceKind, Estimate, NotIdentified, held_as_weak, weak
 from odocal.estimators.gauss_newton import bootstrap_terms, gauss_newton
 from odocal.estimators.parallel import map_chunks, resolve_workers
-from odocal.estimators.validation import mean_error
+from odocal.estimators.validation import mean_errors
 from odocal.model.parameters import PARAMETER_NAMES
 from odocal.settings import IdentifySettings, Settings
 
@@ -175,7 +175,7 @@ def step1(batch: SegmentBatch, validation: RaggedSegments | None, settings: Sett
     thetas = np.array([r.theta.as_array() for r in results])
     success = np.array([r.success for r in results])
     if validation is not None:
-        errors = np.array([mean_error(t, validation) for t in thetas])
+        errors = mean_errors(thetas, validation)
     else:  # no validation segments: rank by the identification cost per segment instead
         errors = np.array([r.details.cost_history[-1] / max(r.details.segments, 1)
                            for r in results])

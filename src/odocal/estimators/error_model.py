@@ -28,8 +28,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.model._jit import jit
-
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
@@ -61,20 +59,6 @@ class ErrorModel:
     coupling: float = 0.0
 
 
-@jit
-def _prewhiten_kernel(x: FloatArray, follows: BoolArray, ma: FloatArray, prev_x: FloatArray,
-                      prev_out: FloatArray, out: FloatArray) -> None:  # pragma: no cover
-    for w in range(x.shape[0]):
-        for c in range(x.shape[1]):
-            for k in range(x.shape[2]):
-                v = x[w, c, k]
-                if follows[w]:
-                    before_x = x[w - 1, c, k] if w > 0 else prev_x[c, k]
-                    before_out = out[w - 1, c, k] if w > 0 else prev_out[c, k]
-                    v += ma[c, 0] * before_out - ma[c, 1] * before_x
-                out[w, c, k] = v
-
-
 def prewhiten(x: FloatArray, follows: BoolArray, ma: FloatArray,
               before: tuple[FloatArray, FloatArray] | None = None) -> FloatArray:
     """Filter rows by ``(1 - phi L) / (1 - m L)`` along runs of windows that follow one another.
@@ -86,17 +70,51 @@ def prewhiten(x: FloatArray, follows: BoolArray, ma: FloatArray,
     ``follows[0]`` is set. ``out[w] = x[w] - phi x[w - 1] + m out[w - 1]``.
     """
     x = np.ascontiguousarray(x, dtype=np.float64)
-    out = np.empty_like(x)
-    if before is None:
-        follows = follows.copy()
-        if follows.size:
-            follows[0] = False
-        prev = np.zeros(x.shape[1:])
-        _prewhiten_kernel(x, follows, ma, prev, prev, out)
-    else:
-        _prewhiten_kernel(x, follows, ma, np.ascontiguousarray(before[0]),
-                          np.ascontiguousarray(before[1]), out)
+    out = x.copy()
+    if x.shape[0] == 0:
+        return out
+    follows = np.asarray(follows, dtype=bool).copy()
+    carry = before is not None and bool(follows[0])
+    follows[0] = carry
+    for c in range(x.shape[1]):
+        m, phi = float(ma[c, 0]), float(ma[c, 1])
+        if m == 0.0 and phi == 0.0:
+            continue                                       # no filter: the rows as they are
+        previous = np.zeros_like(x[:, c])
+        previous[1:] = x[:-1, c]
+        if carry:
+            assert before is not None
+            previous[0] = before[0][c]
+        u = x[:, c] - phi * np.where(follows[:, None], previous, 0.0)
+        out[:, c] = _recursion(u, m, follows, before[1][c] if carry and before else None)
     return out
+
+
+#: Windows filtered together by one matrix product in :func:`_recursion`.
+_BLOCK = 64
+
+
+def _recursion(u: FloatArray, m: float, follows: BoolArray,
+               start: FloatArray | None) -> FloatArray:
+    """``y[w] = u[w] + m y[w - 1]`` where window w follows the one before (``y[-1]`` =
+    ``start``), else ``y[w] = u[w]``: blocks of windows at once, each a lower-triangular product
+    with ``m^(i - j)`` over the windows of one run, the block's last value carried on."""
+    n, k = u.shape
+    blocks = -(-n // _BLOCK)
+    pad = blocks * _BLOCK - n
+    u_b = np.concatenate([u, np.zeros((pad, k))]).reshape(blocks, _BLOCK, k)
+    f_b = np.concatenate([follows, np.zeros(pad, dtype=bool)]).reshape(blocks, _BLOCK)
+    breaks = np.cumsum(~f_b, axis=1)                       # runs begun within the block
+    i = np.arange(_BLOCK)
+    decay = np.tril(float(m) ** np.maximum(i[:, None] - i[None, :], 0))
+    within = decay[None] * (breaks[:, :, None] == breaks[:, None, :])
+    local = np.einsum("bij,bjk->bik", within, u_b)
+    reach = (breaks == 0) * float(m) ** (i + 1)            # what the block before still adds
+    carried = np.zeros(k) if start is None else np.asarray(start, dtype=np.float64)
+    for b in range(blocks):
+        local[b] += reach[b, :, None] * carried[None, :]
+        carried = local[b, -1]
+    return np.asarray(local.reshape(blocks * _BLOCK, k)[:n])
 
 
 def expected_revolutions(measured: FloatArray, residual: FloatArray) -> FloatArray:

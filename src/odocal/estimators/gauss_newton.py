@@ -43,7 +43,7 @@ from odocal.estimators.estimate import (
     hold_unidentified,
     judge,
 )
-from odocal.model.kinematics import segment_r_factors
+from odocal.model.compiled import segment_r_factors
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.settings import IdentifySettings, Settings
 

@@ -76,7 +76,21 @@ def segment_errors(theta: FloatArray, data: RaggedSegments) -> SegmentErrors:
 
 def mean_error(theta: FloatArray, data: RaggedSegments) -> float:
     """E_p: the mean over segments of the mean position error, m."""
-    return float(segment_errors(theta, data).mean_m.mean())
+    return float(mean_errors(np.asarray(theta, dtype=np.float64)[None], data)[0])
+
+
+def mean_errors(thetas: FloatArray, data: RaggedSegments, *, chunk: int = 1) -> FloatArray:
+    """E_p of many parameter sets (P, 4), shape (P,): the rollouts and the position errors only
+    (what a search over parameter sets needs), ``chunk`` sets per pass (one is fastest where a
+    rollout's arrays outgrow the caches)."""
+    thetas = np.atleast_2d(np.asarray(thetas, dtype=np.float64))
+    out = np.empty(thetas.shape[0])
+    for lo in range(0, thetas.shape[0], chunk):
+        poses = rollout_ragged(thetas[lo:lo + chunk], data.inputs, data.initial, data.steps,
+                               data.t_s)
+        err = np.hypot(poses[..., 0] - data.reference[:, 0], poses[..., 1] - data.reference[:, 1])
+        out[lo:lo + chunk] = (np.add.reduceat(err, data.first, axis=-1) / data.steps).mean(axis=-1)
+    return out
 
 
 @dataclass(frozen=True)

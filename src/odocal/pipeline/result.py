@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,13 +19,15 @@ from odocal.checks.findings import Diagnosis
 from odocal.data.drive import Drive
 from odocal.data.segments import SegmentBatch, SegmentSet
 from odocal.estimators import DEFAULT_METHOD
-from odocal.estimators.compensated import ThreeStepOutcome
 from odocal.estimators.covariance import BootstrapResult
 from odocal.estimators.estimate import Estimate
 from odocal.estimators.inverse import InverseDetails
 from odocal.estimators.validation import ValidationResult
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.settings import Settings
+
+if TYPE_CHECKING:
+    from odocal.estimators.compensated import ThreeStepOutcome
 
 BoolArray = NDArray[np.bool_]
 

@@ -205,8 +205,14 @@ def compensate_batch(batch: SegmentBatch, thetas: Sequence[FloatArray] | FloatAr
               u.a_y[lo:lo + chunk], batch.reference[lo:lo + chunk], theta_arr, batch.t_s,
               settings) for lo in range(0, n, chunk)]
     sizes = [t[0].shape[0] for t in tasks]
-    results = map_chunks(_compensate_chunk, tasks, workers=workers, weights=sizes,
-                         progress=progress)
+    results = []
+    if workers != 1 and len(tasks) > 1:
+        # the first chunk here: the solvers' compiled kernels are then loaded in this process,
+        # and the workers forked from it share them instead of each loading its own
+        results.append(_compensate_chunk(tasks[0]))
+        tasks, sizes = tasks[1:], sizes[1:]
+    results += map_chunks(_compensate_chunk, tasks, workers=workers, weights=sizes,
+                          progress=progress)
     rates = np.concatenate([r[0] for r in results])            # (N, S, K, 2)
     status = np.concatenate([r[1] for r in results])
     iters = np.concatenate([r[2] for r in results])

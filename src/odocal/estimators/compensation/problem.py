@@ -22,7 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.model.kinematics import rollout, step_jacobians
+from odocal.model.compiled import step_jacobians
+from odocal.model.kinematics import rollout
 from odocal.model.parameters import Inputs
 from odocal.settings import CompensateSettings
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import osqp
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
@@ -109,6 +108,8 @@ def solve_osqp(p: CompensationProblem, *,
     ``attempts`` until polishing succeeds with a feasible answer (a polished point can still
     violate the model equalities slightly, and so undercut the true optimum).
     """
+    import osqp  # the reference solver: loaded where it runs
+
     qp = sparse_qp(p)
     status, iterations, eps = "not run", 0, float("nan")
     for attempt in attempts:
