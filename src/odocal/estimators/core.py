@@ -169,9 +169,17 @@ class Fit:
     def normal_equations(self, folded: Folded) -> tuple[FloatArray, FloatArray]:
         """``H`` and ``g`` of the step, windows and folded sums together."""
         jj, rr = self.white[..., 1:], self.white[..., 0]
-        h = np.einsum("wcp,wcq->pq", jj, jj) + folded.h
-        g = np.einsum("wcp,wc->p", jj, rr) + folded.b - folded.h @ self.p
+        rows, res = jj.reshape(-1, jj.shape[-1]), rr.reshape(-1)
+        h = rows.T @ rows + folded.h
+        g = rows.T @ res + folded.b - folded.h @ self.p
         return h, g
+
+
+def _channels(per_wheel: FloatArray) -> FloatArray:
+    """(W, 2, ...) per wheel -> per channel: the wheels' mean (distance) and their difference
+    (yaw), as :data:`~odocal.estimators.error_model.CHANNELS` says."""
+    left, right = per_wheel[:, 0], per_wheel[:, 1]
+    return np.stack([0.5 * (left + right), right - left], axis=1)
 
 
 def evaluate(p: FloatArray, view: View, model: ErrorModel, folded: Folded,
@@ -190,7 +198,7 @@ def evaluate(p: FloatArray, view: View, model: ErrorModel, folded: Folded,
         pred = pred + p[4] * spread
     jac = np.concatenate([jac4, spread[..., None]], axis=2)
     r = (win.measured - pred) @ CHANNELS.T
-    j = np.einsum("ci,wip->wcp", CHANNELS, jac)
+    j = _channels(jac)
     gain = coupling_gain(win.measured, r, model.coupling)
     w = window_weights(win.measured, r, model.noise, gain) * channels * win.weight[:, None]
     stacked = decouple(np.concatenate([r[..., None], j], axis=2), gain) * np.sqrt(w)[..., None]
@@ -250,19 +258,32 @@ def scan_lag(windows: WindowSet, theta: FloatArray, heading_offset: float, model
              folded: Folded) -> LagScan:
     """The yaw channel's weighted cost at every half step of shift of the reference side, with
     theta fixed (the distance channel is left out: a slip that grows with acceleration is
-    common to both wheels and would pass for a lag there)."""
+    common to both wheels and would pass for a lag there).
+
+    The prediction is linear in the moments, so it is made once at every whole-step shift and
+    interpolated between them, as the moments are.
+    """
     limit = windows.shifts
     grid = np.arange(-limit, limit + 0.25, 0.5)
     half = (windows.cluster % 2).astype(np.int64)
     costs = np.zeros((2, grid.size))
-    for i, shift in enumerate(grid):
-        at, _ = windows.at(float(shift), heading_offset)
-        pred, _ = predict(theta, at)
-        r = (windows.measured - pred) @ CHANNELS.T
-        gain = coupling_gain(windows.measured, r, model.coupling)
-        w = window_weights(windows.measured, r, model.noise, gain) * windows.weight[:, None]
-        cost = w[:, 1] * decouple(r, gain)[:, 1] ** 2
-        costs[:, i] = np.bincount(half, weights=cost, minlength=2)[:2]
+    w_count, shifts = windows.size, windows.moments.shape[1]
+    if w_count and limit > 0:
+        rotated = windows.rotated(heading_offset)                    # (W, S, 2 SERIES + 2)
+        whole, _ = predict(theta, rotated.reshape(w_count * shifts, -1))
+        whole = whole.reshape(w_count, shifts, 2)
+        x = grid + windows.margin
+        lo = np.floor(x).astype(np.int64)
+        frac = (x - lo)[None, :, None]
+        pred = whole[:, lo] * (1.0 - frac) + whole[:, np.minimum(lo + 1, shifts - 1)] * frac
+        measured = np.repeat(windows.measured, grid.size, axis=0)
+        r = (measured - pred.reshape(-1, 2)) @ CHANNELS.T
+        gain = coupling_gain(measured, r, model.coupling)
+        w = window_weights(measured, r, model.noise, gain) \
+            * np.repeat(windows.weight, grid.size)[:, None]
+        cost = (w[:, 1] * decouple(r, gain)[:, 1] ** 2).reshape(w_count, grid.size)
+        for k in (0, 1):
+            costs[k] = cost[half == k].sum(axis=0)
     if folded.scan is not None and folded.scan.shape == costs.shape:
         costs = costs + folded.scan
     return LagScan(grid=grid, costs=costs)
@@ -544,8 +565,8 @@ def fold(folded: Folded, windows: WindowSet, p: FloatArray, shift: float, headin
     current = evaluate(p, View.of(windows, shift, heading_offset), model, folded, channels,
                        smooth=smooth)
     jj, rr = current.white[..., 1:], current.white[..., 0]
-    h = np.einsum("wcp,wcq->pq", jj, jj)
-    g = np.einsum("wcp,wc->p", jj, rr)
+    rows, res = jj.reshape(-1, jj.shape[-1]), rr.reshape(-1)
+    h, g = rows.T @ rows, rows.T @ res
     free = np.append(np.ones(4, dtype=bool), smooth)
     adjusted = leverage_adjusted_scores(h[None], g[None], free, np.zeros(1, dtype=np.int64),
                                         total=total_h if total_h is not None else h + folded.h

@@ -105,6 +105,10 @@ class WindowSet:
         """The same windows with their weights times ``factor`` (forgetting)."""
         return replace(self, weight=self.weight * factor)
 
+    def rotated(self, heading_offset: float) -> FloatArray:
+        """The moments the model takes at every whole-step shift (W, S, 2 SERIES + 2)."""
+        return _rotated(self.moments, heading_offset)
+
     def at(self, shift: float, heading_offset: float) -> tuple[FloatArray, FloatArray]:
         """The moments the model takes, ``[along_j, dpsi_j, along v w, dpsi v w]`` (W, 2 SERIES
         + 2), at a (fractional) shift of the reference side (steps; linear between whole steps,
