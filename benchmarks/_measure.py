@@ -37,14 +37,15 @@ def _pss_kb(pid: int) -> int:
     return 0
 
 
-def run_measured(argv: Sequence[str]) -> tuple[float, float]:
+def run_measured(argv: Sequence[str], *, env: dict[str, str] | None = None
+                 ) -> tuple[float, float]:
     """Run ``argv``; return (wall seconds, peak summed PSS of the process tree in MB).
 
     The tree is sampled every 200 ms (reading PSS costs the measured process time, so more often
     would slow it down), so short spikes between samples can be missed.
     """
     start = time.perf_counter()
-    proc = subprocess.Popen(list(argv))
+    proc = subprocess.Popen(list(argv), env=env)
     peak = 0
     done = threading.Event()
 

@@ -1,6 +1,7 @@
-"""Speed of ``odocal calibrate`` by stage, for every method and drive length (issue 14).
+"""Speed of ``odocal calibrate`` by stage, for every method and drive length (issues 14, 24).
 
-    python benchmarks/bench_pipeline.py [--minutes 15,60,240] [--methods inverse,raw,...]
+    python benchmarks/bench_pipeline.py [--minutes 15,60,600] [--methods inverse,raw,...]
+                                        [--no-first-run]
 
 For each simulated drive (realistic noise) and method, ``odocal calibrate`` runs as a separate
 process once with the report (the wall time a user waits, and the peak memory of the process
@@ -8,7 +9,12 @@ tree) and three times with ``--no-report``. The split by stage comes from ``timi
 calibration.json (each stage's best of the three runs: the machine's noise only adds time);
 "start" is the rest of the fastest ``--no-report`` run (starting Python, imports, writing the
 file) and "report" the difference between the run with the report and that one. The last
-column is the wall time per hour of driving.
+column is the wall time per hour of driving, and "x default" the wall time over the default
+method's on the same drive, in the same run (the machine is shared: ratios travel, seconds less).
+
+"first run" is the one-hour drive's wall time with the report on a fresh install: numba's cache
+pointed at an empty folder (``NUMBA_CACHE_DIR``), so every kernel the method uses is compiled
+then, as on a user's first run; beside it the same run warm and their ratio.
 
 Wall time is a fixed cost (starting Python, imports, numba loading its kernels: about 1 s) plus
 a cost per hour of driving, so the wall time per hour of a 15-minute drive is mostly the fixed
@@ -26,6 +32,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import os
 import sys
 import tempfile
 from pathlib import Path
@@ -46,8 +53,9 @@ STAGES = ("read", "checks", "segments", "inverse: fit", "step 1: batches", "step
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--minutes", default="15,60,240")
+    parser.add_argument("--minutes", default="15,60,600")
     parser.add_argument("--methods", default=",".join(METHOD_NAMES))
+    parser.add_argument("--no-first-run", action="store_true")
     args = parser.parse_args()
     exe = str(Path(sys.executable).with_name("odocal"))
     work = Path(tempfile.mkdtemp(prefix="odocal-bench-"))
@@ -58,8 +66,9 @@ def main() -> None:
                       "-q"])
     print(f"{'drive':>8} {'method':<12} {'wall s':>7} {'peak MB':>8} {'start':>6} "
           + " ".join(f"{s.split(':')[0][:9]:>9}" for s in STAGES)
-          + f" {'report':>7} {'s per h':>8}")
+          + f" {'report':>7} {'s per h':>8} {'x default':>9}")
     compute: dict[str, list[tuple[float, float]]] = {}
+    default_wall: dict[int, float] = {}
     for minutes in (int(m) for m in args.minutes.split(",")):
         drive = work / f"drive{minutes}.parquet"
         odocal.save_drive(odocal.simulate(duration_s=60.0 * minutes, seed=1).drive, drive)
@@ -82,8 +91,10 @@ def main() -> None:
             compute.setdefault(method, []).append((minutes / 60, sum(timings.values())))
             cells = " ".join(f"{timings[s]:>9.2f}" if s in timings else f"{'':>9}"
                              for s in STAGES)
+            default_wall.setdefault(minutes, wall)
             print(f"{minutes:>5} min {method:<12} {wall:>7.2f} {peak:>8.0f} {start:>6.2f} "
-                  f"{cells} {wall - bare:>7.2f} {wall / (minutes / 60):>8.2f}", flush=True)
+                  f"{cells} {wall - bare:>7.2f} {wall / (minutes / 60):>8.2f} "
+                  f"{wall / default_wall[minutes]:>9.2f}", flush=True)
     if all(len(points) >= 2 for points in compute.values()):
         print("\ncomputation per hour of driving between successive lengths (it may fall, as fixed "
               "costs inside the stages spread over more driving; it should not grow by more "
@@ -97,6 +108,27 @@ def main() -> None:
                               for ((h0, _), (h1, _)), r in zip(pairs, rates, strict=True))
             print(f"  {method:<12} {cells}  spread {100 * (max(rates) / min(rates) - 1):.0f}%, "
                   f"growth {100 * growth:+.0f}% {'ok' if growth <= 0.2 else 'MISS'}")
+
+    if not args.no_first_run:
+        first_run(exe, work, args.methods.split(","))
+
+
+def first_run(exe: str, work: Path, methods: list[str]) -> None:
+    """A one-hour drive with the report: on a fresh install (an empty numba cache) and warm."""
+    drive = work / "drive60.parquet"
+    if not drive.exists():
+        odocal.save_drive(odocal.simulate(duration_s=3600.0, seed=1).drive, drive)
+    print("\nfirst run after a fresh install (one hour, with the report; numba cache empty)")
+    for method in methods:
+        env = {**os.environ, "NUMBA_CACHE_DIR": str(Path(tempfile.mkdtemp(prefix="nb-")))}
+        cold, _ = run_measured([exe, "calibrate", str(drive), "--out", str(work / "cold"),
+                                "--method", method, "-q"], env=env)
+        warm = min(run_measured([exe, "calibrate", str(drive), "--out", str(work / "warm"),
+                                 "--method", method, "-q"], env=env)[0] for _ in range(2))
+        print(f"  {method:<12} first run {cold:6.2f} s, warm {warm:6.2f} s: "
+              f"{cold / warm:.2f}x {'ok' if cold <= 2 * warm else 'MISS'} (target 2x)",
+              flush=True)
+
 
 if __name__ == "__main__":
     main()
