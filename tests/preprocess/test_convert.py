@@ -20,8 +20,7 @@ from odocal.preprocess.convert import convert, inspect
 from odocal.preprocess.pipeline import build_drive
 from odocal.settings import Settings
 from odocal.sim.simulate import SimulatedDrive
-
-from .bagwriter import EPOCH, write_bag
+from tests.bagwriter import EPOCH, write_bag
 
 NO_OFFSET = Settings().replace(convert={"wheel_offset": "off"})
 COMPARED = ("n_rl", "n_rr", "a_y", "x", "y", "psi", "yaw_rate")

@@ -18,8 +18,7 @@ from odocal.model.kinematics import inverse_revolutions
 from odocal.model.parameters import Parameters
 from odocal.online.calibrator import OnlineCalibrator
 from odocal.sim.simulate import SimulatedDrive
-
-from .bagwriter import write_bag
+from tests.bagwriter import write_bag
 
 
 def pushed(drive: odocal.Drive, step: int, calibrator: OnlineCalibrator | None = None,

@@ -22,7 +22,7 @@ from odocal.report.render import Call, FigureSpec, Renderer, draw
 from odocal.sim.simulate import SimulatedDrive
 from tests.conftest import straight_drive
 
-ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
+ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"
 #: The figures each method's report shows.
 FIGURES = {"inverse": ("map", "inverse", "segments", "coverage", "uncertainty"),
            "compensated": ("map", "segments", "step1", "spread", "rates", "coverage",
