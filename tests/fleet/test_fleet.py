@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import datetime as dt
 import json
-import math
 import os
 import signal
 import socket
@@ -18,7 +17,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-import yaml
 
 from odocal.cli.main import main
 from odocal.errors import DataError, OdocalError
@@ -361,49 +359,6 @@ def test_cli_alarms_history_and_simulate_fleet(fleet: Any, client: Any, tmp_path
     assert "no drive of vehicle 'nope'" in capsys.readouterr().err
     assert main(["simulate-fleet", "--out", str(fleet.catalog.parent), "-q"]) == 1
     assert "not an empty folder" in capsys.readouterr().err
-
-
-# ---------------------------------------------------------------- parameter files
-
-def _ros_params(path: Path, node: str) -> dict[str, Any]:
-    data = yaml.safe_load(path.read_text())
-    assert list(data) == [node] and list(data[node]) == ["ros__parameters"]
-    return dict(data[node]["ros__parameters"])
-
-
-def test_exports_carry_each_targets_documented_keys(tmp_path: Path) -> None:
-    from odocal.model.parameters import Parameters
-    from odocal.output.export import Calibrated, OdometryNoise, export
-
-    theta = Parameters(c_e=1.952, c_d=-0.0021, t_r=1.527, d=0.00076)
-    c = Calibrated(theta=theta, datasheet=Parameters(2.0, 0.0, 1.6, 0.0),
-                   std=(1e-4, 1e-4, 1e-3, 1e-5), identified=(True, True, True, False),
-                   method="inverse", noise=OdometryNoise(0.05, 0.004, 100))
-    export(c, tmp_path)
-    info = _ros_params(tmp_path / "autoware" / "vehicle_info.param.yaml", "/**")
-    assert set(info) == {"wheel_radius", "wheel_tread"}
-    assert info["wheel_radius"] == pytest.approx(1.952 / (2 * math.pi))
-    assert info["wheel_tread"] == pytest.approx(1.527)
-    conv = _ros_params(tmp_path / "autoware" / "vehicle_velocity_converter.param.yaml", "/**")
-    assert set(conv) == {"speed_scale_factor", "frame_id", "velocity_stddev_xx",
-                         "angular_velocity_stddev_zz"}
-    assert conv["speed_scale_factor"] == pytest.approx(1.952 / 2.0)
-    assert conv["velocity_stddev_xx"] == pytest.approx(0.05)
-    diff = _ros_params(tmp_path / "ros2_control" / "diff_drive_controller.yaml",
-                       "diff_drive_controller")
-    assert {"wheel_separation", "wheel_radius", "wheel_separation_multiplier",
-            "left_wheel_radius_multiplier", "right_wheel_radius_multiplier",
-            "pose_covariance_diagonal", "twist_covariance_diagonal"} == set(diff)
-    assert diff["wheel_separation"] * diff["wheel_separation_multiplier"] == pytest.approx(1.527)
-    left = diff["wheel_radius"] * diff["left_wheel_radius_multiplier"] * 2 * math.pi
-    assert left == pytest.approx(1.952 - 0.0021 / 2)
-    assert len(diff["twist_covariance_diagonal"]) == 6
-    assert diff["twist_covariance_diagonal"][0] == pytest.approx(0.05**2)
-    ekf = _ros_params(tmp_path / "robot_localization" / "ekf_odometry.yaml", "ekf_filter_node")
-    assert ekf["two_d_mode"] is True and len(ekf["odom0_config"]) == 15
-    assert [i for i, f in enumerate(ekf["odom0_config"]) if f] == [6, 11]   # vx, vyaw
-    text = (tmp_path / "autoware" / "vehicle_info.param.yaml").read_text()
-    assert "not identified by the data (datasheet values kept): d" in text
 
 
 def test_ctrl_c_stops_the_fleet_at_once_and_keeps_what_is_stored(fleet: Any,
