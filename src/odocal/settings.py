@@ -306,10 +306,13 @@ class GateSettings:
     """The checks of the data against the model and the quality gate (README, "When odocal
     refuses"). A calibration outside these limits fails (exit 3) with the reason."""
 
-    c_e_m: tuple[float, float] = (0.5, 5.0)
-    """Physical range of the effective wheel circumference, m."""
-    t_r_m: tuple[float, float] = (0.5, 3.0)
-    """Physical range of the rear track width, m."""
+    c_e_m: tuple[float, float] | None = None
+    """Plausible range of the effective wheel circumference, m (default: the datasheet c_e
+    divided and multiplied by ``range_factor``)."""
+    t_r_m: tuple[float, float] | None = None
+    """Plausible range of the rear track width, m (default: from the datasheet t_r, as c_e's)."""
+    range_factor: float = 2.0
+    """Without ``c_e_m`` / ``t_r_m``: c_e and t_r within this factor of the datasheet values."""
     max_abs_c_d_fraction: float = 0.02
     """|c_d| at most this fraction of c_e."""
     max_abs_d: float = 0.02
@@ -342,8 +345,12 @@ class GateSettings:
     def __post_init__(self) -> None:
         s = "gate"
         for key in ("c_e_m", "t_r_m"):
+            if getattr(self, key) is None:
+                continue
             lo, hi = getattr(self, key)
             _check(0 < lo < hi, s, key, getattr(self, key), "[low, high] with 0 < low < high")
+        _check(1 < self.range_factor < 1e3, s, "range_factor", self.range_factor,
+               "a number in (1, 1000)")
         for key in ("max_abs_c_d_fraction", "max_abs_d", "worse_tolerance", "max_error_share",
                     "min_distance_m", "min_speed_mps", "datasheet_scale_note",
                     "bend_yaw_rate_radps", "max_clock_offset_s"):
@@ -618,3 +625,11 @@ def load_settings(path: str | Path | None) -> Settings:
     if path is None:
         return Settings()
     return settings_from_dict(read_toml(path, "settings file"), source=f"'{path}'")
+
+
+def datasheet_stated(theta0: Any) -> bool:
+    """False for odocal's placeholder datasheet (``[identify] theta0`` left at its default, no
+    ``--datasheet``): a ratio to it says nothing about the user's vehicle. ``theta0``: the four
+    values, or anything with ``as_array()``."""
+    values = theta0.as_array().tolist() if hasattr(theta0, "as_array") else list(theta0)
+    return tuple(float(v) for v in values) != DATASHEET_THETA

@@ -47,7 +47,38 @@ def _settings(args: argparse.Namespace) -> Settings:
         overrides.setdefault("convert", {})["reference"] = args.reference
     if getattr(args, "circumference", None) is not None:
         overrides.setdefault("convert", {})["wheel_circumference_m"] = args.circumference
+    if getattr(args, "datasheet", None):
+        from odocal.pipeline.calibrate import datasheet_theta
+
+        overrides.setdefault("identify", {})["theta0"] = datasheet_theta(
+            _datasheet_values(args.datasheet), settings.identify.theta0)
     return settings.replace(**overrides) if overrides else settings
+
+
+def _datasheet_values(text: str) -> dict[str, float]:
+    """``c_e=1.84,t_r=1.52`` as a dict; a one-line ConfigError for anything else."""
+    values: dict[str, float] = {}
+    for item in text.split(","):
+        key, sep, value = item.partition("=")
+        try:
+            values[key.strip()] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep:
+            raise ConfigError(f"--datasheet {text!r}: write NAME=VALUE pairs separated by "
+                              "commas, e.g. c_e=1.84,t_r=1.52 (metres)")
+    return values
+
+
+def _datasheet_note(datasheet: Parameters) -> str | None:
+    """A line saying the datasheet values are odocal's placeholder, or None when stated."""
+    from odocal.settings import datasheet_stated
+
+    if datasheet_stated(datasheet):
+        return None
+    return (f"note: no datasheet values given: the 'datasheet' column is odocal's placeholder "
+            f"car (c_e {datasheet.c_e:g} m, t_r {datasheet.t_r:g} m), not yours; state them "
+            "with --datasheet c_e=..,t_r=..")
 
 
 def _fmt_param(name: str, value: float) -> str:
@@ -114,6 +145,9 @@ def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
     if best_std is not None:
         _print("best std: the smallest std an unbiased calibration of this drive can have (its "
                "wheel errors' Cramér-Rao bound, the reference taken as exact)")
+    note = _datasheet_note(est.datasheet) if truth is None else None
+    if note:
+        _print(note)
     _print()
     if result.validation is not None and result.datasheet_validation is not None:
         seg = result.validation.segments
@@ -272,6 +306,12 @@ def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
             report_numbers = report.data.to_dict()
         written.insert(0, write_calibration(result, tmp, report=report_numbers))
         exports = getattr(args, "export", None) or []
+        if "tum" in exports:                 # trajectories judge any result, even a refused one
+            from odocal.output.trajectories import write_trajectories
+
+            written += write_trajectories(result.drive_data, result.estimate.theta,
+                                          result.estimate.datasheet, tmp)
+            exports = [fmt for fmt in exports if fmt != "tum"]
         if exports and not result.success:
             _print("note: parameters not exported: the calibration did not succeed")
             exports = []
@@ -279,7 +319,7 @@ def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
             if fmt in ("yaml", "json"):
                 written.append(export_parameters(result, tmp, fmt))
             else:
-                written += export_stack(result, tmp, fmt)
+                written += export_stack(result, tmp, fmt, wheel_joints=_wheel_joints(args))
         if getattr(args, "save_inputs", False):
             path = write_compensated_inputs(result, tmp)
             if path is None:
@@ -289,6 +329,17 @@ def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
     if not args.quiet:
         for path in written:
             _print(f"wrote {out / path.relative_to(tmp)}")
+
+
+def _wheel_joints(args: argparse.Namespace) -> tuple[str, str] | None:
+    text = getattr(args, "wheel_joints", None)
+    if not text:
+        return None
+    names = [n.strip() for n in text.split(",")]
+    if len(names) != 2 or not all(names):
+        raise ConfigError(f"--wheel-joints {text!r}: give the left and the right wheel joint "
+                          "names separated by a comma")
+    return names[0], names[1]
 
 
 def _drives_from(args: argparse.Namespace, settings: Settings) -> list[Any]:
@@ -324,6 +375,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         from odocal.pipeline.calibrate import calibrate
 
         settings = _settings(args)
+        _wheel_joints(args)                          # checked before anything is computed
         inputs = _inputs(args, *args.logs)
         _check_out_dir(args, inputs)
         drives = _drives_from(args, settings)
@@ -613,8 +665,15 @@ def _add_source(p: argparse.ArgumentParser, *, required: bool, converts: bool = 
                    help="nominal wheel circumference for wheel speeds in m/s or km/h")
 
 
-def _add_common(p: argparse.ArgumentParser, *, workers: bool = True) -> None:
+def _add_common(p: argparse.ArgumentParser, *, workers: bool = True,
+                datasheet: bool = True) -> None:
     p.add_argument("--config", metavar="TOML", help="settings file (see README, 'Settings')")
+    if datasheet:
+        p.add_argument("--datasheet", metavar="NAME=VALUE,...",
+                       help="the vehicle's datasheet values, e.g. c_e=1.84,t_r=1.52 (effective "
+                            "wheel circumference and rear track width, m; also c_d, d): the "
+                            "start of the fit, the comparison in results and exports, and the "
+                            "centre of the plausible ranges")
     if workers:
         p.add_argument("--workers", type=int, metavar="N",
                        help="processes for per-segment work (0 = every core; default from "
@@ -729,10 +788,15 @@ def _add_calibration_commands(sub: Any) -> None:
     p.add_argument("--save-inputs", action="store_true",
                    help="also write the compensated wheel rates (compensated_inputs.parquet)")
     p.add_argument("--export", action="append",
-                   choices=("yaml", "json", "autoware", "ros2_control", "robot_localization"),
+                   choices=("yaml", "json", "autoware", "ros2_control", "robot_localization",
+                            "tum"),
                    help="also write the parameters for a localisation stack: yaml (a ROS 2 "
                         "parameter file) or json, with their covariance, or the parameter files "
-                        "of autoware, ros2_control, robot_localization (repeatable)")
+                        "of autoware, ros2_control, robot_localization; or tum: the reference "
+                        "and the wheel odometry (calibrated and datasheet) as trajectories for "
+                        "evo (repeatable)")
+    p.add_argument("--wheel-joints", metavar="LEFT,RIGHT",
+                   help="wheel joint names for --export ros2_control")
     p.add_argument("--no-report", action="store_true", help="skip report.html and the figures")
     p.add_argument("--compare", action="store_true",
                    help="also score every method on held-out parts of the drives (slower)")
@@ -755,7 +819,7 @@ def _add_checking_commands(sub: Any) -> None:
     p = sub.add_parser("inspect", help="list the streams in raw logs before converting them")
     p.add_argument("logs", nargs="+", metavar="SOURCE")
     _add_source(p, required=True, converts=False)
-    _add_common(p, workers=False)
+    _add_common(p, workers=False, datasheet=False)
     p.set_defaults(func=cmd_inspect)
 
     p = sub.add_parser("validate", help="validation error E_p of parameters on drive logs")

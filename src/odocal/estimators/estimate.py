@@ -59,7 +59,8 @@ STATUS_MESSAGES: Mapping[Status, str] = {
     Status.NO_IMPROVEMENT: "could not improve on the initial parameters",
     Status.NOTHING_IDENTIFIABLE: "no parameter is identifiable from these drives",
     Status.SOLVER_FAILED: "the solver failed (a factorisation broke down)",
-    Status.REJECTED: "the result failed the quality gate: the data contradict the model",
+    Status.REJECTED: "rejected by the checks of the data and the quality gate (the errors "
+                     "above say which)",
 }
 
 

@@ -4,18 +4,27 @@
     ``autoware/vehicle_info.param.yaml`` (``wheel_radius``, ``wheel_tread``: the two keys of
     Autoware's vehicle_info that odometry calibration determines; merge them into the vehicle's
     own file, whose other keys, such as the wheel base and overhangs, no drive can tell) and
-    ``autoware/vehicle_velocity_converter.param.yaml`` (``speed_scale_factor``, ``frame_id``,
-    ``velocity_stddev_xx``, ``angular_velocity_stddev_zz``), both as ROS 2 parameter files for
-    any node (``/**: ros__parameters``).
+    ``autoware/vehicle_velocity_converter.param.yaml``, complete for the current
+    ``autoware_vehicle_velocity_converter`` schema (``speed_scale_factor``, ``frame_id``,
+    ``velocity_stddev_xx``, ``angular_velocity_stddev_zz``,
+    ``enable_online_speed_scale_factor_calibration``, ``acceptable_speed_scale_factor_range``,
+    ``stop_speed_threshold``), both as ROS 2 parameter files for any node
+    (``/**: ros__parameters``).
 ``ros2_control``
-    ``ros2_control/diff_drive_controller.yaml``: the diff_drive_controller's ``wheel_separation``
-    and ``wheel_radius`` (datasheet values) with ``wheel_separation_multiplier``,
-    ``left_wheel_radius_multiplier`` and ``right_wheel_radius_multiplier`` (the calibration),
-    and the pose and twist covariance diagonals.
+    ``ros2_control/diff_drive_controller.yaml``: the diff_drive_controller's wheel joint names,
+    ``wheel_separation`` and ``wheel_radius`` (datasheet values) with
+    ``wheel_separation_multiplier``, ``left_wheel_radius_multiplier`` and
+    ``right_wheel_radius_multiplier`` (the calibration), and the pose and twist covariance
+    diagonals. Without stated datasheet values the calibrated values go into ``wheel_separation``
+    and ``wheel_radius`` and the multipliers carry only the left/right difference.
 ``robot_localization``
     ``robot_localization/ekf_odometry.yaml``: the wheel-odometry input of an ``ekf_node``
     (``odom0`` fusing forward speed and yaw rate, ``two_d_mode``), with the calibrated twist
     standard deviations in a comment block to set as the odometry message's twist covariance.
+
+A key the data cannot give (the controller's wheel joint names without ``--wheel-joints``, the
+speed scale factor without datasheet values) carries one comment line starting ``# FILL IN``
+that names it.
 
 Speeds and yaw-rate standard deviations are measured: the calibrated wheel odometry against the
 reference motion over 1 s windows (:func:`odometry_noise`); where no drive is at hand the
@@ -37,6 +46,7 @@ from odocal.errors import ConfigError
 from odocal.io.atomic import write_text
 from odocal.model.kinematics import inverse_revolutions, motion_increments
 from odocal.model.parameters import Parameters
+from odocal.settings import datasheet_stated
 
 TARGETS = ("autoware", "ros2_control", "robot_localization")
 #: Autoware's vehicle_velocity_converter defaults (used where no noise was measured).
@@ -63,6 +73,13 @@ class Calibrated:
     method: str
     noise: OdometryNoise | None = None
     source: str = ""
+    wheel_joints: tuple[str, str] | None = None
+    """The left and right wheel joint names of the robot's description (ros2_control)."""
+
+    @property
+    def datasheet_stated(self) -> bool:
+        """Whether the datasheet values are the user's (not odocal's placeholder car)."""
+        return datasheet_stated(self.datasheet)
 
 
 def odometry_noise(drives: Sequence[Drive], theta: Parameters,
@@ -105,6 +122,9 @@ def _header(c: Calibrated, what: str) -> list[str]:
                if not ok]
     if missing:
         lines.append(f"# not identified by the data (datasheet values kept): {', '.join(missing)}")
+    if not c.datasheet_stated:
+        lines.append("# no datasheet values were given (--datasheet): parameters not identified "
+                     "hold odocal's placeholder")
     return lines
 
 
@@ -125,35 +145,70 @@ def autoware(c: Calibrated, out: Path) -> list[Path]:
     else:
         v_std, w_std, note = (AUTOWARE_VELOCITY_STD, AUTOWARE_YAW_RATE_STD,
                               "not measured here: Autoware's defaults")
-    conv = [*_header(c, "Autoware vehicle_velocity_converter"),
-            "# speed_scale_factor: the true speed over the speed the vehicle reports with its",
-            "# datasheet circumference (c_e / c_e datasheet).",
+    if c.datasheet_stated:
+        scale = th.c_e / ds.c_e
+        scale_lines = ["# speed_scale_factor: the true speed over the speed the vehicle reports "
+                       "with its", "# datasheet circumference (c_e / c_e datasheet)."]
+    else:
+        scale = 1.0
+        scale_lines = [f"# FILL IN speed_scale_factor: {_num(th.c_e)} m (calibrated c_e) over the "
+                       "circumference the vehicle computes its speed with (no datasheet given)"]
+    # the range the node's own online estimate may move in; it must hold the factor written
+    low, high = min(0.98, round(scale - 0.01, 4)), max(1.02, round(scale + 0.01, 4))
+    conv = [*_header(c, "Autoware vehicle_velocity_converter"), *scale_lines,
             f"# standard deviations {note}",
             "/**:", "  ros__parameters:",
-            f"    speed_scale_factor: {_num(th.c_e / ds.c_e)}",
+            f"    speed_scale_factor: {_num(scale)}",
+            f"    velocity_stddev_xx: {_num(v_std)}  # m/s",
+            f"    angular_velocity_stddev_zz: {_num(w_std)}  # rad/s",
             "    frame_id: base_link",
-            f"    velocity_stddev_xx: {_num(v_std)}",
-            f"    angular_velocity_stddev_zz: {_num(w_std)}"]
+            "    enable_online_speed_scale_factor_calibration: false",
+            f"    acceptable_speed_scale_factor_range: [{_num(low)}, {_num(high)}]",
+            "    stop_speed_threshold: 0.1  # m/s"]
     a, b = out / "vehicle_info.param.yaml", out / "vehicle_velocity_converter.param.yaml"
     write_text(a, "\n".join(info) + "\n")
     write_text(b, "\n".join(conv) + "\n")
     return [a, b]
 
 
+def _wheel_names(c: Calibrated) -> list[str]:
+    if c.wheel_joints is not None:
+        left, right = c.wheel_joints
+        return [f"    left_wheel_names: [{_quoted(left)}]",
+                f"    right_wheel_names: [{_quoted(right)}]"]
+    return ["    # FILL IN left_wheel_names and right_wheel_names: the rear wheel joints of your "
+            "robot description (or calibrate with --wheel-joints LEFT,RIGHT)",
+            '    left_wheel_names: ["rear_left_wheel_joint"]',
+            '    right_wheel_names: ["rear_right_wheel_joint"]']
+
+
+def _quoted(name: str) -> str:
+    return '"' + name.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
 def ros2_control(c: Calibrated, out: Path) -> list[Path]:
-    th, ds = c.theta, c.datasheet
+    th = c.theta
+    # without the user's datasheet the calibrated values are the nominal ones
+    ds = c.datasheet if c.datasheet_stated else th
     c_l, c_r = th.c_e + th.c_d / 2.0, th.c_e - th.c_d / 2.0
     v_var = (c.noise.speed_std_mps if c.noise else AUTOWARE_VELOCITY_STD) ** 2
     w_var = (c.noise.yaw_rate_std_radps if c.noise else AUTOWARE_YAW_RATE_STD) ** 2
+    nominal = ("the datasheet values" if c.datasheet_stated
+               else "the calibrated values (no datasheet given)")
     lines = [*_header(c, "ros2_controllers diff_drive_controller"),
-             "# wheel_separation and wheel_radius are the datasheet values; the multipliers",
-             "# carry the calibration (effective = datasheet x multiplier).",
+             f"# wheel_separation and wheel_radius are {nominal}; the multipliers",
+             "# carry the calibration (effective = nominal x multiplier). The top key is the",
+             "# controller's name in your controller_manager configuration.",
              "diff_drive_controller:", "  ros__parameters:",
+             *_wheel_names(c),
+             "    wheels_per_side: 1",
              f"    wheel_separation: {_num(ds.t_r)}",
              f"    wheel_radius: {_num(ds.c_e / (2.0 * math.pi))}",
              f"    wheel_separation_multiplier: {_num(th.t_r / ds.t_r)}",
              f"    left_wheel_radius_multiplier: {_num(c_l / ds.c_e)}",
              f"    right_wheel_radius_multiplier: {_num(c_r / ds.c_e)}",
+             "    odom_frame_id: odom",
+             "    base_frame_id: base_link",
              "    pose_covariance_diagonal: [0.001, 0.001, 1000000.0, 1000000.0, 1000000.0, "
              "1000.0]",
              f"    twist_covariance_diagonal: [{_num(v_var)}, 0.001, 1000000.0, 1000000.0, "

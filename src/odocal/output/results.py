@@ -69,8 +69,10 @@ def export_parameters(result: CalibrationResult, out_dir: str | Path, fmt: str) 
     return path
 
 
-def export_stack(result: CalibrationResult, out_dir: str | Path, target: str) -> list[Path]:
-    """Parameter files for ``target`` (see :mod:`odocal.output.export`) in ``out_dir/target/``."""
+def export_stack(result: CalibrationResult, out_dir: str | Path, target: str, *,
+                 wheel_joints: tuple[str, str] | None = None) -> list[Path]:
+    """Parameter files for ``target`` (see :mod:`odocal.output.export`) in ``out_dir/target/``;
+    ``wheel_joints`` names the left and right wheel joints (ros2_control)."""
     from odocal.output.export import Calibrated, export, odometry_noise
 
     est = result.estimate
@@ -78,7 +80,8 @@ def export_stack(result: CalibrationResult, out_dir: str | Path, target: str) ->
                             std=tuple(est.std.tolist()),
                             identified=est.identified, method=result.method,
                             noise=odometry_noise(result.drive_data, est.theta),
-                            source=", ".join(d.name for d in result.drives))
+                            source=", ".join(d.name for d in result.drives),
+                            wheel_joints=wheel_joints)
     return export(calibrated, out_dir, [target])
 
 

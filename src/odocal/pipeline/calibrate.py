@@ -20,9 +20,11 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
+import math
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -163,6 +165,48 @@ def validation(theta: Parameters | NDArray[np.float64], data: RaggedSegments, se
                             start_s=start_s)
 
 
+def with_stated_datasheet(drives: Sequence[Drive], settings: Settings) -> Settings:
+    """``settings`` with the datasheet values the drives' metadata state (``"datasheet"``:
+    ``{"c_e": .., "t_r": ..}``, written by ``odocal convert --datasheet``), where the settings
+    leave ``[identify] theta0`` at odocal's placeholder; drives that state different values are
+    refused by name."""
+    from odocal.settings import DATASHEET_THETA
+
+    stated: dict[str, dict[str, Any]] = {d.name: dict(d.metadata["datasheet"]) for d in drives
+                                         if isinstance(d.metadata.get("datasheet"), dict)}
+    if not stated or tuple(settings.identify.theta0) != DATASHEET_THETA:
+        return settings
+    values = {name: tuple(sorted(v.items())) for name, v in stated.items()}
+    if len(set(values.values())) > 1:
+        first, *rest = values
+        other = next(n for n in rest if values[n] != values[first])
+        raise DataError(f"drives '{first}' and '{other}' state different datasheet values "
+                        f"({dict(values[first])} and {dict(values[other])}): calibrate each "
+                        "vehicle on its own, or give --datasheet")
+    return settings.replace(identify={"theta0": datasheet_theta(next(iter(stated.values())))})
+
+
+def datasheet_theta(values: Mapping[str, Any], base: Sequence[float] = ()) -> tuple[
+        float, float, float, float]:
+    """theta0 from named datasheet values (c_e, c_d, t_r, d; missing ones from ``base`` or the
+    placeholder), or a one-line ConfigError."""
+    from odocal.settings import DATASHEET_THETA
+
+    theta = list(base or DATASHEET_THETA)
+    for key, value in values.items():
+        if key not in PARAMETER_NAMES:
+            raise ConfigError(f"datasheet value {key!r} is not one of "
+                              f"{', '.join(PARAMETER_NAMES)}")
+        if isinstance(value, bool) or not isinstance(value, int | float) \
+                or not math.isfinite(value):
+            raise ConfigError(f"datasheet {key} = {value!r} is not a finite number")
+        theta[PARAMETER_NAMES.index(key)] = float(value)
+    if not (theta[0] > 0 and theta[2] > 0):
+        raise ConfigError(f"datasheet c_e = {theta[0]:g} m and t_r = {theta[2]:g} m must be "
+                          "positive")
+    return (theta[0], theta[1], theta[2], theta[3])
+
+
 def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
               settings: Settings | None = None, method: str | None = None,
               progress: ProgressCallback | None = None) -> CalibrationResult:
@@ -191,6 +235,7 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     clock = Stopwatch(progress)
     with clock.stage("read"):
         drive_list = load_drives(drives)
+    settings = with_stated_datasheet(drive_list, settings)
     with clock.stage("checks"):
         diagnosis = check_drives(drive_list, settings)
     with clock.stage("segments"):

@@ -207,6 +207,28 @@ _SCALE_HINTS = ((60.0, "rpm given as rev/s"), (1 / 60.0, "rev/s given as rpm"),
                 (2.0, "the diameter given as the radius"), (0.5, "the radius as the diameter"))
 
 
+def _range_text(finding: Finding, settings: Settings) -> str:
+    """Which range a parameter left, and where that range comes from."""
+    from odocal.checks.gate import plausible_range
+    from odocal.settings import datasheet_stated
+
+    name, v = finding.name, finding.value
+    value = f"{name} = {format_value(name, abs(v))}{' (negative)' if v < 0 else ''}"
+    if name in ("c_e", "t_r"):
+        lo, hi = plausible_range(settings, name)
+        span = f"{format_value(name, lo)} .. {format_value(name, hi)}"
+        if (settings.gate.c_e_m if name == "c_e" else settings.gate.t_r_m) is not None:
+            return f"{value} lies outside the range {span} set in [gate] {name}_m"
+        nominal = settings.identify.theta0[0 if name == "c_e" else 2]
+        whose = ("the datasheet" if datasheet_stated(settings.identify.theta0)
+                 else "odocal's placeholder datasheet (state yours with --datasheet)")
+        return (f"{value} lies outside the range {span}: within a factor "
+                f"{settings.gate.range_factor:g} of {whose} {name} "
+                f"{format_value(name, nominal)} ([gate] range_factor, {name}_m)")
+    return (f"{value} lies outside its plausible range (limit "
+            f"{format_value(name, abs(finding.reference))}, [gate] in the settings)")
+
+
 def finding_text(finding: Finding, settings: Settings) -> str:
     """One finding of the checks in plain words."""
     c, v, ref = finding.check, finding.value, finding.reference
@@ -234,8 +256,13 @@ def finding_text(finding: Finding, settings: Settings) -> str:
                     f"vehicle?{speeds}")
         factor, cause = min(_SCALE_HINTS, key=lambda h: abs(np.log(v / h[0])))
         hint = f" ({cause}?)" if abs(np.log(v / factor)) < 0.25 else ""
+        from odocal.settings import datasheet_stated
+
+        sheet = ("" if datasheet_stated(settings.identify.theta0) else
+                 f", or a vehicle unlike odocal's placeholder datasheet (c_e "
+                 f"{settings.identify.theta0[0]:g} m): state yours with --datasheet")
         return (f"the wheels imply {v:.3g} times the distance the reference travels: a wrong "
-                f"wheel-speed unit or scale{hint}")
+                f"wheel-speed unit or scale{hint}{sheet}")
     if c is Check.LATERAL_SIGN:
         return (f"a_y has the wrong sign against speed times yaw rate (slope {v:+.2f}): the "
                 "lateral acceleration must be positive to the left")
@@ -249,9 +276,7 @@ def finding_text(finding: Finding, settings: Settings) -> str:
         return (f"the wheel stream lags the pose stream by {v * 1000:+.0f} ms, more than the "
                 f"{settings.inverse.max_delay_s:g} s the calibration corrects: align the clocks")
     if c is Check.PARAMETER_RANGE:
-        return (f"{finding.name} = {format_value(finding.name, abs(v))}"
-                f"{' (negative)' if v < 0 else ''} lies outside its physical range (limit "
-                f"{format_value(finding.name, abs(ref))}, [gate] in the settings)")
+        return _range_text(finding, settings)
     if c is Check.WORSE_THAN_DATASHEET:
         return (f"the calibrated parameters validate worse than the datasheet values "
                 f"({v:.2f} m against {ref:.2f} m)")
