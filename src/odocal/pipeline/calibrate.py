@@ -167,7 +167,7 @@ def validation(theta: Parameters | NDArray[np.float64], data: RaggedSegments, se
 
 def with_stated_datasheet(drives: Sequence[Drive], settings: Settings) -> Settings:
     """``settings`` with the datasheet values the drives' metadata state (``"datasheet"``:
-    ``{"c_e": .., "t_r": ..}``, written by ``odocal convert --datasheet``), where the settings
+    ``{"c_e": .., "t_r": ..}``, set by an importer or the caller), where the settings
     leave ``[identify] theta0`` at odocal's placeholder; drives that state different values are
     refused by name."""
     from odocal.settings import DATASHEET_THETA
