@@ -65,13 +65,20 @@ def read_catalog(source: str | Path) -> list[CatalogEntry]:
         return _from_folder(path)
     if not path.is_file():
         raise InputFileError(f"catalog '{path}' does not exist")
-    from odocal.io.drivefile import read_text_table
+    from odocal.io.drivefile import _printable, read_text_table
 
     columns = read_text_table(path)
     missing = [c for c in REQUIRED if c not in columns]
     if missing:
         raise DataError(f"catalog '{path}' lacks column{'s' if len(missing) > 1 else ''} "
                         f"{', '.join(missing)} (a catalog needs {', '.join(REQUIRED)})")
+    unknown = [c for c in columns if c not in (*REQUIRED, *OPTIONAL)]
+    if unknown:
+        hint = (": a catalog row is one whole drive; to use single nuScenes scenes, convert "
+                "each (odocal convert --scene) and list the files" if "scene" in unknown else "")
+        raise DataError(f"catalog '{path}' has a column odocal does not know: "
+                        f"{_printable(unknown[0])} (known: {', '.join((*REQUIRED, *OPTIONAL))})"
+                        f"{hint}")
     n = len(columns["vehicle"])
     if n == 0:
         raise DataError(f"catalog '{path}' lists no drive")
