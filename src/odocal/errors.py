@@ -7,6 +7,11 @@ Messages name the input, the bad value and what would be right; the CLI prints t
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
 
 class OdocalError(Exception):
     """Base class of every error odocal raises on purpose."""
@@ -34,3 +39,37 @@ class SolverError(OdocalError, RuntimeError):
 
 class MissingDependencyError(OdocalError, ImportError):
     """An optional dependency needed for the requested feature is not installed."""
+
+
+def shown(path: object, limit: int = 120) -> str:
+    """A path or name from the user, safe to print on one line: control characters escaped,
+    and a long one shortened in the middle."""
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(path))
+    if len(text) > limit:
+        half = (limit - 3) // 2
+        text = f"{text[:half]}...{text[-half:]}"
+    return text
+
+
+def input_file(path: object, kind: str = "input file") -> Path:
+    """``path`` as a Path if it names a regular file, else an InputFileError that says what it is
+    (missing, a folder, a FIFO, a device, a socket, a name too long): never a read that blocks."""
+    import os
+    import stat
+    from pathlib import Path
+
+    p = Path(str(path))
+    try:
+        mode = os.stat(p).st_mode
+    except FileNotFoundError:
+        raise InputFileError(f"{kind} '{shown(p)}' does not exist") from None
+    except OSError as exc:
+        raise InputFileError(f"{kind} '{shown(p)}' cannot be read: "
+                             f"{exc.strerror or exc}") from None
+    if stat.S_ISREG(mode):
+        return p
+    what = ("a folder" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)
+            else "a character device" if stat.S_ISCHR(mode)
+            else "a block device" if stat.S_ISBLK(mode)
+            else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+    raise InputFileError(f"{kind} '{shown(p)}' is {what}, not a file")

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from odocal.errors import ConfigError, InputFileError
+from odocal.errors import ConfigError, input_file, shown
 
 #: Datasheet parameters of the paper, ``[c_e, c_d, t_r, d]`` (m, m, m, m per m/s^2).
 DATASHEET_THETA: tuple[float, float, float, float] = (2.0, 0.0, 1.6, 0.0)
@@ -64,8 +64,8 @@ class SegmentSettings:
         _check(self.yaw_rate_threshold_radps >= 0, s, "yaw_rate_threshold_radps",
                self.yaw_rate_threshold_radps, "a number >= 0")
         _check(self.min_selected >= 1, s, "min_selected", self.min_selected, "an integer >= 1")
-        _check(self.validation_distance_m > 0, s, "validation_distance_m",
-               self.validation_distance_m, "a positive distance in m")
+        _check(1.0 <= self.validation_distance_m <= 1e6, s, "validation_distance_m",
+               self.validation_distance_m, "a distance from 1 m to 1000 km")
         _check(self.validation_offset >= 0, s, "validation_offset", self.validation_offset,
                "an integer >= 0")
         _check(0 < self.validation_min_fraction <= 1, s, "validation_min_fraction",
@@ -191,7 +191,10 @@ class MinimumSettings:
                "four positive half-widths")
         _check(self.max_generations >= 1, s, "max_generations", self.max_generations,
                "an integer >= 1")
-        _check(self.population >= 4, s, "population", self.population, "an integer >= 4")
+        _check(4 <= self.population <= 1000, s, "population", self.population,
+               "an integer from 4 to 1000")
+        _check(self.max_generations <= 100_000, s, "max_generations", self.max_generations,
+               "an integer up to 100000")
         _check(self.tolerance > 0, s, "tolerance", self.tolerance, "a positive number")
 
 
@@ -378,8 +381,8 @@ class UncertaintySettings:
 
     def __post_init__(self) -> None:
         s = "uncertainty"
-        _check(self.bootstrap_count >= 0, s, "bootstrap_count", self.bootstrap_count,
-               "an integer >= 0")
+        _check(0 <= self.bootstrap_count <= 100_000, s, "bootstrap_count", self.bootstrap_count,
+               "an integer from 0 to 100000")
         _check(self.bootstrap_mode in ("one-step", "full"), s, "bootstrap_mode",
                self.bootstrap_mode, "'one-step' or 'full'")
         _check(self.disagreement_factor > 1, s, "disagreement_factor", self.disagreement_factor,
@@ -611,13 +614,14 @@ def settings_from_dict(data: dict[str, Any], *, source: str = "settings") -> Set
 
 def read_toml(path: str | Path, kind: str) -> dict[str, Any]:
     """A TOML file's content; a missing or malformed file is named as ``kind`` in the error."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(f"{kind} '{p}' does not exist")
+    p = input_file(path, kind)
     try:
         return tomllib.loads(p.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{kind} '{p}' is not valid TOML: {exc}") from None
+        raise ConfigError(f"{kind} '{shown(p)}' is not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{kind} '{shown(p)}' nests tables or arrays too deeply to read") \
+            from None
 
 
 def load_settings(path: str | Path | None) -> Settings:

@@ -49,9 +49,16 @@ def cmd_fleet_calibrate(args: argparse.Namespace) -> int:
     from odocal.fleet.engine import calibrate_fleet
 
     progress = _progress(args)
+    if args.workers and not args.scheduler and not args.quiet:
+        from odocal.fleet.engine import available_cores
+
+        if args.workers > available_cores():
+            sys.stderr.write(f"note: --workers {args.workers}: this machine has "
+                             f"{available_cores()} cores; starting {available_cores()}\n")
     try:
         run = calibrate_fleet(args.catalog, args.store, settings=_settings(args),
                               method=args.method, scheduler=args.scheduler,
+                              connect_timeout_s=args.connect_timeout,
                               workers=args.workers, out=args.out,
                               drive_reports=not args.no_drive_reports, progress=progress,
                               echo=None if args.quiet else _print)
@@ -191,6 +198,8 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--store", required=True, metavar="DB", help="the fleet's SQLite file")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="a running Dask scheduler (tcp://HOST:PORT); default: a local cluster")
+    p.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
+                   help="seconds to wait for --scheduler to answer (default 10)")
     p.add_argument("--workers", type=int, metavar="N",
                    help="local cluster worker processes (default: one per core)")
     p.add_argument("--method", choices=METHOD_NAMES,

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from odocal._version import __version__
 from odocal.cli.progress import Progress
-from odocal.errors import ConfigError, OdocalError, OutputError
+from odocal.errors import ConfigError, OdocalError, OutputError, shown
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
 from odocal.settings import Settings, load_settings
 from odocal.sim.noise import NOISE_PROFILES
@@ -426,7 +426,9 @@ def cmd_convert(args: argparse.Namespace) -> int:
 
 
 def _safe(name: str) -> str:
-    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in Path(name).name)
+    from odocal.io.atomic import file_name
+
+    return file_name(Path(name).name)
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
@@ -717,7 +719,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return func(args)
     except OdocalError as exc:
-        sys.stderr.write(f"odocal {args.command}: error: {exc}\n")
+        sys.stderr.write(f"odocal {args.command}: error: {shown(exc, 2000)}\n")
         return EXIT_ERROR
     except KeyboardInterrupt:
         sys.stderr.write(f"odocal {args.command}: interrupted\n")
@@ -732,11 +734,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:  # the reader went away (| head): stop quietly
         sys.stderr.close()
         return EXIT_OK
+    except OSError as exc:   # the machine said no (a name too long, no space, no permission)
+        if args.verbose:
+            raise
+        where = f" '{shown(exc.filename)}'" if exc.filename else ""
+        sys.stderr.write(f"odocal {args.command}: error: cannot use{where}: "
+                         f"{shown(exc.strerror or exc)}\n")
+        return EXIT_ERROR
+    except MemoryError:
+        sys.stderr.write(f"odocal {args.command}: error: out of memory: the settings ask for "
+                         "more than this machine has (see README, 'Input limits')\n")
+        return EXIT_ERROR
     except Exception as exc:  # a bug: say so in one line, with the traceback on request
         if args.verbose:
             raise
-        sys.stderr.write(f"odocal {args.command}: internal error: {type(exc).__name__}: {exc} "
-                         "(rerun with -v for the traceback)\n")
+        sys.stderr.write(f"odocal {args.command}: internal error: {type(exc).__name__}: "
+                         f"{shown(exc, 300)} (rerun with -v for the traceback)\n")
         return EXIT_BUG
     finally:
         if argv is None:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from odocal.errors import DataError, InputFileError
+from odocal.errors import DataError, InputFileError, input_file, shown
 from odocal.io.registry import FORMATS
 
 REQUIRED = ("vehicle", "path", "time")
@@ -63,9 +63,8 @@ def read_catalog(source: str | Path) -> list[CatalogEntry]:
     path = Path(source)
     if path.is_dir():
         return _from_folder(path)
-    if not path.is_file():
-        raise InputFileError(f"catalog '{path}' does not exist")
-    from odocal.io.drivefile import _printable, read_text_table
+    input_file(path, "catalog")
+    from odocal.io.drivefile import read_text_table
 
     columns = read_text_table(path)
     missing = [c for c in REQUIRED if c not in columns]
@@ -77,7 +76,7 @@ def read_catalog(source: str | Path) -> list[CatalogEntry]:
         hint = (": a catalog row is one whole drive; to use single nuScenes scenes, convert "
                 "each (odocal convert --scene) and list the files" if "scene" in unknown else "")
         raise DataError(f"catalog '{path}' has a column odocal does not know: "
-                        f"{_printable(unknown[0])} (known: {', '.join((*REQUIRED, *OPTIONAL))})"
+                        f"{shown(unknown[0])} (known: {', '.join((*REQUIRED, *OPTIONAL))})"
                         f"{hint}")
     n = len(columns["vehicle"])
     if n == 0:
@@ -94,7 +93,9 @@ def read_catalog(source: str | Path) -> list[CatalogEntry]:
             raise DataError(f"{where}: the path is empty")
         drive = _resolve(path.parent, text)
         if not drive.exists():
-            raise InputFileError(f"{where}: '{drive}' does not exist")
+            raise InputFileError(f"{where}: '{shown(drive)}' does not exist")
+        if not drive.is_dir():
+            input_file(drive, f"{where}: drive")
         fmt = (row["format"] or "").strip() or "drive"
         if fmt != "drive" and fmt not in FORMATS:
             raise DataError(f"{where}: unknown format {fmt!r}; use drive or one of "

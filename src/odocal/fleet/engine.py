@@ -17,13 +17,14 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import re
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from odocal.errors import ConfigError, DataError, OutputError
+from odocal.errors import ConfigError, DataError, shown
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
 from odocal.fleet.catalog import CatalogEntry, read_catalog
 from odocal.fleet.drift import Alarm, analyse, last_change, parse_stamp
@@ -36,7 +37,7 @@ from odocal.fleet.tasks import (
     run_drive_task,
     run_pooled_task,
 )
-from odocal.io.atomic import refuse_inputs
+from odocal.io.atomic import check_fleet_folder, refuse_inputs
 from odocal.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -60,26 +61,58 @@ class FleetRun:
     written: tuple[Path, ...] = field(default=())
 
 
+#: Seconds to wait for a scheduler given by address before saying it does not answer.
+CONNECT_TIMEOUT_S = 10.0
+
+_ADDRESS = re.compile(r"^(tcp|tls|ws|wss|ucx)://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):\d{1,5}/?$")
+
+
+def check_scheduler_address(address: str) -> None:
+    """ConfigError unless ``address`` reads as PROTOCOL://HOST:PORT."""
+    match = _ADDRESS.match(address) if isinstance(address, str) else None
+    if match is None or not 0 < int(address.rstrip("/").rsplit(":", 1)[1]) < 65536:
+        raise ConfigError(f"--scheduler {shown(address)!r} is not a scheduler address: write "
+                          "tcp://HOST:PORT, e.g. tcp://10.0.0.5:8786")
+
+
+def available_cores() -> int:
+    """The cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
 @contextlib.contextmanager
-def dask_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
-    """A Dask client: of an embedded local cluster (default), or of ``scheduler``."""
+def dask_client(scheduler: str | None = None, workers: int | None = None, *,
+                connect_timeout_s: float = CONNECT_TIMEOUT_S) -> Iterator[Any]:
+    """A Dask client: of an embedded local cluster (default, at most one worker per core), or
+    of ``scheduler`` (given up after ``connect_timeout_s`` without an answer)."""
     from distributed import Client, LocalCluster
 
     if scheduler:
+        check_scheduler_address(scheduler)
         try:
-            client = Client(scheduler, timeout="15s")
-        except (OSError, TimeoutError) as exc:
-            raise ConfigError(f"cannot reach the Dask scheduler at {scheduler}: "
-                              f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+            client = Client(scheduler, timeout=f"{connect_timeout_s}s")
+        except Exception as exc:       # refused, silent, or not a Dask scheduler at all
+            why = (f"no answer within {connect_timeout_s:g} s" if isinstance(exc, TimeoutError)
+                   else "what answers there is not a Dask scheduler"
+                   if isinstance(exc, MemoryError)
+                   else str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+            raise ConfigError(f"cannot reach the Dask scheduler at {shown(scheduler)}: {why}"
                               ) from None
         try:
             yield client
         finally:
             client.close()
         return
-    n = workers or os.cpu_count() or 1
+    n = workers or available_cores()
     if n < 1:
         raise ConfigError(f"--workers must be at least 1, not {n}")
+    if n > available_cores():
+        log.warning("--workers %d: this machine has %d cores; starting %d", n,
+                    available_cores(), available_cores())
+        n = available_cores()
     if not log.isEnabledFor(logging.INFO):
         logging.getLogger("distributed").setLevel(logging.ERROR)
     # one compiled-kernel and BLAS thread per single-threaded worker process (set in the
@@ -116,9 +149,8 @@ def _check_paths(store: Path, out: Path | None, catalog: Path,
                           *(e.mapping for e in entries if e.mapping is not None)]
     refuse_inputs(store, inputs)
     if out is not None:
-        refuse_inputs(out, inputs)
-        if out.exists() and not out.is_dir():
-            raise OutputError(f"output '{out}' exists and is not a folder")
+        refuse_inputs(out, inputs, folder=True)
+        check_fleet_folder(out)
 
 
 def _unique(tasks: Sequence[DriveTask]) -> None:
@@ -136,7 +168,8 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
                     scheduler: str | None = None, workers: int | None = None,
                     out: str | Path | None = None, drive_reports: bool = True,
                     client: Any = None, progress: Progress | None = None,
-                    echo: Callable[[str], None] | None = None) -> FleetRun:
+                    echo: Callable[[str], None] | None = None,
+                    connect_timeout_s: float = CONNECT_TIMEOUT_S) -> FleetRun:
     """Calibrate every drive of a catalog into the store, then update baselines, alarms and the
     pooled calibrations; with ``out``, write the fleet report (and each drive's report) there.
 
@@ -147,6 +180,10 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
     method = method or DEFAULT_METHOD
     if method not in METHOD_NAMES:
         raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHOD_NAMES)}")
+    if scheduler:
+        check_scheduler_address(scheduler)
+    if not 0 < connect_timeout_s <= 3600:
+        raise ConfigError(f"connect timeout {connect_timeout_s!r} s: give 0 < seconds <= 3600")
     catalog_path, store_path = Path(catalog), Path(store)
     out_path = Path(out) if out is not None else None
     entries = read_catalog(catalog_path)
@@ -159,7 +196,8 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
         todo = [t for t in tasks if t.key not in done]
         db.update_catalog_fields([t for t in tasks if t.key in done])
         with (contextlib.nullcontext(client) if client is not None
-              else dask_client(scheduler, workers)) as c:
+              else dask_client(scheduler, workers,
+                               connect_timeout_s=connect_timeout_s)) as c:
             dashboard = getattr(c, "dashboard_link", None)
             if echo is not None and dashboard:
                 echo(f"Dask dashboard: {dashboard}")
@@ -242,5 +280,6 @@ def _pooled_tasks(tasks: Sequence[DriveTask], rows: Sequence[dict[str, Any]],
 
 
 def store_of(path: str | Path) -> Store:
-    """An existing store, for reading (``fleet alarms``, ``fleet history``)."""
-    return open_store(path, create=False)
+    """An existing store, opened read-only (``fleet alarms``, ``fleet history``): nothing in
+    the file changes, whatever it holds."""
+    return open_store(path, create=False, read_only=True)

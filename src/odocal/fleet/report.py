@@ -19,7 +19,7 @@ import numpy as np
 from odocal._version import __version__
 from odocal.fleet.drift import parse_stamp
 from odocal.fleet.store import Store
-from odocal.io.atomic import write_bytes, write_text
+from odocal.io.atomic import FLEET_MARKER, file_name, write_bytes, write_text
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES, Parameters
 from odocal.output.export import Calibrated, OdometryNoise, export
 from odocal.report.html import _CSS
@@ -66,8 +66,7 @@ def _history_spec(vehicle: str, rows: Sequence[Mapping[str, Any]],
                       width=10.0, height=5.6, calls=tuple(calls), rows=2, cols=2)
 
 
-def _safe(name: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_." else "_" for c in name) or "_"
+_safe = file_name  # vehicles whose names clean alike keep apart
 
 
 def _fmt(name: str, value: float | None, std: float | None = None) -> str:
@@ -113,6 +112,7 @@ def write_fleet_outputs(store: Store, out: Path, *, datasheet: Parameters | None
 
     datasheet = datasheet or Parameters(*Settings().identify.theta0)
     out.mkdir(parents=True, exist_ok=True)
+    (out / FLEET_MARKER).write_text("written by odocal fleet calibrate; updated in place\n")
     drives, alarms, baselines = store.drives(), store.alarms(), store.baselines()
     vehicles = sorted({r["vehicle"] for r in drives})
     specs = [s for v in vehicles

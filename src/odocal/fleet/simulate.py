@@ -94,7 +94,7 @@ def simulate_fleet(out: str | Path, *, vehicles: int = 4, drives: int = 12,
         theta = _vehicle_theta(rng)
         at = int(rng.integers(6, max(7, drives - 4))) if kind in ("pressure", "tyres") else -1
         mismapped = (int(rng.integers(2, drives)) if plan == "mixed" and kind == "none"
-                     else -1)
+                     and drives > 2 else -1)
         odometer = float(rng.uniform(5000.0, 50000.0))
         history: list[dict[str, Any]] = []
         (root / name).mkdir()

@@ -45,7 +45,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from odocal.errors import DataError, OutputError
+from odocal.errors import DataError, OutputError, input_file, shown
 from odocal.model.parameters import PARAMETER_NAMES
 
 SCHEMA_VERSION = 2
@@ -194,29 +194,48 @@ def _sql(value: Any) -> Any:
     return value
 
 
-def open_store(path: str | Path, *, create: bool = True) -> Store:
-    """Open (or create) a fleet database, migrating an older schema in place."""
+def open_store(path: str | Path, *, create: bool = True, read_only: bool = False) -> Store:
+    """Open (or create) a fleet database, migrating an older schema in place.
+
+    ``read_only``: open the file read-only (SQLite's ``mode=ro``): no journal-mode switch, no
+    schema, no migration; a file that is not an odocal store of this version is refused.
+    """
     p = Path(path)
     if not p.exists():
-        if not create:
-            raise DataError(f"fleet store '{p}' does not exist")
+        if not create or read_only:
+            raise DataError(f"fleet store '{shown(p)}' does not exist")
         if not p.parent.exists():
-            raise OutputError(f"cannot create the fleet store '{p}': its folder does not exist")
+            raise OutputError(f"cannot create the fleet store '{shown(p)}': its folder does "
+                              "not exist")
     elif p.is_dir():
-        raise DataError(f"fleet store '{p}' is a folder, not a database file")
+        raise DataError(f"fleet store '{shown(p)}' is a folder, not a database file")
+    else:
+        input_file(p, "fleet store")
+        if read_only and p.stat().st_size == 0:
+            raise DataError(f"'{shown(p)}' is empty, not an odocal fleet store")
     try:
-        db = sqlite3.connect(p, isolation_level=None, timeout=30.0)
-        db.execute("PRAGMA journal_mode=WAL")
+        if read_only:
+            db = sqlite3.connect(f"{p.resolve().as_uri()}?mode=ro", uri=True,
+                                 isolation_level=None, timeout=30.0)
+        else:
+            db = sqlite3.connect(p, isolation_level=None, timeout=30.0)
         tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        if tables and "meta" not in tables:
+            db.close()
+            raise DataError(f"'{shown(p)}' is an SQLite database, but not an odocal fleet store")
+        if not read_only:
+            db.execute("PRAGMA journal_mode=WAL")
     except sqlite3.DatabaseError as exc:
-        raise DataError(f"'{p}' is not an odocal fleet store (SQLite: {exc})") from None
-    if tables and "meta" not in tables:
-        db.close()
-        raise DataError(f"'{p}' is an SQLite database, but not an odocal fleet store")
+        raise DataError(f"'{shown(p)}' is not an odocal fleet store (SQLite: {exc})") from None
     version = 0
     if "meta" in tables:
         row = db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
         version = int(row[0]) if row else 0
+    if read_only and version < SCHEMA_VERSION:
+        db.close()
+        raise DataError(f"fleet store '{shown(p)}' has schema version {version}: open it once "
+                        "with `odocal fleet calibrate` to migrate it" if version
+                        else f"'{shown(p)}' is not an odocal fleet store")
     if version > SCHEMA_VERSION:
         db.close()
         raise DataError(f"fleet store '{p}' has schema version {version}, newer than this "

@@ -100,7 +100,9 @@ def pooled_task(vehicle: str, tasks: Sequence[DriveTask], settings: Settings,
 
 
 def _safe(name: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_." else "_" for c in name) or "_"
+    from odocal.io.atomic import file_name
+
+    return file_name(name)
 
 
 def _one_line(exc: BaseException) -> str:

@@ -13,7 +13,7 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
 from odocal.data.drive import Drive
-from odocal.errors import DataError, InputFileError
+from odocal.errors import DataError, InputFileError, input_file, shown
 from odocal.io.atomic import atomic_path
 
 _FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}
@@ -53,9 +53,9 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
     """Read a CSV or Parquet file into float columns (non-numeric columns raise DataError)."""
     p = Path(path)
     if p.is_dir():
-        raise InputFileError(f"input '{p}' is a folder, not a drive file (.csv or .parquet)")
-    if not p.is_file():
-        raise InputFileError(f"input file '{p}' does not exist")
+        raise InputFileError(f"input '{shown(p)}' is a folder, not a drive file (.csv or "
+                             ".parquet)")
+    input_file(p)
     table = _arrow_table(p, text=False)
     try:
         names = table.column_names

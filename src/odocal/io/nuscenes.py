@@ -63,6 +63,9 @@ def _records(path: Path, scene: str, message: str) -> list[dict[str, Any]]:
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DataError(f"{scene}: message {message} ('{path.name}') is not valid JSON: "
                         f"{exc}") from None
+    except RecursionError:
+        raise DataError(f"{scene}: message {message} ('{path.name}') nests too deeply to "
+                        "read") from None
     if not isinstance(data, list) or not data:
         raise DataError(f"{scene}: message {message} ('{path.name}') holds no records")
     return data

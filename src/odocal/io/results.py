@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from odocal.errors import DataError, InputFileError
+from odocal.errors import DataError, input_file, shown
 from odocal.io.atomic import write_text
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 
@@ -40,13 +40,13 @@ def write_json(path: str | Path, data: dict[str, Any]) -> Path:
 
 
 def read_json(path: str | Path) -> dict[str, Any]:
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(f"file '{p}' does not exist")
+    p = input_file(path, "file")
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise DataError(f"'{p}' is not valid JSON: {exc}") from None
+        raise DataError(f"'{shown(p)}' is not valid JSON: {exc}") from None
+    except RecursionError:
+        raise DataError(f"'{shown(p)}' nests objects or arrays too deeply to read") from None
     if not isinstance(data, dict):
         raise DataError(f"'{p}' must hold a JSON object")
     return data

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.errors import ConfigError, DataError, InputFileError
+from odocal.errors import ConfigError, DataError, InputFileError, input_file
 from odocal.io.drivefile import read_table
 from odocal.io.geodesy import check_lla, lla_to_enu
 from odocal.io.registry import ReadOptions
@@ -164,8 +164,7 @@ def read_table_log(sources: Sequence[str | Path], mapping: Mapping[str, Mapping[
                           "file and columns hold each stream")
     paths = [Path(s) for s in sources]
     for p in paths:
-        if not p.is_file():
-            raise InputFileError(f"input file '{p}' does not exist")
+        input_file(p)
     streams: dict[str, Stream] = {}
     origin: list[tuple[float, float, float]] = []
     for role in ("gnss", "wheels", "imu", "pose", "heading"):

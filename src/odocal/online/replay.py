@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.data.drive import REQUIRED_COLUMNS
-from odocal.errors import ConfigError, DataError, InputFileError
+from odocal.errors import ConfigError, DataError, InputFileError, input_file
 from odocal.estimators.estimate import Estimate
 from odocal.io.streams import Stream
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
@@ -74,7 +74,7 @@ def stream_drive_file(path: str | Path, *, rows: int) -> Iterator[Chunk]:
     import pyarrow.csv as pacsv
     import pyarrow.parquet as pq
 
-    p = Path(path)
+    p = input_file(path)
     if not p.is_file():
         raise InputFileError(f"input file '{p}' does not exist"
                              + (" (it is a folder)" if p.is_dir() else ""))
