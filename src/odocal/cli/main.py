@@ -222,13 +222,22 @@ def _compared(result: CalibrationResult, drives: Sequence[Any], settings: Settin
     return dataclasses.replace(result, comparison=comparison)
 
 
+def _out_file(out: str, default: str) -> Path:
+    """The file a one-file command writes: ``--out`` itself, or, when ``--out`` is a folder (an
+    existing one, or any path ending in a slash), ``default`` inside it."""
+    path = Path(out)
+    if path.is_dir() or out.endswith(("/", os.sep)):
+        return path / default
+    return path
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     from odocal.io import save_drive
     from odocal.io.atomic import refuse_inputs
     from odocal.io.results import write_json
     from odocal.sim.simulate import simulate
 
-    out = Path(args.out)
+    out = _out_file(args.out, "drive.parquet")
     truth_path = out.with_name(out.stem + ".truth.json")
     refuse_inputs(out, [])
     other = [p for p in (out.with_suffix(".csv"), out.with_suffix(".parquet"))
@@ -379,6 +388,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         inputs = _inputs(args, *args.logs)
         _check_out_dir(args, inputs)
         drives = _drives_from(args, settings)
+        if args.compare:                             # before anything is fitted
+            from odocal.pipeline.calibrate import load_drives
+            from odocal.pipeline.compare import check_comparable
+
+            drives = load_drives(drives)
+            check_comparable(drives, settings)
         result = calibrate(drives, settings=settings, method=args.method, progress=progress)
         if args.compare:
             result = _compared(result, drives, settings, None, args.quiet)
@@ -410,12 +425,16 @@ def cmd_convert(args: argparse.Namespace) -> int:
     from odocal.io.atomic import refuse_inputs
 
     settings = _settings(args)
+    folder = Path(args.out).is_dir() or args.out.endswith(("/", os.sep))
     out = Path(args.out)
     inputs = _inputs(args, *args.logs)
-    refuse_inputs(out, inputs)
+    refuse_inputs(out / "drive.parquet" if folder else out, inputs)
     drives = _drives_from(args, settings)
-    targets = [out] if len(drives) == 1 else \
-        [out.with_name(f"{out.stem}-{_safe(d.name)}{out.suffix}") for d in drives]
+    if folder:                                      # one file per log, named after it
+        targets = [out / f"{_safe(d.name)}.parquet" for d in drives]
+    else:
+        targets = [out] if len(drives) == 1 else \
+            [out.with_name(f"{out.stem}-{_safe(d.name)}{out.suffix}") for d in drives]
     for drive, target in zip(drives, targets, strict=True):
         refuse_inputs(target, inputs)
         save_drive(drive, target)
@@ -467,7 +486,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
     settings = _settings(args)
     theta = _parameters_from(args, settings)
-    result = validate_theta(args.logs, theta, settings=settings)
+    result = validate_theta(_drives_from(args, settings), theta, settings=settings)
     if args.quiet:
         return EXIT_OK
     _print("parameters: " + ", ".join(f"{k} = {v:.6g}" for k, v in theta.as_dict().items()))
@@ -490,6 +509,8 @@ def cmd_minimum(args: argparse.Namespace) -> int:
 
     settings = _settings(args)
     if args.out:
+        args.out = str(_out_file(args.out, "minimum.json"))
+    if args.out:
         from odocal.io.atomic import refuse_inputs
 
         refuse_inputs(args.out, _inputs(args, *args.logs))
@@ -497,7 +518,7 @@ def cmd_minimum(args: argparse.Namespace) -> int:
     if not args.quiet:
         _print("searching the reachable minimum of E_p over the validation segments "
                "(differential evolution) ...")
-    result = minimum(args.logs, start=start, settings=settings)
+    result = minimum(_drives_from(args, settings), start=start, settings=settings)
     if args.quiet:
         if args.out:
             from odocal.io.results import write_json
@@ -633,6 +654,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from odocal.pipeline.reproduce import format_report, reproduce
 
     settings = _settings(args)
+    if args.out:                                    # checked before the long computation
+        from odocal.io.atomic import refuse_inputs
+
+        args.out = str(_out_file(args.out, "reproduce.json"))
+        refuse_inputs(args.out, [getattr(args, "config", None)])
     if not args.quiet:
         _print(f"reproducing the paper's experiment on a simulated {args.distance_km:g} km drive "
                f"(seed {args.seed}, noise '{args.noise}') ...")
@@ -777,8 +803,8 @@ def _add_simulation_commands(sub: Any) -> None:
 
     p = sub.add_parser("simulate", help="write a simulated drive and its truth")
     p.add_argument("--out", required=True, metavar="FILE",
-                   help="drive file to write (.csv or .parquet); the truth goes to "
-                        "FILE.truth.json beside it")
+                   help="drive file to write (.csv or .parquet; or drive.parquet in this "
+                        "folder); the truth goes to FILE.truth.json beside it")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--duration", type=float, default=1800.0, metavar="S")
     p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic",
@@ -822,7 +848,8 @@ def _add_calibration_commands(sub: Any) -> None:
     _add_source(p, required=True)
     p.add_argument("--out", required=True, metavar="FILE",
                    help="drive file (.csv or .parquet); with several logs, one file each named "
-                        "FILE-<log>")
+                        "FILE-<log>; or a folder (existing, or ending in /): <log>.parquet "
+                        "in it")
     _add_common(p)
     p.set_defaults(func=cmd_convert)
 
@@ -836,7 +863,9 @@ def _add_checking_commands(sub: Any) -> None:
     p.set_defaults(func=cmd_inspect)
 
     p = sub.add_parser("validate", help="validation error E_p of parameters on drive logs")
-    p.add_argument("logs", nargs="+", metavar="LOG")
+    p.add_argument("logs", nargs="+", metavar="LOG",
+                   help="drive-format files (.csv, .parquet), or raw logs with --from")
+    _add_source(p, required=False)
     p.add_argument("--params", metavar="JSON",
                    help="calibration.json to validate (default: the datasheet parameters)")
     _add_common(p)
@@ -848,7 +877,8 @@ def _add_checking_commands(sub: Any) -> None:
     p.add_argument("--distance-km", type=float, default=24.0, help="drive length (default 24)")
     p.add_argument("--no-minimum", action="store_true",
                    help="skip the global search for the reachable minimum")
-    p.add_argument("--out", metavar="JSON", help="write the numbers to this file")
+    p.add_argument("--out", metavar="FILE",
+                   help="write the numbers to this JSON file (or reproduce.json in this folder)")
     _add_common(p)
     p.set_defaults(func=cmd_reproduce)
 
@@ -867,10 +897,13 @@ def _add_checking_commands(sub: Any) -> None:
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("minimum", help="the reachable minimum validation error (global search)")
-    p.add_argument("logs", nargs="+", metavar="LOG")
+    p.add_argument("logs", nargs="+", metavar="LOG",
+                   help="drive-format files (.csv, .parquet), or raw logs with --from")
+    _add_source(p, required=False)
     p.add_argument("--params", metavar="JSON", help="centre of the search box (default datasheet)")
     p.add_argument("--seed", type=int, help="optimiser seed")
-    p.add_argument("--out", metavar="JSON", help="write the result to this file")
+    p.add_argument("--out", metavar="FILE",
+                   help="write the result to this JSON file (or minimum.json in this folder)")
     _add_common(p)
     p.set_defaults(func=cmd_minimum)
 

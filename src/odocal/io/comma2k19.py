@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from odocal.errors import DataError, InputFileError
+from odocal.errors import DataError, InputFileError, shown
 from odocal.io.geodesy import check_lla, ecef_origin, ecef_to_enu, ecef_vectors_to_enu, lla_to_enu
 from odocal.io.registry import ReadOptions
 from odocal.io.streams import RawLog, Stream
@@ -106,7 +106,8 @@ def read_comma2k19(source: str | Path, *, circumference_m: float) -> RawLog:
                                      "course": np.pi / 2 - np.deg2rad(ublox[:, 5])},
                              units={"east": "deg", "north": "deg", "speed": "m/s",
                                     "course": "deg (compass)"})
-    return RawLog(name=folder.name if folder.name else str(folder), streams=streams,
+    name = f"{folder.parent.name}/{folder.name}" if folder.name.isdigit() else folder.name
+    return RawLog(name=name or str(folder), streams=streams,
                   origin_lla=origin,
                   metadata={"source_format": "comma2k19", "segment": str(folder),
                             "wheel_circumference_m": circumference_m})
@@ -116,4 +117,27 @@ def read(sources: Sequence[str | Path], *, mapping: Mapping[str, Mapping[str, An
          options: ReadOptions) -> list[RawLog]:
     """The :class:`odocal.io.registry.Reader` of comma2k19 segment folders."""
     del mapping                                    # the format is fixed
-    return [read_comma2k19(s, circumference_m=options.circumference_m) for s in sources]
+    return [read_comma2k19(s, circumference_m=options.circumference_m)
+            for source in sources for s in segment_folders(source)]
+
+
+def segment_folders(source: str | Path) -> list[Path]:
+    """``source`` if it is a segment folder (it holds ``processed_log/``), else the segment
+    folders below it (a route folder ``ROUTE/N/``, or a dongle's ``DONGLE/ROUTE/N/``), in route
+    and segment order; a DataError naming what was expected when there is none."""
+    folder = Path(source)
+    if not folder.is_dir():
+        raise InputFileError(f"comma2k19 segment folder '{shown(folder)}' does not exist")
+    if (folder / "processed_log").is_dir():
+        return [folder]
+    found = [p.parent for depth in ("*", "*/*", "*/*/*")
+             for p in folder.glob(f"{depth}/processed_log") if p.is_dir()]
+    if not found:
+        raise DataError(f"'{shown(folder)}' is not a comma2k19 segment folder (no "
+                        "processed_log/ in it or below it): give a segment folder such as "
+                        "ROUTE/40/, or the route folder that holds them")
+
+    def order(p: Path) -> tuple[str, int, str]:
+        return (str(p.parent), int(p.name) if p.name.isdigit() else -1, p.name)
+
+    return sorted(set(found), key=order)

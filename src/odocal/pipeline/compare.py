@@ -47,6 +47,28 @@ def folds(drives: Sequence[Drive], block_s: float) -> tuple[list[Drive], list[Dr
     return out
 
 
+def check_comparable(drives: Sequence[Drive], settings: Settings | None = None,
+                     block_s: float = 300.0) -> tuple[list[Drive], list[Drive]]:
+    """The two held-out halves, or a DataError (before anything is fitted) when either holds no
+    validation segment to score a method on."""
+    from odocal.data.segments import validation_segments
+
+    settings = settings or Settings()
+    duration = sum(d.duration_s for d in drives)
+    block = min(block_s, max(duration / 6.0, 30.0))
+    halves = folds(drives, block)
+    need = settings.segments.validation_distance_m
+    for half in halves:
+        if not half or len(validation_segments(half, settings.segments)) == 0:
+            km = sum(d.distance_m for d in drives) / 1000
+            raise DataError(f"--compare holds out alternate {block:.0f} s blocks and scores "
+                            f"each method on {need:.0f} m validation segments in them; these "
+                            f"drives ({km:.2f} km, {duration / 60:.1f} min) are too short for "
+                            "that: calibrate without --compare, or with a shorter [segments] "
+                            "validation_distance_m")
+    return halves
+
+
 def compare(drives: Sequence[Drive], *, settings: Settings | None = None,
             truth: Parameters | None = None, methods: Sequence[str] = METHOD_NAMES,
             block_s: float = 300.0) -> Comparison:
@@ -54,11 +76,8 @@ def compare(drives: Sequence[Drive], *, settings: Settings | None = None,
     from odocal.pipeline.calibrate import calibrate, validate_theta
 
     settings = settings or Settings()
-    duration = sum(d.duration_s for d in drives)
-    block = min(block_s, max(duration / 6.0, 30.0))
-    halves = folds(drives, block)
-    if not halves[0] or not halves[1]:
-        raise DataError("the drives are too short to hold out a part for comparing methods")
+    halves = check_comparable(drives, settings, block_s)
+    block = min(block_s, max(sum(d.duration_s for d in drives) / 6.0, 30.0))
 
     def held_out(theta: Parameters, k: int) -> float | None:
         try:
