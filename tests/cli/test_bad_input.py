@@ -183,3 +183,13 @@ def test_an_input_name_longer_than_the_system_allows(tmp_path: Path,
     err = _one_line(*run(capsys, "calibrate", str(tmp_path / ("y" * 400 + ".parquet")),
                          "--out", str(tmp_path / "r"))[::2])
     assert "too long" in err and len(err) < 400
+
+
+@pytest.mark.parametrize(("factor", "words"), [(2 * 3.141592653589793, "rad/s: divide by 2 pi"),
+                                               (60.0, "rpm: divide by 60")])
+def test_wheel_rates_in_another_unit_are_named_by_that_unit(factor: float, words: str) -> None:
+    cols = odocal.simulate(duration_s=300, seed=5).drive.columns()
+    cols["n_rl"], cols["n_rr"] = cols["n_rl"] * factor, cols["n_rr"] * factor
+    with pytest.raises(odocal.DataError) as err:
+        odocal.Drive.from_columns(cols)
+    assert words in str(err.value)
