@@ -186,6 +186,8 @@ class Drive:
         pieces = _pieces(name, t, arrays.get("piece"))
         t_s = _sampling_time(name, t, pieces)
 
+        # a unit mistake first: rates in rpm jump by more than a spike's size everywhere
+        _check_wheel_units(name, arrays["n_rl"], arrays["n_rr"])
         repaired: dict[str, int] = {}
         for key, scale in _SPIKE_SCALE.items():
             if key in arrays:
