@@ -186,8 +186,9 @@ class Drive:
         pieces = _pieces(name, t, arrays.get("piece"))
         t_s = _sampling_time(name, t, pieces)
 
-        # a unit mistake first: rates in rpm jump by more than a spike's size everywhere
-        _check_wheel_units(name, arrays["n_rl"], arrays["n_rr"])
+        # a unit mistake first (rates in rpm jump by more than a spike's size everywhere),
+        # judged on most of the samples, so that a few broken ones do not look like a unit
+        _check_wheel_units(name, arrays["n_rl"], arrays["n_rr"], percentile=90.0)
         repaired: dict[str, int] = {}
         for key, scale in _SPIKE_SCALE.items():
             if key in arrays:
@@ -360,9 +361,13 @@ def _check_limits(name: str, arrays: Mapping[str, FloatArray]) -> None:
                             f"(limit {limit:g} {unit}); check its unit and the log")
 
 
-def _check_wheel_units(name: str, n_rl: FloatArray, n_rr: FloatArray) -> None:
+def _check_wheel_units(name: str, n_rl: FloatArray, n_rr: FloatArray, *,
+                       percentile: float = 99.0) -> None:
     for key, n in (("n_rl", n_rl), ("n_rr", n_rr)):
-        peak = float(np.percentile(np.abs(n), 99))
+        finite = np.abs(n[np.isfinite(n)])
+        if finite.size == 0:
+            continue
+        peak = float(np.percentile(finite, percentile))
         if peak > _MAX_WHEEL_RATE_REVPS:
             if peak <= 2 * np.pi * _MAX_WHEEL_RATE_REVPS:
                 hint = " (it looks like rad/s: divide by 2 pi; or rpm: divide by 60)"
