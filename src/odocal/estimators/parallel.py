@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
+import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import TypeVar
@@ -17,14 +19,55 @@ def ignore_interrupts() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def resolve_workers(workers: int) -> int:
-    """``0`` means every core this process may use."""
-    if workers > 0:
-        return workers
+def _worker_start(parent_pid: int) -> None:
+    """A pool worker's first act: leave Ctrl-C to the parent, and die with it even when it is
+    killed with SIGKILL (else the worker would wait for work that never comes, for ever)."""
+    ignore_interrupts()
+    die_with_parent(parent_pid)
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """In a worker process: end when the process ``parent_pid`` (its parent) ends, however it
+    ends. Linux sends SIGKILL on the parent's death (``prctl(PR_SET_PDEATHSIG)``); elsewhere, or
+    if that is refused, a daemon thread polls the parent."""
+    armed = False
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            pr_set_pdeathsig = 1
+            armed = libc.prctl(pr_set_pdeathsig, int(signal.SIGKILL), 0, 0, 0) == 0
+        except (OSError, AttributeError):
+            armed = False
+    if os.getppid() != parent_pid:               # the parent died before the signal was set
+        os._exit(1)
+    if armed:
+        return
+
+    def watch() -> None:                         # pragma: no cover - not on Linux
+        import time
+
+        while os.getppid() == parent_pid:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="odocal-parent-watch", daemon=True).start()
+
+
+def _cores() -> int:
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+def resolve_workers(workers: int) -> int:
+    """``0`` means every core this process may use; more than that is cut to it (the results
+    are the same for any number of workers, and more processes than cores only cost memory)."""
+    if workers > 0:
+        return min(workers, _cores())
+    return _cores()
 
 
 def map_chunks(func: Callable[[T], R], tasks: Sequence[T], *, workers: int = 1,
@@ -50,7 +93,8 @@ def map_chunks(func: Callable[[T], R], tasks: Sequence[T], *, workers: int = 1,
             if progress:
                 progress(done, total)
         return out
-    pool = ProcessPoolExecutor(max_workers=n_workers, initializer=ignore_interrupts)
+    pool = ProcessPoolExecutor(max_workers=n_workers, initializer=_worker_start,
+                               initargs=(os.getpid(),))
     try:
         futures = [pool.submit(func, task) for task in tasks]
         results: list[R] = []

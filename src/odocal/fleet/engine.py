@@ -88,10 +88,15 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, *,
                 connect_timeout_s: float = CONNECT_TIMEOUT_S) -> Iterator[Any]:
     """A Dask client: of an embedded local cluster (default, at most one worker per core), or
     of ``scheduler`` (given up after ``connect_timeout_s`` without an answer)."""
-    from distributed import Client, LocalCluster
+    from distributed import Client
+
+    from odocal.fleet.cluster import local_client, probe_scheduler
 
     if scheduler:
         check_scheduler_address(scheduler)
+        # asked first, within the timeout: Dask's client waits without end on a port that
+        # accepts a connection and never answers
+        probe_scheduler(scheduler, connect_timeout_s)
         try:
             client = Client(scheduler, timeout=f"{connect_timeout_s}s")
         except Exception as exc:       # refused, silent, or not a Dask scheduler at all
@@ -113,34 +118,10 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, *,
         log.warning("--workers %d: this machine has %d cores; starting %d", n,
                     available_cores(), available_cores())
         n = available_cores()
-    if not log.isEnabledFor(logging.INFO):
-        logging.getLogger("distributed").setLevel(logging.ERROR)
-    # one compiled-kernel and BLAS thread per single-threaded worker process (set in the
-    # workers' environment, never in this process, whose threads may have started)
-    threads = {k: "1" for k in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR,
-                      env=threads) as cluster, \
-            Client(cluster) as client:
-        # Ctrl-C reaches the whole process group: the workers leave it to this process, which
-        # closes the cluster (no traceback from each worker)
-        client.register_plugin(_ignore_interrupts_plugin(), name="odocal-ignore-interrupts")
+    # worker processes that ignore Ctrl-C (this process stops them, at once) and die with
+    # this process even when it is killed; a script without the __main__ guard named
+    with local_client(n) as client:
         yield client
-
-
-def _ignore_interrupts_plugin() -> Any:
-    """A Dask worker plugin: the worker process ignores SIGINT."""
-    from distributed import WorkerPlugin
-
-    class IgnoreInterrupts(WorkerPlugin):
-        def setup(self, worker: Any) -> None:
-            import signal
-            import threading
-
-            if threading.current_thread() is threading.main_thread():
-                signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-    return IgnoreInterrupts()
 
 
 def _check_paths(store: Path, out: Path | None, catalog: Path,
@@ -175,6 +156,9 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
 
     ``client``: an open Dask client to use instead of starting or joining a cluster.
     """
+    from odocal.fleet.cluster import refuse_unguarded_start
+
+    refuse_unguarded_start()             # a worker process re-running an unguarded script
     started = time.perf_counter()
     settings = settings or Settings()
     method = method or DEFAULT_METHOD
@@ -184,6 +168,10 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
         check_scheduler_address(scheduler)
     if not 0 < connect_timeout_s <= 3600:
         raise ConfigError(f"connect timeout {connect_timeout_s!r} s: give 0 < seconds <= 3600")
+    if scheduler and client is None:     # before the store is touched: it answers, in time
+        from odocal.fleet.cluster import probe_scheduler
+
+        probe_scheduler(scheduler, connect_timeout_s)
     catalog_path, store_path = Path(catalog), Path(store)
     out_path = Path(out) if out is not None else None
     entries = read_catalog(catalog_path)

@@ -117,7 +117,11 @@ class Store:
             yield self.db
             self.db.execute("COMMIT")
         except BaseException:
-            self.db.execute("ROLLBACK")
+            # a Ctrl-C may come before BEGIN took effect: roll back only what was begun, and
+            # never let the rollback's own error hide why the transaction ended
+            if self.db.in_transaction:
+                with contextlib.suppress(sqlite3.Error):
+                    self.db.execute("ROLLBACK")
             raise
 
     def done_keys(self) -> set[str]:

@@ -1,0 +1,195 @@
+"""Where a fleet's tasks run: the embedded local Dask cluster, or a scheduler the user names.
+
+Every way this can go wrong ends in one line, never a hang or pages of Dask's errors:
+
+* a scheduler is asked who it is before a client connects, and that question is given up
+  after the timeout (Dask's own client waits without end on a port that accepts a connection
+  and never speaks): one that never answers, or answers as something other than a Dask
+  scheduler, is a :class:`~odocal.errors.ConfigError` after at most that long;
+* Ctrl-C kills the local cluster's worker processes at once (their tasks are lost anyway;
+  what is stored stays), so the run ends within a second;
+* the local cluster's worker processes end with the process that started them, even when it
+  is killed with SIGKILL (Linux: the kernel's parent-death signal; elsewhere a thread watches
+  the parent);
+* ``calibrate_fleet`` in a script without ``if __name__ == "__main__":`` makes each worker
+  process run the script again as it starts (Python's ``spawn``): the workers stop at once and
+  the caller gets one line that says to add the guard.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import signal
+import tempfile
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from odocal.errors import ConfigError
+from odocal.estimators.parallel import die_with_parent
+
+log = logging.getLogger(__name__)
+
+#: Environment variable naming the file a worker process leaves when it finds itself started
+#: by a script that calls ``calibrate_fleet`` unguarded.
+_UNGUARDED_ENV = "ODOCAL_UNGUARDED_FLAG"
+
+GUARD_MESSAGE = ("the script calls calibrate_fleet() unguarded, so each worker process "
+                 "Python starts runs it again: put the call under "
+                 "`if __name__ == \"__main__\":`")
+
+
+def _shown(text: str) -> str:
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)[:200]
+
+
+def probe_scheduler(address: str, timeout_s: float) -> dict[str, Any]:
+    """Ask the process at ``address`` who it is; a ConfigError unless a Dask scheduler answers
+    within ``timeout_s`` (a port that accepts and never speaks included)."""
+
+    async def ask() -> Any:
+        from distributed.comm import connect
+
+        comm = await connect(address, timeout=timeout_s)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    answer: dict[str, Any] = {}
+
+    def run() -> None:
+        try:
+            answer["reply"] = asyncio.run(asyncio.wait_for(ask(), timeout_s))
+        except BaseException as exc:           # reported by the caller
+            answer["error"] = exc
+
+    # a thread of its own: the caller may have an event loop running (a notebook), and a peer
+    # that never answers must not hold the caller beyond the timeout
+    thread = threading.Thread(target=run, name="odocal-scheduler-probe", daemon=True)
+    thread.start()
+    thread.join(timeout_s + 2.0)
+    where = f"cannot reach the Dask scheduler at {address}"
+    if thread.is_alive() or isinstance(answer.get("error"), TimeoutError | asyncio.TimeoutError):
+        raise ConfigError(f"{where}: no answer within {timeout_s:g} s (--connect-timeout)")
+    if "error" in answer:
+        exc = answer["error"]
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ConfigError(f"{where}: {_shown(text)}")
+    reply: Any = answer.get("reply")
+    kind = reply.get("type") if isinstance(reply, dict) else None
+    if kind != "Scheduler":
+        what = f"a Dask {kind}" if isinstance(kind, str) else "something else"
+        raise ConfigError(f"{address} answered as {_shown(str(what))}, not as a Dask scheduler")
+    return reply
+
+
+def refuse_unguarded_start() -> None:
+    """Called where a cluster would start. In a process that Python is still starting from a
+    script (``spawn`` re-runs the script), leave a flag for the parent and end quietly."""
+    import multiprocessing.process
+
+    if not getattr(multiprocessing.process.current_process(), "_inheriting", False):
+        return
+    flag = os.environ.get(_UNGUARDED_ENV)
+    if flag:
+        with contextlib.suppress(OSError):
+            Path(flag).write_text("unguarded\n")
+        os._exit(1)
+    raise ConfigError(GUARD_MESSAGE)
+
+
+@contextlib.contextmanager
+def _guard_flag() -> Iterator[Path]:
+    """A fresh flag path named in the environment the worker processes inherit while they
+    start; removed afterwards."""
+    folder = Path(tempfile.mkdtemp(prefix="odocal-guard-"))
+    flag = folder / "flag"
+    previous = os.environ.get(_UNGUARDED_ENV)
+    os.environ[_UNGUARDED_ENV] = str(flag)
+    try:
+        yield flag
+    finally:
+        if previous is None:
+            os.environ.pop(_UNGUARDED_ENV, None)
+        else:
+            os.environ[_UNGUARDED_ENV] = previous
+        with contextlib.suppress(OSError):
+            flag.unlink()
+        with contextlib.suppress(OSError):
+            folder.rmdir()
+
+
+class _WorkerSetup:
+    """A Dask worker plugin: the worker ignores Ctrl-C (the parent stops the cluster) and dies
+    with the process that started the cluster."""
+
+    def __init__(self, parent_pid: int) -> None:
+        self.parent_pid = parent_pid
+
+    def setup(self, worker: Any) -> None:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        die_with_parent(self.parent_pid)
+
+
+def _worker_plugin() -> Any:
+    from distributed import WorkerPlugin
+
+    class WorkerSetup(_WorkerSetup, WorkerPlugin):
+        pass
+
+    return WorkerSetup(os.getpid())
+
+
+@contextlib.contextmanager
+def local_client(n: int) -> Iterator[Any]:
+    """A client of an embedded cluster of ``n`` single-threaded worker processes on the
+    loopback address (see the module docstring)."""
+    refuse_unguarded_start()
+    from distributed import Client, LocalCluster
+
+    if not log.isEnabledFor(logging.INFO):
+        logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    # one compiled-kernel and BLAS thread per single-threaded worker process (set in the
+    # workers' environment, never in this process, whose threads may have started)
+    threads = {k: "1" for k in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
+    cluster: Any = None
+    try:
+        with _guard_flag() as flag:
+            try:
+                cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                       host="127.0.0.1", dashboard_address="127.0.0.1:0",
+                                       silence_logs=logging.CRITICAL, env=threads)
+            except Exception:
+                if flag.exists():
+                    raise ConfigError(GUARD_MESSAGE) from None
+                raise
+            if flag.exists():
+                raise ConfigError(GUARD_MESSAGE)
+        with Client(cluster) as client:
+            client.register_plugin(_worker_plugin(), name="odocal-worker-setup")
+            yield client
+    except KeyboardInterrupt:
+        if cluster is not None:
+            _kill_workers(cluster)
+        raise
+    finally:
+        if cluster is not None:
+            with contextlib.suppress(Exception):
+                cluster.close(timeout=2)
+
+
+def _kill_workers(cluster: Any) -> None:
+    """Ctrl-C: the worker processes are killed now (their tasks are lost anyway; what is stored
+    stays), so closing the cluster has nothing to wait for."""
+    for worker in list(getattr(cluster, "workers", {}).values()):
+        pid = getattr(worker, "pid", None)           # a Nanny: its worker process's id
+        if isinstance(pid, int) and pid > 0:
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
