@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import TypeVar
 
@@ -55,6 +56,25 @@ def die_with_parent(parent_pid: int) -> None:
     threading.Thread(target=watch, name="odocal-parent-watch", daemon=True).start()
 
 
+@contextlib.contextmanager
+def interrupts_held() -> Iterator[None]:
+    """Hold Ctrl-C back while processes are forked, and deliver it after.
+
+    A SIGINT that lands during ``fork()`` raises KeyboardInterrupt inside the interpreter's
+    at-fork handlers (logging's lock release), where Python prints it as ignored and the run
+    goes on as if nothing was pressed. Blocked here, it stays pending and is raised as soon as
+    the forks are done.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
 def _cores() -> int:
     try:
         return max(1, len(os.sched_getaffinity(0)))
@@ -93,10 +113,15 @@ def map_chunks(func: Callable[[T], R], tasks: Sequence[T], *, workers: int = 1,
             if progress:
                 progress(done, total)
         return out
-    pool = ProcessPoolExecutor(max_workers=n_workers, initializer=_worker_start,
-                               initargs=(os.getpid(),))
+    with interrupts_held():             # the workers are forked while submitting
+        pool = ProcessPoolExecutor(max_workers=n_workers, initializer=_worker_start,
+                                   initargs=(os.getpid(),))
+        try:
+            futures = [pool.submit(func, task) for task in tasks]
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
     try:
-        futures = [pool.submit(func, task) for task in tasks]
         results: list[R] = []
         for future, w in zip(futures, weights, strict=True):
             results.append(future.result())
