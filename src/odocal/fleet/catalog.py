@@ -101,6 +101,8 @@ def read_catalog(source: str | Path) -> list[CatalogEntry]:
             raise DataError(f"{where}: unknown format {fmt!r}; use drive or one of "
                             f"{', '.join(FORMATS)}")
         mapping = (row["mapping"] or "").strip()
+        if mapping:                          # named now, not as a crash when it is hashed
+            input_file(_resolve(path.parent, mapping), f"{where}: mapping file")
         odometer = (row["odometer_km"] or "").strip()
         try:
             km = float(odometer) if odometer else None

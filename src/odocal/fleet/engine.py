@@ -183,20 +183,26 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
         done = db.done_keys()
         todo = [t for t in tasks if t.key not in done]
         db.update_catalog_fields([t for t in tasks if t.key in done])
-        with (contextlib.nullcontext(client) if client is not None
-              else dask_client(scheduler, workers,
-                               connect_timeout_s=connect_timeout_s)) as c:
-            dashboard = getattr(c, "dashboard_link", None)
-            if echo is not None and dashboard:
-                echo(f"Dask dashboard: {dashboard}")
-            _run(c, todo, run_drive_task, db.add_drive, "drives", progress)
-            rows = db.drives()
-            analysis = analyse(rows, settings.fleet)
-            db.replace_analysis([b.to_row() for b in analysis.baselines],
-                                [a.to_row() for a in analysis.alarms])
-            pooled = [p for p in _pooled_tasks(tasks, rows, analysis.alarms, settings, method)
-                      if p.key not in db.pooled_keys()]
-            _run(c, pooled, run_pooled_task, db.add_pooled, "pooled", progress)
+        _remove_report_leftovers(report_root)          # of a run that was killed
+        try:
+            with (contextlib.nullcontext(client) if client is not None
+                  else dask_client(scheduler, workers,
+                                   connect_timeout_s=connect_timeout_s)) as c:
+                dashboard = getattr(c, "dashboard_link", None)
+                if echo is not None and dashboard:
+                    echo(f"Dask dashboard: {dashboard}")
+                _run(c, todo, run_drive_task, db.add_drive, "drives", progress)
+                rows = db.drives()
+                analysis = analyse(rows, settings.fleet)
+                db.replace_analysis([b.to_row() for b in analysis.baselines],
+                                    [a.to_row() for a in analysis.alarms])
+                pooled = [p for p in _pooled_tasks(tasks, rows, analysis.alarms, settings,
+                                                   method)
+                          if p.key not in db.pooled_keys()]
+                _run(c, pooled, run_pooled_task, db.add_pooled, "pooled", progress)
+        finally:
+            # workers stopped mid-report (Ctrl-C, an error) leave their temporary folders
+            _remove_report_leftovers(report_root)
         keys = {t.key for t in tasks}
         failed = sum(1 for r in db.drives() if r["task_key"] in keys and not r["success"])
         written: tuple[Path, ...] = ()
@@ -210,6 +216,22 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
                     calibrated=len(todo), failed=failed, pooled=len(pooled),
                     alarms=analysis.alarms, dashboard=dashboard,
                     elapsed_s=time.perf_counter() - started, written=written)
+
+
+def _remove_report_leftovers(report_root: Path | None) -> None:
+    """The drive reports' temporary folders whose writer is gone (``VEHICLE/.KEY.PID.*``)."""
+    from odocal.io.atomic import remove_leftovers
+
+    if report_root is None or not report_root.is_dir():
+        return
+    for folder in report_root.iterdir():
+        if not folder.is_dir() or folder.is_symlink():
+            continue
+        with contextlib.suppress(OSError):
+            targets = {p.name.split(".")[1] for p in folder.iterdir()
+                       if p.name.startswith(".") and p.name.count(".") >= 3}
+            for name in targets:
+                remove_leftovers(folder / name)
 
 
 def _run(client: Any, tasks: Sequence[DriveTask] | Sequence[PooledTask],
