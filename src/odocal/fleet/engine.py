@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from odocal.errors import ConfigError, DataError, shown
+from odocal.errors import ConfigError, DataError, OutputError, shown
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
 from odocal.fleet.catalog import CatalogEntry, read_catalog
 from odocal.fleet.drift import Alarm, analyse, last_change, parse_stamp
@@ -183,6 +183,8 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
         done = db.done_keys()
         todo = [t for t in tasks if t.key not in done]
         db.update_catalog_fields([t for t in tasks if t.key in done])
+        if report_root is not None and out_path is not None:
+            _claim(out_path)             # marked before the workers write into it
         _remove_report_leftovers(report_root)          # of a run that was killed
         try:
             with (contextlib.nullcontext(client) if client is not None
@@ -216,6 +218,20 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
                     calibrated=len(todo), failed=failed, pooled=len(pooled),
                     alarms=analysis.alarms, dashboard=dashboard,
                     elapsed_s=time.perf_counter() - started, written=written)
+
+
+def _claim(out: Path) -> None:
+    """Create the fleet folder with its marker now: a run killed while its workers write the
+    drives' reports leaves a folder the next run knows as odocal's."""
+    from odocal.io.atomic import FLEET_MARKER, write_text
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create the output folder '{shown(out)}': "
+                          f"{exc.strerror or exc}") from None
+    if not (out / FLEET_MARKER).exists():
+        write_text(out / FLEET_MARKER, "written by odocal fleet calibrate; updated in place\n")
 
 
 def _remove_report_leftovers(report_root: Path | None) -> None:
