@@ -101,6 +101,11 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
         level = "partial"
     else:
         base += "; all four parameters identified"
+    km = sum(d.distance_m for d in result.drives) / 1000
+    if km < MIN_DISTANCE_KM:
+        base += (f"; but only {km:.2f} km of driving, less than the {MIN_DISTANCE_KM:g} km a "
+                 "calibration should rest on (README, 'Real logs'): check it on another drive")
+        level = "partial" if level == "good" else level
     if result.bootstrap is not None and not all(result.bootstrap.agree):
         base += "; the bootstrap disagrees with the covariance"
         level = "partial" if level == "good" else level
@@ -111,6 +116,11 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
                  "consider --method raw")
         level = "partial" if level == "good" else level
     return base + ".", level
+
+
+#: Less driving than this never gets the green verdict: its validation rests on a handful of
+#: segments, and a few bends decide t_r and d (README, "Real logs").
+MIN_DISTANCE_KM = 2.0
 
 
 def build(result: CalibrationResult) -> ReportData:

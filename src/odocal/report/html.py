@@ -219,7 +219,8 @@ def _parameter_rows(result: CalibrationResult) -> list[str]:
         rows.append(
             f"<tr><td><b>{name}</b> {e(label)}</td><td>{_fmt(name, row['datasheet'])}</td>"
             f"<td>{cal}</td><td>{_fmt(name, row['std']) if ident else '-'}</td>"
-            f"<td>{_fmt(name, row['bootstrap_std']) if ident else '-'}</td>"
+            + (f"<td>{_fmt(name, row['bootstrap_std']) if ident else '-'}</td>"
+               if row["bootstrap_std"] is not None else "") +
             f"<td class='{'yes' if ident else 'no'}'>{'yes' if ident else 'no'}</td></tr>")
     return rows
 
@@ -252,6 +253,11 @@ def _page(result: CalibrationResult, data: ReportData,
 
     cov = data.coverage
     boot = result.bootstrap
+    from odocal.settings import datasheet_stated
+
+    sheet = ("datasheet" if datasheet_stated(result.estimate.datasheet)
+             else "placeholder datasheet (no --datasheet given)")
+    boot_head = "<th>std (bootstrap)</th>" if boot is not None else ""
     from odocal.report.advice import finding_text
 
     warnings = "".join(f"<li>{e(w)}</li>" for w in result.warnings)
@@ -273,15 +279,15 @@ def _page(result: CalibrationResult, data: ReportData,
 &middot; {cov['distance_m'] / 1000:.2f} km, {cov['duration_s'] / 60:.1f} min</div>
 <div class="verdict {data.verdict_level}" id="verdict">{e(data.verdict)}</div>
 <h2>Result</h2>
-<table id="parameters"><tr><th>parameter</th><th>datasheet</th><th>calibrated</th>
-<th>std (covariance)</th><th>std (bootstrap)</th><th>identified</th></tr>
+<table id="parameters"><tr><th>parameter</th><th>{sheet}</th><th>calibrated</th>
+<th>std (covariance)</th>{boot_head}<th>identified</th></tr>
 {''.join(rows)}</table>
 <p class="meta">Covariance: {e(result.estimate.covariance_kind.value)}.
 {e(boot.message[:1].upper() + boot.message[1:]) + '.' if boot is not None
  else 'No bootstrap.'}</p>
 {val}
 {comparison}
-<h2>Map</h2>{fig('map')}
+{"<h2>Map</h2>" + fig('map') if 'map' in figs else ""}
 {"<h2>The fit</h2>" + fig('inverse') if 'inverse' in figs else ""}
 <h2>Validation</h2>{fig('segments')}
 {"<h2>The paper's views</h2>" + paper if paper else ""}
