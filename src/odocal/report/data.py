@@ -169,7 +169,7 @@ def _maps(result: CalibrationResult, segs: Any) -> list[MapSegment]:
         u = Inputs(d.n_rl[s:s + k], d.n_rr[s:s + k], d.beta[s:s + k], d.a_y[s:s + k])
         x0 = np.array([d.x[s], d.y[s], d.psi[s]])
         ref = np.column_stack([d.x[s:s + k + 1], d.y[s:s + k + 1]])
-        out.append(MapSegment(drive=d.name, start_s=float(d.t[s]),
+        out.append(MapSegment(drive=d.name, start_s=float(d.t[s] - d.t[0]),
                               distance_m=float(segs.distance_m[i]), reference=ref,
                               datasheet=rollout(theta0, u, x0, d.t_s)[:, :2],
                               calibrated=rollout(theta, u, x0, d.t_s)[:, :2]))

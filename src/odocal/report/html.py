@@ -152,11 +152,13 @@ h1 { font-size: 1.6em; margin: 0 0 4px 0; } h2 { font-size: 1.2em; margin-top: 2
 .good { background: #e3f4e5; border-left: 6px solid #2e9b3e; }
 .partial { background: #fff5dd; border-left: 6px solid #d9a400; }
 .bad { background: #fde6e6; border-left: 6px solid #c62828; }
-table { border-collapse: collapse; background: white; margin: 8px 0; }
+table { border-collapse: collapse; background: white; margin: 8px 0; display: block;
+        max-width: 100%; overflow-x: auto; }
 th, td { padding: 6px 12px; border-bottom: 1px solid #e2e4e8; text-align: right; }
 th { background: #eef0f3; } td:first-child, th:first-child { text-align: left; }
 figure { background: white; margin: 12px 0; padding: 8px; border-radius: 6px; }
 figure img { max-width: 100%; height: auto; display: block; }
+@media (max-width: 600px) { main { padding: 12px; } th, td { padding: 4px 6px; } }
 figcaption { color: #555; font-size: 0.9em; margin-top: 4px; }
 ul { line-height: 1.5; } .no { color: #c62828; } .yes { color: #2e9b3e; }
 """
@@ -256,7 +258,7 @@ def _page(result: CalibrationResult, data: ReportData,
     from odocal.settings import datasheet_stated
 
     sheet = ("datasheet" if datasheet_stated(result.estimate.datasheet)
-             else "placeholder datasheet (no --datasheet given)")
+             else "datasheet (placeholder: no --datasheet)")
     boot_head = "<th>std (bootstrap)</th>" if boot is not None else ""
     from odocal.report.advice import finding_text
 
