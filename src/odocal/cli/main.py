@@ -177,6 +177,18 @@ def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
         _print(f"calibration failed: {est.message}")
 
 
+def _compile_note(args: argparse.Namespace, methods: Sequence[str]) -> None:
+    """Say once, before a silent wait, that the segment methods' kernels compile now."""
+    if args.quiet or not any(m in ("raw", "compensated") for m in methods):
+        return
+    from odocal.model._jit import kernels_cached
+
+    if not kernels_cached():
+        sys.stderr.write("note: compiling the numerical kernels of the segment methods once "
+                         "(some 5-30 s on a first run); later runs start at once\n")
+        sys.stderr.flush()
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from odocal.pipeline.calibrate import calibrate, validate_theta
     from odocal.sim.simulate import simulate
@@ -187,6 +199,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         _print(f"simulating a {args.duration / 60:.0f}-minute city drive (noise profile "
                f"'{args.noise}', seed {args.seed}) with known true parameters ...")
     sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
+    _compile_note(args, [args.method or DEFAULT_METHOD] + ([] if args.no_compare
+                                                            else list(METHOD_NAMES)))
     progress = Progress(not args.quiet)
     try:
         result = calibrate(sim.drive, settings=settings, method=args.method, progress=progress)
@@ -394,6 +408,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
             drives = load_drives(drives)
             check_comparable(drives, settings)
+        _compile_note(args, [args.method or DEFAULT_METHOD]
+                      + (list(METHOD_NAMES) if args.compare else []))
         result = calibrate(drives, settings=settings, method=args.method, progress=progress)
         if args.compare:
             result = _compared(result, drives, settings, None, args.quiet)
@@ -518,7 +534,12 @@ def cmd_minimum(args: argparse.Namespace) -> int:
     if not args.quiet:
         _print("searching the reachable minimum of E_p over the validation segments "
                "(differential evolution) ...")
-    result = minimum(_drives_from(args, settings), start=start, settings=settings)
+    progress = Progress(not args.quiet)
+    try:
+        result = minimum(_drives_from(args, settings), start=start, settings=settings,
+                         progress=progress)
+    finally:
+        progress.close()
     if args.quiet:
         if args.out:
             from odocal.io.results import write_json

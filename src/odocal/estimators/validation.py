@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -172,11 +172,13 @@ class MinimumResult:
 
 
 def reachable_minimum(data: RaggedSegments, start: FloatArray, *, settings: MinimumSettings,
-                      seed: int = 0, workers: int = 1) -> MinimumResult:
+                      seed: int = 0, workers: int = 1,
+                      progress: Callable[[str, int, int], None] | None = None) -> MinimumResult:
     """Minimise E_p over theta with differential evolution in a box around ``start``.
 
     Bounded, seeded, and polished with L-BFGS-B, so the same inputs give the same answer.
     ``workers`` > 1 evaluates the population in parallel processes (same result).
+    ``progress(stage, generation, max_generations)`` is called after every generation.
     """
     from scipy.optimize import differential_evolution
 
@@ -185,11 +187,25 @@ def reachable_minimum(data: RaggedSegments, start: FloatArray, *, settings: Mini
     bounds = np.column_stack([start - half, start + half])
     bounds[0, 0] = max(bounds[0, 0], 1e-3)
     bounds[2, 0] = max(bounds[2, 0], 1e-3)
+    stage = "reachable minimum: differential evolution, generation"
+    generations = [0]
+
+    def generation(xk: FloatArray, convergence: float = 0.0) -> bool:
+        generations[0] += 1
+        if progress:
+            progress(stage, min(generations[0], settings.max_generations),
+                     settings.max_generations)
+        return False
+
+    if progress:
+        progress(stage, 0, settings.max_generations)
     result = differential_evolution(
-        mean_error, bounds=[tuple(b) for b in bounds], args=(data,),
+        mean_error, bounds=[tuple(b) for b in bounds], args=(data,), callback=generation,
         seed=seed, maxiter=settings.max_generations, popsize=settings.population,
         tol=settings.tolerance, polish=True, x0=np.clip(start, bounds[:, 0], bounds[:, 1]),
         workers=workers, updating="deferred" if workers != 1 else "immediate")
+    if progress:                                  # converged before the last generation
+        progress(stage, settings.max_generations, settings.max_generations)
     on_edge = np.isclose(result.x, bounds[:, 0]) | np.isclose(result.x, bounds[:, 1])
     message = str(result.message)
     if on_edge.any():

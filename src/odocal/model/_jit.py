@@ -23,6 +23,18 @@ F = TypeVar("F", bound=Callable[..., Any])
 log = logging.getLogger(__name__)
 
 
+def kernels_cached() -> bool:
+    """Whether numba's disk cache holds the compiled kernels of :mod:`odocal.model.compiled`
+    (beside the source, or under ``NUMBA_CACHE_DIR``): without them the first call compiles."""
+    import os
+    from pathlib import Path
+
+    custom = os.environ.get("NUMBA_CACHE_DIR")
+    places = [Path(custom)] if custom else [Path(__file__).parent / "__pycache__"]
+    return any(next(place.rglob("compiled.*.nbi"), None) is not None
+               for place in places if place.is_dir())
+
+
 def jit(func: F | None = None, *, inline: bool = False) -> Any:
     """``@jit`` or ``@jit(inline=True)``: nopython compilation, cached where possible."""
 

@@ -134,7 +134,8 @@ def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
 
 
 def minimum(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
-            start: Parameters | None = None, settings: Settings | None = None) -> MinimumResult:
+            start: Parameters | None = None, settings: Settings | None = None,
+            progress: ProgressCallback | None = None) -> MinimumResult:
     """The reachable minimum of E_p on the validation segments of ``drives`` (METHOD 6).
 
     Differential evolution in a box of ``[minimum] half_width`` around ``start`` (default the
@@ -150,7 +151,8 @@ def minimum(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     centre = start.as_array() if start is not None else np.asarray(settings.identify.theta0)
     return reachable_minimum(data, centre, settings=settings.minimum,
                              seed=settings.calibrate.seed,
-                             workers=resolve_workers(settings.calibrate.workers))
+                             workers=resolve_workers(settings.calibrate.workers),
+                             progress=progress)
 
 
 def validation(theta: Parameters | NDArray[np.float64], data: RaggedSegments, segs: SegmentSet,

@@ -176,13 +176,9 @@ def reproduce(*, seed: int = 0, noise: str = "realistic", distance_km: float = 2
 
     best = None
     if minimum:
-        if progress:
-            progress("reachable minimum", 0, 1)
         found = reachable_minimum(val, table1[3].theta, settings=settings.minimum, seed=seed,
-                                  workers=workers)
+                                  workers=workers, progress=progress)
         best = estimate("reachable minimum (differential evolution)", found.theta.as_array())
-        if progress:
-            progress("reachable minimum", 1, 1)
 
     return ReproduceResult(
         seed=seed, noise=noise, distance_km=drive.distance_m / 1000, segments=len(id_segs),
