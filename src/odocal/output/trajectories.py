@@ -21,7 +21,6 @@ gain. With one log the files lie in ``trajectories/``; with several, in
 
 from __future__ import annotations
 
-import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -29,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.data.drive import Drive
-from odocal.io.atomic import write_text
+from odocal.io.atomic import file_name, write_text
 from odocal.model.kinematics import rollout
 from odocal.model.parameters import Inputs, Parameters
 
@@ -65,11 +64,11 @@ def tum_text(t: FloatArray, poses: FloatArray) -> str:
 def _folder_names(drives: Sequence[Drive]) -> list[str]:
     """A file-system-safe folder name per drive, unique even where names clean to the same."""
     names: list[str] = []
-    for i, d in enumerate(drives):
-        base = re.sub(r"[^A-Za-z0-9._-]+", "_", d.name).strip("._") or f"log{i + 1}"
-        name, k = base[:100], 2
-        while name in names:
-            name, k = f"{base[:96]}-{k}", k + 1
+    for d in drives:
+        base = file_name(Path(d.name).name or d.name)
+        name, k = base, 2
+        while name in names:                 # the same log given twice
+            name, k = f"{base}-{k}", k + 1
         names.append(name)
     return names
 
