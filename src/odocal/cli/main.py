@@ -181,11 +181,11 @@ def _compile_note(args: argparse.Namespace, methods: Sequence[str]) -> None:
     """Say once, before a silent wait, that the segment methods' kernels compile now."""
     if args.quiet or not any(m in ("raw", "compensated") for m in methods):
         return
-    from odocal.model._jit import kernels_cached
+    from odocal.model._jit import compile_note
 
-    if not kernels_cached():
-        sys.stderr.write("note: compiling the numerical kernels of the segment methods once "
-                         "(some 5-30 s on a first run); later runs start at once\n")
+    note = compile_note(methods)
+    if note:
+        sys.stderr.write(note + "\n")
         sys.stderr.flush()
 
 
@@ -204,11 +204,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
     progress = Progress(not args.quiet)
     try:
         result = calibrate(sim.drive, settings=settings, method=args.method, progress=progress)
+        truth_error = validate_theta(sim.drive, sim.true_parameters,
+                                     settings=settings).mean_error_m
+        if not args.no_compare:
+            result = _compared(result, [sim.drive], settings, sim.true_parameters, args.quiet,
+                               progress)
     finally:
         progress.close()
-    truth_error = validate_theta(sim.drive, sim.true_parameters, settings=settings).mean_error_m
-    if not args.no_compare:
-        result = _compared(result, [sim.drive], settings, sim.true_parameters, args.quiet)
     if not args.quiet:
         bound = sim.cramer_rao_bound()
         best = None if bound is None else [math.sqrt(v) for v in bound.diagonal()]
@@ -222,13 +224,16 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _compared(result: CalibrationResult, drives: Sequence[Any], settings: Settings,
-              truth: Parameters | None, quiet: bool) -> CalibrationResult:
+              truth: Parameters | None, quiet: bool,
+              progress: Callable[[str, int, int], None] | None = None) -> CalibrationResult:
     """``result`` with every method scored on held-out blocks (printed unless quiet)."""
     import dataclasses
 
     from odocal.pipeline.compare import compare, format_table
 
-    comparison = compare(drives, settings=settings, truth=truth)
+    comparison = compare(drives, settings=settings, truth=truth, progress=progress)
+    if progress is not None and hasattr(progress, "close"):
+        progress.close()                        # its bars end before the table is printed
     if not quiet:
         for line in format_table(comparison):
             _print(line)
@@ -412,7 +417,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                       + (list(METHOD_NAMES) if args.compare else []))
         result = calibrate(drives, settings=settings, method=args.method, progress=progress)
         if args.compare:
-            result = _compared(result, drives, settings, None, args.quiet)
+            result = _compared(result, drives, settings, None, args.quiet, progress)
         if not args.quiet:
             print_summary(result)
         else:

@@ -14,7 +14,7 @@ called equal.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -71,8 +71,12 @@ def check_comparable(drives: Sequence[Drive], settings: Settings | None = None,
 
 def compare(drives: Sequence[Drive], *, settings: Settings | None = None,
             truth: Parameters | None = None, methods: Sequence[str] = METHOD_NAMES,
-            block_s: float = 300.0) -> Comparison:
-    """Score every method by held-out E_p (see the module docstring)."""
+            block_s: float = 300.0,
+            progress: Callable[[str, int, int], None] | None = None) -> Comparison:
+    """Score every method by held-out E_p (see the module docstring).
+
+    ``progress(stage, done, total)`` counts each method's three fits (two halves, the whole).
+    """
     from odocal.pipeline.calibrate import calibrate, validate_theta
 
     settings = settings or Settings()
@@ -90,12 +94,21 @@ def compare(drives: Sequence[Drive], *, settings: Settings | None = None,
         started = time.perf_counter()
         per_fold: list[float | None] = []
         error = None
+        stage = f"comparing the methods: {method}, 3 fits"
         try:
             for k in (0, 1):
+                if progress:
+                    progress(stage, k, 3)
                 fit = calibrate(halves[k], settings=settings, method=method)
                 per_fold.append(held_out(fit.theta, k) if fit.success else None)
+            if progress:
+                progress(stage, 2, 3)
             whole = calibrate(list(drives), settings=settings, method=method)
+            if progress:
+                progress(stage, 3, 3)
         except OdocalError as exc:
+            if progress:
+                progress(stage, 3, 3)
             error = str(exc)
             scores.append(MethodScore(method, Parameters(*settings.identify.theta0),
                                       (0.0,) * 4, (False,) * 4, "error", None, tuple(per_fold),

@@ -134,15 +134,25 @@ def reproduce(*, seed: int = 0, noise: str = "realistic", distance_km: float = 2
     """Run the paper's experiment on a simulated drive of ``distance_km``."""
     settings = settings or Settings()
     workers = resolve_workers(settings.calibrate.workers)
-    sim: SimulatedDrive = simulate(duration_s=distance_km * 1000 / 6.0, seed=seed, noise=noise)
-    drive = truncate_to_distance(sim.drive, distance_km * 1000)
+
+    def stage(name: str) -> Callable[[int, int], None] | None:
+        return (lambda d, t: progress(name, d, t)) if progress else None
+
+    def step(name: str) -> _Step:
+        return _Step(progress, name)
+
+    with step(f"simulating a {distance_km:g} km drive"):
+        sim: SimulatedDrive = simulate(duration_s=distance_km * 1000 / 6.0, seed=seed,
+                                       noise=noise)
+        drive = truncate_to_distance(sim.drive, distance_km * 1000)
     truth = sim.true_parameters.as_array()
     drives = [drive]
 
-    id_segs = identification_segments(drives, settings.segments)
-    selected = id_segs.subset(id_segs.selected)
-    batch = gather(drives, selected)
-    val = gather_ragged(drives, validation_segments(drives, settings.segments))
+    with step("segments"):
+        id_segs = identification_segments(drives, settings.segments)
+        selected = id_segs.subset(id_segs.selected)
+        batch = gather(drives, selected)
+        val = gather_ragged(drives, validation_segments(drives, settings.segments))
 
     def estimate(label: str, result: Estimate | FloatArray) -> Reproduced:
         if isinstance(result, Estimate):
@@ -154,24 +164,26 @@ def reproduce(*, seed: int = 0, noise: str = "realistic", distance_km: float = 2
         return Reproduced(label=label, theta=theta, validation_m=mean_error(theta, val),
                           error=theta - truth, iterations=its, message=msg)
 
-    def stage(name: str) -> Callable[[int, int], None] | None:
-        return (lambda d, t: progress(name, d, t)) if progress else None
-
-    s1 = step1(batch, val, settings, progress=stage("step 1: 50 batches"))
+    s1 = step1(batch, val, settings, progress=stage("Fig. 4: step-1 batches"))
     examined = int(s1.order[-1])
     examined_idx = s1.batches[examined]
     exam = batch.take(examined_idx)
     sets = s1.thetas[s1.picked]
     comp = compensate_batch(exam, sets, settings.compensate, workers=workers,
-                            progress=stage("step 2: examined batch"))
+                            progress=stage("Table 1: compensating the examined batch"))
     exam_comp = exam.with_wheel_rates(comp.n_rl, comp.n_rr)
 
     table1, per_raw, per_comp, step3 = _examined(exam, exam_comp, s1.results[examined],
-                                                 settings, estimate)
+                                                 settings, estimate,
+                                                 stage("Table 1, Fig. 7: G-N fits on the "
+                                                       "examined batch"))
 
-    whole_raw = estimate("all selected segments, measured rates",
-                         gauss_newton(batch, settings=settings.identify))
-    outcome = three_step(batch, val, settings=settings, progress=progress)
+    with step("whole drive: batch G-N on measured rates"):
+        whole_raw = estimate("all selected segments, measured rates",
+                             gauss_newton(batch, settings=settings.identify))
+    outcome = three_step(batch, val, settings=settings,
+                         progress=(lambda name, d, t: progress(f"whole drive, {name}", d, t))
+                         if progress else None)
     whole_comp = estimate("all selected segments, three-step", outcome.final)
 
     best = None
@@ -195,34 +207,58 @@ def reproduce(*, seed: int = 0, noise: str = "realistic", distance_km: float = 2
                                                [exam.inputs.n_rl, exam.inputs.n_rr])), 0.5))))
 
 
+class _Step:
+    """A stage of one step: ``progress(name, 0, 1)`` on entry, ``(name, 1, 1)`` on exit."""
+
+    def __init__(self, progress: Callable[[str, int, int], None] | None, name: str) -> None:
+        self.progress, self.name = progress, name
+
+    def __enter__(self) -> None:
+        if self.progress:
+            self.progress(self.name, 0, 1)
+
+    def __exit__(self, *exc: object) -> None:
+        if self.progress:
+            self.progress(self.name, 1, 1)
+
+
 def _examined(exam: SegmentBatch, exam_comp: SegmentBatch, step1_result: Estimate,
               settings: Settings, estimate: Callable[[str, Estimate], Reproduced],
+              progress: Callable[[int, int], None] | None = None,
               ) -> tuple[tuple[Reproduced, ...], ...]:
     """The examined batch, as the paper's Table 1 and Fig. 7 show it: one segment and the
     batch with measured and compensated rates, every segment alone (pure G-N shows the raw
-    per-segment estimates, however loose), and step 3's batches."""
+    per-segment estimates, however loose), and step 3's batches.
+
+    ``progress(done, total)`` counts the G-N fits."""
     loose = dataclasses.replace(settings.identify, judge_identifiability=False)
     seg = min(EXAMINED_SEGMENT, len(exam) - 1)
     one = slice(seg, seg + 1)
-    table1 = (
-        estimate(f"segment {seg + 1} with measured rates",
-                 gauss_newton(exam.take(one), settings=loose)),
-        estimate(f"segment {seg + 1} with compensated rates",
-                 gauss_newton(exam_comp.take(one), settings=loose)),
-        estimate("batch with measured rates", step1_result),
-        estimate("batch with compensated rates (theta_BF)",
-                 gauss_newton(exam_comp, settings=settings.identify)),
-    )
-    per_raw = tuple(estimate(f"segment {i + 1}", gauss_newton(exam.take(slice(i, i + 1)),
-                                                              settings=loose))
-                    for i in range(len(exam)))
-    per_comp = tuple(estimate(f"segment {i + 1}", gauss_newton(exam_comp.take(slice(i, i + 1)),
-                                                               settings=loose))
-                     for i in range(len(exam)))
     n3 = settings.calibrate.step3_batch_size
+    total = 3 + 2 * len(exam) + -(-len(exam) // n3)
+    done = [0]
+
+    def fit(batch: SegmentBatch, identify: Any) -> Estimate:
+        result = gauss_newton(batch, settings=identify)
+        done[0] += 1
+        if progress:
+            progress(done[0], total)
+        return result
+
+    if progress:
+        progress(0, total)
+    table1 = (
+        estimate(f"segment {seg + 1} with measured rates", fit(exam.take(one), loose)),
+        estimate(f"segment {seg + 1} with compensated rates", fit(exam_comp.take(one), loose)),
+        estimate("batch with measured rates", step1_result),
+        estimate("batch with compensated rates (theta_BF)", fit(exam_comp, settings.identify)),
+    )
+    per_raw = tuple(estimate(f"segment {i + 1}", fit(exam.take(slice(i, i + 1)), loose))
+                    for i in range(len(exam)))
+    per_comp = tuple(estimate(f"segment {i + 1}", fit(exam_comp.take(slice(i, i + 1)), loose))
+                     for i in range(len(exam)))
     step3 = tuple(estimate(f"segments {lo + 1}-{min(lo + n3, len(exam))}",
-                           gauss_newton(exam_comp.take(slice(lo, lo + n3)),
-                                        settings=settings.identify))
+                           fit(exam_comp.take(slice(lo, lo + n3)), settings.identify))
                   for lo in range(0, len(exam), n3))
     return table1, per_raw, per_comp, step3
 
