@@ -29,7 +29,11 @@ def test_a_short_drive_never_gets_the_green_verdict(tmp_path: Path,
     assert drive.distance_m / 1000 < MIN_DISTANCE_KM
     page = _page(tmp_path, capsys, drive)
     assert 'class="verdict good"' not in page
-    assert "km of driving, less than the" in page
+    verdict = page.split('id="verdict">')[1].split("</div>")[0]
+    km = sum(d.distance_m for d in [drive]) / 1000
+    # said first, with the distance and the README's minimum, before the numbers that look good
+    assert verdict.startswith(f"Drive too short to trust: {km:.2f} km of driving, less than "
+                              f"the {MIN_DISTANCE_KM:g} km"), verdict
 
 
 def test_a_long_drive_with_every_parameter_can_be_green(tmp_path: Path,
@@ -45,11 +49,47 @@ def test_the_bootstrap_column_only_where_there_is_a_bootstrap(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], noisy_drive: Any) -> None:
     page = _page(tmp_path / "a", capsys, noisy_drive.drive)                 # the default
     assert "std (bootstrap)" not in page
-    assert "datasheet (placeholder: no --datasheet)" in page
+    assert "datasheet (placeholder: no <span class='nowrap'>--datasheet</span>)" in page
+    assert "from the covariance, relative" in page              # no bootstrap in the caption
     page = _page(tmp_path / "b", capsys, noisy_drive.drive, "--method", "raw")
     assert "std (bootstrap)" in page
+    assert "from the covariance and from the bootstrap" in page
     table = page.split('<table id="parameters">')[1].split("</table>")[0]
-    assert all(row.count("<td") == 6 for row in table.split("<tr>")[2:])
+    rows = table.split("<tr>")[2:]
+    assert rows and all(row.count("<td") == 6 for row in rows)
+    # the bootstrap's standard deviations themselves, as calibration.json has them
+    import json
+
+    boot = json.loads((tmp_path / "b" / "r" / "calibration.json").read_text())["bootstrap"]
+    cells = [row.split("<td")[4] for row in rows]
+    assert all(any(ch.isdigit() for ch in cell) for cell in cells), cells
+    assert boot is not None
+
+
+def test_count_axes_have_integer_ticks_and_maps_seconds_from_the_start(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], short_drive: Any) -> None:
+    import json
+
+    import numpy as np
+    from matplotlib.figure import Figure
+
+    from odocal.report import figures
+
+    fig = Figure(figsize=(3.3, 3.0))                       # as narrow as in the coverage row
+    ax = fig.add_subplot()
+    figures.plot_selection(ax, np.linspace(0.0, 0.4, 7), 0.15)
+    fig.canvas.draw()
+    low, high = ax.get_xlim()
+    ticks = [t for t in ax.get_xticks() if low <= t <= high]
+    assert 2 <= len(ticks) <= 7 and all(float(t).is_integer() for t in ticks), ticks
+    # a log on the epoch clock: the map titles count seconds from the log's start
+    drive = short_drive.drive
+    columns = drive.columns()
+    columns["t"] = columns["t"] + 1.7e9
+    epoch = odocal.Drive.from_columns(columns, name=drive.name, metadata=drive.metadata)
+    _page(tmp_path, capsys, epoch)
+    maps = json.loads((tmp_path / "r" / "calibration.json").read_text())["report"]["map_segments"]
+    assert maps and all(0 <= m["start_s"] <= drive.duration_s for m in maps), maps
 
 
 def test_no_map_heading_without_a_map(tmp_path: Path, capsys: pytest.CaptureFixture[str],
@@ -63,29 +103,53 @@ def test_no_map_heading_without_a_map(tmp_path: Path, capsys: pytest.CaptureFixt
 @pytest.mark.browser
 def test_the_report_reads_on_a_phone(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                      noisy_drive: Any) -> None:
+    """At a phone's width (390 x 844 CSS pixels): the page is no wider than the phone (a phone
+    would zoom out to the widest element), every figure is drawn inside it, and a table wider
+    than the phone scrolls inside its own box while the page stays put."""
     from tests.report.test_report import ARTIFACTS, _chromium
 
     executable = _chromium()
     if executable is None:
         pytest.skip("no Chromium on this machine (.ci/run installs Debian's chromium)")
     sync_api = pytest.importorskip("playwright.sync_api")
-    _page(tmp_path, capsys, noisy_drive.drive, "--method", "raw")
+    _page(tmp_path, capsys, noisy_drive.drive, "--method", "raw")     # the widest table
     with sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=executable, headless=True,
                                     args=["--no-sandbox", "--disable-gpu", "--no-first-run"])
         page = browser.new_page(viewport={"width": PHONE, "height": 844}, device_scale_factor=2,
-                                is_mobile=True)
+                                is_mobile=True, has_touch=True)
         page.goto((tmp_path / "r" / "report.html").as_uri())
         page.wait_for_load_state("load")
         layout = page.evaluate("""() => ({
             page: document.scrollingElement.scrollWidth, view: window.innerWidth,
-            images: Array.from(document.images).map(i => i.getBoundingClientRect().right),
-            tables: Array.from(document.querySelectorAll('table')).map(
-                t => t.getBoundingClientRect().right)})""")
+            images: Array.from(document.images).map(i => {
+                const r = i.getBoundingClientRect();
+                return {id: i.parentElement.id, left: r.left, right: r.right, width: r.width,
+                        height: r.height, natural: i.naturalWidth, complete: i.complete,
+                        shown: getComputedStyle(i).visibility === 'visible'
+                               && getComputedStyle(i).display !== 'none'};
+            }),
+            tables: Array.from(document.querySelectorAll('table')).map(t => ({
+                id: t.id, right: t.getBoundingClientRect().right, scroll: t.scrollWidth,
+                box: t.clientWidth, overflow: getComputedStyle(t).overflowX}))})""")
+        wide = page.evaluate("""() => {
+            const t = Array.from(document.querySelectorAll('table'))
+                .find(t => t.scrollWidth > t.clientWidth + 1);
+            if (!t) return null;
+            t.scrollLeft = 10000;
+            return {id: t.id, scrolled: t.scrollLeft, page: window.scrollX};
+        }""")
         ARTIFACTS.mkdir(exist_ok=True)
-        page.screenshot(path=str(ARTIFACTS / "report-phone.png"), full_page=False)
+        page.screenshot(path=str(ARTIFACTS / "report-phone.png"), full_page=True)
         browser.close()
     # a phone zooms out to the widest element: nothing may be wider than the phone
     assert layout["view"] == PHONE and layout["page"] <= PHONE + 1, layout
-    assert all(right <= PHONE + 1 for right in layout["images"]), layout
-    assert all(right <= PHONE + 1 for right in layout["tables"]), layout
+    assert layout["images"], layout
+    for img in layout["images"]:                   # every figure drawn, whole, on the screen
+        assert img["complete"] and img["natural"] > 300 and img["shown"], img
+        assert img["left"] >= 0 and img["right"] <= PHONE + 1, img
+        assert img["width"] > PHONE / 2 and img["height"] > 50, img
+    for table in layout["tables"]:                 # wide tables scroll in their own box
+        assert table["right"] <= PHONE + 1 and table["overflow"] == "auto", table
+    assert wide is not None, layout                # the raw method's table is wider than a phone
+    assert wide["scrolled"] > 0 and wide["page"] == 0, wide

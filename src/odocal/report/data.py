@@ -103,8 +103,10 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
         base += "; all four parameters identified"
     km = sum(d.distance_m for d in result.drives) / 1000
     if km < MIN_DISTANCE_KM:
-        base += (f"; but only {km:.2f} km of driving, less than the {MIN_DISTANCE_KM:g} km a "
-                 "calibration should rest on (README, 'Real logs'): check it on another drive")
+        # said first: the numbers after it look good and are not to be trusted yet
+        base = (f"Drive too short to trust: {km:.2f} km of driving, less than the "
+                f"{MIN_DISTANCE_KM:g} km a calibration should rest on (README, 'Real logs'); "
+                f"check it on another drive. {base}")
         level = "partial" if level == "good" else level
     if result.bootstrap is not None and not all(result.bootstrap.agree):
         base += "; the bootstrap disagrees with the covariance"

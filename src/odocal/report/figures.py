@@ -91,7 +91,7 @@ def plot_step1_sorted(ax: Axes, sorted_errors: FloatArray, picked_ranks: Sequenc
         artists.append(ax.axhline(raw_m, color=RAW, lw=1.5, ls="--",
                                   label=f"batch G-N on all segments {raw_m:.2f} m"))
     ax.set_xlabel("step-1 batch, sorted by validation error")
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.xaxis.set_major_locator(MaxNLocator(nbins="auto", integer=True))
     ax.set_ylabel("validation error E_p [m]")
     ax.set_title("Step 1: batch G-N on measured rates (picked sets in blue)", fontsize=9)
     ax.legend(fontsize=8, loc="upper left")
@@ -159,7 +159,7 @@ def plot_segment_errors(ax: Axes, errors: dict[str, FloatArray]) -> list[Any]:
                     label=f"{labels[k]} (mean {errors[k].mean():.2f} m)")
                for i, k in enumerate(order)]
     ax.set_xlabel("validation segment")
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.xaxis.set_major_locator(MaxNLocator(nbins="auto", integer=True))
     ax.set_ylabel("mean position error [m]")
     low, high = ax.get_ylim()
     ax.set_ylim(low, high * 10)                   # head room for the legend on the log scale
@@ -196,7 +196,7 @@ def plot_selection(ax: Axes, peak_yaw: FloatArray, threshold: float) -> list[Any
                ax.axhline(threshold, color=DATASHEET, lw=1, ls="--",
                           label=f"threshold {threshold} rad/s")]
     ax.set_xlabel("identification segment")
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.xaxis.set_major_locator(MaxNLocator(nbins="auto", integer=True))
     ax.set_ylabel("peak |yaw rate| [rad/s]")
     ax.legend(fontsize=8)
     ax.grid(True, alpha=0.3)

@@ -120,8 +120,10 @@ def _coverage(result: CalibrationResult, data: ReportData) -> Spec:
 
 def _uncertainty(result: CalibrationResult, data: ReportData) -> Spec:
     ident = result.settings.identify
-    return FigureSpec("uncertainty", "Standard deviations from the covariance and from the "
-                      "bootstrap, relative to the datasheet uncertainty.", 6.0, 3.2, (
+    sources = "the covariance" + (" and from the bootstrap" if result.bootstrap is not None
+                                  else "")
+    return FigureSpec("uncertainty", f"Standard deviations from {sources}, relative to the "
+                      "datasheet uncertainty.", 6.0, 3.2, (
                           Call("plot_uncertainty", (
                               result.estimate.std,
                               result.bootstrap.std if result.bootstrap is not None else None,
@@ -153,8 +155,9 @@ h1 { font-size: 1.6em; margin: 0 0 4px 0; } h2 { font-size: 1.2em; margin-top: 2
 .partial { background: #fff5dd; border-left: 6px solid #d9a400; }
 .bad { background: #fde6e6; border-left: 6px solid #c62828; }
 table { border-collapse: collapse; background: white; margin: 8px 0; display: block;
-        max-width: 100%; overflow-x: auto; }
+        width: fit-content; max-width: 100%; overflow-x: auto; }
 th, td { padding: 6px 12px; border-bottom: 1px solid #e2e4e8; text-align: right; }
+td:not(:first-child), .nowrap { white-space: nowrap; }
 th { background: #eef0f3; } td:first-child, th:first-child { text-align: left; }
 figure { background: white; margin: 12px 0; padding: 8px; border-radius: 6px; }
 figure img { max-width: 100%; height: auto; display: block; }
@@ -258,7 +261,7 @@ def _page(result: CalibrationResult, data: ReportData,
     from odocal.settings import datasheet_stated
 
     sheet = ("datasheet" if datasheet_stated(result.estimate.datasheet)
-             else "datasheet (placeholder: no --datasheet)")
+             else "datasheet (placeholder: no <span class='nowrap'>--datasheet</span>)")
     boot_head = "<th>std (bootstrap)</th>" if boot is not None else ""
     from odocal.report.advice import finding_text
 
