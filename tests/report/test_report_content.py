@@ -153,3 +153,22 @@ def test_the_report_reads_on_a_phone(tmp_path: Path, capsys: pytest.CaptureFixtu
         assert table["right"] <= PHONE + 1 and table["overflow"] == "auto", table
     assert wide is not None, layout                # the raw method's table is wider than a phone
     assert wide["scrolled"] > 0 and wide["page"] == 0, wide
+
+
+def test_the_replay_report_times_alarms_from_the_start_of_the_log(tmp_path: Path) -> None:
+    """A log on the epoch clock: the change is shown at 600 s, not at 1700000600 s."""
+    from odocal.online.changes import Alarm
+    from odocal.online.replay import ReplayResult, TraceRow
+    from odocal.report.replay import write_replay_report
+
+    start = 1.7e9
+    estimate = odocal.calibrate(odocal.simulate(duration_s=300, seed=1).drive).estimate
+    rows = tuple(TraceRow(t=start + t, distance_km=t / 100, theta=(1.95, 0.0, 1.5, 0.0),
+                          std=(1e-3,) * 4, identified=(True,) * 4) for t in (60.0, 1200.0))
+    alarm = Alarm(parameter="c_e", t=start + 600.0, detected_t=start + 700.0, distance_km=6.0,
+                  detected_distance_km=7.0, relative_change=0.01, sigmas=5.0)
+    result = ReplayResult(source="log.parquet", estimate=estimate, trace=rows, alarms=(alarm,),
+                          samples=1000, duration_s=1200.0, distance_km=12.0, elapsed_s=1.0)
+    page = write_replay_report(result, tmp_path).read_text()
+    table = page.split("<table id='alarms'>")[1].split("</table>")[0]
+    assert "<td>600 s</td>" in table and "1700000" not in table, table

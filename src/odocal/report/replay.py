@@ -80,8 +80,11 @@ def write_replay_report(result: ReplayResult, out_dir: str | Path, *,
             cmp = (f"{_fmt(name, batch.theta.as_array()[j])} &plusmn; {_fmt(name, batch.std[j])}"
                    if batch.identified[j] else "not identified")
         rows.append(f"<tr><td><b>{name}</b> {e(label)}</td><td>{online}</td><td>{cmp}</td></tr>")
+    # the log's own clock may be epoch seconds: times are shown from the log's start (the last
+    # trace row is the end of the log)
+    start = result.trace[-1].t - result.duration_s if result.trace else 0.0
     alarms = "".join(
-        f"<tr><td>{a.parameter}</td><td>{a.t:.0f} s</td><td>{a.distance_km:.2f} km</td>"
+        f"<tr><td>{a.parameter}</td><td>{a.t - start:.0f} s</td><td>{a.distance_km:.2f} km</td>"
         f"<td>{a.detected_distance_km:.2f} km</td><td>{a.relative_change * 100:+.3f}%</td></tr>"
         for a in result.alarms)
     conv = convergence_km(result)
@@ -107,8 +110,9 @@ td:first-child,th:first-child{{text-align:left}} img{{max-width:100%}}
 <figure id="fig-trace"><img alt="online estimate against distance" src="{uri}">
 <figcaption>{e(spec.caption)}</figcaption></figure>
 <h2>Changes detected</h2>
-{"<table id='alarms'><tr><th>parameter</th><th>since</th><th>at</th><th>detected at</th>"
- "<th>change</th></tr>" + alarms + "</table>" if alarms else "<p id='alarms'>None.</p>"}
+{"<table id='alarms'><tr><th>parameter</th><th>since (from the log's start)</th><th>at</th>"
+ "<th>detected at</th><th>change</th></tr>" + alarms + "</table>" if alarms
+ else "<p id='alarms'>None.</p>"}
 <p class="meta">The numbers are in calibration.json, trace.csv and alarms.json.</p>
 </main></body></html>
 """
