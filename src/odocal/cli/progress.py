@@ -34,6 +34,13 @@ SLOW_S = 2.0
 #: Seconds between redraws of the open bars.
 TICK_S = 0.5
 
+#: Held while a bar is drawn (by a callback or the redrawing thread), and across a fork: a worker
+#: forked while the redrawing thread wrote to stderr would inherit stderr's lock held for good.
+_DRAWING = threading.RLock()
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(before=_DRAWING.acquire, after_in_parent=_DRAWING.release,
+                        after_in_child=_DRAWING.release)
+
 _COUNTED = "{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}<{remaining}]"
 _RUNNING = "{desc} ... {elapsed_s:.0f} s"
 _DONE = "{desc}: done in {elapsed_s:.1f} s"
@@ -83,7 +90,7 @@ class Progress:
         self.lines = self.mode == "lines"
         self.started = time.perf_counter()
         self.stages: dict[str, _Stage] = {}
-        self._lock = threading.RLock()
+        self._lock = _DRAWING
         self._ticker: threading.Thread | None = None
         self._stop = threading.Event()
 
