@@ -194,13 +194,14 @@ def test_the_first_run_of_a_segment_method_says_it_compiles(tmp_path: Path,
 
 def test_the_cache_is_looked_up_per_kernel(tmp_path: Path,
                                            monkeypatch: pytest.MonkeyPatch) -> None:
-    from odocal.model._jit import compile_note, uncached_kernels
+    from odocal.estimators.kernels import compile_note, uncached_kernels
 
     assert uncached_kernels(["inverse"]) == [] and compile_note(["inverse"]) is None
     # the kernels resolve their cache folder when the module is imported: ask a fresh process
     probe = subprocess.run(
-        [sys.executable, "-c", "from odocal.model._jit import uncached_kernels as u; "
+        [sys.executable, "-c", "from odocal.estimators.kernels import uncached_kernels as u; "
          "print(u(['raw']), u(['compensated']))"], capture_output=True, text=True, timeout=300,
         env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "empty")})
     assert probe.stdout.split("\n")[0] == \
-        "['_r_factor_kernel'] ['_r_factor_kernel', '_step_jacobian_kernel']", probe.stderr
+        "['_r_factor_kernel'] ['_pdas', '_r_factor_kernel', '_step_jacobian_kernel']", \
+        probe.stderr

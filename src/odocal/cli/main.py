@@ -181,7 +181,7 @@ def _compile_note(args: argparse.Namespace, methods: Sequence[str]) -> None:
     """Say once, before a silent wait, that the segment methods' kernels compile now."""
     if args.quiet or not any(m in ("raw", "compensated") for m in methods):
         return
-    from odocal.model._jit import compile_note
+    from odocal.estimators.kernels import compile_note
 
     note = compile_note(methods)
     if note:

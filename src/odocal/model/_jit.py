@@ -1,9 +1,17 @@
-"""numba's ``njit`` with a cache that degrades gracefully.
+"""numba's ``njit`` with a disk cache keyed on every source a kernel runs, degrading gracefully.
 
-Compiled kernels are cached on disk so that only the first run compiles them. numba caches beside
-the source when that folder is writable, else in its user-wide cache folder; on an installation
-that is read-only for the user running it, with no writable home, numba refuses to decorate a
-cached function at all ("cannot cache function ..."). Then the kernels are compiled in memory on
+Compiled kernels are cached on disk so that only the first run compiles them. numba keys its
+cache on the file that defines a kernel (its time stamp and size) and the kernel's own bytecode,
+not on what the kernel inlines or calls: the segment methods' kernels inline the model step of
+:mod:`odocal.model.step`, and after an edit to the step they would go on running the old
+equations from the cache. Here every cached kernel is keyed instead on the *contents* of every
+odocal source file it reaches: its own file, the files of the functions and kernels it calls
+(followed through their globals, recursively) and of the odocal modules it names. An edit to any
+of them makes the next call compile afresh; undoing the edit finds the old entry again.
+
+numba caches beside the source when that folder is writable, else in its user-wide cache folder
+(or under ``NUMBA_CACHE_DIR``); on an installation that is read-only for the user running it,
+with no writable home, numba has no cache at all. Then the kernels are compiled in memory on
 every run instead: slower to start, never a traceback.
 
 Kernels are serial: on the few cores a calibration has, threading a kernel's outer loop bought
@@ -13,83 +21,115 @@ the work that does run in parallel (compensation, fleets) runs in processes.
 
 from __future__ import annotations
 
+import hashlib
 import logging
-from collections.abc import Callable, Sequence
+import types
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
 from typing import Any, TypeVar
 
 from numba import njit
+from numba.core.caching import FunctionCache
+from numba.core.dispatcher import Dispatcher
 
 F = TypeVar("F", bound=Callable[..., Any])
 log = logging.getLogger(__name__)
 
-
-#: The cached kernels of :mod:`odocal.model.compiled` each method's first run compiles, and
-#: about how many seconds each takes to compile (measured on two cores, rounded up).
-METHOD_KERNELS: dict[str, tuple[str, ...]] = {
-    "raw": ("_r_factor_kernel",),
-    "compensated": ("_r_factor_kernel", "_step_jacobian_kernel"),
-}
-COMPILE_S: dict[str, float] = {"_r_factor_kernel": 2.0, "_step_jacobian_kernel": 5.0}
+#: The folder of the odocal package: the sources a kernel's key is made of lie under it.
+_PACKAGE = Path(__file__).resolve().parents[1]
 
 
-def uncached_kernels(methods: Sequence[str] = tuple(METHOD_KERNELS)) -> list[str] | None:
-    """The kernels ``methods`` need that numba's disk cache lacks (their first call compiles
-    them), as numba itself looks them up: beside the source, under ``NUMBA_CACHE_DIR`` or in the
-    user-wide cache folder, for this numba and this version of the source. ``None`` where there
-    is no disk cache at all (a read-only install: every run compiles)."""
-    names = sorted({k for m in methods for k in METHOD_KERNELS.get(m, ())})
-    if not names:
-        return []
-    from odocal.model import compiled
-
-    missing = []
-    for name in names:
-        cache = getattr(getattr(compiled, name, None), "_cache", None)
-        index = getattr(cache, "_cache_file", None)
-        if index is None:                    # numba's NullCache: compiled in memory each run
-            return None
-        try:
-            fresh = bool(index._load_index())
-        except Exception:                    # numba's private API changed
-            fresh = _index_files(name)
-        if not fresh:
-            missing.append(name)
-    return missing
+def _names(code: types.CodeType) -> Iterator[str]:
+    """The global names ``code`` and the code objects nested in it refer to."""
+    yield from code.co_names
+    for const in code.co_consts:
+        if isinstance(const, types.CodeType):
+            yield from _names(const)
 
 
-def _index_files(name: str) -> bool:
-    """Fallback: an index file of ``name`` beside the source or under ``NUMBA_CACHE_DIR``."""
-    import os
-    from pathlib import Path
-
-    custom = os.environ.get("NUMBA_CACHE_DIR")
-    places = [Path(custom)] if custom else [Path(__file__).parent / "__pycache__"]
-    return any(next(place.rglob(f"compiled.{name}-*.nbi"), None) is not None
-               for place in places if place.is_dir())
-
-
-def kernels_cached(methods: Sequence[str] = tuple(METHOD_KERNELS)) -> bool:
-    """Whether the kernels ``methods`` need are in numba's disk cache (see
-    :func:`uncached_kernels`)."""
-    return uncached_kernels(methods) == []
-
-
-def compile_note(methods: Sequence[str]) -> str | None:
-    """The line to print before the silent wait of a first compilation, or None if there is
-    none (the kernels are cached, or ``methods`` need none)."""
-    missing = uncached_kernels(methods)
-    if missing == []:
+def _ours(path: str | None) -> Path | None:
+    """``path`` resolved, if it is a source file of the odocal package, else None."""
+    if not path:
         return None
-    if missing is None:
-        return ("note: numba cannot cache the numerical kernels here (a read-only install): "
-                "they are compiled on every run, some seconds before the fit starts")
-    seconds = sum(COMPILE_S.get(k, 2.0) for k in missing)
-    return (f"note: compiling the numerical kernels once (about {seconds:.0f} s, longer on a "
-            "slow machine); later runs start at once")
+    resolved = Path(path).resolve()
+    return resolved if resolved.suffix == ".py" and resolved.is_relative_to(_PACKAGE) else None
+
+
+def kernel_sources(py_func: Callable[..., Any]) -> list[Path]:
+    """Every odocal source file ``py_func`` runs code of, sorted: its own file, those of the
+    functions and compiled kernels it refers to (recursively, through each one's globals, so a
+    step function bound into a kernel counts with the file it was written in) and of the odocal
+    modules it names (``step.wrap`` reaches step.py)."""
+    files: set[Path] = set()
+    seen: set[int] = set()
+    stack: list[Any] = [py_func]
+    while stack:
+        func = stack.pop()
+        if id(func) in seen:
+            continue
+        seen.add(id(func))
+        own = _ours(func.__code__.co_filename)
+        if own is not None:
+            files.add(own)
+        for name in set(_names(func.__code__)):
+            obj = func.__globals__.get(name)
+            if isinstance(obj, Dispatcher):
+                obj = obj.py_func
+            if isinstance(obj, types.FunctionType):
+                stack.append(obj)
+            elif isinstance(obj, types.ModuleType):
+                module_file = _ours(getattr(obj, "__file__", None))
+                if module_file is not None:
+                    files.add(module_file)
+    return sorted(files)
+
+
+def sources_digest(py_func: Callable[..., Any]) -> str:
+    """SHA-256 over the names (relative to the package) and contents of :func:`kernel_sources`."""
+    digest = hashlib.sha256()
+    for path in kernel_sources(py_func):
+        digest.update(path.relative_to(_PACKAGE).as_posix().encode() + b"\0")
+        digest.update(path.read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
+class SourceKeyedCache(FunctionCache):
+    """numba's per-function disk cache, with the index's freshness stamp replaced by
+    :func:`sources_digest`: an index written for other sources is treated as empty (numba then
+    compiles, and overwrites it). The digest is taken at the first lookup, when the module that
+    defines the kernel has finished importing (its globals are all bound)."""
+
+    def __init__(self, py_func: Callable[..., Any]) -> None:
+        super().__init__(py_func)
+        self._keyed = False
+
+    def _key_on_sources(self) -> None:
+        if not self._keyed:
+            self._cache_file._source_stamp = ("odocal-sources", sources_digest(self._py_func))
+            self._keyed = True
+
+    def load_overload(self, sig: Any, target_context: Any) -> Any:
+        self._key_on_sources()
+        return super().load_overload(sig, target_context)
+
+    def save_overload(self, sig: Any, data: Any) -> None:
+        self._key_on_sources()
+        super().save_overload(sig, data)
+
+    def holds_entries(self) -> bool:
+        """Whether the disk holds compiled code of this kernel for the current sources (some
+        signature: odocal's kernels are called with one)."""
+        self._key_on_sources()
+        try:
+            return bool(self._cache_file._load_index())
+        except Exception:                    # an unreadable index: numba itself recompiles
+            return False
 
 
 def jit(func: F | None = None, *, inline: bool = False) -> Any:
-    """``@jit`` or ``@jit(inline=True)``: nopython compilation, cached where possible."""
+    """``@jit`` or ``@jit(inline=True)``: nopython compilation, cached on disk (keyed on every
+    source the kernel reaches) where possible. Inlined functions are not cached: they are
+    compiled into the kernels that call them."""
 
     def decorate(f: F) -> Any:
         # nogil: a kernel lets other threads run (the CLI loads the report's plotting library
@@ -97,11 +137,27 @@ def jit(func: F | None = None, *, inline: bool = False) -> Any:
         options: dict[str, Any] = {"error_model": "numpy", "nogil": True}
         if inline:
             options["inline"] = "always"
-        try:
-            return njit(cache=not inline, **options)(f)
-        except RuntimeError as exc:          # no cache locator: a read-only install
-            log.debug("numba cache unavailable for %s (%s); compiling in memory",
-                      f.__name__, exc)
-            return njit(cache=False, **options)(f)
+        dispatcher = njit(cache=False, **options)(f)
+        if not inline:
+            try:
+                dispatcher._cache = SourceKeyedCache(dispatcher.py_func)
+            except RuntimeError as exc:      # no cache locator: a read-only install
+                log.debug("numba cache unavailable for %s (%s); compiling in memory",
+                          f.__name__, exc)
+        return dispatcher
 
     return decorate if func is None else decorate(func)
+
+
+def uncached(kernels: Sequence[Any]) -> list[str] | None:
+    """The names of ``kernels`` (dispatchers made by :func:`jit`) whose compiled code for the
+    current sources is not on disk (their first call compiles them), or ``None`` where there is
+    no disk cache at all (a read-only install: every run compiles)."""
+    missing = []
+    for kernel in kernels:
+        cache = getattr(kernel, "_cache", None)
+        if not isinstance(cache, SourceKeyedCache):
+            return None
+        if not cache.holds_entries():
+            missing.append(kernel.py_func.__name__)
+    return missing

@@ -9,8 +9,9 @@ never loads numba.
 
 A Jacobian ``J = d x_k / d p`` propagates as ``J+ = A_k J + B_k`` with
 ``A_k = I + [0, 0, -dy; 0, 0, dx; 0, 0, 0]``: a cumulative sum along the rollout, computed in one
-compiled pass per segment. (numba's cache is keyed on this file: after editing
-:mod:`odocal.model.step`, clear the ``__pycache__`` beside it.)
+compiled pass per segment. The disk cache of each kernel is keyed on the contents of every source
+it inlines (this file, :mod:`odocal.model.step`, ...: :mod:`odocal.model._jit`), so an edit to
+the model reaches the kernels on their next call.
 """
 
 from __future__ import annotations

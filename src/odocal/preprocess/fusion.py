@@ -25,16 +25,16 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
 from odocal.errors import DataError
+from odocal.model._jit import jit
 from odocal.settings import FusionSettings
 
 FloatArray = NDArray[np.float64]
 
 
-@njit(cache=True)
+@jit
 def _wrap(a: float) -> float:  # pragma: no cover - compiled
     return (a + np.pi) % (2.0 * np.pi) - np.pi
 
@@ -44,7 +44,7 @@ _L_R = 1.5                 # rear axle to reference point, m, for the sideslip's
 _BETA_TAU_S = 1.0          # sideslip correlation time
 
 
-@njit(cache=True)
+@jit
 def _update(x: FloatArray, P: FloatArray, H: FloatArray, z: FloatArray, R: FloatArray,
             chi2: float, angle: bool) -> bool:  # pragma: no cover - compiled
     """Kalman update in place (Joseph form); False (and no change) for an outlier."""
@@ -63,7 +63,7 @@ def _update(x: FloatArray, P: FloatArray, H: FloatArray, z: FloatArray, R: Float
     return True
 
 
-@njit(cache=True)
+@jit
 def _ekf_rts(omega: FloatArray, dt: float, pos: FloatArray, pos_std: FloatArray,
              speed: FloatArray, course: FloatArray, heading: FloatArray, x0: FloatArray,
              P0: FloatArray, q: FloatArray, r_speed: float, r_course: float, r_heading: float,

@@ -9,7 +9,8 @@ sweep solve the equality-constrained problem for a given active set in O(K) with
 give the multipliers of the active bounds as the gradient of the stage's Q-function.
 
 The active set is updated by the primal-dual active-set rule (see :mod:`.structured`).
-The kernels are compiled with numba; they work on plain arrays only.
+The kernels are compiled with numba (cached, keyed on their sources: :mod:`odocal.model._jit`);
+they work on plain arrays only.
 """
 
 from __future__ import annotations
@@ -17,10 +18,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 from numpy.typing import NDArray
 
 from odocal.estimators.compensation.problem import STAGE, CompensationProblem
+from odocal.model._jit import jit
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -29,7 +30,7 @@ _STATUS = ("optimal", "the active set cycles", "iteration limit",
            "a stage Hessian is not positive definite")
 
 
-@njit(cache=True)
+@jit
 def _sweep(A: FloatArray, B: FloatArray, e: FloatArray, c: FloatArray, qd: FloatArray,
            rd: FloatArray, fixed: BoolArray, fixed_val: FloatArray, dn: FloatArray,
            dx: FloatArray, mu: FloatArray) -> bool:  # pragma: no cover - compiled
@@ -183,7 +184,7 @@ def _sweep(A: FloatArray, B: FloatArray, e: FloatArray, c: FloatArray, qd: Float
     return True
 
 
-@njit(cache=True)
+@jit
 def _pdas(A: FloatArray, B: FloatArray, e: FloatArray, c: FloatArray, qd: FloatArray,
           rd: FloatArray, lo: FloatArray, hi: FloatArray, act_lo: BoolArray, act_hi: BoolArray,
           max_iterations: int, dn: FloatArray, dx: FloatArray,

@@ -1,0 +1,65 @@
+"""Which compiled kernels each method runs, and whether numba's disk cache holds them.
+
+The default method compiles nothing; the segment methods run the model's kernels
+(:mod:`odocal.model.compiled`) and the compensated method also the compensation QP's Riccati
+kernels (:mod:`odocal.estimators.compensation.riccati`). Their first run after an install, or
+after an edit to any source a kernel inlines, compiles them: the command line says so before the
+silent wait (:func:`compile_note`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+#: The cached kernels each method's first run compiles (module, kernel), and about how many
+#: seconds each takes to compile (measured on two cores with an empty cache, rounded up).
+METHOD_KERNELS: dict[str, tuple[tuple[str, str], ...]] = {
+    "raw": (("model", "_r_factor_kernel"),),
+    "compensated": (("model", "_r_factor_kernel"), ("model", "_step_jacobian_kernel"),
+                    ("riccati", "_pdas")),
+}
+COMPILE_S: dict[str, float] = {"_r_factor_kernel": 2.0, "_step_jacobian_kernel": 5.0,
+                               "_pdas": 3.0}
+
+
+def _kernel(module: str, name: str) -> Any:
+    if module == "model":
+        from odocal.model import compiled
+
+        return getattr(compiled, name)
+    from odocal.estimators.compensation import riccati
+
+    return getattr(riccati, name)
+
+
+def uncached_kernels(methods: Sequence[str] = tuple(METHOD_KERNELS)) -> list[str] | None:
+    """The kernels ``methods`` need that numba's disk cache lacks for the current sources
+    (their first call compiles them), sorted by name; ``None`` where there is no disk cache at
+    all (a read-only install: every run compiles)."""
+    from odocal.model._jit import uncached
+
+    wanted = sorted({k for m in methods for k in METHOD_KERNELS.get(m, ())},
+                    key=lambda k: k[1])
+    if not wanted:
+        return []
+    return uncached([_kernel(module, name) for module, name in wanted])
+
+
+def kernels_cached(methods: Sequence[str] = tuple(METHOD_KERNELS)) -> bool:
+    """Whether the kernels ``methods`` need are in numba's disk cache."""
+    return uncached_kernels(methods) == []
+
+
+def compile_note(methods: Sequence[str]) -> str | None:
+    """The line to print before the silent wait of a first compilation, or None if there is
+    none (the kernels are cached, or ``methods`` need none)."""
+    missing = uncached_kernels(methods)
+    if missing == []:
+        return None
+    if missing is None:
+        return ("note: numba cannot cache the numerical kernels here (a read-only install): "
+                "they are compiled on every run, some seconds before the fit starts")
+    seconds = sum(COMPILE_S.get(k, 2.0) for k in missing)
+    return (f"note: compiling the numerical kernels once (about {seconds:.0f} s, longer on a "
+            "slow machine); later runs start at once")
