@@ -1,7 +1,5 @@
 """``python -m odocal``: the ``odocal`` command."""
 
-import sys
+from odocal.cli import run
 
-from odocal.cli.main import main
-
-sys.exit(main())
+run()

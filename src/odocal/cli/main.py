@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from odocal._version import __version__
+from odocal.cli import interrupt
 from odocal.cli.progress import Progress
 from odocal.errors import ConfigError, OdocalError, OutputError, shown
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
@@ -588,6 +589,7 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
     _check_out_dir(args, inputs)
 
     def show(row: TraceRow, est: Any) -> None:
+        interrupt.checkpoint()       # (called at every update: Ctrl-C stops the replay here)
         if args.quiet:
             return
         parts = [f"{n} {_fmt_param(n, v)} {_fmt_std(n, s)}" if ok else f"{n} -"
@@ -764,29 +766,32 @@ def _configure_logging(verbose: int, quiet: bool) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    if argv is None:
+        interrupt.install()           # the program itself: Ctrl-C remembered (cli/interrupt.py)
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        return _interrupted("odocal", argv)
     _configure_logging(args.verbose, args.quiet)
     func: Callable[[argparse.Namespace], int] = args.func
     try:
-        return func(args)
+        code = func(args)
+        interrupt.checkpoint()        # an interrupt some library swallowed on the way
+        return code
     except OdocalError as exc:
+        if interrupt.interrupted():
+            return _interrupted(f"odocal {args.command}", argv)
         sys.stderr.write(f"odocal {args.command}: error: {shown(exc, 2000)}\n")
         return EXIT_ERROR
     except KeyboardInterrupt:
-        sys.stderr.write(f"odocal {args.command}: interrupted\n")
-        sys.stderr.flush()
-        sys.stdout.flush()
-        if argv is None:
-            # the program itself (not a caller's main([...])): the work is stopped and cleaned
-            # up (pools terminated, temporary results removed); leave now rather than wait in
-            # exit handlers for the threads of a broken pool
-            os._exit(130)
-        return 130
+        return _interrupted(f"odocal {args.command}", argv)
     except BrokenPipeError:  # the reader went away (| head): stop quietly
         sys.stderr.close()
         return EXIT_OK
     except OSError as exc:   # the machine said no (a name too long, no space, no permission)
+        if interrupt.interrupted():
+            return _interrupted(f"odocal {args.command}", argv)
         if args.verbose:
             raise
         where = f" '{shown(exc.filename)}'" if exc.filename else ""
@@ -798,6 +803,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                          "more than this machine has (see README, 'Input limits')\n")
         return EXIT_ERROR
     except Exception as exc:  # a bug: say so in one line, with the traceback on request
+        if interrupt.interrupted():   # (or what an interrupt left behind: a half-done import)
+            return _interrupted(f"odocal {args.command}", argv)
         if args.verbose:
             raise
         sys.stderr.write(f"odocal {args.command}: internal error: {type(exc).__name__}: "
@@ -808,6 +815,18 @@ def main(argv: Sequence[str] | None = None) -> int:
             # the program ends here: what it made needs no collecting on the way out (the
             # interpreter's last collection took 0.2 s after a one-hour calibration)
             gc.freeze()
+
+
+def _interrupted(command: str, argv: Sequence[str] | None) -> int:
+    """Ctrl-C: one line, exit 130. The program itself (not a caller's ``main([...])``) has
+    stopped and cleaned up its work (pools terminated, temporary results removed) and leaves
+    now rather than wait in exit handlers for the threads of a broken pool."""
+    if argv is None:
+        interrupt.leave(command)
+    sys.stderr.write(f"{command}: interrupted\n")
+    sys.stderr.flush()
+    sys.stdout.flush()
+    return 130
 
 
 def _add_simulation_commands(sub: Any) -> None:
