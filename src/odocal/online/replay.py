@@ -29,6 +29,7 @@ from odocal.online.changes import Alarm
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
 Chunk = dict[str, FloatArray]
 
 #: Formats replay streams: the drive format (by file suffix) and bags.
@@ -101,8 +102,7 @@ def stream_drive_file(path: str | Path, *, rows: int) -> Iterator[Chunk]:
             raise DataError(f"'{p}' lacks column{'s' if len(missing) > 1 else ''} "
                             f"{', '.join(missing)}")
         for batch in batches:           # read in large batches, handed on in chunks of ``rows``
-            cols = {name: np.asarray(batch.column(name).to_numpy(zero_copy_only=False),
-                                     dtype=np.float64)
+            cols = {name: _numbers(batch.column(name))
                     for name in (*REQUIRED_COLUMNS, "beta") if name in names}
             for lo in range(0, batch.num_rows, rows):
                 yield {k: v[lo:lo + rows] for k, v in cols.items()}
@@ -111,6 +111,49 @@ def stream_drive_file(path: str | Path, *, rows: int) -> Iterator[Chunk]:
             raise
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise DataError(f"'{p}' cannot be read as a drive file: {first}") from None
+
+
+_SECONDS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+
+
+def _numbers(column: Any) -> FloatArray:
+    """An Arrow column as float64 (nulls NaN; timestamps as seconds since the epoch), read from
+    its buffers. Not ``to_numpy``: that checks whether pandas imports, and an interrupt landing
+    in that import is swallowed by pyarrow (cli/interrupt.py)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    scale = 1.0
+    if pa.types.is_timestamp(column.type) or pa.types.is_duration(column.type):
+        scale = _SECONDS[column.type.unit]
+        column = pc.cast(column, pa.int64())
+    if pa.types.is_integer(column.type) and scale != 1.0:
+        # whole ticks since the epoch: seconds from the first one exactly, then the epoch added
+        ticks = _buffer(pc.cast(column, pa.int64()), np.int64)
+        valid = _validity(column)
+        first = int(ticks[valid][0]) if valid.any() else 0
+        values = (ticks - first) * scale + first * scale
+    else:
+        floats = pc.cast(column, pa.float64())
+        values = _buffer(floats, np.float64).copy()
+        valid = _validity(floats)
+    values = np.asarray(values, dtype=np.float64)
+    values[~valid] = np.nan
+    return values
+
+
+def _buffer(column: Any, dtype: Any) -> Any:
+    """A primitive Arrow array's values (nulls hold whatever their slot holds)."""
+    size = np.dtype(dtype).itemsize
+    return np.frombuffer(column.buffers()[1], dtype=dtype, count=len(column),
+                         offset=column.offset * size)
+
+
+def _validity(column: Any) -> BoolArray:
+    if column.null_count == 0:
+        return np.ones(len(column), dtype=bool)
+    bits = np.unpackbits(np.frombuffer(column.buffers()[0], dtype=np.uint8), bitorder="little")
+    return bits[column.offset:column.offset + len(column)].astype(bool)
 
 
 class GridResampler:
