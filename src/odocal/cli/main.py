@@ -581,7 +581,7 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
     from odocal.io.atomic import results_folder
     from odocal.model.parameters import PARAMETER_NAMES
     from odocal.online.replay import TraceRow, replay
-    from odocal.report.replay import convergence_km
+    from odocal.report.replay import alarm_words, convergence_km
 
     settings = _settings(args)
     inputs = _inputs(args, args.source)
@@ -604,11 +604,17 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
     if not rejected and not args.no_batch and (args.source_format or "drive") == "drive":
         from odocal.pipeline.calibrate import calibrate
 
-        batch = calibrate(args.source, settings=settings).estimate
+        try:
+            batch = calibrate(args.source, settings=settings).estimate
+        except OdocalError as exc:   # the comparison is an extra: the replay's answer stands
+            interrupt.checkpoint()
+            _print(f"note: no batch calibration to compare with: {shown(exc, 300)}")
+        interrupt.checkpoint()
+    start = result.trace[-1].t - result.duration_s if result.trace else 0.0
     for alarm in result.alarms:
-        _print(f"change: {alarm.parameter} moved {alarm.relative_change * 100:+.3f}% at "
-               f"{alarm.distance_km:.2f} km (detected at {alarm.detected_distance_km:.2f} km, "
-               f"t = {alarm.detected_t:.0f} s)")
+        _print(f"change: {alarm_words(alarm)}, since {alarm.t - start:.0f} s from the log's "
+               f"start ({alarm.distance_km:.2f} km; detected at "
+               f"{alarm.detected_distance_km:.2f} km)")
     written: list[Path] = []
     with results_folder(out) as tmp:
         written += _replay_files(tmp, args, result, batch, settings, renderer)

@@ -61,22 +61,31 @@ from odocal.estimators.windows import (
     heading_offset,
 )
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
-from odocal.online.changes import Alarm, ChangeDetector
+from odocal.online.changes import (
+    Alarm,
+    Change,
+    ChangeDetector,
+    Suspect,
+    describe,
+    disturbed,
+    eliminate,
+    estimate_change,
+)
+from odocal.online.samples import SAMPLE, Regrid, as_rows, step_s, time_unit
+from odocal.online.samples import columns as pushed_columns
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
-_COLUMNS = ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi")
-_SAMPLE = ("t", "n_rl", "n_rr", "a_y", "beta", "x", "y", "psi")
-#: Wheel rates beyond this (rev/s) in a pushed chunk are in another unit, whatever else.
-_MAX_PUSHED_RATE_REVPS = 100.0
 #: The checks look at this much of the latest driving (s) ...
 CHECK_WINDOW_S = 600.0
 #: ... every time this much more has arrived (s), and before every estimate.
 CHECK_EVERY_S = 60.0
 #: The running update scans the lag every this many completed clusters.
 _LAG_EVERY = 4
+#: Running updates after which the estimate is trusted to tell a disturbed window.
+SETTLED = 3
 
 
 @dataclass(frozen=True)
@@ -99,6 +108,10 @@ class OnlineDetails:
     """The checks' findings on the latest driving (and the quality gate's on the estimate)."""
     halted: bool = False
     """The data contradicted the model: the calibrator stopped updating (see ``findings``)."""
+    time_unit: str = "s"
+    """How the pushed ``t`` came: ``s``, ``ms``, ``us``, ``ns`` or ``datetime``."""
+    sampling_s: float = float("nan")
+    """The grid's step (the first samples'; later ones at another rate are put onto it), s."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"samples": self.samples, "windows": self.windows,
@@ -110,7 +123,9 @@ class OnlineDetails:
                 "alarms": [a.to_dict() for a in self.alarms],
                 "forgetting_s": self.forgetting_s,
                 "coupling_beta": self.coupling,
-                "diagnosis": [f.to_dict() for f in self.findings], "halted": self.halted}
+                "diagnosis": [f.to_dict() for f in self.findings], "halted": self.halted,
+                "time_unit": self.time_unit,
+                "sampling_s": self.sampling_s if math.isfinite(self.sampling_s) else None}
 
 
 class OnlineCalibrator:
@@ -139,7 +154,10 @@ class OnlineCalibrator:
         self._model = ErrorModel()
         self._lag = core.Lag()
         self._t_s: float | None = None
-        self._pending: dict[str, float] | None = None  # a lone first sample, until t_s is known
+        self._pending: FloatArray | None = None   # a lone first sample, until t_s is known
+        self._unit: str | None = None             # how t comes: "s", "ms", "us", "ns", "datetime"
+        self._scale = 1.0                         # ... and its unit in seconds
+        self._regrid: Regrid | None = None
         self._last_t: float | None = None
         self._builder: WindowBuilder | None = None
         self._windows: WindowSet | None = None
@@ -147,6 +165,7 @@ class OnlineCalibrator:
         self._samples = 0
         self._windows_total = 0
         self._since_fit = 0                       # windows added since the core last ran
+        self._updates = 0                         # running updates of the estimate so far
         self._alarms: list[Alarm] = []
         self._clusters_done = 0
         self._current_cluster: int | None = None
@@ -164,51 +183,89 @@ class OnlineCalibrator:
         """Add samples: a mapping of drive-format column names to arrays, or a pandas DataFrame.
 
         Columns ``t, n_rl, n_rr, a_y, x, y, psi`` are required, ``beta`` is optional; ``t`` must
-        increase. A gap longer than 1.5 sampling steps ends the current piece (windows never
-        span a gap).
+        increase, in s, ms, us or ns (told apart by the sampling step) or as datetimes. Samples
+        off the grid of the first ones' step (another rate, jittered time stamps) are
+        interpolated onto it (:mod:`odocal.online.samples`). A gap longer than 1.5 sampling
+        steps ends the current piece (windows never span a gap). A chunk that cannot be used
+        raises a DataError naming why and leaves the calibrator as it was.
         """
-        cols = _columns(chunk)
+        cols, stamped = pushed_columns(chunk)
         t = cols["t"]
         if t.size == 0:
             return
-        if np.any(np.diff(t) <= 0) or (self._last_t is not None and t[0] <= self._last_t):
+        if np.any(np.diff(t) <= 0):
             raise DataError("pushed samples' t must increase strictly (and continue the "
                             "previous chunk)")
-        self._samples += t.size
-        self._keep_recent(cols)
-        if self._halted:
-            return                       # the data contradicted the model: nothing more is used
-        if self._t_s is None:
+        rows = as_rows(cols)
+        if self._unit is None:
             if self._pending is not None:
-                cols = {k: np.concatenate([[self._pending[k]], v]) for k, v in cols.items()}
-            if cols["t"].size < 2:                       # one sample so far: wait for more
-                self._pending = {k: float(v[0]) for k, v in cols.items()}
-                self._last_t = float(cols["t"][-1])
+                rows = np.vstack([self._pending, rows])
+                if rows[1, 0] <= rows[0, 0]:
+                    raise DataError("pushed samples' t must increase strictly (and continue "
+                                    "the previous chunk)")
+            if rows.shape[0] < 2:                         # one sample so far: wait for more
+                self._samples += t.size
+                self._pending = rows.copy()
                 return
+            unit, scale = ("datetime", 1.0) if stamped else time_unit(
+                float(np.median(np.diff(rows[:, 0]))))
+            rows[:, 0] *= scale
             self._pending = None
-            self._t_s = float(np.median(np.diff(cols["t"])))
+            self._unit, self._scale = unit, scale
+            self._t_s = step_s(rows[:, 0])
             self._builder = builder_for(self.settings, self._t_s)
             self._windows = empty_windows(length=self._builder.length,
                                           margin=self._builder.margin, t_s=self._t_s)
-        assert self._builder is not None
-        self._last_t = float(cols["t"][-1])
-        self._builder.add(cols["t"], cols["n_rl"], cols["n_rr"], cols["a_y"], cols["beta"],
-                          cols["x"], cols["y"], cols["psi"])
+            self._regrid = Regrid(self._t_s)
+            self._samples += t.size
+        else:
+            if not stamped:
+                rows[:, 0] *= self._scale
+            if self._last_t is not None and rows[0, 0] <= self._last_t:
+                raise DataError("pushed samples' t must increase strictly (and continue the "
+                                "previous chunk)")
+            self._samples += t.size
+        self._last_t = float(rows[-1, 0])
+        if self._halted:
+            return                       # the data contradicted the model: nothing more is used
+        try:
+            self._update(rows)
+        except (np.linalg.LinAlgError, FloatingPointError) as exc:
+            self._failed(exc)
+
+    def _update(self, rows: FloatArray) -> None:
+        """The samples (in seconds) onto the grid, into windows, the estimate updated."""
+        assert self._builder is not None and self._regrid is not None
+        grid = self._regrid.add(rows)
+        if not grid.shape[0]:
+            return
+        self._keep_recent(grid)
+        self._builder.add(*grid.T)
         self._take(self._builder.windows())
-        if self._last_t - self._checked_t >= CHECK_EVERY_S:
+        if self._last_t is not None and self._last_t - self._checked_t >= CHECK_EVERY_S:
             self._check()
 
-    def _keep_recent(self, cols: Mapping[str, FloatArray]) -> None:
-        """The latest samples, as pushed, for the checks (the last CHECK_WINDOW_S)."""
-        self._recent.append(np.column_stack([cols[k] for k in _SAMPLE]))
-        newest = float(self._recent[-1][-1, 0])
+    def _failed(self, exc: Exception) -> None:
+        """The numbers could not be fitted (a solver that did not converge on degenerate
+        samples): the calibrator halts with that finding rather than publish anything."""
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        finding = Finding(Check.INVALID_INPUT, Severity.FATAL,
+                          name=f"the live samples cannot be fitted ({text}): they are "
+                               "degenerate or out of any vehicle's range")
+        self._diagnosis = Diagnosis((*self._diagnosis.findings, finding))
+        self._halted = True
+
+    def _keep_recent(self, rows: FloatArray) -> None:
+        """The latest samples on the grid, for the checks (the last CHECK_WINDOW_S)."""
+        self._recent.append(rows)
+        newest = float(rows[-1, 0])
         while len(self._recent) > 1 and float(self._recent[1][0, 0]) <= newest - CHECK_WINDOW_S:
             self._recent.pop(0)
 
     def _check(self) -> Diagnosis:
         """The checks every path goes through, on the latest samples; a contradiction halts
         the calibrator (it publishes the finding instead of an estimate from then on)."""
-        samples = np.vstack(self._recent) if self._recent else np.zeros((0, len(_SAMPLE)))
+        samples = np.vstack(self._recent) if self._recent else np.zeros((0, len(SAMPLE)))
         samples = samples[samples[:, 0] > samples[-1, 0] - CHECK_WINDOW_S] if samples.size \
             else samples
         self._checked_t = float(samples[-1, 0]) if samples.size else self._checked_t
@@ -216,7 +273,7 @@ class OnlineCalibrator:
             return self._diagnosis
         step = self._t_s or float(np.median(np.diff(samples[:, 0])))
         piece = np.cumsum(np.concatenate([[0], np.diff(samples[:, 0]) > 1.5 * step]))
-        columns = {k: samples[:, i] for i, k in enumerate(_SAMPLE)} | {"piece": piece}
+        columns = {k: samples[:, i] for i, k in enumerate(SAMPLE)} | {"piece": piece}
         try:
             drive = Drive.from_columns(columns, name="live samples")
         except DataError as exc:
@@ -260,51 +317,138 @@ class OnlineCalibrator:
             self._fold()
 
     def _cluster_done(self, cluster: int) -> None:
-        """A cluster is complete: the CUSUM compares its own estimate of c_e and c_d with the
-        estimate from the clusters before it, which then takes it in."""
+        """A cluster is complete: the change detector compares its own estimate of c_e and c_d
+        with the estimate before it (:mod:`odocal.online.changes`), and the running estimate
+        takes it in."""
         assert self._windows is not None
         mine = self._windows.take(self._windows.cluster == cluster)
         self._clusters_done += 1
         offset = self.heading_offset()
         if mine.size >= 3 and self._clusters_done > self.settings.online.warmup_clusters:
-            found = self._changes.watch(mine, self.theta, self._lag.shift, offset, self._model)
-            if found is not None:
-                alarm, index, change = found
-                self._alarms.append(alarm)
-                self._restart(index, change, alarm.t)
+            suspect = self._changes.watch(mine, self.theta, self._lag.shift, offset, self._model)
+            if suspect is not None and self._changed(suspect, mine):
                 return
         # a running update from a warm start (estimate() solves to convergence): theta, the
         # error model, and every few clusters the lag, so that the change detector and the
         # folding work with current ones
-        current = self._solve(max_iterations=3)
+        windows = self._fitted()
+        current = self._solve(windows, max_iterations=3)
+        if not np.all(np.isfinite(current.p)):
+            return                        # (a solve that failed moves nothing; estimate() says)
         self.theta, self._kappa = current.p[:4].copy(), float(current.p[4])
+        self._updates += 1
         coupling = self.settings.inverse.common_wheel_error == "estimate"
-        self._model = core.refit_model(current, self._windows, self._folded, coupling=coupling)
+        self._model = core.refit_model(current, windows, self._folded, coupling=coupling)
         if self._smooth and self._clusters_done % _LAG_EVERY == 0:
-            self._lag = core.choose_lag(core.scan_lag(self._windows, self.theta, offset,
+            self._lag = core.choose_lag(core.scan_lag(windows, self.theta, offset,
                                                       self._model, self._folded))
 
-    def _restart(self, index: int, change: float, since_t: float) -> None:
-        """After a change: forget the evidence before it, start from the new level."""
-        assert self._windows is not None
-        self.theta = self.theta.copy()
-        self.theta[index] += change
-        kept = self._windows.take(self._windows.t0 >= since_t)
-        follows = kept.follows.copy()
-        follows[:1] = False                              # nothing folded before it any more
-        self._windows = dataclasses.replace(kept, follows=follows)
-        self._folded = core.Folded(origin=self._folded.origin)
-        self._clusters_done = 0                          # a new warm-up before watching again
-        self._changes.reset()
+    def _changed(self, suspect: Suspect, cluster: WindowSet) -> bool:
+        """A suspected change: where it began and how large (an alarm), and the estimate
+        restarted from it; False where the windows cannot tell yet."""
+        assert self._windows is not None and self._t_s is not None
+        change = estimate_change(
+            self._windows, self._folded, suspect, theta=self.theta, kappa=self._kappa,
+            lag=self._lag, heading_offset=self.heading_offset(), model=self._model,
+            smooth=self._smooth, tolerance=self.settings.inverse.tolerance,
+            cluster_s=self.settings.segments.length * self._t_s)
+        if change is None:
+            return False
+        alarm = describe(change, suspect, detected_t=float(cluster.t0[-1]),
+                         detected_distance_km=float(cluster.distance_m[-1]) / 1000.0)
+        self._alarms.append(alarm)
+        self._restart(change)
+        return True
 
-    def _solve(self, *, max_iterations: int) -> core.Fit:
-        """Gauss-Newton over the windows in memory and the folded sums with the error model and
-        lag of now."""
+    def _restart(self, change: Change) -> None:
+        """After a change of the wheels: the windows before it are folded at the estimate from
+        before it, and what the folded evidence says about c_e and c_d is taken out (it keeps
+        what it says about t_r, d and the lag); the estimate goes on from the new wheels."""
         assert self._windows is not None
-        view = core.View.of(self._windows, self._lag.shift, self.heading_offset())
+        p = np.append(change.before, self._kappa)
+        before = np.arange(self._windows.size) < change.index
+        self._fold_windows(before, p)
+        self._folded = eliminate(self._folded, change.step)
+        kept = self._windows
+        follows = kept.follows.copy()
+        follows[:1] = False                          # no filtering across the change
+        self._windows = dataclasses.replace(kept, follows=follows)
+        self.theta = change.before.copy()
+        self.theta[:2] += change.step
+        self._clusters_done = 0                      # a new warm-up before watching again
+        self._changes.reset()
+        self._since_fit = self._windows.size
+
+    def _fold_windows(self, mask: BoolArray, p: FloatArray) -> None:
+        """Fold the windows at ``mask`` (the oldest in memory), cluster by cluster, linearised
+        at ``p``; they leave memory."""
+        assert self._windows is not None
+        windows = self._windows
+        if not mask.any():
+            return
+        offset = self.heading_offset()
+        kept = self._kept(p)
+        fitted = self._fitted(p)
+        total, _ = core.evaluate(p, core.View.of(fitted, self._lag.shift, offset), self._model,
+                                 self._folded, np.ones(2),
+                                 smooth=self._smooth).normal_equations(self._folded)
+        # (what a disturbance spoiled is not folded: it leaves memory unused)
+        folding = mask & kept
+        labels = windows.cluster[folding]
+        index = np.flatnonzero(folding)
+        for group in np.split(index, np.flatnonzero(np.diff(labels)) + 1):
+            if not group.size:
+                continue
+            part = windows.take(group)
+            empty = core.Folded(origin=self._folded.origin)
+            scan = (core.scan_lag(part, p[:4], offset, self._model, empty)
+                    if windows.shifts > 0 else None)
+            self._folded = core.fold(self._folded, part, p, self._lag.shift, offset,
+                                     self._model, smooth=self._smooth, total_h=total,
+                                     scan=scan)
+        self._windows = windows.take(~mask)
+
+    def _kept(self, p: FloatArray | None = None) -> BoolArray:
+        """Which windows in memory the fit takes: all but those a disturbance spoils (a wheel
+        more than a tenth away from the running estimate, or ``p``: slip, a skid, reversing
+        with unsigned wheel speeds; :func:`~odocal.online.changes.disturbed`), once the
+        running estimate has settled (:data:`SETTLED` updates)."""
+        assert self._windows is not None
+        windows = self._windows
+        if self._updates < SETTLED or not windows.size:
+            return np.ones(windows.size, dtype=bool)
+        theta = self.theta if p is None else p[:4]
+        return ~disturbed(windows, theta, self._lag.shift, self.heading_offset())
+
+    def _fitted(self, p: FloatArray | None = None) -> WindowSet:
+        """The windows the fit takes (:meth:`_kept`), each following the one before it only
+        where that one is taken too."""
+        assert self._windows is not None
+        windows = self._windows
+        keep = self._kept(p)
+        if keep.all():
+            return windows
+        follows = windows.follows & np.concatenate([[True], keep[:-1]])
+        return dataclasses.replace(windows, follows=follows).take(keep)
+
+    def _solve(self, windows: WindowSet, *, max_iterations: int) -> core.Fit:
+        """Gauss-Newton over ``windows`` and the folded sums with the error model and lag of
+        now, and the datasheet values with their uncertainty (``[identify] prior_std``) as a
+        prior: the running estimate (the change detector's reference, where windows are
+        folded) stays near them in what the windows do not determine yet (t_r and d before
+        the first bends), and the data decide the rest (the estimate published is the core's,
+        from the datasheet values, without the prior)."""
+        view = core.View.of(windows, self._lag.shift, self.heading_offset())
         free = np.append(np.ones(4, dtype=bool), self._smooth)
+        with np.errstate(divide="ignore", over="ignore"):
+            prior = 1.0 / np.square(np.asarray(self.settings.identify.prior_std, dtype=float))
+        prior = np.where(np.isfinite(prior), prior, 0.0)
+        h, b = self._folded.h.copy(), self._folded.b.copy()
+        h[:4, :4] += np.diag(prior)
+        b[:4] += prior * self.datasheet
         return core.solve(np.append(self.theta, self._kappa), view, free, self._model,
-                          self._folded, np.ones(2), max_iterations=max_iterations,
+                          dataclasses.replace(self._folded, h=h, b=b), np.ones(2),
+                          max_iterations=max_iterations,
                           tolerance=self.settings.inverse.tolerance)
 
     @property
@@ -322,24 +466,13 @@ class OnlineCalibrator:
         oldest = windows.cluster == windows.cluster[0]
         if oldest.all():
             oldest = np.arange(windows.size) < windows.size // 2   # (one huge cluster: half)
-        offset = self.heading_offset()
-        p = np.append(self.theta, self._kappa)
-        total, _ = core.evaluate(p, core.View.of(windows, self._lag.shift, offset), self._model,
-                                 self._folded, np.ones(2),
-                                 smooth=self._smooth).normal_equations(self._folded)
-        part = windows.take(oldest)
-        empty = core.Folded(origin=self._folded.origin)
-        scan = (core.scan_lag(part, self.theta, offset, self._model, empty)
-                if windows.shifts > 0 else None)
-        self._folded = core.fold(self._folded, part, p, self._lag.shift, offset, self._model,
-                                 smooth=self._smooth, total_h=total, scan=scan)
-        self._windows = windows.take(~oldest)
+        self._fold_windows(oldest, np.append(self.theta, self._kappa))
 
     def _refit(self) -> core.CoreFit:
         """The core on everything so far (with what the checks hold back, as batch); the
         running estimate, error model and lag follow it."""
         assert self._windows is not None
-        found = core.fit(self._windows, self._folded, self.settings,
+        found = core.fit(self._fitted(), self._folded, self.settings,
                          heading_offset=self.heading_offset(),
                          held=held_by_checks(self._diagnosis),
                          distance_only=self._diagnosis.no_differential)
@@ -363,11 +496,16 @@ class OnlineCalibrator:
             self._check()
         if self._halted:
             return self._nothing(Reason.REJECTED, Status.REJECTED)
-        if self._diagnosis.standstill and self._folded.clusters == 0:
+        if self._diagnosis.standstill and self._folded.clusters == 0 and (
+                self._windows is None or self._windows.size == 0):
             return self._nothing(Reason.STANDSTILL)
         if self._windows is None or self._windows.size + self._folded.clusters == 0:
             return self._nothing(Reason.NO_INFORMATION)
-        found = self._refit()
+        try:
+            found = self._refit()
+        except (np.linalg.LinAlgError, FloatingPointError) as exc:
+            self._failed(exc)
+            return self._nothing(Reason.REJECTED, Status.REJECTED)
         free = found.free
         theta = found.theta.copy()
         theta[~free] = self.datasheet[~free]
@@ -417,7 +555,9 @@ class OnlineCalibrator:
                    (float(noise[1, 0]), float(noise[1, 1]))),
             alarms=tuple(self._alarms), forgetting_s=self.settings.online.forgetting_s,
             coupling=float(self._model.coupling),
-            findings=(*self._diagnosis.findings, *more), halted=self._halted)
+            findings=(*self._diagnosis.findings, *more), halted=self._halted,
+            time_unit=self._unit or "s",
+            sampling_s=self._t_s if self._t_s is not None else float("nan"))
 
     def _nothing(self, reason: Reason,
                  status: Status = Status.NOTHING_IDENTIFIABLE) -> Estimate:
@@ -443,40 +583,3 @@ class OnlineCalibrator:
         return 0.0 if self._builder is None else self._builder.distance_m / 1000.0
 
 
-def _has(chunk: Any, key: str) -> bool:
-    try:
-        return key in chunk
-    except TypeError:
-        return False
-
-
-def _columns(chunk: Any) -> dict[str, FloatArray]:
-    """A pushed chunk's columns as float arrays (``beta`` 0 where absent), or a DataError
-    naming what is wrong with it."""
-    if not hasattr(chunk, "__getitem__") or isinstance(chunk, str | bytes):
-        raise DataError(f"pushed samples must be a mapping of column names to arrays (or a "
-                        f"DataFrame), not {type(chunk).__name__}")
-    missing = [k for k in _COLUMNS if not _has(chunk, k)]
-    if missing:
-        raise DataError(f"pushed samples lack column{'s' if len(missing) > 1 else ''} "
-                        f"{', '.join(missing)}")
-    cols: dict[str, FloatArray] = {}
-    for key in (*_COLUMNS, "beta"):
-        if key == "beta" and not _has(chunk, key):
-            continue
-        try:
-            cols[key] = np.asarray(chunk[key], dtype=np.float64).ravel()
-        except (TypeError, ValueError):
-            raise DataError(f"pushed column {key} is not numeric") from None
-    n = cols["t"].size
-    cols.setdefault("beta", np.zeros(n))
-    for key, values in cols.items():
-        if values.size != n:
-            raise DataError(f"pushed column {key} has {values.size} samples, t has {n}")
-        if not np.all(np.isfinite(values)):
-            raise DataError(f"pushed column {key} holds NaN or infinite values")
-    for key in ("n_rl", "n_rr"):
-        if np.any(np.abs(cols[key]) > _MAX_PUSHED_RATE_REVPS):
-            raise DataError(f"pushed column {key} reaches {np.max(np.abs(cols[key])):.4g}: "
-                            "wheel rates must be in rev/s")
-    return cols

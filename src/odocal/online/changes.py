@@ -1,21 +1,40 @@
-"""Changes within a drive: a two-sided CUSUM on each completed cluster's own estimate.
+"""Changes within a drive: a CUSUM on each completed cluster's own estimate of the wheels.
 
-A cluster of windows (one segment length of driving) gives its own one-step estimate of c_e
-and c_d from the running estimate, standardised by its information; the CUSUM accumulates these
-standardised steps (allowance ``k``, threshold ``h``, ``[online] cusum_k, cusum_h``), scaled by
-their own running RMS so that mis-weighted errors do not pass for changes. When it rises, the
-step's size and the time and distance it began at become an :class:`Alarm`.
+A cluster of windows (one segment length of driving) gives its own estimate of c_e and c_d
+(jointly, the others held) against a *reference*: the running estimate when the detector was
+last quiet, frozen while evidence of a change accumulates (a running estimate that takes the
+changed clusters in would chase the change and shrink it). Each estimate, standardised by its
+information and by the clusters' own robust spread (from the median of their successive
+differences: mis-weighted errors do not pass for changes, and a change, which moves the level,
+does not widen the scale), feeds a two-sided CUSUM (allowance ``k``, threshold ``h``:
+``[online] cusum_k, cusum_h``).
+
+What is not a tyre is kept out:
+
+* windows where the vehicle hardly moves (parked, with the reference pose jittering): below
+  :data:`MIN_RATE_REVPS` there is no circumference to see;
+* windows whose wheels disagree with the reference by more than :data:`GROSS` (a tenth): slip
+  on ice, a locked wheel, reversing with unsigned wheel speeds. No tyre changes by that much;
+* a cluster adds at most :data:`CAP` standard deviations, and a change must show in the last
+  :data:`PERSIST` informative clusters, each by more than ``k``, the same way: a disturbance of
+  up to half a minute touches at most three clusters (of about 16 s), so it cannot raise an
+  alarm however large it is.
+
+When the CUSUM rises, :func:`estimate_change` finds where the change began (the likelihood
+change point over the windows) and how much (the wheels refitted on the windows after it,
+against an estimate from the windows before it): an :class:`Alarm`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal.estimators import core
 from odocal.estimators.error_model import (
     CHANNELS,
     ErrorModel,
@@ -27,23 +46,40 @@ from odocal.estimators.error_model import (
 from odocal.estimators.windows import WindowSet, predict
 
 FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
 
-#: Standardised steps kept for their running RMS.
+#: Standardised cluster estimates kept for their robust spread.
 _SCALE_MEMORY = 200
-#: Steps before the RMS is trusted (until then the scale is generous).
+#: Cluster estimates before the spread is trusted (until then the scale is generous).
 _SCALE_WARMUP = 10
+#: Wheels turning slower than this (rev/s, about 1 m/s) say nothing about a circumference.
+MIN_RATE_REVPS = 0.5
+#: A window whose wheel turns more than this share away from the reference is not a tyre.
+GROSS = 0.1
+#: The most one cluster adds to the CUSUM, in (scaled) standard deviations.
+CAP = 3.0
+#: Informative clusters in a row that must each show the change.
+PERSIST = 4
+#: Usable windows a cluster needs to be informative.
+_MIN_WINDOWS = 3
+#: The change's parameters (indices into theta).
+_WHEELS = (0, 1)
+_NAMES = ("c_e", "c_d")
 
 
 @dataclass(frozen=True)
 class Alarm:
-    """A change within the drive, found by the CUSUM on the clusters' own estimates.
+    """A change within the drive.
 
-    parameter : ``c_e`` or ``c_d``
-    t : time of the first cluster after the change (the CUSUM's last reset), s
+    parameter : ``c_e`` (both wheels changed alike) or ``c_d`` (one wheel, or the two unlike)
+    t : when the change began (the likelihood change point), s on the log's clock
     detected_t : when the alarm rose, s
     distance_km, detected_distance_km : the same in driven distance
-    relative_change : the step over the estimate before it (c_d: over c_e)
-    sigmas : the step in standard deviations of one cluster's estimate
+    relative_change : the step of ``parameter`` over c_e before it
+    sigmas : the step in its own standard deviations
+    change_m : the steps of c_e and c_d, m
+    std_m : their standard deviations, m
+    wheel : ``both``, ``left`` or ``right``: whose circumference changed
     """
 
     parameter: str
@@ -53,81 +89,338 @@ class Alarm:
     detected_distance_km: float
     relative_change: float
     sigmas: float
+    change_m: tuple[float, float] = (0.0, 0.0)
+    std_m: tuple[float, float] = (math.nan, math.nan)
+    wheel: str = "both"
 
     def to_dict(self) -> dict[str, Any]:
         return {"parameter": self.parameter, "t": self.t, "detected_t": self.detected_t,
                 "distance_km": self.distance_km, "detected_distance_km": self.detected_distance_km,
-                "relative_change": self.relative_change, "sigmas": self.sigmas}
+                "relative_change": self.relative_change, "sigmas": self.sigmas,
+                "c_e_change_m": self.change_m[0], "c_d_change_m": self.change_m[1],
+                "c_e_change_std_m": _finite(self.std_m[0]),
+                "c_d_change_std_m": _finite(self.std_m[1]), "wheel": self.wheel}
+
+
+def _finite(value: float) -> float | None:
+    return value if math.isfinite(value) else None
 
 
 @dataclass
 class Cusum:
-    """Two-sided CUSUM on standardised innovations (k: allowance, h: threshold)."""
+    """Two-sided CUSUM on standardised steps (k: allowance, h: threshold)."""
 
     k: float
     h: float
     upper: float = 0.0
     lower: float = 0.0
-    count: int = 0
-    total: float = 0.0
-    start_t: float = 0.0
-    start_km: float = 0.0
 
-    def update(self, z: float, t: float, km: float) -> bool:
-        if self.upper == 0.0 and self.lower == 0.0:
-            self.count, self.total, self.start_t, self.start_km = 0, 0.0, t, km
+    def update(self, z: float) -> None:
         self.upper = max(0.0, self.upper + z - self.k)
         self.lower = max(0.0, self.lower - z - self.k)
-        self.count += 1
-        self.total += z
-        return self.upper > self.h or self.lower > self.h
+
+    @property
+    def quiet(self) -> bool:
+        return self.upper == 0.0 and self.lower == 0.0
 
     def reset(self) -> None:
         self.upper = self.lower = 0.0
 
 
-class ChangeDetector:
-    """The CUSUMs of c_e and c_d over completed clusters."""
+@dataclass(frozen=True)
+class Steps:
+    """Each window's evidence on (c_e, c_d) against a reference: the gradient ``g`` (W, 2) and
+    information ``h`` (W, 2, 2) of the weighted squared residuals (the step is ``h^-1 g``), and
+    whether the window is usable (moving, and not grossly off)."""
 
-    def __init__(self, *, k: float, h: float) -> None:
-        self.cusum = {"c_e": Cusum(k, h), "c_d": Cusum(k, h)}
-        self.seen: dict[str, list[float]] = {"c_e": [], "c_d": []}
+    g: FloatArray
+    h: FloatArray
+    usable: BoolArray
+
+
+def disturbed(windows: WindowSet, theta: FloatArray, shift: float,
+              heading_offset: float) -> BoolArray:
+    """(W,): windows a disturbance spoils: a wheel turning more than :data:`GROSS` away from
+    what the reference motion and ``theta`` make it turn (slip on ice, a locked wheel, reversing
+    with unsigned wheel speeds, a spike), where the wheels turn at all (a parked vehicle's
+    windows are never called disturbed). No tyre changes by a tenth; the fit and the change
+    detector leave such windows out."""
+    at, _ = windows.at(shift, heading_offset)
+    pred, _ = predict(theta, at)
+    span = windows.length * windows.t_s
+    moving = np.abs(pred) >= MIN_RATE_REVPS * span
+    return np.asarray(np.any(moving & (np.abs(windows.measured - pred) > GROSS * np.abs(pred)),
+                             axis=1))
+
+
+def window_steps(windows: WindowSet, reference: FloatArray, shift: float, heading_offset: float,
+                 model: ErrorModel) -> Steps:
+    """The windows' evidence on a change of c_e and c_d from ``reference`` (see :class:`Steps`)."""
+    at, _ = windows.at(shift, heading_offset)
+    pred, jac = predict(reference, at)
+    wheels = windows.measured - pred                                  # per wheel
+    r = wheels @ CHANNELS.T
+    j = np.einsum("ci,wip->wcp", CHANNELS, jac[:, :, list(_WHEELS)])
+    w = 1.0 / window_variance(expected_revolutions(windows.measured, r), model.noise)
+    gain = coupling_gain(windows.measured, r, model.coupling)
+    r, j = decouple(r, gain), decouple(j, gain)
+    span = windows.length * windows.t_s
+    moving = np.all(np.abs(pred) >= MIN_RATE_REVPS * span, axis=1)
+    usable = moving & ~np.any(np.abs(wheels) > GROSS * np.abs(pred), axis=1)
+    g = np.einsum("wc,wcp,wc->wp", w, j, r)
+    h = np.einsum("wc,wcp,wcq->wpq", w, j, j)
+    return Steps(g=np.where(usable[:, None], g, 0.0),
+                 h=np.where(usable[:, None, None], h, 0.0), usable=usable)
+
+
+def _solve2(h: FloatArray, g: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The step ``h^-1 g`` and its standard deviations (nan where a direction is not seen)."""
+    scale = np.sqrt(np.maximum(np.diag(h), 1e-300))
+    hs = h / np.outer(scale, scale)
+    if np.linalg.cond(hs) > 1e8:
+        out = np.full(2, np.nan)
+        std = np.full(2, np.nan)
+        if h[0, 0] > 0:                                 # c_e alone (no differential signal)
+            out[0], std[0] = g[0] / h[0, 0], 1.0 / math.sqrt(h[0, 0])
+        return out, std
+    inv = np.linalg.inv(hs) / np.outer(scale, scale)
+    return inv @ g, np.sqrt(np.maximum(np.diag(inv), 0.0))
+
+
+@dataclass(frozen=True)
+class Suspect:
+    """The detector's verdict on a cluster: a change of ``parameter`` (an index into theta)
+    against ``reference``, begun between ``since_t`` (the start of the first cluster since the
+    detector was last quiet) and ``until_t`` (the start of the latest cluster)."""
+
+    parameter: int
+    since_t: float
+    until_t: float
+    reference: FloatArray
+    sigmas: float
+
+
+@dataclass
+class _Record:
+    t0: float
+    z: FloatArray          # (2,) scaled, uncapped
+
+
+@dataclass
+class ChangeDetector:
+    """The CUSUMs of c_e and c_d over completed clusters, against a frozen reference."""
+
+    k: float
+    h: float
+    cusum: tuple[Cusum, Cusum] = field(init=False)
+    reference: FloatArray | None = None
+    since_t: float | None = None
+    seen: list[list[float]] = field(default_factory=lambda: [[], []])
+    recent: list[_Record] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.cusum = (Cusum(self.k, self.h), Cusum(self.k, self.h))
 
     def reset(self) -> None:
-        for c in self.cusum.values():
+        """After a change: quiet, with no reference (the next running estimate becomes it)."""
+        for c in self.cusum:
             c.reset()
+        self.reference = None
+        self.since_t = None
+        self.recent.clear()
 
     def watch(self, cluster: WindowSet, theta: FloatArray, shift: float, heading_offset: float,
-              model: ErrorModel) -> tuple[Alarm, int, float] | None:
-        """One completed cluster against the running estimate ``theta``: an alarm with the
-        parameter's index and the change found, or None."""
-        at, _ = cluster.at(shift, heading_offset)
-        pred, jac = predict(theta, at)
-        r = (cluster.measured - pred) @ CHANNELS.T
-        j = np.einsum("ci,wip->wcp", CHANNELS, jac)
-        w = 1.0 / window_variance(expected_revolutions(cluster.measured, r), model.noise)
-        gain = coupling_gain(cluster.measured, r, model.coupling)
-        r, j = decouple(r, gain), decouple(j, gain)
-        for index, name in ((0, "c_e"), (1, "c_d")):
-            info = float(np.sum(w * j[:, :, index] ** 2))
-            if info <= 0:
+              model: ErrorModel) -> Suspect | None:
+        """One completed cluster; ``theta`` the running estimate (the reference while quiet).
+        A :class:`Suspect` when a change has persisted long enough, else None."""
+        quiet = all(c.quiet for c in self.cusum)
+        if self.reference is None or quiet:
+            self.reference = np.asarray(theta, dtype=np.float64).copy()
+        steps = window_steps(cluster, self.reference, shift, heading_offset, model)
+        if int(steps.usable.sum()) < _MIN_WINDOWS:
+            return None                                  # parked, or all disturbed: no verdict
+        step, std = _solve2(steps.h.sum(axis=0), steps.g.sum(axis=0))
+        z = np.zeros(2)
+        for i in range(2):
+            if not (math.isfinite(step[i]) and std[i] > 0):
                 continue
-            step = float(np.sum(w * j[:, :, index] * r)) / info
-            z = step * math.sqrt(info)
-            seen = self.seen[name]
-            seen.append(z)
-            if len(seen) > _SCALE_MEMORY:
-                seen.pop(0)
-            scale = (max(float(np.sqrt(np.mean(np.square(seen)))), 1.0)
-                     if len(seen) >= _SCALE_WARMUP else 1.0 + 10.0 / len(seen))
-            cusum = self.cusum[name]
-            km = float(cluster.distance_m[0]) / 1000.0
-            if cusum.update(z / scale, float(cluster.t0[0]), km) and len(seen) >= _SCALE_WARMUP:
-                mean_z = cusum.total / max(cusum.count, 1)
-                change = mean_z * scale / math.sqrt(info)
-                alarm = Alarm(parameter=name, t=cusum.start_t, detected_t=float(cluster.t0[-1]),
-                              distance_km=cusum.start_km,
-                              detected_distance_km=float(cluster.distance_m[-1]) / 1000.0,
-                              relative_change=change / theta[0], sigmas=mean_z)
-                return alarm, index, change
+            raw = step[i] / std[i]
+            seen = self.seen[i]
+            seen.append(raw)
+            del seen[:-_SCALE_MEMORY]
+            z[i] = raw / self._scale(i)
+        t0 = float(cluster.t0[0])
+        self.recent.append(_Record(t0, z))
+        del self.recent[:-PERSIST]
+        for i, cusum in enumerate(self.cusum):
+            cusum.update(float(np.clip(z[i], -CAP, CAP)))
+        if all(c.quiet for c in self.cusum):
+            self.since_t = None
+        elif quiet or self.since_t is None:
+            self.since_t = t0                          # evidence begins to gather here
+        found: Suspect | None = None
+        for i, cusum in enumerate(self.cusum):
+            side = 1.0 if cusum.upper > self.h else (-1.0 if cusum.lower > self.h else 0.0)
+            if side == 0.0 or len(self.seen[i]) < _SCALE_WARMUP or len(self.recent) < PERSIST:
+                continue
+            if all(side * r.z[i] > self.k for r in self.recent):
+                sigmas = abs(float(np.mean([r.z[i] for r in self.recent])))
+                if found is None or sigmas > found.sigmas:
+                    found = Suspect(parameter=_WHEELS[i],
+                                    since_t=min(self.since_t or t0, self.recent[0].t0),
+                                    until_t=t0, reference=self.reference.copy(),
+                                    sigmas=sigmas)
+        return found
+
+    def _scale(self, i: int) -> float:
+        """The spread of the clusters' standardised estimates (1 where the weights are right):
+        from their successive differences (a change moves the level, not the differences),
+        their median absolute value, never below 1; generous while few are seen."""
+        seen = self.seen[i]
+        if len(seen) < 3:
+            return 1.0 + 10.0 / max(len(seen), 1)
+        spread = 1.4826 * float(np.median(np.abs(np.diff(seen)))) / math.sqrt(2.0)
+        return max(spread, 1.0 + 10.0 / len(seen) if len(seen) < _SCALE_WARMUP else 1.0)
+
+
+def change_point(steps: Steps, t0: FloatArray, *, earliest: float, latest: float) -> int:
+    """The index of the first window after the change: the likelihood change point of a step in
+    (c_e, c_d) from the reference, among windows starting in [earliest, latest]; the windows
+    (``steps``, ``t0``) in time order, ending with those that show the change."""
+    g = np.cumsum(steps.g[::-1], axis=0)[::-1]            # sums from each window to the end
+    h = np.cumsum(steps.h[::-1], axis=0)[::-1]
+    best, at = -math.inf, 0
+    for s in np.flatnonzero((t0 >= earliest) & (t0 <= latest) & steps.usable):
+        try:
+            gain = float(g[s] @ np.linalg.solve(h[s] + 1e-12 * np.eye(2) * np.trace(h[s]), g[s]))
+        except np.linalg.LinAlgError:
+            continue
+        if gain > best:
+            best, at = gain, int(s)
+    return at
+
+
+@dataclass(frozen=True)
+class Change:
+    """The change found: where it began, the estimate before it (theta, 4) and the steps of
+    c_e and c_d with their standard deviations."""
+
+    index: int
+    t: float
+    distance_m: float
+    before: FloatArray
+    step: FloatArray
+    std: FloatArray
+
+
+def estimate_change(windows: WindowSet, folded: core.Folded, suspect: Suspect, *,
+                    theta: FloatArray, kappa: float, lag: core.Lag, heading_offset: float,
+                    model: ErrorModel, smooth: bool, tolerance: float,
+                    cluster_s: float) -> Change | None:
+    """Where a suspected change began and how large it is.
+
+    The change point is searched among the windows from a cluster before the suspect's
+    evidence began to its latest cluster; the wheels before it come from the windows before it
+    (and the folded sums) fitted anew, all parameters free; after it, c_e and c_d alone from
+    the windows after it, the others held at the fit before. None where the windows after the
+    change point cannot carry the step.
+    """
+    steps = window_steps(windows, suspect.reference, lag.shift, heading_offset, model)
+    index = change_point(steps, windows.t0, earliest=suspect.since_t - cluster_s,
+                         latest=suspect.until_t)
+    after = np.arange(windows.size) >= index
+    if int((steps.usable & after).sum()) < _MIN_WINDOWS:
         return None
+    p = np.append(theta, kappa)
+    free = np.append(np.ones(4, dtype=bool), smooth)
+    channels = np.ones(2)
+    before_fit: FloatArray = np.asarray(suspect.reference, dtype=np.float64)
+    if index > 0 or folded.clusters:
+        view = core.View.of(windows.take(~after), lag.shift, heading_offset)
+        fit = core.solve(p, view, free, model, folded, channels, max_iterations=5,
+                         tolerance=tolerance)
+        if np.all(np.isfinite(fit.p)):
+            before_fit = np.asarray(fit.p[:4])
+    # after: the wheels alone, from the reference moved by the windows' own step (a good start
+    # for the robust weights), the rest held at the fit before
+    mine = windows.take(after & steps.usable)
+    first, _ = _solve2(steps.h[after].sum(axis=0), steps.g[after].sum(axis=0))
+    start = np.append(before_fit, kappa)
+    if np.all(np.isfinite(first)):
+        start[list(_WHEELS)] = suspect.reference[list(_WHEELS)] + first
+    view = core.View.of(mine, lag.shift, heading_offset)
+    wheels_free = np.zeros(5, dtype=bool)
+    wheels_free[list(_WHEELS)] = True
+    fit = core.solve(start, view, wheels_free, model, core.Folded(origin=folded.origin),
+                     channels, max_iterations=8, tolerance=tolerance)
+    if not np.all(np.isfinite(fit.p)):
+        return None
+    h, _ = fit.normal_equations(core.Folded(origin=folded.origin))
+    block = h[np.ix_(list(_WHEELS), list(_WHEELS))]
+    try:
+        cov = np.linalg.inv(block)
+    except np.linalg.LinAlgError:
+        return None
+    step = np.asarray(fit.p[list(_WHEELS)]) - before_fit[list(_WHEELS)]
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    return Change(index=index, t=float(windows.t0[index]),
+                  distance_m=float(windows.distance_m[index]), before=before_fit, step=step,
+                  std=std)
+
+
+def describe(change: Change, suspect: Suspect, *, detected_t: float,
+             detected_distance_km: float) -> Alarm:
+    """The alarm for a change: which wheels (c_e: both alike; c_d: one, or the two unlike)."""
+    c_e = float(change.before[0])
+    d_e, d_d = (float(v) for v in change.step)
+    left, right = d_e + d_d / 2.0, d_e - d_d / 2.0           # C_l = c_e + c_d / 2, C_r = ...
+    if abs(left) < abs(right) / 3.0:
+        wheel = "right"
+    elif abs(right) < abs(left) / 3.0:
+        wheel = "left"
+    else:
+        wheel = "both" if left * right > 0 else "unlike"
+    parameter = 0 if wheel == "both" else 1
+    if wheel == "unlike":                 # (the two wheels moved apart: named by the larger)
+        z = np.abs(change.step) / np.where(change.std > 0, change.std, np.inf)
+        parameter = int(np.argmax(z))
+        wheel = "both" if parameter == 0 else ("left" if abs(left) > abs(right) else "right")
+    std = float(change.std[parameter])
+    step = float(change.step[parameter])
+    return Alarm(parameter=_NAMES[parameter], t=change.t, detected_t=detected_t,
+                 distance_km=change.distance_m / 1000.0,
+                 detected_distance_km=detected_distance_km,
+                 relative_change=step / c_e, sigmas=step / std if std > 0 else math.inf,
+                 change_m=(d_e, d_d), std_m=(float(change.std[0]), float(change.std[1])),
+                 wheel=wheel)
+
+
+def eliminate(folded: core.Folded, step: FloatArray) -> core.Folded:
+    """The folded sums with what they say about c_e and c_d taken out (profiled: they keep
+    what they say about t_r, d and the lag's spread, whatever the wheels were), and their
+    residual moments moved by the wheels' ``step``: the evidence from before a change of the
+    wheels, for the estimate after it."""
+    import dataclasses
+
+    wheels = list(_WHEELS)
+    rest = [i for i in range(core.P) if i not in wheels]
+    h = folded.h
+    h_cc = h[np.ix_(wheels, wheels)]
+    if not np.any(h_cc):
+        return dataclasses.replace(folded, last=None)
+    project = np.eye(core.P)                        # scores -> profiled scores
+    gain = h[np.ix_(rest, wheels)] @ np.linalg.pinv(h_cc)
+    project[np.ix_(rest, wheels)] = -gain
+    project[wheels, :] = 0.0
+    new_h = project @ h @ project.T
+    new_b = project @ folded.b
+    meat = project @ folded.meat @ project.T
+    recent = folded.recent @ project.T
+    # the coupling's residual moments, about origin: the windows' residuals at p are now those
+    # they had at p - step (v = (1, p - origin) -> (1, p - step - origin))
+    move = np.eye(1 + core.P)
+    for i, s in zip(wheels, step, strict=True):
+        move[1 + i, 0] = -float(s)
+    coupling = np.einsum("ai,kab,bj->kij", move, folded.coupling, move)
+    return dataclasses.replace(folded, h=new_h, b=new_b, meat=meat, recent=recent,
+                               coupling=coupling, last=None)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import html
+import math
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ from odocal._version import __version__
 from odocal.estimators.estimate import Estimate
 from odocal.io.atomic import write_bytes, write_text
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_LABELS, PARAMETER_NAMES
+from odocal.online.changes import Alarm
 from odocal.online.replay import ReplayResult
 from odocal.report.render import Call, FigureSpec, Renderer
 
@@ -27,6 +29,21 @@ def convergence_km(result: ReplayResult) -> dict[str, float | None]:
         hit = [r.distance_km for r in result.trace if r.identified[j] and r.std[j] <= limit]
         out[name] = hit[0] if hit else None
     return out
+
+
+def alarm_words(alarm: Alarm) -> str:
+    """What an alarm says, in words: which wheels changed, by how much and how sure."""
+    share = alarm.relative_change * 100.0
+    index = 0 if alarm.parameter == "c_e" else 1
+    c_e = alarm.change_m[index] / alarm.relative_change if alarm.relative_change else 0.0
+    std = alarm.std_m[index]
+    sure = f" (+-{abs(std / c_e) * 100:.2f}%)" if math.isfinite(std) and c_e else ""
+    if alarm.wheel == "both":
+        what = "both rear wheels' circumference (c_e)"
+    else:
+        what = (f"the rear-{alarm.wheel} wheel's circumference alone (c_d; tyre pressure or a "
+                "tyre change on that wheel)")
+    return f"{what} changed by {share:+.2f}%{sure} of c_e"
 
 
 def _spec(result: ReplayResult, batch: Estimate | None) -> FigureSpec:
@@ -85,7 +102,8 @@ def write_replay_report(result: ReplayResult, out_dir: str | Path, *,
     start = result.trace[-1].t - result.duration_s if result.trace else 0.0
     alarms = "".join(
         f"<tr><td>{a.parameter}</td><td>{a.t - start:.0f} s</td><td>{a.distance_km:.2f} km</td>"
-        f"<td>{a.detected_distance_km:.2f} km</td><td>{a.relative_change * 100:+.3f}%</td></tr>"
+        f"<td>{a.detected_distance_km:.2f} km</td><td>{a.relative_change * 100:+.3f}%</td>"
+        f"<td>{e(alarm_words(a))}</td></tr>"
         for a in result.alarms)
     conv = convergence_km(result)
     conv_text = "; ".join(f"{n} to {CONVERGED_STD[n] * 1000:.0f} mm after "
@@ -111,7 +129,7 @@ td:first-child,th:first-child{{text-align:left}} img{{max-width:100%}}
 <figcaption>{e(spec.caption)}</figcaption></figure>
 <h2>Changes detected</h2>
 {"<table id='alarms'><tr><th>parameter</th><th>since (from the log's start)</th><th>at</th>"
- "<th>detected at</th><th>change</th></tr>" + alarms + "</table>" if alarms
+ "<th>detected at</th><th>change</th><th>what changed</th></tr>" + alarms + "</table>" if alarms
  else "<p id='alarms'>None.</p>"}
 <p class="meta">The numbers are in calibration.json, trace.csv and alarms.json.</p>
 </main></body></html>

@@ -1,0 +1,222 @@
+"""What a live stream hands the online calibrator, made into drive-format samples on one grid.
+
+* **Columns.** A pushed chunk (a mapping of column names to arrays, or a pandas DataFrame) as
+  float arrays, or a :class:`~odocal.errors.DataError` naming what is wrong with it.
+* **Time.** ``t`` in seconds, milliseconds, microseconds or nanoseconds (told apart by the
+  sampling step: a drive log samples every 1 ms to 1 s, and each unit puts only one of them in
+  that range), or as datetimes (numpy ``datetime64``, pandas timestamps with or without a time
+  zone, ``datetime`` objects, ISO 8601 text): seconds from then on.
+* **One grid.** The calibrator's windows count samples of one step, the first stream's. Samples
+  that arrive at another rate (a logger reconfigured mid-stream) or with jittered timestamps are
+  interpolated onto that grid (:class:`Regrid`); samples on it pass unchanged, bit for bit. A
+  gap (a step longer than 1.5 times the stream's own recent step) ends a piece, as it always
+  did: nothing is interpolated across it.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal.errors import DataError
+
+FloatArray = NDArray[np.float64]
+
+#: Drive-format columns a chunk must hold (``beta`` is optional: 0 where absent).
+REQUIRED = ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi")
+#: The columns of a sample, in order.
+SAMPLE = ("t", "n_rl", "n_rr", "a_y", "beta", "x", "y", "psi")
+#: Wheel rates beyond this (rev/s) in a pushed chunk are in another unit, whatever else.
+MAX_PUSHED_RATE_REVPS = 100.0
+#: Time units told apart by the sampling step, and the step a drive log has (s).
+TIME_UNITS = (("s", 1.0), ("ms", 1e-3), ("us", 1e-6), ("ns", 1e-9))
+STEP_RANGE_S = (1e-3, 1.0)
+#: A step longer than this many times the stream's recent step is a gap.
+GAP_FACTOR = 1.5
+#: Steps the stream's own recent step is the median of.
+_RECENT_STEPS = 16
+#: A sample this close to a grid time (in steps) is on it.
+_ON_GRID = 1e-3
+_EPOCH = _dt.datetime(1970, 1, 1)
+
+
+def _has(chunk: Any, key: str) -> bool:
+    try:
+        return key in chunk
+    except TypeError:
+        return False
+
+
+def _datetimes_s(values: Any) -> FloatArray | None:
+    """Datetimes (or durations) as seconds (since the epoch, UTC where a zone is given); None
+    where ``values`` are not datetimes."""
+    dt = getattr(values, "dt", None)                    # a pandas Series of datetimes
+    if dt is not None and getattr(dt, "tz", None) is not None:
+        values = dt.tz_convert("UTC").dt.tz_localize(None)
+    try:
+        array = np.asarray(values)
+    except (TypeError, ValueError):
+        return None
+    array = array.ravel()
+    if array.dtype.kind == "M":
+        ns = array.astype("datetime64[ns]").astype(np.int64)
+        return np.asarray(ns, dtype=np.float64) * 1e-9
+    if array.dtype.kind == "m":
+        return np.asarray(array.astype("timedelta64[ns]").astype(np.int64),
+                          dtype=np.float64) * 1e-9
+    if array.dtype.kind == "O" and array.size and all(
+            isinstance(v, _dt.datetime) for v in array):
+        return np.array([v.timestamp() if v.tzinfo is not None
+                         else (v - _EPOCH).total_seconds() for v in array])
+    if array.dtype.kind in "OUS" and array.size:
+        try:
+            parsed = np.array([str(v) for v in array], dtype="datetime64[ns]")
+        except (TypeError, ValueError):
+            return None
+        return np.asarray(parsed.astype(np.int64), dtype=np.float64) * 1e-9
+    return None
+
+
+def _is_time(values: Any) -> bool:
+    """Datetimes or durations by their type (numpy's, or a pandas column's)."""
+    dtype = getattr(values, "dtype", None)
+    return getattr(dtype, "kind", "") in ("M", "m") or getattr(values, "dt", None) is not None
+
+
+def step_s(t: FloatArray) -> float:
+    """The sampling step of times ``t`` (s): their median step, to the microsecond where it
+    is that close to one (time stamps in ns or ms since the epoch, as floats, are rounded to a
+    fraction of a microsecond; a step of 24.99986 ms is the logger's 25 ms)."""
+    step = float(np.median(np.diff(t)))
+    clean = round(step, 6)
+    return clean if clean > 0 and abs(clean - step) <= 1e-5 * step else step
+
+
+def columns(chunk: Any) -> tuple[dict[str, FloatArray], bool]:
+    """A pushed chunk's columns as float arrays (``beta`` 0 where absent), and whether ``t``
+    came as datetimes (then in seconds); or a DataError naming what is wrong with it."""
+    if not hasattr(chunk, "__getitem__") or isinstance(chunk, str | bytes):
+        raise DataError(f"pushed samples must be a mapping of column names to arrays (or a "
+                        f"DataFrame), not {type(chunk).__name__}")
+    missing = [k for k in REQUIRED if not _has(chunk, k)]
+    if missing:
+        raise DataError(f"pushed samples lack column{'s' if len(missing) > 1 else ''} "
+                        f"{', '.join(missing)}")
+    cols: dict[str, FloatArray] = {}
+    stamped = False
+    for key in SAMPLE:
+        if key == "beta" and not _has(chunk, key):
+            continue
+        values = chunk[key]
+        if key == "t" and _is_time(values):
+            seconds = _datetimes_s(values)
+            if seconds is not None:
+                cols[key], stamped = seconds, True
+                continue
+        try:
+            cols[key] = np.asarray(values, dtype=np.float64).ravel()
+        except (TypeError, ValueError):
+            seconds = _datetimes_s(values) if key == "t" else None
+            if seconds is None:
+                raise DataError(f"pushed column {key} is not numeric") from None
+            cols[key], stamped = seconds, True
+    n = cols["t"].size
+    cols.setdefault("beta", np.zeros(n))
+    for key, values in cols.items():
+        if values.size != n:
+            raise DataError(f"pushed column {key} has {values.size} samples, t has {n}")
+        if not np.all(np.isfinite(values)):
+            raise DataError(f"pushed column {key} holds NaN or infinite values")
+    for key in ("n_rl", "n_rr"):
+        if np.any(np.abs(cols[key]) > MAX_PUSHED_RATE_REVPS):
+            raise DataError(f"pushed column {key} reaches {np.max(np.abs(cols[key])):.4g}: "
+                            "wheel rates must be in rev/s")
+    return cols, stamped
+
+
+def time_unit(step: float) -> tuple[str, float]:
+    """The unit of a time column whose samples are ``step`` apart (in that unit), and its
+    length in seconds; a DataError where no unit makes it a drive log's step."""
+    lo, hi = STEP_RANGE_S
+    for name, seconds in TIME_UNITS:
+        if lo <= step * seconds <= hi:
+            return name, seconds
+    raise DataError(f"pushed t advances by {step:.6g} per sample: neither seconds, ms, us nor "
+                    f"ns give a drive log's step ({lo:g} to {hi:g} s)")
+
+
+class Regrid:
+    """Samples, as they come, onto the grid of step ``t_s`` (see the module docstring).
+
+    A piece's grid starts at its first sample; grid times between two samples are interpolated
+    (the heading along its shorter way round); a sample on a grid time passes as it is, and the
+    grid goes on from its time (float time stamps never drift off it).
+    """
+
+    def __init__(self, t_s: float) -> None:
+        self.t_s = t_s
+        self._last: FloatArray | None = None       # the last sample (SAMPLE order)
+        self._next: float | None = None             # the next grid time of the piece
+        self._steps: list[float] = []               # the stream's recent steps
+
+    def add(self, samples: FloatArray) -> FloatArray:
+        """Samples (M, len(SAMPLE)), in time order, continuing the stream; the grid's samples
+        they complete (K, len(SAMPLE))."""
+        if samples.shape[0] and self._last is not None and self._next is not None:
+            t = samples[:, 0]
+            steps = np.diff(t, prepend=self._last[0])
+            tol = _ON_GRID * self.t_s
+            if abs(float(t[0]) - self._next) <= tol and np.all(np.abs(steps - self.t_s) <= tol):
+                # every sample on the grid (the usual case): as they are
+                self._steps.extend(steps[-_RECENT_STEPS:].tolist())
+                del self._steps[:-_RECENT_STEPS]
+                self._last = samples[-1].copy()
+                self._next = float(t[-1]) + self.t_s
+                return samples
+        out: list[FloatArray] = []
+        for row in samples:
+            out.extend(self._one(row))
+        return np.array(out, dtype=np.float64).reshape(-1, len(SAMPLE))
+
+    def _gap(self, step: float) -> bool:
+        local = float(np.median(self._steps)) if self._steps else self.t_s
+        return step > GAP_FACTOR * max(self.t_s, local)
+
+    def _one(self, row: FloatArray) -> list[FloatArray]:
+        row = row.copy()
+        last, self._last = self._last, row
+        if last is None or self._next is None:
+            self._next = float(row[0]) + self.t_s
+            return [row]
+        step = float(row[0] - last[0])
+        gap = self._gap(step)
+        self._steps.append(step)
+        del self._steps[:-_RECENT_STEPS]
+        if gap:                                    # a new piece starts with this sample
+            self._next = float(row[0]) + self.t_s
+            return [row]
+        out: list[FloatArray] = []
+        tol = _ON_GRID * self.t_s
+        while self._next <= float(row[0]) + tol:
+            g = self._next
+            if abs(g - float(row[0])) <= tol:        # on the grid: the sample as it is
+                out.append(row)
+                self._next = float(row[0]) + self.t_s
+                break
+            frac = (g - float(last[0])) / step
+            mid = last + frac * (row - last)
+            turn = math.remainder(float(row[7] - last[7]), 2.0 * math.pi)
+            mid[7] = last[7] + frac * turn
+            mid[0] = g
+            out.append(mid)
+            self._next = g + self.t_s
+        return out
+
+
+def as_rows(cols: Mapping[str, FloatArray]) -> FloatArray:
+    return np.column_stack([cols[k] for k in SAMPLE])
