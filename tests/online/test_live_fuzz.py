@@ -1,7 +1,10 @@
 """The live path under arbitrary input (issue 22): whatever a caller pushes, the online
 calibrator either takes it or raises a DataError naming the problem; it never crashes with
 anything else, never publishes a non-finite or out-of-range estimate, and a refused chunk
-leaves it as it was."""
+leaves it as it was.
+
+The examples run derandomized (tests/conftest.py's profile: the same every run, no example
+database); what a run once found is pinned with @example (issue 32)."""
 
 from __future__ import annotations
 
@@ -9,7 +12,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 import odocal
@@ -55,6 +58,12 @@ def base() -> dict[str, np.ndarray]:
 
 @settings(max_examples=60, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
+# issue 32: an unseeded run found push raising numpy's LinAlgError "SVD did not converge" after
+# a first chunk refused for a NaN time and a flipped reference (now: a halt with that finding)
+@example(damage=[("t", 2, "nan"), ("psi", 0, "negative")], chunk=40)
+@example(damage=[("t", 0, "nan"), ("x", 0, "negative"), ("y", 0, "negative")], chunk=7)
+@example(damage=[("t", 9, "nan"), ("x", 0, "negative")], chunk=400)
+@example(damage=[("t", 0, "nan"), ("psi", 500, "negative"), ("y", 0, "huge")], chunk=1)
 @given(st.lists(st.tuples(st.sampled_from(COLUMNS), st.integers(0, 9599),
                           st.sampled_from(["nan", "inf", "scale", "zero", "negative",
                                            "reverse", "huge"])), max_size=4),

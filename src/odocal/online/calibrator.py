@@ -175,6 +175,7 @@ class OnlineCalibrator:
         self._recent: list[FloatArray] = []
         self._checked_t = -math.inf
         self._diagnosis = Diagnosis(())
+        self._failure: Finding | None = None      # the numbers could not be fitted
         self._halted = False
 
     # ---------------------------------------------------------------- input
@@ -252,7 +253,7 @@ class OnlineCalibrator:
         finding = Finding(Check.INVALID_INPUT, Severity.FATAL,
                           name=f"the live samples cannot be fitted ({text}): they are "
                                "degenerate or out of any vehicle's range")
-        self._diagnosis = Diagnosis((*self._diagnosis.findings, finding))
+        self._failure = finding
         self._halted = True
 
     def _keep_recent(self, rows: FloatArray) -> None:
@@ -525,7 +526,10 @@ class OnlineCalibrator:
 
     @property
     def diagnosis(self) -> Diagnosis:
-        """What the checks found on the latest samples."""
+        """What the checks found on the latest samples (and why the numbers could not be
+        fitted, where they could not)."""
+        if self._failure is not None:
+            return Diagnosis((*self._diagnosis.findings, self._failure))
         return self._diagnosis
 
     @property
@@ -555,7 +559,9 @@ class OnlineCalibrator:
                    (float(noise[1, 0]), float(noise[1, 1]))),
             alarms=tuple(self._alarms), forgetting_s=self.settings.online.forgetting_s,
             coupling=float(self._model.coupling),
-            findings=(*self._diagnosis.findings, *more), halted=self._halted,
+            findings=(*self._diagnosis.findings,
+                      *((self._failure,) if self._failure is not None else ()), *more),
+            halted=self._halted,
             time_unit=self._unit or "s",
             sampling_s=self._t_s if self._t_s is not None else float("nan"))
 
