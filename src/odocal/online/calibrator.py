@@ -71,8 +71,8 @@ from odocal.online.changes import (
     eliminate,
     estimate_change,
 )
-from odocal.online.samples import SAMPLE, Regrid, as_rows, step_s, time_unit
-from odocal.online.samples import columns as pushed_columns
+from odocal.online.samples import SAMPLE, Regrid, step_s, time_unit
+from odocal.online.samples import rows as pushed_rows
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
@@ -190,14 +190,13 @@ class OnlineCalibrator:
         steps ends the current piece (windows never span a gap). A chunk that cannot be used
         raises a DataError naming why and leaves the calibrator as it was.
         """
-        cols, stamped = pushed_columns(chunk)
-        t = cols["t"]
-        if t.size == 0:
+        rows, stamped = pushed_rows(chunk)
+        count = rows.shape[0]
+        if count == 0:
             return
-        if np.any(np.diff(t) <= 0):
+        if count > 1 and np.any(np.diff(rows[:, 0]) <= 0):
             raise DataError("pushed samples' t must increase strictly (and continue the "
                             "previous chunk)")
-        rows = as_rows(cols)
         if self._unit is None:
             if self._pending is not None:
                 rows = np.vstack([self._pending, rows])
@@ -205,7 +204,7 @@ class OnlineCalibrator:
                     raise DataError("pushed samples' t must increase strictly (and continue "
                                     "the previous chunk)")
             if rows.shape[0] < 2:                         # one sample so far: wait for more
-                self._samples += t.size
+                self._samples += count
                 self._pending = rows.copy()
                 return
             unit, scale = ("datetime", 1.0) if stamped else time_unit(
@@ -218,14 +217,14 @@ class OnlineCalibrator:
             self._windows = empty_windows(length=self._builder.length,
                                           margin=self._builder.margin, t_s=self._t_s)
             self._regrid = Regrid(self._t_s)
-            self._samples += t.size
+            self._samples += count
         else:
             if not stamped:
                 rows[:, 0] *= self._scale
             if self._last_t is not None and rows[0, 0] <= self._last_t:
                 raise DataError("pushed samples' t must increase strictly (and continue the "
                                 "previous chunk)")
-            self._samples += t.size
+            self._samples += count
         self._last_t = float(rows[-1, 0])
         if self._halted:
             return                       # the data contradicted the model: nothing more is used
@@ -389,7 +388,7 @@ class OnlineCalibrator:
             return
         offset = self.heading_offset()
         kept = self._kept(p)
-        fitted = self._fitted(p)
+        fitted = self._fitted(p, kept)
         total, _ = core.evaluate(p, core.View.of(fitted, self._lag.shift, offset), self._model,
                                  self._folded, np.ones(2),
                                  smooth=self._smooth).normal_equations(self._folded)
@@ -421,12 +420,12 @@ class OnlineCalibrator:
         theta = self.theta if p is None else p[:4]
         return ~disturbed(windows, theta, self._lag.shift, self.heading_offset())
 
-    def _fitted(self, p: FloatArray | None = None) -> WindowSet:
+    def _fitted(self, p: FloatArray | None = None, keep: BoolArray | None = None) -> WindowSet:
         """The windows the fit takes (:meth:`_kept`), each following the one before it only
         where that one is taken too."""
         assert self._windows is not None
         windows = self._windows
-        keep = self._kept(p)
+        keep = self._kept(p) if keep is None else keep
         if keep.all():
             return windows
         follows = windows.follows & np.concatenate([[True], keep[:-1]])

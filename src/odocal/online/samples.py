@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
-from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -97,9 +96,10 @@ def step_s(t: FloatArray) -> float:
     return clean if clean > 0 and abs(clean - step) <= 1e-5 * step else step
 
 
-def columns(chunk: Any) -> tuple[dict[str, FloatArray], bool]:
-    """A pushed chunk's columns as float arrays (``beta`` 0 where absent), and whether ``t``
-    came as datetimes (then in seconds); or a DataError naming what is wrong with it."""
+def rows(chunk: Any) -> tuple[FloatArray, bool]:
+    """A pushed chunk as samples (M, len(SAMPLE)) in :data:`SAMPLE` order (``beta`` 0 where
+    absent), and whether ``t`` came as datetimes (then in seconds since the epoch); or a
+    DataError naming what is wrong with it."""
     if not hasattr(chunk, "__getitem__") or isinstance(chunk, str | bytes):
         raise DataError(f"pushed samples must be a mapping of column names to arrays (or a "
                         f"DataFrame), not {type(chunk).__name__}")
@@ -107,36 +107,41 @@ def columns(chunk: Any) -> tuple[dict[str, FloatArray], bool]:
     if missing:
         raise DataError(f"pushed samples lack column{'s' if len(missing) > 1 else ''} "
                         f"{', '.join(missing)}")
-    cols: dict[str, FloatArray] = {}
+    cols: list[FloatArray] = []
     stamped = False
     for key in SAMPLE:
         if key == "beta" and not _has(chunk, key):
+            cols.append(np.zeros(cols[0].size))
             continue
         values = chunk[key]
         if key == "t" and _is_time(values):
             seconds = _datetimes_s(values)
             if seconds is not None:
-                cols[key], stamped = seconds, True
+                cols.append(seconds)
+                stamped = True
                 continue
         try:
-            cols[key] = np.asarray(values, dtype=np.float64).ravel()
+            cols.append(np.asarray(values, dtype=np.float64).ravel())
         except (TypeError, ValueError):
             seconds = _datetimes_s(values) if key == "t" else None
             if seconds is None:
                 raise DataError(f"pushed column {key} is not numeric") from None
-            cols[key], stamped = seconds, True
-    n = cols["t"].size
-    cols.setdefault("beta", np.zeros(n))
-    for key, values in cols.items():
+            cols.append(seconds)
+            stamped = True
+    n = cols[0].size
+    for key, values in zip(SAMPLE, cols, strict=True):
         if values.size != n:
             raise DataError(f"pushed column {key} has {values.size} samples, t has {n}")
-        if not np.all(np.isfinite(values)):
-            raise DataError(f"pushed column {key} holds NaN or infinite values")
-    for key in ("n_rl", "n_rr"):
-        if np.any(np.abs(cols[key]) > MAX_PUSHED_RATE_REVPS):
-            raise DataError(f"pushed column {key} reaches {np.max(np.abs(cols[key])):.4g}: "
-                            "wheel rates must be in rev/s")
-    return cols, stamped
+    out = np.column_stack(cols) if n else np.zeros((0, len(SAMPLE)))
+    if not np.isfinite(out).all():
+        key = SAMPLE[int(np.flatnonzero(~np.isfinite(out).all(axis=0))[0])]
+        raise DataError(f"pushed column {key} holds NaN or infinite values")
+    rates = np.abs(out[:, 1:3])
+    if n and rates.max() > MAX_PUSHED_RATE_REVPS:
+        key = SAMPLE[1 + int(np.argmax(rates.max(axis=0)))]
+        raise DataError(f"pushed column {key} reaches {rates.max():.4g}: wheel rates must be "
+                        "in rev/s")
+    return out, stamped
 
 
 def time_unit(step: float) -> tuple[str, float]:
@@ -216,7 +221,3 @@ class Regrid:
             out.append(mid)
             self._next = g + self.t_s
         return out
-
-
-def as_rows(cols: Mapping[str, FloatArray]) -> FloatArray:
-    return np.column_stack([cols[k] for k in SAMPLE])
