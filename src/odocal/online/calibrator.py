@@ -86,6 +86,8 @@ CHECK_EVERY_S = 60.0
 _LAG_EVERY = 4
 #: Running updates after which the estimate is trusted to tell a disturbed window.
 SETTLED = 3
+#: Samples with the wheels at 0 and the reference pose within this (m) are a parked vehicle's.
+PARKED_M = 0.5
 
 
 @dataclass(frozen=True)
@@ -174,6 +176,7 @@ class OnlineCalibrator:
         # the checks: the latest samples as they came, what they found, and whether they halted
         self._recent: list[FloatArray] = []
         self._checked_t = -math.inf
+        self._recent_t = -math.inf                # the newest of them
         self._diagnosis = Diagnosis(())
         self._failure: Finding | None = None      # the numbers could not be fitted
         self._halted = False
@@ -242,7 +245,7 @@ class OnlineCalibrator:
         self._keep_recent(grid)
         self._builder.add(*grid.T)
         self._take(self._builder.windows())
-        if self._last_t is not None and self._last_t - self._checked_t >= CHECK_EVERY_S:
+        if self._recent_t - self._checked_t >= CHECK_EVERY_S:
             self._check()
 
     def _failed(self, exc: Exception) -> None:
@@ -256,9 +259,17 @@ class OnlineCalibrator:
         self._halted = True
 
     def _keep_recent(self, rows: FloatArray) -> None:
-        """The latest samples on the grid, for the checks (the last CHECK_WINDOW_S)."""
+        """The latest samples of driving on the grid, for the checks (the last CHECK_WINDOW_S
+        of them): once the vehicle has driven, samples of it parked (the wheels at 0, the
+        reference pose within :data:`PARKED_M`) are not kept, so that the checks never judge a
+        drive by the minutes parked after it (one that never drives is still recognised)."""
+        span = np.ptp(rows[:, 5:7], axis=0) if rows.shape[0] > 1 else np.zeros(2)
+        if not rows[:, 1:3].any() and float(np.hypot(*span)) <= PARKED_M:
+            if self._windows_total:
+                return
         self._recent.append(rows)
         newest = float(rows[-1, 0])
+        self._recent_t = newest
         while len(self._recent) > 1 and float(self._recent[1][0, 0]) <= newest - CHECK_WINDOW_S:
             self._recent.pop(0)
 
@@ -492,7 +503,7 @@ class OnlineCalibrator:
         contradict the model, or the estimate fails the quality gate, the status is
         ``REJECTED`` and the findings are in ``details.findings``.
         """
-        if self._last_t is not None and self._last_t > self._checked_t:
+        if self._recent_t > self._checked_t:
             self._check()
         if self._halted:
             return self._nothing(Reason.REJECTED, Status.REJECTED)
