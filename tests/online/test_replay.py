@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 import pytest
 
@@ -119,8 +120,7 @@ def test_replay_reads_time_stamps_and_says_what_changed(tmp_path: Path,
                       **{k: pa.array(v) for k, v in cols.items()}})
     path = tmp_path / "stamped.parquet"
     pq.write_table(table, path)
-    code, out, err = run(capsys, "replay", str(path), "--out", str(tmp_path / "r"),
-                         "--no-report")
+    code, out, err = run(capsys, "replay", str(path), "--out", str(tmp_path / "r"))
     assert code == EXIT_OK, err
     data = json.loads((tmp_path / "r" / "calibration.json").read_text())
     assert data["details"]["time_unit"] == "s" and data["details"]["sampling_s"] == 0.025
@@ -134,3 +134,25 @@ def test_replay_reads_time_stamps_and_says_what_changed(tmp_path: Path,
     assert "since 2" in line                     # seconds from the log's start, not the epoch
     if data["batch"] is None:
         assert "note: no batch calibration to compare with" in out
+    page = (tmp_path / "r" / "report.html").read_text()
+    assert "the rear-left wheel&#x27;s circumference alone (c_d" in page
+
+
+def test_replay_of_a_log_in_nanoseconds_reports_seconds(
+        tmp_path: Path, short_drive: odocal.SimulatedDrive,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Integer epoch nanoseconds (beyond float's exact integers): updates every 30 s of driving,
+    the trace and the duration in seconds (was: an update per chunk, 8e9 minutes)."""
+    cols = {k: v for k, v in short_drive.drive.columns().items() if k in dep.COLUMNS}
+    cols["t"] = np.round((cols["t"] + 1.7e9) * 1e9).astype(np.int64)
+    path = tmp_path / "ns.csv"
+    pacsv.write_csv(pa.table(cols), path)
+    code, _, err = run(capsys, "replay", str(path), "--out", str(tmp_path / "r"), "-q",
+                       "--no-report", "--no-batch")
+    assert code == EXIT_OK, err
+    data = json.loads((tmp_path / "r" / "calibration.json").read_text())
+    assert data["details"]["time_unit"] == "ns"
+    assert data["duration_s"] == pytest.approx(120.0, abs=0.01)
+    trace = (tmp_path / "r" / "trace.csv").read_text().splitlines()
+    assert 4 <= len(trace) - 1 <= 6                       # every 30 s, and the end
+    assert float(trace[-1].split(",")[0]) == pytest.approx(1.7e9 + 120.0, abs=1e-3)

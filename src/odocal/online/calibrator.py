@@ -160,7 +160,8 @@ class OnlineCalibrator:
         self._unit: str | None = None             # how t comes: "s", "ms", "us", "ns", "datetime"
         self._scale = 1.0                         # ... and its unit in seconds
         self._regrid: Regrid | None = None
-        self._last_t: float | None = None
+        self._last_t: float | None = None        # the latest sample's time, s
+        self._first_t: float | None = None       # the first one's, s
         self._builder: WindowBuilder | None = None
         self._windows: WindowSet | None = None
         self._folded = core.Folded(origin=np.append(self.datasheet, 0.0))
@@ -213,6 +214,7 @@ class OnlineCalibrator:
             unit, scale = ("datetime", 1.0) if stamped else time_unit(
                 float(np.median(np.diff(rows[:, 0]))))
             rows[:, 0] *= scale
+            self._first_t = float(rows[0, 0])
             self._pending = None
             self._unit, self._scale = unit, scale
             self._t_s = step_s(rows[:, 0])
@@ -589,6 +591,14 @@ class OnlineCalibrator:
     def details_samples(self) -> int:
         """Samples pushed so far."""
         return self._samples
+
+    @property
+    def span_s(self) -> tuple[float, float] | None:
+        """The first and the latest sample's time on the log's clock, in seconds (whatever the
+        unit ``t`` is pushed in), or None before the unit is known."""
+        if self._first_t is None or self._last_t is None:
+            return None
+        return self._first_t, self._last_t
 
     @property
     def alarms(self) -> tuple[Alarm, ...]:

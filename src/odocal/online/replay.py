@@ -134,7 +134,7 @@ def _numbers(column: Any) -> FloatArray:
         first = int(ticks[valid][0]) if valid.any() else 0
         values = (ticks - first) * scale + first * scale
     else:
-        floats = pc.cast(column, pa.float64())
+        floats = pc.cast(column, pa.float64(), safe=False)   # (ns since the epoch: > 2^53)
         values = _buffer(floats, np.float64).copy()
         valid = _validity(floats)
     values = np.asarray(values, dtype=np.float64)
@@ -277,21 +277,19 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
         if chunk["t"].size == 0:
             continue
         calibrator.push(chunk)
+        span = calibrator.span_s                  # in seconds, whatever unit the log's t has
+        if span is None:
+            continue                              # (a lone first sample)
+        first_t, last_t = span
         if calibrator.halted:
-            # the data contradict the model: the calibrator publishes that, not an estimate
-            last_t = float(chunk["t"][-1])
-            first_t = float(chunk["t"][0]) if first_t is None else first_t
-            break
-        last_t = float(chunk["t"][-1])
-        if first_t is None:
-            first_t = float(chunk["t"][0])
+            break                 # the data contradict the model: it publishes that, not numbers
+        if next_update is None:
             next_update = first_t + settings.online.update_s
-        assert next_update is not None
         if last_t >= next_update:
             update(last_t)
             next_update = last_t + settings.online.update_s
     if first_t is None:
-        raise DataError(f"'{source}' holds no samples")
+        raise DataError(f"'{source}' holds no samples (or a single one)")
     update(last_t)
     return ReplayResult(source=str(source), estimate=calibrator.estimate(), trace=tuple(trace),
                         alarms=calibrator.alarms, samples=calibrator.details_samples(),
