@@ -1,11 +1,12 @@
 """The live path against drives that depart from the model (issue 32), 5 seeds per departure.
 
-    python benchmarks/bench_departures_live.py [--seeds 5] [--only NAME,...]
+    python benchmarks/bench_departures_live.py [--seeds 5] [--only NAME,...] [--skip issue]
+                                               [--duration 1200]
 
-Each departure (``tests/online/departures.py``) is simulated with a different value per seed
-(other delays, offsets, step sizes and times, parking durations) and pushed one second at a
-time through an :class:`~odocal.OnlineCalibrator`, as ``odocal replay`` does. Printed per
-departure:
+Two tables. First, the live path's own departures (``tests/online/departures.py``): each
+simulated with a different value per seed (other delays, offsets, step sizes and times, parking
+durations) and pushed one second at a time through an :class:`~odocal.OnlineCalibrator`, as
+``odocal replay`` does. Printed per departure:
 
 * **confident wrong**: the share of runs whose final estimate reports a parameter identified
   with the truth more than 3 of its standard deviations away (the target: 0);
@@ -15,6 +16,13 @@ departure:
 * for changes of 1% or more: **detected** within 2 km of the change, the distance from the
   change to the alarm, and the alarm's size error against the true change (target: within a
   fifth).
+
+Second, the issue's departures as ``benchmarks/bench_departures.py`` runs them on the batch path
+(:data:`odocal.sim.departures.DEPARTURES`, every value, ``--seeds`` seeds, ``--duration`` s):
+per departure and value the shares of runs ending confident wrong (for a change inside the log:
+wrong against the truth after it where an alarm was raised, against both otherwise), refused
+(``REJECTED``, a named finding), named (a finding or an alarm names the departure) and right,
+with the largest |z| of a parameter reported identified.
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -108,14 +117,94 @@ def run(d: dep.Departed, *, chunk: int = 40) -> dict[str, object]:
     return out
 
 
+def _issue_truths(name: str, sim: Any, value: float) -> list[np.ndarray]:
+    """The true theta before (and, for a change, after) the change (as bench_departures.py)."""
+    first = sim.true_parameters.as_array()
+    if name == "c_e-change":
+        after = first.copy()
+        after[0] *= 1.0 + value
+        return [first, after]
+    if name == "pressure-change":
+        left = first[0] + 0.5 * first[1]
+        after = first.copy()
+        after[0] -= 0.5 * value * left
+        after[1] -= value * left
+        return [first, after]
+    return [first]
+
+
+def issue_table(seeds: int, duration: float, only: list[str]) -> None:
+    from odocal.sim.departures import DEPARTURES, simulate_departure
+
+    print(f"\nthe issue's departures on the live path ({seeds} seeds, {duration:g} s drives "
+          "unless the departure sets its length)")
+    print(f"{'departure':<18}{'value':>8}{'confident wrong':>17}{'refused':>9}{'named':>7}"
+          f"{'right':>7}{'max |z|':>9}  findings / alarms")
+    total = wrong_total = 0
+    for name, departure in DEPARTURES.items():
+        if only and not any(o in name for o in only):
+            continue
+        for value in departure.values:
+            outcome: Counter[str] = Counter()
+            worst, seen = 0.0, Counter()
+            for seed in range(seeds):
+                sim = simulate_departure(name, value, seed=seed, duration_s=duration)
+                cal = OnlineCalibrator()
+                cols = sim.drive.columns()
+                for i in range(0, sim.drive.n_samples, 40):
+                    cal.push({k: v[i:i + 40] for k, v in cols.items()})
+                est = cal.estimate()
+                truths = _issue_truths(name, sim, value)
+                if len(truths) > 1 and cal.alarms:
+                    truths = truths[1:]                # the estimate is of the part after it
+                theta, std, ok = est.theta.as_array(), est.std, np.array(est.identified)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    z = [np.where(std > 0, (theta - t) / std, 0.0) for t in truths]
+                best = min(z, key=lambda zz: float(np.max(np.abs(zz[ok]), initial=0.0)))
+                largest = float(np.max(np.abs(best[ok]), initial=0.0))
+                notes = [f.check.value for f in est.details.findings if int(f.severity) >= 0
+                         and f.check.value not in ("data-repaired",)]
+                notes += [f"alarm {a.parameter} {a.relative_change:+.2%}" for a in cal.alarms]
+                seen.update(notes)
+                if est.status.name == "REJECTED":
+                    outcome["refused"] += 1
+                elif largest > 3.0:
+                    outcome["wrong"] += 1
+                    worst = max(worst, largest)
+                elif notes:
+                    outcome["named"] += 1
+                    worst = max(worst, largest)
+                else:
+                    outcome["right"] += 1
+                    worst = max(worst, largest)
+            total += seeds
+            wrong_total += outcome["wrong"]
+            print(f"{name:<18}{value:>8g}{outcome['wrong'] / seeds:>17.0%}"
+                  f"{outcome['refused'] / seeds:>9.0%}{outcome['named'] / seeds:>7.0%}"
+                  f"{outcome['right'] / seeds:>7.0%}{worst:>9.1f}  "
+                  + ", ".join(f"{k} x{v}" for k, v in seen.most_common(4)), flush=True)
+    print(f"confident wrong on the live path: {wrong_total} of {total} runs")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--only", default="")
+    parser.add_argument("--skip", default="", help="own,issue: leave out a table")
+    parser.add_argument("--duration", type=float, default=1200.0,
+                        help="drive length of the issue's departures (s)")
     parser.add_argument("-v", "--verbose", action="store_true", help="a line per run")
     args = parser.parse_args()
     only = [n for n in args.only.split(",") if n]
-    print(f"live path (OnlineCalibrator, 1 s chunks), {args.seeds} seeds per departure, "
+    skip = set(args.skip.split(","))
+    if "own" not in skip:
+        own_table(args.seeds, only, args.verbose)
+    if "issue" not in skip:
+        issue_table(args.seeds, args.duration, only)
+
+
+def own_table(seeds: int, only: list[str], verbose: bool) -> None:
+    print(f"live path (OnlineCalibrator, 1 s chunks), {seeds} seeds per departure, "
           "each seed another value")
     print(f"{'departure':<34}{'confident wrong':>16}{'rejected':>9}{'not id.':>8}"
           f"{'false alarms':>13}{'detected <2 km':>15}{'km to alarm':>13}{'size error':>12}"
@@ -125,11 +214,11 @@ def main() -> None:
             continue
         started = time.perf_counter()
         results = []
-        for seed in range(args.seeds):
+        for seed in range(seeds):
             d = make(seed)
             r = run(d)
             results.append((d, r))
-            if args.verbose:
+            if verbose:
                 print(f"    seed {seed}: {r}", flush=True)
         n = len(results)
         wrong = sum(bool(r["wrong"]) for _, r in results)

@@ -28,6 +28,7 @@ heading offset of the reference is measured on straight stretches and applied.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -37,6 +38,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal.checks.departures import wheel_step
+from odocal.checks.findings import Finding
+from odocal.checks.residuals import change_finding, find_change, front_wheels
 from odocal.data.drive import Drive
 from odocal.data.segments import common_sampling_time
 from odocal.estimators import core
@@ -55,7 +59,7 @@ from odocal.estimators.estimate import (
     Status,
     judge,
 )
-from odocal.estimators.windows import WindowSet, heading_offset, windows_from_drives
+from odocal.estimators.windows import SERIES, WindowSet, heading_offset, windows_from_drives
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.settings import Settings
 
@@ -114,6 +118,13 @@ class InverseDetails:
     gives about 1 (less where other errors dilute the regression)."""
     delay_found_s: float = 0.0
     """The lag the scan found, applied or not."""
+    wheel_offset_revps: float = 0.0
+    """The wheel rates' constant offset while moving, rev/s (a biased speed signal; rates
+    truncated towards zero read half a step low)."""
+    wheel_offset_std: float = 0.0
+    """Its standard deviation (about the prior's where the drive does not determine it)."""
+    findings: tuple[Finding, ...] = ()
+    """What the fit's residuals showed (a change inside the log, front wheels)."""
     delay_note: str = ""
     """Why the lag found was not applied: ``within noise`` (under three standard deviations),
     ``does not hold out`` (found on half the clusters, it does not lower the other half's
@@ -134,6 +145,8 @@ class InverseDetails:
                 "smoothing_steps2": self.smoothing_steps2,
                 "coupling_beta": self.coupling,
                 "delay_found_s": self.delay_found_s, "delay_note": self.delay_note,
+                "wheel_offset_revps": self.wheel_offset_revps,
+                "wheel_offset_std_revps": self.wheel_offset_std,
                 "elapsed_s": self.elapsed_s}
 
 
@@ -159,16 +172,56 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         return _nothing(settings, dict(held or {}), started, windows.length * t_s)
     if progress:
         progress("inverse: fit", 1, 2)
-    found = core.fit(windows, core.Folded(origin=_origin(settings)), settings,
+    prior = core.Folded.prior(_origin(settings),
+                              core.offset_prior_std(settings, wheel_step(drives)))
+    found = core.fit(windows, prior, settings,
                      heading_offset=offset, held=held, distance_only=distance_only)
+    findings, found, windows = _residual_checks(found, windows, drives, prior, settings,
+                                                offset, held, distance_only)
     if progress:
         progress("inverse: fit", 2, 2)
-    return _estimate(found, windows, settings, started, method="inverse")
+    estimate = _estimate(found, windows, settings, started, method="inverse")
+    if findings:
+        estimate = dataclasses.replace(estimate, details=dataclasses.replace(
+            estimate.details, findings=tuple(findings)))
+    return estimate
+
+
+def _residual_checks(found: core.CoreFit, windows: WindowSet, drives: Sequence[Drive],
+                     prior: core.Folded, settings: Settings, offset: float,
+                     held: Mapping[str, NotIdentified] | None, distance_only: bool,
+                     ) -> tuple[list[Finding], core.CoreFit, WindowSet]:
+    """What the fit's residuals show (:mod:`odocal.checks.residuals`): front wheels (the
+    calibration is refused), or a change inside the log (the calibration is of the part after
+    it, named with its time and size)."""
+    measured = windows.measured @ CHANNELS.T
+    residual = found.fit.residual
+    zero = windows.margin
+    if not distance_only:
+        front = front_wheels(measured, residual, windows.moments[:, zero, 0],
+                             windows.moments[:, zero, SERIES])
+        if front is not None:
+            return [front], found, windows
+    change = find_change(measured, residual, windows.cluster)
+    if change is None:
+        return [], found, windows
+    after = windows.take(np.arange(windows.size) >= change.index)
+    if after.size < MIN_WINDOWS:
+        return [], found, windows
+    drive = drives[int(windows.cluster[change.index] // 10**9)]
+    finding = change_finding(change, float(windows.t0[change.index]), drive.name)
+    log.warning("the drives change at t = %.0f s of %s: calibrating the part after it",
+                finding.reference, drive.name)
+    refit = core.fit(after, prior, settings, heading_offset=offset, held=held,
+                     distance_only=distance_only)
+    return [finding], refit, after
 
 
 def _origin(settings: Settings) -> FloatArray:
-    """Where folded coupling moments are taken (the datasheet values, kappa 0)."""
-    return np.append(np.asarray(settings.identify.theta0, dtype=np.float64), 0.0)
+    """Where folded coupling moments are taken (the datasheet values, kappa and the offsets
+    0)."""
+    theta0 = np.asarray(settings.identify.theta0, dtype=np.float64)
+    return np.concatenate([theta0, np.zeros(core.P - theta0.size)])
 
 
 def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
@@ -192,8 +245,9 @@ def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
         scores=found.uncertainty.scores, cluster=windows.cluster,
         measured=windows.measured @ CHANNELS.T, residual=fit.residual,
         prewhitening=(float(found.model.ma[0, 0]), float(found.model.ma[1, 0])),
-        smoothing_steps2=float(2.0 * fit.p[4]), coupling=float(found.model.coupling),
-        delay_found_s=found.lag.found * t_s, delay_note=found.lag.note)
+        smoothing_steps2=float(2.0 * fit.p[core.KAPPA]), coupling=float(found.model.coupling),
+        delay_found_s=found.lag.found * t_s, delay_note=found.lag.note,
+        wheel_offset_revps=found.offset[0], wheel_offset_std=found.offset[1])
     if not free.any():
         status = Status.NOTHING_IDENTIFIABLE
     elif float(np.max(rms)) < 1e-9:

@@ -37,14 +37,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal.checks.departures import Departures
+from odocal.checks.departures import findings as departure_findings
+from odocal.checks.departures import measure as measure_departures
 from odocal.checks.diagnosis import check_drives
 from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.checks.gate import gate
+from odocal.checks.residuals import front_wheels
 from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.estimators import core
 from odocal.estimators.base import held_by_checks
-from odocal.estimators.error_model import ErrorModel
+from odocal.estimators.error_model import CHANNELS, ErrorModel
 from odocal.estimators.estimate import (
     CovarianceKind,
     Estimate,
@@ -54,6 +58,7 @@ from odocal.estimators.estimate import (
     judge,
 )
 from odocal.estimators.windows import (
+    SERIES,
     WindowBuilder,
     WindowSet,
     builder_for,
@@ -71,6 +76,7 @@ from odocal.online.changes import (
     eliminate,
     estimate_change,
 )
+from odocal.online.departures import LiveDepartures, recorrected, with_offset_prior
 from odocal.online.samples import SAMPLE, Regrid, step_s, time_unit
 from odocal.online.samples import rows as pushed_rows
 from odocal.settings import Settings
@@ -86,6 +92,9 @@ CHECK_EVERY_S = 60.0
 _LAG_EVERY = 4
 #: Running updates after which the estimate is trusted to tell a disturbed window.
 SETTLED = 3
+#: The samples are kept this long (s) at most, to make the windows again with a correction
+#: found after them (a heading error): the first of the drive.
+HISTORY_S = 2.0 * CHECK_WINDOW_S
 #: Samples with the wheels at 0 and the reference pose within this (m) are a parked vehicle's.
 PARKED_M = 0.5
 
@@ -152,7 +161,8 @@ class OnlineCalibrator:
             raise DataError(f"theta0 {start.tolist()} is not a usable starting estimate")
         self.datasheet = np.asarray(self.settings.identify.theta0, dtype=np.float64)
         self.theta = start.copy()
-        self._kappa = 0.0
+        self._kappa = 0.0                         # the counting window's spread (core.KAPPA)
+        self._offset = 0.0                        # the wheel rates' offset (core.OFFSET)
         self._model = ErrorModel()
         self._lag = core.Lag()
         self._t_s: float | None = None
@@ -164,8 +174,15 @@ class OnlineCalibrator:
         self._first_t: float | None = None       # the first one's, s
         self._builder: WindowBuilder | None = None
         self._windows: WindowSet | None = None
-        self._folded = core.Folded(origin=np.append(self.datasheet, 0.0))
+        # (the wheel-rate offset's prior from the start where the settings always fit it; for
+        # rates on an encoding's grid from the first check that finds the grid)
+        self._folded = core.Folded.prior(core.pack(self.datasheet),
+                                         core.offset_prior_std(self.settings, 0.0))
+        self._departures = LiveDepartures()       # what is taken out of the samples
         self._samples = 0
+        # the samples on the grid as they came, while the windows can still be made again
+        self._history: list[FloatArray] | None = (
+            None if self.settings.online.forgetting_s else [])
         self._windows_total = 0
         self._since_fit = 0                       # windows added since the core last ran
         self._updates = 0                         # running updates of the estimate so far
@@ -244,8 +261,14 @@ class OnlineCalibrator:
         grid = self._regrid.add(rows)
         if not grid.shape[0]:
             return
-        self._keep_recent(grid)
-        self._builder.add(*grid.T)
+        if self._history is not None:
+            since = self._history[0][0, 0] if self._history else grid[0, 0]
+            if self._folded.clusters or self._alarms or grid[-1, 0] - since > HISTORY_S:
+                self._history = None                  # (no window can be made again now)
+            else:
+                self._history.append(grid)
+        self._keep_recent(grid)                       # (as they came: the checks measure)
+        self._builder.add(*self._departures.correct(grid).T)
         self._take(self._builder.windows())
         if self._recent_t - self._checked_t >= CHECK_EVERY_S:
             self._check()
@@ -294,10 +317,56 @@ class OnlineCalibrator:
                                            name=str(exc)),))
         else:
             diagnosis = check_drives([drive], self.settings)
+            if not (diagnosis.fatal or diagnosis.standstill):
+                # the sensors' departures, measured as batch measures them (on the samples as
+                # they came) and taken out of the samples from now on, and of the windows in
+                # memory where that can be done exactly (odocal/online/departures.py)
+                self._adopt(measure_departures([drive], self.settings,
+                                               lateral=not diagnosis.lateral_missing),
+                            driving_s=samples.shape[0] * step)
+            diagnosis = diagnosis.plus(departure_findings(self._departures.as_measured()))
         self._diagnosis = diagnosis
         if diagnosis.fatal:
             self._halted = True
         return diagnosis
+
+    def _adopt(self, found: Departures, *, driving_s: float) -> None:
+        """A new measurement of the departures (on ``driving_s`` of driving): the corrections
+        it determines replace the earlier ones; the windows in memory are corrected by the
+        difference."""
+        old, new = self._departures, self._departures.adopt(found, driving_s)
+        if new == old:
+            return
+        self._departures = new
+        if new.heading_harmonics != old.heading_harmonics and self._rebuilt():
+            pass                                   # (the windows made anew, corrected)
+        elif self._windows is not None:
+            self._windows = recorrected(
+                self._windows,
+                lateral_mps2=new.lateral_offset_mps2 - old.lateral_offset_mps2,
+                wheels_revps=(new.wheel_offset_revps[0] - old.wheel_offset_revps[0],
+                              new.wheel_offset_revps[1] - old.wheel_offset_revps[1]))
+        if new.wheel_step_revps:
+            self._folded = with_offset_prior(self._folded, self.settings, new.wheel_step_revps)
+
+    def _rebuilt(self) -> bool:
+        """The windows in memory made again from the samples as they came, with the
+        corrections of now (a heading error cannot be taken out of a window's moments after
+        the fact): where nothing has been folded, restarted or faded yet (the first minutes of
+        a drive, whose samples are kept for this). Whether they were."""
+        if (self._folded.clusters or self._alarms or self.settings.online.forgetting_s
+                or self._t_s is None or not self._history):
+            return False
+        raw = np.vstack(self._history)
+        builder = builder_for(self.settings, self._t_s)
+        builder.add(*self._departures.correct(raw).T)
+        windows = builder.windows()
+        self._builder = builder
+        self._windows = dataclasses.replace(windows, weight=np.ones(windows.size))
+        self._windows_total = windows.size
+        self._current_cluster = int(windows.cluster[-1]) if windows.size else None
+        self._since_fit = windows.size
+        return True
 
     def _take(self, new: WindowSet) -> None:
         """Add new windows cluster by cluster: a completed cluster is watched for a change and
@@ -338,7 +407,7 @@ class OnlineCalibrator:
         self._clusters_done += 1
         offset = self.heading_offset()
         if mine.size >= 3 and self._clusters_done > self.settings.online.warmup_clusters:
-            suspect = self._changes.watch(mine, self.theta, self._lag.shift, offset, self._model)
+            suspect = self._changes.watch(mine, self._p(), self._lag.shift, offset, self._model)
             if suspect is not None and self._changed(suspect, mine):
                 return
         # a running update from a warm start (estimate() solves to convergence): theta, the
@@ -348,20 +417,20 @@ class OnlineCalibrator:
         current = self._solve(windows, max_iterations=3)
         if not np.all(np.isfinite(current.p)):
             return                        # (a solve that failed moves nothing; estimate() says)
-        self.theta, self._kappa = current.p[:4].copy(), float(current.p[4])
+        self._take_p(current.p)
         self._updates += 1
         coupling = self.settings.inverse.common_wheel_error == "estimate"
         self._model = core.refit_model(current, windows, self._folded, coupling=coupling)
         if self._smooth and self._clusters_done % _LAG_EVERY == 0:
             self._lag = core.choose_lag(core.scan_lag(windows, self.theta, offset,
-                                                      self._model, self._folded))
+                                                      self._model, self._folded, self._offset))
 
     def _changed(self, suspect: Suspect, cluster: WindowSet) -> bool:
         """A suspected change: where it began and how large (an alarm), and the estimate
         restarted from it; False where the windows cannot tell yet."""
         assert self._windows is not None and self._t_s is not None
         change = estimate_change(
-            self._windows, self._folded, suspect, theta=self.theta, kappa=self._kappa,
+            self._windows, self._folded, suspect, p=self._p(),
             lag=self._lag, heading_offset=self.heading_offset(), model=self._model,
             smooth=self._smooth, tolerance=self.settings.inverse.tolerance,
             cluster_s=self.settings.segments.length * self._t_s)
@@ -378,7 +447,7 @@ class OnlineCalibrator:
         before it, and what the folded evidence says about c_e and c_d is taken out (it keeps
         what it says about t_r, d and the lag); the estimate goes on from the new wheels."""
         assert self._windows is not None
-        p = np.append(change.before, self._kappa)
+        p = change.before
         before = np.arange(self._windows.size) < change.index
         self._fold_windows(before, p)
         self._folded = eliminate(self._folded, change.step)
@@ -386,8 +455,9 @@ class OnlineCalibrator:
         follows = kept.follows.copy()
         follows[:1] = False                          # no filtering across the change
         self._windows = dataclasses.replace(kept, follows=follows)
-        self.theta = change.before.copy()
-        self.theta[:2] += change.step
+        after = change.before.copy()
+        after[:2] += change.step                     # (c_e and c_d: the first two of theta)
+        self._take_p(after)
         self._clusters_done = 0                      # a new warm-up before watching again
         self._changes.reset()
         self._since_fit = self._windows.size
@@ -414,12 +484,21 @@ class OnlineCalibrator:
                 continue
             part = windows.take(group)
             empty = core.Folded(origin=self._folded.origin)
-            scan = (core.scan_lag(part, p[:4], offset, self._model, empty)
+            scan = (core.scan_lag(part, p[core.THETA], offset, self._model, empty,
+                                   float(p[core.OFFSET]))
                     if windows.shifts > 0 else None)
             self._folded = core.fold(self._folded, part, p, self._lag.shift, offset,
                                      self._model, smooth=self._smooth, total_h=total,
                                      scan=scan)
         self._windows = windows.take(~mask)
+
+    def _p(self) -> FloatArray:
+        """The running estimate as the core's p (theta, kappa, the wheel-rate offset)."""
+        return core.pack(self.theta, self._kappa, self._offset)
+
+    def _take_p(self, p: FloatArray) -> None:
+        self.theta = np.asarray(p[core.THETA], dtype=np.float64).copy()
+        self._kappa, self._offset = float(p[core.KAPPA]), float(p[core.OFFSET])
 
     def _kept(self, p: FloatArray | None = None) -> BoolArray:
         """Which windows in memory the fit takes: all but those a disturbance spoils (a wheel
@@ -430,8 +509,8 @@ class OnlineCalibrator:
         windows = self._windows
         if self._updates < SETTLED or not windows.size:
             return np.ones(windows.size, dtype=bool)
-        theta = self.theta if p is None else p[:4]
-        return ~disturbed(windows, theta, self._lag.shift, self.heading_offset())
+        p = self._p() if p is None else p
+        return ~disturbed(windows, p, self._lag.shift, self.heading_offset())
 
     def _fitted(self, p: FloatArray | None = None, keep: BoolArray | None = None) -> WindowSet:
         """The windows the fit takes (:meth:`_kept`), each following the one before it only
@@ -452,14 +531,15 @@ class OnlineCalibrator:
         the first bends), and the data decide the rest (the estimate published is the core's,
         from the datasheet values, without the prior)."""
         view = core.View.of(windows, self._lag.shift, self.heading_offset())
-        free = np.append(np.ones(4, dtype=bool), self._smooth)
+        free = core.free_of(np.ones(self.theta.size, dtype=bool), kappa=self._smooth,
+                            offset=self._folded.offset_free)
         with np.errstate(divide="ignore", over="ignore"):
             prior = 1.0 / np.square(np.asarray(self.settings.identify.prior_std, dtype=float))
         prior = np.where(np.isfinite(prior), prior, 0.0)
         h, b = self._folded.h.copy(), self._folded.b.copy()
-        h[:4, :4] += np.diag(prior)
-        b[:4] += prior * self.datasheet
-        return core.solve(np.append(self.theta, self._kappa), view, free, self._model,
+        h[core.THETA, core.THETA] += np.diag(prior)
+        b[core.THETA] += prior * self.datasheet
+        return core.solve(self._p(), view, free, self._model,
                           dataclasses.replace(self._folded, h=h, b=b), np.ones(2),
                           max_iterations=max_iterations,
                           tolerance=self.settings.inverse.tolerance)
@@ -479,19 +559,20 @@ class OnlineCalibrator:
         oldest = windows.cluster == windows.cluster[0]
         if oldest.all():
             oldest = np.arange(windows.size) < windows.size // 2   # (one huge cluster: half)
-        self._fold_windows(oldest, np.append(self.theta, self._kappa))
+        self._fold_windows(oldest, self._p())
 
-    def _refit(self) -> core.CoreFit:
-        """The core on everything so far (with what the checks hold back, as batch); the
-        running estimate, error model and lag follow it."""
+    def _refit(self, windows: WindowSet | None = None) -> core.CoreFit:
+        """The core on everything so far (``windows``: those the fit takes, :meth:`_fitted`;
+        with what the checks hold back, as batch); the running estimate, error model and lag
+        follow it."""
         assert self._windows is not None
-        found = core.fit(self._fitted(), self._folded, self.settings,
+        found = core.fit(self._fitted() if windows is None else windows, self._folded,
+                         self.settings,
                          heading_offset=self.heading_offset(),
                          held=held_by_checks(self._diagnosis),
                          distance_only=self._diagnosis.no_differential)
         if found.free.any():
-            self.theta = found.theta.copy()
-            self._kappa = float(found.fit.p[4])
+            self._take_p(found.fit.p)
         self._model, self._lag = found.model, found.lag
         self._since_fit = 0
         return found
@@ -514,8 +595,9 @@ class OnlineCalibrator:
             return self._nothing(Reason.STANDSTILL)
         if self._windows is None or self._windows.size + self._folded.clusters == 0:
             return self._nothing(Reason.NO_INFORMATION)
+        windows = self._fitted()
         try:
-            found = self._refit()
+            found = self._refit(windows)
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
             self._failed(exc)
             return self._nothing(Reason.REJECTED, Status.REJECTED)
@@ -526,6 +608,13 @@ class OnlineCalibrator:
         status = Status.CONVERGED if free.any() else Status.NOTHING_IDENTIFIABLE
         refused = gate(theta, self.settings, error_m=None, datasheet_error_m=None,
                        segment_m=None)
+        if not self._diagnosis.no_differential and windows.size:
+            # wheels whose distance grows with the curvature squared are front wheels (batch
+            # refuses them from its fit's residuals the same way)
+            zero = windows.margin
+            front = front_wheels(windows.measured @ CHANNELS.T, found.fit.residual,
+                                 windows.moments[:, zero, 0], windows.moments[:, zero, SERIES])
+            refused = [*refused, *([front] if front is not None else [])]
         if refused:
             status = Status.REJECTED
         return Estimate(method="online", theta=Parameters.from_array(theta),

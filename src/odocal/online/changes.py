@@ -43,7 +43,7 @@ from odocal.estimators.error_model import (
     expected_revolutions,
     window_variance,
 )
-from odocal.estimators.windows import WindowSet, predict
+from odocal.estimators.windows import AT_MOVING, WindowSet, predict
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -138,15 +138,24 @@ class Steps:
     usable: BoolArray
 
 
-def disturbed(windows: WindowSet, theta: FloatArray, shift: float,
+def _predicted(windows: WindowSet, p: FloatArray, shift: float,
+               heading_offset: float) -> tuple[FloatArray, FloatArray]:
+    """Each window's revolutions (W, 2) at the core's ``p`` (theta and the wheel-rate offset;
+    the counting window's spread left out: it moves a window by a tiny share) and their
+    Jacobian in theta (W, 2, n)."""
+    at, _ = windows.at(shift, heading_offset)
+    pred, jac = predict(p[core.THETA], at)
+    return pred + p[core.OFFSET] * at[:, AT_MOVING, None], jac
+
+
+def disturbed(windows: WindowSet, p: FloatArray, shift: float,
               heading_offset: float) -> BoolArray:
     """(W,): windows a disturbance spoils: a wheel turning more than :data:`GROSS` away from
-    what the reference motion and ``theta`` make it turn (slip on ice, a locked wheel, reversing
-    with unsigned wheel speeds, a spike), where the wheels turn at all (a parked vehicle's
-    windows are never called disturbed). No tyre changes by a tenth; the fit and the change
-    detector leave such windows out."""
-    at, _ = windows.at(shift, heading_offset)
-    pred, _ = predict(theta, at)
+    what the reference motion and the core's ``p`` make it turn (slip on ice, a locked wheel,
+    reversing with unsigned wheel speeds, a spike), where the wheels turn at all (a parked
+    vehicle's windows are never called disturbed). No tyre changes by a tenth; the fit and the
+    change detector leave such windows out."""
+    pred, _ = _predicted(windows, p, shift, heading_offset)
     span = windows.length * windows.t_s
     moving = np.abs(pred) >= MIN_RATE_REVPS * span
     return np.asarray(np.any(moving & (np.abs(windows.measured - pred) > GROSS * np.abs(pred)),
@@ -155,9 +164,9 @@ def disturbed(windows: WindowSet, theta: FloatArray, shift: float,
 
 def window_steps(windows: WindowSet, reference: FloatArray, shift: float, heading_offset: float,
                  model: ErrorModel) -> Steps:
-    """The windows' evidence on a change of c_e and c_d from ``reference`` (see :class:`Steps`)."""
-    at, _ = windows.at(shift, heading_offset)
-    pred, jac = predict(reference, at)
+    """The windows' evidence on a change of c_e and c_d from ``reference`` (the core's p; see
+    :class:`Steps`)."""
+    pred, jac = _predicted(windows, reference, shift, heading_offset)
     wheels = windows.measured - pred                                  # per wheel
     r = wheels @ CHANNELS.T
     j = np.einsum("ci,wip->wcp", CHANNELS, jac[:, :, list(_WHEELS)])
@@ -190,8 +199,9 @@ def _solve2(h: FloatArray, g: FloatArray) -> tuple[FloatArray, FloatArray]:
 @dataclass(frozen=True)
 class Suspect:
     """The detector's verdict on a cluster: a change of ``parameter`` (an index into theta)
-    against ``reference``, begun between ``since_t`` (the start of the first cluster since the
-    detector was last quiet) and ``until_t`` (the start of the latest cluster)."""
+    against ``reference`` (the core's p), begun between ``since_t`` (the start of the first
+    cluster since the detector was last quiet) and ``until_t`` (the start of the latest
+    cluster)."""
 
     parameter: int
     since_t: float
@@ -229,13 +239,13 @@ class ChangeDetector:
         self.since_t = None
         self.recent.clear()
 
-    def watch(self, cluster: WindowSet, theta: FloatArray, shift: float, heading_offset: float,
+    def watch(self, cluster: WindowSet, p: FloatArray, shift: float, heading_offset: float,
               model: ErrorModel) -> Suspect | None:
-        """One completed cluster; ``theta`` the running estimate (the reference while quiet).
-        A :class:`Suspect` when a change has persisted long enough, else None."""
+        """One completed cluster; ``p`` the running estimate (the core's p: the reference while
+        quiet). A :class:`Suspect` when a change has persisted long enough, else None."""
         quiet = all(c.quiet for c in self.cusum)
         if self.reference is None or quiet:
-            self.reference = np.asarray(theta, dtype=np.float64).copy()
+            self.reference = np.asarray(p, dtype=np.float64).copy()
         steps = window_steps(cluster, self.reference, shift, heading_offset, model)
         if int(steps.usable.sum()) < _MIN_WINDOWS:
             return None                                  # parked, or all disturbed: no verdict
@@ -302,8 +312,8 @@ def change_point(steps: Steps, t0: FloatArray, *, earliest: float, latest: float
 
 @dataclass(frozen=True)
 class Change:
-    """The change found: where it began, the estimate before it (theta, 4) and the steps of
-    c_e and c_d with their standard deviations."""
+    """The change found: where it began, the estimate before it (the core's p) and the steps
+    of c_e and c_d with their standard deviations."""
 
     index: int
     t: float
@@ -314,16 +324,15 @@ class Change:
 
 
 def estimate_change(windows: WindowSet, folded: core.Folded, suspect: Suspect, *,
-                    theta: FloatArray, kappa: float, lag: core.Lag, heading_offset: float,
-                    model: ErrorModel, smooth: bool, tolerance: float,
-                    cluster_s: float) -> Change | None:
+                    p: FloatArray, lag: core.Lag, heading_offset: float, model: ErrorModel,
+                    smooth: bool, tolerance: float, cluster_s: float) -> Change | None:
     """Where a suspected change began and how large it is.
 
     The change point is searched among the windows from a cluster before the suspect's
     evidence began to its latest cluster; the wheels before it come from the windows before it
     (and the folded sums) fitted anew, all parameters free; after it, c_e and c_d alone from
-    the windows after it, the others held at the fit before. None where the windows after the
-    change point cannot carry the step.
+    the windows after it, the others held at the fit before. ``p``: the running estimate (the
+    core's p). None where the windows after the change point cannot carry the step.
     """
     steps = window_steps(windows, suspect.reference, lag.shift, heading_offset, model)
     index = change_point(steps, windows.t0, earliest=suspect.since_t - cluster_s,
@@ -331,37 +340,39 @@ def estimate_change(windows: WindowSet, folded: core.Folded, suspect: Suspect, *
     after = np.arange(windows.size) >= index
     if int((steps.usable & after).sum()) < _MIN_WINDOWS:
         return None
-    p = np.append(theta, kappa)
-    free = np.append(np.ones(4, dtype=bool), smooth)
+    theta_size = int(np.asarray(p[core.THETA]).size)
+    free = core.free_of(np.ones(theta_size, dtype=bool), kappa=smooth,
+                        offset=folded.offset_free)
     channels = np.ones(2)
-    before_fit: FloatArray = np.asarray(suspect.reference, dtype=np.float64)
+    before_fit: FloatArray = np.asarray(suspect.reference, dtype=np.float64).copy()
     if index > 0 or folded.clusters:
         view = core.View.of(windows.take(~after), lag.shift, heading_offset)
-        fit = core.solve(p, view, free, model, folded, channels, max_iterations=5,
-                         tolerance=tolerance)
+        fit = core.solve(np.asarray(p, dtype=np.float64), view, free, model, folded, channels,
+                         max_iterations=5, tolerance=tolerance)
         if np.all(np.isfinite(fit.p)):
-            before_fit = np.asarray(fit.p[:4])
+            before_fit = np.asarray(fit.p, dtype=np.float64).copy()
     # after: the wheels alone, from the reference moved by the windows' own step (a good start
     # for the robust weights), the rest held at the fit before
     mine = windows.take(after & steps.usable)
     first, _ = _solve2(steps.h[after].sum(axis=0), steps.g[after].sum(axis=0))
-    start = np.append(before_fit, kappa)
+    wheels = list(_WHEELS)
+    start = before_fit.copy()
     if np.all(np.isfinite(first)):
-        start[list(_WHEELS)] = suspect.reference[list(_WHEELS)] + first
+        start[wheels] = suspect.reference[wheels] + first
     view = core.View.of(mine, lag.shift, heading_offset)
-    wheels_free = np.zeros(5, dtype=bool)
-    wheels_free[list(_WHEELS)] = True
-    fit = core.solve(start, view, wheels_free, model, core.Folded(origin=folded.origin),
-                     channels, max_iterations=8, tolerance=tolerance)
+    wheels_free = np.zeros(core.P, dtype=bool)
+    wheels_free[wheels] = True
+    empty = core.Folded(origin=folded.origin)
+    fit = core.solve(start, view, wheels_free, model, empty, channels, max_iterations=8,
+                     tolerance=tolerance)
     if not np.all(np.isfinite(fit.p)):
         return None
-    h, _ = fit.normal_equations(core.Folded(origin=folded.origin))
-    block = h[np.ix_(list(_WHEELS), list(_WHEELS))]
+    h, _ = fit.normal_equations(empty)
     try:
-        cov = np.linalg.inv(block)
+        cov = np.linalg.inv(h[np.ix_(wheels, wheels)])
     except np.linalg.LinAlgError:
         return None
-    step = np.asarray(fit.p[list(_WHEELS)]) - before_fit[list(_WHEELS)]
+    step = np.asarray(fit.p[wheels]) - before_fit[wheels]
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
     return Change(index=index, t=float(windows.t0[index]),
                   distance_m=float(windows.distance_m[index]), before=before_fit, step=step,

@@ -1,0 +1,144 @@
+"""The sensors' departures from the model on the live path: measured as batch measures them,
+taken out of the samples as they arrive.
+
+Batch measures the departures of :mod:`odocal.checks.departures` on the whole log and corrects
+it before the fit. The online calibrator measures them on the latest ten minutes of driving
+(with every check) and takes out what is determined (:class:`LiveDepartures`):
+
+* **an offset of a_y** and **wheels that read an offset at standstill**: out of every sample
+  from then on, and out of the windows already in memory exactly (a window keeps the moments
+  ``sum ds a^j`` for ``j < 4``: those of ``a - delta`` are their binomial expansion; a wheel's
+  revolutions over a window less the offset times its time);
+* **a heading error that varies with the heading**: out of every sample from then on (a
+  window's moments cannot be turned by a heading error after the fact), measured on no less
+  than :data:`HEADING_MIN_S` of driving (on two minutes a fit of its harmonics can pass its
+  test at a hundred degrees), and replaced by every later measurement, zero included;
+* **the rates' encoding step**: the wheel-rate offset fitted from then on, with a prior of half
+  the step (truncation towards zero reads half a step low), as batch does.
+
+For the offsets a later measurement replaces an earlier one only where it determines them (a
+stretch without enough driving, or without standing still, changes nothing). What was folded
+keeps the corrections of its time. a_y's clock against the reference is named by the checks,
+not taken out (that would hold the stream back by up to two seconds).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal.checks.departures import (
+    MIN_HEADING_HARMONIC_RAD,
+    Departures,
+    heading_correction,
+)
+from odocal.estimators import core
+from odocal.estimators.windows import SERIES, WindowSet
+from odocal.settings import Settings
+
+FloatArray = NDArray[np.float64]
+
+#: The heading error is measured on no less driving than this (s).
+HEADING_MIN_S = 300.0
+#: Columns of a sample (as :data:`odocal.online.samples.SAMPLE`).
+_NRL, _NRR, _AY, _PSI = 1, 2, 3, 7
+
+
+@dataclass(frozen=True)
+class LiveDepartures:
+    """What the live path takes out of the samples: a_y's offset (m/s^2), each wheel's offset
+    (rev/s), the heading error's harmonics (rad), and whether the wheel rates are encoded on a
+    grid of ``wheel_step_revps`` (rev/s; 0: not)."""
+
+    lateral_offset_mps2: float = 0.0
+    lateral_offset_std: float = math.nan
+    wheel_offset_revps: tuple[float, float] = (0.0, 0.0)
+    heading_harmonics: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    heading_amplitude_rad: float = 0.0
+    wheel_step_revps: float = 0.0
+
+    def as_measured(self) -> Departures:
+        """The same as :class:`~odocal.checks.departures.Departures` (for its findings)."""
+        return Departures(lateral_offset_mps2=self.lateral_offset_mps2,
+                          lateral_offset_std=self.lateral_offset_std,
+                          lateral_offset_applied=self.lateral_offset_mps2 != 0.0,
+                          heading_harmonics=self.heading_harmonics,
+                          heading_amplitude_rad=self.heading_amplitude_rad,
+                          standstill_offset_revps=self.wheel_offset_revps,
+                          wheel_step_revps=self.wheel_step_revps)
+
+    def adopt(self, found: Departures, driving_s: float) -> LiveDepartures:
+        """These corrections updated by a new measurement (on ``driving_s`` of driving) where
+        it determines them."""
+        out = self
+        if found.lateral_offset_applied:
+            out = dataclasses.replace(out, lateral_offset_mps2=found.lateral_offset_mps2,
+                                      lateral_offset_std=found.lateral_offset_std)
+        if any(found.standstill_offset_revps):
+            out = dataclasses.replace(out, wheel_offset_revps=found.standstill_offset_revps)
+        if driving_s >= HEADING_MIN_S and _apart(found.heading_harmonics,
+                                                 out.heading_harmonics):
+            out = dataclasses.replace(out, heading_harmonics=found.heading_harmonics,
+                                      heading_amplitude_rad=found.heading_amplitude_rad)
+        if found.wheel_step_revps and not out.wheel_step_revps:
+            out = dataclasses.replace(out, wheel_step_revps=found.wheel_step_revps)
+        return out
+
+    def correct(self, rows: FloatArray) -> FloatArray:
+        """Samples (M, 8) with the corrections taken out."""
+        if not (self.lateral_offset_mps2 or any(self.wheel_offset_revps)
+                or self.heading_amplitude_rad):
+            return rows
+        out = rows.copy()
+        out[:, _AY] -= self.lateral_offset_mps2
+        out[:, _NRL] -= self.wheel_offset_revps[0]
+        out[:, _NRR] -= self.wheel_offset_revps[1]
+        if self.heading_amplitude_rad:
+            out[:, _PSI] += heading_correction(out[:, _PSI], self.heading_harmonics)
+        return out
+
+
+def _apart(new: tuple[float, ...], old: tuple[float, ...]) -> bool:
+    """Whether two heading-error fits differ by more than half the smallest one applied."""
+    return float(np.max(np.abs(np.subtract(new, old)))) > 0.5 * MIN_HEADING_HARMONIC_RAD
+
+
+def recorrected(windows: WindowSet, *, lateral_mps2: float,
+                wheels_revps: tuple[float, float]) -> WindowSet:
+    """Windows whose samples had a_y ``lateral_mps2`` and each wheel ``wheels_revps`` more
+    taken out: the moments ``sum x a^j`` become ``sum x (a - delta)^j`` (their binomial
+    expansion in the lower ones, exact), the revolutions less the offset times the window's
+    time."""
+    if not windows.size or not (lateral_mps2 or any(wheels_revps)):
+        return windows
+    moments, measured = windows.moments, windows.measured
+    if lateral_mps2:
+        # (a - delta)^j = sum_i C(j, i) a^i (-delta)^(j - i)
+        expand = np.array([[math.comb(j, i) * (-lateral_mps2) ** (j - i) if i <= j else 0.0
+                            for i in range(SERIES)] for j in range(SERIES)])
+        moments = moments.copy()
+        for block in range(3):                   # ds, dpsi, lat times a^j
+            cols = slice(block * SERIES, (block + 1) * SERIES)
+            moments[..., cols] = moments[..., cols] @ expand.T
+    if any(wheels_revps):
+        span = windows.length * windows.t_s
+        measured = measured - np.asarray(wheels_revps, dtype=np.float64)[None, :] * span
+    return dataclasses.replace(windows, moments=moments, measured=measured)
+
+
+def with_offset_prior(folded: core.Folded, settings: Settings, step_revps: float) -> core.Folded:
+    """The folded sums with the wheel-rate offset's prior for rates encoded on a grid of
+    ``step_revps`` (as :meth:`odocal.estimators.core.Folded.prior` gives batch); as they are
+    where it is already fitted or the settings do not fit it."""
+    std = core.offset_prior_std(settings, step_revps)
+    if folded.offset_free or std <= 0:
+        return folded
+    precision = std ** -2.0
+    h, meat = folded.h.copy(), folded.meat.copy()
+    h[core.OFFSET, core.OFFSET] += precision
+    meat[core.OFFSET, core.OFFSET] += precision
+    return dataclasses.replace(folded, h=h, meat=meat, offset_std=std)
