@@ -1,6 +1,7 @@
 """The live path on the issue's departures from the model (issue 32, "What to build"): a
 reference delay, an a_y offset, a wheel-rate offset at standstill, truncated wheel speeds,
-one-sided turning. The live path runs the batch default's core on its windows (the lag over a
+one-sided turning; and a heading error varying with the heading, front wheels logged as the
+rear ones. The live path runs the batch default's core on its windows (the lag over a
 second either way, the wheel-rate offset with its prior where the rates are encoded, the
 identifiability judged jointly) and measures the sensors' departures as batch does, taking out
 what it determines (odocal/online/departures.py).
@@ -15,6 +16,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numpy as np
+
+import odocal
+from odocal.checks.findings import Check
+from odocal.estimators.estimate import Status
+from odocal.estimators.windows import WindowSet, builder_for
+from odocal.online.departures import recorrected
+from odocal.settings import Settings
+from odocal.sim import departures
 from tests.online import departures as dep
 from tests.online.test_live_departures import confidently_wrong, pushed
 
@@ -52,3 +62,56 @@ def test_one_sided_turning_leaves_t_r_and_d_not_identified_together() -> None:
     cases = {33: (9.0, "left"), 34: (13.0, "slalom"), 35: (15.0, "left")}
     assert _wrong(lambda s: dep.one_sided(s, duration_s=420.0, speed_mps=cases[s][0],
                                           pattern=cases[s][1]), range(33, 36)) == {}
+
+
+def _simulated(sim: odocal.SimulatedDrive) -> dep.Departed:
+    return dep.Departed({k: np.asarray(v, dtype=np.float64)
+                         for k, v in sim.drive.columns().items() if k in dep.COLUMNS},
+                        sim.true_parameters)
+
+
+def test_a_heading_error_varying_with_the_heading_is_taken_out() -> None:
+    """A magnetometer-like heading error (first or second harmonic): measured on the first
+    five minutes of driving, taken out of the windows made so far (they are made again) and of
+    every sample after."""
+    cases = {36: (4.0, 1, 0.2), 37: (6.0, 2, -1.1)}
+
+    def make(seed: int) -> dep.Departed:
+        amplitude, harmonic, phase = cases[seed]
+        sim = departures.heading_error(dep.base(seed, 540.0), np.deg2rad(amplitude),
+                                       phase_rad=phase, harmonic=harmonic)
+        return _simulated(sim)
+
+    runs = {seed: pushed(make(seed)) for seed in cases}
+    assert {s: w for s, r in runs.items() if (w := confidently_wrong(r))} == {}
+    for run in runs.values():
+        assert Check.HEADING_ERROR in {f.check for f in run.estimate.details.findings}
+        assert run.estimate.identified[0]
+
+
+def test_front_wheels_logged_as_the_rear_ones_are_refused() -> None:
+    for seed, wheelbase in ((38, 2.9), (39, 2.4)):
+        run = pushed(_simulated(departures.front_wheels(dep.base(seed, 420.0), wheelbase)))
+        assert run.estimate.status is Status.REJECTED
+        assert Check.FRONT_WHEELS in {f.check for f in run.estimate.details.findings}
+
+
+def test_windows_corrected_after_the_fact_equal_windows_of_corrected_samples(
+        short_drive: odocal.SimulatedDrive) -> None:
+    """An a_y offset and the wheels' standstill offsets found after windows were made are
+    taken out of them exactly: as if the samples had been corrected first."""
+    cols = {k: v for k, v in short_drive.drive.columns().items() if k in dep.COLUMNS}
+    delta, wheels = 0.37, (0.021, -0.013)
+
+    def windows(c: dict[str, np.ndarray]) -> WindowSet:
+        builder = builder_for(Settings(), short_drive.drive.t_s)
+        builder.add(*(c[k] for k in dep.COLUMNS))
+        return builder.windows()
+
+    fixed = {**cols, "a_y": cols["a_y"] - delta, "n_rl": cols["n_rl"] - wheels[0],
+             "n_rr": cols["n_rr"] - wheels[1]}
+    first, then = windows(fixed), recorrected(windows(cols), lateral_mps2=delta,
+                                              wheels_revps=wheels)
+    assert then.size == first.size > 20
+    np.testing.assert_allclose(then.moments, first.moments, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(then.measured, first.measured, rtol=1e-12, atol=1e-12)
