@@ -90,6 +90,9 @@ CHECK_WINDOW_S = 600.0
 CHECK_EVERY_S = 60.0
 #: The running update scans the lag every this many completed clusters.
 _LAG_EVERY = 4
+#: A suspected change is an alarm where the wheels refitted after it moved by this many of their
+#: standard deviations.
+CONFIRM_SIGMAS = 5.0
 #: Running updates after which the estimate is trusted to tell a disturbed window.
 SETTLED = 3
 #: The samples are kept this long (s) at most, to make the windows again with a correction
@@ -346,6 +349,13 @@ class OnlineCalibrator:
                 lateral_mps2=new.lateral_offset_mps2 - old.lateral_offset_mps2,
                 wheels_revps=(new.wheel_offset_revps[0] - old.wheel_offset_revps[0],
                               new.wheel_offset_revps[1] - old.wheel_offset_revps[1]))
+        if self._windows is not None and self._windows.size and self._updates:
+            # the running estimate moved to the corrected windows, and the change detector
+            # starts again from it: a correction is not a change of the wheels
+            current = self._solve(self._fitted(), max_iterations=3)
+            if np.all(np.isfinite(current.p)):
+                self._take_p(current.p)
+            self._changes.reset()
         if new.wheel_step_revps:
             self._folded = with_offset_prior(self._folded, self.settings, new.wheel_step_revps)
 
@@ -438,6 +448,11 @@ class OnlineCalibrator:
             return False
         alarm = describe(change, suspect, detected_t=float(cluster.t0[-1]),
                          detected_distance_km=float(cluster.distance_m[-1]) / 1000.0)
+        if not abs(alarm.sigmas) >= CONFIRM_SIGMAS:
+            # the windows after the change point, refitted, do not show it: an excursion of
+            # the clusters' estimates, not a change of the wheels
+            self._changes.reset()
+            return False
         self._alarms.append(alarm)
         self._restart(change)
         return True
