@@ -26,9 +26,10 @@ from pathlib import Path
 from typing import Any, Literal
 
 from odocal.errors import ConfigError, input_file, shown
+from odocal.model.layout import REAR_AXLE
 
 #: Datasheet parameters of the paper, ``[c_e, c_d, t_r, d]`` (m, m, m, m per m/s^2).
-DATASHEET_THETA: tuple[float, float, float, float] = (2.0, 0.0, 1.6, 0.0)
+DATASHEET_THETA: tuple[float, ...] = REAR_AXLE.placeholder
 
 
 def _check(condition: bool, section: str, key: str, value: object, expected: str) -> None:
@@ -76,15 +77,16 @@ class SegmentSettings:
 class IdentifySettings:
     """METHOD 3: Gauss-Newton identification."""
 
-    theta0: tuple[float, float, float, float] = DATASHEET_THETA
-    """Initial guess [c_e, c_d, t_r, d]: the datasheet values, (13) of the paper."""
+    theta0: tuple[float, ...] = DATASHEET_THETA
+    """Initial guess [c_e, c_d, t_r, d] (the model's parameters in its order:
+    :data:`~odocal.model.layout.REAR_AXLE`): the datasheet values, (13) of the paper."""
     weights: tuple[float, float, float] = (1.0, 1.0, 1600.0)
     """Diagonal of W per sample, [w_px, w_py, w_psi] (the paper's [1, 1, 40^2], section 4.3)."""
     max_iterations: int = 5
     """i_max: at most this many G-N iterations (the paper: 5)."""
     step_tolerance: float = 1e-12
     """Stop when every relative parameter change is below this."""
-    prior_std: tuple[float, float, float, float] = (0.05, 0.01, 0.10, 0.005)
+    prior_std: tuple[float, ...] = REAR_AXLE.prior_std
     """How uncertain the datasheet values are; a parameter whose data standard deviation exceeds
     ``identifiable_ratio`` times this is reported as not identified by the drive."""
     identifiable_ratio: float = 0.5
@@ -94,17 +96,24 @@ class IdentifySettings:
     rcond: float = 1e-9
     """Relative singular value below which the scaled normal equations count as rank deficient."""
 
+    def datasheet(self, name: str) -> float:
+        """The datasheet value (``theta0``) of the parameter ``name``."""
+        return REAR_AXLE.value(self.theta0, name)
+
     def __post_init__(self) -> None:
         s = "identify"
-        _check(self.theta0[0] > 0 and self.theta0[2] > 0, s, "theta0", self.theta0,
-               "positive c_e and t_r")
+        _check(len(self.theta0) == REAR_AXLE.size, s, "theta0", self.theta0,
+               f"{REAR_AXLE.size} values ({', '.join(REAR_AXLE.names)})")
+        _check(all(REAR_AXLE.value(self.theta0, n) > 0 for n in REAR_AXLE.lengths), s,
+               "theta0", self.theta0, f"positive {' and '.join(REAR_AXLE.lengths)}")
         _check(all(w >= 0 for w in self.weights) and any(w > 0 for w in self.weights), s,
                "weights", self.weights, "non-negative weights, not all zero")
         _check(self.max_iterations >= 1, s, "max_iterations", self.max_iterations,
                "an integer >= 1")
         _check(self.step_tolerance >= 0, s, "step_tolerance", self.step_tolerance, "a number >= 0")
-        _check(all(p > 0 for p in self.prior_std), s, "prior_std", self.prior_std,
-               "four positive standard deviations")
+        _check(len(self.prior_std) == REAR_AXLE.size and all(p > 0 for p in self.prior_std),
+               s, "prior_std", self.prior_std,
+               f"{REAR_AXLE.size} positive standard deviations")
         _check(0 < self.identifiable_ratio <= 1, s, "identifiable_ratio",
                self.identifiable_ratio, "a fraction in (0, 1]")
         _check(0 < self.rcond < 1, s, "rcond", self.rcond, "a number in (0, 1)")
@@ -178,7 +187,7 @@ class CalibrateSettings:
 class MinimumSettings:
     """METHOD 6: the search for the reachable minimum validation error."""
 
-    half_width: tuple[float, float, float, float] = (0.10, 0.02, 0.30, 0.01)
+    half_width: tuple[float, ...] = (0.10, 0.02, 0.30, 0.01)
     """The search box is theta_start +- these (m, m, m, m per m/s^2)."""
     max_generations: int = 200
     population: int = 15
@@ -187,8 +196,8 @@ class MinimumSettings:
 
     def __post_init__(self) -> None:
         s = "minimum"
-        _check(all(h > 0 for h in self.half_width), s, "half_width", self.half_width,
-               "four positive half-widths")
+        _check(len(self.half_width) == REAR_AXLE.size and all(h > 0 for h in self.half_width),
+               s, "half_width", self.half_width, f"{REAR_AXLE.size} positive half-widths")
         _check(self.max_generations >= 1, s, "max_generations", self.max_generations,
                "an integer >= 1")
         _check(4 <= self.population <= 1000, s, "population", self.population,
@@ -299,7 +308,7 @@ class FleetSettings:
     """The detector's allowance, in standard deviations of one drive's estimate."""
     cusum_h: float = 4.0
     """The detector's threshold; one drive adds at most this much, so no single drive alarms."""
-    excess_floor: tuple[float, float, float, float] = (0.0002, 0.0002, 0.002, 0.0001)
+    excess_floor: tuple[float, ...] = (0.0002, 0.0002, 0.002, 0.0001)
     """Least drive-to-drive scatter assumed beyond each estimate's own uncertainty (c_e, c_d,
     t_r in m; d in m per m/s^2): loads and temperatures change a little from drive to drive."""
 
@@ -314,8 +323,9 @@ class FleetSettings:
         for key in ("cusum_k", "cusum_h"):
             _check(0 < getattr(self, key) < float("inf"), s, key, getattr(self, key),
                    "a positive finite number")
-        _check(len(self.excess_floor) == 4 and all(0 <= v < 1 for v in self.excess_floor), s,
-               "excess_floor", self.excess_floor, "four numbers in [0, 1)")
+        _check(len(self.excess_floor) == REAR_AXLE.size
+               and all(0 <= v < 1 for v in self.excess_floor), s,
+               "excess_floor", self.excess_floor, f"{REAR_AXLE.size} numbers in [0, 1)")
 
 
 @dataclass(frozen=True)

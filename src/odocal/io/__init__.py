@@ -1,4 +1,4 @@
-"""Outside formats in, one in-memory :class:`~odocal.drive.Drive` out, and the drive format back."""
+"""Outside formats in, one in-memory :class:`~odocal.data.drive.Drive` out, and the drive format back."""
 
 from __future__ import annotations
 

@@ -6,6 +6,10 @@ chosen) and validates the answer.
 
 Methods (:data:`METHODS`; each is a module of :mod:`odocal.estimators` with the same ``run``)
 -----------------------------------------------------------------------------------------------
+``inverse`` (the default)
+    The errors-in-variables method (:mod:`odocal.estimators.inverse`): the wheel revolutions the
+    reference motion implies, summed over every 2 s window of every drive, fitted to the
+    measured ones; a change inside the log is named and the part after it calibrated.
 ``raw``
     Batch Gauss-Newton on every selected segment with the measured wheel rates.
 ``compensated``
@@ -67,6 +71,7 @@ from odocal.estimators.validation import (
     validation_data,
 )
 from odocal.io.drivefile import load_drive
+from odocal.model.layout import REAR_AXLE as LAYOUT
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.pipeline.result import CalibrationResult, summarise
 from odocal.settings import Settings
@@ -192,7 +197,7 @@ def with_stated_datasheet(drives: Sequence[Drive], settings: Settings) -> Settin
 
 
 def datasheet_theta(values: Mapping[str, Any], base: Sequence[float] = ()) -> tuple[
-        float, float, float, float]:
+        float, ...]:
     """theta0 from named datasheet values (c_e, c_d, t_r, d; missing ones from ``base`` or the
     placeholder), or a one-line ConfigError."""
     from odocal.settings import DATASHEET_THETA
@@ -206,10 +211,11 @@ def datasheet_theta(values: Mapping[str, Any], base: Sequence[float] = ()) -> tu
                 or not math.isfinite(value):
             raise ConfigError(f"datasheet {key} = {value!r} is not a finite number")
         theta[PARAMETER_NAMES.index(key)] = float(value)
-    if not (theta[0] > 0 and theta[2] > 0):
-        raise ConfigError(f"datasheet c_e = {theta[0]:g} m and t_r = {theta[2]:g} m must be "
-                          "positive")
-    return (theta[0], theta[1], theta[2], theta[3])
+    lengths = {n: LAYOUT.value(theta, n) for n in LAYOUT.lengths}
+    if not all(v > 0 for v in lengths.values()):
+        raise ConfigError("datasheet " + " and ".join(f"{n} = {v:g} m" for n, v in
+                                                      lengths.items()) + " must be positive")
+    return tuple(theta)
 
 
 def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,

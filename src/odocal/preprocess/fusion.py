@@ -76,7 +76,7 @@ def _ekf_rts(omega: FloatArray, dt: float, pos: FloatArray, pos_std: FloatArray,
     xf = np.zeros((n, _N))
     Pf = np.zeros((n, _N, _N))
     Fs = np.zeros((n, _N, _N))
-    rejected = np.zeros(4, dtype=np.int64)
+    rejected = np.zeros(4, dtype=np.int64)     # per kind of measurement (not theta)
     innov_ss = np.zeros(2)                      # position innovations: sum of squares, count
     x = x0.copy()
     P = P0.copy()

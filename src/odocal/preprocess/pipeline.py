@@ -1,4 +1,4 @@
-"""A raw log to a :class:`~odocal.drive.Drive`: clean, align, fuse, estimate sideslip."""
+"""A raw log to a :class:`~odocal.data.drive.Drive`: clean, align, fuse, estimate sideslip."""
 
 from __future__ import annotations
 
@@ -143,8 +143,9 @@ def build_drive(log: RawLog, settings: Settings, *,
 def _wheel_clock(wheels: Stream, imu: Stream, settings: Settings
                  ) -> tuple[Stream, OffsetEstimate]:
     """The wheel stream shifted by its clock offset against the IMU yaw rate (estimated)."""
-    theta0 = settings.identify.theta0
-    estimate = estimate_wheel_offset(wheels, imu, circumference_m=theta0[0], track_m=theta0[2],
+    ident = settings.identify
+    estimate = estimate_wheel_offset(wheels, imu, circumference_m=ident.datasheet("c_e"),
+                                     track_m=ident.datasheet("t_r"),
                                      max_offset_s=settings.convert.max_wheel_offset_s)
     return with_offset(wheels, estimate.offset_s), estimate
 

@@ -72,7 +72,7 @@ class SimulatedDrive:
     changed: bool = False
 
     def cramer_rao_bound(self) -> FloatArray | None:
-        """The covariance no unbiased calibration of this drive can beat, shape (4, 4): the
+        """The covariance no unbiased calibration of this drive can beat, shape (n, n): the
         wheel errors' Cramér-Rao bound (:mod:`odocal.sim.bound`; the reference pose taken as
         exact), or None where it does not apply (no wheel error it counts, or tick counts)."""
         from odocal.sim.bound import information_bound
