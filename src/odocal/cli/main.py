@@ -385,7 +385,7 @@ def _drives_from(args: argparse.Namespace, settings: Settings) -> list[Any]:
             for d in drives:
                 _print(_conversion_line(d))
         return drives
-    return load_drives(args.logs)
+    return load_drives(args.logs, settings=settings)
 
 
 def _conversion_line(drive: Any) -> str:
@@ -411,7 +411,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             from odocal.pipeline.calibrate import load_drives
             from odocal.pipeline.compare import check_comparable
 
-            drives = load_drives(drives)
+            drives = load_drives(drives, settings=settings)
             check_comparable(drives, settings)
         _compile_note(args, [args.method or DEFAULT_METHOD]
                       + (list(METHOD_NAMES) if args.compare else []))

@@ -50,7 +50,8 @@ def _arrow_table(p: Path, *, text: bool) -> pa.Table:
 
 
 def read_table(path: str | Path) -> dict[str, np.ndarray]:
-    """Read a CSV or Parquet file into float columns (non-numeric columns raise DataError)."""
+    """Read a CSV or Parquet file into float columns (non-numeric columns raise DataError;
+    date-times become seconds since 1970 UTC)."""
     p = Path(path)
     if p.is_dir():
         raise InputFileError(f"input '{shown(p)}' is a folder, not a drive file (.csv or "
@@ -70,6 +71,9 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
         if pa.types.is_boolean(col.type):
             raise DataError(f"'{p}' column {_printable(name)} holds true/false values, "
                             "not numbers")
+        if _is_time(col.type):
+            columns[name] = _seconds(col)
+            continue
         try:
             numeric = pa.types.is_integer(col.type) or pa.types.is_floating(col.type) \
                 or pa.types.is_null(col.type)
@@ -87,6 +91,25 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
                 raise DataError(f"'{p}' column {_printable(name)} holds a non-numeric value "
                                 f"'{_printable(str(bad))}'") from None
     return columns
+
+
+def _is_time(kind: pa.DataType) -> bool:
+    return bool(pa.types.is_timestamp(kind) or pa.types.is_date(kind)
+                or pa.types.is_duration(kind))
+
+
+def _seconds(col: pa.ChunkedArray) -> np.ndarray:
+    """A date-time column (Parquet timestamps, ISO 8601 text in a CSV, with or without a UTC
+    offset) as seconds since 1970-01-01 UTC; a duration column as seconds."""
+    kind = col.type
+    if pa.types.is_date(kind):
+        col = col.cast(pa.timestamp("s"))
+    unit = col.type.unit
+    ticks = col.cast(pa.duration(unit) if pa.types.is_duration(col.type) else
+                     pa.timestamp(unit)).cast(pa.int64())
+    values = np.asarray(ticks.to_numpy(zero_copy_only=False), dtype=np.float64)
+    scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}[unit]
+    return values * scale
 
 
 def read_text_table(path: str | Path) -> dict[str, list[str | None]]:
@@ -116,13 +139,16 @@ def _is_number(value: Any) -> bool:
     return True
 
 
-def load_drive(path: str | Path, *, metadata: Mapping[str, Any] | None = None) -> Drive:
-    """Read a drive-format file (CSV or Parquet) into a checked :class:`Drive`."""
+def load_drive(path: str | Path, *, metadata: Mapping[str, Any] | None = None,
+               circumference_m: float | None = None) -> Drive:
+    """Read a drive-format file (CSV or Parquet) into a checked :class:`Drive`
+    (``circumference_m``: the datasheet's wheel, see :meth:`Drive.from_columns`)."""
     p = Path(path)
     columns = read_table(p)
     return Drive.from_columns(columns, name=str(p), metadata={"source": str(p),
                                                               "sha256": file_sha256(p),
-                                                              **(metadata or {})})
+                                                              **(metadata or {})},
+                              circumference_m=circumference_m)
 
 
 def file_sha256(path: str | Path) -> str:

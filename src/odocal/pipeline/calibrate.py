@@ -99,11 +99,15 @@ def _compensated(prep: Prepared, settings: Settings, progress: ProgressCallback 
 METHODS: Mapping[str, Runner] = {"inverse": _inverse, "compensated": _compensated, "raw": _raw}
 
 
-def load_drives(sources: Drive | str | Path | Sequence[Drive | str | Path]) -> list[Drive]:
-    """Drives as given, or read from drive-format files."""
+def load_drives(sources: Drive | str | Path | Sequence[Drive | str | Path], *,
+                settings: Settings | None = None) -> list[Drive]:
+    """Drives as given, or read from drive-format files (their wheel rates judged with the
+    datasheet ``c_e`` the ``settings`` state, else a car's wheel)."""
     if isinstance(sources, Drive | str | Path):
         sources = [sources]
-    drives = [s if isinstance(s, Drive) else load_drive(s) for s in sources]
+    wheel = stated_circumference(settings)
+    drives = [s if isinstance(s, Drive) else load_drive(s, circumference_m=wheel)
+              for s in sources]
     if not drives:
         raise DataError("no drives were given")
     common_sampling_time(drives)
@@ -119,6 +123,16 @@ def load_drives(sources: Drive | str | Path | Sequence[Drive | str | Path]) -> l
     return drives
 
 
+def stated_circumference(settings: Settings | None) -> float | None:
+    """The wheel circumference ``settings`` state (``--datasheet c_e`` or ``[identify]
+    theta0``), or None for odocal's placeholder car."""
+    from odocal.settings import datasheet_stated
+
+    if settings is None or not datasheet_stated(settings.identify.theta0):
+        return None
+    return float(settings.identify.theta0[0])
+
+
 def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
                    theta: Parameters | NDArray[np.float64], *,
                    settings: Settings | None = None) -> ValidationResult:
@@ -127,7 +141,7 @@ def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
 
     settings = settings or Settings()
     plausible(theta if isinstance(theta, Parameters) else Parameters.from_array(theta))
-    drive_list = load_drives(drives)
+    drive_list = load_drives(drives, settings=settings)
     segs = validation_segments(drive_list, settings.segments)
     data = validation_data(drive_list, segs, settings)
     return validation(theta, data, segs, drive_list)
@@ -145,7 +159,7 @@ def minimum(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     from odocal.estimators.validation import reachable_minimum
 
     settings = settings or Settings()
-    drive_list = load_drives(drives)
+    drive_list = load_drives(drives, settings=settings)
     data = validation_data(drive_list, validation_segments(drive_list, settings.segments),
                            settings)
     centre = start.as_array() if start is not None else np.asarray(settings.identify.theta0)
@@ -236,7 +250,7 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     clock = Stopwatch(progress)
     with clock.stage("read"):
-        drive_list = load_drives(drives)
+        drive_list = load_drives(drives, settings=settings)
     settings = with_stated_datasheet(drive_list, settings)
     with clock.stage("checks"):
         diagnosis = check_drives(drive_list, settings)

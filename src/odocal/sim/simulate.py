@@ -153,7 +153,8 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
                       + ("" if noise_seed is None else f"-noise{noise_seed}")),
         metadata={"source": "odocal.sim.simulate", "seed": seed, "noise_profile": profile.name,
                   **({} if noise_seed is None else {"noise_seed": noise_seed}),
-                  "true_theta": (theta or TRUE_PARAMETERS).as_dict()})
+                  "true_theta": (theta or TRUE_PARAMETERS).as_dict()},
+        circumference_m=float(true_theta[0]))
     return SimulatedDrive(drive=drive, true_parameters=Parameters.from_array(true_theta),
                           true_n_rl=n_rl, true_n_rr=n_rr, true_poses=poses, profile=profile,
                           seed=seed, changed=change is not None)
