@@ -29,6 +29,66 @@ from odocal.errors import ConfigError, input_file, shown
 
 #: Datasheet parameters of the paper, ``[c_e, c_d, t_r, d]`` (m, m, m, m per m/s^2).
 DATASHEET_THETA: tuple[float, float, float, float] = (2.0, 0.0, 1.6, 0.0)
+#: The names of theta's entries, in its order (``odocal.model.parameters`` holds their units).
+DATASHEET_NAMES: tuple[str, str, str, str] = ("c_e", "c_d", "t_r", "d")
+#: What a wheeled vehicle's parameters can be (generous: odocal's robots and trucks alike):
+#: ``c_e`` and ``t_r`` in m, and the largest ``|c_d|`` (m; also less than ``c_e``) and ``|d|``
+#: (m per m/s^2). A datasheet, a settings file's theta0 or a parameter file beyond them is a
+#: mistake (a unit, a typo), and no computation starts from it.
+VEHICLE_LIMITS: dict[str, tuple[float, float]] = {
+    "c_e": (0.05, 50.0), "c_d": (-50.0, 50.0), "t_r": (0.05, 30.0), "d": (-1.0, 1.0)}
+_VEHICLE_WORDS = {"c_e": "effective wheel circumference", "c_d": "circumference difference",
+                  "t_r": "rear track width", "d": "load-transfer coefficient"}
+#: The largest datasheet uncertainty ``[identify] prior_std`` may state (the width of the
+#: vehicle ranges above): beyond them it is no uncertainty of a vehicle, and its square is
+#: no number a fit can carry.
+PRIOR_STD_MAX: tuple[float, float, float, float] = (50.0, 50.0, 30.0, 1.0)
+PRIOR_STD_MIN = 1e-9
+
+
+def vehicle_problem(theta: Any) -> str | None:
+    """None if a wheeled vehicle could have ``theta`` (``[c_e, c_d, t_r, d]``), else what is
+    wrong, in words."""
+    values = [float(v) for v in theta]
+    for name, value in zip(DATASHEET_NAMES, values, strict=True):
+        problem = _out_of_range(name, value)
+        if problem is not None:
+            return problem
+    if abs(values[1]) >= values[0]:
+        return (f"c_d = {values[1]:.6g} m is not smaller than c_e = {values[0]:.6g} m: a "
+                "circumference difference beyond the circumference itself")
+    return None
+
+
+def _out_of_range(name: str, value: float) -> str | None:
+    lo, hi = VEHICLE_LIMITS[name]
+    if math.isfinite(value) and lo <= value <= hi:
+        return None
+    unit = "m per m/s^2" if name == "d" else "m"
+    span = f"{lo:g} to {hi:g} {unit}" if lo > 0 else f"|{name}| up to {hi:g} {unit}"
+    return f"{name} = {value:.6g} is not a wheeled vehicle's {_VEHICLE_WORDS[name]} ({span})"
+
+
+def datasheet_values(pairs: Any, *, source: str = "--datasheet") -> dict[str, float]:
+    """Named datasheet values (``(name, value)`` pairs, as given, or a mapping), checked: names
+    among c_e, c_d, t_r, d, each given once, finite numbers within :data:`VEHICLE_LIMITS`.
+    A one-line ConfigError names ``source``, the value and the valid range."""
+    items = list(pairs.items()) if isinstance(pairs, dict) else list(pairs)
+    values: dict[str, float] = {}
+    for key, value in items:
+        if key not in DATASHEET_NAMES:
+            raise ConfigError(f"{source}: {shown(key)!r} is not one of "
+                              f"{', '.join(DATASHEET_NAMES)}")
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{source}: {key} = {shown(repr(value))} is not a number")
+        if key in values:
+            raise ConfigError(f"{source} gives {key} twice ({values[key]:g} and {value:g}): "
+                              "give each value once")
+        problem = _out_of_range(key, float(value))
+        if problem is not None:
+            raise ConfigError(f"{source}: {problem}")
+        values[key] = float(value)
+    return values
 
 
 def _check(condition: bool, section: str, key: str, value: object, expected: str) -> None:
@@ -96,15 +156,19 @@ class IdentifySettings:
 
     def __post_init__(self) -> None:
         s = "identify"
-        _check(self.theta0[0] > 0 and self.theta0[2] > 0, s, "theta0", self.theta0,
-               "positive c_e and t_r")
+        problem = vehicle_problem(self.theta0)
+        _check(problem is None, s, "theta0", self.theta0, f"a wheeled vehicle's values ({problem})")
         _check(all(w >= 0 for w in self.weights) and any(w > 0 for w in self.weights), s,
                "weights", self.weights, "non-negative weights, not all zero")
         _check(self.max_iterations >= 1, s, "max_iterations", self.max_iterations,
                "an integer >= 1")
         _check(self.step_tolerance >= 0, s, "step_tolerance", self.step_tolerance, "a number >= 0")
-        _check(all(p > 0 for p in self.prior_std), s, "prior_std", self.prior_std,
-               "four positive standard deviations")
+        limits = zip(DATASHEET_NAMES, PRIOR_STD_MAX, strict=True)
+        _check(all(PRIOR_STD_MIN <= p <= hi for p, hi in zip(self.prior_std, PRIOR_STD_MAX,
+                                                              strict=True)),
+               s, "prior_std", self.prior_std,
+               f"four standard deviations from {PRIOR_STD_MIN:g} up to "
+               + ", ".join(f"{n} {hi:g}" for n, hi in limits))
         _check(0 < self.identifiable_ratio <= 1, s, "identifiable_ratio",
                self.identifiable_ratio, "a fraction in (0, 1]")
         _check(0 < self.rcond < 1, s, "rcond", self.rcond, "a number in (0, 1)")
@@ -172,6 +236,7 @@ class CalibrateSettings:
         for key in ("step1_batches", "step1_batch_size", "step1_sets", "step3_batch_size"):
             _check(getattr(self, key) >= 1, s, key, getattr(self, key), "an integer >= 1")
         _check(self.workers >= 0, s, "workers", self.workers, "an integer >= 0 (0 = all cores)")
+        _check(0 <= self.seed < 2**63, s, "seed", self.seed, "an integer from 0 to 2**63 - 1")
 
 
 @dataclass(frozen=True)

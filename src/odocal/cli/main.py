@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from odocal._version import __version__
+from odocal.cli.arguments import DURATION_S, SEED, WORKERS, number
 from odocal.cli.progress import Progress
 from odocal.errors import ConfigError, OdocalError, OutputError, shown
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
@@ -56,18 +57,21 @@ def _settings(args: argparse.Namespace) -> Settings:
 
 
 def _datasheet_values(text: str) -> dict[str, float]:
-    """``c_e=1.84,t_r=1.52`` as a dict; a one-line ConfigError for anything else."""
-    values: dict[str, float] = {}
+    """``c_e=1.84,t_r=1.52`` as a dict; a one-line ConfigError for anything else (the values
+    checked by :func:`odocal.settings.datasheet_values`: each once, within a vehicle's range)."""
+    from odocal.settings import datasheet_values
+
+    pairs: list[tuple[str, float]] = []
     for item in text.split(","):
         key, sep, value = item.partition("=")
         try:
-            values[key.strip()] = float(value)
+            pairs.append((key.strip(), float(value)))
         except ValueError:
             sep = ""
         if not sep:
             raise ConfigError(f"--datasheet {text!r}: write NAME=VALUE pairs separated by "
                               "commas, e.g. c_e=1.84,t_r=1.52 (metres)")
-    return values
+    return datasheet_values(pairs, source="--datasheet")
 
 
 def _datasheet_note(datasheet: Parameters) -> str | None:
@@ -715,7 +719,7 @@ def _add_source(p: argparse.ArgumentParser, *, required: bool, converts: bool = 
         return
     p.add_argument("--reference", choices=("auto", "fused", "gnss-imu"),
                    help="reference pose: the log's fused pose, or odocal's GNSS/IMU fusion")
-    p.add_argument("--circumference", type=float, metavar="M",
+    p.add_argument("--circumference", type=number(0.05, 50.0, unit="m"), metavar="M",
                    help="nominal wheel circumference for wheel speeds in m/s or km/h")
 
 
@@ -729,7 +733,7 @@ def _add_common(p: argparse.ArgumentParser, *, workers: bool = True,
                             "start of the fit, the comparison in results and exports, and the "
                             "centre of the plausible ranges")
     if workers:
-        p.add_argument("--workers", type=int, metavar="N",
+        p.add_argument("--workers", type=WORKERS, metavar="N",
                        help="processes for per-segment work (0 = every core; default from "
                             "settings)")
     p.add_argument("-q", "--quiet", action="store_true", help="print only errors")
@@ -813,9 +817,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _add_simulation_commands(sub: Any) -> None:
     """demo and simulate."""
     p = sub.add_parser("demo", help="simulate a drive with known parameters and calibrate it")
-    p.add_argument("--duration", type=float, default=1200.0, metavar="S",
-                   help="simulated drive length in seconds (default 1200)")
-    p.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
+    p.add_argument("--duration", type=DURATION_S, default=1200.0, metavar="S",
+                   help="simulated drive length in seconds (default 1200, at most 86400)")
+    p.add_argument("--seed", type=SEED, default=0, help="simulation seed (default 0)")
     p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic",
                    help="noise profile (default realistic)")
     p.add_argument("--method", choices=METHOD_NAMES,
@@ -831,8 +835,9 @@ def _add_simulation_commands(sub: Any) -> None:
     p.add_argument("--out", required=True, metavar="FILE",
                    help="drive file to write (.csv or .parquet; or drive.parquet in this "
                         "folder); the truth goes to FILE.truth.json beside it")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--duration", type=float, default=1800.0, metavar="S")
+    p.add_argument("--seed", type=SEED, default=0)
+    p.add_argument("--duration", type=DURATION_S, default=1800.0, metavar="S",
+                   help="drive length in seconds (default 1800, at most 86400)")
     p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic",
                    metavar="PROFILE", help=f"one of {', '.join(NOISE_PROFILES)}")
     p.add_argument("-q", "--quiet", action="store_true")
@@ -849,7 +854,7 @@ def _add_calibration_commands(sub: Any) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="folder for calibration.json")
     p.add_argument("--method", choices=METHOD_NAMES,
                    help=f"calibration method (default {DEFAULT_METHOD}; README, 'Methods')")
-    p.add_argument("--seed", type=int, help="seed of the step-1 batch draw")
+    p.add_argument("--seed", type=SEED, help="seed of the step-1 batch draw")
     p.add_argument("--save-inputs", action="store_true",
                    help="also write the compensated wheel rates (compensated_inputs.parquet)")
     p.add_argument("--export", action="append",
@@ -898,9 +903,10 @@ def _add_checking_commands(sub: Any) -> None:
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("reproduce", help="the paper's experiment on a simulated ~24 km drive")
-    p.add_argument("--seed", type=int, default=0, help="simulation and batch seed (default 0)")
+    p.add_argument("--seed", type=SEED, default=0, help="simulation and batch seed (default 0)")
     p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic")
-    p.add_argument("--distance-km", type=float, default=24.0, help="drive length (default 24)")
+    p.add_argument("--distance-km", type=number(0.5, 500.0, unit="km"), default=24.0,
+                   help="drive length (default 24, from 0.5 to 500)")
     p.add_argument("--no-minimum", action="store_true",
                    help="skip the global search for the reachable minimum")
     p.add_argument("--out", metavar="FILE",
@@ -927,7 +933,7 @@ def _add_checking_commands(sub: Any) -> None:
                    help="drive-format files (.csv, .parquet), or raw logs with --from")
     _add_source(p, required=False)
     p.add_argument("--params", metavar="JSON", help="centre of the search box (default datasheet)")
-    p.add_argument("--seed", type=int, help="optimiser seed")
+    p.add_argument("--seed", type=SEED, help="optimiser seed")
     p.add_argument("--out", metavar="FILE",
                    help="write the result to this JSON file (or minimum.json in this folder)")
     _add_common(p)

@@ -20,7 +20,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
-import math
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
@@ -206,20 +205,14 @@ def datasheet_theta(values: Mapping[str, Any], base: Sequence[float] = ()) -> tu
         float, float, float, float]:
     """theta0 from named datasheet values (c_e, c_d, t_r, d; missing ones from ``base`` or the
     placeholder), or a one-line ConfigError."""
-    from odocal.settings import DATASHEET_THETA
+    from odocal.settings import DATASHEET_THETA, datasheet_values, vehicle_problem
 
     theta = list(base or DATASHEET_THETA)
-    for key, value in values.items():
-        if key not in PARAMETER_NAMES:
-            raise ConfigError(f"datasheet value {key!r} is not one of "
-                              f"{', '.join(PARAMETER_NAMES)}")
-        if isinstance(value, bool) or not isinstance(value, int | float) \
-                or not math.isfinite(value):
-            raise ConfigError(f"datasheet {key} = {value!r} is not a finite number")
-        theta[PARAMETER_NAMES.index(key)] = float(value)
-    if not (theta[0] > 0 and theta[2] > 0):
-        raise ConfigError(f"datasheet c_e = {theta[0]:g} m and t_r = {theta[2]:g} m must be "
-                          "positive")
+    for key, value in datasheet_values(values, source="datasheet").items():
+        theta[PARAMETER_NAMES.index(key)] = value
+    problem = vehicle_problem(theta)
+    if problem is not None:
+        raise ConfigError(f"datasheet: {problem}")
     return (theta[0], theta[1], theta[2], theta[3])
 
 
