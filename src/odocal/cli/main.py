@@ -256,21 +256,22 @@ def _out_file(out: str, default: str) -> Path:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from odocal.io import save_drive
-    from odocal.io.atomic import refuse_inputs
+    from odocal.io.atomic import check_output_file
     from odocal.io.results import write_json
     from odocal.sim.simulate import simulate
 
     out = _out_file(args.out, "drive.parquet")
     truth_path = out.with_name(out.stem + ".truth.json")
-    refuse_inputs(out, [])
+    check_output_file(out)                 # odocal replaces only files it wrote
+    check_output_file(truth_path)
     other = [p for p in (out.with_suffix(".csv"), out.with_suffix(".parquet"))
              if p != out and p.exists()]
     if truth_path.exists() and other:
         raise OutputError(f"'{truth_path}' is the truth of '{other[0]}'; writing '{out}' would "
                           "replace it: choose another name")
     sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
-    save_drive(sim.drive, out)
-    write_json(truth_path, sim.truth_dict())
+    save_drive(sim.drive, out, owned=True)
+    write_json(truth_path, sim.truth_dict(), owned=True)
     if not args.quiet:
         d = sim.drive
         _print(f"wrote {out} ({d.n_samples} samples, {d.duration_s / 60:.1f} min, "
@@ -447,22 +448,26 @@ def exit_code(result: CalibrationResult) -> int:
 
 def cmd_convert(args: argparse.Namespace) -> int:
     from odocal.io import save_drive
-    from odocal.io.atomic import refuse_inputs
+    from odocal.io.atomic import check_output_file, refuse_inputs
 
     settings = _settings(args)
     folder = Path(args.out).is_dir() or args.out.endswith(("/", os.sep))
     out = Path(args.out)
     inputs = _inputs(args, *args.logs)
     refuse_inputs(out / "drive.parquet" if folder else out, inputs)
+    if not folder:
+        check_output_file(out)                      # odocal replaces only files it wrote
     drives = _drives_from(args, settings)
     if folder:                                      # one file per log, named after it
         targets = [out / f"{_safe(d.name)}.parquet" for d in drives]
     else:
         targets = [out] if len(drives) == 1 else \
             [out.with_name(f"{out.stem}-{_safe(d.name)}{out.suffix}") for d in drives]
-    for drive, target in zip(drives, targets, strict=True):
+    for target in targets:                          # every one before the first is written
         refuse_inputs(target, inputs)
-        save_drive(drive, target)
+        check_output_file(target)
+    for drive, target in zip(drives, targets, strict=True):
+        save_drive(drive, target, owned=True)
         if not args.quiet:
             _print(f"wrote {target} ({drive.n_samples} samples at "
                    f"{1 / drive.t_s:.0f} Hz)")
@@ -536,9 +541,10 @@ def cmd_minimum(args: argparse.Namespace) -> int:
     if args.out:
         args.out = str(_out_file(args.out, "minimum.json"))
     if args.out:
-        from odocal.io.atomic import refuse_inputs
+        from odocal.io.atomic import check_output_file, refuse_inputs
 
         refuse_inputs(args.out, _inputs(args, *args.logs))
+        check_output_file(args.out)                 # odocal replaces only files it wrote
     start = _parameters_from(args, settings)
     if not args.quiet:
         _print("searching the reachable minimum of E_p over the validation segments "
@@ -553,7 +559,7 @@ def cmd_minimum(args: argparse.Namespace) -> int:
         if args.out:
             from odocal.io.results import write_json
 
-            write_json(args.out, result.to_dict())
+            write_json(args.out, result.to_dict(), owned=True)
         return EXIT_OK if result.success else EXIT_FAILED
     _print(f"start   E_p = {result.start_error_m:.3f} m at "
            + ", ".join(f"{k} = {v:.6g}" for k, v in start.as_dict().items()))
@@ -564,7 +570,7 @@ def cmd_minimum(args: argparse.Namespace) -> int:
     if args.out:
         from odocal.io.results import write_json
 
-        write_json(args.out, result.to_dict())
+        write_json(args.out, result.to_dict(), owned=True)
         if not args.quiet:
             _print(f"wrote {args.out}")
     return EXIT_OK if result.success else EXIT_FAILED
@@ -685,10 +691,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     settings = _settings(args)
     if args.out:                                    # checked before the long computation
-        from odocal.io.atomic import refuse_inputs
+        from odocal.io.atomic import check_output_file, refuse_inputs
 
         args.out = str(_out_file(args.out, "reproduce.json"))
         refuse_inputs(args.out, [getattr(args, "config", None)])
+        check_output_file(args.out)                 # odocal replaces only files it wrote
     if not args.quiet:
         _print(f"reproducing the paper's experiment on a simulated {args.distance_km:g} km drive "
                f"(seed {args.seed}, noise '{args.noise}') ...")
@@ -701,7 +708,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     if not args.quiet:
         _print(format_report(result))
     if args.out:
-        write_json(args.out, result.to_dict())
+        write_json(args.out, result.to_dict(), owned=True)
         _print(f"wrote {args.out}")
     return EXIT_OK
 

@@ -160,12 +160,13 @@ def file_sha256(path: str | Path) -> str:
     return digest.hexdigest()
 
 
-def save_drive(drive: Drive, path: str | Path) -> Path:
-    """Write ``drive`` in the drive format, atomically; the format follows the file suffix."""
+def save_drive(drive: Drive, path: str | Path, *, owned: bool = False) -> Path:
+    """Write ``drive`` in the drive format, atomically; the format follows the file suffix.
+    ``owned``: a file of the user's folder (:func:`odocal.io.atomic.atomic_path`)."""
     p = Path(path)
     fmt = _format_of(p)
     table = pa.table({k: pa.array(np.asarray(v)) for k, v in drive.columns().items()})
-    with atomic_path(p) as tmp:
+    with atomic_path(p, owned=owned) as tmp:
         if fmt == "csv":
             pacsv.write_csv(table, tmp)
         else:

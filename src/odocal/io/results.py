@@ -33,10 +33,11 @@ def _plain(obj: Any) -> Any:
     return obj
 
 
-def write_json(path: str | Path, data: dict[str, Any]) -> Path:
-    """Write ``data`` as indented JSON, atomically."""
+def write_json(path: str | Path, data: dict[str, Any], *, owned: bool = False) -> Path:
+    """Write ``data`` as indented JSON, atomically (``owned``: a file of the user's folder,
+    :func:`odocal.io.atomic.atomic_path`)."""
     p = Path(path)
-    write_text(p, json.dumps(_plain(data), indent=2, allow_nan=False) + "\n")
+    write_text(p, json.dumps(_plain(data), indent=2, allow_nan=False) + "\n", owned=owned)
     return p
 
 
