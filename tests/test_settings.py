@@ -98,6 +98,8 @@ def test_the_readme_settings_example_is_valid() -> None:
     ("[identify]\ntheta0 = [2.0, 0, 1.6, -7]\n", r"d = -7 .* \(\|d\| up to 1 m per m/s\^2\)"),
     ("[identify]\ntheta0 = [0.3, 0.5, 1.6, 0]\n", r"c_d = 0\.5 m is not smaller than c_e"),
     ("[calibrate]\nseed = -1\n", r"\[calibrate\] seed = -1 is invalid: expected an integer"),
+    ("[convert]\nrate_hz = 5.0\n", r"\[convert\] rate_hz = 5\.0 is invalid: expected a rate in "
+                                    r"\[10, 1000\] Hz"),
 ])
 def test_settings_no_vehicle_has_are_named(tmp_path: Path, text: str, message: str) -> None:
     path = tmp_path / "bad.toml"

@@ -478,7 +478,8 @@ class ConvertSettings:
 
     def __post_init__(self) -> None:
         s = "convert"
-        _check(1.0 <= self.rate_hz <= 1000.0, s, "rate_hz", self.rate_hz, "a rate in [1, 1000] Hz")
+        _check(10.0 <= self.rate_hz <= 1000.0, s, "rate_hz", self.rate_hz,
+               "a rate in [10, 1000] Hz (a drive's: the model holds the wheel rates over a step)")
         _check(self.max_gap_s > 0, s, "max_gap_s", self.max_gap_s, "a positive time in s")
         _check(self.max_gnss_gap_s > 0, s, "max_gnss_gap_s", self.max_gnss_gap_s,
                "a positive time in s")
