@@ -256,3 +256,39 @@ def test_no_wheel_clock_offset_from_yaw_rates_that_do_not_agree(
                                  max_offset_s=0.5)
     assert good.estimated and good.correlation > 0.9
     assert good.offset_s == pytest.approx(d.t_s / 2, abs=0.005)
+
+
+@pytest.mark.parametrize("time_unit", [None, "datetime", "s"])
+def test_table_streams_stamped_with_date_times(tmp_path: Path, short_drive: SimulatedDrive,
+                                               time_unit: str | None) -> None:
+    d = short_drive.drive
+    epoch_us = np.round((1_754_000_000.0 + d.t) * 1e6).astype(np.int64)
+    iso = [str(s) + "Z" for s in epoch_us.astype("datetime64[us]")]
+    pacsv.write_csv(pa.table({"stamp": iso, "rl": d.n_rl, "rr": d.n_rr}), tmp_path / "w.csv")
+    import pyarrow.parquet as pq
+
+    pq.write_table(pa.table({"t": pa.array(epoch_us * 1000, type=pa.timestamp("ns")),
+                             "gz": d.yaw_rate, "ay": d.a_y}), tmp_path / "imu.parquet")
+    pacsv.write_csv(pa.table({"t": 1_754_000_000.0 + d.t, "x": d.x, "y": d.y, "yaw": d.psi}),
+                    tmp_path / "pose.csv")
+    unit = "" if time_unit is None else f'time_unit = "{time_unit}"\n'
+    mapping = {"wheels": {"file": "w.csv", "time": "stamp", "rear_left": "rl",
+                          "rear_right": "rr"},
+               "imu": {"file": "imu.parquet", "time": "t", "yaw_rate": "gz",
+                       "lateral_accel": "ay"},
+               "pose": {"file": "pose.csv", "time": "t", "x": "x", "y": "y", "heading": "yaw"}}
+    text = "\n".join(f"[{role}]\n" + "".join(f'{k} = "{v}"\n' for k, v in keys.items())
+                     + (unit if role != "pose" else "") for role, keys in mapping.items())
+    (tmp_path / "map.toml").write_text(text)
+    files = [tmp_path / "w.csv", tmp_path / "imu.parquet", tmp_path / "pose.csv"]
+    settings = odocal.Settings().replace(convert={"wheel_offset": "off"})
+    back = odocal.convert("table", files, mapping=tmp_path / "map.toml", settings=settings)[0]
+    np.testing.assert_allclose(back.t - 1_754_000_000.0, d.t[:back.n_samples], atol=1e-5)
+    np.testing.assert_allclose(back.n_rl, d.n_rl[:back.n_samples], atol=1e-4)
+    np.testing.assert_allclose(back.a_y, d.a_y[:back.n_samples], atol=1e-4)
+    # a unit stated for a date-time column is a mistake, named
+    (tmp_path / "map.toml").write_text(text.replace(unit, "").replace(
+        'time = "stamp"\n', 'time = "stamp"\ntime_unit = "ns"\n'))
+    with pytest.raises(ConfigError, match=r"\[wheels\] time column 'stamp' of 'w.csv' holds "
+                                          r"date-times.*drop time_unit = 'ns'"):
+        odocal.convert("table", files, mapping=tmp_path / "map.toml")

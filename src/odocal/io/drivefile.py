@@ -49,7 +49,14 @@ def _arrow_table(p: Path, *, text: bool) -> pa.Table:
         raise DataError(f"'{p}' cannot be read as {fmt.upper()}: {first}") from None
 
 
-def read_table(path: str | Path) -> dict[str, np.ndarray]:
+class Columns(dict[str, np.ndarray]):
+    """A table's float columns by name; ``datetimes`` names those that were date-times (read
+    as seconds since 1970 UTC) or durations (seconds)."""
+
+    datetimes: frozenset[str] = frozenset()
+
+
+def read_table(path: str | Path) -> Columns:
     """Read a CSV or Parquet file into float columns (non-numeric columns raise DataError;
     date-times become seconds since 1970 UTC)."""
     p = Path(path)
@@ -65,7 +72,7 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise DataError(f"'{p}' names the column {_printable(twice[0])} more than once")
-    columns: dict[str, np.ndarray] = {}
+    columns = Columns()
     for name in names:
         col = table.column(name)
         if pa.types.is_boolean(col.type):
@@ -73,6 +80,7 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
                             "not numbers")
         if _is_time(col.type):
             columns[name] = _seconds(col)
+            columns.datetimes = columns.datetimes | {name}
             continue
         try:
             numeric = pa.types.is_integer(col.type) or pa.types.is_floating(col.type) \

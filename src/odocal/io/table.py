@@ -74,7 +74,12 @@ def stream_from_columns(role: str, table: Mapping[str, FloatArray], section: Map
     """
     t_raw = _column(table, section, "time", role, path_label)
     assert t_raw is not None
-    t = time_seconds(t_raw, str(section.get("time_unit", "s")), stream=name)
+    unit = str(section.get("time_unit", "s"))
+    if section.get("time") in getattr(table, "datetimes", ()) and unit not in ("s", "datetime"):
+        raise ConfigError(f"mapping [{role}] time column {section['time']!r} of "
+                          f"'{path_label.name}' holds date-times, which carry their own unit: "
+                          f"drop time_unit = {unit!r} (or write \"datetime\")")
+    t = time_seconds(t_raw, unit, stream=name)
 
     def col(key: str, required: bool = True) -> FloatArray | None:
         return _column(table, section, key, role, path_label, required=required)
