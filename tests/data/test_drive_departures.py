@@ -134,6 +134,13 @@ def test_a_missing_sample_is_still_a_gap_and_stamps_that_drift_are_named(
     burst["t"][301:] -= 0.015                                  # one step of 10 ms
     with pytest.raises(odocal.DataError, match=r"column t has an irregular step of 0\.01 s"):
         odocal.Drive.from_columns(burst)
+    # a logger whose step wanders by 3% over minutes: no uniform grid fits its stamps
+    drifting = dict(cols)
+    steps = 0.025 * (1.0 + 0.03 * np.sin(np.arange(cols["t"].size - 1) / 2000.0))
+    drifting["t"] = np.concatenate([[0.0], np.cumsum(steps)])
+    with pytest.raises(odocal.DataError,
+                       match=r"column t drifts \d+\.\d+ s from a uniform step of 0\.025 s"):
+        odocal.Drive.from_columns(drifting)
 
 
 @pytest.mark.parametrize("c_e", [0.2, 0.33, 0.5])
