@@ -30,6 +30,71 @@ from odocal.model.layout import REAR_AXLE
 
 #: Datasheet parameters of the paper, ``[c_e, c_d, t_r, d]`` (m, m, m, m per m/s^2).
 DATASHEET_THETA: tuple[float, ...] = REAR_AXLE.placeholder
+#: The names of theta's entries, in its order (``odocal.model.layout`` holds their units).
+DATASHEET_NAMES: tuple[str, ...] = REAR_AXLE.names
+#: What a wheeled vehicle's parameters can be (generous: odocal's robots and trucks alike), by
+#: name (the layout's ``vehicle_range``; c_d also less than c_e in size). A datasheet, a
+#: settings file's theta0 or a parameter file beyond them is a mistake (a unit, a typo), and
+#: no computation starts from it.
+VEHICLE_LIMITS: dict[str, tuple[float, float]] = {p.name: p.vehicle_range
+                                                  for p in REAR_AXLE.parameters}
+#: The largest datasheet uncertainty ``[identify] prior_std`` may state (the width of the
+#: vehicle ranges above): beyond them it is no uncertainty of a vehicle, and its square is
+#: no number a fit can carry.
+PRIOR_STD_MAX: tuple[float, ...] = tuple(p.prior_std_max for p in REAR_AXLE.parameters)
+PRIOR_STD_MIN = 1e-9
+
+
+def vehicle_problem(theta: Any) -> str | None:
+    """None if a wheeled vehicle could have ``theta`` (the model's parameters, in its order),
+    else what is wrong, in words."""
+    values = [float(v) for v in theta]
+    if len(values) != REAR_AXLE.size:
+        return f"{len(values)} values where the model has {REAR_AXLE.size}"
+    for name, value in zip(DATASHEET_NAMES, values, strict=True):
+        problem = _out_of_range(name, value)
+        if problem is not None:
+            return problem
+    difference = REAR_AXLE.value(values, REAR_AXLE.difference)
+    scale = REAR_AXLE.value(values, REAR_AXLE.scale)
+    if abs(difference) >= scale:
+        return (f"{REAR_AXLE.difference} = {difference:.6g} m is not smaller than "
+                f"{REAR_AXLE.scale} = {scale:.6g} m: a circumference difference beyond the "
+                "circumference itself")
+    return None
+
+
+def _out_of_range(name: str, value: float) -> str | None:
+    spec = REAR_AXLE.parameters[REAR_AXLE.index(name)]
+    lo, hi = spec.vehicle_range
+    if math.isfinite(value) and lo <= value <= hi:
+        return None
+    span = (f"{lo:g} to {hi:g} {spec.unit}" if lo > 0
+            else f"|{name}| up to {hi:g} {spec.unit}")
+    return f"{name} = {value:.6g} is not a wheeled vehicle's {spec.label} ({span})"
+
+
+def datasheet_values(pairs: Any, *, source: str = "--datasheet") -> dict[str, float]:
+    """Named datasheet values (``(name, value)`` pairs, as given, or a mapping), checked: names
+    among the model's parameters, each given once, finite numbers within
+    :data:`VEHICLE_LIMITS`. A one-line ConfigError names ``source``, the value and the valid
+    range."""
+    items = list(pairs.items()) if isinstance(pairs, dict) else list(pairs)
+    values: dict[str, float] = {}
+    for key, value in items:
+        if key not in DATASHEET_NAMES:
+            raise ConfigError(f"{source}: {shown(key)!r} is not one of "
+                              f"{', '.join(DATASHEET_NAMES)}")
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{source}: {key} = {shown(repr(value))} is not a number")
+        if key in values:
+            raise ConfigError(f"{source} gives {key} twice ({values[key]:g} and {value:g}): "
+                              "give each value once")
+        problem = _out_of_range(key, float(value))
+        if problem is not None:
+            raise ConfigError(f"{source}: {problem}")
+        values[key] = float(value)
+    return values
 
 
 def _check(condition: bool, section: str, key: str, value: object, expected: str) -> None:
@@ -102,18 +167,20 @@ class IdentifySettings:
 
     def __post_init__(self) -> None:
         s = "identify"
-        _check(len(self.theta0) == REAR_AXLE.size, s, "theta0", self.theta0,
-               f"{REAR_AXLE.size} values ({', '.join(REAR_AXLE.names)})")
-        _check(all(REAR_AXLE.value(self.theta0, n) > 0 for n in REAR_AXLE.lengths), s,
-               "theta0", self.theta0, f"positive {' and '.join(REAR_AXLE.lengths)}")
+        problem = vehicle_problem(self.theta0)
+        _check(problem is None, s, "theta0", self.theta0, f"a wheeled vehicle's values ({problem})")
         _check(all(w >= 0 for w in self.weights) and any(w > 0 for w in self.weights), s,
                "weights", self.weights, "non-negative weights, not all zero")
         _check(self.max_iterations >= 1, s, "max_iterations", self.max_iterations,
                "an integer >= 1")
         _check(self.step_tolerance >= 0, s, "step_tolerance", self.step_tolerance, "a number >= 0")
-        _check(len(self.prior_std) == REAR_AXLE.size and all(p > 0 for p in self.prior_std),
+        limits = zip(DATASHEET_NAMES, PRIOR_STD_MAX, strict=True)
+        _check(len(self.prior_std) == REAR_AXLE.size
+               and all(PRIOR_STD_MIN <= p <= hi for p, hi in zip(self.prior_std, PRIOR_STD_MAX,
+                                                                 strict=True)),
                s, "prior_std", self.prior_std,
-               f"{REAR_AXLE.size} positive standard deviations")
+               f"{REAR_AXLE.size} standard deviations from {PRIOR_STD_MIN:g} up to "
+               + ", ".join(f"{n} {hi:g}" for n, hi in limits))
         _check(0 < self.identifiable_ratio <= 1, s, "identifiable_ratio",
                self.identifiable_ratio, "a fraction in (0, 1]")
         _check(0 < self.rcond < 1, s, "rcond", self.rcond, "a number in (0, 1)")
@@ -181,6 +248,7 @@ class CalibrateSettings:
         for key in ("step1_batches", "step1_batch_size", "step1_sets", "step3_batch_size"):
             _check(getattr(self, key) >= 1, s, key, getattr(self, key), "an integer >= 1")
         _check(self.workers >= 0, s, "workers", self.workers, "an integer >= 0 (0 = all cores)")
+        _check(0 <= self.seed < 2**63, s, "seed", self.seed, "an integer from 0 to 2**63 - 1")
 
 
 @dataclass(frozen=True)
@@ -438,7 +506,8 @@ class ConvertSettings:
 
     def __post_init__(self) -> None:
         s = "convert"
-        _check(1.0 <= self.rate_hz <= 1000.0, s, "rate_hz", self.rate_hz, "a rate in [1, 1000] Hz")
+        _check(10.0 <= self.rate_hz <= 1000.0, s, "rate_hz", self.rate_hz,
+               "a rate in [10, 1000] Hz (a drive's: the model holds the wheel rates over a step)")
         _check(self.max_gap_s > 0, s, "max_gap_s", self.max_gap_s, "a positive time in s")
         _check(self.max_gnss_gap_s > 0, s, "max_gnss_gap_s", self.max_gnss_gap_s,
                "a positive time in s")

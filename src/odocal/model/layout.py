@@ -25,6 +25,8 @@ class ParameterSpec:
     display_scale, display_unit : how it reads best (c_d in mm: scale 1e3, unit "mm")
     placeholder : odocal's value where the user states no datasheet (a small car)
     prior_std : the datasheet value's uncertainty (``[identify] prior_std``'s default)
+    vehicle_range : what a wheeled vehicle's value can be (generous: robots and trucks alike)
+    prior_std_max : the largest datasheet uncertainty that still describes a vehicle
     """
 
     name: str
@@ -34,6 +36,8 @@ class ParameterSpec:
     display_unit: str
     placeholder: float
     prior_std: float
+    vehicle_range: tuple[float, float] = (float("-inf"), float("inf"))
+    prior_std_max: float = float("inf")
 
 
 @dataclass(frozen=True)
@@ -136,12 +140,13 @@ class Layout:
 #: rear wheels' rates, the lateral acceleration and the sideslip as inputs.
 REAR_AXLE = Layout(
     parameters=(
-        ParameterSpec("c_e", "m", "effective wheel circumference", 1.0, "m", 2.0, 0.05),
+        ParameterSpec("c_e", "m", "effective wheel circumference", 1.0, "m", 2.0, 0.05,
+                      (0.05, 50.0), 50.0),
         ParameterSpec("c_d", "m", "left-right circumference difference", 1e3, "mm", 0.0,
-                      0.01),
-        ParameterSpec("t_r", "m", "rear track width", 1.0, "m", 1.6, 0.10),
+                      0.01, (-50.0, 50.0), 50.0),
+        ParameterSpec("t_r", "m", "rear track width", 1.0, "m", 1.6, 0.10, (0.05, 30.0), 30.0),
         ParameterSpec("d", "m/(m/s^2)", "load-transfer coefficient", 1e3, "mm/(m/s^2)", 0.0,
-                      0.005),
+                      0.005, (-1.0, 1.0), 1.0),
     ),
     scale="c_e", track="t_r", difference="c_d", load="d",
     differential=("c_d", "t_r", "d"), bends=("t_r", "d"), lengths=("c_e", "t_r"))

@@ -24,7 +24,7 @@ from odocal.preprocess.align import (
 )
 from odocal.preprocess.fusion import fuse
 from odocal.preprocess.sideslip import estimate_sideslip
-from odocal.settings import Settings
+from odocal.settings import Settings, datasheet_stated
 
 FloatArray = NDArray[np.float64]
 
@@ -137,7 +137,9 @@ def build_drive(log: RawLog, settings: Settings, *,
     metadata = {**dict(log.metadata), "conversion": report.to_dict()}
     if log.origin_lla is not None:
         metadata["origin_lla"] = list(log.origin_lla)
-    return Drive.from_columns(columns, name=log.name, metadata=metadata)
+    stated = settings.identify.theta0[0] if datasheet_stated(settings.identify.theta0) \
+        else None
+    return Drive.from_columns(columns, name=log.name, metadata=metadata, circumference_m=stated)
 
 
 def _wheel_clock(wheels: Stream, imu: Stream, settings: Settings
