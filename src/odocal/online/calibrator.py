@@ -65,8 +65,10 @@ from odocal.estimators.windows import (
     empty_windows,
     heading_offset,
 )
-from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
+from odocal.model.vehicle import MODEL
 from odocal.online.changes import (
+    WHEELS,
     Alarm,
     Change,
     ChangeDetector,
@@ -159,8 +161,9 @@ class OnlineCalibrator:
         start = (np.asarray(self.settings.identify.theta0, dtype=np.float64) if theta0 is None
                  else (theta0.as_array() if isinstance(theta0, Parameters)
                        else np.asarray(theta0, dtype=np.float64)))
-        if start.shape != (4,) or not np.all(np.isfinite(start)) or start[0] <= 0 \
-                or start[2] <= 0:
+        lengths = MODEL.layout.indices(MODEL.layout.lengths)
+        if start.shape != (MODEL.size,) or not np.all(np.isfinite(start)) \
+                or np.any(start[list(lengths)] <= 0):
             raise DataError(f"theta0 {start.tolist()} is not a usable starting estimate")
         self.datasheet = np.asarray(self.settings.identify.theta0, dtype=np.float64)
         self.theta = start.copy()
@@ -471,7 +474,7 @@ class OnlineCalibrator:
         follows[:1] = False                          # no filtering across the change
         self._windows = dataclasses.replace(kept, follows=follows)
         after = change.before.copy()
-        after[:2] += change.step                     # (c_e and c_d: the first two of theta)
+        after[list(WHEELS)] += change.step            # (c_e and c_d)
         self._take_p(after)
         self._clusters_done = 0                      # a new warm-up before watching again
         self._changes.reset()
@@ -635,7 +638,7 @@ class OnlineCalibrator:
         return Estimate(method="online", theta=Parameters.from_array(theta),
                         datasheet=Parameters.from_array(self.datasheet),
                         covariance=found.covariance, covariance_kind=CovarianceKind.RECURSIVE,
-                        free=tuple(bool(f) for f in free),  # type: ignore[arg-type]
+                        free=tuple(bool(f) for f in free),
                         verdicts=judge(std, free, self.settings.identify, held=found.held),
                         status=status, details=self._details(found.clusters, refused),
                         widening=found.uncertainty.widening)
@@ -686,9 +689,9 @@ class OnlineCalibrator:
         theta = Parameters.from_array(self.datasheet)
         held = {n: NotIdentified(reason) for n in PARAMETER_NAMES}
         return Estimate(method="online", theta=theta, datasheet=theta,
-                        covariance=np.zeros((4, 4)), covariance_kind=CovarianceKind.NONE,
-                        free=(False, False, False, False),
-                        verdicts=judge(np.zeros(4), np.zeros(4, dtype=bool),
+                        covariance=np.zeros((PARAMETERS, PARAMETERS)),
+                        covariance_kind=CovarianceKind.NONE, free=(False,) * PARAMETERS,
+                        verdicts=judge(np.zeros(PARAMETERS), np.zeros(PARAMETERS, dtype=bool),
                                        self.settings.identify, held=held),
                         status=status, details=self._details(0))
 

@@ -43,7 +43,8 @@ from odocal.estimators.error_model import (
     expected_revolutions,
     window_variance,
 )
-from odocal.estimators.windows import AT_MOVING, WindowSet, predict
+from odocal.estimators.windows import AT_MOVING, WindowSet
+from odocal.model.vehicle import MODEL
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -63,8 +64,11 @@ PERSIST = 4
 #: Usable windows a cluster needs to be informative.
 _MIN_WINDOWS = 3
 #: The change's parameters (indices into theta).
-_WHEELS = (0, 1)
-_NAMES = ("c_e", "c_d")
+_LAYOUT = MODEL.layout
+#: The wheels' parameters a tyre moves: the distance scale (both wheels alike) and the wheels'
+#: difference (one against the other), by name and position in theta.
+NAMES = (_LAYOUT.scale, _LAYOUT.difference)
+WHEELS = _LAYOUT.indices(NAMES)
 
 
 @dataclass(frozen=True)
@@ -144,7 +148,7 @@ def _predicted(windows: WindowSet, p: FloatArray, shift: float,
     the counting window's spread left out: it moves a window by a tiny share) and their
     Jacobian in theta (W, 2, n)."""
     at, _ = windows.at(shift, heading_offset)
-    pred, jac = predict(p[core.THETA], at)
+    pred, jac = MODEL.predict(p[core.THETA], at)
     return pred + p[core.OFFSET] * at[:, AT_MOVING, None], jac
 
 
@@ -169,7 +173,7 @@ def window_steps(windows: WindowSet, reference: FloatArray, shift: float, headin
     pred, jac = _predicted(windows, reference, shift, heading_offset)
     wheels = windows.measured - pred                                  # per wheel
     r = wheels @ CHANNELS.T
-    j = np.einsum("ci,wip->wcp", CHANNELS, jac[:, :, list(_WHEELS)])
+    j = np.einsum("ci,wip->wcp", CHANNELS, jac[:, :, list(WHEELS)])
     w = 1.0 / window_variance(expected_revolutions(windows.measured, r), model.noise)
     gain = coupling_gain(windows.measured, r, model.coupling)
     r, j = decouple(r, gain), decouple(j, gain)
@@ -276,7 +280,7 @@ class ChangeDetector:
             if all(side * r.z[i] > self.k for r in self.recent):
                 sigmas = abs(float(np.mean([r.z[i] for r in self.recent])))
                 if found is None or sigmas > found.sigmas:
-                    found = Suspect(parameter=_WHEELS[i],
+                    found = Suspect(parameter=WHEELS[i],
                                     since_t=min(self.since_t or t0, self.recent[0].t0),
                                     until_t=t0, reference=self.reference.copy(),
                                     sigmas=sigmas)
@@ -355,7 +359,7 @@ def estimate_change(windows: WindowSet, folded: core.Folded, suspect: Suspect, *
     # for the robust weights), the rest held at the fit before
     mine = windows.take(after & steps.usable)
     first, _ = _solve2(steps.h[after].sum(axis=0), steps.g[after].sum(axis=0))
-    wheels = list(_WHEELS)
+    wheels = list(WHEELS)
     start = before_fit.copy()
     if np.all(np.isfinite(first)):
         start[wheels] = suspect.reference[wheels] + first
@@ -382,7 +386,7 @@ def estimate_change(windows: WindowSet, folded: core.Folded, suspect: Suspect, *
 def describe(change: Change, suspect: Suspect, *, detected_t: float,
              detected_distance_km: float) -> Alarm:
     """The alarm for a change: which wheels (c_e: both alike; c_d: one, or the two unlike)."""
-    c_e = float(change.before[0])
+    c_e = _LAYOUT.value(change.before, _LAYOUT.scale)
     d_e, d_d = (float(v) for v in change.step)
     left, right = d_e + d_d / 2.0, d_e - d_d / 2.0           # C_l = c_e + c_d / 2, C_r = ...
     if abs(left) < abs(right) / 3.0:
@@ -398,7 +402,7 @@ def describe(change: Change, suspect: Suspect, *, detected_t: float,
         wheel = "both" if parameter == 0 else ("left" if abs(left) > abs(right) else "right")
     std = float(change.std[parameter])
     step = float(change.step[parameter])
-    return Alarm(parameter=_NAMES[parameter], t=change.t, detected_t=detected_t,
+    return Alarm(parameter=NAMES[parameter], t=change.t, detected_t=detected_t,
                  distance_km=change.distance_m / 1000.0,
                  detected_distance_km=detected_distance_km,
                  relative_change=step / c_e, sigmas=step / std if std > 0 else math.inf,
@@ -413,7 +417,7 @@ def eliminate(folded: core.Folded, step: FloatArray) -> core.Folded:
     wheels, for the estimate after it."""
     import dataclasses
 
-    wheels = list(_WHEELS)
+    wheels = list(WHEELS)
     rest = [i for i in range(core.P) if i not in wheels]
     h = folded.h
     h_cc = h[np.ix_(wheels, wheels)]

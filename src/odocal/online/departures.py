@@ -57,7 +57,7 @@ class LiveDepartures:
     lateral_offset_mps2: float = 0.0
     lateral_offset_std: float = math.nan
     wheel_offset_revps: tuple[float, float] = (0.0, 0.0)
-    heading_harmonics: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    heading_harmonics: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)   # a1, b1, a2, b2 (not theta)
     heading_amplitude_rad: float = 0.0
     wheel_step_revps: float = 0.0
 
