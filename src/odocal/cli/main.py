@@ -48,10 +48,11 @@ def _settings(args: argparse.Namespace) -> Settings:
     if getattr(args, "circumference", None) is not None:
         overrides.setdefault("convert", {})["wheel_circumference_m"] = args.circumference
     if getattr(args, "datasheet", None):
+        from odocal.output.export import datasheet_values
         from odocal.pipeline.calibrate import datasheet_theta
 
         overrides.setdefault("identify", {})["theta0"] = datasheet_theta(
-            _datasheet_values(args.datasheet), settings.identify.theta0)
+            datasheet_values(_datasheet_values(args.datasheet)), settings.identify.theta0)
     return settings.replace(**overrides) if overrides else settings
 
 
@@ -60,13 +61,16 @@ def _datasheet_values(text: str) -> dict[str, float]:
     values: dict[str, float] = {}
     for item in text.split(","):
         key, sep, value = item.partition("=")
+        if key.strip() in values:
+            raise ConfigError(f"--datasheet {text!r}: {key.strip()} is given twice")
         try:
             values[key.strip()] = float(value)
         except ValueError:
             sep = ""
         if not sep:
             raise ConfigError(f"--datasheet {text!r}: write NAME=VALUE pairs separated by "
-                              "commas, e.g. c_e=1.84,t_r=1.52 (metres)")
+                              "commas, e.g. c_e=1.84,t_r=1.52 or wheel_radius=0.1,"
+                              "wheel_separation=0.4 (metres)")
     return values
 
 
@@ -333,7 +337,7 @@ def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
             written += [report.html_path, *report.figure_paths]
             report_numbers = report.data.to_dict()
         written.insert(0, write_calibration(result, tmp, report=report_numbers))
-        exports = getattr(args, "export", None) or []
+        exports = list(dict.fromkeys(getattr(args, "export", None) or []))
         if "tum" in exports:                 # trajectories judge any result, even a refused one
             from odocal.output.trajectories import write_trajectories
 
@@ -357,6 +361,20 @@ def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
     if not args.quiet:
         for path in written:
             _print(f"wrote {out / path.relative_to(tmp)}")
+
+
+EXPORT_TARGETS = ("yaml", "json", "autoware", "ros2_control", "robot_localization", "tum")
+
+
+def _export_targets(text: str) -> list[str]:
+    """``--export autoware,ros2_control``: the targets named, in order, each once."""
+    names = [n.strip() for n in text.split(",")]
+    bad = [n for n in names if n not in EXPORT_TARGETS]
+    if bad:
+        raise argparse.ArgumentTypeError(
+            f"unknown target {bad[0]!r} in {text!r}; choose from {', '.join(EXPORT_TARGETS)} "
+            "(a comma list, e.g. autoware,ros2_control)")
+    return list(dict.fromkeys(names))
 
 
 def _wheel_joints(args: argparse.Namespace) -> tuple[str, str] | None:
@@ -725,7 +743,8 @@ def _add_common(p: argparse.ArgumentParser, *, workers: bool = True,
     if datasheet:
         p.add_argument("--datasheet", metavar="NAME=VALUE,...",
                        help="the vehicle's datasheet values, e.g. c_e=1.84,t_r=1.52 (effective "
-                            "wheel circumference and rear track width, m; also c_d, d): the "
+                            "wheel circumference and rear track width, m; also c_d, d; or a "
+                            "robot's wheel_radius=0.1,wheel_separation=0.4): the "
                             "start of the fit, the comparison in results and exports, and the "
                             "centre of the plausible ranges")
     if workers:
@@ -852,14 +871,12 @@ def _add_calibration_commands(sub: Any) -> None:
     p.add_argument("--seed", type=int, help="seed of the step-1 batch draw")
     p.add_argument("--save-inputs", action="store_true",
                    help="also write the compensated wheel rates (compensated_inputs.parquet)")
-    p.add_argument("--export", action="append",
-                   choices=("yaml", "json", "autoware", "ros2_control", "robot_localization",
-                            "tum"),
+    p.add_argument("--export", action="extend", type=_export_targets, metavar="TARGET,...",
                    help="also write the parameters for a localisation stack: yaml (a ROS 2 "
                         "parameter file) or json, with their covariance, or the parameter files "
                         "of autoware, ros2_control, robot_localization; or tum: the reference "
                         "and the wheel odometry (calibrated and datasheet) as trajectories for "
-                        "evo (repeatable)")
+                        "evo (a comma list, or repeated)")
     p.add_argument("--wheel-joints", metavar="LEFT,RIGHT",
                    help="wheel joint names for --export ros2_control")
     p.add_argument("--no-report", action="store_true", help="skip report.html and the figures")
