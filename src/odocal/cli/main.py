@@ -48,30 +48,12 @@ def _settings(args: argparse.Namespace) -> Settings:
     if getattr(args, "circumference", None) is not None:
         overrides.setdefault("convert", {})["wheel_circumference_m"] = args.circumference
     if getattr(args, "datasheet", None):
-        from odocal.output.export import datasheet_values
+        from odocal.output.export import parse_datasheet
         from odocal.pipeline.calibrate import datasheet_theta
 
         overrides.setdefault("identify", {})["theta0"] = datasheet_theta(
-            datasheet_values(_datasheet_values(args.datasheet)), settings.identify.theta0)
+            parse_datasheet(args.datasheet), settings.identify.theta0)
     return settings.replace(**overrides) if overrides else settings
-
-
-def _datasheet_values(text: str) -> dict[str, float]:
-    """``c_e=1.84,t_r=1.52`` as a dict; a one-line ConfigError for anything else."""
-    values: dict[str, float] = {}
-    for item in text.split(","):
-        key, sep, value = item.partition("=")
-        if key.strip() in values:
-            raise ConfigError(f"--datasheet {text!r}: {key.strip()} is given twice")
-        try:
-            values[key.strip()] = float(value)
-        except ValueError:
-            sep = ""
-        if not sep:
-            raise ConfigError(f"--datasheet {text!r}: write NAME=VALUE pairs separated by "
-                              "commas, e.g. c_e=1.84,t_r=1.52 or wheel_radius=0.1,"
-                              "wheel_separation=0.4 (metres)")
-    return values
 
 
 def _datasheet_note(datasheet: Parameters) -> str | None:
@@ -643,6 +625,17 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
     return EXIT_OK
 
 
+def cmd_ros2(args: argparse.Namespace) -> int:
+    """The online calibrator as a ROS 2 node (README, "ROS 2"), until Ctrl-C or SIGTERM."""
+    settings = _settings(args)
+    from odocal.ros2.node import run
+
+    ros_args = list(args.ros_args)
+    if ros_args and ros_args[0] == "--":
+        ros_args = ros_args[1:]
+    return run(ros_args, settings=settings)
+
+
 def _rejection(estimate: Any, findings: Sequence[Any], settings: Settings) -> str | None:
     """One line that says why a calibration publishes no parameters (None: it does): the first
     contradiction the checks found, and how many more the report lists."""
@@ -938,6 +931,17 @@ def _add_checking_commands(sub: Any) -> None:
     p.add_argument("--no-report", action="store_true", help="skip report.html")
     _add_common(p)
     p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("ros2", help="run the online calibrator as a ROS 2 node (the ros2 extra)",
+                       description="The online calibrator on live ROS 2 topics; node parameters "
+                                   "after --ros-args (README, 'ROS 2'), e.g. odocal ros2 "
+                                   "--datasheet c_e=1.95,t_r=1.51 --ros-args -p "
+                                   "pose_topic:=/odometry/filtered")
+    p.add_argument("ros_args", nargs=argparse.REMAINDER, metavar="--ros-args ...",
+                   help="ROS 2 arguments: parameters (-p NAME:=VALUE), remappings, "
+                        "--params-file")
+    _add_common(p, workers=False)
+    p.set_defaults(func=cmd_ros2)
 
     p = sub.add_parser("minimum", help="the reachable minimum validation error (global search)")
     p.add_argument("logs", nargs="+", metavar="LOG",

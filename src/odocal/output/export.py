@@ -93,13 +93,34 @@ def datasheet_values(values: Mapping[str, float]) -> dict[str, float]:
     return out
 
 
+def parse_datasheet(text: str, *, what: str = "--datasheet") -> dict[str, float]:
+    """``c_e=1.84,t_r=1.52`` (or the stacks' names, ``wheel_radius=0.1,wheel_separation=0.4``)
+    as datasheet values by odocal's names; a one-line ConfigError naming ``what`` otherwise."""
+    values: dict[str, float] = {}
+    for item in text.split(","):
+        key, sep, value = item.partition("=")
+        if key.strip() in values:
+            raise ConfigError(f"{what} {text!r}: {key.strip()} is given twice")
+        try:
+            values[key.strip()] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep:
+            raise ConfigError(f"{what} {text!r}: write NAME=VALUE pairs separated by commas, "
+                              "e.g. c_e=1.84,t_r=1.52 or wheel_radius=0.1,wheel_separation=0.4 "
+                              "(metres)")
+    return datasheet_values(values)
+
+
 @dataclass(frozen=True)
 class OdometryNoise:
-    """How far the calibrated wheel odometry is from the reference motion, 1 s averages."""
+    """How far the calibrated wheel odometry is from the reference motion, averaged over
+    ``window_s`` (1 s where measured against the reference by :func:`odometry_noise`)."""
 
     speed_std_mps: float
     yaw_rate_std_radps: float
     windows: int
+    window_s: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -200,7 +221,7 @@ def _header(c: Calibrated, what: str, release: str) -> list[str]:
 def _noise(c: Calibrated) -> tuple[float, float, str]:
     if c.noise is not None:
         return (c.noise.speed_std_mps, c.noise.yaw_rate_std_radps,
-                f"measured over {c.noise.windows} windows of 1 s")
+                f"measured over {c.noise.windows} windows of {c.noise.window_s:g} s")
     return AUTOWARE_VELOCITY_STD, AUTOWARE_YAW_RATE_STD, "not measured here: Autoware's defaults"
 
 
