@@ -212,10 +212,33 @@ def rig(ros: Any, tmp_path: Path) -> Iterator[Any]:
 
 def test_the_node_calibrates_as_replay_does(rig: Any, drive: odocal.Drive,
                                             tmp_path: Path, ros: Any) -> None:
-    executor, player, node = rig()
+    # a stand-in for a running diff_drive_controller: a real ROS 2 parameter service with the
+    # parameters the controller declares (ros2_controllers 4.42.1), not the controller itself
+    # (no ros2_control on the package index)
+    name = f"ctl{next(_counter)}"
+    controller = Node("diff_drive_controller", namespace=f"/{name}", context=ros,
+                      enable_rosout=False)
+    for key, value in (("wheel_radius", 0.31), ("wheel_separation", 1.5),
+                       ("wheel_separation_multiplier", 1.0),
+                       ("left_wheel_radius_multiplier", 1.0),
+                       ("right_wheel_radius_multiplier", 1.0)):
+        controller.declare_parameter(key, value)
+    executor, player, node = rig(controller_name=f"/{name}/diff_drive_controller")
+    executor.add_node(controller)
     play(executor, player, node, drive)
     est = node.finish()
     settle(executor, player, node)
+    def pushed() -> bool:       # the final estimate's multipliers (after earlier ones)
+        value = controller.get_parameter("wheel_separation_multiplier").value
+        return bool(abs(value * 1.5 - est.theta.t_r) < 1e-12)
+
+    _spin_until(executor, pushed, "the final multipliers to the controller")
+    assert node.controller_note.startswith("set wheel_separation_multiplier=") or \
+        node.controller_note.startswith("set left_wheel_radius_multiplier=")
+    left = controller.get_parameter("left_wheel_radius_multiplier").value
+    assert left * 2 * np.pi * 0.31 == pytest.approx(est.theta.c_e + est.theta.c_d / 2, rel=1e-9)
+    executor.remove_node(controller)
+    controller.destroy_node()
     # odocal replay --no-batch on the same drive
     path = tmp_path / "drive.parquet"
     odocal.save_drive(drive, path)
@@ -374,3 +397,45 @@ def test_bad_node_parameters_are_one_line_errors(ros: Any) -> None:
     with pytest.raises(odocal.ConfigError, match="parameter datasheet"):
         CalibrationNode(context=ros, node_name=f"bad{next(_counter)}", enable_rosout=False,
                         parameter_overrides=[Parameter("datasheet", value="c_e=x")])
+
+
+def test_odocal_ros2_starts_the_node_and_stops_on_ctrl_c(ros: Any, tmp_path: Path) -> None:
+    """The README's one line, as a process: it publishes its status, and Ctrl-C ends it with
+    exit 0 (nothing to export without data: said, not an error)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from tests.ros2.rosenv import isolate
+
+    isolate()
+    name = f"cli{next(_counter)}"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "odocal", "ros2", "--datasheet", "c_e=1.95,t_r=1.51",
+         "--ros-args", "-r", f"__node:={name}", "-p", f"export_dir:={tmp_path / 'x'}",
+         "--disable-external-lib-logs"],
+        env=os.environ.copy(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        start_new_session=True)
+    listener = Node(f"listener{next(_counter)}", context=ros, enable_rosout=False)
+    heard: list[Any] = []
+    listener.create_subscription(DiagnosticArray, "/diagnostics",
+                                 lambda m: heard.extend(s for s in m.status
+                                                        if s.name.startswith(name)), 10)
+    executor = EventsExecutor(context=ros)
+    executor.add_node(listener)
+    try:
+        _spin_until(executor, lambda: bool(heard), "the node's first status", limit_s=90)
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        try:
+            _, err = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            pytest.fail("Ctrl-C did not stop odocal ros2")
+        executor.remove_node(listener)
+        listener.destroy_node()
+        executor.shutdown()
+    assert heard[0].level == b"\x01" and "not yet identified" in heard[0].message
+    assert proc.returncode == 0, err
+    assert "no calibration to export" in err

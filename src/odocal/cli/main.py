@@ -630,10 +630,7 @@ def cmd_ros2(args: argparse.Namespace) -> int:
     settings = _settings(args)
     from odocal.ros2.node import run
 
-    ros_args = list(args.ros_args)
-    if ros_args and ros_args[0] == "--":
-        ros_args = ros_args[1:]
-    return run(ros_args, settings=settings)
+    return run(list(getattr(args, "ros_args", [])), settings=settings)
 
 
 def _rejection(estimate: Any, findings: Sequence[Any], settings: Settings) -> str | None:
@@ -777,7 +774,13 @@ def _configure_logging(verbose: int, quiet: bool) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    ros_args: list[str] = []
+    if argv[:1] == ["ros2"] and "--ros-args" in argv:      # ROS 2's own arguments, as they are
+        ros_args, argv = argv[argv.index("--ros-args"):], argv[:argv.index("--ros-args")]
     args = parser.parse_args(argv)
+    if args.command == "ros2":
+        args.ros_args = ros_args
     _configure_logging(args.verbose, args.quiet)
     func: Callable[[argparse.Namespace], int] = args.func
     try:
@@ -937,9 +940,9 @@ def _add_checking_commands(sub: Any) -> None:
                                    "after --ros-args (README, 'ROS 2'), e.g. odocal ros2 "
                                    "--datasheet c_e=1.95,t_r=1.51 --ros-args -p "
                                    "pose_topic:=/odometry/filtered")
-    p.add_argument("ros_args", nargs=argparse.REMAINDER, metavar="--ros-args ...",
-                   help="ROS 2 arguments: parameters (-p NAME:=VALUE), remappings, "
-                        "--params-file")
+    p.add_argument("--ros-args", dest="ros_args_help", action="store_true",
+                   help="everything after it goes to ROS 2: parameters (-p NAME:=VALUE), "
+                        "remappings, --params-file")
     _add_common(p, workers=False)
     p.set_defaults(func=cmd_ros2)
 

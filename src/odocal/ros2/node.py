@@ -678,7 +678,10 @@ def run(ros_args: Sequence[str], *, settings: Settings | None = None,
         executor = EventsExecutor()
         executor.add_node(node)
         try:
-            executor.spin()
+            # spin_once in a Python loop: Ctrl-C and SIGTERM reach Python between calls (the
+            # events executor's own spin() does not return to Python for a signal)
+            while rclpy.ok():
+                executor.spin_once(timeout_sec=0.1)
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         node.finish()
