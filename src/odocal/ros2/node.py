@@ -262,7 +262,7 @@ class CalibrationNode(Node):
             "odometry_topic": "~/odometry", "frame_id": "odom", "child_frame_id": "base_link",
             "settings_file": "", "datasheet": "", "export_dir": "",
             "export_targets": list(EXPORTS), "silence_timeout_s": 2.0,
-            "diagnostics_period_s": 1.0, "qos_depth": 200, "qos_reliable": False,
+            "diagnostics_period_s": 1.0, "qos_depth": 1000, "qos_reliable": False,
             "controller_name": ""}
         for name, value in defaults.items():
             self.declare_parameter(name, value)
