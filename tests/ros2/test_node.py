@@ -389,6 +389,13 @@ def test_without_rclpy_the_command_says_what_to_install(monkeypatch: pytest.Monk
     assert code == 1 and "pip install 'odocal[ros2]'" in err and len(err.splitlines()) == 1
 
 
+def test_bad_ros_arguments_are_one_line_errors(capsys: pytest.CaptureFixture[str],
+                                               tmp_path: Path) -> None:
+    code = main(["ros2", "--ros-args", "--params-file", str(tmp_path / "none.yaml")])
+    err = capsys.readouterr().err
+    assert code == 1 and "ROS 2 arguments" in err and len(err.strip().splitlines()) == 1
+
+
 def test_bad_node_parameters_are_one_line_errors(ros: Any) -> None:
     with pytest.raises(odocal.ConfigError, match="export_targets: unknown target 'ros3'"):
         CalibrationNode(context=ros, node_name=f"bad{next(_counter)}", enable_rosout=False,

@@ -663,7 +663,11 @@ def run(ros_args: Sequence[str], *, settings: Settings | None = None,
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    rclpy.init(args=["odocal", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=["odocal", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
+    except Exception as exc:   # rcl refuses the arguments (a bad -p, a missing params file)
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ConfigError(f"ROS 2 arguments {' '.join(ros_args)!r}: {first}") from exc
     node: CalibrationNode | None = None
     previous = signal.getsignal(signal.SIGTERM)
 
