@@ -166,6 +166,23 @@ class Drive:
                      yaw_rate=self.yaw_rate, t_s=self.t_s, pieces=self.pieces, name=self.name,
                      pose_std=self.pose_std, metadata=self.metadata)
 
+    def since(self, t0: float) -> Drive:
+        """The samples from time ``t0`` on (pieces cut there); the drive itself where it starts
+        later."""
+        start = int(np.searchsorted(self.t, t0, side="left"))
+        if start <= 0:
+            return self
+        if start >= self.n_samples:
+            raise DataError(f"{self.name}: no sample from t = {t0:g} s on")
+        pieces = tuple((max(a, start) - start, b - start) for a, b in self.pieces if b > start)
+        cut = slice(start, None)
+        return Drive(t=self.t[cut], n_rl=self.n_rl[cut], n_rr=self.n_rr[cut],
+                     a_y=self.a_y[cut], beta=self.beta[cut], x=self.x[cut], y=self.y[cut],
+                     psi=self.psi[cut], yaw_rate=self.yaw_rate[cut], t_s=self.t_s,
+                     pieces=pieces, name=self.name,
+                     pose_std=None if self.pose_std is None else self.pose_std[cut],
+                     metadata=self.metadata)
+
     @classmethod
     def from_columns(cls, columns: Mapping[str, Any], *, name: str = "drive",
                      metadata: Mapping[str, Any] | None = None) -> Drive:

@@ -420,8 +420,11 @@ def cluster_steps_for(drives: Sequence[Drive], settings: Settings) -> int:
     the drives are too short for :data:`MIN_CLUSTERS` of them, down to two windows. A 20 s
     scene is then five clusters of 4 s, not one: its evidence is judged (with the few-clusters
     widening) rather than refused as a single piece."""
-    steps = sum(b - a - 1 for d in drives for a, b in d.pieces)
-    window = max(round(settings.inverse.window_s / drives[0].t_s), 1) if drives else 1
+    if not drives:
+        return settings.segments.length
+    margin = builder_for(settings, drives[0].t_s).margin       # lost at either end of a piece
+    steps = sum(max(b - a - 1 - 2 * margin, 0) for d in drives for a, b in d.pieces)
+    window = max(round(settings.inverse.window_s / drives[0].t_s), 1)
     return int(min(settings.segments.length,
                    max(MIN_CLUSTER_WINDOWS * window, steps // MIN_CLUSTERS)))
 

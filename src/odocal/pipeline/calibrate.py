@@ -33,7 +33,7 @@ from odocal.checks.departures import corrected
 from odocal.checks.departures import findings as departure_findings
 from odocal.checks.departures import measure as measure_departures
 from odocal.checks.diagnosis import check_drives
-from odocal.checks.findings import Diagnosis
+from odocal.checks.findings import Check, Diagnosis, Finding
 from odocal.checks.gate import gate
 from odocal.data.drive import Drive
 from odocal.data.segments import (
@@ -269,16 +269,27 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         estimate = outcome.estimate
     else:
         outcome, estimate, boot = _checked_by_bootstrap(method, prep, settings, clock)
+    fitted = tuple(getattr(estimate.details, "findings", ()))
+    if fitted:
+        # what the fit's residuals showed: front wheels (refused), a change inside the log
+        diagnosis = diagnosis.plus(fitted)
+        if diagnosis.fatal:
+            estimate = dataclasses.replace(estimate, status=Status.REJECTED)
     warnings = [*prep.warnings, *outcome.warnings]
     if boot is not None and not all(boot.agree):
         warnings.append(boot.message)
     val = datasheet = None
     with clock.stage("validation"):
-        if prep.validation is not None:
-            val = validation(estimate.theta, prep.validation, prep.validation_segments,
-                             drive_list)
-            datasheet = validation(estimate.datasheet, prep.validation,
-                                   prep.validation_segments, drive_list)
+        judged, val_segs, val_data = drive_list, prep.validation_segments, prep.validation
+        changed = [f for f in fitted if f.check is Check.CHANGE_IN_LOG]
+        if changed:
+            # calibrated on the part after a change inside the log: judged there too
+            judged = _after_change(drive_list, changed[0])
+            val_segs = validation_segments(judged, settings.segments)
+            val_data = validation_data(judged, val_segs, settings) if len(val_segs) else None
+        if val_data is not None:
+            val = validation(estimate.theta, val_data, val_segs, judged)
+            datasheet = validation(estimate.datasheet, val_data, val_segs, judged)
     if estimate.success:
         diagnosis, estimate = _gated(diagnosis, estimate, settings, val, datasheet)
     for w in warnings:
@@ -290,6 +301,15 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         three_step=outcome.three_step, batch=prep.__dict__.get("batch"),
         drive_data=tuple(drive_list),
         timings_s=dict(clock.seconds), diagnosis=diagnosis, departures=departures)
+
+
+def _after_change(drives: Sequence[Drive], change: Finding) -> list[Drive]:
+    """The drives from a change inside the log on: its drive from the change's time, and the
+    drives after it (``change.name`` is ``parameter|drive name``, ``reference`` the time)."""
+    where = change.name.partition("|")[2]
+    names = [d.name for d in drives]
+    k = names.index(where) if where in names else 0
+    return [drives[k].since(change.reference), *drives[k + 1:]]
 
 
 def _gated(diagnosis: Diagnosis, estimate: Estimate, settings: Settings,

@@ -310,6 +310,18 @@ def _reference_and_sensor_text(finding: Finding) -> str:
         return (f"a_y reads {v:+.2f} m/s^2 (+-{ref:.2f}) more than the reference's turning "
                 f"gives, on every moving second (an IMU rolled by {abs(tilt):.1f} degrees?): "
                 "taken out before the fit")
+    if c is Check.CHANGE_IN_LOG:
+        parameter, _, where = finding.name.partition("|")
+        what = (f"c_e changed by {v:+.2%}" if parameter == "c_e" else
+                f"the wheels' circumference difference c_d changed by {v:+.2%} of c_e (one "
+                "tyre's pressure?)")
+        return (f"{what} at t = {ref:.0f} s of {where}: the calibration is of the part after "
+                "the change (the vehicle as it is now); calibrate the part before on its own if "
+                "you need it")
+    if c is Check.FRONT_WHEELS:
+        return (f"the wheel speeds turn as wheels {v:.1f} m (+-{ref:.1f}) ahead of the rear "
+                "axle do in bends: front wheels mapped as the rear ones? odocal's model is the "
+                "rear axle's; map the rear wheels (nothing is calibrated from these)")
     if c is Check.WHEEL_OFFSET:
         return (f"the wheels read {v:+.3f} and {ref:+.3f} rev/s (rear left, right) while the "
                 "reference stands still: an offset of the speed signal, taken out of every "
