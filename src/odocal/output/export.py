@@ -314,9 +314,10 @@ def robot_localization(c: Calibrated, out: Path) -> list[Path]:
 
 def parameters_yaml(c: Calibrated, path: Path) -> Path:
     """``odometry_parameters.yaml`` (``--export yaml``): theta, the derived wheel radius, which
-    parameters the drive identified and the 4x4 covariance, as a ROS 2 parameter file."""
+    parameters the drive identified and their covariance, as a ROS 2 parameter file."""
     th = c.theta
-    cov = np.zeros((PARAMETERS, PARAMETERS)) if c.covariance is None else np.asarray(c.covariance, dtype=float)
+    cov = (np.zeros((PARAMETERS, PARAMETERS)) if c.covariance is None
+           else np.asarray(c.covariance, dtype=float))
     header = [*_header(c, "Wheel-odometry parameters", "yaml"),
               "Parameters a drive did not identify keep their datasheet values (identified: "
               "false).",
