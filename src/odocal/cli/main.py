@@ -104,7 +104,7 @@ def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
     Cramér-Rao bound) is shown beside the reported std."""
     from odocal.estimators.estimate import NotIdentified, Reason, Status
     from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS
-    from odocal.report.advice import finding_text, reason_text
+    from odocal.report.advice import consistent_with_zero, finding_text, reason_text, zero_text
 
     est = result.estimate
     drives = result.drives
@@ -171,6 +171,9 @@ def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
             _print(f"note: {name} ({PARAMETER_UNITS[PARAMETER_NAMES.index(name)]}) is not "
                    f"identified: "
                    f"{reason_text(name, verdict, threshold_radps=segs.yaw_rate_threshold_radps)}")
+    for name in consistent_with_zero(est):       # identified, but no evidence of the effect
+        j = PARAMETER_NAMES.index(name)
+        _print(f"note: {zero_text(name, float(est.theta.as_array()[j]), float(est.std[j]))}")
     for warning in result.warnings:
         _print(f"warning: {warning}")
     if not result.success and est.status is not Status.NOTHING_IDENTIFIABLE:
