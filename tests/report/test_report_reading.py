@@ -22,7 +22,7 @@ from odocal.checks.findings import Check
 from odocal.pipeline.result import CalibrationResult
 from odocal.report.advice import ZERO_SIGMAS, consistent_with_zero
 from odocal.report.data import build
-from odocal.report.figures import ratio_label
+from odocal.report.figures import RATIO_FLOOR, ratio_label
 from odocal.report.html import _fitted, _page, _parameter_rows, segments_figure
 from odocal.report.render import DPI, draw, figure
 from odocal.report.style import CALIBRATED, DATASHEET
@@ -358,8 +358,13 @@ def test_a_real_drives_report_reads_right_in_a_browser(
     assert f"in {data['details']['clusters']} clusters, from 4 drives" in shown["coverage"]
 
 
-def test_every_figure_png_still_draws() -> None:
-    """The figures draw through the renderer's own path (a spec to PNG bytes)."""
+def test_errors_of_zero_are_drawn_at_the_floor() -> None:
+    """A noise-free calibration's error is ~0: its ratio is drawn at the floor, pointing
+    down; a segment whose datasheet error is 0 has no ratio (and no point)."""
     errors = {"datasheet": np.array([3.0, 0.0]), "calibrated": np.array([0.0, 0.0])}
-    png = draw(segments_figure(errors, 300.0))       # zero errors: drawn at the floor
-    assert png.startswith(b"\x89PNG")
+    fig = figure(segments_figure(errors, 300.0))
+    bottom = fig.axes[1]
+    shown = [c for c in bottom.collections if c.get_offsets().shape[0]]
+    assert len(shown) == 1 and shown[0].get_offsets().tolist() == [[1.0, RATIO_FLOOR]]
+    assert bottom.get_ylim()[0] < RATIO_FLOOR
+    assert draw(segments_figure(errors, 300.0)).startswith(b"\x89PNG")

@@ -384,7 +384,8 @@ def _coverage_text(result: CalibrationResult, data: ReportData) -> str:
     from_drives = f"from {drives} drive{'s' if drives != 1 else ''}"
     if f is None:
         why = ("the vehicle does not move" if result.diagnosis.standstill
-               else "the checks refused the data (see below)")
+               else "the checks refused the data (see below)" if result.diagnosis.fatal
+               else f"the drives hold too little moving data for the {result.method} method")
         return f"<p id='fitted-text'>Nothing was fitted: {why}. {bends}{short}</p>"
     method = html.escape(result.method)
     if f.unit == "window":
