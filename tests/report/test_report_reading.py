@@ -19,6 +19,7 @@ from matplotlib.collections import LineCollection, PolyCollection
 
 import odocal
 from odocal.checks.findings import Check
+from odocal.model.layout import REAR_AXLE
 from odocal.pipeline.result import CalibrationResult
 from odocal.report.advice import ZERO_SIGMAS, consistent_with_zero
 from odocal.report.data import build
@@ -281,7 +282,8 @@ def test_front_wheels_are_refused_and_nothing_reads_as_calibrated() -> None:
 def _with_d_at(result: CalibrationResult, sigmas: float) -> CalibrationResult:
     est = result.estimate
     theta = est.theta.as_array().copy()
-    theta[3] = sigmas * est.std[3]
+    j = REAR_AXLE.index("d")
+    theta[j] = sigmas * est.std[j]
     return dataclasses.replace(result, estimate=dataclasses.replace(
         est, theta=odocal.Parameters.from_array(theta)))
 
@@ -292,7 +294,7 @@ def test_d_within_two_std_of_zero_reads_consistent_with_zero(
         changed: CalibrationResult, sigmas: float, zero: bool) -> None:
     assert ZERO_SIGMAS == 2.0
     result = _with_d_at(changed, sigmas)
-    assert result.estimate.identified[3]
+    assert result.estimate.identified[REAR_AXLE.index("d")]
     assert ("d" in consistent_with_zero(result.estimate)) is zero
     (row,) = [r for r in _parameter_rows(result) if "<b>d</b>" in r]
     if zero:

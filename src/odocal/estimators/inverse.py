@@ -60,7 +60,7 @@ from odocal.estimators.estimate import (
     judge,
 )
 from odocal.estimators.windows import SERIES, WindowSet, heading_offset, windows_from_drives
-from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
@@ -266,7 +266,7 @@ def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
                     covariance_kind=(CovarianceKind.CLUSTER_ROBUST
                                      if found.clusters >= core.MIN_CLUSTERS_FOR_ROBUST
                                      else CovarianceKind.RESIDUAL),
-                    free=tuple(bool(f) for f in free),  # type: ignore[arg-type]
+                    free=tuple(bool(f) for f in free),
                     verdicts=judge(std, free, settings.identify, held=found.held),
                     status=status, details=details, widening=found.uncertainty.widening)
 
@@ -280,14 +280,15 @@ def _nothing(settings: Settings, held: dict[str, NotIdentified], started: float,
         windows=0, window_s=window_s, clusters=0, delay_s=0.0, delay_std_s=float("nan"),
         heading_offset_rad=0.0, noise=((0.0, 0.0), (0.0, 0.0)), downweighted=0, iterations=0,
         cost_history=(), residual_rms=(0.0, 0.0), elapsed_s=time.perf_counter() - started,
-        information=np.zeros((0, 4, 4)), scores=np.zeros((0, 4)),
+        information=np.zeros((0, PARAMETERS, PARAMETERS)), scores=np.zeros((0, PARAMETERS)),
         cluster=np.zeros(0, dtype=np.int64), measured=np.zeros((0, 2)),
         residual=np.zeros((0, 2)))
     return Estimate(method="inverse", theta=Parameters.from_array(datasheet),
-                    datasheet=Parameters.from_array(datasheet), covariance=np.zeros((4, 4)),
-                    covariance_kind=CovarianceKind.NONE, free=(False, False, False, False),
-                    verdicts=judge(np.zeros(4), np.zeros(4, dtype=bool), settings.identify,
-                                   held=held),
+                    datasheet=Parameters.from_array(datasheet),
+                    covariance=np.zeros((PARAMETERS, PARAMETERS)),
+                    covariance_kind=CovarianceKind.NONE, free=(False,) * PARAMETERS,
+                    verdicts=judge(np.zeros(PARAMETERS), np.zeros(PARAMETERS, dtype=bool),
+                                   settings.identify, held=held),
                     status=Status.NOTHING_IDENTIFIABLE, details=details)
 
 

@@ -49,8 +49,16 @@ def _arrow_table(p: Path, *, text: bool) -> pa.Table:
         raise DataError(f"'{p}' cannot be read as {fmt.upper()}: {first}") from None
 
 
-def read_table(path: str | Path) -> dict[str, np.ndarray]:
-    """Read a CSV or Parquet file into float columns (non-numeric columns raise DataError)."""
+class Columns(dict[str, np.ndarray]):
+    """A table's float columns by name; ``datetimes`` names those that were date-times (read
+    as seconds since 1970 UTC) or durations (seconds)."""
+
+    datetimes: frozenset[str] = frozenset()
+
+
+def read_table(path: str | Path) -> Columns:
+    """Read a CSV or Parquet file into float columns (non-numeric columns raise DataError;
+    date-times become seconds since 1970 UTC)."""
     p = Path(path)
     if p.is_dir():
         raise InputFileError(f"input '{shown(p)}' is a folder, not a drive file (.csv or "
@@ -64,12 +72,16 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise DataError(f"'{p}' names the column {_printable(twice[0])} more than once")
-    columns: dict[str, np.ndarray] = {}
+    columns = Columns()
     for name in names:
         col = table.column(name)
         if pa.types.is_boolean(col.type):
             raise DataError(f"'{p}' column {_printable(name)} holds true/false values, "
                             "not numbers")
+        if _is_time(col.type):
+            columns[name] = _seconds(col)
+            columns.datetimes = columns.datetimes | {name}
+            continue
         try:
             numeric = pa.types.is_integer(col.type) or pa.types.is_floating(col.type) \
                 or pa.types.is_null(col.type)
@@ -87,6 +99,25 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
                 raise DataError(f"'{p}' column {_printable(name)} holds a non-numeric value "
                                 f"'{_printable(str(bad))}'") from None
     return columns
+
+
+def _is_time(kind: pa.DataType) -> bool:
+    return bool(pa.types.is_timestamp(kind) or pa.types.is_date(kind)
+                or pa.types.is_duration(kind))
+
+
+def _seconds(col: pa.ChunkedArray) -> np.ndarray:
+    """A date-time column (Parquet timestamps, ISO 8601 text in a CSV, with or without a UTC
+    offset) as seconds since 1970-01-01 UTC; a duration column as seconds."""
+    kind = col.type
+    if pa.types.is_date(kind):
+        col = col.cast(pa.timestamp("s"))
+    unit = col.type.unit
+    ticks = col.cast(pa.duration(unit) if pa.types.is_duration(col.type) else
+                     pa.timestamp(unit)).cast(pa.int64())
+    values = np.asarray(ticks.to_numpy(zero_copy_only=False), dtype=np.float64)
+    scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}[unit]
+    return values * scale
 
 
 def read_text_table(path: str | Path) -> dict[str, list[str | None]]:
@@ -116,13 +147,16 @@ def _is_number(value: Any) -> bool:
     return True
 
 
-def load_drive(path: str | Path, *, metadata: Mapping[str, Any] | None = None) -> Drive:
-    """Read a drive-format file (CSV or Parquet) into a checked :class:`Drive`."""
+def load_drive(path: str | Path, *, metadata: Mapping[str, Any] | None = None,
+               circumference_m: float | None = None) -> Drive:
+    """Read a drive-format file (CSV or Parquet) into a checked :class:`Drive`
+    (``circumference_m``: the datasheet's wheel, see :meth:`Drive.from_columns`)."""
     p = Path(path)
     columns = read_table(p)
     return Drive.from_columns(columns, name=str(p), metadata={"source": str(p),
                                                               "sha256": file_sha256(p),
-                                                              **(metadata or {})})
+                                                              **(metadata or {})},
+                              circumference_m=circumference_m)
 
 
 def file_sha256(path: str | Path) -> str:
@@ -134,12 +168,13 @@ def file_sha256(path: str | Path) -> str:
     return digest.hexdigest()
 
 
-def save_drive(drive: Drive, path: str | Path) -> Path:
-    """Write ``drive`` in the drive format, atomically; the format follows the file suffix."""
+def save_drive(drive: Drive, path: str | Path, *, owned: bool = False) -> Path:
+    """Write ``drive`` in the drive format, atomically; the format follows the file suffix.
+    ``owned``: a file of the user's folder (:func:`odocal.io.atomic.atomic_path`)."""
     p = Path(path)
     fmt = _format_of(p)
     table = pa.table({k: pa.array(np.asarray(v)) for k, v in drive.columns().items()})
-    with atomic_path(p) as tmp:
+    with atomic_path(p, owned=owned) as tmp:
         if fmt == "csv":
             pacsv.write_csv(table, tmp)
         else:

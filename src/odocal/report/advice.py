@@ -19,6 +19,7 @@ from odocal.checks.findings import Check, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.data.segments import SegmentSet
 from odocal.estimators.estimate import Estimate, Identified, NotIdentified, Reason
+from odocal.model.layout import REAR_AXLE as LAYOUT
 from odocal.model.parameters import PARAMETER_LABELS, PARAMETER_NAMES
 from odocal.settings import Settings
 
@@ -192,9 +193,10 @@ def reason_text(name: str, verdict: NotIdentified, *, threshold_radps: float) ->
     return "held at the datasheet value"
 
 
-#: Parameters whose zero means "no such effect", and the effect.
-ZERO_MEANS = {"c_d": "difference between the two wheels' circumferences",
-              "d": "load transfer"}
+#: Parameters whose zero means "no such effect" (the layout's wheel difference and load
+#: transfer: c_d, d), and the effect.
+ZERO_MEANS = {LAYOUT.difference: "difference between the two wheels' circumferences",
+              LAYOUT.load: "load transfer"}
 #: An identified value within this many standard deviations of zero is consistent with zero.
 ZERO_SIGMAS = 2.0
 
@@ -249,7 +251,7 @@ def _range_text(finding: Finding, settings: Settings) -> str:
         span = f"{format_value(name, lo)} .. {format_value(name, hi)}"
         if (settings.gate.c_e_m if name == "c_e" else settings.gate.t_r_m) is not None:
             return f"{value} lies outside the range {span} set in [gate] {name}_m"
-        nominal = settings.identify.theta0[0 if name == "c_e" else 2]
+        nominal = settings.identify.datasheet(name)
         whose = ("the datasheet" if datasheet_stated(settings.identify.theta0)
                  else "odocal's placeholder datasheet (state yours with --datasheet)")
         return (f"{value} lies outside the range {span}: within a factor "
@@ -278,7 +280,7 @@ def finding_text(finding: Finding, settings: Settings) -> str:
                 "calibrated")
     if c is Check.SPEED_SCALE:
         if finding.severity is Severity.NOTE:
-            c_e = settings.identify.theta0[0]
+            c_e = settings.identify.datasheet("c_e")
             speeds = (" Or are they wheel speeds in m/s given as rev/s?"
                       if abs(np.log(v / c_e)) < 0.25 else "")
             return (f"with the datasheet c_e ({c_e:g} m) the wheels imply {v:.3f} times the "
@@ -290,7 +292,7 @@ def finding_text(finding: Finding, settings: Settings) -> str:
 
         sheet = ("" if datasheet_stated(settings.identify.theta0) else
                  f", or a vehicle unlike odocal's placeholder datasheet (c_e "
-                 f"{settings.identify.theta0[0]:g} m): state yours with --datasheet")
+                 f"{settings.identify.datasheet('c_e'):g} m): state yours with --datasheet")
         return (f"the wheels imply {v:.3g} times the distance the reference travels: a wrong "
                 f"wheel-speed unit or scale{hint}{sheet}")
     if c is Check.LATERAL_SIGN:

@@ -283,7 +283,7 @@ def plot_uncertainty(ax: Axes, covariance_std: FloatArray, bootstrap_std: FloatA
 
     ``limit_ratio`` is the identifiability limit as a fraction of the datasheet uncertainty.
     """
-    n = len(PARAMETER_NAMES)
+    n = len(covariance_std)
     x = np.arange(n, dtype=np.float64)
     ok = np.asarray(identified, dtype=bool)
     prior = np.asarray(prior_std, dtype=np.float64)
@@ -437,7 +437,7 @@ def plot_trace(ax: Axes, distance_km: FloatArray, value: FloatArray, std: FloatA
 
 def plot_history(ax: Axes, days: FloatArray, value: FloatArray, std: FloatArray,
                  identified: FloatArray, *, name: str,
-                 baselines: Sequence[tuple[float, float, float, float]] = (),
+                 baselines: Sequence[tuple[float, ...]] = (),
                  alarms: Sequence[float] = (), events: Sequence[float] = (),
                  xlabel: str = "days") -> list[Any]:
     """One parameter of one vehicle over its drives: estimates with one-std bars (hollow where
