@@ -334,9 +334,10 @@ def _reference_and_sensor_text(finding: Finding) -> str:
                 "vehicle turns: a missing or unplugged sensor?); d is not calibrated and its "
                 "uncertainty widens t_r's")
     if c is Check.LATERAL_DELAY:
-        return (f"a_y lags speed times the reference yaw rate by {v:+.2f} s: a calibration "
-                "aligns it before the fit (aligning the IMU stream's clock, the mapping's "
-                "offset_s, is better)")
+        way = "lags" if v > 0 else "leads"
+        return (f"a_y {way} speed times the reference yaw rate by {abs(v):.2f} s: a "
+                "calibration aligns it before the fit (aligning the IMU stream's clock, the "
+                "mapping's offset_s, is better)")
     if c is Check.LATERAL_OFFSET:
         tilt = np.degrees(np.arcsin(np.clip(v / 9.81, -1.0, 1.0)))
         return (f"a_y reads {v:+.2f} m/s^2 (+-{ref:.2f}) more than the reference's turning "
