@@ -7,7 +7,8 @@ be imported; an interrupt that lands during that import is swallowed with it, th
 
 So the program's handler also remembers the interrupt: the commands call :func:`checkpoint` as
 they go (replay at every update), which raises it again, and ``main`` reports any failure after
-an interrupt, and any run that ends after one, as the interrupt it is (exit 130). The handler is
+an interrupt, and any run that ends after one, as the interrupt it is (exit 130; not for a
+command whose normal end is Ctrl-C, ``odocal ros2``, which catches it itself). The handler is
 installed only by the program itself (:func:`install` from :func:`odocal.cli.run` and
 ``main()`` without arguments), never by a caller of ``main([...])``.
 """
