@@ -15,6 +15,7 @@ import pyarrow.parquet as pq
 from odocal.data.drive import Drive
 from odocal.errors import DataError, InputFileError, input_file, shown
 from odocal.io.atomic import atomic_path
+from odocal.io.remote import is_url
 
 _FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}
 
@@ -50,7 +51,13 @@ def _arrow_table(p: Path, *, text: bool) -> pa.Table:
 
 
 def read_table(path: str | Path) -> dict[str, np.ndarray]:
-    """Read a CSV or Parquet file into float columns (non-numeric columns raise DataError)."""
+    """Read a CSV or Parquet file (a path or a URL) into float columns (non-numeric columns
+    raise DataError)."""
+    if is_url(path):
+        from odocal.io.remote import readable
+
+        with readable(str(path), "input file") as (local, _):
+            return read_table(local)
     p = Path(path)
     if p.is_dir():
         raise InputFileError(f"input '{shown(p)}' is a folder, not a drive file (.csv or "
@@ -91,6 +98,11 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
 
 def read_text_table(path: str | Path) -> dict[str, list[str | None]]:
     """A CSV or Parquet file's columns as text (empty cells as None), for tables of names."""
+    if is_url(path):
+        from odocal.io.remote import readable
+
+        with readable(str(path), "input file") as (local, _):
+            return read_text_table(local)
     p = Path(path)
     table = _arrow_table(p, text=True)
     try:
@@ -116,13 +128,26 @@ def _is_number(value: Any) -> bool:
     return True
 
 
-def load_drive(path: str | Path, *, metadata: Mapping[str, Any] | None = None) -> Drive:
-    """Read a drive-format file (CSV or Parquet) into a checked :class:`Drive`."""
+def load_drive(path: str | Path, *, metadata: Mapping[str, Any] | None = None,
+               pin: Mapping[str, Any] | None = None) -> Drive:
+    """Read a drive-format file (CSV or Parquet; a path or a URL) into a checked
+    :class:`Drive`. ``pin``: the remote object's version it must still be
+    (:meth:`odocal.io.remote.ObjectInfo.pin`)."""
+    if is_url(path):
+        from odocal.io.remote import readable, redact
+
+        with readable(str(path), "drive file", pin=pin) as (local, digest):
+            label = redact(path) if digest is not None else str(local)
+            return _drive(local, label, digest, metadata)
     p = Path(path)
+    return _drive(p, str(p), None, metadata)
+
+
+def _drive(p: Path, label: str, digest: str | None, metadata: Mapping[str, Any] | None
+           ) -> Drive:
     columns = read_table(p)
-    return Drive.from_columns(columns, name=str(p), metadata={"source": str(p),
-                                                              "sha256": file_sha256(p),
-                                                              **(metadata or {})})
+    return Drive.from_columns(columns, name=label, metadata={
+        "source": label, "sha256": digest or file_sha256(p), **(metadata or {})})
 
 
 def file_sha256(path: str | Path) -> str:
