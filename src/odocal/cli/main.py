@@ -36,7 +36,7 @@ EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_FAILED, EXIT_BUG = 0, 1, 2, 3, 4
 
 
 def _settings(args: argparse.Namespace) -> Settings:
-    settings = load_settings(getattr(args, "config", None))
+    settings = _load_config(getattr(args, "config", None))
     overrides: dict[str, dict[str, Any]] = {}
     if getattr(args, "workers", None) is not None:
         overrides.setdefault("calibrate", {})["workers"] = args.workers
@@ -53,6 +53,19 @@ def _settings(args: argparse.Namespace) -> Settings:
         overrides.setdefault("identify", {})["theta0"] = datasheet_theta(
             _datasheet_values(args.datasheet), settings.identify.theta0)
     return settings.replace(**overrides) if overrides else settings
+
+
+def _load_config(config: str | None) -> Settings:
+    """The settings file, a path or a URL (README, "Fleets where the data lives")."""
+    from odocal.io.remote import is_remote
+
+    if config and is_remote(config):
+        from odocal.io.remote import read_toml, redact
+        from odocal.settings import settings_from_dict
+
+        return settings_from_dict(read_toml(config, "settings file"),
+                                  source=f"'{redact(config)}'")
+    return load_settings(config)
 
 
 def _datasheet_values(text: str) -> dict[str, float]:
@@ -377,10 +390,12 @@ def _drives_from(args: argparse.Namespace, settings: Settings) -> list[Any]:
     if getattr(args, "scene", None) and getattr(args, "source_format", None) != "nuscenes":
         raise ConfigError("--scene chooses nuScenes scenes: it needs --from nuscenes")
     if getattr(args, "source_format", None):
+        from odocal.io.remote import local_inputs
         from odocal.preprocess.convert import convert
 
-        drives = convert(args.source_format, args.logs, mapping=args.mapping,
-                         scenes=args.scene, settings=settings)
+        with local_inputs(args.logs, args.mapping) as (logs, mapping):   # URLs: copied here
+            drives = convert(args.source_format, logs, mapping=mapping,
+                             scenes=args.scene, settings=settings)
         if not args.quiet:
             for d in drives:
                 _print(_conversion_line(d))
@@ -640,6 +655,12 @@ def _rejection(estimate: Any, findings: Sequence[Any], settings: Settings) -> st
     return f"error: {finding_text(fatal[0], settings)}{more}"
 
 
+def _shown_source(source: str) -> str:
+    from odocal.io.remote import redact
+
+    return redact(source)
+
+
 def _replay_files(out: Path, args: argparse.Namespace, result: Any, batch: Any,
                   settings: Settings, renderer: Any) -> list[Path]:
     import csv
@@ -658,7 +679,7 @@ def _replay_files(out: Path, args: argparse.Namespace, result: Any, batch: Any,
             "elapsed_s": result.elapsed_s,
             "details": est.details.to_dict() if est.details is not None else None,
             "batch": batch.to_dict() if batch is not None else None,
-            "inputs": [{"name": str(args.source)}], "settings": settings.to_dict()}
+            "inputs": [{"name": _shown_source(args.source)}], "settings": settings.to_dict()}
     written = [write_json(out / "calibration.json", data)]
     text = io.StringIO()
     table = csv.writer(text)

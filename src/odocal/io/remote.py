@@ -145,11 +145,16 @@ def join(base: str, relative: str) -> str:
     parts = urllib.parse.urlsplit(base)
     rel = relative.replace("\\", "/")
     path = rel if rel.startswith("/") else posixpath.join(posixpath.dirname(parts.path), rel)
-    norm = posixpath.normpath(path)
-    if norm.startswith("//"):
-        norm = norm[1:]
-    if norm == "/.." or norm.startswith("/../"):
-        raise DataError(f"'{shown(relative)}' climbs above the root of '{shown(redact(base))}'")
+    parts_out: list[str] = []
+    for part in path.split("/"):
+        if part == "..":
+            if not parts_out:
+                raise DataError(f"'{shown(relative)}' climbs above the root of "
+                                f"'{shown(redact(base))}'")
+            parts_out.pop()
+        elif part not in ("", "."):
+            parts_out.append(part)
+    norm = "/" + "/".join(parts_out)
     return urllib.parse.urlunsplit((parts.scheme, parts.netloc, urllib.parse.quote(
         urllib.parse.unquote(norm), safe="/~!$&'()*+,;=:@%"), "", ""))
 
@@ -263,20 +268,28 @@ def explain(exc: BaseException, url: str, what: str) -> RemoteError:
     host = urllib.parse.urlsplit(url).netloc.rpartition("@")[2]
     chain = list(_chain(exc))
     status = next((s for s in (_status(e) for e in chain) if s is not None), None)
-    if any(isinstance(e, FileNotFoundError) for e in chain) or status == 404:
-        text = f"{where} does not exist"
-    elif any(isinstance(e, PermissionError) for e in chain) or status in (401, 403):
-        scheme = scheme_of(url)
-        hint = {"s3": "AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY or AWS_PROFILE",
-                "s3a": "AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY or AWS_PROFILE",
-                "gs": "GOOGLE_APPLICATION_CREDENTIALS or gcloud's login",
-                "gcs": "GOOGLE_APPLICATION_CREDENTIALS or gcloud's login",
-                "http": "~/.netrc", "https": "~/.netrc"}.get(scheme, "the store's credentials")
-        text = f"{where}: access denied (check the credentials: {hint})"
-    elif any(_unreachable(e) or isinstance(e, TimeoutError) for e in chain):
-        endpoint = f"the server {shown(host)}" if scheme_of(url) in ("http", "https") \
+    scheme = scheme_of(url)
+    hint = {"s3": "AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY or AWS_PROFILE",
+            "s3a": "AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY or AWS_PROFILE",
+            "gs": "GOOGLE_APPLICATION_CREDENTIALS or gcloud's login",
+            "gcs": "GOOGLE_APPLICATION_CREDENTIALS or gcloud's login",
+            "http": "~/.netrc", "https": "~/.netrc"}.get(scheme, "the store's credentials")
+    # fsspec's HTTP file system calls every failure "not found": the cause says what it was
+    if any(_unreachable(e) or isinstance(e, TimeoutError) for e in chain):
+        endpoint = f"the server {shown(host)}" if scheme in ("http", "https") \
             else "the store's endpoint"
-        text = f"{where}: {endpoint} cannot be reached ({_first(exc)})"
+        cause = next(e for e in chain if _unreachable(e) or isinstance(e, TimeoutError))
+        text = f"{where}: {endpoint} cannot be reached ({_first(cause)})"
+    elif status in (401, 403):
+        text = f"{where}: access denied (check the credentials: {hint})"
+    elif status == 404:
+        text = f"{where} does not exist"
+    elif status is not None and status >= 400:
+        text = f"{where} cannot be read: the server answered {status}"
+    elif any(isinstance(e, PermissionError) for e in chain):
+        text = f"{where}: access denied (check the credentials: {hint})"
+    elif any(isinstance(e, FileNotFoundError) for e in chain):
+        text = f"{where} does not exist"
     else:
         text = f"{where} cannot be read: {_first(exc)}"
     return RemoteError(clean(text))
@@ -288,12 +301,16 @@ def _first(exc: BaseException) -> str:
 
 
 def _is_transient(exc: BaseException) -> bool:
-    if isinstance(exc, (FileNotFoundError, PermissionError, OdocalError)):
+    chain = list(_chain(exc))
+    if any(isinstance(e, OdocalError) for e in chain):
         return False
-    status = _status(exc)
+    status = next((s for s in (_status(e) for e in chain) if s is not None), None)
     if status is not None:
         return status >= 500 or status in (408, 429)
-    names = {c.__name__ for c in type(exc).__mro__}
+    if any(isinstance(e, FileNotFoundError | PermissionError) for e in chain[:1]) \
+            and len(chain) == 1:
+        return False
+    names = {c.__name__ for e in chain for c in type(e).__mro__}
     return bool(names & {"ClientPayloadError", "ServerDisconnectedError", "ReadTimeoutError",
                          "ResponseStreamingError", "IncompleteReadError", "ClientOSError",
                          "TimeoutError", "ConnectionResetError", "ProtocolError"})
@@ -613,3 +630,16 @@ def readable(source: str | Path, what: str = "input", *,
             yield copy.path, copy.sha256
         except OdocalError as exc:
             raise relabelled(exc, copy.path, url) from exc
+
+
+@contextlib.contextmanager
+def local_inputs(sources: Any, mapping: str | Path | None = None
+                 ) -> Iterator[tuple[list[Any], Any]]:
+    """Raw logs (and a mapping file) for a reader that needs local files: each remote one
+    copied here for the duration (streamed, see :func:`local_copy`), the rest as given."""
+    with contextlib.ExitStack() as stack:
+        local = [stack.enter_context(readable(s, "log"))[0] if is_remote(s) else s
+                 for s in sources]
+        if mapping is not None and is_remote(mapping):
+            mapping = stack.enter_context(readable(mapping, "mapping file"))[0]
+        yield local, mapping
