@@ -300,8 +300,8 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
         def store_drive(row: dict[str, Any]) -> None:
             task = by_row[row["_row"]]
             if "unwritable" in row:
-                raise OutputError(f"cannot write the drive report of {_row(task.entry)}: "
-                                  f"{row['unwritable']}")
+                raise OutputError(f"cannot write the report of {_row(task.entry)}: "
+                                  f"{row['unwritable']} (what was stored before stays)")
             if "unreadable" in row:
                 say(f"{_row(task.entry)}: {row['unreadable']}")
                 return

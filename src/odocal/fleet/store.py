@@ -329,8 +329,14 @@ def _disk_said_no(exc: BaseException) -> bool:
 
 def store_error(path: Path, exc: BaseException) -> OutputError:
     """The one line for a store the disk will not take (full, read-only, failing)."""
-    hint = "; free space and run again" if "full" in str(exc).lower() else ""
-    return OutputError(f"cannot write the fleet store '{shown(path)}': {exc} (what was stored "
+    import shutil
+
+    why = str(exc)
+    with contextlib.suppress(OSError):       # SQLite calls a full disk in WAL mode an I/O error
+        if shutil.disk_usage(path.parent).free < (1 << 20) and "full" not in why:
+            why += ": no space left on the device"
+    hint = "; free space and run again" if ("full" in why or "space" in why) else ""
+    return OutputError(f"cannot write the fleet store '{shown(path)}': {why} (what was stored "
                        f"before stays{hint})")
 
 

@@ -18,7 +18,6 @@ its format) comes back as ``unreadable``: named by its catalog row, never stored
 from __future__ import annotations
 
 import contextlib
-import errno
 import hashlib
 import json
 import shutil
@@ -275,10 +274,11 @@ def run_drive_task(task: DriveTask) -> dict[str, Any]:
         row["findings"] = [f["check"] for f in result.diagnosis.to_dict()]
         row["out_of_range"] = out_of_range(result)
         if task.report_dir is not None:
-            row["report"] = _write_drive_report(result, Path(task.report_dir))
+            try:
+                row["report"] = _write_drive_report(result, Path(task.report_dir))
+            except OSError as exc:                 # the outputs' disk said no: the run stops
+                return {**row, "unwritable": _reason(exc)}
     except Exception as exc:                       # one drive's failure never stops the fleet
-        if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
-            return {**row, "unwritable": _reason(exc)}
         row.update(status="error", success=False, message="the drive could not be calibrated",
                    error=_one_line(exc))
         if not isinstance(exc, _expected_errors()):
