@@ -157,6 +157,8 @@ class RangeHandler(http.server.SimpleHTTPRequestHandler):
 @contextlib.contextmanager
 def http_server(root: Path) -> Iterator[str]:
     """Serve ``root`` on the loopback address; yields the base URL (no trailing slash)."""
+    pytest.importorskip("fsspec", reason="the remote extra (fsspec) is not installed")
+    pytest.importorskip("aiohttp", reason="the remote extra (aiohttp) is not installed")
     handler = functools.partial(RangeHandler, directory=str(root))
     server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
     thread = threading.Thread(target=server.serve_forever, daemon=True)

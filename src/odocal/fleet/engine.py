@@ -69,6 +69,7 @@ class FleetRun:
     elapsed_s: float
     written: tuple[Path, ...] = field(default=())
     refused: tuple[str, ...] = field(default=())     # catalog rows not read, one line each
+    bytes_read: int = 0          # read from object stores by the workers for the drives run now
 
 
 #: Seconds to wait for a scheduler given by address before saying it does not answer.
@@ -290,6 +291,7 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
         tasks = [t for t in planned if t is not None]
         tasks_planned = list(tasks)
         stored_now: list[int] = []
+        received: list[int] = []
         _unique(tasks)
         done = db.done_keys()
         todo = [t for t in tasks if not t.key or t.key not in done]
@@ -322,6 +324,7 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
             db.add_drive({k: v for k, v in row.items() if k != "_row"},
                          fingerprint=task.fingerprint)
             stored_now.append(task.entry.row)
+            received.append(int(row.get("bytes_read") or 0))
 
         by_row = {t.entry.row: t for t in todo}
         if report_root is not None and out_path is not None:
@@ -360,7 +363,7 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
                     calibrated=len(stored_now), failed=failed, pooled=len(pooled),
                     alarms=analysis.alarms, dashboard=dashboard,
                     elapsed_s=time.perf_counter() - started, written=written,
-                    refused=tuple(refused))
+                    refused=tuple(refused), bytes_read=sum(received))
 
 
 def _claim(out: Path) -> None:

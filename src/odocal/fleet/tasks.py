@@ -253,11 +253,15 @@ def run_drive_task(task: DriveTask) -> dict[str, Any]:
         "event": e.event, "method": task.method, "input_hashes": task.input_hashes,
         "settings_hash": task.settings_hash, "odocal_version": __version__}
     settings = settings_from_dict(task.settings)
+    from odocal.io.remote import bytes_read
+
+    before = bytes_read()
     try:
         drives, (content,) = _read([e], settings, [task.pin],
                                    [task.input_hashes.get("source")])
     except Exception as exc:                       # named by its row, nothing stored
         return {**row, "unreadable": _reason(exc)}
+    row["bytes_read"] = bytes_read() - before      # from a store (0 for a local file)
     if content is not None and not task.key:
         task = with_content(task, content)
         row.update(task_key=task.key, input_hashes=task.input_hashes)

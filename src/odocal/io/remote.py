@@ -66,6 +66,15 @@ ATTEMPTS = 4
 CONNECT_TIMEOUT_S = 10.0
 READ_TIMEOUT_S = 60.0
 
+#: Bytes this process has received from stores (for the fleet's figures; see bytes_read()).
+_RECEIVED = [0]
+
+
+def bytes_read() -> int:
+    """Bytes of objects this process has read from stores so far."""
+    return _RECEIVED[0]
+
+
 #: Environment variables whose values are secrets: never in a message, a log line or a store.
 SECRET_VARIABLES = ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_SESSION_TOKEN",
                     "AWS_SECURITY_TOKEN", "AZURE_STORAGE_KEY", "AZURE_STORAGE_ACCOUNT_KEY",
@@ -432,6 +441,7 @@ def _copy_file(url: str, dest: Path, what: str, pin: Mapping[str, Any] | None,
                         out.write(block)
                         digest.update(block)
                         done += len(block)
+                        _RECEIVED[0] += len(block)
                 break
             except OSError as exc:
                 if isinstance(exc, (FileNotFoundError, PermissionError)) \
@@ -554,7 +564,9 @@ class _Guarded:
             raise _changed_error(exc, self._url, self._what) from exc
 
     def read(self, size: int = -1) -> bytes:
-        return bytes(self._call("read", size))
+        data = bytes(self._call("read", size))
+        _RECEIVED[0] += len(data)
+        return data
 
     def seek(self, offset: int, whence: int = 0) -> int:
         return int(self._handle.seek(offset, whence))
