@@ -419,11 +419,12 @@ def _changed(url: str, what: str, pin: Mapping[str, Any] | None, now: ObjectInfo
 
 
 def _copy_file(url: str, dest: Path, what: str, pin: Mapping[str, Any] | None,
-               digest: Any) -> int:
+               digest: Any, before: ObjectInfo | None = None) -> int:
     """Copy one object into ``dest`` in chunks; resumed where it stopped on a transient
-    error; the bytes go through ``digest``. Returns the bytes copied."""
+    error; the bytes go through ``digest``. Returns the bytes copied. ``before``: what the
+    store said of it just now."""
     fs, path = filesystem(url)
-    before = stat(url, what)
+    before = before or stat(url, what)
     _changed(url, what, pin, before)
     expected = before.size
     done = 0
@@ -522,7 +523,7 @@ def local_copy(url: str, what: str = "input", *, pin: Mapping[str, Any] | None =
             yield LocalCopy(dest, info.listing, total)
             return
         digest = hashlib.sha256()
-        size = _copy_file(url, dest, what, pin, digest)
+        size = _copy_file(url, dest, what, pin, digest, info)
         yield LocalCopy(dest, digest.hexdigest(), size)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
