@@ -190,3 +190,25 @@ def test_file_urls_are_local_paths(files: Path) -> None:
     drive = load_drive((files / "drive.parquet").as_uri())
     assert drive.metadata["sha256"] == load_drive(files / "drive.parquet").metadata["sha256"]
     assert os.fspath(remote.local_path("file:///a%20b/c.parquet")) == "/a b/c.parquet"
+
+
+def test_raw_logs_and_their_mapping_by_url(aws: S3Server, tmp_path: Path,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """The ``table`` format from a bucket: the mapping an object too, the files it names
+    beside it; the same answer as the same files on disk."""
+    from tests.preprocess.test_convert import MAPPING, write_tables
+
+    drive = odocal.simulate(duration_s=150.0, seed=6).drive
+    write_tables(drive, tmp_path)
+    (tmp_path / "map.toml").write_text(MAPPING)
+    for name in ("wheels.csv", "imu.csv", "pose.csv", "map.toml"):
+        aws.upload("logs", f"tab/{name}", tmp_path / name)
+    answers = []
+    for i, (logs, mapping) in enumerate([
+            ([str(tmp_path / "wheels.csv")], str(tmp_path / "map.toml")),
+            (["s3://logs/tab/wheels.csv"], "s3://logs/tab/map.toml")]):
+        code, _, err = run(capsys, "calibrate", "--from", "table", *logs, "--mapping", mapping,
+                           "--out", str(tmp_path / f"o{i}"), "--no-report", "-q")
+        assert code == 0, err
+        answers.append(_estimate(tmp_path / f"o{i}"))
+    assert answers[0] == answers[1]

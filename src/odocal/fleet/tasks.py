@@ -20,7 +20,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
-import shutil
 import traceback
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -199,22 +198,13 @@ def _read_one(e: CatalogEntry, settings: Settings, pin: dict[str, Any] | None
 
 @contextlib.contextmanager
 def _mapping_here(mapping: Any) -> Any:
-    """A mapping file on this machine, with the files it names beside it (copied from beside
-    a remote mapping)."""
-    from odocal.io.remote import is_remote, join, local_copy, readable
+    """A mapping file on this machine (a remote one copied, with the files it names)."""
+    from odocal.io.remote import is_remote, mapping_here
 
     if not is_remote(mapping):
         yield Path(mapping)
         return
-    with readable(mapping, "mapping file") as (local, _), contextlib.ExitStack() as stack:
-        from odocal.io.mapping import mapping_files
-
-        for named in mapping_files(local):
-            rel = named.relative_to(local.parent).as_posix()
-            copy = stack.enter_context(local_copy(join(str(mapping), rel), "mapping's file"))
-            target = local.parent / rel
-            target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(copy.path, target)
+    with mapping_here(str(mapping)) as local:
         yield local
 
 

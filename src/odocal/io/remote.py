@@ -654,5 +654,25 @@ def local_inputs(sources: Any, mapping: str | Path | None = None
         local = [stack.enter_context(readable(s, "log"))[0] if is_remote(s) else s
                  for s in sources]
         if mapping is not None and is_remote(mapping):
-            mapping = stack.enter_context(readable(mapping, "mapping file"))[0]
+            mapping = stack.enter_context(mapping_here(str(mapping)))
         yield local, mapping
+
+
+@contextlib.contextmanager
+def mapping_here(mapping: str) -> Iterator[Path]:
+    """A remote mapping file copied here, with the files it names copied beside it from beside
+    it (the ``table`` format's files)."""
+    from odocal.io.mapping import mapping_files
+
+    with readable(mapping, "mapping file") as (local, _):
+        for named in mapping_files(local):
+            rel = named.relative_to(local.parent).as_posix()
+            target = local.parent / rel
+            try:
+                with local_copy(join(mapping, rel), "mapping's file") as copy:
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    shutil.copyfile(copy.path, target)
+            except RemoteError as exc:
+                if "does not exist" not in str(exc):   # else it may be among the sources
+                    raise
+        yield local
