@@ -253,3 +253,28 @@ def test_a_full_disk_is_one_line_and_exit_1(drives: list[Path], tmp_path: Path, 
     assert ("cannot write the fleet store" in err and "no space left on the device" in err
             if where == "store" else "cannot write the report of catalog row 1 (car)" in err
             and "No space left on device" in err), err
+
+
+def test_a_version_2_store_becomes_one_row_per_drive_in_utc(tmp_path: Path) -> None:
+    """Version 2 added a second row for a drive recalibrated with other settings and kept
+    times with their offsets; opening it migrates to one row per drive, times in UTC."""
+    import sqlite3
+
+    path = tmp_path / "old.db"
+    with sqlite3.connect(path) as db:
+        db.execute("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)")
+        db.execute("INSERT INTO meta VALUES ('schema_version', '2')")
+        db.execute("CREATE TABLE drives (task_key TEXT PRIMARY KEY, vehicle TEXT NOT NULL, "
+                   "time TEXT NOT NULL, source TEXT NOT NULL, status TEXT NOT NULL, "
+                   "success INTEGER NOT NULL, c_e REAL, input_hashes TEXT, "
+                   "stored_at TEXT NOT NULL)")
+        rows = [("k1", "car", "2026-03-02T12:00:00+05:00", "a.parquet", 1.90, "aaa", "t1"),
+                ("k2", "car", "2026-03-02T12:00:00+05:00", "a.parquet", 1.95, "aaa", "t2"),
+                ("k3", "car", "2026-03-02T08:00:00+00:00", "b.parquet", 1.96, "bbb", "t1")]
+        db.executemany("INSERT INTO drives VALUES (?, ?, ?, ?, 'converged', 1, ?, ?, ?)",
+                       [(k, v, t, s, c, json.dumps({"source": h}), at)
+                        for k, v, t, s, c, h, at in rows])
+    with open_store(path) as store:
+        got = [(r["task_key"], r["time"], r["c_e"], r["content"]) for r in store.drives()]
+    assert got == [("k2", "2026-03-02T07:00:00+00:00", 1.95, "aaa"),
+                   ("k3", "2026-03-02T08:00:00+00:00", 1.96, "bbb")]
