@@ -130,3 +130,13 @@ def test_wrong_credentials_refuse_the_bucket_rows_only(
     assert "access denied" in run_.refused[0] and "wrong-secret-value" not in run_.refused[0]
     with sqlite3.connect(tmp_path / "f.db") as db:
         assert [r[0] for r in db.execute("SELECT vehicle FROM drives")] == ["car001"]
+
+
+def test_a_bucket_folder_laid_out_by_vehicle_is_a_catalog(fleet: Any) -> None:
+    from odocal.fleet.catalog import read_catalog
+
+    on_disk = read_catalog(fleet.catalog.parent)
+    listed = read_catalog("s3://fleet/v1/")
+    assert [(e.vehicle, e.time, Path(e.path).name) for e in on_disk] == \
+        [(e.vehicle, e.time, str(e.path).rsplit("/", 1)[1]) for e in listed]
+    assert all(str(e.path).startswith(f"s3://fleet/v1/{e.vehicle}/") for e in listed)

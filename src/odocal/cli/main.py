@@ -487,11 +487,14 @@ def _safe(name: str) -> str:
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
+    from odocal.io.remote import local_inputs
     from odocal.preprocess.convert import inspect
 
     settings = _settings(args)
-    for found in inspect(args.source_format, args.logs, mapping=args.mapping, scenes=args.scene,
-                         settings=settings):
+    with local_inputs(args.logs, args.mapping) as (logs, mapping):     # URLs: copied here
+        found_logs = inspect(args.source_format, logs, mapping=mapping, scenes=args.scene,
+                             settings=settings)
+    for found in found_logs:
         _print(f"{found.log.name} ({found.log.metadata.get('source_format')}):")
         _print(f"  {'role':<8} {'stream':<34} {'samples':>8} {'rate Hz':>8} {'span s':>8} "
                f"{'gaps':>5} {'longest gap s':>13} {'repaired':>9}  units")

@@ -84,8 +84,13 @@ def read_catalog(source: str | Path) -> list[CatalogEntry]:
     """The catalog's drives, sorted by vehicle and time (see the module docstring)."""
     local = local_path(source)
     if local is None:
-        check_url(str(source), "catalog")
-        return _read_table(str(source), redact(source), lambda text: join(str(source), text))
+        url = str(source)
+        check_url(url, "catalog")
+        from odocal.io.remote import stat
+
+        if url.endswith("/") or stat(url, "catalog").folder:
+            return _from_remote_folder(url)
+        return _read_table(url, redact(url), lambda text: join(url, text))
     path = local
     if path.is_dir():
         return _from_folder(path)
@@ -162,6 +167,28 @@ def _resolve(base: Path, text: str) -> Location:
     local = local_path(text)
     assert local is not None
     return (local if local.is_absolute() else base / local).resolve()
+
+
+def _from_remote_folder(url: str) -> list[CatalogEntry]:
+    """A folder of an object store laid out as ``VEHICLE/DATE_*.parquet`` (listed, not read)."""
+    from odocal.io.remote import list_folder
+
+    base = url.rstrip("/") + "/"
+    entries: list[CatalogEntry] = []
+    for name in list_folder(url, "catalog folder"):
+        parts = name.split("/")
+        if len(parts) != 2 or Path(parts[1]).suffix.lower() not in (".parquet", ".csv"):
+            continue
+        m = _DATE.match(Path(parts[1]).stem)
+        if not m:
+            raise DataError(f"'{redact(base + name)}': a fleet folder's files are named "
+                            "DATE_*.parquet (e.g. 2026-03-02_morning.parquet)")
+        entries.append(CatalogEntry(vehicle=parts[0], path=join(base, name),
+                                    time=parse_time(m[1], where=redact(base + name)),
+                                    row=len(entries) + 1))
+    if not entries:
+        raise DataError(f"folder '{redact(url)}' holds no VEHICLE/DATE_*.parquet drive files")
+    return sorted(entries, key=lambda e: (e.vehicle, e.time, e.row))
 
 
 def _from_folder(root: Path) -> list[CatalogEntry]:

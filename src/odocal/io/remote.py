@@ -485,6 +485,17 @@ def _changed_error(exc: BaseException, url: str, what: str) -> RemoteError:
     return err
 
 
+def list_folder(url: str, what: str = "folder") -> list[str]:
+    """The relative names of the files under a folder (prefix) of an object store."""
+    if scheme_of(url) in ("http", "https"):
+        raise ConfigError(f"{what} '{shown(redact(url))}': an HTTP server lists no folders; "
+                          "name the files (a catalog)")
+    fs, root = filesystem(url)
+    files = _retry(lambda: fs.find(root, detail=False), url, what)
+    prefix = root.rstrip("/") + "/"
+    return sorted(f[len(prefix):] for f in files if f.startswith(prefix))
+
+
 @dataclass(frozen=True)
 class LocalCopy:
     """An object copied to this machine: where, its SHA-256 (a folder: the listing's hash),
