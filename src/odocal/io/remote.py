@@ -284,7 +284,9 @@ def explain(exc: BaseException, url: str, what: str) -> RemoteError:
             "gcs": "GOOGLE_APPLICATION_CREDENTIALS or gcloud's login",
             "http": "~/.netrc", "https": "~/.netrc"}.get(scheme, "the store's credentials")
     # fsspec's HTTP file system calls every failure "not found": the cause says what it was
-    if any(_unreachable(e) or isinstance(e, TimeoutError) for e in chain):
+    if _is_changed(exc):
+        text = f"{where} changed while it was read: not read; run again"
+    elif any(_unreachable(e) or isinstance(e, TimeoutError) for e in chain):
         endpoint = f"the server {shown(host)}" if scheme in ("http", "https") \
             else "the store's endpoint"
         cause = next(e for e in chain if _unreachable(e) or isinstance(e, TimeoutError))
