@@ -139,8 +139,20 @@ def test_an_object_that_changed_since_it_was_planned_is_not_read(
     url = aws.upload("logs", "runs/moving.parquet", files / "drive.parquet")
     info = remote.stat(url)
     aws.upload("logs", "runs/moving.parquet", files / "drive.csv")
-    with pytest.raises(InputFileError, match="changed since the fleet was planned"):
+    with pytest.raises(InputFileError, match="changed since odocal first looked at it"):
         load_drive(url, pin=info.pin())
+
+
+def test_an_object_that_changes_under_replay_is_named(aws: S3Server, files: Path) -> None:
+    from odocal.online.replay import stream_drive_file
+
+    url = aws.upload("logs", "runs/live.parquet", files / "drive.parquet")
+    chunks = stream_drive_file(url, rows=500)
+    next(chunks)
+    aws.upload("logs", "runs/live.parquet", files / "drive.csv")
+    with pytest.raises(InputFileError, match=r"'s3://logs/runs/live.parquet' changed"):
+        for _ in chunks:
+            pass
 
 
 def test_a_catalog_entry_resolves_against_the_catalog_url() -> None:

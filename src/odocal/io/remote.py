@@ -415,9 +415,9 @@ def _changed(url: str, what: str, pin: Mapping[str, Any] | None, now: ObjectInfo
     for key in ("etag", "version", "size", "modified"):
         planned, current = pin.get(key), getattr(now, key)
         if planned is not None and current is not None and str(planned) != str(current):
-            raise RemoteError(f"{what} '{shown(redact(url))}' changed since the fleet was "
-                              f"planned (its {key} is now {shown(clean(current), 60)}, was "
-                              f"{shown(clean(planned), 60)}): not read; run the fleet again")
+            raise RemoteError(f"{what} '{shown(redact(url))}' changed since odocal first looked "
+                              f"at it (its {key} is now {shown(clean(current), 60)}, was "
+                              f"{shown(clean(planned), 60)}): not used; run again")
 
 
 def _copy_file(url: str, dest: Path, what: str, pin: Mapping[str, Any] | None,
