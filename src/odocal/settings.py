@@ -209,14 +209,24 @@ class InverseSettings:
     shorter ones keep more of the lateral-acceleration detail."""
     delay: Literal["estimate", "off"] = "estimate"
     """Find the wheel stream's lag behind the reference and apply it."""
-    max_delay_s: float = 0.2
-    """Search range of that lag (either sign)."""
+    max_delay_s: float = 1.0
+    """Search range of that lag (either sign): a localisation stack's latency, or two loggers'
+    clocks apart, by up to a second are found and taken out."""
     heading_offset: Literal["estimate", "off"] = "estimate"
     """Find a constant rotation of the reference heading against the direction of travel (a
     mounting yaw) on straight stretches and apply it."""
     common_wheel_error: Literal["estimate", "off"] = "estimate"
     """Find the share of the distance channel's errors that shows in the yaw channel (a slip
     common to both wheels is a yaw error in bends) and take it out where it stands out."""
+    wheel_offset: Literal["encoded", "always", "off"] = "encoded"
+    """Fit a constant offset of both wheel rates while moving: ``encoded`` where the rates lie
+    on an encoding's grid (whole rpm, 0.1 km/h: truncated towards zero they read half a step
+    low; rounded, not), with a prior of half the step; ``always``, with the prior
+    ``wheel_offset_prior_revps``. An offset and c_e differ only in how they grow with speed, so
+    fitting one costs c_e precision on a drive at few speeds: not done on rates that cannot be
+    truncated."""
+    wheel_offset_prior_revps: float = 0.02
+    """The offset's prior standard deviation with ``wheel_offset = "always"`` (rev/s)."""
     max_iterations: int = 10
     tolerance: float = 1e-10
     """Stop when every relative parameter change is below this."""
@@ -231,6 +241,10 @@ class InverseSettings:
                self.heading_offset, "'estimate' or 'off'")
         _check(self.common_wheel_error in ("estimate", "off"), s, "common_wheel_error",
                self.common_wheel_error, "'estimate' or 'off'")
+        _check(self.wheel_offset in ("encoded", "always", "off"), s, "wheel_offset",
+               self.wheel_offset, "'encoded', 'always' or 'off'")
+        _check(0 < self.wheel_offset_prior_revps <= 10, s, "wheel_offset_prior_revps",
+               self.wheel_offset_prior_revps, "a rate in (0, 10] rev/s")
         _check(self.max_iterations >= 1, s, "max_iterations", self.max_iterations,
                "an integer >= 1")
         _check(self.tolerance >= 0, s, "tolerance", self.tolerance, "a number >= 0")
@@ -342,8 +356,9 @@ class GateSettings:
     min_yaw_correlation: float = 0.5
     """Correlation of the wheels' and the reference's yaw in bends: below minus this the wheels
     are swapped, below this they carry no differential information."""
-    max_clock_offset_s: float = 0.5
-    """A lag between the wheel and pose streams beyond this fails (align the clocks)."""
+    max_clock_offset_s: float = 1.0
+    """A lag between the wheel and pose streams beyond this fails (align the clocks); so does
+    one beyond the lag the calibration corrects (``[inverse] max_delay_s``)."""
 
     def __post_init__(self) -> None:
         s = "gate"

@@ -111,13 +111,19 @@ def test_lateral_acceleration_sign_and_unit(noisy_drive: SimulatedDrive) -> None
     assert found[0].value == pytest.approx(1 / 9.81, rel=0.1)
 
 
-def test_clock_offset_beyond_what_the_calibration_corrects(noisy_drive: SimulatedDrive) -> None:
-    shift = 40                                            # one second late
+@pytest.mark.parametrize("seconds", [1.3, -1.6])
+def test_clock_offset_beyond_what_the_calibration_corrects(noisy_drive: SimulatedDrive,
+                                                           seconds: float) -> None:
+    shift = round(seconds * 40)                           # beyond [inverse] max_delay_s (1 s)
     late = altered(noisy_drive, n_rl=lambda c: np.roll(c["n_rl"], shift),
                    n_rr=lambda c: np.roll(c["n_rr"], shift))
     found = check_drives([late], Settings()).findings
     assert [f.check for f in found] == [Check.CLOCK_OFFSET]
-    assert found[0].severity is Severity.FATAL and found[0].value == pytest.approx(1.0, abs=0.05)
+    assert found[0].severity is Severity.FATAL
+    assert found[0].value == pytest.approx(seconds, abs=0.05)
+    # the same lag within what the lag search is told to reach is no finding
+    wider = Settings().replace(inverse={"max_delay_s": 2.0}, gate={"max_clock_offset_s": 2.0})
+    assert check_drives([late], wider).findings == ()
 
 
 @pytest.mark.parametrize("noise", [0.0, 0.05])

@@ -111,6 +111,14 @@ def test_a_lateral_acceleration_late_against_the_motion_is_named(
     finding = found(drive)[Check.LATERAL_DELAY]
     assert finding.value == pytest.approx(delay * 0.025, abs=0.03)
     assert Check.LATERAL_DELAY in {f.check for f in online(drive).estimate().details.findings}
+    # the batch calibration aligns a_y before the fit: d is right within its uncertainty
+    result = odocal.calibrate(drive)
+    assert result.departures is not None
+    assert result.departures.lateral_lag_s == pytest.approx(delay * 0.025, abs=0.01)
+    est, truth = result.estimate, noisy_drive.true_parameters.as_array()
+    for j, ok in enumerate(est.identified):
+        if ok:
+            assert abs(est.theta.as_array()[j] - truth[j]) < 3 * est.std[j]
 
 
 @pytest.mark.parametrize("scale", [-1.0, -1 / 9.81])

@@ -7,7 +7,7 @@ import pytest
 
 import odocal
 from odocal.checks.diagnosis import check_drives
-from odocal.checks.findings import Check, Severity
+from odocal.checks.findings import Check
 from odocal.estimators.estimate import Status
 from odocal.estimators.inverse import inverse_calibration
 from odocal.estimators.windows import WindowBuilder, cluster_steps_for, windows_from_drives
@@ -118,19 +118,28 @@ def test_forgetting_follows_a_parameter_that_moved() -> None:
     steady = odocal.simulate(duration_s=1800, seed=3, noise="realistic").drive
     all_of_it = pushed(steady, 40).estimate()
     recent = pushed(steady, 40, Settings().replace(online={"forgetting_s": 300.0})).estimate()
-    assert np.all(recent.std > 1.3 * all_of_it.std)
+    assert np.all(recent.std > 1.25 * all_of_it.std)
 
 
-def test_a_clock_offset_beyond_the_correction_range_is_a_note(
-        noisy_drive: SimulatedDrive) -> None:
+@pytest.mark.parametrize("steps", [12, -22, 29])
+def test_a_wheel_clock_offset_within_a_second_is_taken_out(noisy_drive: SimulatedDrive,
+                                                           steps: int) -> None:
+    """The wheels 0.3 s late, 0.55 s early or 0.725 s late: no finding that stops the
+    calibration, the lag found and applied, every identified parameter within 3 std."""
     late = {k: v.copy() for k, v in noisy_drive.drive.columns().items()}
     for key in ("n_rl", "n_rr"):
-        late[key] = np.concatenate([late[key][:12], late[key][:-12]])      # 0.3 s late
+        late[key] = np.roll(late[key], steps)
     drive = odocal.Drive.from_columns(late, name="late")
-    (finding,) = [f for f in check_drives([drive], Settings()).findings
-                  if f.check is Check.CLOCK_OFFSET]
-    assert finding.severity is Severity.NOTE
-    assert finding.value == pytest.approx(0.3, abs=0.03)
+    assert not [f for f in check_drives([drive], Settings()).findings
+                if f.check is Check.CLOCK_OFFSET]
+    result = odocal.calibrate(drive)
+    est = result.estimate
+    assert est.success
+    assert est.details.delay_s == pytest.approx(steps * 0.025 + 0.0375, abs=0.02)
+    truth = noisy_drive.true_parameters.as_array()
+    for j, ok in enumerate(est.identified):
+        assert ok
+        assert abs(est.theta.as_array()[j] - truth[j]) < 3 * est.std[j]
 
 
 def test_every_public_name_resolves() -> None:

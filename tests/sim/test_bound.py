@@ -190,4 +190,10 @@ def test_the_default_method_reaches_the_bound_on_white_noise() -> None:
     spread = np.std(errors, axis=0, ddof=1)
     assert np.all(spread / bound > 0.75) and np.all(spread / bound < 1.35), spread / bound
     reported = np.mean(stds, axis=0)
-    assert np.all(reported / bound > 0.85) and np.all(reported / bound < 1.2), reported / bound
+    # c_e and c_d rest on every window; t_r and d on this five-minute route's few bends (about
+    # seven and three clusters' worth): their std is widened for so few (Student's t), so it
+    # covers the error spread, above the bound by that factor
+    ratio = reported / bound
+    assert np.all(ratio > 0.85), ratio
+    assert np.all(ratio[:2] < 1.2) and np.all(ratio[2:] < 1.75), ratio
+    assert np.all(reported >= 0.85 * spread), reported / spread

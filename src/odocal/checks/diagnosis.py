@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal.checks.departures import lateral_delay, wheel_lag_s
 from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.model.kinematics import body_rates, motion_increments
@@ -56,8 +57,6 @@ MAX_SYNC_SEARCH_S = 600.0
 MAX_DEAD_WHEEL_SHARE = 0.2
 #: a_y's spread in bends below this share of speed times yaw rate's: no lateral acceleration.
 MIN_LATERAL_SPREAD = 0.1
-#: A lag of a_y behind speed times yaw rate beyond this is named (s).
-MAX_LATERAL_LAG_S = 0.25
 #: Drives whose wheels differ on straights by more than this share (of their mean) apart ...
 MAX_WHEEL_RATIO_GAP = 0.005
 #: ... each judged on at least this many seconds of gentle turning, are not one vehicle.
@@ -175,7 +174,7 @@ def check_drives(drives: Sequence[Drive], settings: Settings) -> Diagnosis:
             findings.append(Finding(Check.NO_DIFFERENTIAL, Severity.FALLBACK, agree, 1.0))
         else:
             lateral = _lateral(win, bends, lim.min_yaw_correlation)
-            findings += lateral or _lateral_lag(drives)
+            findings += lateral or lateral_delay(drives)
             findings += _clock(drives, theta, settings)
     return Diagnosis(tuple(findings))
 
@@ -333,63 +332,20 @@ def _lateral(win: _Windows, bends: BoolArray, min_correlation: float) -> list[Fi
     return []
 
 
-def _lag(pairs: Sequence[tuple[FloatArray, FloatArray]], span: int, t_s: float) -> float | None:
-    """The lag (s) of ``b`` behind ``a`` within ``span`` steps either way that correlates them
-    best, summed over the pairs of series; None where even the best correlation is weak (a
-    signal that hardly varies, a circle at one rate, has no timing to find)."""
-    scores = np.zeros(2 * span + 1)
-    energy_a = energy_b = 0.0
-    for a, b in pairs:
-        a, b = a - a.mean(), b - b.mean()
-        n = a.size
-        for i, k in enumerate(range(-span, span + 1)):
-            scores[i] += float(np.dot(a[max(-k, 0):n - max(k, 0)], b[max(k, 0):n + min(k, 0)]))
-        energy_a, energy_b = energy_a + float(a @ a), energy_b + float(b @ b)
-    best = int(np.argmax(scores))
-    if scores[best] < 0.5 * np.sqrt(energy_a * energy_b):
-        return None
-    return float((best - span) * t_s)
-
-
 def _pieces_of(drives: Sequence[Drive], seconds: float) -> list[tuple[Drive, int, int]]:
     return [(d, a, b) for d in drives for a, b in d.pieces if b - a >= round(seconds / d.t_s)]
-
-
-def _lateral_lag(drives: Sequence[Drive]) -> list[Finding]:
-    """The lag of a_y behind speed times the reference yaw rate (up to 2 s), by
-    cross-correlation over every piece of at least 20 s (value: the lag, s; positive: a_y
-    late)."""
-    pieces = _pieces_of(drives, 20.0)
-    if not pieces:
-        return []
-    t_s = drives[0].t_s
-    pairs = []
-    for d, a, b in pieces:
-        ds, dpsi = motion_increments(d.x[a:b], d.y[a:b], d.psi[a:b], d.beta[a:b])
-        pairs.append((ds * dpsi / t_s**2, d.a_y[a:b - 1]))
-    lag = _lag(pairs, round(2.0 / t_s), t_s)
-    if lag is not None and abs(lag) > MAX_LATERAL_LAG_S:
-        return [Finding(Check.LATERAL_DELAY, Severity.NOTE, lag, 0.0, "a_y")]
-    return []
 
 
 def _clock(drives: Sequence[Drive], theta: FloatArray, settings: Settings) -> list[Finding]:
     """Lag of the wheels' yaw rate behind the reference's, by cross-correlation (up to 2 s)
     summed over every piece of at least 20 s; a positive lag means the wheel stream is late."""
     lim = settings.gate
-    pieces = _pieces_of(drives, 20.0)
-    if not pieces:
-        return []
-    t_s = drives[0].t_s
-    pairs = []
-    for d, a, b in pieces:
-        _, w = body_rates(theta, d.n_rl[a:b], d.n_rr[a:b], d.a_y[a:b])
-        pairs.append((np.gradient(d.psi[a:b], d.t_s), w))
-    lag = _lag(pairs, round(2.0 / t_s), t_s)
+    lag = wheel_lag_s(drives, theta)
     if lag is None:
         return []
-    if abs(lag) > lim.max_clock_offset_s:
-        return [Finding(Check.CLOCK_OFFSET, Severity.FATAL, lag, 0.0)]
-    if abs(lag) > settings.inverse.max_delay_s:
-        return [Finding(Check.CLOCK_OFFSET, Severity.NOTE, lag, 0.0)]
+    t_s = drives[0].t_s
+    corrected = settings.inverse.max_delay_s if settings.inverse.delay == "estimate" else 0.0
+    if abs(lag) > min(lim.max_clock_offset_s, max(corrected, t_s)):
+        # beyond what the calibration takes out (its lag scan reaches a step further)
+        return [Finding(Check.CLOCK_OFFSET, Severity.FATAL, lag, corrected)]
     return []

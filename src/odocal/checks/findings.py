@@ -36,6 +36,9 @@ class Check(enum.Enum):
     WORSE_THAN_DATASHEET = "worse-than-datasheet"
     LARGE_ERROR = "large-error"
     DATA_REPAIRED = "data-repaired"
+    LATERAL_OFFSET = "lateral-offset"
+    HEADING_ERROR = "heading-error"
+    WHEEL_OFFSET = "wheel-offset"
 
 
 class Severity(enum.IntEnum):

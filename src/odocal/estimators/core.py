@@ -11,8 +11,12 @@ The procedure (:func:`fit`):
 
 1. Gauss-Newton on the windows' channel residuals (distance and yaw), weighted by the error
    model and prewhitened (:mod:`odocal.estimators.error_model`), from the datasheet values;
-   ``p = [theta, kappa]``, with ``kappa`` the spread of the window the wheel unit counts its ticks
-   over (half its variance, steps^2; fitted with the lag).
+   ``p = [theta, kappa, o]``, with ``kappa`` the spread of the window the wheel unit counts its
+   ticks over (half its variance, steps^2; fitted with the lag) and ``o`` a constant offset of
+   both wheel rates while moving (rev/s: a biased speed signal, or rates truncated towards zero
+   by their encoding), held near zero by a prior (``[inverse] wheel_offset_prior_revps``) that
+   the data overrule where they determine it. (An offset of one wheel alone would be a c_d at
+   one speed: left to c_d.)
 2. **The lag.** A wheel stream that lags the reference biases the yaw terms in every bend. The
    yaw channel's cost is scanned over a half-step grid of shifts of the reference side (which
    carries no wheel noise), the minimum refined by a parabola. It is applied only where the data
@@ -56,11 +60,11 @@ from odocal.estimators.error_model import (
 from odocal.estimators.estimate import (
     NotIdentified,
     Reason,
-    few_clusters_inflation,
     hold_unidentified,
     numerically_free,
+    tail_inflation,
 )
-from odocal.estimators.windows import WindowSet, load_transfer_column, predict
+from odocal.estimators.windows import AT_MOVING, WindowSet, load_transfer_column, predict
 from odocal.model.parameters import PARAMETER_NAMES
 from odocal.settings import Settings
 
@@ -69,16 +73,35 @@ IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 log = logging.getLogger(__name__)
 
-#: theta and the counting window's spread kappa.
-P = 5
+#: The layout of p: theta, the counting window's spread kappa, the wheel-rate offset.
+THETA = slice(0, len(PARAMETER_NAMES))
+KAPPA = len(PARAMETER_NAMES)
+OFFSET = KAPPA + 1
+P = KAPPA + 2
 #: Fewer clusters than this: the covariance is the larger of the sandwich and the residual
 #: formula, widened for the clusters' small number.
 MIN_CLUSTERS_FOR_ROBUST = 10
 _SHIFT_ROUNDS = 6         # the lag scanned and theta refitted in turn at most so often
 _SHIFT_SETTLED = 1e-3     # steps
 _LAG_SIGMAS = 3.0         # a lag within this many standard deviations of zero is not applied
-#: Why a held parameter is unseen by the windows (its uncertainty then widens the free ones').
-_UNSEEN = (Reason.NO_LATERAL, Reason.NO_INFORMATION)
+#: The parameters that act through the wheels' difference, in p.
+_DIFFERENTIAL = np.array([PARAMETER_NAMES.index(n) for n in ("c_d", "t_r", "d")])
+#: Why a held parameter is known (its datasheet value is taken as exact): held on request.
+#: Every other held parameter is uncertain by its datasheet uncertainty, which widens the free
+#: ones as far as the data cannot tell them apart (:func:`covariance`).
+_KNOWN = (Reason.HELD,)
+
+
+def pack(theta: FloatArray, kappa: float = 0.0, offset: float = 0.0) -> FloatArray:
+    """p from its parts (see the module docstring)."""
+    p = np.zeros(P)
+    p[THETA], p[KAPPA], p[OFFSET] = theta, kappa, offset
+    return p
+
+
+def free_of(theta_free: BoolArray, *, kappa: bool, offset: bool = False) -> BoolArray:
+    """Which elements of p are fitted, from theta's and the nuisance parameters'."""
+    return np.concatenate([np.asarray(theta_free, dtype=bool), [kappa, offset]])
 
 
 @dataclass(frozen=True)
@@ -98,6 +121,7 @@ class Folded:
     last : the last folded window, for the prewhitening to run on: the p it was linearised at,
         its row unfiltered and filtered ((2, 1 + P) each: residual, Jacobian)
     peak_yaw_radps : the largest window yaw rate folded
+    offset_std : the wheel-rate offset's prior standard deviation (rev/s; 0: not fitted)
     """
 
     origin: FloatArray
@@ -114,6 +138,24 @@ class Folded:
     count: int = 0
     last: tuple[FloatArray, FloatArray, FloatArray] | None = None
     peak_yaw_radps: float = 0.0
+    offset_std: float = 0.0
+
+    @staticmethod
+    def prior(origin: FloatArray, offset_std: float) -> Folded:
+        """Nothing folded yet but the wheel-rate offset's prior (zero mean, ``offset_std``
+        rev/s; 0: the offset is not fitted): information in h, and as much in the meat (a prior
+        observation's score varies as much as it informs), so an offset the data do not
+        determine keeps the prior's spread and passes it on to c_e."""
+        precision = np.zeros(P)
+        if offset_std > 0:
+            precision[OFFSET] = offset_std ** -2.0
+        return Folded(origin=np.asarray(origin, dtype=np.float64), h=np.diag(precision),
+                      meat=np.diag(precision), offset_std=max(offset_std, 0.0))
+
+    @property
+    def offset_free(self) -> bool:
+        """Whether the wheel-rate offset is fitted (it has a prior)."""
+        return self.offset_std > 0
 
     def decayed(self, factor: float) -> Folded:
         """The sums with older evidence faded by ``factor`` (forgetting)."""
@@ -189,14 +231,18 @@ def evaluate(p: FloatArray, view: View, model: ErrorModel, folded: Folded,
     (``v w``): what a load transfer the data cannot show would do (d is held, its datasheet
     uncertainty widens the others')."""
     win = view.windows
-    pred, jac4 = predict(p[:4], view.at)
+    theta = p[THETA]
+    pred, jac4 = predict(theta, view.at)
     if unseen_d:
-        jac4[..., 3] = load_transfer_column(p[:4], view.at)
+        jac4[..., PARAMETER_NAMES.index("d")] = load_transfer_column(theta, view.at)
     spread = np.zeros_like(pred)
     if smooth:
-        spread, _ = predict(p[:4], view.second)
-        pred = pred + p[4] * spread
-    jac = np.concatenate([jac4, spread[..., None]], axis=2)
+        spread, _ = predict(theta, view.second)
+        pred = pred + p[KAPPA] * spread
+    # the offset: each wheel reads o more for every second it moves
+    moving = np.repeat(view.at[:, AT_MOVING, None], 2, axis=1)                  # (W, 2)
+    pred = pred + p[OFFSET] * moving
+    jac = np.concatenate([jac4, spread[..., None], moving[..., None]], axis=2)
     r = (win.measured - pred) @ CHANNELS.T
     j = _channels(jac)
     gain = coupling_gain(win.measured, r, model.coupling)
@@ -219,7 +265,7 @@ def solve(p0: FloatArray, view: View, free: BoolArray, model: ErrorModel, folded
           unseen_d: bool = False) -> Fit:
     """Gauss-Newton on the prewhitened residuals of the windows and the folded normal
     equations (nearly linear in p); ``free`` (P,) marks the free parameters of p."""
-    smooth = bool(free[4])
+    smooth = bool(free[KAPPA])
     p = p0.copy()
 
     def evaluate_at(p: FloatArray) -> Fit:
@@ -255,13 +301,14 @@ class LagScan:
 
 
 def scan_lag(windows: WindowSet, theta: FloatArray, heading_offset: float, model: ErrorModel,
-             folded: Folded) -> LagScan:
+             folded: Folded, offset: float = 0.0) -> LagScan:
     """The yaw channel's weighted cost at every half step of shift of the reference side, with
     theta fixed (the distance channel is left out: a slip that grows with acceleration is
     common to both wheels and would pass for a lag there).
 
     The prediction is linear in the moments, so it is made once at every whole-step shift and
-    interpolated between them, as the moments are.
+    interpolated between them, as the moments are. ``offset``: the wheel-rate offset of the fit
+    (rev/s; none by default).
     """
     limit = windows.shifts
     grid = np.arange(-limit, limit + 0.25, 0.5)
@@ -270,7 +317,9 @@ def scan_lag(windows: WindowSet, theta: FloatArray, heading_offset: float, model
     w_count, shifts = windows.size, windows.moments.shape[1]
     if w_count and limit > 0:
         rotated = windows.rotated(heading_offset)                    # (W, S, 2 SERIES + 2)
-        whole, _ = predict(theta, rotated.reshape(w_count * shifts, -1))
+        flat = rotated.reshape(w_count * shifts, -1)
+        whole, _ = predict(theta, flat)
+        whole += offset * flat[:, AT_MOVING, None]
         whole = whole.reshape(w_count, shifts, 2)
         x = grid + windows.margin
         lo = np.floor(x).astype(np.int64)
@@ -346,7 +395,7 @@ class CoreFit:
     """What :func:`fit` found.
 
     fit : the final fit (theta and kappa in ``fit.p``)
-    free : (4,) the parameters estimated; ``held`` why the others were not
+    free : the parameters of theta estimated; ``held`` why the others were not
     uncertainty : the covariance of theta and what it rests on
     lag : the wheel stream's lag behind the reference, in steps
     model : the error model of the final fit
@@ -363,7 +412,12 @@ class CoreFit:
 
     @property
     def theta(self) -> FloatArray:
-        return np.asarray(self.fit.p[:4])
+        return np.asarray(self.fit.p[THETA])
+
+    @property
+    def offset(self) -> tuple[float, float]:
+        """The wheel-rate offset (rev/s) and its standard deviation."""
+        return float(self.fit.p[OFFSET]), self.uncertainty.offset_std
 
     @property
     def covariance(self) -> FloatArray:
@@ -372,6 +426,17 @@ class CoreFit:
     @property
     def clusters(self) -> int:
         return self.uncertainty.clusters
+
+
+def offset_prior_std(settings: Settings, wheel_step_revps: float) -> float:
+    """The wheel-rate offset's prior standard deviation (rev/s; 0: not fitted) by ``[inverse]
+    wheel_offset`` and the step of the rates' encoding (0 where they lie on no grid)."""
+    mode = settings.inverse.wheel_offset
+    if mode == "always":
+        return settings.inverse.wheel_offset_prior_revps
+    if mode == "encoded" and wheel_step_revps > 0:
+        return 0.5 * wheel_step_revps
+    return 0.0
 
 
 def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offset: float,
@@ -391,16 +456,24 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
             held.setdefault(name, NotIdentified(Reason.NEEDS_BENDS, detail=peak))
     free = np.array([name not in held for name in PARAMETER_NAMES])
     lag_on = cfg.delay == "estimate" and not distance_only and windows.shifts > 0
-    free_p = np.append(free, lag_on)
+    offsets_on = folded.offset_free
+
+    def with_nuisance(free: BoolArray) -> BoolArray:
+        return free_of(free, kappa=lag_on, offset=offsets_on)
+
+    free_p = with_nuisance(free)
     channels = np.array([1.0, 0.0 if distance_only else 1.0])
     coupling = not distance_only and cfg.common_wheel_error == "estimate"
-    p = np.append(datasheet, 0.0)
+    p = pack(datasheet)
 
     unseen_d = "d" in held and held["d"].reason is Reason.NO_LATERAL
 
     def solve_at(p: FloatArray, lag: Lag, model: ErrorModel, free_p: BoolArray) -> Fit:
+        # where no parameter the wheels' difference shows (c_d, t_r, d) is fitted, the yaw
+        # channel holds nothing to learn, only the held ones' errors: the distance channel alone
+        theirs = channels if free_p[_DIFFERENTIAL].any() else np.array([1.0, 0.0])
         return solve(p, View.of(windows, lag.shift, heading_offset), free_p, model, folded,
-                     channels, max_iterations=cfg.max_iterations, tolerance=cfg.tolerance,
+                     theirs, max_iterations=cfg.max_iterations, tolerance=cfg.tolerance,
                      unseen_d=unseen_d)
 
     model = ErrorModel()
@@ -413,19 +486,21 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
         for j in np.flatnonzero(free & ~informed):
             held[PARAMETER_NAMES[j]] = NotIdentified(Reason.NO_INFORMATION)
         free = informed
-        free_p = np.append(free, lag_on)
+        free_p = with_nuisance(free)
         current = solve_at(p, lag, model, free_p)
     model = dataclasses.replace(model, noise=noise_from_sums(
         folded.noise + noise_sums(windows.measured, current.residual)))
     if lag_on:
         current = solve_at(current.p, lag, model, free_p)
-        lag = choose_lag(scan_lag(windows, current.p[:4], heading_offset, model, folded))
+        lag = choose_lag(scan_lag(windows, current.p[THETA], heading_offset, model, folded,
+                                  float(current.p[OFFSET])))
     for _ in range(2):                  # the error model refitted at the lag
         current = solve_at(current.p, lag, model, free_p)
         model = refit_model(current, windows, folded, coupling=coupling)
     for _ in range(_SHIFT_ROUNDS - 1 if lag_on else 0):
         # the lag again with the theta fitted at it, until the two agree
-        again = choose_lag(scan_lag(windows, current.p[:4], heading_offset, model, folded))
+        again = choose_lag(scan_lag(windows, current.p[THETA], heading_offset, model, folded,
+                                    float(current.p[OFFSET])))
         if abs(again.shift - lag.shift) < _SHIFT_SETTLED:
             break
         lag = again
@@ -433,9 +508,21 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
             current = solve_at(current.p, lag, model, free_p)
             model = refit_model(current, windows, folded, coupling=coupling)
     current = solve_at(current.p, lag, model, free_p)
+
+    def lag_spread(p: FloatArray, free: BoolArray) -> FloatArray:
+        # how far theta moves with the lag, times the lag's own uncertainty: a lag found to
+        # +-0.5 steps on a short drive moves t_r by as much as its noise does
+        variance = _lag_variance(lag, windows.shifts) if lag_on else 0.0
+        if variance <= 0 or not free.any():
+            return np.zeros(len(PARAMETER_NAMES))
+        ahead, behind = (solve_at(p, dataclasses.replace(lag, shift=lag.shift + step), model,
+                                  with_nuisance(free)).p[THETA]
+                         for step in (_LAG_STEP, -_LAG_STEP))
+        return np.asarray((ahead - behind) / (2.0 * _LAG_STEP) * math.sqrt(variance))
+
     free, held, current, uncertainty = _identified(
         current, windows, folded, settings, free, held, lambda p, f: solve_at(
-            p, lag, model, np.append(f, lag_on)), lag_on)
+            p, lag, model, with_nuisance(f)), with_nuisance, lag_spread)
     return CoreFit(fit=current, free=free, held=held, uncertainty=uncertainty, lag=lag,
                    model=model, heading_offset=heading_offset)
 
@@ -456,60 +543,94 @@ def refit_model(current: Fit, windows: WindowSet, folded: Folded, *,
     return ErrorModel(noise=noise, ma=ma, coupling=beta)
 
 
+#: Steps the lag is moved either way to see how theta follows it.
+_LAG_STEP = 0.5
+
+
+def _lag_variance(lag: Lag, shifts: int) -> float:
+    """The variance (steps^2) of the lag the fit stands on: that of the lag applied, or, where
+    the one found was not applied (within noise, or not holding out), of taking none in its
+    place: its std and its own size; never more than a lag spread evenly over the searched
+    range (``shifts`` steps either way: the checks refuse a larger one). Zero where no lag
+    could be timed (no bends)."""
+    if not math.isfinite(lag.std):
+        return 0.0
+    variance = lag.std ** 2 if lag.shift != 0.0 else lag.std ** 2 + lag.found ** 2
+    return min(variance, shifts ** 2 / 3.0)
+
+
 def _identified(current: Fit, windows: WindowSet, folded: Folded, settings: Settings,
                 free: BoolArray, held: dict[str, NotIdentified],
-                refit: Callable[[FloatArray, BoolArray], Fit], lag_on: bool,
+                refit: Callable[[FloatArray, BoolArray], Fit],
+                with_nuisance: Callable[[BoolArray], BoolArray],
+                lag_spread: Callable[[FloatArray, BoolArray], FloatArray],
                 ) -> tuple[BoolArray, dict[str, NotIdentified], Fit, Uncertainty]:
     """The identifiability verdict (:func:`~odocal.estimators.estimate.hold_unidentified`)
     with this core's covariance. Parameters held because the windows cannot see them widen the
     free ones by their datasheet uncertainty (:func:`covariance`)."""
     datasheet = np.asarray(settings.identify.theta0, dtype=np.float64)
     prior = np.asarray(settings.identify.prior_std, dtype=np.float64)
-    # parameters the windows cannot see at all, yet the free ones are sensitive to (a_y
-    # missing: d; one turning rate: t_r against c_d), widen them by their datasheet uncertainty
-    unseen = np.array([n in held and held[n].reason in _UNSEEN for n in PARAMETER_NAMES])
+    # parameters held at their datasheet values that the free ones are sensitive to (a_y
+    # missing: d; one turning rate: t_r against c_d; one speed in every bend: t_r against d,
+    # judged too weak) widen them by their datasheet uncertainty: a free parameter that cannot
+    # be told apart from a held one is not identified either
+    known = np.array([n in held and held[n].reason in _KNOWN for n in PARAMETER_NAMES])
     fits, uncertainties = [current], []
 
     def covariance_of(free: BoolArray) -> tuple[FloatArray, int]:
-        uncertainties.append(covariance(fits[-1], windows, folded, np.append(free, lag_on),
-                                        np.where(unseen & ~free, prior, 0.0)))
+        found = covariance(fits[-1], windows, folded, with_nuisance(free),
+                           np.where(~known & ~free, prior, 0.0))
+        spread = lag_spread(fits[-1].p, free)
+        if spread.any():
+            # the lag's uncertainty is the wheels' timing: theta's covariance takes it in
+            base = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))
+            cov = found.covariance + np.outer(spread, spread)
+            std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                more = np.where(base > 0, std / base, 1.0)
+            found = dataclasses.replace(found, covariance=cov, widening=found.widening * more)
+        uncertainties.append(found)
         return uncertainties[-1].covariance, uncertainties[-1].clusters
 
     def refit_at(free: BoolArray) -> None:
         p = fits[-1].p.copy()
-        p[:4][~free] = datasheet[~free]
+        p[THETA][~free] = datasheet[~free]
         fits.append(refit(p, free))
 
     free, held = hold_unidentified(free, held, settings.identify, covariance_of=covariance_of,
                                    refit=refit_at)
     found = uncertainties[-1]
     if not free.any():
-        found = dataclasses.replace(found, covariance=np.zeros((4, 4)), widening=np.ones(4))
+        n = len(PARAMETER_NAMES)
+        found = dataclasses.replace(found, covariance=np.zeros((n, n)), widening=np.ones(n))
     return free, held, fits[-1], found
 
 
 @dataclass(frozen=True)
 class Uncertainty:
-    """The covariance of theta (4, 4), the clusters it rests on, each window's information
-    (W, 4, 4) and score (W, 4), and how much each standard deviation was widened for the
-    parameters held at their datasheet values (1: not)."""
+    """The covariance of theta (n, n), the clusters it rests on, each window's information
+    (W, n, n) and score (W, n), how much each standard deviation was widened for the
+    parameters held at their datasheet values (1: not), and the wheel-rate offsets' standard
+    deviation (rev/s; zero where not fitted)."""
 
     covariance: FloatArray
     clusters: int
     information: FloatArray
     scores: FloatArray
     widening: FloatArray
+    offset_std: float = 0.0
 
 
 def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray,
                nuisance: FloatArray | None = None) -> Uncertainty:
     """Sandwich covariance of theta over clusters of windows (folded clusters' meat included),
     from the prewhitened rows, each cluster's score scaled by its leverage, cross products of
-    clusters up to three apart with Newey and West's weights; kappa (``free[4]``) profiled
-    out. With fewer than :data:`MIN_CLUSTERS_FOR_ROBUST` clusters, the larger of it and the
-    residual-variance formula, widened by Student's t for the clusters' number.
+    clusters up to three apart with Newey and West's weights; kappa and the offset profiled
+    out (the offset's prior is in ``folded``). What it adds beyond the residual-variance
+    formula is widened by Student's t for the clusters each parameter's information comes from
+    (with fewer than :data:`MIN_CLUSTERS_FOR_ROBUST` clusters in all, the larger of the two).
 
-    ``nuisance`` (4,): the datasheet uncertainty of each parameter held at its datasheet value
+    ``nuisance`` (n,): the datasheet uncertainty of each parameter held at its datasheet value
     (0 for the free ones). A held parameter that is wrong by that much moves the free ones by
     ``-H_ff^-1 H_fj`` times it: that spread is added, so a free parameter that cannot be told
     apart from a held one (a circle at one rate, a missing a_y) carries its uncertainty.
@@ -534,25 +655,60 @@ def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray
     meat = (vectors * np.clip(values, 0.0, None)) @ vectors.T
     correction = clusters / (clusters - 1) if clusters > 1 else 1.0
     cov = correction * (h_inv @ meat @ h_inv)
-    if clusters < MIN_CLUSTERS_FOR_ROBUST:
-        count = current.white[..., 0].size + folded.count
-        naive = (current.cost + folded.cost) / max(count - int(free.sum()), 1) * h_inv
-        s_n = np.sqrt(np.clip(np.diag(naive), 0.0, None))
-        s_r = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            f = np.where(s_n > 0, np.maximum(s_n, s_r) / s_n, 1.0)
-        # one cluster: no spread to inflate (the one-cluster rule leaves nothing identified)
-        inflation = few_clusters_inflation(clusters) if clusters >= 2 else 1.0
-        cov = naive * np.outer(f, f) * inflation**2
-    base = np.sqrt(np.clip(np.diag(cov)[:4], 0.0, None))
+    # the residual-variance (model-based) covariance: the error model's, from every window
+    count = current.white[..., 0].size + folded.count
+    naive = (current.cost + folded.cost) / max(count - int(free.sum()), 1) * h_inv
+    s_n = np.sqrt(np.clip(np.diag(naive), 0.0, None))
+    s_r = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    # The sandwich is needed where the errors are not what the error model says (correlated
+    # over seconds, a reference's own): what it adds beyond the model-based variance rests on
+    # the clusters the parameter's information comes from, few for t_r and d on a short drive
+    # (Satterthwaite's effective number; t_r's from the few clusters with bends), so it is
+    # widened by Student's t at the three-sigma tail for them. Where the two agree the error
+    # model holds, and its variance, from every window, needs no widening. With fewer than
+    # MIN_CLUSTERS_FOR_ROBUST clusters the larger of the two is taken as it stands.
+    effective = _effective_clusters(info, windows.cluster, folded, h_inv) if windows.size \
+        else np.full(P, float(clusters))
+    f = np.array([tail_inflation(max(round(e), 2)) if e > 0 else 1.0 for e in effective])
+    if clusters < 2:
+        f[:] = 1.0                # one cluster: the one-cluster rule leaves nothing identified
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if clusters < MIN_CLUSTERS_FOR_ROBUST:
+            target = np.maximum(s_n, s_r) * f
+        else:
+            target = np.sqrt(s_n ** 2 + f ** 2 * np.clip(s_r ** 2 - s_n ** 2, 0.0, None))
+        scale = np.where(s_r > 0, target / s_r, 1.0)
+    cov = cov * np.outer(scale, scale)
+    base = np.sqrt(np.clip(np.diag(cov)[THETA], 0.0, None))
     if nuisance is not None:
-        for j in np.flatnonzero(nuisance[:4] > 0):
+        for j in np.flatnonzero(nuisance > 0):
             shift = -h_inv @ h[:, j]                   # d p_free / d theta_j (held)
             cov = cov + nuisance[j] ** 2 * np.outer(shift, shift)
-    std = np.sqrt(np.clip(np.diag(cov)[:4], 0.0, None))
+    std = np.sqrt(np.clip(np.diag(cov)[THETA], 0.0, None))
     with np.errstate(divide="ignore", invalid="ignore"):
         widening = np.where(base > 0, std / base, 1.0)
-    return Uncertainty(cov[:4, :4], clusters, info[:, :4, :4], scores[:, :4], widening)
+    return Uncertainty(cov[THETA, THETA], clusters, info[:, THETA, THETA], scores[:, THETA],
+                       widening, float(np.sqrt(max(cov[OFFSET, OFFSET], 0.0))))
+
+
+def _effective_clusters(info: FloatArray, cluster: IntArray, folded: Folded,
+                        h_inv: FloatArray) -> FloatArray:
+    """Per element of p, the effective number of independent clusters its variance rests on:
+    ``(sum_k e_k)^2 / sum_k e_k^2`` with ``e_k`` the share of cluster k's information in it
+    (``(H^-1 I_k H^-1)_jj``); folded clusters count as equal shares of the folded information.
+    One cluster that carries it all counts one; many equal ones count as many."""
+    labels, index = np.unique(cluster, return_inverse=True)
+    per = np.zeros((labels.size, P, P))
+    np.add.at(per, index, info)
+    shares = np.einsum("ip,kpq,iq->ki", h_inv, per, h_inv)          # (K, P): e_k per element
+    total = shares.sum(axis=0)
+    squares = (shares ** 2).sum(axis=0)
+    if folded.clusters:
+        folded_share = np.einsum("ip,pq,iq->i", h_inv, folded.h, h_inv)
+        total = total + folded_share
+        squares = squares + folded_share ** 2 / folded.clusters
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(squares > 0, total ** 2 / squares, 0.0)
 
 
 def fold(folded: Folded, windows: WindowSet, p: FloatArray, shift: float, heading_offset: float,
@@ -567,7 +723,9 @@ def fold(folded: Folded, windows: WindowSet, p: FloatArray, shift: float, headin
     jj, rr = current.white[..., 1:], current.white[..., 0]
     rows, res = jj.reshape(-1, jj.shape[-1]), rr.reshape(-1)
     h, g = rows.T @ rows, rows.T @ res
-    free = np.append(np.ones(4, dtype=bool), smooth)
+    free = free_of(np.ones(KAPPA, dtype=bool), kappa=smooth, offset=folded.offset_free)
+    if not folded.offset_free:             # no offset fitted: nothing of it folded either
+        h[OFFSET, :] = h[:, OFFSET] = g[OFFSET] = 0.0
     adjusted = leverage_adjusted_scores(h[None], g[None], free, np.zeros(1, dtype=np.int64),
                                         total=total_h if total_h is not None else h + folded.h
                                         )[0][0]

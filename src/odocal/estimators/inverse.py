@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal.checks.departures import wheel_step
 from odocal.data.drive import Drive
 from odocal.data.segments import common_sampling_time
 from odocal.estimators import core
@@ -114,6 +115,11 @@ class InverseDetails:
     gives about 1 (less where other errors dilute the regression)."""
     delay_found_s: float = 0.0
     """The lag the scan found, applied or not."""
+    wheel_offset_revps: float = 0.0
+    """The wheel rates' constant offset while moving, rev/s (a biased speed signal; rates
+    truncated towards zero read half a step low)."""
+    wheel_offset_std: float = 0.0
+    """Its standard deviation (about the prior's where the drive does not determine it)."""
     delay_note: str = ""
     """Why the lag found was not applied: ``within noise`` (under three standard deviations),
     ``does not hold out`` (found on half the clusters, it does not lower the other half's
@@ -134,6 +140,8 @@ class InverseDetails:
                 "smoothing_steps2": self.smoothing_steps2,
                 "coupling_beta": self.coupling,
                 "delay_found_s": self.delay_found_s, "delay_note": self.delay_note,
+                "wheel_offset_revps": self.wheel_offset_revps,
+                "wheel_offset_std_revps": self.wheel_offset_std,
                 "elapsed_s": self.elapsed_s}
 
 
@@ -159,7 +167,9 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         return _nothing(settings, dict(held or {}), started, windows.length * t_s)
     if progress:
         progress("inverse: fit", 1, 2)
-    found = core.fit(windows, core.Folded(origin=_origin(settings)), settings,
+    prior = core.Folded.prior(_origin(settings),
+                              core.offset_prior_std(settings, wheel_step(drives)))
+    found = core.fit(windows, prior, settings,
                      heading_offset=offset, held=held, distance_only=distance_only)
     if progress:
         progress("inverse: fit", 2, 2)
@@ -167,8 +177,10 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
 
 
 def _origin(settings: Settings) -> FloatArray:
-    """Where folded coupling moments are taken (the datasheet values, kappa 0)."""
-    return np.append(np.asarray(settings.identify.theta0, dtype=np.float64), 0.0)
+    """Where folded coupling moments are taken (the datasheet values, kappa and the offsets
+    0)."""
+    theta0 = np.asarray(settings.identify.theta0, dtype=np.float64)
+    return np.concatenate([theta0, np.zeros(core.P - theta0.size)])
 
 
 def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
@@ -192,8 +204,9 @@ def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
         scores=found.uncertainty.scores, cluster=windows.cluster,
         measured=windows.measured @ CHANNELS.T, residual=fit.residual,
         prewhitening=(float(found.model.ma[0, 0]), float(found.model.ma[1, 0])),
-        smoothing_steps2=float(2.0 * fit.p[4]), coupling=float(found.model.coupling),
-        delay_found_s=found.lag.found * t_s, delay_note=found.lag.note)
+        smoothing_steps2=float(2.0 * fit.p[core.KAPPA]), coupling=float(found.model.coupling),
+        delay_found_s=found.lag.found * t_s, delay_note=found.lag.note,
+        wheel_offset_revps=found.offset[0], wheel_offset_std=found.offset[1])
     if not free.any():
         status = Status.NOTHING_IDENTIFIABLE
     elif float(np.max(rms)) < 1e-9:

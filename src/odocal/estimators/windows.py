@@ -41,8 +41,16 @@ BoolArray = NDArray[np.bool_]
 SERIES = 4
 #: Moment columns: ``ds a^j``, ``dpsi a^j``, ``lat a^j`` for j < SERIES, then the same three
 #: times the reference's own lateral acceleration ``v w`` (where a_y is missing, the load
-#: transfer d it cannot show is still felt: :func:`load_transfer_column`).
-COLUMNS = 3 * SERIES + 3
+#: transfer d it cannot show is still felt: :func:`load_transfer_column`), then the time the
+#: reference moves (signed by the direction of travel: what a wheel-rate offset, or rates
+#: truncated towards zero, add to the revolutions).
+COLUMNS = 3 * SERIES + 4
+#: The index of the moving time among the moment columns (the last) ...
+MOVING = COLUMNS - 1
+#: ... and among the columns the model takes (:meth:`WindowSet.at`, the last too).
+AT_MOVING = 2 * SERIES + 2
+#: A step moves when the reference goes faster than this (m/s).
+MOVING_MPS = 0.5
 #: Straight stretches for the heading offset: one second long, faster than this (m/s) ...
 STRAIGHT_SPEED_MPS = 3.0
 #: ... and turning slower than this (rad/s).
@@ -106,15 +114,15 @@ class WindowSet:
         return replace(self, weight=self.weight * factor)
 
     def rotated(self, heading_offset: float) -> FloatArray:
-        """The moments the model takes at every whole-step shift (W, S, 2 SERIES + 2)."""
+        """The moments the model takes at every whole-step shift (W, S, 2 SERIES + 3)."""
         return _rotated(self.moments, heading_offset)
 
     def at(self, shift: float, heading_offset: float) -> tuple[FloatArray, FloatArray]:
-        """The moments the model takes, ``[along_j, dpsi_j, along v w, dpsi v w]`` (W, 2 SERIES
-        + 2), at a (fractional) shift of the reference side (steps; linear between whole steps,
-        kept within :attr:`shifts`), the along-track ones turned by the heading offset; and
-        their second difference in the shift (the counting window's spread; zero without a
-        margin)."""
+        """The moments the model takes, ``[along_j, dpsi_j, along v w, dpsi v w, moving]``
+        (W, 2 SERIES + 3), at a (fractional) shift of the reference side (steps; linear
+        between whole steps, kept within :attr:`shifts`), the along-track ones turned by the
+        heading offset; and their second difference in the shift (the counting window's
+        spread; zero without a margin)."""
         moments = self.moments
         if moments.shape[1] < 3:
             m = _rotated(moments[:, 0], heading_offset)
@@ -160,15 +168,15 @@ def _interpolate(moments: FloatArray, x: float) -> FloatArray:
 
 
 def _rotated(moments: FloatArray, offset: float) -> FloatArray:
-    """``[along_j, dpsi_j, along a_ref, dpsi a_ref]`` from the stored columns (..., COLUMNS):
-    the step along the direction of travel when the reference heading is ``offset`` short of
-    it (``ds cos + lat sin``: (1) projected on the turned heading, exactly)."""
+    """``[along_j, dpsi_j, along a_ref, dpsi a_ref, moving]`` from the stored columns (...,
+    COLUMNS): the step along the direction of travel when the reference heading is ``offset``
+    short of it (``ds cos + lat sin``: (1) projected on the turned heading, exactly)."""
     ds, dpsi, lat = (moments[..., k * SERIES:(k + 1) * SERIES] for k in range(3))
     rds, rdpsi, rlat = (moments[..., 3 * SERIES + k, None] for k in range(3))
     if offset != 0.0:
         c, s = math.cos(offset), math.sin(offset)
         ds, rds = ds * c + lat * s, rds * c + rlat * s
-    return np.concatenate([ds, dpsi, rds, rdpsi], axis=-1)
+    return np.concatenate([ds, dpsi, rds, rdpsi, moments[..., MOVING, None]], axis=-1)
 
 
 def predict(theta: FloatArray, moments: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -312,9 +320,11 @@ class WindowBuilder:
         a = ring[:, _A]
         power = a[:, None] ** np.arange(SERIES)[None, :]
         a_ref = (ring[:, _DS] * ring[:, _DPSI] / self.t_s**2)[:, None]      # v w
+        moving = np.where(np.abs(ring[:, _DS]) > MOVING_MPS * self.t_s,
+                          np.sign(ring[:, _DS]) * self.t_s, 0.0)[:, None]
         columns = np.concatenate([ring[:, _DS, None] * power, ring[:, _DPSI, None] * power,
                                   ring[:, _LAT, None] * power,
-                                  ring[:, [_DS, _DPSI, _LAT]] * a_ref], axis=1)
+                                  ring[:, [_DS, _DPSI, _LAT]] * a_ref, moving], axis=1)
         # each window's sums from its own steps (a running sum over the whole ring would leave
         # rounding of its size in every difference, and depend on how the samples came)
         span = length + 2 * margin
@@ -332,7 +342,9 @@ class WindowBuilder:
         assert self.origin is not None
         cluster = (self.drive * 10**9
                    + np.floor((t0 - self.origin) / self.cluster_span_s)).astype(np.int64)
-        moving = np.abs(measured).sum(axis=1) > 0             # standing still says nothing
+        # standing still says nothing: the wheels do not turn, or the reference stays put
+        # (where wheels that read an offset would be all residual)
+        moving = (np.abs(measured).sum(axis=1) > 0) & (moments[:, margin, MOVING] != 0)
         follows = np.ones(count, dtype=bool)
         follows[0] = self._follows
         follows[1:] &= moving[:-1]
@@ -385,11 +397,14 @@ def heading_offset(straight: FloatArray) -> float:
 def builder_for(settings: Settings, t_s: float, *, drive: int = 0,
                 cluster_steps: int | None = None) -> WindowBuilder:
     """A builder with the default method's window length and margin (``[inverse]``); clusters
-    of a segment's length unless ``cluster_steps`` says otherwise."""
+    of a segment's length unless ``cluster_steps`` says otherwise. Every piece loses its margin
+    at either end (``max_delay_s`` and two steps): batch and live alike, so that the two give
+    the same windows."""
     cfg = settings.inverse
     length = max(round(cfg.window_s / t_s), 1)
-    # room for the lag scan and one step either way for the counting window's spread
-    margin = math.ceil(cfg.max_delay_s / t_s - 1e-6) + 1 if cfg.delay == "estimate" else 0
+    # room for the lag scan (a step beyond the range, so a lag at its end is not at the
+    # grid's edge) and one step either way for the counting window's spread
+    margin = math.ceil(cfg.max_delay_s / t_s - 1e-6) + 2 if cfg.delay == "estimate" else 0
     return WindowBuilder(t_s=t_s, length=length, margin=margin,
                          cluster_steps=cluster_steps or settings.segments.length, drive=drive)
 

@@ -143,7 +143,7 @@ class OnlineCalibrator:
         self._last_t: float | None = None
         self._builder: WindowBuilder | None = None
         self._windows: WindowSet | None = None
-        self._folded = core.Folded(origin=np.append(self.datasheet, 0.0))
+        self._folded = core.Folded(origin=core.pack(self.datasheet))
         self._samples = 0
         self._windows_total = 0
         self._since_fit = 0                       # windows added since the core last ran
@@ -277,7 +277,7 @@ class OnlineCalibrator:
         # error model, and every few clusters the lag, so that the change detector and the
         # folding work with current ones
         current = self._solve(max_iterations=3)
-        self.theta, self._kappa = current.p[:4].copy(), float(current.p[4])
+        self.theta, self._kappa = current.p[core.THETA].copy(), float(current.p[core.KAPPA])
         coupling = self.settings.inverse.common_wheel_error == "estimate"
         self._model = core.refit_model(current, self._windows, self._folded, coupling=coupling)
         if self._smooth and self._clusters_done % _LAG_EVERY == 0:
@@ -302,8 +302,8 @@ class OnlineCalibrator:
         lag of now."""
         assert self._windows is not None
         view = core.View.of(self._windows, self._lag.shift, self.heading_offset())
-        free = np.append(np.ones(4, dtype=bool), self._smooth)
-        return core.solve(np.append(self.theta, self._kappa), view, free, self._model,
+        free = core.free_of(np.ones(self.theta.size, dtype=bool), kappa=self._smooth)
+        return core.solve(core.pack(self.theta, self._kappa), view, free, self._model,
                           self._folded, np.ones(2), max_iterations=max_iterations,
                           tolerance=self.settings.inverse.tolerance)
 
@@ -323,7 +323,7 @@ class OnlineCalibrator:
         if oldest.all():
             oldest = np.arange(windows.size) < windows.size // 2   # (one huge cluster: half)
         offset = self.heading_offset()
-        p = np.append(self.theta, self._kappa)
+        p = core.pack(self.theta, self._kappa)
         total, _ = core.evaluate(p, core.View.of(windows, self._lag.shift, offset), self._model,
                                  self._folded, np.ones(2),
                                  smooth=self._smooth).normal_equations(self._folded)
@@ -345,7 +345,7 @@ class OnlineCalibrator:
                          distance_only=self._diagnosis.no_differential)
         if found.free.any():
             self.theta = found.theta.copy()
-            self._kappa = float(found.fit.p[4])
+            self._kappa = float(found.fit.p[core.KAPPA])
         self._model, self._lag = found.model, found.lag
         self._since_fit = 0
         return found

@@ -29,6 +29,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal.checks.departures import corrected
+from odocal.checks.departures import findings as departure_findings
+from odocal.checks.departures import measure as measure_departures
 from odocal.checks.diagnosis import check_drives
 from odocal.checks.findings import Diagnosis
 from odocal.checks.gate import gate
@@ -240,6 +243,14 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     settings = with_stated_datasheet(drive_list, settings)
     with clock.stage("checks"):
         diagnosis = check_drives(drive_list, settings)
+        departures = None
+        if not (diagnosis.fatal or diagnosis.standstill):
+            # a_y's clock and offset and a heading error varying with the heading, measured
+            # against the reference and taken out before any method fits (and validates)
+            departures = measure_departures(drive_list, settings,
+                                            lateral=not diagnosis.lateral_missing)
+            drive_list = corrected(drive_list, departures)
+            diagnosis = diagnosis.plus(departure_findings(departures))
     with clock.stage("segments"):
         prep = prepare(drive_list, settings)
         prep = dataclasses.replace(prep, held={**prep.held, **held_by_checks(diagnosis)})
@@ -278,7 +289,7 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         warnings=tuple(warnings), elapsed_s=time.perf_counter() - started, bootstrap=boot,
         three_step=outcome.three_step, batch=prep.__dict__.get("batch"),
         drive_data=tuple(drive_list),
-        timings_s=dict(clock.seconds), diagnosis=diagnosis)
+        timings_s=dict(clock.seconds), diagnosis=diagnosis, departures=departures)
 
 
 def _gated(diagnosis: Diagnosis, estimate: Estimate, settings: Settings,

@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal._version import __version__
+from odocal.checks.departures import Departures
 from odocal.checks.findings import Diagnosis
 from odocal.data.drive import Drive
 from odocal.data.segments import SegmentBatch, SegmentSet
@@ -129,6 +130,8 @@ class CalibrationResult:
     diagnosis : the checks of the data against the model, before and after the fit
     comparison : every method scored on held-out data (``--compare``; see
     :mod:`odocal.pipeline.compare`)
+    departures : the sensors' departures measured and taken out before the fit (a_y's clock and
+        offset, a heading error varying with the heading: :mod:`odocal.checks.departures`)
     """
 
     estimate: Estimate
@@ -147,6 +150,7 @@ class CalibrationResult:
     timings_s: dict[str, float] = field(default_factory=dict)
     diagnosis: Diagnosis = field(default_factory=lambda: Diagnosis(()))
     comparison: Comparison | None = None
+    departures: Departures | None = None
 
     @property
     def theta(self) -> Parameters:
@@ -212,6 +216,7 @@ class CalibrationResult:
         out["elapsed_s"] = self.elapsed_s
         out["timings_s"] = dict(self.timings_s)
         out["diagnosis"] = self.diagnosis.to_dict()
+        out["departures"] = self.departures.to_dict() if self.departures is not None else None
         out["settings"] = self.settings.to_dict()
         out["bootstrap"] = self.bootstrap.to_dict() if self.bootstrap is not None else None
         if self.three_step is not None:

@@ -270,11 +270,11 @@ def finding_text(finding: Finding, settings: Settings) -> str:
         hint = " (in g instead of m/s^2?)" if 0.07 < v < 0.14 else ""
         return f"a_y is {v:.3g} times speed times yaw rate{hint}"
     if c is Check.CLOCK_OFFSET:
-        if finding.severity is Severity.FATAL:
-            return (f"the wheel stream lags the pose stream by {v:+.2f} s: align the clocks "
-                    "(the mapping's offset_s) and calibrate again")
-        return (f"the wheel stream lags the pose stream by {v * 1000:+.0f} ms, more than the "
-                f"{settings.inverse.max_delay_s:g} s the calibration corrects: align the clocks")
+        reach = ("no lag (the lag search is off: [inverse] delay)" if finding.reference == 0
+                 else f"up to {finding.reference:g} s, [inverse] max_delay_s")
+        return (f"the wheel stream lags the pose stream by {v:+.2f} s, more than the "
+                f"calibration corrects ({reach}): align the clocks (the mapping's offset_s) "
+                "and calibrate again")
     if c is Check.PARAMETER_RANGE:
         return _range_text(finding, settings)
     if c is Check.WORSE_THAN_DATASHEET:
@@ -302,8 +302,23 @@ def _reference_and_sensor_text(finding: Finding) -> str:
                 "vehicle turns: a missing or unplugged sensor?); d is not calibrated and its "
                 "uncertainty widens t_r's")
     if c is Check.LATERAL_DELAY:
-        return (f"a_y lags speed times the reference yaw rate by {v:+.2f} s: align the IMU "
-                "stream's clock (the mapping's offset_s); d is biased by it")
+        return (f"a_y lags speed times the reference yaw rate by {v:+.2f} s: a calibration "
+                "aligns it before the fit (aligning the IMU stream's clock, the mapping's "
+                "offset_s, is better)")
+    if c is Check.LATERAL_OFFSET:
+        tilt = np.degrees(np.arcsin(np.clip(v / 9.81, -1.0, 1.0)))
+        return (f"a_y reads {v:+.2f} m/s^2 (+-{ref:.2f}) more than the reference's turning "
+                f"gives, on every moving second (an IMU rolled by {abs(tilt):.1f} degrees?): "
+                "taken out before the fit")
+    if c is Check.WHEEL_OFFSET:
+        return (f"the wheels read {v:+.3f} and {ref:+.3f} rev/s (rear left, right) while the "
+                "reference stands still: an offset of the speed signal, taken out of every "
+                "sample before the fit")
+    if c is Check.HEADING_ERROR:
+        return (f"the reference heading's error varies with the heading by up to "
+                f"{np.degrees(v):.1f} degrees against its course on straights (a compass or "
+                "magnetometer heading?): taken out before the fit; a GNSS course or a fused "
+                "pose is better")
     if c is Check.REFERENCE_SYNC:
         lag = (f"it matches them {abs(v):.0f} s {'later' if v > 0 else 'earlier'}: "
                "the pose stream's clock is off by that much"

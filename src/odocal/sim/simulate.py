@@ -92,7 +92,7 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
              theta: Parameters | None = None, t_s: float = 0.025,
              name: str | None = None,
              change: tuple[float, Parameters] | None = None,
-             noise_seed: int | None = None) -> SimulatedDrive:
+             noise_seed: int | None = None, route: str = "city") -> SimulatedDrive:
     """Simulate a city drive with known true parameters.
 
     Parameters
@@ -106,6 +106,10 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
         (a tyre pressure change within the drive); ``true_parameters`` are those before
     noise_seed : draws the noise from its own seed, so one route (``seed``) can be driven with
         many noise draws (a Monte Carlo over the noise alone); by default ``seed`` draws both
+    route : one of :data:`ROUTES`: ``city`` (bends both ways, intersections, roundabouts,
+        stops, 10-15 m/s), ``left`` (the same bends, every one to the left, at one speed, no
+        stops) or ``slalom`` (a sine of curvature at one speed): on the last two the lateral
+        acceleration is the speed times the yaw rate at one speed, so t_r and d act alike
     """
     if isinstance(noise, str):
         if noise not in NOISE_PROFILES:
@@ -114,6 +118,8 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
         profile = NOISE_PROFILES[noise]
     else:
         profile = noise
+    if route not in ROUTES:
+        raise ConfigError(f"unknown route {route!r}; choose one of {', '.join(ROUTES)}")
     if not duration_s > 10.0 * t_s:
         raise ConfigError(f"duration {duration_s} s is too short to simulate a drive")
     if not 0 < t_s <= 1.0:
@@ -122,7 +128,7 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
     rng = np.random.default_rng(seed)
     m = round(duration_s / t_s) + 1
 
-    kappa_s, vmax_s, stops = _route(rng, duration_s)
+    kappa_s, vmax_s, stops = _route(rng, duration_s, route)
     v, kappa = _drive_along(kappa_s, vmax_s, stops, m, t_s)
     w = v * kappa                                      # yaw rate, rad/s
     a_y = v * w                                        # lateral acceleration, m/s^2
@@ -159,9 +165,22 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
                           seed=seed, changed=change is not None)
 
 
-def _route(rng: np.random.Generator, duration_s: float
+#: The routes :func:`simulate` drives.
+ROUTES = ("city", "left", "slalom")
+#: The one speed of the ``left`` and ``slalom`` routes, m/s.
+_STEADY_MPS = 8.0
+
+
+def _route(rng: np.random.Generator, duration_s: float, route: str = "city"
            ) -> tuple[FloatArray, FloatArray, list[tuple[float, float]]]:
     """Curvature and speed limit on a 0.1 m arc-length grid, and the stops (s, dwell)."""
+    if route == "slalom":
+        length = 15.0 * duration_s * 1.1 + 500.0
+        s = np.arange(int(length / _DS)) * _DS
+        period = rng.uniform(60.0, 120.0)                  # m per left-right cycle
+        wave = np.minimum(s / 60.0, 1.0) * np.sin(2.0 * np.pi * s / period) / rng.uniform(
+            25.0, 40.0)
+        return wave, np.full(s.shape, _STEADY_MPS), []
     kappa: list[FloatArray] = []
     vmax: list[FloatArray] = []
     stops: list[tuple[float, float]] = []
@@ -177,6 +196,8 @@ def _route(rng: np.random.Generator, duration_s: float
 
     def arc(radius: float, angle: float, speed: float) -> None:
         """A bend turning ``angle`` (rad, sign = direction) with clothoid ends."""
+        if route == "left":
+            angle, speed = abs(angle), _STEADY_MPS
         curvature = np.sign(angle) / radius
         total = abs(angle) * radius
         ramp = min(max(0.3 * total, 6.0), total, 25.0)    # clothoid length, m
@@ -186,7 +207,7 @@ def _route(rng: np.random.Generator, duration_s: float
         add(np.concatenate([up, np.full(n_body, curvature), up[::-1]]), speed)
 
     def straight(meters: float, speed: float) -> None:
-        add(np.zeros(max(int(meters / _DS), 1)), speed)
+        add(np.zeros(max(int(meters / _DS), 1)), _STEADY_MPS if route == "left" else speed)
 
     straight(60.0, 12.0)
     while length < needed:
@@ -197,7 +218,7 @@ def _route(rng: np.random.Generator, duration_s: float
             angle = np.deg2rad(rng.uniform(20.0, 120.0)) * rng.choice([-1.0, 1.0])
             arc(radius, angle, min(15.0, np.sqrt(rng.uniform(2.0, 3.5) * radius)))
         elif kind == "intersection":
-            if rng.random() < 0.7:
+            if rng.random() < 0.7 and route == "city":
                 stops.append((length, rng.uniform(2.0, 25.0)))
             radius = rng.uniform(8.0, 15.0)
             arc(radius, np.deg2rad(90.0) * rng.choice([-1.0, 1.0]), np.sqrt(2.5 * radius))

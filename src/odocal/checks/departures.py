@@ -1,0 +1,390 @@
+"""Moderate departures of the sensors from the model, measured against the reference and taken out.
+
+Before any fit, three properties of a log that the model assumes away are measured from the
+data themselves, on every path alike:
+
+* **the lateral acceleration's clock** against the reference's: the lag of ``a_y`` behind speed
+  times the reference yaw rate (cross-correlation over every piece of 20 s or more). The wheel
+  stream's own lag is found later, by the estimator, shifting the reference side with ``a_y``
+  on it: so ``a_y`` is first brought onto the reference's clock.
+* **a constant offset of** ``a_y``: its mean less the reference's own lateral acceleration
+  ``v w`` on moving seconds (an IMU rolled by 3 degrees reads 0.5 m/s^2 in every straight).
+  A constant ``d a`` term is a ``c_d`` term, so left in it would move ``c_d`` by ``2 d`` times it.
+* **a heading error that varies with the heading** (a magnetometer's hard- and soft-iron
+  errors): the gap between the reference's course and its heading on straight seconds, fitted
+  with the first two harmonics of the heading. A constant gap (a mounting yaw) is the
+  estimator's to take out; the varying part is taken out of ``psi`` here, where it is
+  determined (beyond four standard deviations, larger than :data:`MIN_HEADING_HARMONIC_RAD`,
+  and the straight seconds cover the headings well enough to tell the harmonics apart).
+
+and of the wheel rates:
+
+* **an offset at standstill**: where the reference stands still for seconds at a time, wheels
+  that read a steady rate (both the same sign, most of the time) have an offset; it is taken
+  out of every sample (a biased speed signal reads it moving too).
+* **the step of their encoding**: rates that all lie on a grid (whole rpm, 0.1 km/h) may be
+  truncated towards zero, half a step low while moving, or rounded, which biases nothing; the
+  two cannot be told apart from the values, so the estimator fits a constant offset with a
+  prior of half the step (:mod:`odocal.estimators.core`): determined where the drive's speeds
+  tell it from the circumference, carried in c_e's uncertainty where they do not.
+
+Each is applied where the data determine it (:func:`corrected`), and named by a finding where
+it is large enough to matter to a user (:func:`findings`): the calibration then stands on the
+corrected data, and the report says what was taken out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal.checks.findings import Check, Finding, Severity
+from odocal.data.drive import Drive
+from odocal.model.kinematics import body_rates, motion_increments
+from odocal.settings import Settings
+
+FloatArray = NDArray[np.float64]
+
+#: Pieces at least this long (s) are cross-correlated for a_y's clock.
+MIN_LAG_PIECE_S = 20.0
+#: a_y's lag is searched this far either way (s).
+MAX_LATERAL_LAG_SEARCH_S = 2.0
+#: The correlation of a_y with v w at the best lag below which no lag is taken (no timing).
+MIN_LAG_CORRELATION = 0.5
+#: A lateral-acceleration offset applied must be this many standard errors from zero.
+OFFSET_SIGMAS = 4.0
+#: ... and is named from this size on (m/s^2).
+NAMED_LATERAL_OFFSET_MPS2 = 0.1
+#: A heading harmonic applied must be this many standard errors from zero ...
+HEADING_SIGMAS = 4.0
+#: ... and at least this large (rad, 0.5 degree).
+MIN_HEADING_HARMONIC_RAD = math.radians(0.5)
+#: The reference stands still: slower than this (m/s) over a whole second ...
+STANDSTILL_MPS = 0.05
+#: ... for at least this many seconds in all, for a standstill offset to be measured.
+MIN_STANDSTILL_S = 10
+#: A standstill offset is taken out from this size on (rev/s), read on at least this share of
+#: the standstill seconds with one sign.
+MIN_STANDSTILL_OFFSET_REVPS, MIN_STANDSTILL_SHARE = 0.005, 0.8
+#: Wheel rates whose nonzero values lie on a grid no coarser than this (rev/s) are an encoding's
+#: steps (whole rpm, 0.1 km/h); coarser grids are tick counts differenced over a sample, whose
+#: errors telescope (no bias).
+MAX_ENCODING_STEP_REVPS = 0.05
+#: Straight seconds: faster than this (m/s) and turning less than this (rad over the second).
+_STRAIGHT_MPS, _STRAIGHT_TURN_RAD = 3.0, 0.05
+#: The harmonics need straight seconds spread over the headings: the smallest singular value of
+#: their regressors (scaled by their count) at least this.
+_MIN_COVERAGE = 0.15
+
+
+@dataclass(frozen=True)
+class Departures:
+    """What was measured.
+
+    lateral_lag_s : a_y's lag behind the reference (positive: a_y late); 0 where not determined
+    lateral_offset_mps2 : a_y's constant offset, and its standard error; applied only where
+        ``lateral_offset_applied``
+    heading_harmonics : (a1, b1, a2, b2) of the heading error's varying part (rad): the
+        reference heading reads ``-(a1 cos psi + b1 sin psi + a2 cos 2 psi + b2 sin 2 psi)``
+        more than the course; zeros where not determined
+    heading_amplitude_rad : the largest |error| of that varying part over the headings
+    """
+
+    lateral_lag_s: float = 0.0
+    lateral_offset_mps2: float = 0.0
+    lateral_offset_std: float = float("nan")
+    lateral_offset_applied: bool = False
+    heading_harmonics: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    heading_amplitude_rad: float = 0.0
+    standstill_offset_revps: tuple[float, float] = (0.0, 0.0)
+    wheel_step_revps: float = 0.0
+
+    @property
+    def any(self) -> bool:
+        return bool(self.lateral_lag_s or self.lateral_offset_applied
+                    or self.heading_amplitude_rad or any(self.standstill_offset_revps))
+
+    def to_dict(self) -> dict[str, object]:
+        return {"lateral_lag_s": self.lateral_lag_s,
+                "lateral_offset_mps2": self.lateral_offset_mps2,
+                "lateral_offset_std": self.lateral_offset_std,
+                "lateral_offset_applied": self.lateral_offset_applied,
+                "heading_harmonics_rad": list(self.heading_harmonics),
+                "heading_amplitude_rad": self.heading_amplitude_rad,
+                "standstill_offset_revps": list(self.standstill_offset_revps),
+                "wheel_step_revps": self.wheel_step_revps}
+
+
+def _pieces(drives: Sequence[Drive], seconds: float) -> list[tuple[Drive, int, int]]:
+    return [(d, a, b) for d in drives for a, b in d.pieces if b - a >= round(seconds / d.t_s)]
+
+
+def best_lag(pairs: Sequence[tuple[FloatArray, FloatArray]], span: int,
+             t_s: float) -> float | None:
+    """The lag (s) of ``b`` behind ``a`` within ``span`` steps either way that correlates them
+    best, summed over the pairs of series, refined between steps by a parabola; None where even
+    the best correlation is weak (a signal that hardly varies, a circle at one rate, has no
+    timing to find)."""
+    scores = np.zeros(2 * span + 1)
+    energy_a = energy_b = 0.0
+    for a, b in pairs:
+        a, b = a - a.mean(), b - b.mean()
+        n = a.size
+        size = 1 << math.ceil(math.log2(max(2 * n, 2)))
+        # the cross-correlation at every lag by FFT: sum_i a[i] b[i + k]
+        full = np.fft.irfft(np.conj(np.fft.rfft(a, size)) * np.fft.rfft(b, size), size)
+        lags = np.arange(-span, span + 1)
+        scores += full[lags % size]
+        energy_a, energy_b = energy_a + float(a @ a), energy_b + float(b @ b)
+    best = int(np.argmax(scores))
+    if energy_a <= 0 or energy_b <= 0 \
+            or scores[best] < MIN_LAG_CORRELATION * np.sqrt(energy_a * energy_b):
+        return None
+    shift = 0.0
+    if 0 < best < scores.size - 1:
+        c0, c1, c2 = scores[best - 1:best + 2]
+        curvature = c0 - 2.0 * c1 + c2
+        if curvature < 0:
+            shift = 0.5 * (c0 - c2) / curvature
+    return float((best - span + shift) * t_s)
+
+
+def lateral_lag_s(drives: Sequence[Drive]) -> float | None:
+    """The lag (s) of a_y behind speed times the reference yaw rate (up to
+    :data:`MAX_LATERAL_LAG_SEARCH_S`), over every piece of at least :data:`MIN_LAG_PIECE_S`;
+    None where not determined."""
+    pieces = _pieces(drives, MIN_LAG_PIECE_S)
+    if not pieces:
+        return None
+    t_s = drives[0].t_s
+    pairs = []
+    for d, a, b in pieces:
+        ds, dpsi = motion_increments(d.x[a:b], d.y[a:b], d.psi[a:b], d.beta[a:b])
+        pairs.append((ds * dpsi / t_s**2, np.asarray(d.a_y[a:b - 1])))
+    return best_lag(pairs, round(MAX_LATERAL_LAG_SEARCH_S / t_s), t_s)
+
+
+def wheel_lag_s(drives: Sequence[Drive], theta: FloatArray) -> float | None:
+    """The lag (s) of the wheels' yaw rate (``theta``) behind the reference's, up to 2 s,
+    over every piece of at least :data:`MIN_LAG_PIECE_S` (positive: the wheel stream late);
+    None where not determined."""
+    pieces = _pieces(drives, MIN_LAG_PIECE_S)
+    if not pieces:
+        return None
+    t_s = drives[0].t_s
+    pairs = []
+    for d, a, b in pieces:
+        _, w = body_rates(theta, d.n_rl[a:b], d.n_rr[a:b], d.a_y[a:b])
+        pairs.append((np.gradient(d.psi[a:b], d.t_s), np.asarray(w)))
+    return best_lag(pairs, round(2.0 / t_s), t_s)
+
+
+def _seconds(drives: Sequence[Drive], lag_s: float
+             ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """One-second sums of every piece: distance, turn, a_y - v w (a_y on the reference's
+    clock), the course's gap to the heading (rad) and the heading at the middle."""
+    out: list[list[FloatArray]] = [[], [], [], [], []]
+    for d in drives:
+        size = max(round(1.0 / d.t_s), 1)
+        for a, b in d.pieces:
+            n = (b - a - 1) // size
+            if n < 1:
+                continue
+            ds, dpsi = motion_increments(d.x[a:b], d.y[a:b], d.psi[a:b], d.beta[a:b])
+            t = d.t[a:b - 1]
+            a_y = np.interp(t + lag_s, t, d.a_y[a:b - 1]) if lag_s else d.a_y[a:b - 1]
+            excess = a_y - ds * dpsi / d.t_s**2
+            cut = n * size
+            starts = a + size * np.arange(n)
+            dx = d.x[starts + size] - d.x[starts]
+            dy = d.y[starts + size] - d.y[starts]
+            turn = d.psi[starts + size] - d.psi[starts]
+            heading = d.psi[starts] + 0.5 * turn + d.beta[starts]
+            gap = np.remainder(np.arctan2(dy, dx) - heading + np.pi, 2 * np.pi) - np.pi
+            out[0].append(ds[:cut].reshape(n, size).sum(axis=1))
+            out[1].append(turn)
+            out[2].append(excess[:cut].reshape(n, size).mean(axis=1))
+            out[3].append(gap)
+            out[4].append(heading)
+    cat = [np.concatenate(x) if x else np.zeros(0) for x in out]
+    return cat[0], cat[1], cat[2], cat[3], cat[4]
+
+
+def _mean_and_error(values: FloatArray, group: int = 30) -> tuple[float, float]:
+    """The mean and its standard error, from the spread of means over groups of ``group``
+    consecutive values (neighbouring seconds are correlated)."""
+    n = values.size // group
+    if n < 3:
+        return float(values.mean()) if values.size else 0.0, float("inf")
+    means = values[:n * group].reshape(n, group).mean(axis=1)
+    return float(values.mean()), float(means.std(ddof=1) / math.sqrt(n))
+
+
+def _harmonics(gap: FloatArray, heading: FloatArray) -> tuple[FloatArray, float]:
+    """The heading error's first two harmonics (a1, b1, a2, b2) where they are determined, and
+    the largest |error| of their sum; zeros otherwise."""
+    zero = np.zeros(4)
+    if gap.size < 60:
+        return zero, 0.0
+    regressors = np.column_stack([np.ones_like(heading), np.cos(heading), np.sin(heading),
+                                  np.cos(2 * heading), np.sin(2 * heading)])
+    singular = np.linalg.svd(regressors[:, 1:] / math.sqrt(gap.size), compute_uv=False)
+    if singular[-1] < _MIN_COVERAGE:
+        return zero, 0.0                          # too few headings to tell the harmonics apart
+    coef, *_ = np.linalg.lstsq(regressors, gap, rcond=None)
+    residual = gap - regressors @ coef
+    # a robust spread, and groups of 30 s: neighbouring seconds share their errors
+    spread = 1.4826 * float(np.median(np.abs(residual - np.median(residual))))
+    cov = np.linalg.pinv(regressors.T @ regressors) * spread**2 * 30.0
+    std = np.sqrt(np.clip(np.diag(cov)[1:], 0.0, None))
+    harmonics = coef[1:]
+    if not (np.abs(harmonics) > HEADING_SIGMAS * std).any():
+        return zero, 0.0
+    grid = np.linspace(-math.pi, math.pi, 721)
+    varying = (harmonics[0] * np.cos(grid) + harmonics[1] * np.sin(grid)
+               + harmonics[2] * np.cos(2 * grid) + harmonics[3] * np.sin(2 * grid))
+    amplitude = float(np.max(np.abs(varying)))
+    if amplitude < MIN_HEADING_HARMONIC_RAD:
+        return zero, 0.0
+    return harmonics, amplitude
+
+
+def standstill_offset(drives: Sequence[Drive]) -> tuple[float, float]:
+    """What each wheel reads (rev/s) while the reference stands still, where it reads it
+    steadily (see the module docstring); zeros otherwise."""
+    rates: list[FloatArray] = []
+    for d in drives:
+        size = max(round(1.0 / d.t_s), 1)
+        for a, b in d.pieces:
+            n = (b - a - 1) // size
+            if n < 1:
+                continue
+            starts = a + size * np.arange(n)
+            moved = np.hypot(d.x[starts + size] - d.x[starts], d.y[starts + size] - d.y[starts])
+            still = starts[moved < STANDSTILL_MPS]
+            if still.size:
+                rows = still[:, None] + np.arange(size)[None, :]
+                rates.append(np.column_stack([d.n_rl[rows].mean(axis=1),
+                                              d.n_rr[rows].mean(axis=1)]))
+    if not rates:
+        return 0.0, 0.0
+    seconds = np.concatenate(rates)
+    if seconds.shape[0] < MIN_STANDSTILL_S:
+        return 0.0, 0.0
+    median = np.median(seconds, axis=0)
+    same_sign = (np.sign(seconds) == np.sign(median)).mean(axis=0)
+    if (np.abs(median) >= MIN_STANDSTILL_OFFSET_REVPS).all() \
+            and (same_sign >= MIN_STANDSTILL_SHARE).all():
+        return float(median[0]), float(median[1])
+    return 0.0, 0.0
+
+
+def wheel_step(drives: Sequence[Drive]) -> float:
+    """The grid the nonzero wheel rates lie on (rev/s), where they lie on one no coarser than
+    :data:`MAX_ENCODING_STEP_REVPS`; 0 otherwise. A drive's metadata may state it
+    (``"wheel_step_revps"``, where an importer knows the encoding)."""
+    stated = [d.metadata.get("wheel_step_revps") for d in drives]
+    numbers = [float(v) for v in stated if isinstance(v, int | float)]
+    if numbers and len(numbers) == len(stated):
+        return max(numbers)
+    values = np.concatenate([np.concatenate([d.n_rl, d.n_rr]) for d in drives])
+    values = values[values != 0.0]
+    if values.size < 100:
+        return 0.0
+    unique = np.unique(np.round(np.abs(values), 9))
+    if unique.size > values.size // 5 or unique.size < 3:
+        return 0.0
+    steps = np.diff(unique)
+    step = float(np.min(steps))
+    if not 0 < step <= MAX_ENCODING_STEP_REVPS:
+        return 0.0
+    ratio = unique / step
+    on_grid = np.abs(ratio - np.round(ratio)) < 1e-3
+    return step if on_grid.mean() > 0.99 else 0.0
+
+
+def measure(drives: Sequence[Drive], settings: Settings, *,
+            lateral: bool = True) -> Departures:
+    """The departures of :mod:`the module docstring <odocal.checks.departures>` on ``drives``;
+    ``lateral`` False where a_y carries no lateral acceleration (nothing to measure in it)."""
+    lag = (lateral_lag_s(drives) or 0.0) if lateral else 0.0
+    if abs(lag) <= 0.5 * drives[0].t_s:
+        lag = 0.0                          # within half a step: nothing the data can tell
+    ds, turn, excess, gap, heading = _seconds(drives, lag)
+    moving = np.abs(ds) > settings.gate.min_speed_mps
+    offset, offset_std, applied = 0.0, float("nan"), False
+    if lateral and moving.sum() >= 90:
+        offset, offset_std = _mean_and_error(excess[moving])
+        applied = abs(offset) > OFFSET_SIGMAS * offset_std
+    straight = (np.abs(ds) > _STRAIGHT_MPS) & (np.abs(turn) < _STRAIGHT_TURN_RAD)
+    harmonics, amplitude = _harmonics(gap[straight], heading[straight])
+    return Departures(lateral_lag_s=lag, lateral_offset_mps2=offset,
+                      lateral_offset_std=offset_std, lateral_offset_applied=applied,
+                      heading_harmonics=tuple(float(h) for h in harmonics),  # type: ignore
+                      heading_amplitude_rad=amplitude,
+                      standstill_offset_revps=standstill_offset(drives),
+                      wheel_step_revps=wheel_step(drives))
+
+
+def heading_correction(psi: FloatArray, harmonics: Sequence[float]) -> FloatArray:
+    """What to add to a heading to take the varying error out (the course's gap to it)."""
+    a1, b1, a2, b2 = harmonics
+    return np.asarray(a1 * np.cos(psi) + b1 * np.sin(psi) + a2 * np.cos(2 * psi)
+                      + b2 * np.sin(2 * psi))
+
+
+def corrected(drives: Sequence[Drive], found: Departures) -> list[Drive]:
+    """The drives with what ``found`` determined taken out: a_y on the reference's clock and
+    without its offset, the heading without its varying error."""
+    if not found.any:
+        return list(drives)
+    out = []
+    for d in drives:
+        a_y = np.array(d.a_y, dtype=np.float64)
+        psi = np.array(d.psi, dtype=np.float64)
+        if found.lateral_lag_s:
+            for a, b in d.pieces:
+                a_y[a:b] = np.interp(d.t[a:b] + found.lateral_lag_s, d.t[a:b], d.a_y[a:b])
+        if found.lateral_offset_applied:
+            a_y -= found.lateral_offset_mps2
+        if found.heading_amplitude_rad:
+            psi += heading_correction(psi, found.heading_harmonics)
+        o_rl, o_rr = found.standstill_offset_revps
+        out.append(dataclasses.replace(d, a_y=a_y, psi=psi, n_rl=np.asarray(d.n_rl) - o_rl,
+                                       n_rr=np.asarray(d.n_rr) - o_rr))
+    return out
+
+
+def findings(found: Departures) -> list[Finding]:
+    """The departures worth naming: each a note (the calibration stands, on corrected data).
+    a_y's lag is named by the checks of every path (:func:`lateral_delay`)."""
+    out = []
+    if found.lateral_offset_applied and abs(found.lateral_offset_mps2) >= \
+            NAMED_LATERAL_OFFSET_MPS2:
+        out.append(Finding(Check.LATERAL_OFFSET, Severity.NOTE, found.lateral_offset_mps2,
+                           found.lateral_offset_std, "a_y"))
+    if found.heading_amplitude_rad:
+        out.append(Finding(Check.HEADING_ERROR, Severity.NOTE, found.heading_amplitude_rad,
+                           MIN_HEADING_HARMONIC_RAD))
+    if any(found.standstill_offset_revps):
+        o_rl, o_rr = found.standstill_offset_revps
+        out.append(Finding(Check.WHEEL_OFFSET, Severity.NOTE, o_rl, o_rr))
+    return out
+
+
+#: A lag of a_y behind the reference beyond this is named (s); it is taken out either way.
+MAX_NAMED_LATERAL_LAG_S = 0.25
+
+
+def lateral_delay(drives: Sequence[Drive]) -> list[Finding]:
+    """a_y's lag behind the reference, named where it exceeds :data:`MAX_NAMED_LATERAL_LAG_S`
+    (value: the lag, s; positive: a_y late)."""
+    lag = lateral_lag_s(drives)
+    if lag is not None and abs(lag) > MAX_NAMED_LATERAL_LAG_S:
+        return [Finding(Check.LATERAL_DELAY, Severity.NOTE, lag, 0.0, "a_y")]
+    return []
