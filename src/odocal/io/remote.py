@@ -48,6 +48,7 @@ from odocal.errors import (
     InputFileError,
     MissingDependencyError,
     OdocalError,
+    OutputError,
     shown,
 )
 
@@ -285,7 +286,7 @@ def explain(exc: BaseException, url: str, what: str) -> RemoteError:
             "http": "~/.netrc", "https": "~/.netrc"}.get(scheme, "the store's credentials")
     # fsspec's HTTP file system calls every failure "not found": the cause says what it was
     if _is_changed(exc):
-        text = f"{where} changed while it was read: not read; run again"
+        text = f"{where} changed while it was read: not used; run again"
     elif any(_unreachable(e) or isinstance(e, TimeoutError) for e in chain):
         endpoint = f"the server {shown(host)}" if scheme in ("http", "https") \
             else "the store's endpoint"
@@ -441,24 +442,28 @@ def _copy_file(url: str, dest: Path, what: str, pin: Mapping[str, Any] | None,
                         block = src.read(CHUNK_BYTES)
                         if not block:
                             break
-                        out.write(block)
+                        try:
+                            out.write(block)
+                        except OSError as exc:        # this machine's disk, not the store
+                            raise OutputError(
+                                f"cannot copy {what} '{shown(redact(url))}' into the "
+                                f"temporary folder '{dest.parent.parent}': "
+                                f"{exc.strerror or exc} (TMPDIR chooses the folder)") from exc
                         digest.update(block)
                         done += len(block)
                         _RECEIVED[0] += len(block)
                 break
+            except OdocalError:
+                raise
             except OSError as exc:
-                if isinstance(exc, (FileNotFoundError, PermissionError)) \
-                        or _is_changed(exc):
-                    raise _changed_error(exc, url, what) from exc
-                if exc.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT) \
-                        and exc.filename == str(dest):
-                    raise
+                if isinstance(exc, FileNotFoundError | PermissionError) or _is_changed(exc):
+                    raise explain(exc, url, what) from exc
                 attempt += 1
                 if attempt >= ATTEMPTS or not (_is_transient(exc) or _unreachable(exc)):
                     raise explain(exc, url, what) from exc
             except Exception as exc:
                 if _is_changed(exc):
-                    raise _changed_error(exc, url, what) from exc
+                    raise explain(exc, url, what) from exc
                 attempt += 1
                 if attempt >= ATTEMPTS or not _is_transient(exc):
                     raise explain(exc, url, what) from exc
@@ -475,16 +480,6 @@ def _copy_file(url: str, dest: Path, what: str, pin: Mapping[str, Any] | None,
 def _is_changed(exc: BaseException) -> bool:
     return any(type(e).__name__ == "FileExpired" or _status(e) == 412
                or "pre-condition" in str(e).lower() for e in _chain(exc))
-
-
-def _changed_error(exc: BaseException, url: str, what: str) -> RemoteError:
-    if _is_changed(exc):
-        err = RemoteError(f"{what} '{shown(redact(url))}' changed while it was read: not read; "
-                          "run the fleet again")
-    else:
-        err = explain(exc, url, what)
-    err.__cause__ = exc
-    return err
 
 
 def list_folder(url: str, what: str = "folder") -> list[str]:
@@ -575,7 +570,7 @@ class _Guarded:
         except RemoteError:
             raise
         except Exception as exc:
-            raise _changed_error(exc, self._url, self._what) from exc
+            raise explain(exc, self._url, self._what) from exc
 
     def read(self, size: int = -1) -> bytes:
         data = bytes(self._call("read", size))
