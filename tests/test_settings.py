@@ -82,3 +82,62 @@ def test_the_readme_settings_example_is_valid() -> None:
     block = text[start:text.index("```", start)]
     settings = settings_from_dict(tomllib.loads(block))
     assert settings.fleet.cusum_h == 4.0 and settings.inverse.window_s == 2.0
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("[identify]\nprior_std = [1e300, 0.01, 0.1, 0.005]\n",
+     r"prior_std = \(1e\+300, .* expected four standard deviations from 1e-09 up to c_e 50, "
+     r"c_d 50, t_r 30, d 1"),
+    ("[identify]\nprior_std = [0.05, 0.01, 0.1, 1e300]\n", r"prior_std = .* up to c_e 50"),
+    ("[identify]\nprior_std = [0.05, 0.0, 0.1, 0.005]\n", r"prior_std = .* from 1e-09"),
+    ("[identify]\nprior_std = [1e-300, 0.01, 0.1, 0.005]\n", r"prior_std = .* from 1e-09"),
+    ("[identify]\ntheta0 = [1e300, 0, 1.6, 0]\n",
+     r"theta0 = .*\(c_e = 1e\+300 is not a wheeled vehicle's effective wheel circumference "
+     r"\(0\.05 to 50 m\)"),
+    ("[identify]\ntheta0 = [2.0, 1e300, 1.6, 0]\n", r"c_d = 1e\+300 .* \(\|c_d\| up to 50 m\)"),
+    ("[identify]\ntheta0 = [2.0, 0, 1.6, -7]\n", r"d = -7 .* \(\|d\| up to 1 m per m/s\^2\)"),
+    ("[identify]\ntheta0 = [0.3, 0.5, 1.6, 0]\n", r"c_d = 0\.5 m is not smaller than c_e"),
+    ("[calibrate]\nseed = -1\n", r"\[calibrate\] seed = -1 is invalid: expected an integer"),
+    ("[convert]\nrate_hz = 5.0\n", r"\[convert\] rate_hz = 5\.0 is invalid: expected a rate in "
+                                    r"\[10, 1000\] Hz"),
+])
+def test_settings_no_vehicle_has_are_named(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_settings(path)
+
+
+def test_prior_std_at_the_limits_is_taken() -> None:
+    s = Settings().replace(identify={"prior_std": (50.0, 50.0, 30.0, 1.0)})
+    assert s.identify.prior_std == (50.0, 50.0, 30.0, 1.0)
+    assert Settings().replace(identify={"prior_std": (1e-9,) * 4}).identify.prior_std[0] == 1e-9
+
+
+@pytest.mark.parametrize(("pairs", "message"), [
+    ([("c_e", 1.84), ("c_e", 1.9)], r"--datasheet gives c_e twice \(1\.84 and 1\.9\): give each"),
+    ([("t_r", 1.5), ("c_e", 1.9), ("t_r", 1.5)], r"gives t_r twice"),
+    ([("c_e", 1e308)], r"--datasheet: c_e = 1e\+308 is not a wheeled vehicle's effective wheel "
+                       r"circumference \(0\.05 to 50 m\)"),
+    ([("c_e", float("nan"))], r"c_e = nan is not"),
+    ([("t_r", float("-inf"))], r"t_r = -inf is not a wheeled vehicle's rear track width"),
+    ([("t_r", 0.01)], r"t_r = 0\.01 is not"),
+    ([("d", 5.0)], r"d = 5 is not .* load-transfer"),
+    ([("c_x", 1.0)], r"'c_x' is not one of c_e, c_d, t_r, d"),
+    ([("c_e", "1.9")], r"c_e = '1\.9' is not a number"),
+    ([("c_e", True)], r"c_e = True is not a number"),
+])
+def test_datasheet_values_are_checked_once_each(pairs: list[tuple[str, object]],
+                                                message: str) -> None:
+    from odocal.settings import datasheet_values
+
+    with pytest.raises(ConfigError, match=message):
+        datasheet_values(pairs)
+
+
+def test_datasheet_values_within_range_are_returned() -> None:
+    from odocal.settings import datasheet_values
+
+    assert datasheet_values([("c_e", 0.33), ("t_r", 0.4), ("d", -0.001)]) == {
+        "c_e": 0.33, "t_r": 0.4, "d": -0.001}
+    assert datasheet_values({"c_e": 50, "c_d": -49.0}) == {"c_e": 50.0, "c_d": -49.0}

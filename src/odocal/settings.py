@@ -26,9 +26,75 @@ from pathlib import Path
 from typing import Any, Literal
 
 from odocal.errors import ConfigError, input_file, shown
+from odocal.model.layout import REAR_AXLE
 
 #: Datasheet parameters of the paper, ``[c_e, c_d, t_r, d]`` (m, m, m, m per m/s^2).
-DATASHEET_THETA: tuple[float, float, float, float] = (2.0, 0.0, 1.6, 0.0)
+DATASHEET_THETA: tuple[float, ...] = REAR_AXLE.placeholder
+#: The names of theta's entries, in its order (``odocal.model.layout`` holds their units).
+DATASHEET_NAMES: tuple[str, ...] = REAR_AXLE.names
+#: What a wheeled vehicle's parameters can be (generous: odocal's robots and trucks alike), by
+#: name (the layout's ``vehicle_range``; c_d also less than c_e in size). A datasheet, a
+#: settings file's theta0 or a parameter file beyond them is a mistake (a unit, a typo), and
+#: no computation starts from it.
+VEHICLE_LIMITS: dict[str, tuple[float, float]] = {p.name: p.vehicle_range
+                                                  for p in REAR_AXLE.parameters}
+#: The largest datasheet uncertainty ``[identify] prior_std`` may state (the width of the
+#: vehicle ranges above): beyond them it is no uncertainty of a vehicle, and its square is
+#: no number a fit can carry.
+PRIOR_STD_MAX: tuple[float, ...] = tuple(p.prior_std_max for p in REAR_AXLE.parameters)
+PRIOR_STD_MIN = 1e-9
+
+
+def vehicle_problem(theta: Any) -> str | None:
+    """None if a wheeled vehicle could have ``theta`` (the model's parameters, in its order),
+    else what is wrong, in words."""
+    values = [float(v) for v in theta]
+    if len(values) != REAR_AXLE.size:
+        return f"{len(values)} values where the model has {REAR_AXLE.size}"
+    for name, value in zip(DATASHEET_NAMES, values, strict=True):
+        problem = _out_of_range(name, value)
+        if problem is not None:
+            return problem
+    difference = REAR_AXLE.value(values, REAR_AXLE.difference)
+    scale = REAR_AXLE.value(values, REAR_AXLE.scale)
+    if abs(difference) >= scale:
+        return (f"{REAR_AXLE.difference} = {difference:.6g} m is not smaller than "
+                f"{REAR_AXLE.scale} = {scale:.6g} m: a circumference difference beyond the "
+                "circumference itself")
+    return None
+
+
+def _out_of_range(name: str, value: float) -> str | None:
+    spec = REAR_AXLE.parameters[REAR_AXLE.index(name)]
+    lo, hi = spec.vehicle_range
+    if math.isfinite(value) and lo <= value <= hi:
+        return None
+    span = (f"{lo:g} to {hi:g} {spec.unit}" if lo > 0
+            else f"|{name}| up to {hi:g} {spec.unit}")
+    return f"{name} = {value:.6g} is not a wheeled vehicle's {spec.label} ({span})"
+
+
+def datasheet_values(pairs: Any, *, source: str = "--datasheet") -> dict[str, float]:
+    """Named datasheet values (``(name, value)`` pairs, as given, or a mapping), checked: names
+    among the model's parameters, each given once, finite numbers within
+    :data:`VEHICLE_LIMITS`. A one-line ConfigError names ``source``, the value and the valid
+    range."""
+    items = list(pairs.items()) if isinstance(pairs, dict) else list(pairs)
+    values: dict[str, float] = {}
+    for key, value in items:
+        if key not in DATASHEET_NAMES:
+            raise ConfigError(f"{source}: {shown(key)!r} is not one of "
+                              f"{', '.join(DATASHEET_NAMES)}")
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{source}: {key} = {shown(repr(value))} is not a number")
+        if key in values:
+            raise ConfigError(f"{source} gives {key} twice ({values[key]:g} and {value:g}): "
+                              "give each value once")
+        problem = _out_of_range(key, float(value))
+        if problem is not None:
+            raise ConfigError(f"{source}: {problem}")
+        values[key] = float(value)
+    return values
 
 
 def _check(condition: bool, section: str, key: str, value: object, expected: str) -> None:
@@ -76,15 +142,16 @@ class SegmentSettings:
 class IdentifySettings:
     """METHOD 3: Gauss-Newton identification."""
 
-    theta0: tuple[float, float, float, float] = DATASHEET_THETA
-    """Initial guess [c_e, c_d, t_r, d]: the datasheet values, (13) of the paper."""
+    theta0: tuple[float, ...] = DATASHEET_THETA
+    """Initial guess [c_e, c_d, t_r, d] (the model's parameters in its order:
+    :data:`~odocal.model.layout.REAR_AXLE`): the datasheet values, (13) of the paper."""
     weights: tuple[float, float, float] = (1.0, 1.0, 1600.0)
     """Diagonal of W per sample, [w_px, w_py, w_psi] (the paper's [1, 1, 40^2], section 4.3)."""
     max_iterations: int = 5
     """i_max: at most this many G-N iterations (the paper: 5)."""
     step_tolerance: float = 1e-12
     """Stop when every relative parameter change is below this."""
-    prior_std: tuple[float, float, float, float] = (0.05, 0.01, 0.10, 0.005)
+    prior_std: tuple[float, ...] = REAR_AXLE.prior_std
     """How uncertain the datasheet values are; a parameter whose data standard deviation exceeds
     ``identifiable_ratio`` times this is reported as not identified by the drive."""
     identifiable_ratio: float = 0.5
@@ -94,17 +161,26 @@ class IdentifySettings:
     rcond: float = 1e-9
     """Relative singular value below which the scaled normal equations count as rank deficient."""
 
+    def datasheet(self, name: str) -> float:
+        """The datasheet value (``theta0``) of the parameter ``name``."""
+        return REAR_AXLE.value(self.theta0, name)
+
     def __post_init__(self) -> None:
         s = "identify"
-        _check(self.theta0[0] > 0 and self.theta0[2] > 0, s, "theta0", self.theta0,
-               "positive c_e and t_r")
+        problem = vehicle_problem(self.theta0)
+        _check(problem is None, s, "theta0", self.theta0, f"a wheeled vehicle's values ({problem})")
         _check(all(w >= 0 for w in self.weights) and any(w > 0 for w in self.weights), s,
                "weights", self.weights, "non-negative weights, not all zero")
         _check(self.max_iterations >= 1, s, "max_iterations", self.max_iterations,
                "an integer >= 1")
         _check(self.step_tolerance >= 0, s, "step_tolerance", self.step_tolerance, "a number >= 0")
-        _check(all(p > 0 for p in self.prior_std), s, "prior_std", self.prior_std,
-               "four positive standard deviations")
+        limits = zip(DATASHEET_NAMES, PRIOR_STD_MAX, strict=True)
+        _check(len(self.prior_std) == REAR_AXLE.size
+               and all(PRIOR_STD_MIN <= p <= hi for p, hi in zip(self.prior_std, PRIOR_STD_MAX,
+                                                                 strict=True)),
+               s, "prior_std", self.prior_std,
+               f"{REAR_AXLE.size} standard deviations from {PRIOR_STD_MIN:g} up to "
+               + ", ".join(f"{n} {hi:g}" for n, hi in limits))
         _check(0 < self.identifiable_ratio <= 1, s, "identifiable_ratio",
                self.identifiable_ratio, "a fraction in (0, 1]")
         _check(0 < self.rcond < 1, s, "rcond", self.rcond, "a number in (0, 1)")
@@ -172,13 +248,14 @@ class CalibrateSettings:
         for key in ("step1_batches", "step1_batch_size", "step1_sets", "step3_batch_size"):
             _check(getattr(self, key) >= 1, s, key, getattr(self, key), "an integer >= 1")
         _check(self.workers >= 0, s, "workers", self.workers, "an integer >= 0 (0 = all cores)")
+        _check(0 <= self.seed < 2**63, s, "seed", self.seed, "an integer from 0 to 2**63 - 1")
 
 
 @dataclass(frozen=True)
 class MinimumSettings:
     """METHOD 6: the search for the reachable minimum validation error."""
 
-    half_width: tuple[float, float, float, float] = (0.10, 0.02, 0.30, 0.01)
+    half_width: tuple[float, ...] = (0.10, 0.02, 0.30, 0.01)
     """The search box is theta_start +- these (m, m, m, m per m/s^2)."""
     max_generations: int = 200
     population: int = 15
@@ -187,8 +264,8 @@ class MinimumSettings:
 
     def __post_init__(self) -> None:
         s = "minimum"
-        _check(all(h > 0 for h in self.half_width), s, "half_width", self.half_width,
-               "four positive half-widths")
+        _check(len(self.half_width) == REAR_AXLE.size and all(h > 0 for h in self.half_width),
+               s, "half_width", self.half_width, f"{REAR_AXLE.size} positive half-widths")
         _check(self.max_generations >= 1, s, "max_generations", self.max_generations,
                "an integer >= 1")
         _check(4 <= self.population <= 1000, s, "population", self.population,
@@ -299,7 +376,7 @@ class FleetSettings:
     """The detector's allowance, in standard deviations of one drive's estimate."""
     cusum_h: float = 4.0
     """The detector's threshold; one drive adds at most this much, so no single drive alarms."""
-    excess_floor: tuple[float, float, float, float] = (0.0002, 0.0002, 0.002, 0.0001)
+    excess_floor: tuple[float, ...] = (0.0002, 0.0002, 0.002, 0.0001)
     """Least drive-to-drive scatter assumed beyond each estimate's own uncertainty (c_e, c_d,
     t_r in m; d in m per m/s^2): loads and temperatures change a little from drive to drive."""
 
@@ -314,8 +391,9 @@ class FleetSettings:
         for key in ("cusum_k", "cusum_h"):
             _check(0 < getattr(self, key) < float("inf"), s, key, getattr(self, key),
                    "a positive finite number")
-        _check(len(self.excess_floor) == 4 and all(0 <= v < 1 for v in self.excess_floor), s,
-               "excess_floor", self.excess_floor, "four numbers in [0, 1)")
+        _check(len(self.excess_floor) == REAR_AXLE.size
+               and all(0 <= v < 1 for v in self.excess_floor), s,
+               "excess_floor", self.excess_floor, f"{REAR_AXLE.size} numbers in [0, 1)")
 
 
 @dataclass(frozen=True)
@@ -428,7 +506,8 @@ class ConvertSettings:
 
     def __post_init__(self) -> None:
         s = "convert"
-        _check(1.0 <= self.rate_hz <= 1000.0, s, "rate_hz", self.rate_hz, "a rate in [1, 1000] Hz")
+        _check(10.0 <= self.rate_hz <= 1000.0, s, "rate_hz", self.rate_hz,
+               "a rate in [10, 1000] Hz (a drive's: the model holds the wheel rates over a step)")
         _check(self.max_gap_s > 0, s, "max_gap_s", self.max_gap_s, "a positive time in s")
         _check(self.max_gnss_gap_s > 0, s, "max_gnss_gap_s", self.max_gnss_gap_s,
                "a positive time in s")

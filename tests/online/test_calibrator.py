@@ -13,9 +13,9 @@ import odocal
 from odocal.cli.main import EXIT_ERROR, EXIT_OK, main
 from odocal.errors import DataError
 from odocal.estimators.estimate import CovarianceKind
-from odocal.estimators.windows import SERIES, predict
 from odocal.model.kinematics import inverse_revolutions
 from odocal.model.parameters import Parameters
+from odocal.model.vehicle import MODEL, SERIES
 from odocal.online.calibrator import OnlineCalibrator
 from odocal.sim.simulate import SimulatedDrive
 from tests.bagwriter import write_bag
@@ -36,7 +36,7 @@ def test_window_moments_predict_what_the_model_does(rng: np.random.Generator) ->
     revs, jac = inverse_revolutions(theta, ds, dpsi, a)
     powers = a[:, None] ** np.arange(SERIES)
     moments = np.concatenate([ds @ powers, dpsi @ powers])[None, :]
-    pred, j = predict(theta, moments)
+    pred, j = MODEL.predict(theta, moments)
     # exact to (d a / c)^4 (below 1e-12 here); the derivative in d to (d a / c)^3
     np.testing.assert_allclose(pred[0], revs.sum(axis=0), rtol=1e-11)
     exact = jac.sum(axis=0)
@@ -48,7 +48,7 @@ def test_window_moments_predict_what_the_model_does(rng: np.random.Generator) ->
         up, down = theta.copy(), theta.copy()
         up[k] += h
         down[k] -= h
-        fd = (predict(up, moments)[0] - predict(down, moments)[0]) / (2 * h)
+        fd = (MODEL.predict(up, moments)[0] - MODEL.predict(down, moments)[0]) / (2 * h)
         np.testing.assert_allclose(j[0, :, k], fd[0], rtol=1e-6, atol=1e-8)
 
 

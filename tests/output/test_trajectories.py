@@ -65,8 +65,21 @@ def test_evo_reads_the_trajectories_and_sees_the_gain(tmp_path: Path,
     from evo.tools import file_interface
 
     ref = file_interface.read_tum_trajectory_file(str(folder / "reference.tum"))
-    np.testing.assert_allclose(ref.timestamps, noisy_drive.drive.t, atol=1e-6)
-    np.testing.assert_allclose(ref.positions_xyz[:, 0], noisy_drive.drive.x, atol=1e-6)
+    d = noisy_drive.drive
+    np.testing.assert_allclose(ref.timestamps, d.t, atol=1e-6)
+    np.testing.assert_allclose(ref.positions_xyz[:, 0], d.x, atol=1e-6)
+    np.testing.assert_allclose(ref.positions_xyz[:, 1], d.y, atol=1e-6)
+    # the heading evo reads from the quaternion is the drive's psi (yaw about z, x forward)
+    from evo.core import transformations
+
+    yaw = np.array([transformations.euler_from_matrix(pose, "szyx")[0]
+                    for pose in ref.poses_se3])
+    gap = np.remainder(yaw - d.psi + np.pi, 2.0 * np.pi) - np.pi
+    assert np.max(np.abs(gap)) < 1e-6
+    # and the odometry's heading is the calibrated wheels' dead-reckoned yaw, starting at psi
+    odo = file_interface.read_tum_trajectory_file(str(folder / "odometry.tum"))
+    first = transformations.euler_from_matrix(odo.poses_se3[0], "szyx")[0]
+    assert abs(np.remainder(first - d.psi[0] + np.pi, 2.0 * np.pi) - np.pi) < 1e-6
 
 
 def test_one_folder_per_log_and_a_restart_at_every_gap(tmp_path: Path,

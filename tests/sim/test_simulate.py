@@ -81,3 +81,39 @@ def test_noise_levels_are_what_the_profiles_say() -> None:
     lagged = np.interp(t - 0.04, t, delayed.true_n_rl)
     assert np.std(delayed.drive.n_rl - lagged) < 0.006 < np.std(delayed.drive.n_rl
                                                               - delayed.true_n_rl)
+
+
+@pytest.mark.parametrize(("kwargs", "words"), [
+    ({"duration_s": float("inf")}, r"duration inf s is out of range: .* at most 86400 s"),
+    ({"duration_s": float("nan")}, r"duration nan s is out of range"),
+    ({"duration_s": 1e12}, r"duration 1e\+12 s is out of range"),
+    ({"duration_s": -5.0}, r"duration -5 s is out of range: a simulated drive lasts more than"),
+    ({"duration_s": "60"}, r"duration '60' is not a number"),
+    ({"seed": -1}, r"seed -1 is invalid: a seed is an integer from 0 to 9223372036854775807"),
+    ({"seed": 2**63}, r"seed 9223372036854775808 is invalid"),
+    ({"seed": 1.5}, r"seed 1.5 is invalid"),
+    ({"seed": True}, r"seed True is invalid"),
+    ({"noise_seed": -3}, r"noise_seed -3 is invalid"),
+    ({"t_s": 1.0}, r"sampling time 1.0 s is out of range: 0.001 to 0.1 s"),
+    ({"t_s": 0.0}, r"sampling time 0.0 s is out of range"),
+    ({"theta": odocal.Parameters(-1.0, 0.0, 1.5, 0.0)}, r"theta: c_e = -1 is not a wheeled"),
+    ({"theta": odocal.Parameters(2.0, 0.0, 1e300, 0.0)}, r"theta: t_r = 1e\+300 is not"),
+    ({"change": (100.0, odocal.Parameters(2.0, 3.0, 1.5, 0.0))},
+     r"change: c_d = 3 m is not smaller than c_e"),
+])
+def test_arguments_out_of_range_are_named_before_simulating(kwargs: dict[str, object],
+                                                            words: str) -> None:
+    with pytest.raises(ConfigError, match=words):
+        odocal.simulate(**{"duration_s": 60.0, **kwargs})  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("c_e", [0.2, 0.33, 3.5])
+def test_any_wheel_size_simulates_and_reads_back(c_e: float) -> None:
+    """A simulated robot's (or truck's) own output is a drive it accepts: rates far beyond a
+    car's 40 rev/s are judged with the simulated wheel."""
+    theta = odocal.Parameters(c_e=c_e, c_d=0.0, t_r=0.5 if c_e < 1 else 2.0, d=0.0)
+    sim = odocal.simulate(duration_s=120, seed=1, noise="none", theta=theta)
+    speed = np.hypot(np.diff(sim.drive.x), np.diff(sim.drive.y)) / sim.drive.t_s
+    np.testing.assert_allclose(np.max(sim.drive.n_rl) * c_e, np.max(speed), rtol=0.05)
+    again = odocal.Drive.from_columns(sim.drive.columns(), circumference_m=c_e)
+    np.testing.assert_array_equal(again.n_rl, sim.drive.n_rl)

@@ -99,7 +99,7 @@ class Departures:
     lateral_offset_mps2: float = 0.0
     lateral_offset_std: float = float("nan")
     lateral_offset_applied: bool = False
-    heading_harmonics: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    heading_harmonics: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)   # a1, b1, a2, b2 (not theta)
     heading_amplitude_rad: float = 0.0
     standstill_offset_revps: tuple[float, float] = (0.0, 0.0)
     wheel_step_revps: float = 0.0
@@ -228,7 +228,7 @@ def _mean_and_error(values: FloatArray, group: int = 30) -> tuple[float, float]:
 def _harmonics(gap: FloatArray, heading: FloatArray) -> tuple[FloatArray, float]:
     """The heading error's first two harmonics (a1, b1, a2, b2) where they are determined, and
     the largest |error| of their sum; zeros otherwise."""
-    zero = np.zeros(4)
+    zero = np.zeros(4)                  # a1, b1, a2, b2 (not theta)
     if gap.size < 60:
         return zero, 0.0
     regressors = np.column_stack([np.ones_like(heading), np.cos(heading), np.sin(heading),
@@ -325,7 +325,7 @@ def measure(drives: Sequence[Drive], settings: Settings, *,
     harmonics, amplitude = _harmonics(gap[straight], heading[straight])
     return Departures(lateral_lag_s=lag, lateral_offset_mps2=offset,
                       lateral_offset_std=offset_std, lateral_offset_applied=applied,
-                      heading_harmonics=tuple(float(h) for h in harmonics),  # type: ignore
+                      heading_harmonics=tuple(float(h) for h in harmonics),
                       heading_amplitude_rad=amplitude,
                       standstill_offset_revps=standstill_offset(drives),
                       wheel_step_revps=wheel_step(drives))

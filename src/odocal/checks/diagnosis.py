@@ -38,6 +38,7 @@ from odocal.checks.departures import lateral_delay, wheel_lag_s
 from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.model.kinematics import body_rates, motion_increments
+from odocal.model.layout import REAR_AXLE as LAYOUT
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
@@ -276,7 +277,8 @@ def _wheel_ratio(win: _Windows, mask: BoolArray, theta: FloatArray) -> tuple[flo
     (``t_r dpsi / c_e``, datasheet values): about ``-c_d / c_e``. Its median over the seconds of
     ``mask`` and that median's standard error."""
     left, right, turn = win.left_revs[mask], win.right_revs[mask], win.dpsi[mask]
-    ratio = (left - right + theta[2] * turn / theta[0]) / (0.5 * (left + right))
+    track, scale = LAYOUT.value(theta, LAYOUT.track), LAYOUT.value(theta, LAYOUT.scale)
+    ratio = (left - right + track * turn / scale) / (0.5 * (left + right))
     median = float(np.median(ratio))
     spread = 1.4826 * float(np.median(np.abs(ratio - median)))
     return median, 1.2533 * spread / np.sqrt(ratio.size)

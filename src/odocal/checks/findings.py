@@ -39,6 +39,8 @@ class Check(enum.Enum):
     LATERAL_OFFSET = "lateral-offset"
     HEADING_ERROR = "heading-error"
     WHEEL_OFFSET = "wheel-offset"
+    CHANGE_IN_LOG = "change-in-log"
+    FRONT_WHEELS = "front-wheels"
 
 
 class Severity(enum.IntEnum):

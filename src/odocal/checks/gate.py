@@ -7,6 +7,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.checks.findings import Check, Finding, Severity
+from odocal.model.layout import REAR_AXLE as LAYOUT
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
@@ -16,10 +17,10 @@ def plausible_range(settings: Settings, name: str) -> tuple[float, float]:
     """The [low, high] range of ``c_e`` or ``t_r``: ``[gate]`` ``c_e_m`` / ``t_r_m`` where set,
     else the datasheet value divided and multiplied by ``range_factor`` (a robot's 0.44 m
     wheel and a truck's 3.5 m one are both plausible against their own datasheets)."""
-    given = settings.gate.c_e_m if name == "c_e" else settings.gate.t_r_m
+    given = getattr(settings.gate, f"{name}_m")
     if given is not None:
-        return given
-    nominal = settings.identify.theta0[0 if name == "c_e" else 2]
+        return (float(given[0]), float(given[1]))
+    nominal = settings.identify.datasheet(name)
     return nominal / settings.gate.range_factor, nominal * settings.gate.range_factor
 
 
@@ -28,17 +29,19 @@ def gate(theta: FloatArray, settings: Settings, *, error_m: float | None,
     """The checks after the fit: physical ranges and the validation error."""
     lim = settings.gate
     out: list[Finding] = []
-    for j, name in ((0, "c_e"), (2, "t_r")):
+    value = LAYOUT.named(list(theta))
+    for name in LAYOUT.lengths:
         lo, hi = plausible_range(settings, name)
-        if not lo <= theta[j] <= hi:
-            out.append(Finding(Check.PARAMETER_RANGE, Severity.FATAL, float(theta[j]),
-                               float(hi if theta[j] > hi else lo), name))
-    if abs(theta[1]) > lim.max_abs_c_d_fraction * abs(theta[0]):
-        out.append(Finding(Check.PARAMETER_RANGE, Severity.FATAL, float(theta[1]),
-                           lim.max_abs_c_d_fraction * abs(theta[0]), "c_d"))
-    if abs(theta[3]) > lim.max_abs_d:
-        out.append(Finding(Check.PARAMETER_RANGE, Severity.FATAL, float(theta[3]),
-                           lim.max_abs_d, "d"))
+        if not lo <= value[name] <= hi:
+            out.append(Finding(Check.PARAMETER_RANGE, Severity.FATAL, value[name],
+                               float(hi if value[name] > hi else lo), name))
+    scale, difference, load = value[LAYOUT.scale], value[LAYOUT.difference], value[LAYOUT.load]
+    if abs(difference) > lim.max_abs_c_d_fraction * abs(scale):
+        out.append(Finding(Check.PARAMETER_RANGE, Severity.FATAL, difference,
+                           lim.max_abs_c_d_fraction * abs(scale), LAYOUT.difference))
+    if abs(load) > lim.max_abs_d:
+        out.append(Finding(Check.PARAMETER_RANGE, Severity.FATAL, load, lim.max_abs_d,
+                           LAYOUT.load))
     if error_m is not None and datasheet_error_m is not None:
         if error_m > datasheet_error_m * (1.0 + lim.worse_tolerance) + 1e-6:
             out.append(Finding(Check.WORSE_THAN_DATASHEET, Severity.FATAL, error_m,

@@ -9,7 +9,9 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from odocal.cli.arguments import DURATION_S, SEED, WORKERS, integer, number
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
+from odocal.sim.limits import MAX_CIRCUMFERENCE_LOSS, MAX_DRIVES, MAX_VEHICLES
 
 
 def _print(text: str = "") -> None:
@@ -247,26 +249,29 @@ def add_parsers(sub: Any) -> None:
     p = fsub.add_parser("demo", help="simulate a small fleet with events and calibrate it "
                                      "(under a minute)")
     p.add_argument("--out", metavar="DIR", help="keep the store and the fleet report here")
-    p.add_argument("--drives", type=int, default=10, help="drives per vehicle (default 10)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, metavar="N")
+    p.add_argument("--drives", type=integer(2, MAX_DRIVES), default=10,
+                   help="drives per vehicle (default 10)")
+    p.add_argument("--seed", type=SEED, default=0)
+    p.add_argument("--workers", type=WORKERS, metavar="N")
     _common(p)
     p.set_defaults(func=cmd_fleet_demo)
 
     p = sub.add_parser("simulate-fleet", help="write a simulated fleet with known truth and "
                                               "events")
     p.add_argument("--out", required=True, metavar="DIR", help="new folder for the fleet")
-    p.add_argument("--vehicles", type=int, default=8)
-    p.add_argument("--drives", type=int, default=12, help="drives per vehicle")
-    p.add_argument("--duration", type=float, default=900.0, metavar="S",
-                   help="length of each drive (default 900)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--vehicles", type=integer(1, MAX_VEHICLES), default=8)
+    p.add_argument("--drives", type=integer(2, MAX_DRIVES), default=12,
+                   help="drives per vehicle")
+    p.add_argument("--duration", type=DURATION_S, default=900.0, metavar="S",
+                   help="length of each drive (default 900, at most 86400)")
+    p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic")
     p.add_argument("--plan", choices=("mixed", "pressure", "wear", "tyres", "none"),
                    default="mixed", help="which events (default mixed: one kind per vehicle)")
-    p.add_argument("--size", type=float, default=0.002,
-                   help="relative c_e loss of a pressure event (default 0.002)")
-    p.add_argument("--wear", type=float, default=0.003,
-                   help="relative c_e loss by wear over a vehicle's history (default 0.003)")
+    p.add_argument("--size", type=number(0.0, MAX_CIRCUMFERENCE_LOSS), default=0.002,
+                   help="relative c_e loss of a pressure event (default 0.002, at most 0.05)")
+    p.add_argument("--wear", type=number(0.0, MAX_CIRCUMFERENCE_LOSS), default=0.003,
+                   help="relative c_e loss by wear over a vehicle's history (default 0.003, "
+                        "at most 0.05)")
     _common(p)
     p.set_defaults(func=cmd_simulate_fleet)

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from odocal._version import __version__
+from odocal.cli.arguments import DURATION_S, SEED, WORKERS, number
 from odocal.cli.progress import Progress
 from odocal.errors import ConfigError, OdocalError, OutputError, shown
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
@@ -69,18 +70,21 @@ def _load_config(config: str | None) -> Settings:
 
 
 def _datasheet_values(text: str) -> dict[str, float]:
-    """``c_e=1.84,t_r=1.52`` as a dict; a one-line ConfigError for anything else."""
-    values: dict[str, float] = {}
+    """``c_e=1.84,t_r=1.52`` as a dict; a one-line ConfigError for anything else (the values
+    checked by :func:`odocal.settings.datasheet_values`: each once, within a vehicle's range)."""
+    from odocal.settings import datasheet_values
+
+    pairs: list[tuple[str, float]] = []
     for item in text.split(","):
         key, sep, value = item.partition("=")
         try:
-            values[key.strip()] = float(value)
+            pairs.append((key.strip(), float(value)))
         except ValueError:
             sep = ""
         if not sep:
             raise ConfigError(f"--datasheet {text!r}: write NAME=VALUE pairs separated by "
                               "commas, e.g. c_e=1.84,t_r=1.52 (metres)")
-    return values
+    return datasheet_values(pairs, source="--datasheet")
 
 
 def _datasheet_note(datasheet: Parameters) -> str | None:
@@ -265,21 +269,22 @@ def _out_file(out: str, default: str) -> Path:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from odocal.io import save_drive
-    from odocal.io.atomic import refuse_inputs
+    from odocal.io.atomic import check_output_file
     from odocal.io.results import write_json
     from odocal.sim.simulate import simulate
 
     out = _out_file(args.out, "drive.parquet")
     truth_path = out.with_name(out.stem + ".truth.json")
-    refuse_inputs(out, [])
+    check_output_file(out)                 # odocal replaces only files it wrote
+    check_output_file(truth_path)
     other = [p for p in (out.with_suffix(".csv"), out.with_suffix(".parquet"))
              if p != out and p.exists()]
     if truth_path.exists() and other:
         raise OutputError(f"'{truth_path}' is the truth of '{other[0]}'; writing '{out}' would "
                           "replace it: choose another name")
     sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
-    save_drive(sim.drive, out)
-    write_json(truth_path, sim.truth_dict())
+    save_drive(sim.drive, out, owned=True)
+    write_json(truth_path, sim.truth_dict(), owned=True)
     if not args.quiet:
         d = sim.drive
         _print(f"wrote {out} ({d.n_samples} samples, {d.duration_s / 60:.1f} min, "
@@ -400,7 +405,7 @@ def _drives_from(args: argparse.Namespace, settings: Settings) -> list[Any]:
             for d in drives:
                 _print(_conversion_line(d))
         return drives
-    return load_drives(args.logs)
+    return load_drives(args.logs, settings=settings)
 
 
 def _conversion_line(drive: Any) -> str:
@@ -426,7 +431,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             from odocal.pipeline.calibrate import load_drives
             from odocal.pipeline.compare import check_comparable
 
-            drives = load_drives(drives)
+            drives = load_drives(drives, settings=settings)
             check_comparable(drives, settings)
         _compile_note(args, [args.method or DEFAULT_METHOD]
                       + (list(METHOD_NAMES) if args.compare else []))
@@ -458,22 +463,26 @@ def exit_code(result: CalibrationResult) -> int:
 
 def cmd_convert(args: argparse.Namespace) -> int:
     from odocal.io import save_drive
-    from odocal.io.atomic import refuse_inputs
+    from odocal.io.atomic import check_output_file, refuse_inputs
 
     settings = _settings(args)
     folder = Path(args.out).is_dir() or args.out.endswith(("/", os.sep))
     out = Path(args.out)
     inputs = _inputs(args, *args.logs)
     refuse_inputs(out / "drive.parquet" if folder else out, inputs)
+    if not folder:
+        check_output_file(out)                      # odocal replaces only files it wrote
     drives = _drives_from(args, settings)
     if folder:                                      # one file per log, named after it
         targets = [out / f"{_safe(d.name)}.parquet" for d in drives]
     else:
         targets = [out] if len(drives) == 1 else \
             [out.with_name(f"{out.stem}-{_safe(d.name)}{out.suffix}") for d in drives]
-    for drive, target in zip(drives, targets, strict=True):
+    for target in targets:                          # every one before the first is written
         refuse_inputs(target, inputs)
-        save_drive(drive, target)
+        check_output_file(target)
+    for drive, target in zip(drives, targets, strict=True):
+        save_drive(drive, target, owned=True)
         if not args.quiet:
             _print(f"wrote {target} ({drive.n_samples} samples at "
                    f"{1 / drive.t_s:.0f} Hz)")
@@ -550,9 +559,10 @@ def cmd_minimum(args: argparse.Namespace) -> int:
     if args.out:
         args.out = str(_out_file(args.out, "minimum.json"))
     if args.out:
-        from odocal.io.atomic import refuse_inputs
+        from odocal.io.atomic import check_output_file, refuse_inputs
 
         refuse_inputs(args.out, _inputs(args, *args.logs))
+        check_output_file(args.out)                 # odocal replaces only files it wrote
     start = _parameters_from(args, settings)
     if not args.quiet:
         _print("searching the reachable minimum of E_p over the validation segments "
@@ -567,7 +577,7 @@ def cmd_minimum(args: argparse.Namespace) -> int:
         if args.out:
             from odocal.io.results import write_json
 
-            write_json(args.out, result.to_dict())
+            write_json(args.out, result.to_dict(), owned=True)
         return EXIT_OK if result.success else EXIT_FAILED
     _print(f"start   E_p = {result.start_error_m:.3f} m at "
            + ", ".join(f"{k} = {v:.6g}" for k, v in start.as_dict().items()))
@@ -578,7 +588,7 @@ def cmd_minimum(args: argparse.Namespace) -> int:
     if args.out:
         from odocal.io.results import write_json
 
-        write_json(args.out, result.to_dict())
+        write_json(args.out, result.to_dict(), owned=True)
         if not args.quiet:
             _print(f"wrote {args.out}")
     return EXIT_OK if result.success else EXIT_FAILED
@@ -705,10 +715,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     settings = _settings(args)
     if args.out:                                    # checked before the long computation
-        from odocal.io.atomic import refuse_inputs
+        from odocal.io.atomic import check_output_file, refuse_inputs
 
         args.out = str(_out_file(args.out, "reproduce.json"))
         refuse_inputs(args.out, [getattr(args, "config", None)])
+        check_output_file(args.out)                 # odocal replaces only files it wrote
     if not args.quiet:
         _print(f"reproducing the paper's experiment on a simulated {args.distance_km:g} km drive "
                f"(seed {args.seed}, noise '{args.noise}') ...")
@@ -721,7 +732,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     if not args.quiet:
         _print(format_report(result))
     if args.out:
-        write_json(args.out, result.to_dict())
+        write_json(args.out, result.to_dict(), owned=True)
         _print(f"wrote {args.out}")
     return EXIT_OK
 
@@ -739,7 +750,7 @@ def _add_source(p: argparse.ArgumentParser, *, required: bool, converts: bool = 
         return
     p.add_argument("--reference", choices=("auto", "fused", "gnss-imu"),
                    help="reference pose: the log's fused pose, or odocal's GNSS/IMU fusion")
-    p.add_argument("--circumference", type=float, metavar="M",
+    p.add_argument("--circumference", type=number(0.05, 50.0, unit="m"), metavar="M",
                    help="nominal wheel circumference for wheel speeds in m/s or km/h")
 
 
@@ -753,7 +764,7 @@ def _add_common(p: argparse.ArgumentParser, *, workers: bool = True,
                             "start of the fit, the comparison in results and exports, and the "
                             "centre of the plausible ranges")
     if workers:
-        p.add_argument("--workers", type=int, metavar="N",
+        p.add_argument("--workers", type=WORKERS, metavar="N",
                        help="processes for per-segment work (0 = every core; default from "
                             "settings)")
     p.add_argument("-q", "--quiet", action="store_true", help="print only errors")
@@ -837,9 +848,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _add_simulation_commands(sub: Any) -> None:
     """demo and simulate."""
     p = sub.add_parser("demo", help="simulate a drive with known parameters and calibrate it")
-    p.add_argument("--duration", type=float, default=1200.0, metavar="S",
-                   help="simulated drive length in seconds (default 1200)")
-    p.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
+    p.add_argument("--duration", type=DURATION_S, default=1200.0, metavar="S",
+                   help="simulated drive length in seconds (default 1200, at most 86400)")
+    p.add_argument("--seed", type=SEED, default=0, help="simulation seed (default 0)")
     p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic",
                    help="noise profile (default realistic)")
     p.add_argument("--method", choices=METHOD_NAMES,
@@ -855,8 +866,9 @@ def _add_simulation_commands(sub: Any) -> None:
     p.add_argument("--out", required=True, metavar="FILE",
                    help="drive file to write (.csv or .parquet; or drive.parquet in this "
                         "folder); the truth goes to FILE.truth.json beside it")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--duration", type=float, default=1800.0, metavar="S")
+    p.add_argument("--seed", type=SEED, default=0)
+    p.add_argument("--duration", type=DURATION_S, default=1800.0, metavar="S",
+                   help="drive length in seconds (default 1800, at most 86400)")
     p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic",
                    metavar="PROFILE", help=f"one of {', '.join(NOISE_PROFILES)}")
     p.add_argument("-q", "--quiet", action="store_true")
@@ -873,7 +885,7 @@ def _add_calibration_commands(sub: Any) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="folder for calibration.json")
     p.add_argument("--method", choices=METHOD_NAMES,
                    help=f"calibration method (default {DEFAULT_METHOD}; README, 'Methods')")
-    p.add_argument("--seed", type=int, help="seed of the step-1 batch draw")
+    p.add_argument("--seed", type=SEED, help="seed of the step-1 batch draw")
     p.add_argument("--save-inputs", action="store_true",
                    help="also write the compensated wheel rates (compensated_inputs.parquet)")
     p.add_argument("--export", action="append",
@@ -922,9 +934,10 @@ def _add_checking_commands(sub: Any) -> None:
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("reproduce", help="the paper's experiment on a simulated ~24 km drive")
-    p.add_argument("--seed", type=int, default=0, help="simulation and batch seed (default 0)")
+    p.add_argument("--seed", type=SEED, default=0, help="simulation and batch seed (default 0)")
     p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic")
-    p.add_argument("--distance-km", type=float, default=24.0, help="drive length (default 24)")
+    p.add_argument("--distance-km", type=number(0.5, 500.0, unit="km"), default=24.0,
+                   help="drive length (default 24, from 0.5 to 500)")
     p.add_argument("--no-minimum", action="store_true",
                    help="skip the global search for the reachable minimum")
     p.add_argument("--out", metavar="FILE",
@@ -951,7 +964,7 @@ def _add_checking_commands(sub: Any) -> None:
                    help="drive-format files (.csv, .parquet), or raw logs with --from")
     _add_source(p, required=False)
     p.add_argument("--params", metavar="JSON", help="centre of the search box (default datasheet)")
-    p.add_argument("--seed", type=int, help="optimiser seed")
+    p.add_argument("--seed", type=SEED, help="optimiser seed")
     p.add_argument("--out", metavar="FILE",
                    help="write the result to this JSON file (or minimum.json in this folder)")
     _add_common(p)

@@ -35,10 +35,17 @@ COLUMN_UNITS: Mapping[str, str] = MappingProxyType({
 })
 
 # Plausibility limits used to catch wrong units (not physics limits of any car).
-_MAX_WHEEL_RATE_REVPS = 40.0  # 40 rev/s with a 2 m wheel is 290 km/h
+_MAX_WHEEL_SPEED_MPS = 80.0   # 288 km/h: 40 rev/s of a car's 2 m wheel
+_CAR_CIRCUMFERENCE_M = 2.0    # the wheel the rates are judged with when none is stated
 _MAX_YAW_RATE_RADPS = 3.0
-_MIN_STEP_S, _MAX_STEP_S = 1e-3, 1.0
+#: The slowest and fastest sampling a drive may have. Below 10 Hz the model's step (the wheel
+#: rates held over a sample) misses most of a bend: simulated drives at 2-5 Hz already give
+#: parameters several of their standard deviations off.
+MIN_RATE_HZ, MAX_RATE_HZ = 10.0, 1000.0
 _UNIFORM_TOLERANCE = 0.01  # relative jitter of the time step still called uniform
+#: Stamps whose steps all stay within this fraction of the step are a uniform log with
+#: jittered stamps (resampled onto the grid); a longer step is a gap, a shorter one irregular.
+_JITTER_LIMIT = 0.5
 
 
 def _as_float_array(values: Any) -> FloatArray:
@@ -166,16 +173,37 @@ class Drive:
                      yaw_rate=self.yaw_rate, t_s=self.t_s, pieces=self.pieces, name=self.name,
                      pose_std=self.pose_std, metadata=self.metadata)
 
+    def since(self, t0: float) -> Drive:
+        """The samples from time ``t0`` on (pieces cut there); the drive itself where it starts
+        later."""
+        start = int(np.searchsorted(self.t, t0, side="left"))
+        if start <= 0:
+            return self
+        if start >= self.n_samples:
+            raise DataError(f"{self.name}: no sample from t = {t0:g} s on")
+        pieces = tuple((max(a, start) - start, b - start) for a, b in self.pieces if b > start)
+        cut = slice(start, None)
+        return Drive(t=self.t[cut], n_rl=self.n_rl[cut], n_rr=self.n_rr[cut],
+                     a_y=self.a_y[cut], beta=self.beta[cut], x=self.x[cut], y=self.y[cut],
+                     psi=self.psi[cut], yaw_rate=self.yaw_rate[cut], t_s=self.t_s,
+                     pieces=pieces, name=self.name,
+                     pose_std=None if self.pose_std is None else self.pose_std[cut],
+                     metadata=self.metadata)
+
     @classmethod
     def from_columns(cls, columns: Mapping[str, Any], *, name: str = "drive",
-                     metadata: Mapping[str, Any] | None = None) -> Drive:
+                     metadata: Mapping[str, Any] | None = None,
+                     circumference_m: float | None = None) -> Drive:
         """Build a drive from drive-format columns, checking everything a user can get wrong.
 
         ``columns`` maps the names of the drive format (see :data:`REQUIRED_COLUMNS` and
-        :data:`OPTIONAL_COLUMNS`) to 1-D arrays; unknown columns are ignored.
+        :data:`OPTIONAL_COLUMNS`) to 1-D arrays; unknown columns are ignored. Stamps that jitter
+        about a uniform step (no step beyond half a step off) are resampled onto it
+        (``metadata["resampled"]`` says so). ``circumference_m``: the vehicle's wheel
+        circumference (a datasheet's ``c_e``; default the one ``metadata["datasheet"]`` states,
+        else a car's 2 m), which the wheel rates' plausibility is judged with.
         """
         arrays = _columns(columns, name)
-        m = arrays["t"].shape[0]
         t = arrays["t"]
         dt = np.diff(t)
         if (dt <= 0).any():
@@ -184,11 +212,19 @@ class Drive:
                             f"follows t={t[first]:.6g} at row {first + 1}; sort the log or drop "
                             "duplicate stamps")
         pieces = _pieces(name, t, arrays.get("piece"))
-        t_s = _sampling_time(name, t, pieces)
+        t_s, jitter_s = _sampling_time(name, t, pieces)
+        resampled: dict[str, float] = {}
+        if jitter_s is not None:
+            arrays, pieces = _resampled(arrays, pieces, t_s)
+            resampled = {"step_s": t_s, "max_jitter_s": jitter_s}
+        m = arrays["t"].shape[0]
+        t = arrays["t"]
+        wheel_m, stated = _circumference(circumference_m, metadata)
 
         # a unit mistake first (rates in rpm jump by more than a spike's size everywhere),
         # judged on most of the samples, so that a few broken ones do not look like a unit
-        _check_wheel_units(name, arrays["n_rl"], arrays["n_rr"], percentile=90.0)
+        _check_wheel_units(name, arrays["n_rl"], arrays["n_rr"], circumference_m=wheel_m,
+                           stated=stated, percentile=90.0)
         repaired: dict[str, int] = {}
         for key, scale in _SPIKE_SCALE.items():
             if key in arrays:
@@ -197,7 +233,7 @@ class Drive:
                     repaired[key] = count
         _check_limits(name, arrays)
         n_rl, n_rr = arrays["n_rl"], arrays["n_rr"]
-        _check_wheel_units(name, n_rl, n_rr)
+        _check_wheel_units(name, n_rl, n_rr, circumference_m=wheel_m, stated=stated)
         psi = _unwrap_pieces(arrays["psi"], pieces)
         yaw_from_psi = _derivative_pieces(psi, t_s, pieces)
         if np.percentile(np.abs(yaw_from_psi), 99) > _MAX_YAW_RATE_RADPS:
@@ -209,7 +245,7 @@ class Drive:
             raise DataError(f"'{name}' column yaw_rate reaches {np.max(np.abs(yaw_rate)):.3g}: "
                             "yaw_rate must be in rad/s (is it in deg/s?)")
         x, y = arrays["x"], arrays["y"]
-        _check_position_units(name, x, y, n_rl, n_rr, t_s, pieces)
+        _check_position_units(name, x, y, n_rl, n_rr, t_s, pieces, circumference_m=wheel_m)
 
         pose_std = None
         std_cols = [c for c in ("x_std", "y_std", "psi_std") if c in arrays]
@@ -225,7 +261,9 @@ class Drive:
                    yaw_rate=_as_float_array(yaw_rate), t_s=t_s, pieces=pieces, name=name,
                    pose_std=pose_std,
                    metadata=MappingProxyType({**dict(metadata or {}),
-                                              **({"repaired": repaired} if repaired else {})}))
+                                              **({"repaired": repaired} if repaired else {}),
+                                              **({"resampled": resampled} if resampled
+                                                 else {})}))
 
 
 def _columns(columns: Mapping[str, Any], name: str) -> dict[str, FloatArray]:
@@ -280,30 +318,110 @@ def _pieces(name: str, t: FloatArray, piece: FloatArray | None) -> tuple[tuple[i
     return tuple((bounds[i], bounds[i + 1]) for i in range(len(bounds) - 1))
 
 
-def _sampling_time(name: str, t: FloatArray, pieces: tuple[tuple[int, int], ...]) -> float:
-    """The uniform step inside the pieces, or a DataError naming the first irregularity."""
+def _sampling_time(name: str, t: FloatArray, pieces: tuple[tuple[int, int], ...]
+                   ) -> tuple[float, float | None]:
+    """The uniform step inside the pieces, and how far the stamps jitter about it (None: they
+    are uniform within 1%), or a DataError naming the first irregularity (a gap, a step of
+    another unit, a rate no drive log has)."""
     inside = np.concatenate([np.diff(t[a:b]) for a, b in pieces])
     if inside.size == 0:
         raise DataError(f"'{name}': every piece holds a single sample")
     t_s = float(np.median(inside))
-    if t_s > _MAX_STEP_S:
-        unit = "milliseconds" if 1 <= t_s <= 1000 else "an unknown unit"
-        raise DataError(f"'{name}' column t has a step of {t_s:.6g}: t must be in seconds "
-                        f"(it looks like {unit})")
-    if t_s < _MIN_STEP_S:
-        raise DataError(f"'{name}' column t has a step of {t_s:.3g} s: t must be in seconds "
-                        "(a rate above 1 kHz is not a drive log)")
+    _check_rate(name, t_s)
     off = np.abs(inside - t_s) > _UNIFORM_TOLERANCE * t_s
-    if off.any():
-        # Report the time where the first irregular step inside a piece starts.
-        offsets = np.concatenate([np.arange(a, b - 1) for a, b in pieces])
-        first = int(offsets[np.argmax(off)])
+    # the mean step: stamps on an epoch clock (1.7e9 s) are rounded to 2.4e-7 s, which moves
+    # their median step by parts in a million (and c_e, which scales with it, as much)
+    counts = sum(b - a - 1 for a, b in pieces)
+    step = float(sum(t[b - 1] - t[a] for a, b in pieces)) / counts
+    if not off.any():
+        return step, None
+    offsets = np.concatenate([np.arange(a, b - 1) for a, b in pieces])
+    broken = np.abs(inside - t_s) >= _JITTER_LIMIT * t_s
+    if broken.any():
+        # the time where the first step beyond jitter starts
+        first = int(offsets[np.argmax(broken)])
         step = float(t[first + 1] - t[first])
-        kind = "gap" if step > t_s else "irregular step"
-        raise DataError(f"'{name}' column t has a {kind} of {step:.4g} s at t={t[first]:.3f} s "
+        kind = "a gap" if step > t_s else "an irregular step"
+        raise DataError(f"'{name}' column t has {kind} of {step:.4g} s at t={t[first]:.3f} s "
                         f"(the step is {t_s:.4g} s); resample to a uniform grid, or mark the "
                         "separate runs with a 'piece' column")
-    return t_s
+    # jittered stamps of a uniform log: the grid's step is their mean step
+    jitter = max(float(np.max(np.abs(_deviation(t[a:b], step)))) for a, b in pieces)
+    if jitter >= _JITTER_LIMIT * step:
+        raise DataError(f"'{name}' column t drifts {jitter:.4g} s from a uniform step of "
+                        f"{step:.4g} s within a piece: resample to a uniform grid, or mark the "
+                        "separate runs with a 'piece' column")
+    return step, jitter
+
+
+_TIME_UNITS = (("milliseconds", 1e-3, "1000"), ("microseconds", 1e-6, "1e6"),
+               ("nanoseconds", 1e-9, "1e9"))
+
+
+def _deviation(t: FloatArray, step: float) -> FloatArray:
+    """How far the stamps ``t`` (one piece) lie from the uniform grid of ``step`` that fits
+    them best."""
+    grid = step * np.arange(t.size)
+    return t - grid - float(np.mean(t - grid))
+
+
+def _check_rate(name: str, t_s: float) -> None:
+    """A DataError unless a step of ``t_s`` seconds is that of a drive log (10 Hz - 1 kHz): it
+    names the unit the step looks like, or the rate that is too low."""
+    if t_s < 1.0 / MAX_RATE_HZ:
+        raise DataError(f"'{name}' column t has a step of {t_s:.3g} s: t must be in seconds "
+                        f"(a rate above {MAX_RATE_HZ:g} Hz is not a drive log)")
+    if t_s <= (1.0 + _UNIFORM_TOLERANCE) / MIN_RATE_HZ:
+        return
+    if t_s <= 1.0:
+        raise DataError(f"'{name}' is sampled at {1.0 / t_s:.3g} Hz (column t steps "
+                        f"{t_s:.3g} s): the model holds the wheel rates over each step and "
+                        f"needs {MIN_RATE_HZ:g} Hz or more; log or resample the sensors faster")
+    looks = [f"{unit} at {1.0 / (t_s * factor):.4g} Hz: divide t by {divisor}"
+             for unit, factor, divisor in _TIME_UNITS
+             if MIN_RATE_HZ <= 1.0 / (t_s * factor) <= MAX_RATE_HZ]
+    unit = (f"it looks like {' or '.join(looks)}" if looks else
+            f"in no unit is that the step of a drive log at {MIN_RATE_HZ:g} Hz - "
+            f"{MAX_RATE_HZ:g} Hz")
+    raise DataError(f"'{name}' column t has a step of {t_s:.6g}: t must be in seconds ({unit}; "
+                    f"in seconds the log would be sampled at {1.0 / t_s:.3g} Hz, and the model "
+                    f"needs {MIN_RATE_HZ:g} Hz or more)")
+
+
+def _resampled(arrays: dict[str, FloatArray], pieces: tuple[tuple[int, int], ...],
+               t_s: float) -> tuple[dict[str, FloatArray], tuple[tuple[int, int], ...]]:
+    """Every column linearly interpolated onto a uniform grid of step ``t_s`` over each piece
+    (headings unwrapped first), and the pieces on it."""
+    t = arrays["t"]
+    grids = []
+    for a, b in pieces:                      # the fitted grid, inside the piece's stamps
+        origin = t[a] - _deviation(t[a:b], t_s)[0]
+        first = int(np.ceil((t[a] - origin) / t_s - 1e-9))
+        last = int(np.floor((t[b - 1] - origin) / t_s + 1e-9))
+        grids.append(origin + t_s * np.arange(first, last + 1))
+    out: dict[str, FloatArray] = {}
+    for key, values in arrays.items():
+        parts = []
+        for (a, b), grid in zip(pieces, grids, strict=True):
+            v = np.unwrap(values[a:b]) if key == "psi" else values[a:b]
+            parts.append(np.interp(grid, t[a:b], v))
+        out[key] = np.concatenate(parts)
+    bounds = np.concatenate([[0], np.cumsum([g.size for g in grids])])
+    return out, tuple((int(bounds[i]), int(bounds[i + 1])) for i in range(len(grids)))
+
+
+def _circumference(circumference_m: float | None,
+                   metadata: Mapping[str, Any] | None) -> tuple[float, bool]:
+    """The wheel circumference the rates are judged with, and whether it was stated (else a
+    car's)."""
+    if circumference_m is None:
+        datasheet = (metadata or {}).get("datasheet")
+        if isinstance(datasheet, Mapping):
+            circumference_m = datasheet.get("c_e")
+    if isinstance(circumference_m, int | float) and not isinstance(circumference_m, bool) \
+            and np.isfinite(circumference_m) and circumference_m > 0:
+        return float(circumference_m), True
+    return _CAR_CIRCUMFERENCE_M, False
 
 
 def _unwrap_pieces(psi: FloatArray, pieces: tuple[tuple[int, int], ...]) -> FloatArray:
@@ -362,27 +480,35 @@ def _check_limits(name: str, arrays: Mapping[str, FloatArray]) -> None:
 
 
 def _check_wheel_units(name: str, n_rl: FloatArray, n_rr: FloatArray, *,
+                       circumference_m: float = _CAR_CIRCUMFERENCE_M, stated: bool = False,
                        percentile: float = 99.0) -> None:
+    """Wheel rates no wheel of ``circumference_m`` reaches below 288 km/h are another unit."""
+    limit = _MAX_WHEEL_SPEED_MPS / circumference_m
     for key, n in (("n_rl", n_rl), ("n_rr", n_rr)):
         finite = np.abs(n[np.isfinite(n)])
         if finite.size == 0:
             continue
         peak = float(np.percentile(finite, percentile))
-        if peak > _MAX_WHEEL_RATE_REVPS:
-            if peak <= 2 * np.pi * _MAX_WHEEL_RATE_REVPS:
+        if peak > limit:
+            if peak <= 2 * np.pi * limit:
                 hint = " (it looks like rad/s: divide by 2 pi; or rpm: divide by 60)"
-            elif peak < 60 * _MAX_WHEEL_RATE_REVPS:
+            elif peak < 60 * limit:
                 hint = " (it looks like rpm: divide by 60)"
             else:
                 hint = ""
+            wheel = (f"a wheel of {circumference_m:g} m (the stated c_e) turns at most "
+                     f"{limit:.3g} rev/s" if stated else
+                     f"a car's wheel turns at most {limit:.3g} rev/s; a smaller wheel: state "
+                     "its circumference, --datasheet c_e=..")
             raise DataError(f"'{name}' column {key} reaches {peak:.4g}: wheel rates must be in "
-                            f"rev/s{hint}")
+                            f"rev/s{hint}; {wheel}")
 
 
 def _check_position_units(name: str, x: FloatArray, y: FloatArray, n_rl: FloatArray,
-                          n_rr: FloatArray, t_s: float,
-                          pieces: tuple[tuple[int, int], ...]) -> None:
-    """Positions must move roughly as far as the wheels say (a 1.2-2.6 m wheel, generously)."""
+                          n_rr: FloatArray, t_s: float, pieces: tuple[tuple[int, int], ...], *,
+                          circumference_m: float = _CAR_CIRCUMFERENCE_M) -> None:
+    """Positions must move roughly as far as the wheels say (within a factor of ten of a wheel
+    of ``circumference_m``)."""
     ref_dist = 0.0
     wheel_rev = 0.0
     for a, b in pieces:
@@ -391,7 +517,7 @@ def _check_position_units(name: str, x: FloatArray, y: FloatArray, n_rl: FloatAr
     if wheel_rev < 20.0:  # too little motion to judge (a stand-still log)
         return
     metres_per_rev = ref_dist / wheel_rev
-    if not 0.2 <= metres_per_rev <= 20.0:
+    if not 0.1 * circumference_m <= metres_per_rev <= 10.0 * circumference_m:
         raise DataError(f"'{name}' columns x, y move {ref_dist:.4g} while the wheels turn "
                         f"{wheel_rev:.4g} revolutions ({metres_per_rev:.3g} per revolution): "
                         "x and y must be metres in a local planar frame (not degrees or km)")

@@ -16,7 +16,8 @@ from types import MappingProxyType
 #: Every calibration method, with what it is in a few words.
 METHOD_SUMMARIES: MappingProxyType[str, str] = MappingProxyType({
     "inverse": "errors-in-variables: the wheel revolutions the reference motion implies, fitted "
-               "to the measured ones (wheel noise of any kind cannot bias it)",
+               "to the measured ones (wheel noise independent of the reference cannot bias "
+               "it)",
     "compensated": "the paper's three-step architecture (batch G-N, input compensation, G-N)",
     "raw": "batch Gauss-Newton on all selected segments with the measured wheel rates",
 })

@@ -78,7 +78,7 @@ class Prepared:
 class BootstrapTerms:
     """What the bootstrap resamples: per-unit information and scores at the estimate.
 
-    information : ndarray, shape (N, 4, 4); scores : ndarray, shape (N, 4); clusters : (N,)
+    information : ndarray, shape (N, n, n); scores : ndarray, shape (N, n); clusters : (N,)
     refit : theta from a resample of the units (``bootstrap_mode = "full"``), or None
     step1_thetas, step1_sets : the three-step method's step-1 sets (redrawn too)
     """

@@ -42,7 +42,7 @@ class Step1Result:
     """Step 1: identification of independent batches on measured rates.
 
     batches : ndarray of int, shape (B, N), indices into the selected segments
-    thetas : ndarray, shape (B, 4), theta of each batch
+    thetas : ndarray, shape (B, n), theta of each batch
     success : ndarray of bool, shape (B,)
     validation_m : ndarray, shape (B,), E_p of each batch's theta (nan without validation data)
     order : ndarray of int, shape (B,), batches sorted by validation error (best first)

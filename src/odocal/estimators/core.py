@@ -64,8 +64,8 @@ from odocal.estimators.estimate import (
     numerically_free,
     tail_inflation,
 )
-from odocal.estimators.windows import AT_MOVING, WindowSet, load_transfer_column, predict
-from odocal.model.parameters import PARAMETER_NAMES
+from odocal.estimators.windows import AT_MOVING, WindowSet
+from odocal.model.vehicle import MODEL
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
@@ -74,8 +74,9 @@ BoolArray = NDArray[np.bool_]
 log = logging.getLogger(__name__)
 
 #: The layout of p: theta, the counting window's spread kappa, the wheel-rate offset.
-THETA = slice(0, len(PARAMETER_NAMES))
-KAPPA = len(PARAMETER_NAMES)
+LAYOUT = MODEL.layout
+THETA = slice(0, LAYOUT.size)
+KAPPA = LAYOUT.size
 OFFSET = KAPPA + 1
 P = KAPPA + 2
 #: Fewer clusters than this: the covariance is the larger of the sandwich and the residual
@@ -85,7 +86,7 @@ _SHIFT_ROUNDS = 6         # the lag scanned and theta refitted in turn at most s
 _SHIFT_SETTLED = 1e-3     # steps
 _LAG_SIGMAS = 3.0         # a lag within this many standard deviations of zero is not applied
 #: The parameters that act through the wheels' difference, in p.
-_DIFFERENTIAL = np.array([PARAMETER_NAMES.index(n) for n in ("c_d", "t_r", "d")])
+_DIFFERENTIAL = np.array(LAYOUT.indices(LAYOUT.differential))
 #: Why a held parameter is known (its datasheet value is taken as exact): held on request.
 #: Every other held parameter is uncertain by its datasheet uncertainty, which widens the free
 #: ones as far as the data cannot tell them apart (:func:`covariance`).
@@ -232,12 +233,12 @@ def evaluate(p: FloatArray, view: View, model: ErrorModel, folded: Folded,
     uncertainty widens the others')."""
     win = view.windows
     theta = p[THETA]
-    pred, jac4 = predict(theta, view.at)
+    pred, jac4 = MODEL.predict(theta, view.at)
     if unseen_d:
-        jac4[..., PARAMETER_NAMES.index("d")] = load_transfer_column(theta, view.at)
+        jac4[..., LAYOUT.index(LAYOUT.load)] = MODEL.load_transfer_column(theta, view.at)
     spread = np.zeros_like(pred)
     if smooth:
-        spread, _ = predict(theta, view.second)
+        spread, _ = MODEL.predict(theta, view.second)
         pred = pred + p[KAPPA] * spread
     # the offset: each wheel reads o more for every second it moves
     moving = np.repeat(view.at[:, AT_MOVING, None], 2, axis=1)                  # (W, 2)
@@ -318,7 +319,7 @@ def scan_lag(windows: WindowSet, theta: FloatArray, heading_offset: float, model
     if w_count and limit > 0:
         rotated = windows.rotated(heading_offset)                    # (W, S, 2 SERIES + 2)
         flat = rotated.reshape(w_count * shifts, -1)
-        whole, _ = predict(theta, flat)
+        whole, _ = MODEL.predict(theta, flat)
         whole += offset * flat[:, AT_MOVING, None]
         whole = whole.reshape(w_count, shifts, 2)
         x = grid + windows.margin
@@ -452,9 +453,9 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
     peak = max(float(windows.peak_yaw_radps.max(initial=0.0)), folded.peak_yaw_radps)
     if peak <= settings.segments.yaw_rate_threshold_radps:
         # t_r and d act on the yaw rate only in bends (METHOD 2)
-        for name in ("t_r", "d"):
+        for name in LAYOUT.bends:
             held.setdefault(name, NotIdentified(Reason.NEEDS_BENDS, detail=peak))
-    free = np.array([name not in held for name in PARAMETER_NAMES])
+    free = np.array([name not in held for name in LAYOUT.names])
     lag_on = cfg.delay == "estimate" and not distance_only and windows.shifts > 0
     offsets_on = folded.offset_free
 
@@ -466,7 +467,7 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
     coupling = not distance_only and cfg.common_wheel_error == "estimate"
     p = pack(datasheet)
 
-    unseen_d = "d" in held and held["d"].reason is Reason.NO_LATERAL
+    unseen_d = LAYOUT.load in held and held[LAYOUT.load].reason is Reason.NO_LATERAL
 
     def solve_at(p: FloatArray, lag: Lag, model: ErrorModel, free_p: BoolArray) -> Fit:
         # where no parameter the wheels' difference shows (c_d, t_r, d) is fitted, the yaw
@@ -480,11 +481,11 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
     lag = Lag()
     current = solve_at(p, lag, model, free_p)
     h, _ = current.normal_equations(folded)
-    informed = numerically_free(h[:4, :4], settings.identify.prior_std, free)
+    informed = numerically_free(h[THETA, THETA], settings.identify.prior_std, free)
     if not np.array_equal(informed, free):
         # a parameter the windows say nothing about (a_y zero throughout: d): named, not fitted
         for j in np.flatnonzero(free & ~informed):
-            held[PARAMETER_NAMES[j]] = NotIdentified(Reason.NO_INFORMATION)
+            held[LAYOUT.names[j]] = NotIdentified(Reason.NO_INFORMATION)
         free = informed
         free_p = with_nuisance(free)
         current = solve_at(p, lag, model, free_p)
@@ -514,7 +515,7 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
         # +-0.5 steps on a short drive moves t_r by as much as its noise does
         variance = _lag_variance(lag, windows.shifts) if lag_on else 0.0
         if variance <= 0 or not free.any():
-            return np.zeros(len(PARAMETER_NAMES))
+            return np.zeros(LAYOUT.size)
         ahead, behind = (solve_at(p, dataclasses.replace(lag, shift=lag.shift + step), model,
                                   with_nuisance(free)).p[THETA]
                          for step in (_LAG_STEP, -_LAG_STEP))
@@ -574,7 +575,7 @@ def _identified(current: Fit, windows: WindowSet, folded: Folded, settings: Sett
     # missing: d; one turning rate: t_r against c_d; one speed in every bend: t_r against d,
     # judged too weak) widen them by their datasheet uncertainty: a free parameter that cannot
     # be told apart from a held one is not identified either
-    known = np.array([n in held and held[n].reason in _KNOWN for n in PARAMETER_NAMES])
+    known = np.array([n in held and held[n].reason in _KNOWN for n in LAYOUT.names])
     fits, uncertainties = [current], []
 
     def covariance_of(free: BoolArray) -> tuple[FloatArray, int]:
@@ -601,7 +602,7 @@ def _identified(current: Fit, windows: WindowSet, folded: Folded, settings: Sett
                                    refit=refit_at)
     found = uncertainties[-1]
     if not free.any():
-        n = len(PARAMETER_NAMES)
+        n = LAYOUT.size
         found = dataclasses.replace(found, covariance=np.zeros((n, n)), widening=np.ones(n))
     return free, held, fits[-1], found
 

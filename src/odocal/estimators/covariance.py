@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.estimators.estimate import Estimate
-from odocal.model.parameters import PARAMETER_NAMES
+from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS
 from odocal.settings import UncertaintySettings
 
 FloatArray = NDArray[np.float64]
@@ -117,10 +117,10 @@ def leverage_adjusted_scores(information: FloatArray, scores: FloatArray, free: 
 class BootstrapResult:
     """The bootstrap's spread and its agreement with the covariance.
 
-    samples : ndarray, shape (B, 4), theta of every resample
-    std : ndarray, shape (4,), standard deviation over the resamples
-    covariance_std : ndarray, shape (4,), from the reported covariance
-    ratio : ndarray, shape (4,), bootstrap std over covariance std (nan where not identified)
+    samples : ndarray, shape (B, n), theta of every resample
+    std : ndarray, shape (n,), standard deviation over the resamples
+    covariance_std : ndarray, shape (n,), from the reported covariance
+    ratio : ndarray, shape (n,), bootstrap std over covariance std (nan where not identified)
     agree : for each parameter, whether the two are within the disagreement factor
     message : plain-words summary
     """
@@ -130,7 +130,7 @@ class BootstrapResult:
     std: FloatArray
     covariance_std: FloatArray
     ratio: FloatArray
-    agree: tuple[bool, bool, bool, bool]
+    agree: tuple[bool, ...]
     message: str
 
     @property
@@ -157,12 +157,12 @@ def bootstrap(result: Estimate, information: FloatArray, scores: FloatArray, clu
     Parameters
     ----------
     result : the estimate to check
-    information : ndarray, shape (N, 4, 4), each unit's ``J^T W J`` at the estimate
-    scores : ndarray, shape (N, 4), each unit's ``J^T W R`` at the estimate
+    information : ndarray, shape (N, n, n), each unit's ``J^T W J`` at the estimate
+    scores : ndarray, shape (N, n), each unit's ``J^T W R`` at the estimate
     clusters : group label per unit (units that overlap or correlate share a label)
     refit : for ``bootstrap_mode = "full"``: theta re-estimated from the units with the given
         indices (repeats allowed); one Gauss-Newton step from the estimate when None
-    step1_thetas : ndarray, shape (B, 4), every step-1 batch's theta (three-step method only)
+    step1_thetas : ndarray, shape (B, n), every step-1 batch's theta (three-step method only)
     step1_sets : how many step-1 sets the compensation averaged
     """
     theta = result.theta.as_array()
@@ -182,8 +182,8 @@ def bootstrap(result: Estimate, information: FloatArray, scores: FloatArray, clu
                                        if k])
                 samples[b] = refit(take)
         else:
-            h = np.zeros((n_clusters, 4, 4))
-            g = np.zeros((n_clusters, 4))
+            h = np.zeros((n_clusters, PARAMETERS, PARAMETERS))
+            g = np.zeros((n_clusters, PARAMETERS))
             np.add.at(h, index, information)
             np.add.at(g, index, scores)
             cols = np.flatnonzero(free)
@@ -197,7 +197,7 @@ def bootstrap(result: Estimate, information: FloatArray, scores: FloatArray, clu
         for b in range(count):
             pick = rng.integers(0, step1_thetas.shape[0], step1_sets)
             samples[b, free] += (step1_thetas[pick].mean(axis=0) - centre)[free]
-    std = samples.std(axis=0, ddof=1) if count > 1 else np.zeros(4)
+    std = samples.std(axis=0, ddof=1) if count > 1 else np.zeros(PARAMETERS)
     cov_std = result.std
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(free & (cov_std > 0), std / cov_std, np.nan)
@@ -216,4 +216,4 @@ def bootstrap(result: Estimate, information: FloatArray, scores: FloatArray, clu
                    f"with the covariance within a factor {factor:g}")
     return BootstrapResult(mode=settings.bootstrap_mode, samples=samples, std=std,
                            covariance_std=cov_std, ratio=ratio,
-                           agree=agree, message=message)  # type: ignore[arg-type]
+                           agree=agree, message=message)

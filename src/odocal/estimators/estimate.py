@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
 from odocal.settings import IdentifySettings
 
 FloatArray = NDArray[np.float64]
@@ -130,7 +130,9 @@ class CovarianceKind(enum.Enum):
     THREE_STEP = "cluster-robust + step-1 spread"
     """Step 3's robust covariance plus the spread the compensated rates inherit from step 1."""
     RECURSIVE = "recursive information"
-    """Accumulated Gauss-Newton information of the segments seen so far (online)."""
+    """The online calibrator's: the default method's sandwich over the windows in memory and
+    the clusters folded into sums before them (their information and the meat of their
+    scores), as batch computes it where nothing is folded."""
     NONE = "none"
     """Nothing was estimated."""
 
@@ -145,7 +147,7 @@ class GaussNewtonDetails:
     clusters : number of independent clusters of overlapping segments
     residual_rms : RMS of the p_x, p_y (m) and psi (rad) residuals at the final theta
     covariance_naive : ``sigma^2 (J^T W J)^-1`` inflated for the residuals' autocorrelation
-    segment_scores : per-segment ``J^T W R`` at the final theta, shape (N, 4)
+    segment_scores : per-segment ``J^T W R`` at the final theta, shape (N, n)
     """
 
     iterations: int
@@ -171,14 +173,14 @@ class Estimate:
     method : the estimator that produced it
     theta : the estimate (parameters not identified keep their datasheet values)
     datasheet : the datasheet values (the starting point)
-    covariance : ndarray, shape (4, 4), order c_e, c_d, t_r, d; zero rows and columns for
+    covariance : ndarray, shape (n, n), order c_e, c_d, t_r, d; zero rows and columns for
         parameters that were not estimated
     covariance_kind : where the covariance comes from
     free : which parameters were estimated from the data
     verdicts : per parameter, :class:`Identified` or :class:`NotIdentified`
     status : how the estimation ended (see :data:`STATUS_MESSAGES`)
     details : the method's own record (typed per method)
-    widening : ndarray, shape (4,), the factor by which each standard deviation was widened
+    widening : ndarray, shape (n,), the factor by which each standard deviation was widened
         beyond the covariance formula (to the bootstrap spread, or for the sensitivity to the
         noise model); 1 where not widened. ``covariance`` already includes it.
     """
@@ -188,11 +190,11 @@ class Estimate:
     datasheet: Parameters
     covariance: FloatArray
     covariance_kind: CovarianceKind
-    free: tuple[bool, bool, bool, bool]
-    verdicts: tuple[Verdict, Verdict, Verdict, Verdict]
+    free: tuple[bool, ...]
+    verdicts: tuple[Verdict, ...]
     status: Status
     details: Any = field(default=None, repr=False)
-    widening: FloatArray = field(default_factory=lambda: np.ones(4))
+    widening: FloatArray = field(default_factory=lambda: np.ones(PARAMETERS))
 
     @property
     def success(self) -> bool:
@@ -208,8 +210,8 @@ class Estimate:
         return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
     @property
-    def identified(self) -> tuple[bool, bool, bool, bool]:
-        return tuple(isinstance(v, Identified) for v in self.verdicts)  # type: ignore[return-value]
+    def identified(self) -> tuple[bool, ...]:
+        return tuple(isinstance(v, Identified) for v in self.verdicts)
 
     @property
     def unidentified(self) -> tuple[str, ...]:
@@ -272,14 +274,14 @@ def weak(std: FloatArray, free: BoolArray | tuple[bool, ...],
          settings: IdentifySettings) -> BoolArray:
     """Free parameters whose standard deviation exceeds the identifiability limit."""
     if not settings.judge_identifiability:
-        return np.zeros(4, dtype=bool)
+        return np.zeros(PARAMETERS, dtype=bool)
     std = np.asarray(std, dtype=np.float64)
     return np.asarray(free, dtype=bool) & ~(std <= identifiability_limits(settings))
 
 
 def judge(std: FloatArray, free: BoolArray | tuple[bool, ...], settings: IdentifySettings, *,
           held: Mapping[str, NotIdentified] | None = None,
-          ) -> tuple[Verdict, Verdict, Verdict, Verdict]:
+          ) -> tuple[Verdict, ...]:
     """The verdict per parameter: held ones keep their reason, free ones are judged by std."""
     held = held or {}
     limits = identifiability_limits(settings)
@@ -295,7 +297,7 @@ def judge(std: FloatArray, free: BoolArray | tuple[bool, ...], settings: Identif
             out.append(NotIdentified(Reason.WEAK, float(std[j]), float(limits[j])))
         else:
             out.append(Identified(float(std[j]), float(limits[j])))
-    return tuple(out)  # type: ignore[return-value]
+    return tuple(out)
 
 
 def hold_unidentified(free: BoolArray, held: Mapping[str, NotIdentified],
@@ -309,7 +311,7 @@ def hold_unidentified(free: BoolArray, held: Mapping[str, NotIdentified],
     (``refit(free)``), until every free one passes. Where the evidence is
     one cluster of overlapping data only, nothing is identified (no spread to judge by).
 
-    ``covariance_of(free)`` gives the (4, 4) covariance of the latest fit and the number of
+    ``covariance_of(free)`` gives the (n, n) covariance of the latest fit and the number of
     independent clusters it rests on. Returns the free parameters and why the others are held.
     """
     free = np.asarray(free, dtype=bool).copy()
@@ -358,9 +360,10 @@ def refused_estimate(method: str, settings: IdentifySettings, status: Status, re
     """The datasheet values, nothing estimated, every parameter not identified for ``reason``."""
     theta0 = Parameters.from_array(settings.theta0)
     limits = identifiability_limits(settings)
-    return Estimate(method=method, theta=theta0, datasheet=theta0, covariance=np.zeros((4, 4)),
-                    covariance_kind=CovarianceKind.NONE, free=(False, False, False, False),
-                    verdicts=tuple(NotIdentified(reason, limit=float(v))  # type: ignore[arg-type]
+    return Estimate(method=method, theta=theta0, datasheet=theta0,
+                    covariance=np.zeros((PARAMETERS, PARAMETERS)),
+                    covariance_kind=CovarianceKind.NONE, free=(False,) * PARAMETERS,
+                    verdicts=tuple(NotIdentified(reason, limit=float(v))
                                    for v in limits),
                     status=status, details=details)
 
@@ -404,7 +407,7 @@ _RANK_RCOND = 1e-7
 
 def numerically_free(information: FloatArray, prior_std: tuple[float, ...] | FloatArray,
                      free: BoolArray) -> BoolArray:
-    """``free`` less the parameters the information (4, 4) cannot tell apart from the others:
+    """``free`` less the parameters the information (n, n) cannot tell apart from the others:
     dropped one by one (the one that carries the null direction most, in units of its datasheet
     uncertainty) until the rest has full rank."""
     prior = np.asarray(prior_std, dtype=np.float64)

@@ -44,7 +44,7 @@ from odocal.estimators.estimate import (
     judge,
 )
 from odocal.model.compiled import segment_r_factors
-from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
 from odocal.settings import IdentifySettings, Settings
 
 FloatArray = NDArray[np.float64]
@@ -90,12 +90,12 @@ class Linearisation:
 
     @property
     def scores(self) -> FloatArray:
-        """Per-segment ``J_s^T W R_s``, shape (N, 4)."""
+        """Per-segment ``J_s^T W R_s``, shape (N, n)."""
         return np.einsum("nij,ni->nj", self.segment_r[:, :4, :4], self.segment_r[:, :4, 4])
 
     @property
     def information(self) -> FloatArray:
-        """Per-segment ``J_s^T W J_s``, shape (N, 4, 4)."""
+        """Per-segment ``J_s^T W J_s``, shape (N, n, n)."""
         a = self.segment_r[:, :4, :4]
         return np.einsum("nki,nkj->nij", a, a)
 
@@ -117,7 +117,7 @@ def linearise(batch: SegmentBatch, theta: FloatArray, weights: FloatArray) -> Li
 
 def segment_information(batch: SegmentBatch, theta: FloatArray,
                         weights: FloatArray) -> FloatArray:
-    """Per-segment ``J_s^T W J_s`` at ``theta``, shape (N, 4, 4) (for bootstrap and diagnostics)."""
+    """Per-segment ``J_s^T W J_s`` at ``theta``, shape (N, n, n) (for bootstrap and diagnostics)."""
     return linearise(batch, theta, weights).information
 
 
@@ -193,8 +193,8 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
     free, held = hold_unidentified(free, held, settings, covariance_of=covariance_of,
                                    refit=refit)
     it = fits[-1]
-    cov, cov_naive, kind = kinds[-1] if free.any() else (np.zeros((4, 4)), np.zeros((4, 4)),
-                                                         CovarianceKind.NONE)
+    none = np.zeros((PARAMETERS, PARAMETERS))
+    cov, cov_naive, kind = kinds[-1] if free.any() else (none, none, CovarianceKind.NONE)
     lin = it.lin
     rms = np.sqrt(lin.residual_ss / max(lin.samples, 1))
     if not it.status.success:
@@ -207,7 +207,7 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
     return Estimate(
         method=method, theta=Parameters.from_array(it.theta),
         datasheet=Parameters.from_array(datasheet), covariance=cov, covariance_kind=kind,
-        free=tuple(bool(f) for f in free),  # type: ignore[arg-type]
+        free=tuple(bool(f) for f in free),
         verdicts=judge(std, free, settings, held=held), status=it.status, details=details)
 
 
@@ -220,7 +220,7 @@ def _iterate(batch: SegmentBatch, theta_init: FloatArray, lin0: Linearisation,
     status = Status.ITERATION_LIMIT
     iterations = 0
     for _ in range(settings.max_iterations):
-        delta = np.zeros(4)
+        delta = np.zeros(PARAMETERS)
         delta[free] = _solve_step(lin.r_factor, free)
         if _predicted_decrease(lin.r_factor, delta) <= _COST_ROUNDING * lin.cost:
             # the cost cannot tell this step from none (on a 4 h drive halving it took 14
@@ -307,7 +307,7 @@ def _numerically_free(r_factor: FloatArray, prior: FloatArray, rcond: float,
 def information_inverse(r_factor: FloatArray, free: BoolArray) -> FloatArray:
     """(J^T W J)^-1 of the free parameters from an R factor, embedded in 4x4."""
     cols = np.flatnonzero(free)
-    out = np.zeros((4, 4))
+    out = np.zeros((PARAMETERS, PARAMETERS))
     if cols.size == 0:
         return out
     _, r = np.linalg.qr(r_factor[:4, cols])

@@ -28,6 +28,7 @@ heading offset of the reference is measured on straight stretches and applied.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -38,6 +39,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.checks.departures import wheel_step
+from odocal.checks.findings import Finding
+from odocal.checks.residuals import change_finding, find_change, front_wheels
 from odocal.data.drive import Drive
 from odocal.data.segments import common_sampling_time
 from odocal.estimators import core
@@ -56,8 +59,8 @@ from odocal.estimators.estimate import (
     Status,
     judge,
 )
-from odocal.estimators.windows import WindowSet, heading_offset, windows_from_drives
-from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.estimators.windows import SERIES, WindowSet, heading_offset, windows_from_drives
+from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
@@ -120,6 +123,8 @@ class InverseDetails:
     truncated towards zero read half a step low)."""
     wheel_offset_std: float = 0.0
     """Its standard deviation (about the prior's where the drive does not determine it)."""
+    findings: tuple[Finding, ...] = ()
+    """What the fit's residuals showed (a change inside the log, front wheels)."""
     delay_note: str = ""
     """Why the lag found was not applied: ``within noise`` (under three standard deviations),
     ``does not hold out`` (found on half the clusters, it does not lower the other half's
@@ -171,9 +176,45 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
                               core.offset_prior_std(settings, wheel_step(drives)))
     found = core.fit(windows, prior, settings,
                      heading_offset=offset, held=held, distance_only=distance_only)
+    findings, found, windows = _residual_checks(found, windows, drives, prior, settings,
+                                                offset, held, distance_only)
     if progress:
         progress("inverse: fit", 2, 2)
-    return _estimate(found, windows, settings, started, method="inverse")
+    estimate = _estimate(found, windows, settings, started, method="inverse")
+    if findings:
+        estimate = dataclasses.replace(estimate, details=dataclasses.replace(
+            estimate.details, findings=tuple(findings)))
+    return estimate
+
+
+def _residual_checks(found: core.CoreFit, windows: WindowSet, drives: Sequence[Drive],
+                     prior: core.Folded, settings: Settings, offset: float,
+                     held: Mapping[str, NotIdentified] | None, distance_only: bool,
+                     ) -> tuple[list[Finding], core.CoreFit, WindowSet]:
+    """What the fit's residuals show (:mod:`odocal.checks.residuals`): front wheels (the
+    calibration is refused), or a change inside the log (the calibration is of the part after
+    it, named with its time and size)."""
+    measured = windows.measured @ CHANNELS.T
+    residual = found.fit.residual
+    zero = windows.margin
+    if not distance_only:
+        front = front_wheels(measured, residual, windows.moments[:, zero, 0],
+                             windows.moments[:, zero, SERIES])
+        if front is not None:
+            return [front], found, windows
+    change = find_change(measured, residual, windows.cluster)
+    if change is None:
+        return [], found, windows
+    after = windows.take(np.arange(windows.size) >= change.index)
+    if after.size < MIN_WINDOWS:
+        return [], found, windows
+    drive = drives[int(windows.cluster[change.index] // 10**9)]
+    finding = change_finding(change, float(windows.t0[change.index]), drive.name)
+    log.warning("the drives change at t = %.0f s of %s: calibrating the part after it",
+                finding.reference, drive.name)
+    refit = core.fit(after, prior, settings, heading_offset=offset, held=held,
+                     distance_only=distance_only)
+    return [finding], refit, after
 
 
 def _origin(settings: Settings) -> FloatArray:
@@ -222,7 +263,7 @@ def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
                     covariance_kind=(CovarianceKind.CLUSTER_ROBUST
                                      if found.clusters >= core.MIN_CLUSTERS_FOR_ROBUST
                                      else CovarianceKind.RESIDUAL),
-                    free=tuple(bool(f) for f in free),  # type: ignore[arg-type]
+                    free=tuple(bool(f) for f in free),
                     verdicts=judge(std, free, settings.identify, held=found.held),
                     status=status, details=details, widening=found.uncertainty.widening)
 
@@ -236,14 +277,15 @@ def _nothing(settings: Settings, held: dict[str, NotIdentified], started: float,
         windows=0, window_s=window_s, clusters=0, delay_s=0.0, delay_std_s=float("nan"),
         heading_offset_rad=0.0, noise=((0.0, 0.0), (0.0, 0.0)), downweighted=0, iterations=0,
         cost_history=(), residual_rms=(0.0, 0.0), elapsed_s=time.perf_counter() - started,
-        information=np.zeros((0, 4, 4)), scores=np.zeros((0, 4)),
+        information=np.zeros((0, PARAMETERS, PARAMETERS)), scores=np.zeros((0, PARAMETERS)),
         cluster=np.zeros(0, dtype=np.int64), measured=np.zeros((0, 2)),
         residual=np.zeros((0, 2)))
     return Estimate(method="inverse", theta=Parameters.from_array(datasheet),
-                    datasheet=Parameters.from_array(datasheet), covariance=np.zeros((4, 4)),
-                    covariance_kind=CovarianceKind.NONE, free=(False, False, False, False),
-                    verdicts=judge(np.zeros(4), np.zeros(4, dtype=bool), settings.identify,
-                                   held=held),
+                    datasheet=Parameters.from_array(datasheet),
+                    covariance=np.zeros((PARAMETERS, PARAMETERS)),
+                    covariance_kind=CovarianceKind.NONE, free=(False,) * PARAMETERS,
+                    verdicts=judge(np.zeros(PARAMETERS), np.zeros(PARAMETERS, dtype=bool),
+                                   settings.identify, held=held),
                     status=Status.NOTHING_IDENTIFIABLE, details=details)
 
 

@@ -80,7 +80,7 @@ def mean_error(theta: FloatArray, data: RaggedSegments) -> float:
 
 
 def mean_errors(thetas: FloatArray, data: RaggedSegments, *, chunk: int = 1) -> FloatArray:
-    """E_p of many parameter sets (P, 4), shape (P,): the rollouts and the position errors only
+    """E_p of many parameter sets (P, n), shape (P,): the rollouts and the position errors only
     (what a search over parameter sets needs), ``chunk`` sets per pass (one is fastest where a
     rollout's arrays outgrow the caches)."""
     thetas = np.atleast_2d(np.asarray(thetas, dtype=np.float64))

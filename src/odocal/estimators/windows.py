@@ -1,16 +1,10 @@
 """The window set: what the default method fits, in batch and live alike.
 
 A window is ``window_s`` of wheel revolutions (the measurement) beside the reference motion over
-the same time (the model's input), summed. The model run backwards (METHOD 1, (1)-(3)) gives
-the revolutions each rear wheel turns over a step of ``ds`` along track and ``dpsi`` of heading::
-
-    n_rl t_s = (ds - t_r dpsi / 2) / c_rl,      n_rr t_s = (ds + t_r dpsi / 2) / c_rr
-
-with ``c_rl = C_l + d a``, ``C_l = c_e + c_d / 2`` (``c_rr = C_r - d a``, ``C_r = c_e - c_d / 2``).
-``1 / (C + d a)`` is a geometric series in ``d a / C`` (below 1e-2 for any car), so a window
-keeps only moments of the motion, ``sum ds a^j``, ``sum dpsi a^j`` and ``sum lat a^j`` (the
-displacement across the heading) for ``j = 0 .. 3``, and predicts its revolutions for *any*
-theta to a relative ``(d a / C)^4`` (below 1e-8). The moments are kept at every whole-step shift
+the same time (the model's input), summed. The model predicts a window's revolutions for *any*
+theta from moments of the motion (:meth:`odocal.model.vehicle.RearAxleModel.predict`), so a
+window keeps only those: ``sum ds a^j``, ``sum dpsi a^j`` and ``sum lat a^j`` (the displacement
+across the heading) for ``j < SERIES``. The moments are kept at every whole-step shift
 of the reference side within ``margin`` steps (the wheel stream's clock offset is chosen when
 fitting, by linear interpolation between them), and those across the heading let a constant
 heading offset of the reference be applied when the windows are used.
@@ -31,14 +25,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.data.drive import Drive
+from odocal.model.vehicle import SERIES
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
-#: Powers of the lateral acceleration kept in the moments (the series' terms).
-SERIES = 4
 #: Moment columns: ``ds a^j``, ``dpsi a^j``, ``lat a^j`` for j < SERIES, then the same three
 #: times the reference's own lateral acceleration ``v w`` (where a_y is missing, the load
 #: transfer d it cannot show is still felt: :func:`load_transfer_column`), then the time the
@@ -179,50 +172,6 @@ def _rotated(moments: FloatArray, offset: float) -> FloatArray:
     return np.concatenate([ds, dpsi, rds, rdpsi, moments[..., MOVING, None]], axis=-1)
 
 
-def predict(theta: FloatArray, moments: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Each window's revolutions (N, 2) and their Jacobian in theta (N, 2, 4), from the model
-    moments ``[along_j, dpsi_j, ...]`` (N, 2 SERIES + 2) of :meth:`WindowSet.at`.
-
-    For a wheel with ``C`` (``c_e +- c_d / 2``), ``s`` (+1 left, -1 right) and ``e = s d / C``:
-    ``revs = sum_j (-e)^j (A_j - s t_r Q_j / 2) / C``, the series of (2)-(3) inverted.
-    """
-    c_e, c_d, t_r, d = (float(v) for v in theta)
-    along, turn = moments[:, :SERIES], moments[:, SERIES:2 * SERIES]
-    out = np.empty((moments.shape[0], 2))
-    jac = np.empty((moments.shape[0], 2, 4))
-    powers = np.arange(SERIES)
-    for w, sign in enumerate((1.0, -1.0)):
-        big = c_e + 0.5 * sign * c_d
-        e = sign * d / big
-        coef = (-e) ** powers                               # (-e)^j
-        dcoef = -powers * (-e) ** np.maximum(powers - 1, 0)  # d(-e)^j / de
-        half = -0.5 * sign * t_r
-        combined = along + half * turn                      # M_j = A_j + h Q_j
-        series = combined @ coef
-        value = series / big
-        dseries_de = combined @ dcoef
-        out[:, w] = value
-        dvalue_dbig = -value / big - dseries_de * e / (big * big)     # de/dC = -e / C
-        jac[:, w, 0] = dvalue_dbig
-        jac[:, w, 1] = 0.5 * sign * dvalue_dbig
-        jac[:, w, 2] = -0.5 * sign * (turn @ coef) / big
-        jac[:, w, 3] = dseries_de * sign / (big * big)                  # de/dd = s / C
-    return out, jac
-
-
-def load_transfer_column(theta: FloatArray, moments: FloatArray) -> FloatArray:
-    """The windows' revolutions' derivative in d (N, 2) as if their lateral acceleration were
-    the reference's own, ``v w`` (at d = 0: ``-s (A' - s t_r Q' / 2) / C^2`` with ``A', Q'`` the
-    moments times ``v w``): how a load transfer the a_y column does not show would move them."""
-    c_e, c_d, t_r, _ = (float(v) for v in theta)
-    along, turn = moments[:, 2 * SERIES], moments[:, 2 * SERIES + 1]
-    out = np.empty((moments.shape[0], 2))
-    for w, sign in enumerate((1.0, -1.0)):
-        big = c_e + 0.5 * sign * c_d
-        out[:, w] = -sign * (along - 0.5 * sign * t_r * turn) / (big * big)
-    return out
-
-
 class WindowBuilder:
     """Windows from samples as they arrive, piece by piece (batch: whole drives; live: chunks).
 
@@ -246,7 +195,8 @@ class WindowBuilder:
         self._left_m = 0.0                      # ... of the steps that have left the ring
         self._ring = np.zeros((0, 10))          # steps of the current piece not yet windowed
         self._last: FloatArray | None = None    # the piece's last sample (t, n_rl, ..., psi)
-        self._stretch = np.zeros((0, 4))        # steps of the straight stretch under way
+        # dx, dy, dpsi, psi of the straight stretch under way
+        self._stretch = np.zeros((0, 4))        # (not theta)
         self._follows = False                   # the next window follows the last one made
         self._done: list[WindowSet] = []
 
@@ -274,7 +224,7 @@ class WindowBuilder:
         self._to_stretches(self._ring)
         self._left_m += float(np.hypot(self._ring[:, _DX], self._ring[:, _DY]).sum())
         self._ring = np.zeros((0, 10))
-        self._stretch = np.zeros((0, 4))
+        self._stretch = np.zeros((0, 4))        # (not theta)
         self._last = None
         self._follows = False
 
@@ -420,8 +370,11 @@ def cluster_steps_for(drives: Sequence[Drive], settings: Settings) -> int:
     the drives are too short for :data:`MIN_CLUSTERS` of them, down to two windows. A 20 s
     scene is then five clusters of 4 s, not one: its evidence is judged (with the few-clusters
     widening) rather than refused as a single piece."""
-    steps = sum(b - a - 1 for d in drives for a, b in d.pieces)
-    window = max(round(settings.inverse.window_s / drives[0].t_s), 1) if drives else 1
+    if not drives:
+        return settings.segments.length
+    margin = builder_for(settings, drives[0].t_s).margin       # lost at either end of a piece
+    steps = sum(max(b - a - 1 - 2 * margin, 0) for d in drives for a, b in d.pieces)
+    window = max(round(settings.inverse.window_s / drives[0].t_s), 1)
     return int(min(settings.segments.length,
                    max(MIN_CLUSTER_WINDOWS * window, steps // MIN_CLUSTERS)))
 

@@ -96,7 +96,7 @@ def _exports(store: Store, out: Path, datasheet: Parameters) -> list[Path]:
         calibrated = Calibrated(
             theta=Parameters(*(p[n] for n in PARAMETER_NAMES)), datasheet=datasheet,
             std=tuple(p[f"{n}_std"] for n in PARAMETER_NAMES),
-            identified=tuple(bool(p[f"{n}_identified"])  # type: ignore[arg-type]
+            identified=tuple(bool(p[f"{n}_identified"])
                              for n in PARAMETER_NAMES),
             method=p["method"] or "", noise=noise,
             source=f"fleet store, vehicle {vehicle}, {len(json.loads(p['drives']))} drives up to "

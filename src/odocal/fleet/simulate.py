@@ -34,6 +34,14 @@ from odocal.errors import ConfigError, OutputError
 from odocal.io.atomic import write_text
 from odocal.io.drivefile import save_drive
 from odocal.model.parameters import Parameters
+from odocal.sim.limits import (
+    MAX_DRIVES,
+    MAX_VEHICLES,
+    checked_count,
+    checked_duration,
+    checked_seed,
+    checked_share,
+)
 from odocal.sim.simulate import TRUE_PARAMETERS, simulate
 
 PLANS = ("mixed", "pressure", "wear", "tyres", "none")
@@ -75,8 +83,12 @@ def simulate_fleet(out: str | Path, *, vehicles: int = 4, drives: int = 12,
     """Write a simulated fleet into the folder ``out`` (see the module docstring)."""
     if plan not in PLANS:
         raise ConfigError(f"unknown fleet plan {plan!r}; choose one of {', '.join(PLANS)}")
-    if vehicles < 1 or drives < 2:
-        raise ConfigError("a simulated fleet needs at least 1 vehicle and 2 drives each")
+    checked_count(vehicles, name="vehicles", lower=1, upper=MAX_VEHICLES)
+    checked_count(drives, name="drives per vehicle", lower=2, upper=MAX_DRIVES)
+    checked_duration(duration_s, name="drive duration")
+    checked_seed(seed)
+    checked_share(size, name="pressure loss size")
+    checked_share(wear, name="wear")
     root = Path(out)
     if root.exists() and (not root.is_dir() or any(root.iterdir())):
         raise OutputError(f"'{root}' exists and is not an empty folder; simulate-fleet writes a "

@@ -1,4 +1,9 @@
-"""Outside formats in, one in-memory :class:`~odocal.drive.Drive` out, and the drive format back."""
+"""Outside formats in, one in-memory :class:`~odocal.data.drive.Drive` out, and the drive
+format back.
+
+May import: :mod:`odocal.data`, :mod:`odocal.model` (the parameter layout), the leaves
+(:mod:`odocal.settings`, :mod:`odocal.errors`); nothing above.
+"""
 
 from __future__ import annotations
 

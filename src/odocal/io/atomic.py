@@ -6,6 +6,7 @@ import contextlib
 import glob
 import hashlib
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Iterable, Iterator
@@ -182,7 +183,7 @@ def results_folder(target: str | Path) -> Iterator[Path]:
     An existing ``target`` must be empty, hold the marker odocal leaves, or hold only what odocal
     writes: odocal never deletes a folder with anything of the user's in it.
     """
-    target = Path(target)
+    target = _followed(Path(target))          # a link to the folder stays a link
     check_replaceable(target)
     parent = target.parent if str(target.parent) else Path(".")
     remove_leftovers(target)
@@ -219,13 +220,118 @@ def results_folder(target: str | Path) -> Iterator[Path]:
         shutil.rmtree(old, ignore_errors=True)
 
 
+#: Lists the single files odocal wrote in a folder, in ``sha256sum``'s format (the SHA-256 of
+#: the content, two spaces, the name): a later run replaces a file only where this line still
+#: matches its content (``sha256sum -c .odocal-outputs`` checks them by hand).
+OUTPUTS_MANIFEST = ".odocal-outputs"
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _manifest_line(digest: str, name: str) -> str:
+    """One line as ``sha256sum`` writes it (a name with a newline or a backslash escaped)."""
+    if "\\" in name or "\n" in name:
+        return "\\" + digest + "  " + name.replace("\\", "\\\\").replace("\n", "\\n") + "\n"
+    return f"{digest}  {name}\n"
+
+
+def _read_manifest(folder: Path) -> dict[str, str]:
+    """Name -> SHA-256 of the files odocal recorded writing in ``folder``."""
+    try:
+        text = (folder / OUTPUTS_MANIFEST).read_text(encoding="utf-8", errors="surrogateescape")
+    except OSError:
+        return {}
+    out: dict[str, str] = {}
+    for line in text.split("\n"):
+        escaped = line.startswith("\\")
+        digest, sep, name = line[1 if escaped else 0:].partition("  ")
+        if not sep or len(digest) != 64:
+            continue
+        if escaped:
+            name = re.sub(r"\\(.)", lambda m: "\n" if m.group(1) == "n" else m.group(1), name)
+        out[name] = digest
+    return out
+
+
 @contextlib.contextmanager
-def atomic_path(target: str | Path) -> Iterator[Path]:
+def _locked(folder: Path) -> Iterator[None]:
+    """An exclusive lock on ``folder`` (its manifest's writers take turns)."""
+    try:
+        import fcntl
+    except ImportError:                      # pragma: no cover - not on POSIX
+        yield
+        return
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)                         # closing releases the lock
+
+
+def _record(target: Path, digest: str) -> None:
+    """Note in the folder's manifest that odocal wrote ``target`` with this content (entries
+    of files that are gone are dropped)."""
+    folder = target.parent
+    with _locked(folder):
+        entries = _read_manifest(folder)
+        entries[target.name] = digest
+        lines = [_manifest_line(d, n) for n, d in sorted(entries.items())
+                 if n == target.name or (folder / n).exists()]
+        manifest = folder / OUTPUTS_MANIFEST
+        tmp = folder / f".{OUTPUTS_MANIFEST}.{os.getpid()}.part"
+        tmp.write_text("".join(lines), encoding="utf-8", errors="surrogateescape")
+        os.replace(tmp, manifest)
+
+
+def _followed(target: Path) -> Path:
+    """``target``, or the path a symbolic link there points to (the link stays a link)."""
+    return target.resolve() if target.is_symlink() else target
+
+
+def check_output_file(target: str | Path) -> None:
+    """OutputError now, before any computation, unless ``target`` may be written: absent, or a
+    file odocal wrote there whose content nobody changed since (its manifest line,
+    :data:`OUTPUTS_MANIFEST`). odocal replaces only what it wrote."""
+    given = Path(target)
+    target = _followed(given)
+    check_writable(target)
+    if not target.exists():
+        return
+    if target.is_dir():
+        raise OutputError(f"output '{shown(given)}' is a folder: name a file in it")
+    if not target.is_file():
+        raise OutputError(f"output '{shown(given)}' exists and is not a regular file")
+    recorded = _read_manifest(target.parent).get(target.name)
+    try:
+        same = recorded is not None and recorded == _sha256(target)
+    except OSError as exc:
+        raise OutputError(f"cannot read '{shown(given)}': {exc.strerror or exc}") from exc
+    if not same:
+        why = "changed since odocal wrote it" if recorded else "odocal did not write it"
+        raise OutputError(f"output '{shown(given)}' exists and {why}: odocal replaces only "
+                          "files it wrote, so choose another name or move it out of the way")
+
+
+@contextlib.contextmanager
+def atomic_path(target: str | Path, *, owned: bool = False) -> Iterator[Path]:
     """Yield a temporary path beside ``target``; move it onto ``target`` only on success.
 
     Readers of ``target`` see the old file or the complete new one, never a partial write.
+    ``owned``: ``target`` is a file of the user's folder (a command's ``--out``): it may
+    replace only a file odocal wrote (:func:`check_output_file`), a link there is followed, and
+    the folder's manifest records what was written.
     """
     target = Path(target)
+    if owned:
+        check_output_file(target)
+        target = _followed(target)
     parent = target.parent if str(target.parent) else Path(".")
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -242,7 +348,10 @@ def atomic_path(target: str | Path) -> Iterator[Path]:
     os.chmod(tmp_path, 0o666 & ~umask)
     try:
         yield tmp_path
+        digest = _sha256(tmp_path) if owned else ""
         os.replace(tmp_path, target)
+        if owned:
+            _record(target, digest)
     except OSError as exc:
         raise OutputError(f"cannot write '{target}': {exc.strerror or exc}") from None
     finally:
@@ -250,9 +359,9 @@ def atomic_path(target: str | Path) -> Iterator[Path]:
             tmp_path.unlink()
 
 
-def write_text(target: str | Path, text: str) -> None:
-    """Write ``text`` to ``target`` atomically (UTF-8)."""
-    with atomic_path(target) as tmp:
+def write_text(target: str | Path, text: str, *, owned: bool = False) -> None:
+    """Write ``text`` to ``target`` atomically (UTF-8); ``owned``: see :func:`atomic_path`."""
+    with atomic_path(target, owned=owned) as tmp:
         tmp.write_text(text, encoding="utf-8")
 
 

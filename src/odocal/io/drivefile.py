@@ -50,9 +50,16 @@ def _arrow_table(p: Path, *, text: bool) -> pa.Table:
         raise DataError(f"'{p}' cannot be read as {fmt.upper()}: {first}") from None
 
 
-def read_table(path: str | Path) -> dict[str, np.ndarray]:
+class Columns(dict[str, np.ndarray]):
+    """A table's float columns by name; ``datetimes`` names those that were date-times (read
+    as seconds since 1970 UTC) or durations (seconds)."""
+
+    datetimes: frozenset[str] = frozenset()
+
+
+def read_table(path: str | Path) -> Columns:
     """Read a CSV or Parquet file (a path or a URL) into float columns (non-numeric columns
-    raise DataError)."""
+    raise DataError; date-times become seconds since 1970 UTC)."""
     if is_url(path):
         from odocal.io.remote import readable
 
@@ -71,12 +78,16 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise DataError(f"'{p}' names the column {_printable(twice[0])} more than once")
-    columns: dict[str, np.ndarray] = {}
+    columns = Columns()
     for name in names:
         col = table.column(name)
         if pa.types.is_boolean(col.type):
             raise DataError(f"'{p}' column {_printable(name)} holds true/false values, "
                             "not numbers")
+        if _is_time(col.type):
+            columns[name] = _seconds(col)
+            columns.datetimes = columns.datetimes | {name}
+            continue
         try:
             numeric = pa.types.is_integer(col.type) or pa.types.is_floating(col.type) \
                 or pa.types.is_null(col.type)
@@ -94,6 +105,25 @@ def read_table(path: str | Path) -> dict[str, np.ndarray]:
                 raise DataError(f"'{p}' column {_printable(name)} holds a non-numeric value "
                                 f"'{_printable(str(bad))}'") from None
     return columns
+
+
+def _is_time(kind: pa.DataType) -> bool:
+    return bool(pa.types.is_timestamp(kind) or pa.types.is_date(kind)
+                or pa.types.is_duration(kind))
+
+
+def _seconds(col: pa.ChunkedArray) -> np.ndarray:
+    """A date-time column (Parquet timestamps, ISO 8601 text in a CSV, with or without a UTC
+    offset) as seconds since 1970-01-01 UTC; a duration column as seconds."""
+    kind = col.type
+    if pa.types.is_date(kind):
+        col = col.cast(pa.timestamp("s"))
+    unit = col.type.unit
+    ticks = col.cast(pa.duration(unit) if pa.types.is_duration(col.type) else
+                     pa.timestamp(unit)).cast(pa.int64())
+    values = np.asarray(ticks.to_numpy(zero_copy_only=False), dtype=np.float64)
+    scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}[unit]
+    return values * scale
 
 
 def read_text_table(path: str | Path) -> dict[str, list[str | None]]:
@@ -129,25 +159,28 @@ def _is_number(value: Any) -> bool:
 
 
 def load_drive(path: str | Path, *, metadata: Mapping[str, Any] | None = None,
+               circumference_m: float | None = None,
                pin: Mapping[str, Any] | None = None) -> Drive:
     """Read a drive-format file (CSV or Parquet; a path or a URL) into a checked
-    :class:`Drive`. ``pin``: the remote object's version it must still be
-    (:meth:`odocal.io.remote.ObjectInfo.pin`)."""
+    :class:`Drive` (``circumference_m``: the datasheet's wheel, see
+    :meth:`Drive.from_columns`; ``pin``: the remote object's version it must still be,
+    :meth:`odocal.io.remote.ObjectInfo.pin`)."""
     if is_url(path):
         from odocal.io.remote import readable, redact
 
         with readable(str(path), "drive file", pin=pin) as (local, digest):
             label = redact(path) if digest is not None else str(local)
-            return _drive(local, label, digest, metadata)
+            return _drive(local, label, digest, metadata, circumference_m)
     p = Path(path)
-    return _drive(p, str(p), None, metadata)
+    return _drive(p, str(p), None, metadata, circumference_m)
 
 
-def _drive(p: Path, label: str, digest: str | None, metadata: Mapping[str, Any] | None
-           ) -> Drive:
+def _drive(p: Path, label: str, digest: str | None, metadata: Mapping[str, Any] | None,
+           circumference_m: float | None) -> Drive:
     columns = read_table(p)
     return Drive.from_columns(columns, name=label, metadata={
-        "source": label, "sha256": digest or file_sha256(p), **(metadata or {})})
+        "source": label, "sha256": digest or file_sha256(p), **(metadata or {})},
+        circumference_m=circumference_m)
 
 
 def file_sha256(path: str | Path) -> str:
@@ -159,12 +192,13 @@ def file_sha256(path: str | Path) -> str:
     return digest.hexdigest()
 
 
-def save_drive(drive: Drive, path: str | Path) -> Path:
-    """Write ``drive`` in the drive format, atomically; the format follows the file suffix."""
+def save_drive(drive: Drive, path: str | Path, *, owned: bool = False) -> Path:
+    """Write ``drive`` in the drive format, atomically; the format follows the file suffix.
+    ``owned``: a file of the user's folder (:func:`odocal.io.atomic.atomic_path`)."""
     p = Path(path)
     fmt = _format_of(p)
     table = pa.table({k: pa.array(np.asarray(v)) for k, v in drive.columns().items()})
-    with atomic_path(p) as tmp:
+    with atomic_path(p, owned=owned) as tmp:
         if fmt == "csv":
             pacsv.write_csv(table, tmp)
         else:

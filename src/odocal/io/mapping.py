@@ -9,12 +9,15 @@ file) and columns; for ``rosbag`` a ``topic`` and field paths (``angular_velocit
     [wheels]
     file = "wheels.csv"
     time = "stamp"           # column with the time
-    time_unit = "ms"         # s, ms, us, ns
+    time_unit = "ms"         # s, ms, us, ns; a date-time column (ISO 8601 text, Parquet
+                             # timestamps) is read as seconds whatever this says
     rear_left = "rl_rpm"
     rear_right = "rr_rpm"
     unit = "rpm"             # rev/s, rpm, rad/s, deg/s, m/s, km/h, mph, ticks
     # circumference_m = 1.95 # for m/s, km/h, mph (default: [convert] / the datasheet c_e)
     # ticks_per_rev = 96     # for ticks (cumulative counts)
+    # counter_bits = 16      # a tick counter that wraps (8, 12, 16, 24 and 32 bits, unsigned
+    #                        # or signed, are recognised without it)
 
     [imu]
     file = "imu.csv"
@@ -58,7 +61,8 @@ from odocal.settings import read_toml
 
 _COMMON = {"offset_s", "file", "topic", "time", "time_unit", "type"}
 KEYS: Mapping[str, set[str]] = {
-    "wheels": _COMMON | {"rear_left", "rear_right", "unit", "circumference_m", "ticks_per_rev"},
+    "wheels": _COMMON | {"rear_left", "rear_right", "unit", "circumference_m", "ticks_per_rev",
+                         "counter_bits"},
     "imu": _COMMON | {"yaw_rate", "yaw_rate_unit", "lateral_accel", "lateral_accel_unit", "frame"},
     "pose": _COMMON | {"x", "y", "heading", "heading_unit", "heading_convention", "vx", "vy",
                        "quaternion"},
@@ -94,6 +98,11 @@ def check_mapping(data: Mapping[str, Any], *, source: str = "mapping",
             if key in checked and (not isinstance(checked[key], int | float)
                                    or isinstance(checked[key], bool)):
                 raise ConfigError(f"{source}: [{role}] {key} = {checked[key]!r} must be a number")
+        bits = checked.get("counter_bits")
+        if bits is not None and (isinstance(bits, bool) or not isinstance(bits, int)
+                                 or not 2 <= bits <= 52):
+            raise ConfigError(f"{source}: [{role}] counter_bits = {bits!r} must be the width of "
+                              "the tick counter in bits, an integer from 2 to 52")
         if base is not None:
             checked["_base"] = base
         out[role] = checked

@@ -12,6 +12,7 @@ import numpy as np
 from odocal.errors import DataError, input_file, shown
 from odocal.io.atomic import write_text
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.settings import vehicle_problem
 
 
 def _plain(obj: Any) -> Any:
@@ -32,10 +33,11 @@ def _plain(obj: Any) -> Any:
     return obj
 
 
-def write_json(path: str | Path, data: dict[str, Any]) -> Path:
-    """Write ``data`` as indented JSON, atomically."""
+def write_json(path: str | Path, data: dict[str, Any], *, owned: bool = False) -> Path:
+    """Write ``data`` as indented JSON, atomically (``owned``: a file of the user's folder,
+    :func:`odocal.io.atomic.atomic_path`)."""
     p = Path(path)
-    write_text(p, json.dumps(_plain(data), indent=2, allow_nan=False) + "\n")
+    write_text(p, json.dumps(_plain(data), indent=2, allow_nan=False) + "\n", owned=owned)
     return p
 
 
@@ -80,8 +82,8 @@ def plausible(theta: Parameters) -> Parameters:
     c_e, c_d, t_r, d = theta.as_array().tolist()
     if not all(math.isfinite(v) for v in (c_e, c_d, t_r, d)):
         raise DataError(f"parameters {theta.as_dict()} are not finite numbers")
-    if not (0.05 <= c_e <= 50.0 and 0.05 <= t_r <= 30.0 and abs(c_d) < c_e and abs(d) < 1.0):
+    problem = vehicle_problem((c_e, c_d, t_r, d))
+    if problem is not None:
         raise DataError(f"parameters c_e = {c_e:.6g} m, c_d = {c_d:.6g} m, t_r = {t_r:.6g} m, "
-                        f"d = {d:.6g} are not those of a wheeled vehicle (c_e and t_r in "
-                        "0.05..50 m, |c_d| < c_e, |d| < 1)")
+                        f"d = {d:.6g} are not those of a wheeled vehicle: {problem}")
     return theta

@@ -18,6 +18,7 @@ from odocal.io.units import (
     accel_mps2,
     angle_rad,
     angular_rate_radps,
+    counter_modulus,
     heading_enu,
     time_seconds,
     wheel_rate_revps,
@@ -54,6 +55,16 @@ def _column(table: Mapping[str, FloatArray], section: Mapping[str, Any], key: st
     return table[name]
 
 
+def _counter_note(counts: FloatArray, t: FloatArray, bits: int | None) -> str:
+    """``ticks``, and where the counter wraps, its width and how often it wrapped."""
+    ordered = counts[np.argsort(t, kind="stable")]
+    modulus = counter_modulus(ordered, bits=bits)
+    if modulus is None:
+        return "ticks"
+    wraps = int(np.sum(np.abs(np.diff(ordered)) > modulus / 2))
+    return f"ticks ({int(np.log2(modulus))}-bit counter, {wraps} wraps undone)"
+
+
 def stream_from_columns(role: str, table: Mapping[str, FloatArray], section: Mapping[str, Any],
                         *, name: str, path_label: Path, circumference_m: float,
                         origin: list[tuple[float, float, float]]) -> Stream:
@@ -63,7 +74,12 @@ def stream_from_columns(role: str, table: Mapping[str, FloatArray], section: Map
     """
     t_raw = _column(table, section, "time", role, path_label)
     assert t_raw is not None
-    t = time_seconds(t_raw, str(section.get("time_unit", "s")), stream=name)
+    unit = str(section.get("time_unit", "s"))
+    if section.get("time") in getattr(table, "datetimes", ()) and unit not in ("s", "datetime"):
+        raise ConfigError(f"mapping [{role}] time column {section['time']!r} of "
+                          f"'{path_label.name}' holds date-times, which carry their own unit: "
+                          f"drop time_unit = {unit!r} (or write \"datetime\")")
+    t = time_seconds(t_raw, unit, stream=name)
 
     def col(key: str, required: bool = True) -> FloatArray | None:
         return _column(table, section, key, role, path_label, required=required)
@@ -72,14 +88,15 @@ def stream_from_columns(role: str, table: Mapping[str, FloatArray], section: Map
     units: dict[str, str] = {}
     if role == "wheels":
         unit = str(section.get("unit", "rev/s"))
+        bits = section.get("counter_bits")
         for side, key in (("n_rl", "rear_left"), ("n_rr", "rear_right")):
             raw = col(key)
             assert raw is not None
             values[side] = wheel_rate_revps(
                 raw, unit, stream=name, t=t,
                 circumference_m=float(section.get("circumference_m", circumference_m)),
-                ticks_per_rev=section.get("ticks_per_rev"))
-        units = {"n_rl": unit, "n_rr": unit}
+                ticks_per_rev=section.get("ticks_per_rev"), counter_bits=bits)
+            units[side] = _counter_note(raw, t, bits) if unit == "ticks" else unit
     elif role == "imu":
         frame = str(section.get("frame", "flu"))
         if frame not in ("flu", "frd"):

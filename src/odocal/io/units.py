@@ -9,7 +9,8 @@ from odocal.errors import DataError
 
 FloatArray = NDArray[np.float64]
 
-TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+#: ``datetime``: a date-time column (ISO 8601 text, Parquet timestamps), read as seconds.
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9, "datetime": 1.0}
 ANGLE_UNITS = {"rad": 1.0, "deg": np.pi / 180.0}
 ANGULAR_RATE_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
 ACCEL_UNITS = {"m/s^2": 1.0, "m/s2": 1.0, "g": 9.80665}
@@ -60,12 +61,49 @@ def heading_enu(values_rad: FloatArray, convention: str, *, stream: str) -> Floa
                     f"{' or '.join(HEADING_CONVENTIONS)}")
 
 
+#: Widths of the tick counters a wrap is recognised for without being told (bits).
+COUNTER_WIDTHS = (8, 12, 16, 24, 32)
+
+
+def counter_modulus(counts: FloatArray, *, bits: int | None = None) -> float | None:
+    """The modulus ``2**bits`` a cumulative tick counter wraps at, or None where it does not.
+
+    ``bits`` as stated (a mapping's ``counter_bits``); else the narrowest of
+    :data:`COUNTER_WIDTHS` whose unsigned ``[0, 2**b)`` or signed ``[-2**(b-1), 2**(b-1))``
+    range holds every count, where some step of the counts (in time order) is larger than half
+    that range: no wheel turns half a counter between two samples, a wrap does.
+    """
+    if bits is not None:
+        return float(2.0**bits)
+    v = counts[np.isfinite(counts)]
+    if v.size < 2 or np.any(v != np.round(v)):
+        return None
+    lo, hi = float(v.min()), float(v.max())
+    for width in COUNTER_WIDTHS:
+        modulus = 2.0**width
+        if (lo >= 0 and hi < modulus) or (lo >= -modulus / 2 and hi < modulus / 2):
+            return modulus if np.any(np.abs(np.diff(v)) > modulus / 2) else None
+    return None
+
+
+def counter_steps(counts: FloatArray, modulus: float | None) -> FloatArray:
+    """The steps of a tick counter (in the order given), a wrap undone: each step taken modulo
+    ``modulus`` into ``[-modulus/2, modulus/2)``."""
+    steps = np.diff(counts)
+    if modulus is None:
+        return steps
+    return np.remainder(steps + modulus / 2, modulus) - modulus / 2
+
+
 def wheel_rate_revps(values: FloatArray, unit: str, *, stream: str, t: FloatArray | None = None,
                      circumference_m: float | None = None,
-                     ticks_per_rev: float | None = None) -> FloatArray:
+                     ticks_per_rev: float | None = None,
+                     counter_bits: int | None = None) -> FloatArray:
     """Wheel rotation rates in rev/s from rates, speeds (with a circumference) or tick counts.
 
     ``ticks`` are cumulative encoder counts; the rate is their change over time (``t`` needed).
+    A counter that wraps (``counter_bits`` wide, or recognised: :func:`counter_modulus`) is
+    unwrapped, whether it counts unsigned or signed.
     """
     v = np.asarray(values, dtype=np.float64)
     if unit in WHEEL_RATE_UNITS:
@@ -84,8 +122,9 @@ def wheel_rate_revps(values: FloatArray, unit: str, *, stream: str, t: FloatArra
         ts, vs = t[order], v[order]
         rate = np.empty_like(v)
         dt = np.diff(ts)
+        steps = counter_steps(vs, counter_modulus(vs, bits=counter_bits))
         with np.errstate(divide="ignore", invalid="ignore"):
-            r = np.diff(vs) / dt / ticks_per_rev
+            r = steps / dt / ticks_per_rev
         rate_sorted = np.concatenate([r[:1], r]) if r.size else np.zeros_like(vs)
         rate[order] = np.where(np.isfinite(rate_sorted), rate_sorted, np.nan)
         return rate

@@ -17,7 +17,8 @@ step), and that is what odocal uses.
 :mod:`odocal.model.step`, and: the compensation QP's solvers
 (:mod:`odocal.estimators.compensation.riccati`, :mod:`.structured`) are written for 3 states and
 2 controlled inputs (the stage layout ``[dn (2), dx (3)]``, fixed loops over 3 and 5);
-:data:`~odocal.model.parameters.PARAMETER_NAMES` (4 parameters) sizes every covariance.
+the layout (:data:`odocal.model.vehicle.MODEL`, :mod:`odocal.model.layout`) sizes every
+covariance.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.model import step
+from odocal.model.layout import REAR_AXLE
 from odocal.model.parameters import Inputs, Parameters
 
 FloatArray = NDArray[np.float64]
@@ -40,7 +42,7 @@ def _flat(values: FloatArray | float, shape: tuple[int, ...]) -> FloatArray:
 def _theta(theta: FloatArray | Parameters) -> FloatArray:
     if isinstance(theta, Parameters):
         return theta.as_array()
-    return np.ascontiguousarray(theta, dtype=np.float64).reshape(4)
+    return np.ascontiguousarray(theta, dtype=np.float64).reshape(REAR_AXLE.size)
 
 
 def circumferences(theta: FloatArray, a_y: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -62,7 +64,7 @@ def wheel_rates_for(theta: FloatArray, v: FloatArray, w: FloatArray,
     """Inverse of :func:`body_rates`: the wheel rates (rev/s) that give speed v and yaw rate w."""
     c_rl, c_rr = circumferences(theta, np.broadcast_to(a_y, np.broadcast_shapes(
         np.shape(v), np.shape(w), np.shape(a_y))))
-    half = 0.5 * _theta(theta)[2] * np.asarray(w)
+    half = 0.5 * REAR_AXLE.value(_theta(theta), REAR_AXLE.track) * np.asarray(w)
     return (np.asarray(v) - half) / c_rl, (np.asarray(v) + half) / c_rr
 
 
@@ -147,8 +149,10 @@ def inverse_revolutions(theta: FloatArray | Parameters, ds: FloatArray, dpsi: Fl
     """
     m = int(np.shape(ds)[0])
     out = step.inverse_step(_theta(theta), *(_flat(x, (m,)) for x in (ds, dpsi, a_y)))
+    n = REAR_AXLE.size
     revs = np.column_stack(out[:2])
-    jac = np.stack([np.column_stack(out[2:6]), np.column_stack(out[6:10])], axis=1)
+    jac = np.stack([np.column_stack(out[2:2 + n]), np.column_stack(out[2 + n:2 + 2 * n])],
+                   axis=1)
     return revs, jac
 
 
@@ -192,7 +196,8 @@ def rollout_ragged(theta: FloatArray | Parameters, u: Inputs, x0: FloatArray,
                                                                       "a_y"))
     thetas = theta.as_array() if isinstance(theta, Parameters) else np.asarray(theta, float)
     # parameter sets along a leading axis: each of theta's four entries a (P, 1) column
-    th = thetas.reshape(4) if thetas.ndim == 1 else thetas.reshape(-1, 4).T[:, :, None]
+    n = REAR_AXLE.size
+    th = thetas.reshape(n) if thetas.ndim == 1 else thetas.reshape(-1, n).T[:, :, None]
     v, w, _, _ = step.body(th, n_rl, n_rr, a_y)
 
     def running(x: FloatArray, x0: FloatArray) -> FloatArray:

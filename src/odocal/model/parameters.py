@@ -11,18 +11,17 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal.model.layout import REAR_AXLE
+
 FloatArray = NDArray[np.float64]
 
-#: Names, units and labels of theta, in order.
-PARAMETER_NAMES: tuple[str, str, str, str] = ("c_e", "c_d", "t_r", "d")
-PARAMETER_UNITS: tuple[str, str, str, str] = ("m", "m", "m", "m/(m/s^2)")
-PARAMETER_LABELS: tuple[str, str, str, str] = (
-    "effective wheel circumference", "left-right circumference difference", "rear track width",
-    "load-transfer coefficient")
-#: How each parameter is best displayed: scale and unit (c_d and d read best in mm).
-PARAMETER_DISPLAY: dict[str, tuple[float, str]] = {
-    "c_e": (1.0, "m"), "c_d": (1e3, "mm"), "t_r": (1.0, "m"), "d": (1e3, "mm/(m/s^2)")}
-STATES, WHEELS, PARAMETERS = 3, 2, 4
+#: Names, units and labels of theta, in order, and how each is best displayed (scale and
+#: unit: c_d and d read best in mm): the rear-axle model's layout (:mod:`.layout`).
+PARAMETER_NAMES: tuple[str, ...] = REAR_AXLE.names
+PARAMETER_UNITS: tuple[str, ...] = REAR_AXLE.units
+PARAMETER_LABELS: tuple[str, ...] = REAR_AXLE.labels
+PARAMETER_DISPLAY: dict[str, tuple[float, str]] = REAR_AXLE.display
+STATES, WHEELS, PARAMETERS = 3, 2, REAR_AXLE.size
 
 
 @dataclass(frozen=True)
@@ -41,12 +40,12 @@ class Parameters:
     d: float
 
     def as_array(self) -> FloatArray:
-        return np.array([self.c_e, self.c_d, self.t_r, self.d], dtype=np.float64)
+        return np.array([getattr(self, n) for n in REAR_AXLE.names], dtype=np.float64)
 
     @classmethod
     def from_array(cls, theta: FloatArray | tuple[float, ...] | list[float]) -> Parameters:
-        values = np.asarray(theta, dtype=np.float64).reshape(4)
-        return cls(*(float(v) for v in values))
+        values = np.asarray(theta, dtype=np.float64).reshape(REAR_AXLE.size)
+        return cls(**REAR_AXLE.named(values.tolist()))
 
     def as_dict(self) -> dict[str, float]:
         return dict(zip(PARAMETER_NAMES, self.as_array().tolist(), strict=True))

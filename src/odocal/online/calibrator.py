@@ -60,7 +60,7 @@ from odocal.estimators.windows import (
     empty_windows,
     heading_offset,
 )
-from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
 from odocal.online.changes import Alarm, ChangeDetector
 from odocal.settings import Settings
 
@@ -380,7 +380,7 @@ class OnlineCalibrator:
         return Estimate(method="online", theta=Parameters.from_array(theta),
                         datasheet=Parameters.from_array(self.datasheet),
                         covariance=found.covariance, covariance_kind=CovarianceKind.RECURSIVE,
-                        free=tuple(bool(f) for f in free),  # type: ignore[arg-type]
+                        free=tuple(bool(f) for f in free),
                         verdicts=judge(std, free, self.settings.identify, held=found.held),
                         status=status, details=self._details(found.clusters, refused),
                         widening=found.uncertainty.widening)
@@ -424,9 +424,9 @@ class OnlineCalibrator:
         theta = Parameters.from_array(self.datasheet)
         held = {n: NotIdentified(reason) for n in PARAMETER_NAMES}
         return Estimate(method="online", theta=theta, datasheet=theta,
-                        covariance=np.zeros((4, 4)), covariance_kind=CovarianceKind.NONE,
-                        free=(False, False, False, False),
-                        verdicts=judge(np.zeros(4), np.zeros(4, dtype=bool),
+                        covariance=np.zeros((PARAMETERS, PARAMETERS)),
+                        covariance_kind=CovarianceKind.NONE, free=(False,) * PARAMETERS,
+                        verdicts=judge(np.zeros(PARAMETERS), np.zeros(PARAMETERS, dtype=bool),
                                        self.settings.identify, held=held),
                         status=status, details=self._details(0))
 

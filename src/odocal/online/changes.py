@@ -24,7 +24,8 @@ from odocal.estimators.error_model import (
     expected_revolutions,
     window_variance,
 )
-from odocal.estimators.windows import WindowSet, predict
+from odocal.estimators.windows import WindowSet
+from odocal.model.vehicle import MODEL
 
 FloatArray = NDArray[np.float64]
 
@@ -102,7 +103,7 @@ class ChangeDetector:
         """One completed cluster against the running estimate ``theta``: an alarm with the
         parameter's index and the change found, or None."""
         at, _ = cluster.at(shift, heading_offset)
-        pred, jac = predict(theta, at)
+        pred, jac = MODEL.predict(theta, at)
         r = (cluster.measured - pred) @ CHANNELS.T
         j = np.einsum("ci,wip->wcp", CHANNELS, jac)
         w = 1.0 / window_variance(expected_revolutions(cluster.measured, r), model.noise)
@@ -128,6 +129,8 @@ class ChangeDetector:
                 alarm = Alarm(parameter=name, t=cusum.start_t, detected_t=float(cluster.t0[-1]),
                               distance_km=cusum.start_km,
                               detected_distance_km=float(cluster.distance_m[-1]) / 1000.0,
-                              relative_change=change / theta[0], sigmas=mean_z)
+                              relative_change=change / MODEL.layout.value(
+                                  theta, MODEL.layout.scale),
+                              sigmas=mean_z)
                 return alarm, index, change
         return None

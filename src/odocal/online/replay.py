@@ -41,9 +41,9 @@ class TraceRow:
 
     t: float
     distance_km: float
-    theta: tuple[float, float, float, float]
-    std: tuple[float, float, float, float]
-    identified: tuple[bool, bool, bool, bool]
+    theta: tuple[float, ...]
+    std: tuple[float, ...]
+    identified: tuple[bool, ...]
 
     @staticmethod
     def header() -> list[str]:
@@ -213,7 +213,8 @@ def stream_source(source: str | Path, *, fmt: str | None, settings: Settings,
             (local,), mapping_file):
         table = check_mapping(mapping) if isinstance(mapping, Mapping) \
             else load_mapping(mapping_file)
-        circumference = settings.convert.wheel_circumference_m or settings.identify.theta0[0]
+        circumference = (settings.convert.wheel_circumference_m
+                         or settings.identify.datasheet("c_e"))
         grid = GridResampler(t_s=1.0 / settings.convert.rate_hz,
                              max_gap_s=settings.convert.max_gap_s)
         for streams in iter_rosbag(local, table, circumference_m=circumference,

@@ -68,8 +68,8 @@ class Calibrated:
 
     theta: Parameters
     datasheet: Parameters
-    std: tuple[float, float, float, float]
-    identified: tuple[bool, bool, bool, bool]
+    std: tuple[float, ...]
+    identified: tuple[bool, ...]
     method: str
     noise: OdometryNoise | None = None
     source: str = ""
@@ -88,7 +88,7 @@ def odometry_noise(drives: Sequence[Drive], theta: Parameters,
     speed_err: list[np.ndarray] = []
     yaw_err: list[np.ndarray] = []
     th = theta.as_array()
-    c_l, c_r = th[0] + th[1] / 2.0, th[0] - th[1] / 2.0
+    c_l, c_r = theta.c_e + theta.c_d / 2.0, theta.c_e - theta.c_d / 2.0
     for d in drives:
         k = max(1, round(window_s / d.t_s))
         for start, stop in d.pieces:
@@ -102,7 +102,7 @@ def odometry_noise(drives: Sequence[Drive], theta: Parameters,
             n = (len(err) // k) * k
             w = err[:n].reshape(-1, k, 2).sum(axis=1)
             speed_err.append(0.5 * (c_l * w[:, 0] + c_r * w[:, 1]) / (k * d.t_s))
-            yaw_err.append((c_r * w[:, 1] - c_l * w[:, 0]) / th[2] / (k * d.t_s))
+            yaw_err.append((c_r * w[:, 1] - c_l * w[:, 0]) / theta.t_r / (k * d.t_s))
     if not speed_err:
         return None
     sv, sy = np.concatenate(speed_err), np.concatenate(yaw_err)
@@ -154,7 +154,7 @@ def autoware(c: Calibrated, out: Path) -> list[Path]:
         scale_lines = [f"# FILL IN speed_scale_factor: {_num(th.c_e)} m (calibrated c_e) over the "
                        "circumference the vehicle computes its speed with (no datasheet given)"]
     # the range the node's own online estimate may move in; it must hold the factor written
-    low, high = min(0.98, round(scale - 0.01, 4)), max(1.02, round(scale + 0.01, 4))
+    low, high = min(0.98, round(scale - 0.01, 4)), max(1.02, round(scale + 0.01, 4))  # (not theta)
     conv = [*_header(c, "Autoware vehicle_velocity_converter"), *scale_lines,
             f"# standard deviations {note}",
             "/**:", "  ros__parameters:",

@@ -6,6 +6,10 @@ chosen) and validates the answer.
 
 Methods (:data:`METHODS`; each is a module of :mod:`odocal.estimators` with the same ``run``)
 -----------------------------------------------------------------------------------------------
+``inverse`` (the default)
+    The errors-in-variables method (:mod:`odocal.estimators.inverse`): the wheel revolutions the
+    reference motion implies, summed over every 2 s window of every drive, fitted to the
+    measured ones; a change inside the log is named and the part after it calibrated.
 ``raw``
     Batch Gauss-Newton on every selected segment with the measured wheel rates.
 ``compensated``
@@ -20,7 +24,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
-import math
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
@@ -33,7 +36,7 @@ from odocal.checks.departures import corrected
 from odocal.checks.departures import findings as departure_findings
 from odocal.checks.departures import measure as measure_departures
 from odocal.checks.diagnosis import check_drives
-from odocal.checks.findings import Diagnosis
+from odocal.checks.findings import Check, Diagnosis, Finding
 from odocal.checks.gate import gate
 from odocal.data.drive import Drive
 from odocal.data.segments import (
@@ -102,11 +105,15 @@ def _compensated(prep: Prepared, settings: Settings, progress: ProgressCallback 
 METHODS: Mapping[str, Runner] = {"inverse": _inverse, "compensated": _compensated, "raw": _raw}
 
 
-def load_drives(sources: Drive | str | Path | Sequence[Drive | str | Path]) -> list[Drive]:
-    """Drives as given, or read from drive-format files."""
+def load_drives(sources: Drive | str | Path | Sequence[Drive | str | Path], *,
+                settings: Settings | None = None) -> list[Drive]:
+    """Drives as given, or read from drive-format files (their wheel rates judged with the
+    datasheet ``c_e`` the ``settings`` state, else a car's wheel)."""
     if isinstance(sources, Drive | str | Path):
         sources = [sources]
-    drives = [s if isinstance(s, Drive) else load_drive(s) for s in sources]
+    wheel = stated_circumference(settings)
+    drives = [s if isinstance(s, Drive) else load_drive(s, circumference_m=wheel)
+              for s in sources]
     if not drives:
         raise DataError("no drives were given")
     common_sampling_time(drives)
@@ -122,6 +129,16 @@ def load_drives(sources: Drive | str | Path | Sequence[Drive | str | Path]) -> l
     return drives
 
 
+def stated_circumference(settings: Settings | None) -> float | None:
+    """The wheel circumference ``settings`` state (``--datasheet c_e`` or ``[identify]
+    theta0``), or None for odocal's placeholder car."""
+    from odocal.settings import datasheet_stated
+
+    if settings is None or not datasheet_stated(settings.identify.theta0):
+        return None
+    return float(settings.identify.theta0[0])
+
+
 def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
                    theta: Parameters | NDArray[np.float64], *,
                    settings: Settings | None = None) -> ValidationResult:
@@ -130,7 +147,7 @@ def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
 
     settings = settings or Settings()
     plausible(theta if isinstance(theta, Parameters) else Parameters.from_array(theta))
-    drive_list = load_drives(drives)
+    drive_list = load_drives(drives, settings=settings)
     segs = validation_segments(drive_list, settings.segments)
     data = validation_data(drive_list, segs, settings)
     return validation(theta, data, segs, drive_list)
@@ -148,7 +165,7 @@ def minimum(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     from odocal.estimators.validation import reachable_minimum
 
     settings = settings or Settings()
-    drive_list = load_drives(drives)
+    drive_list = load_drives(drives, settings=settings)
     data = validation_data(drive_list, validation_segments(drive_list, settings.segments),
                            settings)
     centre = start.as_array() if start is not None else np.asarray(settings.identify.theta0)
@@ -192,24 +209,18 @@ def with_stated_datasheet(drives: Sequence[Drive], settings: Settings) -> Settin
 
 
 def datasheet_theta(values: Mapping[str, Any], base: Sequence[float] = ()) -> tuple[
-        float, float, float, float]:
+        float, ...]:
     """theta0 from named datasheet values (c_e, c_d, t_r, d; missing ones from ``base`` or the
     placeholder), or a one-line ConfigError."""
-    from odocal.settings import DATASHEET_THETA
+    from odocal.settings import DATASHEET_THETA, datasheet_values, vehicle_problem
 
     theta = list(base or DATASHEET_THETA)
-    for key, value in values.items():
-        if key not in PARAMETER_NAMES:
-            raise ConfigError(f"datasheet value {key!r} is not one of "
-                              f"{', '.join(PARAMETER_NAMES)}")
-        if isinstance(value, bool) or not isinstance(value, int | float) \
-                or not math.isfinite(value):
-            raise ConfigError(f"datasheet {key} = {value!r} is not a finite number")
-        theta[PARAMETER_NAMES.index(key)] = float(value)
-    if not (theta[0] > 0 and theta[2] > 0):
-        raise ConfigError(f"datasheet c_e = {theta[0]:g} m and t_r = {theta[2]:g} m must be "
-                          "positive")
-    return (theta[0], theta[1], theta[2], theta[3])
+    for key, value in datasheet_values(values, source="datasheet").items():
+        theta[PARAMETER_NAMES.index(key)] = value
+    problem = vehicle_problem(theta)
+    if problem is not None:
+        raise ConfigError(f"datasheet: {problem}")
+    return tuple(theta)
 
 
 def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
@@ -239,7 +250,7 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     clock = Stopwatch(progress)
     with clock.stage("read"):
-        drive_list = load_drives(drives)
+        drive_list = load_drives(drives, settings=settings)
     settings = with_stated_datasheet(drive_list, settings)
     with clock.stage("checks"):
         diagnosis = check_drives(drive_list, settings)
@@ -269,16 +280,27 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         estimate = outcome.estimate
     else:
         outcome, estimate, boot = _checked_by_bootstrap(method, prep, settings, clock)
+    fitted = tuple(getattr(estimate.details, "findings", ()))
+    if fitted:
+        # what the fit's residuals showed: front wheels (refused), a change inside the log
+        diagnosis = diagnosis.plus(fitted)
+        if diagnosis.fatal:
+            estimate = dataclasses.replace(estimate, status=Status.REJECTED)
     warnings = [*prep.warnings, *outcome.warnings]
     if boot is not None and not all(boot.agree):
         warnings.append(boot.message)
     val = datasheet = None
     with clock.stage("validation"):
-        if prep.validation is not None:
-            val = validation(estimate.theta, prep.validation, prep.validation_segments,
-                             drive_list)
-            datasheet = validation(estimate.datasheet, prep.validation,
-                                   prep.validation_segments, drive_list)
+        judged, val_segs, val_data = drive_list, prep.validation_segments, prep.validation
+        changed = [f for f in fitted if f.check is Check.CHANGE_IN_LOG]
+        if changed:
+            # calibrated on the part after a change inside the log: judged there too
+            judged = _after_change(drive_list, changed[0])
+            val_segs = validation_segments(judged, settings.segments)
+            val_data = validation_data(judged, val_segs, settings) if len(val_segs) else None
+        if val_data is not None:
+            val = validation(estimate.theta, val_data, val_segs, judged)
+            datasheet = validation(estimate.datasheet, val_data, val_segs, judged)
     if estimate.success:
         diagnosis, estimate = _gated(diagnosis, estimate, settings, val, datasheet)
     for w in warnings:
@@ -290,6 +312,15 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         three_step=outcome.three_step, batch=prep.__dict__.get("batch"),
         drive_data=tuple(drive_list),
         timings_s=dict(clock.seconds), diagnosis=diagnosis, departures=departures)
+
+
+def _after_change(drives: Sequence[Drive], change: Finding) -> list[Drive]:
+    """The drives from a change inside the log on: its drive from the change's time, and the
+    drives after it (``change.name`` is ``parameter|drive name``, ``reference`` the time)."""
+    where = change.name.partition("|")[2]
+    names = [d.name for d in drives]
+    k = names.index(where) if where in names else 0
+    return [drives[k].since(change.reference), *drives[k + 1:]]
 
 
 def _gated(diagnosis: Diagnosis, estimate: Estimate, settings: Settings,

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -40,7 +40,7 @@ from odocal.estimators.estimate import Estimate, GaussNewtonDetails
 from odocal.estimators.gauss_newton import gauss_newton
 from odocal.estimators.parallel import resolve_workers
 from odocal.estimators.validation import mean_error, reachable_minimum
-from odocal.model.parameters import PARAMETER_NAMES
+from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES
 from odocal.settings import Settings
 from odocal.sim.simulate import SimulatedDrive, simulate
 
@@ -267,6 +267,22 @@ def _mm(value: float) -> str:
     return f"{value * 1000:+7.2f}"
 
 
+def _heads(prefix: str) -> str:
+    """The parameters' column heads, each 7 wide."""
+    return " ".join(f"{prefix + name:>7}" for name in PARAMETER_NAMES)
+
+
+def _values(theta: Sequence[float] | FloatArray, digits: int, *, signed: bool = False) -> str:
+    """theta in columns 7 wide: lengths in m with ``digits`` decimals, the parameters that
+    read best in mm (c_d, d) in mm."""
+    out = []
+    for name, value in zip(PARAMETER_NAMES, theta, strict=True):
+        scale, _ = PARAMETER_DISPLAY[name]
+        out.append(_mm(value) if scale != 1.0 else
+                   (f"{value:+7.{digits}f}" if signed else f"{value:7.{digits}f}"))
+    return " ".join(out)
+
+
 def format_report(r: ReproduceResult) -> str:
     """The counterparts of the paper's results as text tables."""
     lines = [
@@ -282,25 +298,20 @@ def format_report(r: ReproduceResult) -> str:
         f"  examined batch: {r.examined_batch} (the worst)",
         "",
         "Table 1 - identified parameters (c_e, t_r in m; c_d, d in mm) and E_p; error vs truth",
-        f"  {'case':<44} {'c_e':>7} {'c_d':>7} {'t_r':>7} {'d':>7} {'E_p':>7}   "
-        f"{'dc_e':>7} {'dc_d':>7} {'dt_r':>7} {'dd':>7}",
+        f"  {'case':<44} {_heads('')} {'E_p':>7}   {_heads('d')}",
     ]
 
     def row(e: Reproduced) -> str:
-        t, d = e.theta, e.error
-        return (f"  {e.label:<44} {t[0]:7.4f} {_mm(t[1])} {t[2]:7.4f} {_mm(t[3])} "
-                f"{e.validation_m:7.2f}   {d[0]:+7.4f} {_mm(d[1])} {d[2]:+7.4f} {_mm(d[3])}")
+        return (f"  {e.label:<44} {_values(e.theta, 4)} {e.validation_m:7.2f}   "
+                f"{_values(e.error, 4, signed=True)}")
 
     lines += [row(e) for e in (*r.table1, r.truth)]
     lines += ["", "Fig. 7 - pure G-N on each segment of the examined batch "
               "(measured | compensated):",
-              f"  {'':<10} {'c_e':>7} {'c_d':>7} {'t_r':>7} {'d':>7} {'E_p':>7}  | "
-              f"{'c_e':>7} {'c_d':>7} {'t_r':>7} {'d':>7} {'E_p':>7}"]
+              f"  {'':<10} {_heads('')} {'E_p':>7}  | {_heads('')} {'E_p':>7}"]
     for a, b in zip(r.per_segment_raw, r.per_segment_compensated, strict=True):
-        lines.append(f"  {a.label:<10} {a.theta[0]:7.4f} {_mm(a.theta[1])} {a.theta[2]:7.3f} "
-                     f"{_mm(a.theta[3])} {a.validation_m:7.2f}  | {b.theta[0]:7.4f} "
-                     f"{_mm(b.theta[1])} {b.theta[2]:7.3f} {_mm(b.theta[3])} "
-                     f"{b.validation_m:7.2f}")
+        lines.append(f"  {a.label:<10} {_values(a.theta, 3)} {a.validation_m:7.2f}  | "
+                     f"{_values(b.theta, 3)} {b.validation_m:7.2f}")
     lines += ["", "Step 3 in batches of N = 5 (compensated rates):"]
     lines += [row(e) for e in r.step3_batches]
     lines += ["", "Section 6.5 - validation error E_p (paper: nominal 11.09, raw 3.86, "

@@ -105,6 +105,11 @@ class OffsetEstimate:
         return dataclasses.asdict(self)
 
 
+#: A wheel/IMU lag found at a lower correlation than this is no clock offset: the two yaw
+#: rates do not describe one motion (noise, a unit or mapping mistake), and none is applied.
+MIN_OFFSET_CORRELATION = 0.3
+
+
 def estimate_wheel_offset(wheels: Stream, imu: Stream, *, circumference_m: float,
                           track_m: float, max_offset_s: float,
                           rate_hz: float = 200.0) -> OffsetEstimate:
@@ -112,7 +117,8 @@ def estimate_wheel_offset(wheels: Stream, imu: Stream, *, circumference_m: float
 
     Both are resampled to ``rate_hz`` over their common span; the lag with the highest
     correlation, refined by a parabola through its neighbours, is the offset to add to the wheel
-    stamps. Without enough turning (IMU yaw-rate spread below 0.02 rad/s) nothing is estimated.
+    stamps. Without enough turning (IMU yaw-rate spread below 0.02 rad/s), or where even the
+    best lag correlates below :data:`MIN_OFFSET_CORRELATION`, nothing is applied.
     """
     tw = wheels.t + wheels.offset_s
     ti = imu.t + imu.offset_s
@@ -144,6 +150,12 @@ def estimate_wheel_offset(wheels: Stream, imu: Stream, *, circumference_m: float
         if denom < 0:
             shift += 0.5 * (y0 - y2) / denom
     delay = shift / rate_hz
+    if scores[best] < MIN_OFFSET_CORRELATION:
+        return OffsetEstimate(0.0, float(scores[best]), False,
+                              f"the wheels' yaw rate hardly follows the IMU's (best correlation "
+                              f"{scores[best]:.3f} at {delay * 1000:+.0f} ms); no offset "
+                              "applied (check the wheel units, a wrapping tick counter, or "
+                              "which wheel is which)")
     if best in (0, lags.size - 1):
         return OffsetEstimate(0.0, float(scores[best]), False,
                               f"the best wheel/IMU lag lies at the edge of the search range "

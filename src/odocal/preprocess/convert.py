@@ -30,7 +30,7 @@ def _circumference(settings: Settings, mapping: Mapping[str, Mapping[str, Any]])
         return float(wheels["circumference_m"])
     if settings.convert.wheel_circumference_m is not None:
         return settings.convert.wheel_circumference_m
-    return settings.identify.theta0[0]
+    return settings.identify.datasheet("c_e")
 
 
 def read_logs(fmt: str, sources: Sequence[str | Path], *,

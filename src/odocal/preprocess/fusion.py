@@ -76,7 +76,7 @@ def _ekf_rts(omega: FloatArray, dt: float, pos: FloatArray, pos_std: FloatArray,
     xf = np.zeros((n, _N))
     Pf = np.zeros((n, _N, _N))
     Fs = np.zeros((n, _N, _N))
-    rejected = np.zeros(4, dtype=np.int64)
+    rejected = np.zeros(4, dtype=np.int64)     # per kind of measurement (not theta)
     innov_ss = np.zeros(2)                      # position innovations: sum of squares, count
     x = x0.copy()
     P = P0.copy()
@@ -159,6 +159,8 @@ class FusedReference:
     sideslip : ndarray, shape (N,), rad (the course is psi + sideslip)
     rejected : outliers rejected per measurement kind
     position_innovation_rms_m : RMS of the accepted GNSS position innovations (filter pass)
+    mirrored : with positions only, the filter had settled on the mirror image (speed negative,
+        heading turned by pi) and the result was turned back
     """
 
     x: FloatArray
@@ -170,9 +172,10 @@ class FusedReference:
     sideslip: FloatArray
     rejected: dict[str, int]
     position_innovation_rms_m: float
+    mirrored: bool = False
 
     def summary(self) -> dict[str, Any]:
-        return {"rejected_outliers": dict(self.rejected),
+        return {"rejected_outliers": dict(self.rejected), "mirrored": self.mirrored,
                 "position_innovation_rms_m": self.position_innovation_rms_m,
                 "gyro_bias_radps": float(np.median(self.gyro_bias)),
                 "median_std": {"x_m": float(np.median(self.std[:, 0])),
@@ -234,6 +237,13 @@ def fuse(t_grid: FloatArray, yaw_rate: FloatArray, *, gnss_t: FloatArray,
         x0[2], psi_var = head[np.isfinite(head)][0], settings.heading_std_rad**2
     elif moving.any():
         x0[2], psi_var = course[moving][0], settings.gnss_course_std_rad**2
+    else:
+        # positions only (a NavSatFix): the heading the vehicle first moves along, turned back
+        # by what the gyro turned until then. Without it the filter may settle on the mirror
+        # image (speed negative, heading turned by pi), which explains the fixes equally well.
+        start = _first_heading(pos, pos_std, np.asarray(yaw_rate, dtype=np.float64), dt)
+        if start is not None:
+            x0[2], psi_var = start, _START_HEADING_STD_RAD**2
     x0[3] = speed[np.isfinite(speed)][0] if np.isfinite(speed).any() else 0.0
     P0 = np.diag([pos_std[first]**2, pos_std[first]**2, psi_var, 4.0, 0.01**2, 0.002**2])
     q = np.array([settings.position_noise_m**2, settings.position_noise_m**2,
@@ -243,9 +253,43 @@ def fuse(t_grid: FloatArray, yaw_rate: FloatArray, *, gnss_t: FloatArray,
         np.ascontiguousarray(yaw_rate, dtype=np.float64), dt, pos, pos_std, speed, course, head,
         x0, P0, q, settings.gnss_speed_std_mps, settings.gnss_course_std_rad,
         settings.heading_std_rad, settings.min_course_speed_mps, settings.outlier_chi2)
+    mirrored = False
+    if not np.isfinite(head).any() and not moving.any():
+        # nothing but positions tells the heading: the mirror image (-v, psi + pi) explains
+        # them as well; a vehicle drives forwards most of the time
+        fast = np.abs(xs[:, 3]) > 1.0
+        if fast.any() and np.median(xs[fast, 3]) < 0.0:
+            xs = xs.copy()
+            xs[:, 2] += np.pi
+            xs[:, 3] = -xs[:, 3]
+            mirrored = True
     return FusedReference(
         x=xs[:, 0], y=xs[:, 1], psi=xs[:, 2], std=std[:, :3], speed=xs[:, 3],
         gyro_bias=xs[:, 4], sideslip=xs[:, 5],
         rejected={"position": int(rejected[0]), "speed": int(rejected[1]),
                   "course": int(rejected[2]), "heading": int(rejected[3])},
-        position_innovation_rms_m=float(np.sqrt(innov[0] / innov[1])) if innov[1] else 0.0)
+        position_innovation_rms_m=float(np.sqrt(innov[0] / innov[1])) if innov[1] else 0.0,
+        mirrored=mirrored)
+
+
+#: How far the first fixes must lie apart to give a starting heading, and its uncertainty.
+_START_DISTANCE_M = 5.0
+_START_HEADING_STD_RAD = 0.5
+
+
+def _first_heading(pos: FloatArray, pos_std: FloatArray, yaw_rate: FloatArray,
+                   dt: float) -> float | None:
+    """The heading at the first fix, from the first displacement of the fixes well beyond
+    their noise (the direction of travel then), less what the gyro turned on the way; None if
+    the fixes never move that far."""
+    ok = np.flatnonzero(np.isfinite(pos[:, 0]))
+    first = ok[0]
+    reach = max(_START_DISTANCE_M, 4.0 * float(pos_std[first]))
+    dist = np.hypot(pos[ok, 0] - pos[first, 0], pos[ok, 1] - pos[first, 1])
+    far = np.flatnonzero(dist > reach)
+    if far.size == 0:
+        return None
+    j = ok[far[0]]
+    # the chord's direction is the heading half way along it (a steady turn)
+    turned = float(np.sum(yaw_rate[first:(first + j) // 2])) * dt
+    return float(np.arctan2(pos[j, 1] - pos[first, 1], pos[j, 0] - pos[first, 0])) - turned

@@ -1,4 +1,4 @@
-"""A raw log to a :class:`~odocal.drive.Drive`: clean, align, fuse, estimate sideslip."""
+"""A raw log to a :class:`~odocal.data.drive.Drive`: clean, align, fuse, estimate sideslip."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from odocal.preprocess.align import (
 )
 from odocal.preprocess.fusion import fuse
 from odocal.preprocess.sideslip import estimate_sideslip
-from odocal.settings import Settings
+from odocal.settings import Settings, datasheet_stated
 
 FloatArray = NDArray[np.float64]
 
@@ -137,14 +137,17 @@ def build_drive(log: RawLog, settings: Settings, *,
     metadata = {**dict(log.metadata), "conversion": report.to_dict()}
     if log.origin_lla is not None:
         metadata["origin_lla"] = list(log.origin_lla)
-    return Drive.from_columns(columns, name=log.name, metadata=metadata)
+    stated = settings.identify.theta0[0] if datasheet_stated(settings.identify.theta0) \
+        else None
+    return Drive.from_columns(columns, name=log.name, metadata=metadata, circumference_m=stated)
 
 
 def _wheel_clock(wheels: Stream, imu: Stream, settings: Settings
                  ) -> tuple[Stream, OffsetEstimate]:
     """The wheel stream shifted by its clock offset against the IMU yaw rate (estimated)."""
-    theta0 = settings.identify.theta0
-    estimate = estimate_wheel_offset(wheels, imu, circumference_m=theta0[0], track_m=theta0[2],
+    ident = settings.identify
+    estimate = estimate_wheel_offset(wheels, imu, circumference_m=ident.datasheet("c_e"),
+                                     track_m=ident.datasheet("t_r"),
                                      max_offset_s=settings.convert.max_wheel_offset_s)
     return with_offset(wheels, estimate.offset_s), estimate
 

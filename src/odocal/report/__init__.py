@@ -1,4 +1,9 @@
-"""The calibration report: figures (functions that take an ax) and the HTML page."""
+"""The calibration report: figures (functions that take an ax) and the HTML page.
+
+May import: :mod:`odocal.pipeline` (its result types) and every layer below it, and
+:mod:`odocal.online` (the replay's trace); not :mod:`odocal.output`, :mod:`odocal.fleet` or
+:mod:`odocal.cli`.
+"""
 
 from __future__ import annotations
 

@@ -219,7 +219,7 @@ def _range_text(finding: Finding, settings: Settings) -> str:
         span = f"{format_value(name, lo)} .. {format_value(name, hi)}"
         if (settings.gate.c_e_m if name == "c_e" else settings.gate.t_r_m) is not None:
             return f"{value} lies outside the range {span} set in [gate] {name}_m"
-        nominal = settings.identify.theta0[0 if name == "c_e" else 2]
+        nominal = settings.identify.datasheet(name)
         whose = ("the datasheet" if datasheet_stated(settings.identify.theta0)
                  else "odocal's placeholder datasheet (state yours with --datasheet)")
         return (f"{value} lies outside the range {span}: within a factor "
@@ -248,7 +248,7 @@ def finding_text(finding: Finding, settings: Settings) -> str:
                 "calibrated")
     if c is Check.SPEED_SCALE:
         if finding.severity is Severity.NOTE:
-            c_e = settings.identify.theta0[0]
+            c_e = settings.identify.datasheet("c_e")
             speeds = (" Or are they wheel speeds in m/s given as rev/s?"
                       if abs(np.log(v / c_e)) < 0.25 else "")
             return (f"with the datasheet c_e ({c_e:g} m) the wheels imply {v:.3f} times the "
@@ -260,7 +260,7 @@ def finding_text(finding: Finding, settings: Settings) -> str:
 
         sheet = ("" if datasheet_stated(settings.identify.theta0) else
                  f", or a vehicle unlike odocal's placeholder datasheet (c_e "
-                 f"{settings.identify.theta0[0]:g} m): state yours with --datasheet")
+                 f"{settings.identify.datasheet('c_e'):g} m): state yours with --datasheet")
         return (f"the wheels imply {v:.3g} times the distance the reference travels: a wrong "
                 f"wheel-speed unit or scale{hint}{sheet}")
     if c is Check.LATERAL_SIGN:
@@ -310,6 +310,18 @@ def _reference_and_sensor_text(finding: Finding) -> str:
         return (f"a_y reads {v:+.2f} m/s^2 (+-{ref:.2f}) more than the reference's turning "
                 f"gives, on every moving second (an IMU rolled by {abs(tilt):.1f} degrees?): "
                 "taken out before the fit")
+    if c is Check.CHANGE_IN_LOG:
+        parameter, _, where = finding.name.partition("|")
+        what = (f"c_e changed by {v:+.2%}" if parameter == "c_e" else
+                f"the wheels' circumference difference c_d changed by {v:+.2%} of c_e (one "
+                "tyre's pressure?)")
+        return (f"{what} at t = {ref:.0f} s of {where}: the calibration is of the part after "
+                "the change (the vehicle as it is now); calibrate the part before on its own if "
+                "you need it")
+    if c is Check.FRONT_WHEELS:
+        return (f"the wheel speeds turn as wheels {v:.1f} m (+-{ref:.1f}) ahead of the rear "
+                "axle do in bends: front wheels mapped as the rear ones? odocal's model is the "
+                "rear axle's; map the rear wheels (nothing is calibrated from these)")
     if c is Check.WHEEL_OFFSET:
         return (f"the wheels read {v:+.3f} and {ref:+.3f} rev/s (rear left, right) while the "
                 "reference stands still: an offset of the speed signal, taken out of every "

@@ -210,7 +210,7 @@ def plot_uncertainty(ax: Axes, covariance_std: FloatArray, bootstrap_std: FloatA
 
     ``limit_ratio`` is the identifiability limit as a fraction of the datasheet uncertainty.
     """
-    x = np.arange(4)
+    x = np.arange(len(covariance_std))
     ok = np.array(identified)
     rel_cov = np.where(ok, covariance_std / prior_std, np.nan)
     artists: list[Any] = [ax.bar(x - 0.2, rel_cov, width=0.4, color=CALIBRATED,
@@ -286,7 +286,7 @@ def plot_trace(ax: Axes, distance_km: FloatArray, value: FloatArray, std: FloatA
 
 def plot_history(ax: Axes, days: FloatArray, value: FloatArray, std: FloatArray,
                  identified: FloatArray, *, name: str,
-                 baselines: Sequence[tuple[float, float, float, float]] = (),
+                 baselines: Sequence[tuple[float, ...]] = (),
                  alarms: Sequence[float] = (), events: Sequence[float] = (),
                  xlabel: str = "days") -> list[Any]:
     """One parameter of one vehicle over its drives: estimates with one-std bars (hollow where

@@ -58,6 +58,7 @@ from numpy.typing import NDArray
 from scipy.linalg import solveh_banded
 
 from odocal.model.kinematics import body_rates, wheel_rates_for
+from odocal.model.parameters import PARAMETERS
 from odocal.sim.noise import NoiseProfile
 
 __all__ = ["applies", "information_bound", "wheel_information"]
@@ -80,7 +81,7 @@ def _motion(theta: FloatArray, n_rl: FloatArray, n_rr: FloatArray
 
 def _rate_jacobian(theta: FloatArray, v: FloatArray, w: FloatArray, a_y: FloatArray
                    ) -> FloatArray:
-    """d(n_rl, n_rr)/d theta at the given motion, shape (M, 2, 4) (central differences)."""
+    """d(n_rl, n_rr)/d theta at the given motion, shape (M, 2, n) (central differences)."""
     jac = np.empty((v.size, 2, theta.size))
     for j in range(theta.size):
         h = 1e-6 * max(1.0, abs(float(theta[j])))
@@ -118,7 +119,7 @@ def applies(profile: NoiseProfile) -> bool:
 
 def wheel_information(theta: FloatArray, n_rl: FloatArray, n_rr: FloatArray,
                       profile: NoiseProfile, t_s: float) -> FloatArray:
-    """Fisher information about theta, shape (4, 4), in wheel rates with ``profile``'s errors.
+    """Fisher information about theta, shape (n, n), in wheel rates with ``profile``'s errors.
 
     theta : the true parameters (c_e, c_d, t_r, d)
     n_rl, n_rr : the true (noise-free) wheel rates, rev/s, shape (M,)
@@ -175,7 +176,7 @@ def wheel_information(theta: FloatArray, n_rl: FloatArray, n_rr: FloatArray,
 
 def information_bound(theta: FloatArray, n_rl: FloatArray, n_rr: FloatArray,
                       profile: NoiseProfile, t_s: float) -> FloatArray | None:
-    """The Cramér-Rao bound: the inverse of :func:`wheel_information`, shape (4, 4); infinite
+    """The Cramér-Rao bound: the inverse of :func:`wheel_information`, shape (n, n); infinite
     on the diagonal for a parameter the drive carries no information on (no bend: t_r, d).
     None where the bound does not apply (:func:`applies`)."""
     if not applies(profile):
@@ -183,7 +184,7 @@ def information_bound(theta: FloatArray, n_rl: FloatArray, n_rr: FloatArray,
     info = wheel_information(theta, n_rl, n_rr, profile, t_s)
     diag = np.diag(info)
     some = diag > 1e-12 * max(float(diag.max()), 1e-300)
-    out = np.full((4, 4), np.nan)
+    out = np.full((PARAMETERS, PARAMETERS), np.nan)
     np.fill_diagonal(out, np.inf)
     try:
         out[np.ix_(some, some)] = np.linalg.inv(info[np.ix_(some, some)])

@@ -33,6 +33,8 @@ from odocal.errors import ConfigError
 from odocal.model._jit import jit
 from odocal.model.kinematics import rollout, wheel_rates_for
 from odocal.model.parameters import Inputs, Parameters
+from odocal.settings import vehicle_problem
+from odocal.sim.limits import checked_duration, checked_seed
 from odocal.sim.noise import NOISE_PROFILES, NoiseProfile
 
 __all__ = ["NOISE_PROFILES", "TRUE_PARAMETERS", "NoiseProfile", "SimulatedDrive", "simulate"]
@@ -72,7 +74,7 @@ class SimulatedDrive:
     changed: bool = False
 
     def cramer_rao_bound(self) -> FloatArray | None:
-        """The covariance no unbiased calibration of this drive can beat, shape (4, 4): the
+        """The covariance no unbiased calibration of this drive can beat, shape (n, n): the
         wheel errors' Cramér-Rao bound (:mod:`odocal.sim.bound`; the reference pose taken as
         exact), or None where it does not apply (no wheel error it counts, or tick counts)."""
         from odocal.sim.bound import information_bound
@@ -97,11 +99,11 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
 
     Parameters
     ----------
-    duration_s : length of the drive, s
-    seed : seeds the route, the speed profile and the noise
+    duration_s : length of the drive, s (at most a day: :mod:`odocal.sim.limits`)
+    seed : seeds the route, the speed profile and the noise (an integer from 0 to 2**63 - 1)
     noise : a name in :data:`NOISE_PROFILES` or a :class:`NoiseProfile`
     theta : true parameters (default :data:`TRUE_PARAMETERS`)
-    t_s : sampling time, s
+    t_s : sampling time, s (0.001 to 0.1: the rates a drive may have)
     change : ``(t, new_theta)``: from time t on, the wheels turn as ``new_theta`` makes them
         (a tyre pressure change within the drive); ``true_parameters`` are those before
     noise_seed : draws the noise from its own seed, so one route (``seed``) can be driven with
@@ -120,10 +122,17 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
         profile = noise
     if route not in ROUTES:
         raise ConfigError(f"unknown route {route!r}; choose one of {', '.join(ROUTES)}")
-    if not duration_s > 10.0 * t_s:
-        raise ConfigError(f"duration {duration_s} s is too short to simulate a drive")
-    if not 0 < t_s <= 1.0:
-        raise ConfigError(f"sampling time {t_s} s is out of range (0, 1]")
+    if isinstance(t_s, bool) or not isinstance(t_s, int | float) or not 0.001 <= t_s <= 0.1:
+        raise ConfigError(f"sampling time {t_s!r} s is out of range: 0.001 to 0.1 s "
+                          "(1 kHz to 10 Hz)")
+    duration_s = checked_duration(duration_s, step_s=t_s, name="duration")
+    seed = checked_seed(seed)
+    if noise_seed is not None:
+        noise_seed = checked_seed(noise_seed, name="noise_seed")
+    for label, given in (("theta", theta), ("change", change[1] if change else None)):
+        problem = vehicle_problem(given.as_array()) if given is not None else None
+        if problem is not None:
+            raise ConfigError(f"simulate: {label}: {problem}")
     true_theta = (theta or TRUE_PARAMETERS).as_array()
     rng = np.random.default_rng(seed)
     m = round(duration_s / t_s) + 1
@@ -159,7 +168,8 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
                       + ("" if noise_seed is None else f"-noise{noise_seed}")),
         metadata={"source": "odocal.sim.simulate", "seed": seed, "noise_profile": profile.name,
                   **({} if noise_seed is None else {"noise_seed": noise_seed}),
-                  "true_theta": (theta or TRUE_PARAMETERS).as_dict()})
+                  "true_theta": (theta or TRUE_PARAMETERS).as_dict()},
+        circumference_m=float(true_theta[0]))
     return SimulatedDrive(drive=drive, true_parameters=Parameters.from_array(true_theta),
                           true_n_rl=n_rl, true_n_rr=n_rr, true_poses=poses, profile=profile,
                           seed=seed, changed=change is not None)

@@ -101,7 +101,7 @@ def build_problem(theta: FloatArray, inputs: Inputs, reference: FloatArray, t_s:
 
     Parameters
     ----------
-    theta : ndarray, shape (4,)
+    theta : ndarray, shape (n,)
     inputs : Inputs with arrays of shape (K,); ``n_rl, n_rr`` are the measured rates n~
     reference : ndarray, shape (K+1, 3), the measured poses y~
     """

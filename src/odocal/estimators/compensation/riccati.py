@@ -73,14 +73,15 @@ def _sweep(A: FloatArray, B: FloatArray, e: FloatArray, c: FloatArray, qd: Float
                 v = A[j, 0, r] * W[0, s] + A[j, 1, r] * W[1, s] + A[j, 2, r] * W[2, s]
                 H[r, 5 + s] = v
                 H[5 + s, r] = v
-            h[r] = A[j, 0, r] * p[0] + A[j, 1, r] * p[1] + A[j, 2, r] * p[2]
+            h[r] = A[j, 0, r] * p[0] + A[j, 1, r] * p[1] + A[j, 2, r] * p[2]  # (not theta)
         for r in range(2):
             for s in range(2):
                 H[5 + r, 5 + s] = (B[j, 0, r] * W[0, s] + B[j, 1, r] * W[1, s]
                                    + B[j, 2, r] * W[2, s]
                                    + P[3 + r, 0] * B[j, 0, s] + P[3 + r, 1] * B[j, 1, s]
                                    + P[3 + r, 2] * B[j, 2, s] + P[3 + r, 3 + s])
-            h[5 + r] = B[j, 0, r] * p[0] + B[j, 1, r] * p[1] + B[j, 2, r] * p[2] + p[3 + r]
+            h[5 + r] = (B[j, 0, r] * p[0] + B[j, 1, r] * p[1] + B[j, 2, r] * p[2]  # (not theta)
+                        + p[3 + r])
         for r in range(3):
             for s in range(2):
                 H[r, 3 + s] = 0.0
