@@ -15,7 +15,7 @@ from odocal.checks.findings import Finding, Severity
 from odocal.estimators.estimate import Estimate, NotIdentified, Reason, Status
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES, PARAMETER_UNITS, Parameters
 from odocal.pipeline.result import CalibrationResult
-from odocal.report.advice import finding_text, reason_text
+from odocal.report.advice import consistent_with_zero, finding_text, reason_text, zero_text
 from odocal.settings import Settings, datasheet_stated
 
 #: The words before each finding by its severity.
@@ -111,6 +111,9 @@ def summary_lines(result: CalibrationResult, *, truth: Parameters | None = None,
                 Reason.REJECTED, Reason.STANDSTILL, Reason.FAILED):
             why = reason_text(name, verdict, threshold_radps=segs.yaw_rate_threshold_radps)
             lines.append(f"note: {name} ({PARAMETER_UNITS[j]}) is not identified: {why}")
+    for name in consistent_with_zero(est):       # identified, but no evidence of the effect
+        j = PARAMETER_NAMES.index(name)
+        lines.append(f"note: {zero_text(name, float(est.theta.as_array()[j]), float(est.std[j]))}")
     lines += [f"warning: {w}" for w in result.warnings]
     if not result.success and est.status is not Status.NOTHING_IDENTIFIABLE:
         lines.append(f"calibration failed: {est.message}")
