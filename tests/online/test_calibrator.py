@@ -73,11 +73,6 @@ def test_agrees_with_batch_where_errors_telescope(noise: str) -> None:
     assert np.all(np.abs(diff) < 1.0), diff
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "since 09a1bf2 (lag range 1 s): with 4 minutes in memory the folded clusters' normal "
-    "equations keep the coupling beta of their time (0 before it stands out), online beta 1.03 "
-    "vs batch 1.18 and t_r 1.5 batch std apart; fine at max_delay_s 0.2 or without the "
-    "coupling; the folded sums need beta's three terms kept apart (estimators/core.fold)"))
 def test_agrees_with_batch_where_a_common_slip_shows_in_the_yaw_channel() -> None:
     """Both take the distance channel's share out of the yaw channel, from sums that fold.
     (Windows are folded with the coupling of their time: with 4 minutes in memory instead of 8,

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.checks.departures import Departures
+from odocal.checks.departures import Departures, wheel_lag_s
 from odocal.checks.departures import findings as departure_findings
 from odocal.checks.departures import measure as measure_departures
 from odocal.checks.diagnosis import check_drives
@@ -78,7 +78,12 @@ from odocal.online.changes import (
     eliminate,
     estimate_change,
 )
-from odocal.online.departures import LiveDepartures, recorrected, with_offset_prior
+from odocal.online.departures import (
+    LiveDepartures,
+    ReferenceAligner,
+    recorrected,
+    with_offset_prior,
+)
 from odocal.online.samples import SAMPLE, Regrid, step_s, time_unit
 from odocal.online.samples import rows as pushed_rows
 from odocal.settings import Settings
@@ -176,6 +181,7 @@ class OnlineCalibrator:
         self._unit: str | None = None             # how t comes: "s", "ms", "us", "ns", "datetime"
         self._scale = 1.0                         # ... and its unit in seconds
         self._regrid: Regrid | None = None
+        self._aligner: ReferenceAligner | None = None
         self._last_t: float | None = None        # the latest sample's time, s
         self._first_t: float | None = None       # the first one's, s
         self._builder: WindowBuilder | None = None
@@ -190,6 +196,8 @@ class OnlineCalibrator:
         self._history: list[FloatArray] | None = (
             None if self.settings.online.forgetting_s else [])
         self._windows_total = 0
+        self._incoming: list[WindowSet] = []     # the cluster under way's windows, kept aside
+        self._incoming_size = 0
         self._since_fit = 0                       # windows added since the core last ran
         self._updates = 0                         # running updates of the estimate so far
         self._alarms: list[Alarm] = []
@@ -245,6 +253,7 @@ class OnlineCalibrator:
             self._windows = empty_windows(length=self._builder.length,
                                           margin=self._builder.margin, t_s=self._t_s)
             self._regrid = Regrid(self._t_s)
+            self._aligner = ReferenceAligner(self._t_s)
             self._samples += count
         else:
             if not stamped:
@@ -274,7 +283,10 @@ class OnlineCalibrator:
             else:
                 self._history.append(grid)
         self._keep_recent(grid)                       # (as they came: the checks measure)
-        self._builder.add(*self._departures.correct(grid).T)
+        assert self._aligner is not None
+        aligned = self._aligner.add(grid)             # the reference on the wheels' clock
+        if aligned.shape[0]:
+            self._builder.add(*self._departures.correct(aligned).T)
         self._take(self._builder.windows())
         if self._recent_t - self._checked_t >= CHECK_EVERY_S:
             self._check()
@@ -324,9 +336,11 @@ class OnlineCalibrator:
         else:
             diagnosis = check_drives([drive], self.settings)
             if not (diagnosis.fatal or diagnosis.standstill):
-                # the sensors' departures, measured as batch measures them (on the samples as
-                # they came) and taken out of the samples from now on, and of the windows in
-                # memory where that can be done exactly (odocal/online/departures.py)
+                # the reference on the wheels' clock, and the sensors' departures, measured as
+                # batch measures them (on the samples as they came) and taken out of the
+                # samples from now on, and of the windows in memory where that can be done
+                # exactly (odocal/online/departures.py)
+                self._align(drive)
                 self._adopt(measure_departures([drive], self.settings,
                                                lateral=not diagnosis.lateral_missing),
                             driving_s=samples.shape[0] * step)
@@ -336,6 +350,31 @@ class OnlineCalibrator:
             self._halted = True
         return diagnosis
 
+    def _align(self, drive: Drive) -> None:
+        """The wheel stream's lag behind the reference, measured as batch measures it (beyond
+        half the fit's own lag scan, within ``[inverse] max_delay_s``): where it moved by more
+        than half the scan, the reference is put on the wheels' clock anew (the windows made
+        again where they can be; else from the next sample on, in a new piece)."""
+        cfg = self.settings.inverse
+        if cfg.delay != "estimate" or self._aligner is None or self._builder is None:
+            return
+        found = wheel_lag_s([drive], self.datasheet)
+        if found is None or abs(found) > cfg.max_delay_s:
+            return                                  # (not determined now: keep what is)
+        shift = found if abs(found) > 0.5 * cfg.lag_scan_s else 0.0
+        if abs(shift - self._aligner.shift_s) <= 0.5 * cfg.lag_scan_s:
+            return
+        self._departures = dataclasses.replace(self._departures, reference_shift_s=shift)
+        if self._rebuilt():
+            return
+        rest = self._aligner.flush()                # what the old shift can still align
+        if rest.shape[0]:
+            self._builder.add(*self._departures.correct(rest).T)
+        self._builder.end_piece()
+        self._take(self._builder.windows())
+        assert self._t_s is not None
+        self._aligner = ReferenceAligner(self._t_s, shift)
+
     def _adopt(self, found: Departures, *, driving_s: float) -> None:
         """A new measurement of the departures (on ``driving_s`` of driving): the corrections
         it determines replace the earlier ones; the windows in memory are corrected by the
@@ -344,6 +383,8 @@ class OnlineCalibrator:
         if new == old:
             return
         self._departures = new
+        if self._windows is not None:
+            self._flush()
         if new.heading_harmonics != old.heading_harmonics and self._rebuilt():
             pass                                   # (the windows made anew, corrected)
         elif self._windows is not None:
@@ -372,9 +413,14 @@ class OnlineCalibrator:
             return False
         raw = np.vstack(self._history)
         builder = builder_for(self.settings, self._t_s)
-        builder.add(*self._departures.correct(raw).T)
+        aligner = ReferenceAligner(self._t_s, self._departures.reference_shift_s)
+        aligned = aligner.add(raw)
+        if aligned.shape[0]:
+            builder.add(*self._departures.correct(aligned).T)
+        self._aligner = aligner
         windows = builder.windows()
         self._builder = builder
+        self._incoming, self._incoming_size = [], 0
         self._windows = dataclasses.replace(windows, weight=np.ones(windows.size))
         self._windows_total = windows.size
         self._current_cluster = int(windows.cluster[-1]) if windows.size else None
@@ -396,8 +442,20 @@ class OnlineCalibrator:
             self._append(new.take(group))
 
     def _append(self, new: WindowSet) -> None:
+        """New windows of the cluster under way: kept aside until it completes (the window set
+        is put together once per cluster, not once per push: with a lag range of a second a
+        window holds 85 shifts of its moments)."""
         assert self._windows is not None
         cfg = self.settings.online
+        if not cfg.forgetting_s:
+            self._incoming.append(new)
+            self._incoming_size += new.size
+            self._windows_total += new.size
+            self._since_fit += new.size
+            if self._windows.size + self._incoming_size > cfg.max_windows:
+                self._flush()
+            return
+        self._flush()
         windows = self._windows
         if cfg.forgetting_s:
             factor = math.exp(-self.settings.inverse.window_s / cfg.forgetting_s)
@@ -411,10 +469,20 @@ class OnlineCalibrator:
         while self._windows.size > cfg.max_windows:
             self._fold()
 
+    def _flush(self) -> None:
+        """The windows kept aside into the window set; the oldest folded beyond the memory."""
+        assert self._windows is not None
+        if self._incoming:
+            self._windows = WindowSet.concat([self._windows, *self._incoming])
+            self._incoming, self._incoming_size = [], 0
+        while self._windows.size > self.settings.online.max_windows:
+            self._fold()
+
     def _cluster_done(self, cluster: int) -> None:
         """A cluster is complete: the change detector compares its own estimate of c_e and c_d
         with the estimate before it (:mod:`odocal.online.changes`), and the running estimate
         takes it in."""
+        self._flush()
         assert self._windows is not None
         mine = self._windows.take(self._windows.cluster == cluster)
         self._clusters_done += 1
@@ -445,8 +513,7 @@ class OnlineCalibrator:
         change = estimate_change(
             self._windows, self._folded, suspect, p=self._p(),
             lag=self._lag, heading_offset=self.heading_offset(), model=self._model,
-            smooth=self._smooth, tolerance=self.settings.inverse.tolerance,
-            cluster_s=self.settings.segments.length * self._t_s)
+            smooth=self._smooth, tolerance=self.settings.inverse.tolerance)
         if change is None:
             return False
         alarm = describe(change, suspect, detected_t=float(cluster.t0[-1]),
@@ -608,6 +675,8 @@ class OnlineCalibrator:
             self._check()
         if self._halted:
             return self._nothing(Reason.REJECTED, Status.REJECTED)
+        if self._windows is not None:
+            self._flush()
         if self._diagnosis.standstill and self._folded.clusters == 0 and (
                 self._windows is None or self._windows.size == 0):
             return self._nothing(Reason.STANDSTILL)
@@ -657,8 +726,9 @@ class OnlineCalibrator:
         return self._halted
 
     def delay_s(self) -> float:
-        """The wheel stream's lag behind the reference that is applied (positive: late), s."""
-        return self._lag.shift * (self._t_s or 0.0)
+        """The wheel stream's lag behind the reference that is applied (positive: late), s:
+        the reference's alignment and the fit's fine lag together."""
+        return self._lag.shift * (self._t_s or 0.0) + self._departures.reference_shift_s
 
     def heading_offset(self) -> float:
         """The reference heading's rotation against the direction of travel (rad), found on the
@@ -671,7 +741,8 @@ class OnlineCalibrator:
         noise = self._model.noise
         return OnlineDetails(
             samples=self._samples, windows=self._windows_total,
-            windows_in_memory=0 if self._windows is None else self._windows.size,
+            windows_in_memory=(0 if self._windows is None
+                               else self._windows.size + self._incoming_size),
             clusters=clusters, distance_km=self.distance_km, delay_s=self.delay_s(),
             heading_offset_rad=self.heading_offset(),
             noise=((float(noise[0, 0]), float(noise[0, 1])),

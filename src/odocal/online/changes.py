@@ -329,17 +329,18 @@ class Change:
 
 def estimate_change(windows: WindowSet, folded: core.Folded, suspect: Suspect, *,
                     p: FloatArray, lag: core.Lag, heading_offset: float, model: ErrorModel,
-                    smooth: bool, tolerance: float, cluster_s: float) -> Change | None:
+                    smooth: bool, tolerance: float) -> Change | None:
     """Where a suspected change began and how large it is.
 
-    The change point is searched among the windows from a cluster before the suspect's
-    evidence began to its latest cluster; the wheels before it come from the windows before it
+    The change point is searched among the windows in memory up to the suspect's latest
+    cluster (a small change lets the CUSUM fall back to zero now and then after it: where its
+    evidence last began is no bound); the wheels before it come from the windows before it
     (and the folded sums) fitted anew, all parameters free; after it, c_e and c_d alone from
     the windows after it, the others held at the fit before. ``p``: the running estimate (the
     core's p). None where the windows after the change point cannot carry the step.
     """
     steps = window_steps(windows, suspect.reference, lag.shift, heading_offset, model)
-    index = change_point(steps, windows.t0, earliest=suspect.since_t - cluster_s,
+    index = change_point(steps, windows.t0, earliest=-math.inf,
                          latest=suspect.until_t)
     after = np.arange(windows.size) >= index
     if int((steps.usable & after).sum()) < _MIN_WINDOWS:

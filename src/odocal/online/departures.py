@@ -5,12 +5,18 @@ Batch measures the departures of :mod:`odocal.checks.departures` on the whole lo
 it before the fit. The online calibrator measures them on the latest ten minutes of driving
 (with every check) and takes out what is determined (:class:`LiveDepartures`):
 
+* **the wheel stream's lag behind the reference** (beyond half the fit's own lag scan, up to
+  ``[inverse] max_delay_s``): the reference is shifted onto the wheels' clock as the samples
+  arrive (:class:`ReferenceAligner`; an early wheel stream holds the samples back by as much),
+  and the fit scans ``[inverse] lag_scan_s`` around it, as batch does;
 * **an offset of a_y** and **wheels that read an offset at standstill**: out of every sample
   from then on, and out of the windows already in memory exactly (a window keeps the moments
   ``sum ds a^j`` for ``j < 4``: those of ``a - delta`` are their binomial expansion; a wheel's
   revolutions over a window less the offset times its time);
 * **a heading error that varies with the heading**: out of every sample from then on (a
-  window's moments cannot be turned by a heading error after the fact), measured on no less
+  window's moments cannot be turned by a heading error after the fact, nor shifted in time: the
+  first minutes' windows are made again where the lag or the heading error is found after
+  them, before anything is folded), measured on no less
   than :data:`HEADING_MIN_S` of driving (on two minutes a fit of its harmonics can pass its
   test at a hundred degrees), and replaced by every later measurement, zero included;
 * **the rates' encoding step**: the wheel-rate offset fitted from then on, with a prior of half
@@ -54,6 +60,8 @@ class LiveDepartures:
     (rev/s), the heading error's harmonics (rad), and whether the wheel rates are encoded on a
     grid of ``wheel_step_revps`` (rev/s; 0: not)."""
 
+    reference_shift_s: float = 0.0
+    """The wheel stream's lag behind the reference taken out by shifting the reference (s)."""
     lateral_offset_mps2: float = 0.0
     lateral_offset_std: float = math.nan
     wheel_offset_revps: tuple[float, float] = (0.0, 0.0)
@@ -63,7 +71,8 @@ class LiveDepartures:
 
     def as_measured(self) -> Departures:
         """The same as :class:`~odocal.checks.departures.Departures` (for its findings)."""
-        return Departures(lateral_offset_mps2=self.lateral_offset_mps2,
+        return Departures(reference_shift_s=self.reference_shift_s,
+                          lateral_offset_mps2=self.lateral_offset_mps2,
                           lateral_offset_std=self.lateral_offset_std,
                           lateral_offset_applied=self.lateral_offset_mps2 != 0.0,
                           heading_harmonics=self.heading_harmonics,
@@ -142,3 +151,77 @@ def with_offset_prior(folded: core.Folded, settings: Settings, step_revps: float
     h[core.OFFSET, core.OFFSET] += precision
     meat[core.OFFSET, core.OFFSET] += precision
     return dataclasses.replace(folded, h=h, meat=meat, offset_std=std)
+
+
+#: Columns of a sample that are the reference pose (x, y, psi).
+_POSE = (5, 6, 7)
+
+
+class ReferenceAligner:
+    """The reference pose put on the wheels' clock as the samples arrive (batch:
+    :func:`odocal.checks.departures.shifted_reference`): with the wheel stream ``shift_s`` late,
+    each sample's reference becomes the one ``shift_s`` earlier (interpolated within the piece;
+    the heading along its shorter way round). An early wheel stream (a negative shift) needs the
+    reference ahead: samples are held back by as much. Samples whose shifted time falls outside
+    their piece are left out, as batch leaves them out.
+
+    ``add`` takes samples on the grid (M, 8) and gives those it can align; a gap (a step over
+    1.5 grid steps) ends a piece.
+    """
+
+    def __init__(self, t_s: float, shift_s: float = 0.0) -> None:
+        self.t_s = t_s
+        self.shift_s = shift_s
+        self._piece = np.zeros((0, 8))      # the current piece's samples still needed
+        self._sent_t = -math.inf            # the latest sample given out
+
+    def add(self, rows: FloatArray) -> FloatArray:
+        if not rows.shape[0]:
+            return rows
+        out: list[FloatArray] = []
+        breaks = np.flatnonzero(np.diff(rows[:, 0]) > 1.5 * self.t_s) + 1
+        first = True
+        for run in np.split(rows, breaks):
+            if self._piece.shape[0] and (not first or
+                                         run[0, 0] - self._piece[-1, 0] > 1.5 * self.t_s):
+                out.append(self._drain())     # the piece ended: what can still go out
+                self._piece = np.zeros((0, 8))
+            first = False
+            self._piece = np.vstack([self._piece, run])
+            out.append(self._ready())
+        return np.vstack(out) if out else np.zeros((0, 8))
+
+    def _ready(self, final: bool = False) -> FloatArray:
+        """The samples of the current piece whose shifted reference is within reach, shifted;
+        the piece's older samples no longer needed are let go."""
+        piece = self._piece
+        if not piece.shape[0]:
+            return piece
+        t = piece[:, 0]
+        newest = t[-1]
+        # a sample goes out once its shifted time is covered (ahead: it is held back)
+        latest = newest if final else newest + min(self.shift_s, 0.0)
+        ready = (t > self._sent_t) & (t <= latest + 1e-9 * self.t_s)
+        if not ready.any():
+            return np.zeros((0, 8))
+        rows = piece[ready].copy()
+        at = rows[:, 0] - self.shift_s
+        inside = (at >= t[0] - 1e-9 * self.t_s) & (at <= newest + 1e-9 * self.t_s)
+        if self.shift_s:
+            for col in _POSE:
+                values = np.unwrap(piece[:, col]) if col == 7 else piece[:, col]
+                rows[:, col] = np.interp(at, t, values)
+        self._sent_t = float(rows[-1, 0])
+        # keep what later samples' shifted times still reach back to
+        keep_from = self._sent_t - max(self.shift_s, 0.0) - 2.0 * self.t_s
+        self._piece = piece[t >= keep_from]
+        return rows[inside]
+
+    def _drain(self) -> FloatArray:
+        return self._ready(final=True)
+
+    def flush(self) -> FloatArray:
+        """What is held back, aligned as far as the samples reach (the stream ends here)."""
+        out = self._drain()
+        self._piece = np.zeros((0, 8))
+        return out
