@@ -122,10 +122,10 @@ def rows(chunk: Any) -> tuple[FloatArray, bool]:
                 continue
         try:
             cols.append(np.asarray(values, dtype=np.float64).ravel())
-        except (TypeError, ValueError):
+        except (TypeError, ValueError) as err:
             seconds = _datetimes_s(values) if key == "t" else None
             if seconds is None:
-                raise DataError(f"pushed column {key} is not numeric") from None
+                raise DataError(f"pushed column {key} is not numeric") from err
             cols.append(seconds)
             stamped = True
     n = cols[0].size
