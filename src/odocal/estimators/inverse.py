@@ -173,7 +173,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
     if progress:
         progress("inverse: fit", 1, 2)
     prior = core.Folded.prior(_origin(settings),
-                              core.offset_prior_std(settings, wheel_step(drives)))
+                              core.offset_prior_std(settings, wheel_step(drives, settings)))
     found = core.fit(windows, prior, settings,
                      heading_offset=offset, held=held, distance_only=distance_only)
     findings, found, windows = _residual_checks(found, windows, drives, prior, settings,
@@ -199,10 +199,10 @@ def _residual_checks(found: core.CoreFit, windows: WindowSet, drives: Sequence[D
     zero = windows.margin
     if not distance_only:
         front = front_wheels(measured, residual, windows.moments[:, zero, 0],
-                             windows.moments[:, zero, SERIES])
+                             windows.moments[:, zero, SERIES], settings)
         if front is not None:
             return [front], found, windows
-    change = find_change(measured, residual, windows.cluster)
+    change = find_change(measured, residual, windows.cluster, settings)
     if change is None:
         return [], found, windows
     after = windows.take(np.arange(windows.size) >= change.index)
