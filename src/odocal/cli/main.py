@@ -49,29 +49,12 @@ def _settings(args: argparse.Namespace) -> Settings:
     if getattr(args, "circumference", None) is not None:
         overrides.setdefault("convert", {})["wheel_circumference_m"] = args.circumference
     if getattr(args, "datasheet", None):
+        from odocal.output.export import parse_datasheet
         from odocal.pipeline.calibrate import datasheet_theta
 
         overrides.setdefault("identify", {})["theta0"] = datasheet_theta(
-            _datasheet_values(args.datasheet), settings.identify.theta0)
+            parse_datasheet(args.datasheet), settings.identify.theta0)
     return settings.replace(**overrides) if overrides else settings
-
-
-def _datasheet_values(text: str) -> dict[str, float]:
-    """``c_e=1.84,t_r=1.52`` as a dict; a one-line ConfigError for anything else (the values
-    checked by :func:`odocal.settings.datasheet_values`: each once, within a vehicle's range)."""
-    from odocal.settings import datasheet_values
-
-    pairs: list[tuple[str, float]] = []
-    for item in text.split(","):
-        key, sep, value = item.partition("=")
-        try:
-            pairs.append((key.strip(), float(value)))
-        except ValueError:
-            sep = ""
-        if not sep:
-            raise ConfigError(f"--datasheet {text!r}: write NAME=VALUE pairs separated by "
-                              "commas, e.g. c_e=1.84,t_r=1.52 (metres)")
-    return datasheet_values(pairs, source="--datasheet")
 
 
 def _datasheet_note(datasheet: Parameters) -> str | None:
@@ -338,7 +321,7 @@ def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
             written += [report.html_path, *report.figure_paths]
             report_numbers = report.data.to_dict()
         written.insert(0, write_calibration(result, tmp, report=report_numbers))
-        exports = getattr(args, "export", None) or []
+        exports = list(dict.fromkeys(getattr(args, "export", None) or []))
         if "tum" in exports:                 # trajectories judge any result, even a refused one
             from odocal.output.trajectories import write_trajectories
 
@@ -362,6 +345,20 @@ def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
     if not args.quiet:
         for path in written:
             _print(f"wrote {out / path.relative_to(tmp)}")
+
+
+EXPORT_TARGETS = ("yaml", "json", "autoware", "ros2_control", "robot_localization", "tum")
+
+
+def _export_targets(text: str) -> list[str]:
+    """``--export autoware,ros2_control``: the targets named, in order, each once."""
+    names = [n.strip() for n in text.split(",")]
+    bad = [n for n in names if n not in EXPORT_TARGETS]
+    if bad:
+        raise argparse.ArgumentTypeError(
+            f"unknown target {bad[0]!r} in {text!r}; choose from {', '.join(EXPORT_TARGETS)} "
+            "(a comma list, e.g. autoware,ros2_control)")
+    return list(dict.fromkeys(names))
 
 
 def _wheel_joints(args: argparse.Namespace) -> tuple[str, str] | None:
@@ -635,6 +632,14 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
     return EXIT_OK
 
 
+def cmd_ros2(args: argparse.Namespace) -> int:
+    """The online calibrator as a ROS 2 node (README, "ROS 2"), until Ctrl-C or SIGTERM."""
+    settings = _settings(args)
+    from odocal.ros2.node import run
+
+    return run(list(getattr(args, "ros_args", [])), settings=settings)
+
+
 def _rejection(estimate: Any, findings: Sequence[Any], settings: Settings) -> str | None:
     """One line that says why a calibration publishes no parameters (None: it does): the first
     contradiction the checks found, and how many more the report lists."""
@@ -736,7 +741,8 @@ def _add_common(p: argparse.ArgumentParser, *, workers: bool = True,
     if datasheet:
         p.add_argument("--datasheet", metavar="NAME=VALUE,...",
                        help="the vehicle's datasheet values, e.g. c_e=1.84,t_r=1.52 (effective "
-                            "wheel circumference and rear track width, m; also c_d, d): the "
+                            "wheel circumference and rear track width, m; also c_d, d; or a "
+                            "robot's wheel_radius=0.1,wheel_separation=0.4): the "
                             "start of the fit, the comparison in results and exports, and the "
                             "centre of the plausible ranges")
     if workers:
@@ -776,7 +782,13 @@ def _configure_logging(verbose: int, quiet: bool) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    ros_args: list[str] = []
+    if argv[:1] == ["ros2"] and "--ros-args" in argv:      # ROS 2's own arguments, as they are
+        ros_args, argv = argv[argv.index("--ros-args"):], argv[:argv.index("--ros-args")]
     args = parser.parse_args(argv)
+    if args.command == "ros2":
+        args.ros_args = ros_args
     _configure_logging(args.verbose, args.quiet)
     func: Callable[[argparse.Namespace], int] = args.func
     try:
@@ -864,14 +876,12 @@ def _add_calibration_commands(sub: Any) -> None:
     p.add_argument("--seed", type=SEED, help="seed of the step-1 batch draw")
     p.add_argument("--save-inputs", action="store_true",
                    help="also write the compensated wheel rates (compensated_inputs.parquet)")
-    p.add_argument("--export", action="append",
-                   choices=("yaml", "json", "autoware", "ros2_control", "robot_localization",
-                            "tum"),
+    p.add_argument("--export", action="extend", type=_export_targets, metavar="TARGET,...",
                    help="also write the parameters for a localisation stack: yaml (a ROS 2 "
                         "parameter file) or json, with their covariance, or the parameter files "
                         "of autoware, ros2_control, robot_localization; or tum: the reference "
                         "and the wheel odometry (calibrated and datasheet) as trajectories for "
-                        "evo (repeatable)")
+                        "evo (a comma list, or repeated)")
     p.add_argument("--wheel-joints", metavar="LEFT,RIGHT",
                    help="wheel joint names for --export ros2_control")
     p.add_argument("--no-report", action="store_true", help="skip report.html and the figures")
@@ -934,6 +944,17 @@ def _add_checking_commands(sub: Any) -> None:
     p.add_argument("--no-report", action="store_true", help="skip report.html")
     _add_common(p)
     p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("ros2", help="run the online calibrator as a ROS 2 node (the ros2 extra)",
+                       description="The online calibrator on live ROS 2 topics; node parameters "
+                                   "after --ros-args (README, 'ROS 2'), e.g. odocal ros2 "
+                                   "--datasheet c_e=1.95,t_r=1.51 --ros-args -p "
+                                   "pose_topic:=/odometry/filtered")
+    p.add_argument("--ros-args", dest="ros_args_help", action="store_true",
+                   help="everything after it goes to ROS 2: parameters (-p NAME:=VALUE), "
+                        "remappings, --params-file")
+    _add_common(p, workers=False)
+    p.set_defaults(func=cmd_ros2)
 
     p = sub.add_parser("minimum", help="the reachable minimum validation error (global search)")
     p.add_argument("logs", nargs="+", metavar="LOG",

@@ -12,7 +12,6 @@ import numpy as np
 
 from odocal._version import __version__
 from odocal.errors import OutputError
-from odocal.io.atomic import write_text
 from odocal.io.results import write_json
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS
 from odocal.pipeline.result import CalibrationResult
@@ -47,42 +46,40 @@ def export_parameters(result: CalibrationResult, out_dir: str | Path, fmt: str) 
             "method": result.method, "odocal_version": __version__})
     if fmt != "yaml":
         raise OutputError(f"unknown export format {fmt!r}; use yaml or json")
-    identified = ", ".join("true" if ok else "false" for ok in est.identified)
-    lines = [
-        f"# Wheel-odometry parameters calibrated by odocal {__version__} "
-        f"(method {result.method}).",
-        "# Parameters a drive did not identify keep their datasheet values (identified: false).",
-        "wheel_odometry:",
-        "  ros__parameters:",
-        f"    effective_wheel_circumference: {theta['c_e']:.9g}   # c_e, m",
-        f"    wheel_radius: {theta['c_e'] / (2 * np.pi):.9g}   # c_e / (2 pi), m",
-        f"    circumference_difference: {theta['c_d']:.9g}   # c_d, m, left minus right",
-        f"    rear_track_width: {theta['t_r']:.9g}   # t_r, m",
-        f"    load_transfer_coefficient: {theta['d']:.9g}   # d, m per m/s^2",
-        "    parameter_names: [c_e, c_d, t_r, d]",
-        f"    identified: [{identified}]",
-        "    # row-major 4x4 covariance in the order of parameter_names, SI units",
-        "    covariance: [" + ", ".join(f"{v:.9g}" for v in cov.ravel()) + "]",
-    ]
-    path = Path(out_dir) / "odometry_parameters.yaml"
-    write_text(path, "\n".join(lines) + "\n")
-    return path
+    from odocal.output.export import parameters_yaml
+
+    return parameters_yaml(_calibrated(result), Path(out_dir) / "odometry_parameters.yaml")
 
 
 def export_stack(result: CalibrationResult, out_dir: str | Path, target: str, *,
                  wheel_joints: tuple[str, str] | None = None) -> list[Path]:
     """Parameter files for ``target`` (see :mod:`odocal.output.export`) in ``out_dir/target/``;
     ``wheel_joints`` names the left and right wheel joints (ros2_control)."""
-    from odocal.output.export import Calibrated, export, odometry_noise
+    from odocal.output.export import export
+
+    return export(_calibrated(result, wheel_joints=wheel_joints), out_dir, [target])
+
+
+def _calibrated(result: CalibrationResult, *,
+                wheel_joints: tuple[str, str] | None = None) -> Any:
+    """What the exports need from a calibration (:class:`odocal.output.export.Calibrated`)."""
+    from odocal.output.export import Calibrated, odometry_noise
 
     est = result.estimate
-    calibrated = Calibrated(theta=est.theta, datasheet=est.datasheet,
-                            std=tuple(est.std.tolist()),
-                            identified=est.identified, method=result.method,
-                            noise=odometry_noise(result.drive_data, est.theta),
-                            source=", ".join(d.name for d in result.drives),
-                            wheel_joints=wheel_joints)
-    return export(calibrated, out_dir, [target])
+    # logs whose wheels were speeds (m/s) were turned into rates with one circumference: the
+    # vehicle's reported speed relates to it (the speed scale factor is relative to it)
+    circumferences = {d.metadata.get("wheel_circumference_m") for d in result.drive_data}
+    circumference = circumferences.pop() if len(circumferences) == 1 else None
+    return Calibrated(theta=est.theta, datasheet=est.datasheet,
+                      std=tuple(float(s) for s in est.std),
+                      identified=est.identified, method=result.method,
+                      noise=odometry_noise(result.drive_data, est.theta),
+                      source=", ".join(d.name for d in result.drives),
+                      wheel_joints=wheel_joints,
+                      speed_circumference_m=(float(circumference)
+                                             if isinstance(circumference, int | float) else None),
+                      covariance=tuple(tuple(float(v) for v in row)
+                                       for row in est.covariance))
 
 
 def write_compensated_inputs(result: CalibrationResult, out_dir: str | Path) -> Path | None:
