@@ -69,7 +69,11 @@ def _calibrated(datasheet: Parameters = STATED, theta: Parameters = THETA,
     # what is not identified keeps the datasheet value (as every estimator hands it on)
     values = [t if ok else d for t, d, ok in zip(theta.as_array(), datasheet.as_array(),
                                                   identified, strict=True)]
-    cov = np.diag([1e-8 if ok else 0.0 for ok in identified])
+    # every entry its own value (c_e, c_d, t_r, d of different sizes, one correlation), so a
+    # covariance written reversed, transposed or shuffled is seen
+    variances = np.array([1e-8, 4e-10, 9e-6, 1e-11]) * np.array(identified, dtype=float)
+    cov = np.diag(variances)
+    cov[0, 2] = cov[2, 0] = 0.3 * math.sqrt(variances[0] * variances[2])
     return Calibrated(theta=Parameters(*values), datasheet=datasheet,
                       std=tuple(float(v) for v in np.sqrt(np.diag(cov))),  # type: ignore[arg-type]
                       identified=identified, method="inverse",
@@ -137,6 +141,10 @@ def _check_values(values: dict[str, dict[str, Any]], c: Calibrated) -> None:
     assert list(own["identified"]) == list(c.identified)
     assert list(own["parameter_names"]) == ["c_e", "c_d", "t_r", "d"]
     assert len(own["covariance"]) == 16
+    # row-major in the order of parameter_names, and the std its diagonal's roots
+    np.testing.assert_allclose(own["covariance"], np.asarray(c.covariance).ravel(), rtol=1e-12)
+    np.testing.assert_allclose(own["std"], np.sqrt(np.diag(np.asarray(c.covariance))),
+                               rtol=1e-12)
 
 
 COMBINATIONS = [(vehicle, stated, identified)

@@ -5,6 +5,8 @@ Every file is written atomically, and no output may land on one of the inputs.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +19,67 @@ from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS
 from odocal.pipeline.result import CalibrationResult
 
 CALIBRATION_FILE = "calibration.json"
+#: What ``--export`` may name: parameter files (yaml, json), the stacks' files, trajectories.
+EXPORT_TARGETS = ("yaml", "json", "autoware", "ros2_control", "robot_localization", "tum")
+
+
+@dataclass(frozen=True)
+class Written:
+    """What :func:`write_results` wrote (paths relative to the folder) and what it left out,
+    in words."""
+
+    paths: tuple[Path, ...]
+    notes: tuple[str, ...] = ()
+
+
+def write_results(result: CalibrationResult, out_dir: str | Path, *,
+                  exports: Sequence[str] = (), report: bool = True,
+                  save_inputs: bool = False, wheel_joints: tuple[str, str] | None = None,
+                  progress: Callable[[str, int, int], None] | None = None,
+                  renderer: Any = None) -> Written:
+    """Everything a calibration writes into ``out_dir`` (a folder that exists; the caller makes
+    it atomic): ``report.html`` and its figures (unless ``report`` is False), calibration.json
+    (with the report's numbers), the ``exports`` (:data:`EXPORT_TARGETS`: trajectories judge
+    any result, even a refused one; parameter files only a calibration that succeeded) and,
+    with ``save_inputs``, the compensated wheel rates."""
+    out = Path(out_dir)
+    written: list[Path] = []
+    notes: list[str] = []
+    report_numbers = None
+    if report:
+        from odocal.report import write_report
+
+        page = write_report(result, out, progress=progress, renderer=renderer)
+        written += [page.html_path, *page.figure_paths]
+        report_numbers = page.data.to_dict()
+    written.insert(0, write_calibration(result, out, report=report_numbers))
+    targets = list(dict.fromkeys(exports))
+    unknown = [t for t in targets if t not in EXPORT_TARGETS]
+    if unknown:
+        raise OutputError(f"unknown export target {unknown[0]!r}; choose from "
+                          f"{', '.join(EXPORT_TARGETS)}")
+    if "tum" in targets:
+        from odocal.output.trajectories import write_trajectories
+
+        written += write_trajectories(result.drive_data, result.estimate.theta,
+                                      result.estimate.datasheet, out)
+        targets.remove("tum")
+    if targets and not result.success:
+        notes.append("parameters not exported: the calibration did not succeed")
+        targets = []
+    for target in targets:
+        if target in ("yaml", "json"):
+            written.append(export_parameters(result, out, target))
+        else:
+            written += export_stack(result, out, target, wheel_joints=wheel_joints)
+    if save_inputs:
+        path = write_compensated_inputs(result, out)
+        if path is None:
+            notes.append("--save-inputs: this method does not compensate the wheel rates")
+        else:
+            written.append(path)
+    return Written(paths=tuple(p.relative_to(out) if p.is_absolute() and p.is_relative_to(out)
+                               else p for p in written), notes=tuple(notes))
 
 
 def write_calibration(result: CalibrationResult, out_dir: str | Path, *,
