@@ -15,6 +15,7 @@ import pyarrow.parquet as pq
 from odocal.data.drive import Drive
 from odocal.errors import DataError, InputFileError, input_file, shown
 from odocal.io.atomic import atomic_path
+from odocal.io.remote import is_url
 
 _FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}
 
@@ -57,8 +58,13 @@ class Columns(dict[str, np.ndarray]):
 
 
 def read_table(path: str | Path) -> Columns:
-    """Read a CSV or Parquet file into float columns (non-numeric columns raise DataError;
-    date-times become seconds since 1970 UTC)."""
+    """Read a CSV or Parquet file (a path or a URL) into float columns (non-numeric columns
+    raise DataError; date-times become seconds since 1970 UTC)."""
+    if is_url(path):
+        from odocal.io.remote import readable
+
+        with readable(str(path), "input file") as (local, _):
+            return read_table(local)
     p = Path(path)
     if p.is_dir():
         raise InputFileError(f"input '{shown(p)}' is a folder, not a drive file (.csv or "
@@ -122,6 +128,11 @@ def _seconds(col: pa.ChunkedArray) -> np.ndarray:
 
 def read_text_table(path: str | Path) -> dict[str, list[str | None]]:
     """A CSV or Parquet file's columns as text (empty cells as None), for tables of names."""
+    if is_url(path):
+        from odocal.io.remote import readable
+
+        with readable(str(path), "input file") as (local, _):
+            return read_text_table(local)
     p = Path(path)
     table = _arrow_table(p, text=True)
     try:
@@ -148,15 +159,28 @@ def _is_number(value: Any) -> bool:
 
 
 def load_drive(path: str | Path, *, metadata: Mapping[str, Any] | None = None,
-               circumference_m: float | None = None) -> Drive:
-    """Read a drive-format file (CSV or Parquet) into a checked :class:`Drive`
-    (``circumference_m``: the datasheet's wheel, see :meth:`Drive.from_columns`)."""
+               circumference_m: float | None = None,
+               pin: Mapping[str, Any] | None = None) -> Drive:
+    """Read a drive-format file (CSV or Parquet; a path or a URL) into a checked
+    :class:`Drive` (``circumference_m``: the datasheet's wheel, see
+    :meth:`Drive.from_columns`; ``pin``: the remote object's version it must still be,
+    :meth:`odocal.io.remote.ObjectInfo.pin`)."""
+    if is_url(path):
+        from odocal.io.remote import readable, redact
+
+        with readable(str(path), "drive file", pin=pin) as (local, digest):
+            label = redact(path) if digest is not None else str(local)
+            return _drive(local, label, digest, metadata, circumference_m)
     p = Path(path)
+    return _drive(p, str(p), None, metadata, circumference_m)
+
+
+def _drive(p: Path, label: str, digest: str | None, metadata: Mapping[str, Any] | None,
+           circumference_m: float | None) -> Drive:
     columns = read_table(p)
-    return Drive.from_columns(columns, name=str(p), metadata={"source": str(p),
-                                                              "sha256": file_sha256(p),
-                                                              **(metadata or {})},
-                              circumference_m=circumference_m)
+    return Drive.from_columns(columns, name=label, metadata={
+        "source": label, "sha256": digest or file_sha256(p), **(metadata or {})},
+        circumference_m=circumference_m)
 
 
 def file_sha256(path: str | Path) -> str:
