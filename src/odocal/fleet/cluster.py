@@ -166,9 +166,12 @@ def local_client(n: int) -> Iterator[Any]:
                 cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                        host="127.0.0.1", dashboard_address="127.0.0.1:0",
                                        silence_logs=logging.CRITICAL, env=threads)
-            except Exception as err:
+            except Exception:
                 if flag.exists():
-                    raise ConfigError(GUARD_MESSAGE) from err
+                    # the cause is Dask's and multiprocessing's own confusion about a script
+                    # importing itself again: a script's user reads the message, not that chain
+                    # (the spawned process prints its own traceback already)
+                    raise ConfigError(GUARD_MESSAGE) from None
                 raise
             if flag.exists():
                 raise ConfigError(GUARD_MESSAGE)
