@@ -141,3 +141,58 @@ def test_datasheet_values_within_range_are_returned() -> None:
     assert datasheet_values([("c_e", 0.33), ("t_r", 0.4), ("d", -0.001)]) == {
         "c_e": 0.33, "t_r": 0.4, "d": -0.001}
     assert datasheet_values({"c_e": 50, "c_d": -49.0}) == {"c_e": 50.0, "c_d": -49.0}
+
+
+# ----------------------------------------------------------- [checks]: the checks' thresholds
+
+def test_check_thresholds_come_from_toml_and_survive_a_round_trip(tmp_path: Path) -> None:
+    from odocal.settings import settings_from_dict
+
+    path = tmp_path / "checks.toml"
+    path.write_text("[checks]\ndead_wheel_share = 0.3\nchange_statistic = 2.5\n"
+                    "front_min_windows = 40\n")
+    s = load_settings(path)
+    assert (s.checks.dead_wheel_share, s.checks.change_statistic, s.checks.front_min_windows) \
+        == (0.3, 2.5, 40)
+    assert s.checks.pose_jump_m == 5.0 and Settings().checks.dead_wheel_share == 0.2
+    assert settings_from_dict(s.to_dict()) == s                  # as the fleet's tasks carry it
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("dead_wheel_share = 1.5",
+     r"^setting \[checks\] dead_wheel_share = 1\.5 is invalid: expected a number in \(0, 1\)$"),
+    ("pose_jump_m = 0.0", r"\[checks\] pose_jump_m = 0\.0 is invalid: expected a positive "
+                          r"finite number$"),
+    ("heading_max_gap_rad = 4.0", r"heading_max_gap_rad = 4\.0 .* an angle in \(0, pi\) rad$"),
+    ("sync_min_seconds = 2", r"sync_min_seconds = 2 .* an integer from 3 to 10\*\*9$"),
+    ("lateral_min_slope = 1.2",
+     r"lateral_min_slope/lateral_max_slope = \(1\.2, 2\.0\) is invalid: expected "
+     r"0 < lateral_min_slope < 1 < lateral_max_slope$"),
+    ("change_min_cluster_share = 1.0", r"change_min_cluster_share = 1\.0 .* in \[0, 1\)$"),
+    ("encoding_min_on_grid = 0.0", r"encoding_min_on_grid = 0\.0 .* in \(0, 1\]$"),
+    ("lateral_offset_named_mps2 = -0.1", r"lateral_offset_named_mps2 = -0\.1 .* >= 0$"),
+    ("change_min_side_clusters = 2.5", r"change_min_side_clusters = 2\.5 .* an integer$"),
+    ("dead_wheel_shares = 0.3", r"unknown setting \[checks\] 'dead_wheel_shares'"),
+])
+def test_bad_check_thresholds_are_named_in_one_line(tmp_path: Path, text: str,
+                                                    message: str) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(f"[checks]\n{text}\n")
+    with pytest.raises(ConfigError, match=message) as info:
+        load_settings(path)
+    assert "\n" not in str(info.value)
+
+
+def test_every_check_threshold_says_why() -> None:
+    """A docstring under each field of [checks] (its reason, read by the README's readers)."""
+    import ast
+    import inspect
+
+    from odocal.settings import ChecksSettings
+
+    body = ast.parse(inspect.getsource(ChecksSettings)).body[0].body  # type: ignore[attr-defined]
+    undocumented = [node.target.id for node, after in zip(body, [*body[1:], None], strict=True)
+                    if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+                    and not (isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
+                             and isinstance(after.value.value, str))]
+    assert undocumented == []

@@ -469,6 +469,240 @@ class GateSettings:
 
 
 @dataclass(frozen=True)
+class ChecksSettings:
+    """Every other threshold of the checks (``odocal/checks/``), each with its reason.
+
+    The checks compare one-second windows of the drives, so a count of seconds is a count of
+    windows. The keys go in the order the checks run, grouped by prefix: the reference pose
+    (``pose_jump_``, ``straight_``, ``heading_``, ``sync_``), the wheels (``dead_wheel_``,
+    ``scale_``), a_y (``lateral_``), several drives (``vehicles_``), the streams' clocks
+    (``lag_``, ``wheel_lag_``, ``lateral_lag_``, ``lateral_delay_``); then the departures
+    measured and taken out before the fit (``lateral_offset_``, ``heading_harmonic_``,
+    ``standstill_``, ``encoding_``, with ``error_correlation_s``) and what the fit's residuals
+    show (``window_min_revs``, ``change_``, ``front_``). The first checks' limits stay in
+    ``[gate]``, where they were: ``min_distance_m``, ``min_speed_mps`` (the moving seconds
+    every check here means), ``min_scale``/``max_scale``, ``datasheet_scale_note``,
+    ``bend_yaw_rate_radps``, ``min_bend_windows``, ``min_yaw_correlation`` and
+    ``max_clock_offset_s``."""
+
+    # the reference pose
+    pose_jump_m: float = 5.0
+    """A reference step this long (m), beyond what the wheels allow it, is a jump (a
+    relocalisation, a glitch): refused, named with its size and time."""
+    pose_jump_m_per_rev: float = 2.5
+    """What the wheels allow a reference step: this many metres per revolution they turn in it
+    (generous for a car's 2 m wheel; it is not scaled by the datasheet c_e)."""
+    straight_speed_mps: float = 3.0
+    """Straight seconds move faster than this (m/s) ..."""
+    straight_turn_rad: float = 0.05
+    """... and turn less than this (rad over the second). On them the reference heading is
+    compared with its course (here, and for a heading error that varies with the heading)."""
+    heading_min_seconds: int = 10
+    """Fewer straight seconds than this: the reference heading is not checked."""
+    heading_max_gap_rad: float = 0.5
+    """A median gap this large (rad) between the reference heading and its course on straights:
+    the heading is in another frame (x and y swapped, a compass heading); refused."""
+    sync_min_correlation: float = 0.5
+    """Below this correlation of the wheels' and the reference's speed, second by second, the
+    reference is out of step with the wheels (by more than the clock check reaches, or another
+    drive's); refused."""
+    sync_min_speed_spread_mps: float = 0.5
+    """... judged only where both speeds vary by at least this much (m/s, their standard
+    deviation over the seconds): at one speed there is nothing to correlate."""
+    sync_min_seconds: int = 30
+    """... on at least this many seconds; a lag is tried only with this many seconds of the same
+    piece overlapping."""
+    sync_max_search_s: float = 600.0
+    """The lag that puts such a reference back in step is searched this far either way (s) ..."""
+    sync_lag_min_correlation: float = 0.8
+    """... and named only where it restores this correlation (else the lag is unknown)."""
+
+    # the wheels
+    dead_wheel_share: float = 0.2
+    """One wheel reading nothing while the other turns on more than this share of those
+    seconds is a dead sensor; refused."""
+    dead_wheel_reading: float = 0.01
+    """'Nothing': less than this share of the other wheel's revolutions in the second."""
+    dead_wheel_turning_revs: float = 0.1
+    """'The other turns': more than this many revolutions in a moving second."""
+    dead_wheel_min_seconds: int = 5
+    """Fewer moving seconds with the other wheel turning than this: no wheel is judged dead."""
+    scale_min_seconds: int = 5
+    """The wheels' distance over the reference's is the median over the moving seconds where
+    there are this many, else the ratio of the totals (checked against ``[gate] min_scale``,
+    ``max_scale``)."""
+
+    # the lateral acceleration, in bends
+    lateral_min_share: float = 0.1
+    """a_y's size about zero, or its spread, below this share of speed times yaw rate's: no
+    lateral acceleration (zero, constant, unplugged); d is not fitted."""
+    lateral_min_vw_spread_mps2: float = 0.3
+    """a_y's spread is judged only where speed times yaw rate varies by more than this (m/s^2,
+    standard deviation over the bends): a circle at one rate has no spread to compare."""
+    lateral_min_correlation: float = 0.5
+    """a_y's agreement with speed times yaw rate (their correlation about zero) below minus
+    this: its sign is flipped; refused. Above this, its slope is judged."""
+    lateral_min_slope: float = 0.5
+    """a_y over speed times yaw rate below this ..."""
+    lateral_max_slope: float = 2.0
+    """... or above this is a unit mistake (g for m/s^2); refused."""
+
+    # several drives of one vehicle
+    vehicles_max_turn_rad: float = 0.1
+    """Seconds that compare the wheels of several drives turn less than this (rad) ..."""
+    vehicles_min_wheel_revs: float = 0.5
+    """... with each wheel turning more than this many revolutions."""
+    vehicles_min_seconds: int = 8
+    """A drive with fewer such seconds is not compared."""
+    vehicles_max_ratio_gap: float = 0.005
+    """Two drives whose wheels differ (their difference over their mean, less what the turning
+    explains: about -c_d/c_e) by more than this ..."""
+    vehicles_sigmas: float = 5.0
+    """... and more than this many standard errors of that difference are not one vehicle (two
+    cars, wheels swapped or re-tyred between the logs); refused: one calibration would average
+    them."""
+
+    # the streams' clocks
+    lag_min_piece_s: float = 20.0
+    """Pieces at least this long (s) are cross-correlated for a stream's clock (the wheels' yaw
+    rate, a_y) against the reference's."""
+    lag_min_correlation: float = 0.5
+    """A lag is taken only where the correlation at it reaches this (a signal that hardly
+    varies, a circle at one rate, has no timing to find)."""
+    wheel_lag_search_s: float = 2.0
+    """The wheel stream's lag behind the reference is searched this far either way (s); a lag
+    beyond what the calibration corrects is refused (``[gate] max_clock_offset_s``)."""
+    lateral_lag_search_s: float = 2.0
+    """a_y's lag behind the reference is searched this far either way (s), and taken out."""
+    lateral_delay_named_s: float = 0.25
+    """a_y's lag beyond this (s) is named."""
+
+    # departures measured and taken out before the fit
+    error_correlation_s: int = 30
+    """Neighbouring seconds share their errors (a reference's drift, a slip that lasts): the
+    standard errors of a_y's offset and of the heading harmonics are taken from groups of this
+    many seconds (at least three groups for an offset)."""
+    lateral_offset_min_seconds: int = 90
+    """a_y's constant offset is measured on at least this many moving seconds ..."""
+    lateral_offset_sigmas: float = 4.0
+    """... and taken out where it is this many standard errors from zero (a constant d a_y term
+    is a c_d term: left in, it moves c_d by 2 d times it) ..."""
+    lateral_offset_named_mps2: float = 0.1
+    """... and named from this size on (m/s^2)."""
+    heading_harmonic_min_seconds: int = 60
+    """A heading error varying with the heading is fitted on at least this many straight
+    seconds ..."""
+    heading_harmonic_min_coverage: float = 0.15
+    """... spread over the headings: the smallest singular value of the harmonics' regressors
+    (over the square root of their count) at least this, or they cannot be told apart ..."""
+    heading_harmonic_sigmas: float = 4.0
+    """... taken out where a harmonic is this many standard errors from zero ..."""
+    heading_harmonic_min_rad: float = math.radians(0.5)
+    """... and the error is at least this large (rad, 0.5 degree); then also named."""
+    standstill_speed_mps: float = 0.05
+    """The reference stands still: it moves less than this (m) in a second ..."""
+    standstill_min_seconds: int = 10
+    """... for this many seconds in all: then what the wheels read is measured ..."""
+    standstill_min_offset_revps: float = 0.005
+    """... and taken out as their offset from this size on (rev/s, both wheels) ..."""
+    standstill_min_share: float = 0.8
+    """... where they read it with one sign on at least this share of the still seconds."""
+    encoding_max_step_revps: float = 0.05
+    """Wheel rates whose nonzero values lie on a grid no coarser than this (rev/s) are an
+    encoding's steps (whole rpm, 0.1 km/h; a truncation reads half a step low, so the default
+    method fits an offset); coarser grids are tick counts over a sample, whose errors
+    telescope."""
+    encoding_min_samples: int = 100
+    """The grid is looked for on at least this many nonzero rates ..."""
+    encoding_samples_per_value: int = 5
+    """... that repeat: at least this many rates per distinct value ..."""
+    encoding_min_values: int = 3
+    """... with at least this many distinct values ..."""
+    encoding_grid_tolerance: float = 1e-3
+    """... a rate lying on the grid within this share of a step ..."""
+    encoding_min_on_grid: float = 0.99
+    """... and more than this share of the distinct values on it."""
+
+    # the fit's residuals (the default method)
+    window_min_revs: float = 0.5
+    """Windows turning the wheels at least this many revolutions count for the residual checks."""
+    change_min_windows: int = 20
+    """Fewer such windows than this: no change inside the log is looked for."""
+    change_min_cluster_share: float = 0.25
+    """Clusters turning the wheels less than this share of the median cluster (a stop, a crawl)
+    are left out of the change test."""
+    change_min_side_clusters: int = 4
+    """A change is tested only with at least this many clusters on either side."""
+    change_statistic: float = 1.95
+    """The CUSUM statistic beyond which the log holds a change (Kolmogorov's distribution
+    exceeds 1.95 with probability 0.001: one false alarm in a thousand logs) ..."""
+    change_min: float = 0.005
+    """... by at least this much: of c_e's level (a relative change), or of the wheels'
+    difference per revolution (c_d over c_e). The part after it is calibrated."""
+    front_min_window_m: float = 1.0
+    """Windows moving at least this far (m) give a curvature for the front-wheel test ..."""
+    front_min_windows: int = 30
+    """... which needs this many windows ..."""
+    front_min_curvature_1pm: float = 0.02
+    """... and curving windows: more than this (1/m) ..."""
+    front_min_curved_windows: int = 10
+    """... at least this many of them (a rear axle's distance does not grow with the curvature
+    squared: without bends there is nothing to tell them apart) ..."""
+    front_sigmas: float = 5.0
+    """Wheels whose distance grows with the curvature squared by this many standard errors
+    ..."""
+    front_min_distance_m: float = 1.6
+    """... as a wheel this far ahead of the rear axle would (m; a car's wheelbase is over 2 m)
+    are front wheels mapped as rear ones; refused."""
+
+    def __post_init__(self) -> None:
+        s = "checks"
+        positive = ("pose_jump_m", "pose_jump_m_per_rev", "straight_speed_mps",
+                    "sync_min_speed_spread_mps", "sync_max_search_s", "dead_wheel_turning_revs",
+                    "lateral_min_vw_spread_mps2", "vehicles_min_wheel_revs",
+                    "vehicles_max_ratio_gap", "vehicles_sigmas", "lag_min_piece_s",
+                    "wheel_lag_search_s", "lateral_lag_search_s", "lateral_delay_named_s",
+                    "lateral_offset_sigmas", "heading_harmonic_sigmas", "standstill_speed_mps",
+                    "standstill_min_offset_revps", "encoding_max_step_revps", "window_min_revs",
+                    "change_statistic", "change_min", "front_min_window_m",
+                    "front_min_curvature_1pm", "front_sigmas", "front_min_distance_m")
+        for key in positive:
+            _check(0 < getattr(self, key) < float("inf"), s, key, getattr(self, key),
+                   "a positive finite number")
+        for key in ("lateral_offset_named_mps2",):
+            _check(0 <= getattr(self, key) < float("inf"), s, key, getattr(self, key),
+                   "a finite number >= 0")
+        angles = ("straight_turn_rad", "heading_max_gap_rad", "vehicles_max_turn_rad",
+                  "heading_harmonic_min_rad")
+        for key in angles:
+            _check(0 < getattr(self, key) < math.pi, s, key, getattr(self, key),
+                   "an angle in (0, pi) rad")
+        fractions = ("sync_min_correlation", "dead_wheel_share", "dead_wheel_reading",
+                     "lateral_min_share", "lateral_min_correlation", "lag_min_correlation",
+                     "heading_harmonic_min_coverage", "encoding_grid_tolerance")
+        for key in fractions:
+            _check(0 < getattr(self, key) < 1, s, key, getattr(self, key), "a number in (0, 1)")
+        for key in ("sync_lag_min_correlation", "standstill_min_share", "encoding_min_on_grid"):
+            _check(0 < getattr(self, key) <= 1, s, key, getattr(self, key), "a number in (0, 1]")
+        _check(0 <= self.change_min_cluster_share < 1, s, "change_min_cluster_share",
+               self.change_min_cluster_share, "a number in [0, 1)")
+        _check(0 < self.lateral_min_slope < 1 < self.lateral_max_slope < float("inf"), s,
+               "lateral_min_slope/lateral_max_slope",
+               (self.lateral_min_slope, self.lateral_max_slope),
+               "0 < lateral_min_slope < 1 < lateral_max_slope")
+        counts = {"heading_min_seconds": 1, "sync_min_seconds": 3, "dead_wheel_min_seconds": 1,
+                  "scale_min_seconds": 1, "vehicles_min_seconds": 1, "error_correlation_s": 1,
+                  "lateral_offset_min_seconds": 1, "heading_harmonic_min_seconds": 5,
+                  "standstill_min_seconds": 1, "encoding_min_samples": 2,
+                  "encoding_samples_per_value": 1, "encoding_min_values": 2,
+                  "change_min_windows": 1, "change_min_side_clusters": 1,
+                  "front_min_windows": 3, "front_min_curved_windows": 1}
+        for key, least in counts.items():
+            _check(least <= getattr(self, key) <= 10**9, s, key, getattr(self, key),
+                   f"an integer from {least} to 10**9")
+
+
+@dataclass(frozen=True)
 class UncertaintySettings:
     """How sure a calibration is: the bootstrap over segments that checks the covariance."""
 
@@ -591,6 +825,7 @@ class Settings:
     uncertainty: UncertaintySettings = field(default_factory=UncertaintySettings)
     inverse: InverseSettings = field(default_factory=InverseSettings)
     gate: GateSettings = field(default_factory=GateSettings)
+    checks: ChecksSettings = field(default_factory=ChecksSettings)
     online: OnlineSettings = field(default_factory=OnlineSettings)
     fleet: FleetSettings = field(default_factory=FleetSettings)
     convert: ConvertSettings = field(default_factory=ConvertSettings)

@@ -14,8 +14,8 @@ data themselves, on every path alike:
   errors): the gap between the reference's course and its heading on straight seconds, fitted
   with the first two harmonics of the heading. A constant gap (a mounting yaw) is the
   estimator's to take out; the varying part is taken out of ``psi`` here, where it is
-  determined (beyond four standard deviations, larger than :data:`MIN_HEADING_HARMONIC_RAD`,
-  and the straight seconds cover the headings well enough to tell the harmonics apart).
+  determined (beyond four standard deviations, larger than half a degree, and the straight
+  seconds cover the headings well enough to tell the harmonics apart).
 
 and of the wheel rates:
 
@@ -30,7 +30,8 @@ and of the wheel rates:
 
 Each is applied where the data determine it (:func:`corrected`), and named by a finding where
 it is large enough to matter to a user (:func:`findings`): the calibration then stands on the
-corrected data, and the report says what was taken out.
+corrected data, and the report says what was taken out. The thresholds, with their reasons, are
+settings (``[checks]``: :class:`~odocal.settings.ChecksSettings`).
 """
 
 from __future__ import annotations
@@ -46,41 +47,9 @@ from numpy.typing import NDArray
 from odocal.checks.findings import Check, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.model.kinematics import body_rates, motion_increments
-from odocal.settings import Settings
+from odocal.settings import ChecksSettings, Settings
 
 FloatArray = NDArray[np.float64]
-
-#: Pieces at least this long (s) are cross-correlated for a_y's clock.
-MIN_LAG_PIECE_S = 20.0
-#: a_y's lag is searched this far either way (s).
-MAX_LATERAL_LAG_SEARCH_S = 2.0
-#: The correlation of a_y with v w at the best lag below which no lag is taken (no timing).
-MIN_LAG_CORRELATION = 0.5
-#: A lateral-acceleration offset applied must be this many standard errors from zero.
-OFFSET_SIGMAS = 4.0
-#: ... and is named from this size on (m/s^2).
-NAMED_LATERAL_OFFSET_MPS2 = 0.1
-#: A heading harmonic applied must be this many standard errors from zero ...
-HEADING_SIGMAS = 4.0
-#: ... and at least this large (rad, 0.5 degree).
-MIN_HEADING_HARMONIC_RAD = math.radians(0.5)
-#: The reference stands still: slower than this (m/s) over a whole second ...
-STANDSTILL_MPS = 0.05
-#: ... for at least this many seconds in all, for a standstill offset to be measured.
-MIN_STANDSTILL_S = 10
-#: A standstill offset is taken out from this size on (rev/s), read on at least this share of
-#: the standstill seconds with one sign.
-MIN_STANDSTILL_OFFSET_REVPS, MIN_STANDSTILL_SHARE = 0.005, 0.8
-#: Wheel rates whose nonzero values lie on a grid no coarser than this (rev/s) are an encoding's
-#: steps (whole rpm, 0.1 km/h); coarser grids are tick counts differenced over a sample, whose
-#: errors telescope (no bias).
-MAX_ENCODING_STEP_REVPS = 0.05
-#: Straight seconds: faster than this (m/s) and turning less than this (rad over the second).
-_STRAIGHT_MPS, _STRAIGHT_TURN_RAD = 3.0, 0.05
-#: The harmonics need straight seconds spread over the headings: the smallest singular value of
-#: their regressors (scaled by their count) at least this.
-_MIN_COVERAGE = 0.15
-
 
 @dataclass(frozen=True)
 class Departures:
@@ -130,12 +99,12 @@ def _pieces(drives: Sequence[Drive], seconds: float) -> list[tuple[Drive, int, i
     return [(d, a, b) for d in drives for a, b in d.pieces if b - a >= round(seconds / d.t_s)]
 
 
-def best_lag(pairs: Sequence[tuple[FloatArray, FloatArray]], span: int,
-             t_s: float) -> float | None:
+def best_lag(pairs: Sequence[tuple[FloatArray, FloatArray]], span: int, t_s: float,
+             min_correlation: float) -> float | None:
     """The lag (s) of ``b`` behind ``a`` within ``span`` steps either way that correlates them
     best, summed over the pairs of series, refined between steps by a parabola; None where even
-    the best correlation is weak (a signal that hardly varies, a circle at one rate, has no
-    timing to find)."""
+    the best correlation is below ``min_correlation`` (a signal that hardly varies, a circle at
+    one rate, has no timing to find)."""
     scores = np.zeros(2 * span + 1)
     energy_a = energy_b = 0.0
     for a, b in pairs:
@@ -149,7 +118,7 @@ def best_lag(pairs: Sequence[tuple[FloatArray, FloatArray]], span: int,
         energy_a, energy_b = energy_a + float(a @ a), energy_b + float(b @ b)
     best = int(np.argmax(scores))
     if energy_a <= 0 or energy_b <= 0 \
-            or scores[best] < MIN_LAG_CORRELATION * np.sqrt(energy_a * energy_b):
+            or scores[best] < min_correlation * np.sqrt(energy_a * energy_b):
         return None
     shift = 0.0
     if 0 < best < scores.size - 1:
@@ -160,11 +129,12 @@ def best_lag(pairs: Sequence[tuple[FloatArray, FloatArray]], span: int,
     return float((best - span + shift) * t_s)
 
 
-def lateral_lag_s(drives: Sequence[Drive]) -> float | None:
+def lateral_lag_s(drives: Sequence[Drive], settings: Settings) -> float | None:
     """The lag (s) of a_y behind speed times the reference yaw rate (up to
-    :data:`MAX_LATERAL_LAG_SEARCH_S`), over every piece of at least :data:`MIN_LAG_PIECE_S`;
-    None where not determined."""
-    pieces = _pieces(drives, MIN_LAG_PIECE_S)
+    ``lateral_lag_search_s``), over every piece of at least ``lag_min_piece_s``; None where not
+    determined."""
+    lim = settings.checks
+    pieces = _pieces(drives, lim.lag_min_piece_s)
     if not pieces:
         return None
     t_s = drives[0].t_s
@@ -172,14 +142,15 @@ def lateral_lag_s(drives: Sequence[Drive]) -> float | None:
     for d, a, b in pieces:
         ds, dpsi = motion_increments(d.x[a:b], d.y[a:b], d.psi[a:b], d.beta[a:b])
         pairs.append((ds * dpsi / t_s**2, np.asarray(d.a_y[a:b - 1])))
-    return best_lag(pairs, round(MAX_LATERAL_LAG_SEARCH_S / t_s), t_s)
+    return best_lag(pairs, round(lim.lateral_lag_search_s / t_s), t_s, lim.lag_min_correlation)
 
 
-def wheel_lag_s(drives: Sequence[Drive], theta: FloatArray) -> float | None:
-    """The lag (s) of the wheels' yaw rate (``theta``) behind the reference's, up to 2 s,
-    over every piece of at least :data:`MIN_LAG_PIECE_S` (positive: the wheel stream late);
-    None where not determined."""
-    pieces = _pieces(drives, MIN_LAG_PIECE_S)
+def wheel_lag_s(drives: Sequence[Drive], theta: FloatArray, settings: Settings) -> float | None:
+    """The lag (s) of the wheels' yaw rate (``theta``) behind the reference's, up to
+    ``wheel_lag_search_s``, over every piece of at least ``lag_min_piece_s`` (positive: the
+    wheel stream late); None where not determined."""
+    lim = settings.checks
+    pieces = _pieces(drives, lim.lag_min_piece_s)
     if not pieces:
         return None
     t_s = drives[0].t_s
@@ -187,7 +158,7 @@ def wheel_lag_s(drives: Sequence[Drive], theta: FloatArray) -> float | None:
     for d, a, b in pieces:
         _, w = body_rates(theta, d.n_rl[a:b], d.n_rr[a:b], d.a_y[a:b])
         pairs.append((np.gradient(d.psi[a:b], d.t_s), np.asarray(w)))
-    return best_lag(pairs, round(2.0 / t_s), t_s)
+    return best_lag(pairs, round(lim.wheel_lag_search_s / t_s), t_s, lim.lag_min_correlation)
 
 
 def _seconds(drives: Sequence[Drive], lag_s: float
@@ -221,9 +192,10 @@ def _seconds(drives: Sequence[Drive], lag_s: float
     return cat[0], cat[1], cat[2], cat[3], cat[4]
 
 
-def _mean_and_error(values: FloatArray, group: int = 30) -> tuple[float, float]:
+def _mean_and_error(values: FloatArray, group: int) -> tuple[float, float]:
     """The mean and its standard error, from the spread of means over groups of ``group``
-    consecutive values (neighbouring seconds are correlated)."""
+    consecutive values (neighbouring seconds are correlated); infinite with fewer than three
+    groups (no spread to take)."""
     n = values.size // group
     if n < 3:
         return float(values.mean()) if values.size else 0.0, float("inf")
@@ -231,38 +203,41 @@ def _mean_and_error(values: FloatArray, group: int = 30) -> tuple[float, float]:
     return float(values.mean()), float(means.std(ddof=1) / math.sqrt(n))
 
 
-def _harmonics(gap: FloatArray, heading: FloatArray) -> tuple[FloatArray, float]:
+def _harmonics(gap: FloatArray, heading: FloatArray,
+               lim: ChecksSettings) -> tuple[FloatArray, float]:
     """The heading error's first two harmonics (a1, b1, a2, b2) where they are determined, and
     the largest |error| of their sum; zeros otherwise."""
     zero = np.zeros(4)                  # a1, b1, a2, b2 (not theta)
-    if gap.size < 60:
+    if gap.size < lim.heading_harmonic_min_seconds:
         return zero, 0.0
     regressors = np.column_stack([np.ones_like(heading), np.cos(heading), np.sin(heading),
                                   np.cos(2 * heading), np.sin(2 * heading)])
     singular = np.linalg.svd(regressors[:, 1:] / math.sqrt(gap.size), compute_uv=False)
-    if singular[-1] < _MIN_COVERAGE:
+    if singular[-1] < lim.heading_harmonic_min_coverage:
         return zero, 0.0                          # too few headings to tell the harmonics apart
     coef, *_ = np.linalg.lstsq(regressors, gap, rcond=None)
     residual = gap - regressors @ coef
-    # a robust spread, and groups of 30 s: neighbouring seconds share their errors
+    # a robust spread (a normal's sigma from the MAD), and groups of error_correlation_s
+    # seconds: neighbouring seconds share their errors
     spread = 1.4826 * float(np.median(np.abs(residual - np.median(residual))))
-    cov = np.linalg.pinv(regressors.T @ regressors) * spread**2 * 30.0
+    cov = np.linalg.pinv(regressors.T @ regressors) * spread**2 * float(lim.error_correlation_s)
     std = np.sqrt(np.clip(np.diag(cov)[1:], 0.0, None))
     harmonics = coef[1:]
-    if not (np.abs(harmonics) > HEADING_SIGMAS * std).any():
+    if not (np.abs(harmonics) > lim.heading_harmonic_sigmas * std).any():
         return zero, 0.0
     grid = np.linspace(-math.pi, math.pi, 721)
     varying = (harmonics[0] * np.cos(grid) + harmonics[1] * np.sin(grid)
                + harmonics[2] * np.cos(2 * grid) + harmonics[3] * np.sin(2 * grid))
     amplitude = float(np.max(np.abs(varying)))
-    if amplitude < MIN_HEADING_HARMONIC_RAD:
+    if amplitude < lim.heading_harmonic_min_rad:
         return zero, 0.0
     return harmonics, amplitude
 
 
-def standstill_offset(drives: Sequence[Drive]) -> tuple[float, float]:
+def standstill_offset(drives: Sequence[Drive], settings: Settings) -> tuple[float, float]:
     """What each wheel reads (rev/s) while the reference stands still, where it reads it
     steadily (see the module docstring); zeros otherwise."""
+    lim = settings.checks
     rates: list[FloatArray] = []
     for d in drives:
         size = max(round(1.0 / d.t_s), 1)
@@ -272,7 +247,7 @@ def standstill_offset(drives: Sequence[Drive]) -> tuple[float, float]:
                 continue
             starts = a + size * np.arange(n)
             moved = np.hypot(d.x[starts + size] - d.x[starts], d.y[starts + size] - d.y[starts])
-            still = starts[moved < STANDSTILL_MPS]
+            still = starts[moved < lim.standstill_speed_mps]
             if still.size:
                 rows = still[:, None] + np.arange(size)[None, :]
                 rates.append(np.column_stack([d.n_rl[rows].mean(axis=1),
@@ -280,69 +255,73 @@ def standstill_offset(drives: Sequence[Drive]) -> tuple[float, float]:
     if not rates:
         return 0.0, 0.0
     seconds = np.concatenate(rates)
-    if seconds.shape[0] < MIN_STANDSTILL_S:
+    if seconds.shape[0] < lim.standstill_min_seconds:
         return 0.0, 0.0
     median = np.median(seconds, axis=0)
     same_sign = (np.sign(seconds) == np.sign(median)).mean(axis=0)
-    if (np.abs(median) >= MIN_STANDSTILL_OFFSET_REVPS).all() \
-            and (same_sign >= MIN_STANDSTILL_SHARE).all():
+    if (np.abs(median) >= lim.standstill_min_offset_revps).all() \
+            and (same_sign >= lim.standstill_min_share).all():
         return float(median[0]), float(median[1])
     return 0.0, 0.0
 
 
-def wheel_step(drives: Sequence[Drive]) -> float:
+def wheel_step(drives: Sequence[Drive], settings: Settings | None = None) -> float:
     """The grid the nonzero wheel rates lie on (rev/s), where they lie on one no coarser than
-    :data:`MAX_ENCODING_STEP_REVPS`; 0 otherwise. A drive's metadata may state it
-    (``"wheel_step_revps"``, where an importer knows the encoding)."""
+    ``encoding_max_step_revps`` (``settings``: the defaults where None); 0 otherwise. A drive's
+    metadata may state it (``"wheel_step_revps"``, where an importer knows the encoding)."""
+    lim = (settings or Settings()).checks
     stated = [d.metadata.get("wheel_step_revps") for d in drives]
     numbers = [float(v) for v in stated if isinstance(v, int | float)]
     if numbers and len(numbers) == len(stated):
         return max(numbers)
     values = np.concatenate([np.concatenate([d.n_rl, d.n_rr]) for d in drives])
     values = values[values != 0.0]
-    if values.size < 100:
+    if values.size < lim.encoding_min_samples:
         return 0.0
-    unique = np.unique(np.round(np.abs(values), 9))
-    if unique.size > values.size // 5 or unique.size < 3:
+    unique = np.unique(np.round(np.abs(values), 9))             # to the nano: rounding only
+    if unique.size > values.size // lim.encoding_samples_per_value \
+            or unique.size < lim.encoding_min_values:
         return 0.0
     steps = np.diff(unique)
     step = float(np.min(steps))
-    if not 0 < step <= MAX_ENCODING_STEP_REVPS:
+    if not 0 < step <= lim.encoding_max_step_revps:
         return 0.0
     ratio = unique / step
-    on_grid = np.abs(ratio - np.round(ratio)) < 1e-3
-    return step if on_grid.mean() > 0.99 else 0.0
+    on_grid = np.abs(ratio - np.round(ratio)) < lim.encoding_grid_tolerance
+    return step if on_grid.mean() > lim.encoding_min_on_grid else 0.0
 
 
 def measure(drives: Sequence[Drive], settings: Settings, *,
             lateral: bool = True) -> Departures:
     """The departures of :mod:`the module docstring <odocal.checks.departures>` on ``drives``;
     ``lateral`` False where a_y carries no lateral acceleration (nothing to measure in it)."""
+    lim = settings.checks
     shift = 0.0
     if settings.inverse.delay == "estimate":
         # the reference on the wheels' clock first (the fit scans only lag_scan_s around it)
-        found = wheel_lag_s(drives, np.asarray(settings.identify.theta0, dtype=np.float64))
+        found = wheel_lag_s(drives, np.asarray(settings.identify.theta0, dtype=np.float64),
+                            settings)
         if found is not None and 0.5 * settings.inverse.lag_scan_s < abs(found) \
                 <= settings.inverse.max_delay_s:
             shift = found
             drives = [shifted_reference(d, shift) for d in drives]
-    lag = (lateral_lag_s(drives) or 0.0) if lateral else 0.0
+    lag = (lateral_lag_s(drives, settings) or 0.0) if lateral else 0.0
     if abs(lag) <= 0.5 * drives[0].t_s:
         lag = 0.0                          # within half a step: nothing the data can tell
     ds, turn, excess, gap, heading = _seconds(drives, lag)
     moving = np.abs(ds) > settings.gate.min_speed_mps
     offset, offset_std, applied = 0.0, float("nan"), False
-    if lateral and moving.sum() >= 90:
-        offset, offset_std = _mean_and_error(excess[moving])
-        applied = abs(offset) > OFFSET_SIGMAS * offset_std
-    straight = (np.abs(ds) > _STRAIGHT_MPS) & (np.abs(turn) < _STRAIGHT_TURN_RAD)
-    harmonics, amplitude = _harmonics(gap[straight], heading[straight])
+    if lateral and moving.sum() >= lim.lateral_offset_min_seconds:
+        offset, offset_std = _mean_and_error(excess[moving], lim.error_correlation_s)
+        applied = abs(offset) > lim.lateral_offset_sigmas * offset_std
+    straight = (np.abs(ds) > lim.straight_speed_mps) & (np.abs(turn) < lim.straight_turn_rad)
+    harmonics, amplitude = _harmonics(gap[straight], heading[straight], lim)
     return Departures(reference_shift_s=shift, lateral_lag_s=lag, lateral_offset_mps2=offset,
                       lateral_offset_std=offset_std, lateral_offset_applied=applied,
                       heading_harmonics=tuple(float(h) for h in harmonics),
                       heading_amplitude_rad=amplitude,
-                      standstill_offset_revps=standstill_offset(drives),
-                      wheel_step_revps=wheel_step(drives))
+                      standstill_offset_revps=standstill_offset(drives, settings),
+                      wheel_step_revps=wheel_step(drives, settings))
 
 
 def shifted_reference(drive: Drive, lag_s: float) -> Drive:
@@ -398,31 +377,28 @@ def corrected(drives: Sequence[Drive], found: Departures) -> list[Drive]:
     return out
 
 
-def findings(found: Departures) -> list[Finding]:
+def findings(found: Departures, settings: Settings) -> list[Finding]:
     """The departures worth naming: each a note (the calibration stands, on corrected data).
     a_y's lag is named by the checks of every path (:func:`lateral_delay`)."""
+    lim = settings.checks
     out = []
     if found.lateral_offset_applied and abs(found.lateral_offset_mps2) >= \
-            NAMED_LATERAL_OFFSET_MPS2:
+            lim.lateral_offset_named_mps2:
         out.append(Finding(Check.LATERAL_OFFSET, Severity.NOTE, found.lateral_offset_mps2,
                            found.lateral_offset_std, "a_y"))
     if found.heading_amplitude_rad:
         out.append(Finding(Check.HEADING_ERROR, Severity.NOTE, found.heading_amplitude_rad,
-                           MIN_HEADING_HARMONIC_RAD))
+                           lim.heading_harmonic_min_rad))
     if any(found.standstill_offset_revps):
         o_rl, o_rr = found.standstill_offset_revps
         out.append(Finding(Check.WHEEL_OFFSET, Severity.NOTE, o_rl, o_rr))
     return out
 
 
-#: A lag of a_y behind the reference beyond this is named (s); it is taken out either way.
-MAX_NAMED_LATERAL_LAG_S = 0.25
-
-
-def lateral_delay(drives: Sequence[Drive]) -> list[Finding]:
-    """a_y's lag behind the reference, named where it exceeds :data:`MAX_NAMED_LATERAL_LAG_S`
-    (value: the lag, s; positive: a_y late)."""
-    lag = lateral_lag_s(drives)
-    if lag is not None and abs(lag) > MAX_NAMED_LATERAL_LAG_S:
+def lateral_delay(drives: Sequence[Drive], settings: Settings) -> list[Finding]:
+    """a_y's lag behind the reference, named where it exceeds ``lateral_delay_named_s`` (value:
+    the lag, s; positive: a_y late)."""
+    lag = lateral_lag_s(drives, settings)
+    if lag is not None and abs(lag) > settings.checks.lateral_delay_named_s:
         return [Finding(Check.LATERAL_DELAY, Severity.NOTE, lag, 0.0, "a_y")]
     return []

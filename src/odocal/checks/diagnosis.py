@@ -23,7 +23,9 @@ first):
 * a vehicle that does not move at all.
 
 Findings carry numbers and a :class:`~odocal.checks.findings.Check` code; words are made from
-them in :mod:`odocal.report.advice` (for the CLI and the report).
+them in :mod:`odocal.report.advice` (for the CLI and the report). Every threshold is a setting,
+with its reason: ``[checks]`` (:class:`~odocal.settings.ChecksSettings`) and the first checks'
+in ``[gate]``.
 """
 
 from __future__ import annotations
@@ -39,30 +41,10 @@ from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.model.kinematics import body_rates, motion_increments
 from odocal.model.layout import REAR_AXLE as LAYOUT
-from odocal.settings import Settings
+from odocal.settings import ChecksSettings, Settings
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
-
-#: A reference step that moves this much further (m) than the wheels say is a jump.
-MAX_POSE_JUMP_M = 5.0
-#: On straights, a median gap this large (rad) between the reference heading and its course.
-MAX_HEADING_GAP_RAD = 0.5
-#: Below this correlation of the wheels' and the reference's speed the reference is out of step.
-MIN_SPEED_CORRELATION = 0.5
-#: ... where the speed varies by at least this much (m/s, standard deviation over seconds).
-MIN_SPEED_SPREAD_MPS = 0.5
-#: The lag search for a reference out of step reaches this far either way, s.
-MAX_SYNC_SEARCH_S = 600.0
-#: Share of the moving seconds in which one wheel reads nothing while the other turns.
-MAX_DEAD_WHEEL_SHARE = 0.2
-#: a_y's spread in bends below this share of speed times yaw rate's: no lateral acceleration.
-MIN_LATERAL_SPREAD = 0.1
-#: Drives whose wheels differ on straights by more than this share (of their mean) apart ...
-MAX_WHEEL_RATIO_GAP = 0.005
-#: ... each judged on at least this many seconds of gentle turning, are not one vehicle.
-MIN_STRAIGHT_SECONDS = 8
-
 
 @dataclass(frozen=True)
 class _Windows:
@@ -154,18 +136,18 @@ def check_drives(drives: Sequence[Drive], settings: Settings) -> Diagnosis:
                                 lim.min_distance_m))
         return Diagnosis(tuple(findings))
     moving = np.abs(win.ds) > lim.min_speed_mps * 1.0        # windows of one second
-    reference = _pose_jumps(drives)
+    reference = _pose_jumps(drives, settings.checks)
     if not reference:                                         # a jump would distort the rest
-        reference = [*_heading(win, moving), *_sync(win)]
+        reference = [*_heading(win, moving, settings.checks), *_sync(win, settings.checks)]
     findings += reference
     if any(f.severity is Severity.FATAL for f in reference):
         return Diagnosis(tuple(findings))                     # the rest would compare nonsense
     findings += _distance(win, moving, settings)
-    findings += _vehicles(drives, win, moving, theta)
+    findings += _vehicles(drives, win, moving, theta, settings.checks)
     if any(f.severity is Severity.FATAL for f in findings):
         return Diagnosis(tuple(findings))
     bends = moving & (np.abs(win.dpsi) > lim.bend_yaw_rate_radps)
-    if not np.any(np.abs(win.diff_revs) > 1e-12):
+    if not np.any(np.abs(win.diff_revs) > 1e-12):            # zero but for rounding: a copy
         findings.append(Finding(Check.WHEELS_IDENTICAL, Severity.FALLBACK, 0.0))
     elif bends.sum() >= lim.min_bend_windows:
         agree = _agreement(win.wheel_dpsi[bends], win.dpsi[bends])
@@ -174,8 +156,8 @@ def check_drives(drives: Sequence[Drive], settings: Settings) -> Diagnosis:
         elif agree < lim.min_yaw_correlation:
             findings.append(Finding(Check.NO_DIFFERENTIAL, Severity.FALLBACK, agree, 1.0))
         else:
-            lateral = _lateral(win, bends, lim.min_yaw_correlation)
-            findings += lateral or lateral_delay(drives)
+            lateral = _lateral(win, bends, settings.checks)
+            findings += lateral or lateral_delay(drives, settings)
             findings += _clock(drives, theta, settings)
     return Diagnosis(tuple(findings))
 
@@ -191,9 +173,10 @@ def _repaired(drives: Sequence[Drive]) -> list[Finding]:
     return out
 
 
-def _pose_jumps(drives: Sequence[Drive]) -> list[Finding]:
-    """Reference steps that move much further than the wheels turn: value the jump (m),
-    reference the time of the largest (s), name the drive."""
+def _pose_jumps(drives: Sequence[Drive], lim: ChecksSettings) -> list[Finding]:
+    """Reference steps that move much further than the wheels turn (``pose_jump_m``, beyond
+    ``pose_jump_m_per_rev`` of their revolutions): value the jump (m), reference the time of the
+    largest (s), name the drive."""
     out = []
     for d in drives:
         worst, when = 0.0, float("nan")
@@ -201,69 +184,74 @@ def _pose_jumps(drives: Sequence[Drive]) -> list[Finding]:
             if b - a < 2:
                 continue
             step = np.hypot(np.diff(d.x[a:b]), np.diff(d.y[a:b]))
-            wheels = 0.5 * np.abs(d.n_rl[a:b - 1] + d.n_rr[a:b - 1]) * d.t_s * 2.5  # generous
+            revs = 0.5 * np.abs(d.n_rl[a:b - 1] + d.n_rr[a:b - 1]) * d.t_s
+            wheels = revs * lim.pose_jump_m_per_rev
             excess = step - wheels
             k = int(np.argmax(excess))
             if excess[k] > worst:
                 worst, when = float(step[k]), float(d.t[a + k + 1])
-        if worst > MAX_POSE_JUMP_M:
+        if worst > lim.pose_jump_m:
             out.append(Finding(Check.POSE_JUMP, Severity.FATAL, worst, when, d.name))
     return out
 
 
-def _heading(win: _Windows, moving: BoolArray) -> list[Finding]:
+def _heading(win: _Windows, moving: BoolArray, lim: ChecksSettings) -> list[Finding]:
     """On straight seconds, the reference heading against the direction it moves in."""
-    straight = moving & (np.abs(win.dpsi) < 0.05) & (np.abs(win.ds) > 3.0)
-    if straight.sum() < 10:
+    straight = moving & (np.abs(win.dpsi) < lim.straight_turn_rad) \
+        & (np.abs(win.ds) > lim.straight_speed_mps)
+    if straight.sum() < lim.heading_min_seconds:
         return []
     gap = float(np.median(np.abs(win.course_gap[straight])))
-    if gap > MAX_HEADING_GAP_RAD:
+    if gap > lim.heading_max_gap_rad:
         return [Finding(Check.REFERENCE_HEADING, Severity.FATAL, gap, 0.0)]
     return []
 
 
-def _sync(win: _Windows) -> list[Finding]:
+def _sync(win: _Windows, lim: ChecksSettings) -> list[Finding]:
     """The reference's speed against the wheels' (second by second): a reference out of step
     with the wheels, by more than the clock check reaches, shows as no correlation at lag 0;
-    the lag that restores it is searched within :data:`MAX_SYNC_SEARCH_S` (value: the lag, s,
+    the lag that restores it is searched within ``sync_max_search_s`` (value: the lag, s,
     positive where the reference is late; nan where none does)."""
     wheels, ref = np.abs(win.wheel_ds), np.abs(win.ds)
-    if wheels.size < 30 or ref.std() < MIN_SPEED_SPREAD_MPS or wheels.std() < MIN_SPEED_SPREAD_MPS:
+    spread = lim.sync_min_speed_spread_mps
+    if wheels.size < lim.sync_min_seconds or ref.std() < spread or wheels.std() < spread:
         return []
     here = _correlation(wheels, ref)
-    if here >= MIN_SPEED_CORRELATION:
+    if here >= lim.sync_min_correlation:
         return []
     best, lag = here, float("nan")
-    reach = min(int(MAX_SYNC_SEARCH_S), wheels.size // 2)
+    reach = min(int(lim.sync_max_search_s), wheels.size // 2)
     for k in range(-reach, reach + 1):
         if k == 0:
             continue
         a, b = (wheels[:wheels.size - k], ref[k:]) if k > 0 else (wheels[-k:], ref[:k])
         same = win.series[:win.series.size - abs(k)] == win.series[abs(k):]
-        if same.sum() < 30:
+        if same.sum() < lim.sync_min_seconds:
             continue
         c = _correlation(a[same], b[same])
         if c > best:
             best, lag = c, float(k)
-    if best < 0.8:
+    if best < lim.sync_lag_min_correlation:
         lag = float("nan")
     return [Finding(Check.REFERENCE_SYNC, Severity.FATAL, lag, here)]
 
 
 def _distance(win: _Windows, moving: BoolArray, settings: Settings) -> list[Finding]:
     """The wheels' distance against the reference's: scale and units, and a dead wheel."""
-    lim = settings.gate
+    lim, check = settings.gate, settings.checks
     out = []
     for name, mine, other in (("n_rl", win.left_revs, win.right_revs),
                               ("n_rr", win.right_revs, win.left_revs)):
-        turning = moving & (np.abs(other) > 0.1)
-        dead = turning & (np.abs(mine) < 0.01 * np.abs(other))
-        if turning.sum() >= 5 and dead.sum() > MAX_DEAD_WHEEL_SHARE * turning.sum():
+        turning = moving & (np.abs(other) > check.dead_wheel_turning_revs)
+        dead = turning & (np.abs(mine) < check.dead_wheel_reading * np.abs(other))
+        if turning.sum() >= check.dead_wheel_min_seconds \
+                and dead.sum() > check.dead_wheel_share * turning.sum():
             out.append(Finding(Check.WHEEL_DEAD, Severity.FATAL, dead.sum() / turning.sum(),
-                               MAX_DEAD_WHEEL_SHARE, name))
+                               check.dead_wheel_share, name))
     if out:
         return out
-    ratio = (float(np.median(win.wheel_ds[moving] / win.ds[moving])) if moving.sum() >= 5
+    ratio = (float(np.median(win.wheel_ds[moving] / win.ds[moving]))
+             if moving.sum() >= check.scale_min_seconds
              else float(np.abs(win.wheel_ds).sum() / max(np.abs(win.ds).sum(), 1e-9)))
     if not lim.min_scale <= ratio <= lim.max_scale:
         return [Finding(Check.SPEED_SCALE, Severity.FATAL, ratio, 1.0)]
@@ -280,21 +268,21 @@ def _wheel_ratio(win: _Windows, mask: BoolArray, theta: FloatArray) -> tuple[flo
     track, scale = LAYOUT.value(theta, LAYOUT.track), LAYOUT.value(theta, LAYOUT.scale)
     ratio = (left - right + track * turn / scale) / (0.5 * (left + right))
     median = float(np.median(ratio))
-    spread = 1.4826 * float(np.median(np.abs(ratio - median)))
-    return median, 1.2533 * spread / np.sqrt(ratio.size)
+    spread = 1.4826 * float(np.median(np.abs(ratio - median)))      # a normal's sigma
+    return median, 1.2533 * spread / np.sqrt(ratio.size)         # sqrt(pi/2): a median's
 
 
 def _vehicles(drives: Sequence[Drive], win: _Windows, moving: BoolArray,
-              theta: FloatArray) -> list[Finding]:
+              theta: FloatArray, lim: ChecksSettings) -> list[Finding]:
     """Drives that disagree on the vehicle: their wheels differ by other amounts where the
     turning does not explain it (two cars, or wheels swapped or re-tyred between the logs). One
     calibration would average them; value the difference, name the two drives."""
-    usable = moving & (np.abs(win.dpsi) < 0.1) & (np.minimum(win.left_revs,
-                                                             win.right_revs) > 0.5)
+    usable = moving & (np.abs(win.dpsi) < lim.vehicles_max_turn_rad) \
+        & (np.minimum(win.left_revs, win.right_revs) > lim.vehicles_min_wheel_revs)
     ratios = {}
     for k in range(len(drives)):
         mine = usable & (win.drive == k)
-        if mine.sum() >= MIN_STRAIGHT_SECONDS:
+        if mine.sum() >= lim.vehicles_min_seconds:
             ratios[k] = _wheel_ratio(win, mine, theta)
     worst: tuple[float, int, int] | None = None
     for i in ratios:
@@ -303,16 +291,17 @@ def _vehicles(drives: Sequence[Drive], win: _Windows, moving: BoolArray,
                 continue
             gap = abs(ratios[i][0] - ratios[j][0])
             noise = float(np.hypot(ratios[i][1], ratios[j][1]))
-            if gap > max(MAX_WHEEL_RATIO_GAP, 5.0 * noise) and (worst is None or gap > worst[0]):
+            enough = max(lim.vehicles_max_ratio_gap, lim.vehicles_sigmas * noise)
+            if gap > enough and (worst is None or gap > worst[0]):
                 worst = (gap, i, j)
     if worst is None:
         return []
     gap, i, j = worst
-    return [Finding(Check.VEHICLES_DIFFER, Severity.FATAL, gap, MAX_WHEEL_RATIO_GAP,
+    return [Finding(Check.VEHICLES_DIFFER, Severity.FATAL, gap, lim.vehicles_max_ratio_gap,
                     f"{drives[i].name}|{drives[j].name}")]
 
 
-def _lateral(win: _Windows, bends: BoolArray, min_correlation: float) -> list[Finding]:
+def _lateral(win: _Windows, bends: BoolArray, lim: ChecksSettings) -> list[Finding]:
     """a_y against speed times yaw rate, in bends: present, sign and unit.
 
     Missing: a_y's size about zero is a small share of speed times yaw rate's, or a_y does not
@@ -322,27 +311,26 @@ def _lateral(win: _Windows, bends: BoolArray, min_correlation: float) -> list[Fi
     ay, vw = win.a_y[bends], win.v_w[bends]
     size = float(np.sqrt(np.mean(ay**2) / max(float(np.mean(vw**2)), 1e-12)))
     spread = float(np.std(ay) / max(float(np.std(vw)), 1e-12))
-    if size < MIN_LATERAL_SPREAD or (np.std(vw) > 0.3 and spread < MIN_LATERAL_SPREAD):
-        return [Finding(Check.LATERAL_MISSING, Severity.FALLBACK, min(size, spread),
-                        MIN_LATERAL_SPREAD, "a_y")]
+    least = lim.lateral_min_share
+    if size < least or (np.std(vw) > lim.lateral_min_vw_spread_mps2 and spread < least):
+        return [Finding(Check.LATERAL_MISSING, Severity.FALLBACK, min(size, spread), least,
+                        "a_y")]
     agree = _agreement(ay, vw)
     slope = float(ay @ vw / max(float(vw @ vw), 1e-12))
-    if agree < -min_correlation:
+    if agree < -lim.lateral_min_correlation:
         return [Finding(Check.LATERAL_SIGN, Severity.FATAL, slope, 1.0, "a_y")]
-    if agree > min_correlation and not 0.5 <= slope <= 2.0:
+    if agree > lim.lateral_min_correlation \
+            and not lim.lateral_min_slope <= slope <= lim.lateral_max_slope:
         return [Finding(Check.LATERAL_SCALE, Severity.FATAL, slope, 1.0, "a_y")]
     return []
 
 
-def _pieces_of(drives: Sequence[Drive], seconds: float) -> list[tuple[Drive, int, int]]:
-    return [(d, a, b) for d in drives for a, b in d.pieces if b - a >= round(seconds / d.t_s)]
-
-
 def _clock(drives: Sequence[Drive], theta: FloatArray, settings: Settings) -> list[Finding]:
-    """Lag of the wheels' yaw rate behind the reference's, by cross-correlation (up to 2 s)
-    summed over every piece of at least 20 s; a positive lag means the wheel stream is late."""
+    """Lag of the wheels' yaw rate behind the reference's, by cross-correlation (up to
+    ``wheel_lag_search_s``) summed over every piece of at least ``lag_min_piece_s``; a positive
+    lag means the wheel stream is late."""
     lim = settings.gate
-    lag = wheel_lag_s(drives, theta)
+    lag = wheel_lag_s(drives, theta, settings)
     if lag is None:
         return []
     t_s = drives[0].t_s

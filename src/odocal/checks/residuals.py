@@ -8,13 +8,16 @@ its residuals, whatever the noise:
   or in the yaw channel per revolution (one wheel's circumference: ``c_d``) steps at one time.
   The clusters' means (independent pieces of evidence, in time order) are tested with the
   CUSUM statistic, ``max_k |S_k| / (s sqrt(n))``, whose null distribution is that of a Brownian
-  bridge's largest excursion (Kolmogorov's): beyond :data:`CHANGE_STATISTIC` (a 0.1% false
-  alarm rate) *and* by at least :data:`MIN_CHANGE` of the level, the log holds a change; the
+  bridge's largest excursion (Kolmogorov's): beyond ``change_statistic`` (1.95: a 0.1% false
+  alarm rate) *and* by at least ``change_min`` of the level, the log holds a change; the
   spread ``s`` is taken from neighbouring clusters' differences, which a step does not inflate.
 * **front wheels**: a front wheel runs on a wider circle than the rear axle beside it, by the
   wheelbase times the curvature across the direction of travel: its revolutions exceed a rear
   wheel's by about ``(L kappa)^2 / 2`` of them. Regressed on the windows' curvature squared, the
   distance channel's relative residual gives ``L^2 / 2``; a rear axle's wheels give about none.
+
+The thresholds, with their reasons, are settings (``[checks]``:
+:class:`~odocal.settings.ChecksSettings`).
 """
 
 from __future__ import annotations
@@ -26,26 +29,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.checks.findings import Check, Finding, Severity
+from odocal.settings import ChecksSettings, Settings
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
-
-#: The CUSUM statistic beyond which a log holds a change (Kolmogorov's distribution exceeds 1.95
-#: with probability 0.001).
-CHANGE_STATISTIC = 1.95
-#: ... and the least change that is named: of c_e's level (a relative change), or of the wheels'
-#: difference per revolution (c_d over c_e).
-MIN_CHANGE = 0.005
-#: Clusters turning the wheels less than this share of the median cluster are left out.
-MIN_CLUSTER_SHARE = 0.25
-#: Fewer clusters than this on either side of a change: not tested there.
-MIN_SIDE_CLUSTERS = 4
-#: The windows' curvature (1/m) from which they count for the front-wheel test ...
-FRONT_MIN_CURVATURE = 0.02
-#: ... and the distance ahead of the rear axle (m; a car's wheelbase is over 2 m) and the
-#: standard errors beyond which the wheels are named as front wheels.
-FRONT_MIN_DISTANCE_M, FRONT_SIGMAS = 1.6, 5.0
-
 
 @dataclass(frozen=True)
 class Change:
@@ -94,19 +81,22 @@ def _long_run_std(values: FloatArray) -> float:
     return math.sqrt(max(variance, 0.0))
 
 
-def cusum(means: FloatArray) -> tuple[int, float]:
-    """The split (first index after it) with the largest CUSUM excursion of ``means`` and the
-    statistic ``max |S_k| / (s sqrt(n))`` there (0 for fewer than ten values or no spread).
-    s is the larger of the spread neighbours' differences give (which a step does not inflate)
-    and the long-run spread about the two levels on either side of the split."""
+def cusum(means: FloatArray,
+          min_side: int = ChecksSettings.change_min_side_clusters) -> tuple[int, float]:
+    """The split (first index after it) with the largest CUSUM excursion of ``means``, at least
+    ``min_side`` values from either end, and the statistic ``max |S_k| / (s sqrt(n))`` there (0
+    for fewer than ``2 min_side + 2`` values or no spread). s is the larger of the spread
+    neighbours' differences give (which a step does not inflate) and the long-run spread about
+    the two levels on either side of the split."""
     n = means.size
-    if n < 2 * MIN_SIDE_CLUSTERS + 2:
+    if n < 2 * min_side + 2:
         return 0, 0.0
     diffs = np.diff(means)
+    # a normal's sigma from the MAD; a difference of two values spreads sqrt(2) times wider
     spread = 1.4826 * float(np.median(np.abs(diffs - np.median(diffs)))) / math.sqrt(2.0)
     s = np.cumsum(means - means.mean())[:-1]
     ks = np.arange(1, n)
-    allowed = (ks >= MIN_SIDE_CLUSTERS) & (ks <= n - MIN_SIDE_CLUSTERS)
+    allowed = (ks >= min_side) & (ks <= n - min_side)
     excursion = np.where(allowed, np.abs(s), 0.0)
     k = int(np.argmax(excursion))
     levels = np.where(np.arange(n) <= k, means[:k + 1].mean(), means[k + 1:].mean())
@@ -116,26 +106,28 @@ def cusum(means: FloatArray) -> tuple[int, float]:
     return k + 1, float(excursion[k] / (spread * math.sqrt(n)))
 
 
-def find_change(measured: FloatArray, residual: FloatArray, cluster: IntArray) -> Change | None:
+def find_change(measured: FloatArray, residual: FloatArray, cluster: IntArray,
+                settings: Settings) -> Change | None:
     """The strongest change inside the windows' residuals, where it is one (see the module
     docstring). ``measured``, ``residual`` (W, 2) are per channel (distance, yaw), in
     revolutions; windows in time order."""
+    lim = settings.checks
     revs = np.abs(measured[:, 0])
-    moving = revs > 0.5                         # a window that turns the wheels half a turn
-    if moving.sum() < 20:
+    moving = revs > lim.window_min_revs
+    if moving.sum() < lim.change_min_windows:
         return None
     best: Change | None = None
     for channel, column in (("c_e", 0), ("c_d", 1)):
         ratio = np.where(moving, residual[:, column] / np.maximum(revs, 1e-9), 0.0)
         means, weight, first = _cluster_means(ratio, np.where(moving, revs, 0.0), cluster)
         # clusters that turn the wheels little (a stop, a crawl) say little of a level
-        keep = weight > MIN_CLUSTER_SHARE * float(np.median(weight[weight > 0]))
+        keep = weight > lim.change_min_cluster_share * float(np.median(weight[weight > 0]))
         means, first = means[keep], first[keep]
-        split, statistic = cusum(means)
-        if statistic < CHANGE_STATISTIC:
+        split, statistic = cusum(means, lim.change_min_side_clusters)
+        if statistic < lim.change_statistic:
             continue
         size = float(means[split:].mean() - means[:split].mean())
-        if abs(size) < MIN_CHANGE:
+        if abs(size) < lim.change_min:
             continue
         if best is None or statistic > best.statistic:
             best = Change(channel=channel, index=int(first[split]), size=size,
@@ -151,28 +143,30 @@ def change_finding(change: Change, when_s: float, where: str) -> Finding:
 
 
 def front_wheels(measured: FloatArray, residual: FloatArray, along_m: FloatArray,
-                 turn_rad: FloatArray) -> Finding | None:
+                 turn_rad: FloatArray, settings: Settings) -> Finding | None:
     """The wheels as front wheels, where their distance channel grows with the curvature
     squared (see the module docstring): value the distance ahead of the rear axle (m),
     reference its standard error."""
+    lim = settings.checks
     revs = np.abs(measured[:, 0])
     with np.errstate(divide="ignore", invalid="ignore"):
-        curvature = np.where(np.abs(along_m) > 1.0, turn_rad / along_m, 0.0)
-    use = (revs > 0.5) & np.isfinite(curvature)
-    if use.sum() < 30 or (np.abs(curvature[use]) > FRONT_MIN_CURVATURE).sum() < 10:
+        curvature = np.where(np.abs(along_m) > lim.front_min_window_m, turn_rad / along_m, 0.0)
+    use = (revs > lim.window_min_revs) & np.isfinite(curvature)
+    curved = np.abs(curvature[use]) > lim.front_min_curvature_1pm
+    if use.sum() < lim.front_min_windows or curved.sum() < lim.front_min_curved_windows:
         return None
     x = curvature[use] ** 2
     y = residual[use, 0] / revs[use]
     design = np.column_stack([np.ones_like(x), x])
     coef, *_ = np.linalg.lstsq(design, y, rcond=None)
     rest = y - design @ coef
-    spread = 1.4826 * float(np.median(np.abs(rest - np.median(rest))))
+    spread = 1.4826 * float(np.median(np.abs(rest - np.median(rest))))     # a normal's sigma
     cov = np.linalg.pinv(design.T @ design) * spread ** 2
     slope, slope_std = float(coef[1]), float(math.sqrt(max(cov[1, 1], 0.0)))
-    if slope <= 0 or slope < FRONT_SIGMAS * slope_std:
+    if slope <= 0 or slope < lim.front_sigmas * slope_std:
         return None
     distance = math.sqrt(2.0 * slope)
-    if distance < FRONT_MIN_DISTANCE_M:
+    if distance < lim.front_min_distance_m:
         return None
     return Finding(Check.FRONT_WHEELS, Severity.FATAL, distance,
                    slope_std / max(2.0 * distance, 1e-9))

@@ -300,8 +300,8 @@ def _columns(columns: Mapping[str, Any], name: str) -> dict[str, FloatArray]:
             continue
         try:
             arr = _as_float_array(columns[key])
-        except (TypeError, ValueError):
-            raise DataError(f"'{name}' column {key} is not numeric") from None
+        except (TypeError, ValueError) as err:
+            raise DataError(f"'{name}' column {key} is not numeric") from err
         if arr.ndim != 1:
             raise DataError(f"'{name}' column {key} must be one-dimensional")
         arrays[key] = arr

@@ -176,7 +176,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
     if progress:
         progress("inverse: fit", 1, 2)
     prior = core.Folded.prior(_origin(settings),
-                              core.offset_prior_std(settings, wheel_step(drives)))
+                              core.offset_prior_std(settings, wheel_step(drives, settings)))
     found = core.fit(windows, prior, settings,
                      heading_offset=offset, held=held, distance_only=distance_only)
     findings, found, windows = _residual_checks(found, windows, drives, prior, settings,
@@ -203,10 +203,10 @@ def _residual_checks(found: core.CoreFit, windows: WindowSet, drives: Sequence[D
     zero = windows.margin
     if not distance_only:
         front = front_wheels(measured, residual, windows.moments[:, zero, 0],
-                             windows.moments[:, zero, SERIES])
+                             windows.moments[:, zero, SERIES], settings)
         if front is not None:
             return [front], found, windows
-    change = find_change(measured, residual, windows.cluster)
+    change = find_change(measured, residual, windows.cluster, settings)
     if change is None:
         return [], found, windows
     after = windows.take(np.arange(windows.size) >= change.index)
@@ -228,7 +228,8 @@ def _reach(drives: Sequence[Drive], settings: Settings) -> float:
     cfg = settings.inverse
     if cfg.delay != "estimate":
         return cfg.lag_scan_s
-    coarse = wheel_lag_s(drives, np.asarray(settings.identify.theta0, dtype=np.float64))
+    coarse = wheel_lag_s(drives, np.asarray(settings.identify.theta0, dtype=np.float64),
+                         settings)
     if coarse is None or abs(coarse) <= 0.5 * cfg.lag_scan_s:
         return cfg.lag_scan_s
     return min(abs(coarse) + 0.5 * cfg.lag_scan_s, cfg.max_delay_s)

@@ -74,9 +74,9 @@ def parse_time(text: str, *, where: str) -> dt.datetime:
         value = f"{m[1]}T{m[2]}:{m[3]}:{m[4] or '00'}"
     try:
         stamp = dt.datetime.fromisoformat(value)
-    except ValueError:
+    except ValueError as err:
         raise DataError(f"{where}: time {text!r} is not an ISO 8601 date or time "
-                        "(e.g. 2026-03-02 or 2026-03-02T08:15:00)") from None
+                        "(e.g. 2026-03-02 or 2026-03-02T08:15:00)") from err
     return stamp.astimezone(dt.UTC) if stamp.tzinfo else stamp.replace(tzinfo=dt.UTC)
 
 
@@ -147,8 +147,8 @@ def _read_table(path: Location, label: object,
         odometer = (row["odometer_km"] or "").strip()
         try:
             km = float(odometer) if odometer else None
-        except ValueError:
-            raise DataError(f"{where}: odometer_km {odometer!r} is not a number") from None
+        except ValueError as err:
+            raise DataError(f"{where}: odometer_km {odometer!r} is not a number") from err
         if km is not None and not (km >= 0 and km < 1e8):
             raise DataError(f"{where}: odometer_km {odometer!r} is not a plausible reading")
         event = (row["event"] or "").strip() or None

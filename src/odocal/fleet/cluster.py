@@ -168,6 +168,9 @@ def local_client(n: int) -> Iterator[Any]:
                                        silence_logs=logging.CRITICAL, env=threads)
             except Exception:
                 if flag.exists():
+                    # the cause is Dask's and multiprocessing's own confusion about a script
+                    # importing itself again: a script's user reads the message, not that chain
+                    # (the spawned process prints its own traceback already)
                     raise ConfigError(GUARD_MESSAGE) from None
                 raise
             if flag.exists():

@@ -116,7 +116,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, *,
                    if isinstance(exc, MemoryError)
                    else str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
             raise ConfigError(f"cannot reach the Dask scheduler at {shown(scheduler)}: {why}"
-                              ) from None
+                              ) from exc
         try:
             yield client
         finally:
@@ -375,7 +375,7 @@ def _claim(out: Path) -> None:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"cannot create the output folder '{shown(out)}': "
-                          f"{exc.strerror or exc}") from None
+                          f"{exc.strerror or exc}") from exc
     if not (out / FLEET_MARKER).exists():
         write_text(out / FLEET_MARKER, "written by odocal fleet calibrate; updated in place\n")
 
@@ -413,6 +413,7 @@ def _run(client: Any, tasks: Sequence[DriveTask] | Sequence[PooledTask],
         try:
             row = future.result()
         except Exception as exc:                 # the worker died or the task could not run
+            log.debug("a fleet task was lost", exc_info=True)
             row = _lost(task, exc)
         if isinstance(task, DriveTask):
             row["_row"] = task.entry.row

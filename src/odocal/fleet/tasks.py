@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import logging
 import traceback
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -32,6 +33,8 @@ from odocal._version import __version__
 from odocal.fleet.catalog import CatalogEntry
 from odocal.model.parameters import PARAMETER_NAMES
 from odocal.settings import Settings, settings_from_dict
+
+log = logging.getLogger(__name__)
 
 
 def settings_hash(settings: Settings) -> str:
@@ -250,6 +253,7 @@ def run_drive_task(task: DriveTask) -> dict[str, Any]:
         drives, (content,) = _read([e], settings, [task.pin],
                                    [task.input_hashes.get("source")])
     except Exception as exc:                       # named by its row, nothing stored
+        log.debug("drive %s cannot be read", row.get("_row"), exc_info=True)
         return {**row, "unreadable": _reason(exc)}
     row["bytes_read"] = bytes_read() - before      # from a store (0 for a local file)
     if content is not None and not task.key:
@@ -273,6 +277,7 @@ def run_drive_task(task: DriveTask) -> dict[str, Any]:
             except OSError as exc:                 # the outputs' disk said no: the run stops
                 return {**row, "unwritable": _reason(exc)}
     except Exception as exc:                       # one drive's failure never stops the fleet
+        log.debug("drive %s could not be calibrated", row.get("_row"), exc_info=True)
         row.update(status="error", success=False, message="the drive could not be calibrated",
                    error=_one_line(exc))
         if not isinstance(exc, _expected_errors()):

@@ -47,7 +47,7 @@ def _arrow_table(p: Path, *, text: bool) -> pa.Table:
             column_types={n: pa.string() for n in names}, strings_can_be_null=True))
     except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, UnicodeDecodeError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise DataError(f"'{p}' cannot be read as {fmt.upper()}: {first}") from None
+        raise DataError(f"'{p}' cannot be read as {fmt.upper()}: {first}") from exc
 
 
 class Columns(dict[str, np.ndarray]):
@@ -73,8 +73,8 @@ def read_table(path: str | Path) -> Columns:
     table = _arrow_table(p, text=False)
     try:
         names = table.column_names
-    except UnicodeDecodeError:
-        raise DataError(f"'{p}' has column names that are not UTF-8 text") from None
+    except UnicodeDecodeError as err:
+        raise DataError(f"'{p}' has column names that are not UTF-8 text") from err
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise DataError(f"'{p}' names the column {_printable(twice[0])} more than once")
@@ -93,17 +93,17 @@ def read_table(path: str | Path) -> Columns:
                 or pa.types.is_null(col.type)
             columns[name] = np.asarray(col.to_numpy(zero_copy_only=False),
                                        dtype=np.float64 if numeric else object)
-        except (UnicodeDecodeError, pa.ArrowInvalid):
+        except (UnicodeDecodeError, pa.ArrowInvalid) as err:
             raise DataError(f"'{p}' column {_printable(name)} holds values that are neither "
-                            "numbers nor text") from None
+                            "numbers nor text") from err
     for name, values in columns.items():
         if values.dtype == object:
             try:
                 columns[name] = np.array([np.nan if v is None else float(v) for v in values])
-            except (TypeError, ValueError):
+            except (TypeError, ValueError) as err:
                 bad = next(v for v in values if not _is_number(v))
                 raise DataError(f"'{p}' column {_printable(name)} holds a non-numeric value "
-                                f"'{_printable(str(bad))}'") from None
+                                f"'{_printable(str(bad))}'") from err
     return columns
 
 
@@ -140,8 +140,8 @@ def read_text_table(path: str | Path) -> dict[str, list[str | None]]:
             raise DataError(f"'{p}' names a column twice")
         return {name: [None if v is None else str(v) for v in table.column(name).to_pylist()]
                 for name in table.column_names}
-    except UnicodeDecodeError:
-        raise DataError(f"'{p}' holds text that is not UTF-8") from None
+    except UnicodeDecodeError as err:
+        raise DataError(f"'{p}' holds text that is not UTF-8") from err
 
 
 def _printable(text: str, limit: int = 40) -> str:

@@ -261,7 +261,7 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
             departures = measure_departures(drive_list, settings,
                                             lateral=not diagnosis.lateral_missing)
             drive_list = corrected(drive_list, departures)
-            diagnosis = diagnosis.plus(departure_findings(departures))
+            diagnosis = diagnosis.plus(departure_findings(departures, settings))
     with clock.stage("segments"):
         prep = prepare(drive_list, settings)
         prep = dataclasses.replace(prep, held={**prep.held, **held_by_checks(diagnosis)})
