@@ -154,11 +154,12 @@ def _identify_batches(args: tuple[SegmentBatch, IntArray, IdentifySettings,
 
 def step1(batch: SegmentBatch, validation: RaggedSegments | None, settings: Settings, *,
           held: Mapping[str, NotIdentified] | None = None,
-          progress: Callable[[int, int], None] | None = None) -> Step1Result:
+          progress: Callable[[int, int], None] | None = None,
+          workers: int = 1) -> Step1Result:
     """Identify independent batches on measured rates, validate, sort and pick.
 
-    The batches run one after another in this process: each is small, and the compiled model
-    kernel already spreads a batch's segments over the cores.
+    The batches are spread over ``workers`` processes (each is identified alone: the result
+    does not depend on their number).
     """
     cal = settings.calibrate
     batches = draw_batches(len(batch), cal.step1_batches, cal.step1_batch_size, cal.seed)
@@ -169,7 +170,7 @@ def step1(batch: SegmentBatch, validation: RaggedSegments | None, settings: Sett
     per_task = max(1, -(-batches.shape[0] // 10))
     tasks = [(batch.take(np.unique(batches[lo:lo + per_task])), _reindex(batches[lo:lo + per_task]),
               identify, dict(held or {})) for lo in range(0, batches.shape[0], per_task)]
-    chunks = map_chunks(_identify_batches, tasks, workers=1,
+    chunks = map_chunks(_identify_batches, tasks, workers=workers,
                         weights=[t[1].shape[0] for t in tasks], progress=progress)
     results = tuple(r for chunk in chunks for r in chunk)
     thetas = np.array([r.theta.as_array() for r in results])
@@ -209,7 +210,7 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
 
     started = time.perf_counter()
     s1 = step1(batch, validation, settings, held=held,
-               progress=stage("step 1: batches"))
+               progress=stage("step 1: batches"), workers=workers)
     timings["step1"] = time.perf_counter() - started
     if not s1.success.any():
         warnings.append("no step-1 batch could be identified; compensating with the datasheet "
@@ -236,23 +237,63 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
     start = sets.mean(axis=0) if s1.success.any() else None
     compensated = batch.with_wheel_rates(comp.n_rl, comp.n_rr)
     held = dict(held or {})
-    for _ in range(len(PARAMETER_NAMES)):
-        final = gauss_newton(compensated, settings=settings.identify, start=start,
-                             clusters=clusters, held=held, method="compensated")
-        final = _with_inheritance(final, s1.thetas[s1.success], sets.shape[0])
-        too_weak = weak(final.std, final.free, settings.identify)
-        if not too_weak.any():
-            break
-        # the inherited spread pushed a parameter over the limit: hold it and identify again
-        held.update(held_as_weak(final.std, too_weak, settings.identify))
-    raw = gauss_newton(batch, settings=settings.identify, start=start, clusters=clusters,
-                       held=held)
+    task = _Step3(settings=settings, start=start, clusters=clusters, held=held,
+                  step1_thetas=s1.thetas[s1.success], sets=sets.shape[0])
+    # the calibration and the comparison on the measured rates, side by side (forked workers
+    # read the segments from _SHARED instead of receiving them); the comparison holds what
+    # the calibration holds, so where the calibration held more it is fitted again
+    _SHARED.update(compensated=compensated, measured=batch)
+    try:
+        (final, held_final), raw = map_chunks(_step3, [("final", task), ("raw", task)],
+                                              workers=workers)
+    finally:
+        _SHARED.clear()
+    if held_final != held:
+        raw = gauss_newton(batch, settings=settings.identify, start=start, clusters=clusters,
+                           held=held_final)
     if progress:
         progress("step 3: identification", 1, 1)
     timings["step3"] = time.perf_counter() - started
     return ThreeStepOutcome(step1=s1, compensation=comp, final=final, raw=raw,
                             warnings=tuple(warnings), timings_s=timings,
                             mean_relative_change=relative_change(batch, comp))
+
+
+#: What the workers of step 3 read (set only while they run): the compensated and the measured
+#: segments, shared by the fork rather than sent to each worker.
+_SHARED: dict[str, SegmentBatch] = {}
+
+
+@dataclass(frozen=True)
+class _Step3:
+    """What both fits of step 3 start from."""
+
+    settings: Settings
+    start: FloatArray | None
+    clusters: IntArray | None
+    held: dict[str, NotIdentified]
+    step1_thetas: FloatArray
+    sets: int
+
+
+def _step3(job: tuple[str, _Step3]) -> Any:
+    """Step 3's calibration (with the held parameters it ends with) or its comparison fit."""
+    which, t = job
+    if which == "raw":
+        return gauss_newton(_SHARED["measured"], settings=t.settings.identify, start=t.start,
+                            clusters=t.clusters, held=t.held)
+    held = dict(t.held)
+    for _ in range(len(PARAMETER_NAMES)):
+        final = gauss_newton(_SHARED["compensated"], settings=t.settings.identify,
+                             start=t.start, clusters=t.clusters, held=held,
+                             method="compensated")
+        final = _with_inheritance(final, t.step1_thetas, t.sets)
+        too_weak = weak(final.std, final.free, t.settings.identify)
+        if not too_weak.any():
+            break
+        # the inherited spread pushed a parameter over the limit: hold it and identify again
+        held.update(held_as_weak(final.std, too_weak, t.settings.identify))
+    return final, held
 
 
 def _with_inheritance(final: Estimate, step1_thetas: FloatArray, sets: int) -> Estimate:

@@ -190,3 +190,28 @@ def step_jacobians(theta: FloatArray | Parameters, u: Inputs, poses: FloatArray,
     b = d[:, :, :WHEELS].transpose(0, 3, 1, 2)
     return StepJacobians(A=a.reshape(*lead, k, STATES, STATES),
                          B=np.ascontiguousarray(b).reshape(*lead, k, STATES, WHEELS))
+
+
+def linearised_rollout(theta: FloatArray | Parameters, u: Inputs, x0: FloatArray,
+                       t_s: float) -> tuple[FloatArray, StepJacobians]:
+    """:func:`odocal.model.kinematics.rollout` from ``x0`` and :func:`step_jacobians` around
+    it, the steps' increments computed once for both (the compensation QP's linearisation)."""
+    lead, (n_rl, n_rr, beta, a_y) = _as_batch(u)
+    n, k = n_rl.shape
+    th = _theta(theta)
+    start = _flat(x0, (*lead, STATES)).reshape(n, STATES)
+    psi = _headings(th, n_rl, n_rr, a_y, start[:, 2], t_s)
+    dx, dy, dpsi, d = _linearised(th, n_rl, n_rr, beta, a_y, psi, float(t_s))
+    poses = np.empty((n, k + 1, STATES))
+    poses[:, 0] = start
+    poses[:, 1:, 0] = start[:, :1] + np.cumsum(dx, axis=1)
+    poses[:, 1:, 1] = start[:, 1:2] + np.cumsum(dy, axis=1)
+    poses[:, 1:, 2] = psi + dpsi
+    a = np.zeros((n, k, STATES, STATES))
+    a[..., 0, 0] = a[..., 1, 1] = a[..., 2, 2] = 1.0
+    a[..., 0, 2] = -dy
+    a[..., 1, 2] = dx
+    b = np.ascontiguousarray(d[:, :, :WHEELS].transpose(0, 3, 1, 2))
+    return (poses.reshape(*lead, k + 1, STATES),
+            StepJacobians(A=a.reshape(*lead, k, STATES, STATES),
+                          B=b.reshape(*lead, k, STATES, WHEELS)))

@@ -22,8 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.model.jacobians import step_jacobians
-from odocal.model.kinematics import rollout
+from odocal.model.jacobians import linearised_rollout
 from odocal.model.parameters import Inputs
 from odocal.settings import CompensateSettings
 
@@ -108,8 +107,7 @@ def build_problem(theta: FloatArray, inputs: Inputs, reference: FloatArray, t_s:
     measured = np.column_stack([inputs.n_rl, inputs.n_rr])
     nominal = measured if nominal_rates is None else nominal_rates
     u_nom = inputs.with_wheel_rates(nominal[:, 0], nominal[:, 1])
-    poses = rollout(theta, u_nom, reference[0], t_s)
-    jac = step_jacobians(theta, u_nom, poses, t_s)
+    poses, jac = linearised_rollout(theta, u_nom, reference[0], t_s)
     k = measured.shape[0]
     state_bound = np.asarray(settings.state_bounds)
     lo_rate = np.minimum((1 - settings.rate_bound) * measured, (1 + settings.rate_bound) * measured)
@@ -165,8 +163,7 @@ def build_problems(theta: FloatArray, inputs: Inputs, reference: FloatArray, t_s
     measured = np.stack([inputs.n_rl, inputs.n_rr], axis=-1)
     nominal = measured if nominal_rates is None else nominal_rates
     u_nom = inputs.with_wheel_rates(nominal[..., 0], nominal[..., 1])
-    poses = rollout(theta, u_nom, reference[:, 0], t_s)
-    jac = step_jacobians(theta, u_nom, poses, t_s)
+    poses, jac = linearised_rollout(theta, u_nom, reference[:, 0], t_s)
     n, k = inputs.n_rl.shape
     state_bound = np.asarray(settings.state_bounds)
     b = settings.rate_bound
