@@ -348,5 +348,6 @@ def solve_riccati_batch(pb: ProblemBatch, *, max_iterations: int = 50,
     margin = 1e-9 * (1.0 + np.abs(pb.lower[..., 2:]) + np.abs(pb.upper[..., 2:]))
     states_ok = ((states >= pb.lower[..., 2:] - margin)
                  & (states <= pb.upper[..., 2:] + margin)).all(axis=(1, 2))
-    return RiccatiBatch(dn=dn, dx=states, converged=status == 0, states_feasible=states_ok,
+    return RiccatiBatch(dn=dn, dx=states, converged=status == 0,
+                        states_feasible=np.asarray(states_ok, dtype=bool),
                         iterations=iterations, active_lower=act_lo, active_upper=act_hi)
