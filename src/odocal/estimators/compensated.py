@@ -114,13 +114,21 @@ class ThreeStepOutcome:
 
 
 def relative_change(measured: SegmentBatch, comp: BatchCompensation) -> float:
-    """Mean absolute relative change of the rates by compensation, where the wheels turn."""
-    n_meas = np.stack([measured.inputs.n_rl, measured.inputs.n_rr])
-    n_comp = np.stack([comp.n_rl, comp.n_rr])
-    moving = np.abs(n_meas) > 0.5
-    if not moving.any():
-        return 0.0
-    return float(np.mean(np.abs(n_comp[moving] - n_meas[moving]) / np.abs(n_meas[moving])))
+    """Mean absolute relative change of the rates by compensation, where the wheels turn
+    (summed a block of segments at a time: no copy of every segment's rates)."""
+    total, count = 0.0, 0
+    n = len(measured)
+    block = max(1, (1 << 16) // max(measured.steps, 1))
+    for lo in range(0, n, block):
+        part = slice(lo, lo + block)
+        for meas, new in ((measured.inputs.n_rl[part], comp.n_rl[part]),
+                          (measured.inputs.n_rr[part], comp.n_rr[part])):
+            moving = np.abs(meas) > 0.5
+            change = np.abs(new - meas)
+            np.divide(change, np.abs(meas), out=change, where=moving)
+            total += float(change.sum(where=moving))
+            count += int(moving.sum())
+    return total / count if count else 0.0
 
 
 def draw_batches(n_segments: int, n_batches: int, batch_size: int, seed: int) -> IntArray:
@@ -146,10 +154,21 @@ def pick_at_equal_steps(order: IntArray, count: int) -> IntArray:
 
 
 def _identify_batches(args: tuple[SegmentBatch, IntArray, IdentifySettings,
-                                  dict[str, NotIdentified]]) -> list[Estimate]:
+                                  dict[str, NotIdentified]]
+                      ) -> tuple[list[Estimate], FloatArray | None]:
+    """Worker: step-1 batches identified, and their thetas validated (E_p) where there are
+    validation segments (shared by the fork in _VALIDATION, not sent)."""
     batch, batches, settings, held = args
-    return [gauss_newton(batch.take(idx), settings=settings, held=held, method="step 1")
-            for idx in batches]
+    results = [gauss_newton(batch.take(idx), settings=settings, held=held, method="step 1")
+               for idx in batches]
+    validation = _VALIDATION.get("data")
+    if validation is None:
+        return results, None
+    return results, mean_errors(np.array([r.theta.as_array() for r in results]), validation)
+
+
+#: The validation segments while step 1's workers run (read through the fork).
+_VALIDATION: dict[str, RaggedSegments] = {}
 
 
 def step1(batch: SegmentBatch, validation: RaggedSegments | None, settings: Settings, *,
@@ -170,13 +189,18 @@ def step1(batch: SegmentBatch, validation: RaggedSegments | None, settings: Sett
     per_task = max(1, -(-batches.shape[0] // 10))
     tasks = [(batch.take(np.unique(batches[lo:lo + per_task])), _reindex(batches[lo:lo + per_task]),
               identify, dict(held or {})) for lo in range(0, batches.shape[0], per_task)]
-    chunks = map_chunks(_identify_batches, tasks, workers=workers,
-                        weights=[t[1].shape[0] for t in tasks], progress=progress)
-    results = tuple(r for chunk in chunks for r in chunk)
+    if validation is not None:
+        _VALIDATION["data"] = validation
+    try:
+        chunks = map_chunks(_identify_batches, tasks, workers=workers,
+                            weights=[t[1].shape[0] for t in tasks], progress=progress)
+    finally:
+        _VALIDATION.clear()
+    results = tuple(r for chunk, _ in chunks for r in chunk)
     thetas = np.array([r.theta.as_array() for r in results])
     success = np.array([r.success for r in results])
     if validation is not None:
-        errors = mean_errors(thetas, validation)
+        errors = np.concatenate([np.zeros(0)] + [e for _, e in chunks if e is not None])
     else:  # no validation segments: rank by the identification cost per segment instead
         errors = np.array([r.details.cost_history[-1] / max(r.details.segments, 1)
                            for r in results])
