@@ -121,8 +121,8 @@ def relative_change(measured: SegmentBatch, comp: BatchCompensation) -> float:
     block = max(1, (1 << 16) // max(measured.steps, 1))
     for lo in range(0, n, block):
         part = slice(lo, lo + block)
-        for meas, new in ((measured.inputs.n_rl[part], comp.n_rl[part]),
-                          (measured.inputs.n_rr[part], comp.n_rr[part])):
+        rates = measured.part(lo, lo + block).inputs
+        for meas, new in ((rates.n_rl, comp.n_rl[part]), (rates.n_rr, comp.n_rr[part])):
             moving = np.abs(meas) > 0.5
             change = np.abs(new - meas)
             np.divide(change, np.abs(meas), out=change, where=moving)

@@ -43,7 +43,7 @@ from odocal.estimators.estimate import (
     hold_unidentified,
     judge,
 )
-from odocal.model.jacobians import segment_r_factors
+from odocal.model.jacobians import CHUNK_STEPS, segment_r_factors
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
 from odocal.settings import IdentifySettings, Settings
 
@@ -105,7 +105,10 @@ class Linearisation:
 
 def linearise(batch: SegmentBatch, theta: FloatArray, weights: FloatArray) -> Linearisation:
     """Residuals and Jacobians of every segment at ``theta``, reduced to R factors."""
-    segment_r, stats = segment_r_factors(theta, batch.inputs, batch.reference, batch.t_s, weights)
+    parts = [segment_r_factors(theta, part.inputs, part.reference, batch.t_s, weights)
+             for part in batch.parts(max(1, CHUNK_STEPS // max(batch.steps, 1)))]
+    segment_r = np.concatenate([r for r, _ in parts])
+    stats = np.concatenate([s for _, s in parts])
     stacked = segment_r.reshape(-1, _COLS)
     r_factor = qr(stacked, mode="r", check_finite=False)[0][:_COLS]
     if r_factor.shape[0] < _COLS:  # fewer rows than columns (a degenerate, tiny batch)
@@ -361,7 +364,7 @@ def bootstrap_terms(rates: SegmentBatch, estimate: Estimate, clusters: IntArray,
     loose = dataclasses.replace(settings.identify, judge_identifiability=False, max_iterations=3)
 
     def refit(take: IntArray) -> FloatArray:
-        return gauss_newton(rates.take(take), settings=loose, start=estimate.theta.as_array(),
+        return gauss_newton(rates.subset(take), settings=loose, start=estimate.theta.as_array(),
                             held=held).theta.as_array()
 
     return BootstrapTerms(information=lin.information, scores=lin.scores, clusters=clusters,

@@ -75,13 +75,15 @@ def _rates(result: CalibrationResult, data: ReportData) -> Spec:
     ts = result.three_step
     if ts is None or result.batch is None:
         return None
-    u = result.batch.inputs
-    busiest = int(np.argmax(np.abs(u.a_y).max(axis=1)))
+    # the segments a block at a time (a long drive's batch is copied out of it when asked)
+    peaks = np.concatenate([np.abs(part.inputs.a_y).max(axis=1)
+                            for part in result.batch.parts(256)])
+    busiest = int(np.argmax(peaks))
+    u = result.batch.part(busiest, busiest + 1).inputs
     t = np.arange(u.n_rl.shape[1], dtype=np.float64) * result.batch.t_s
     return FigureSpec("rates", "Fig. 6 of the paper: measured and compensated wheel rates on the "
                       "selected segment with the highest lateral acceleration.", 8.0, 3.2,
-                      (Call("plot_rates", (t, np.column_stack([u.n_rl[busiest],
-                                                               u.n_rr[busiest]]),
+                      (Call("plot_rates", (t, np.column_stack([u.n_rl[0], u.n_rr[0]]),
                                            np.column_stack([ts.compensation.n_rl[busiest],
                                                             ts.compensation.n_rr[busiest]]))),))
 

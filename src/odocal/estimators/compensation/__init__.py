@@ -181,6 +181,21 @@ class BatchCompensation:
         return {name: int(c) for name, c in zip(STATUS_NAMES, counts, strict=True)}
 
 
+#: The segments step 2 works through, while it does: its workers read their blocks from here
+#: (shared by the fork) rather than each block being copied out and sent in advance.
+_BATCH: dict[str, SegmentBatch] = {}
+
+
+def _compensate_block(args: tuple[int, int, FloatArray, CompensateSettings]
+                      ) -> tuple[FloatArray, NDArray[np.int64], NDArray[np.int64]]:
+    """Worker: :func:`_compensate_chunk` of the segments ``lo`` to ``hi`` of the batch."""
+    lo, hi, thetas, settings = args
+    part = _BATCH["segments"].part(lo, hi)
+    u = part.inputs
+    return _compensate_chunk((u.n_rl, u.n_rr, u.beta, u.a_y, part.reference, thetas, part.t_s,
+                              settings))
+
+
 def _compensate_chunk(args: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
                                   FloatArray, float, CompensateSettings]
                       ) -> tuple[FloatArray, NDArray[np.int64], NDArray[np.int64]]:
@@ -279,21 +294,22 @@ def compensate_batch(batch: SegmentBatch, thetas: Sequence[FloatArray] | FloatAr
     (each segment is solved alone, with its thetas in the given order).
     """
     theta_arr = np.atleast_2d(np.asarray(thetas, dtype=np.float64))
-    u = batch.inputs
     n = len(batch)
     chunk = max(1, min(64, -(-n // max(4 * workers, 1))))
-    tasks = [(u.n_rl[lo:lo + chunk], u.n_rr[lo:lo + chunk], u.beta[lo:lo + chunk],
-              u.a_y[lo:lo + chunk], batch.reference[lo:lo + chunk], theta_arr, batch.t_s,
-              settings) for lo in range(0, n, chunk)]
-    sizes = [t[0].shape[0] for t in tasks]
+    tasks = [(lo, min(n, lo + chunk), theta_arr, settings) for lo in range(0, n, chunk)]
+    sizes = [hi - lo for lo, hi, _, _ in tasks]
     results = []
-    if workers != 1 and len(tasks) > 1:
-        # the first chunk here: the solvers' compiled kernels are then loaded in this process,
-        # and the workers forked from it share them instead of each loading its own
-        results.append(_compensate_chunk(tasks[0]))
-        tasks, sizes = tasks[1:], sizes[1:]
-    results += map_chunks(_compensate_chunk, tasks, workers=workers, weights=sizes,
-                          progress=progress)
+    _BATCH["segments"] = batch
+    try:
+        if workers != 1 and len(tasks) > 1:
+            # the first block here: the solvers' compiled kernels are then loaded in this
+            # process, and the workers forked from it share them instead of each loading its own
+            results.append(_compensate_block(tasks[0]))
+            tasks, sizes = tasks[1:], sizes[1:]
+        results += map_chunks(_compensate_block, tasks, workers=workers, weights=sizes,
+                              progress=progress)
+    finally:
+        _BATCH.clear()
     mean = np.concatenate([r[0] for r in results])             # (N, K, 2)
     status = np.concatenate([r[1] for r in results])
     iters = np.concatenate([r[2] for r in results])
