@@ -310,9 +310,15 @@ def compensate_batch(batch: SegmentBatch, thetas: Sequence[FloatArray] | FloatAr
                               progress=progress)
     finally:
         _BATCH.clear()
-    mean = np.concatenate([r[0] for r in results])             # (N, K, 2)
     status = np.concatenate([r[1] for r in results])
     iters = np.concatenate([r[2] for r in results])
+    # each block's rates moved into place and let go (no second copy of every segment's)
+    mean = np.empty((n, batch.steps, 2))
+    at = 0
+    for i, (rates, _, _) in enumerate(results):
+        mean[at:at + rates.shape[0]] = rates
+        at += rates.shape[0]
+        results[i] = (rates[:0], results[i][1], results[i][2])
     out = BatchCompensation(n_rl=mean[..., 0], n_rr=mean[..., 1], status=status,
                             iterations=iters)
     if out.fell_back.any():
