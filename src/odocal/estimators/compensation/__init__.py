@@ -318,7 +318,7 @@ def compensate_batch(batch: SegmentBatch, thetas: Sequence[FloatArray] | FloatAr
     for i, (rates, _, _) in enumerate(results):
         mean[at:at + rates.shape[0]] = rates
         at += rates.shape[0]
-        results[i] = (rates[:0], results[i][1], results[i][2])
+        results[i] = (np.empty((0, batch.steps, 2)), results[i][1], results[i][2])
     out = BatchCompensation(n_rl=mean[..., 0], n_rr=mean[..., 1], status=status,
                             iterations=iters)
     if out.fell_back.any():
