@@ -112,6 +112,8 @@ def test_an_edit_to_the_step_reaches_the_compiled_kernels(tmp_path: Path) -> Non
 @pytest.mark.parametrize(("module", "kernel", "inlined"), [
     ("odocal.estimators.compensation.riccati", "_pdas",
      {"estimators/compensation/riccati.py"}),
+    ("odocal.estimators.compensation.riccati", "_pdas_batch",
+     {"estimators/compensation/riccati.py"}),
     ("odocal.preprocess.fusion", "_ekf_rts", {"preprocess/fusion.py"}),
 ])
 def test_each_kernel_is_keyed_on_the_sources_it_reaches(module: str, kernel: str,

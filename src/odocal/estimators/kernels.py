@@ -2,7 +2,8 @@
 
 The default and ``raw`` methods compile nothing (the model's rollouts and Jacobians are numpy:
 :mod:`odocal.model.jacobians`); the compensated method runs the compensation QP's Riccati
-kernels (:mod:`odocal.estimators.compensation.riccati`: ``_pdas``, which inlines ``_sweep``).
+kernels (:mod:`odocal.estimators.compensation.riccati`: ``_pdas_batch``, which calls ``_pdas``
+and ``_sweep``, compiled and cached with it).
 Its first run after an install, or after an edit to any source a kernel inlines, compiles them:
 the command line says so before the silent wait (:func:`compile_note`).
 """
@@ -15,9 +16,9 @@ from typing import Any
 #: The cached kernels each method's first run compiles (module, kernel), and about how many
 #: seconds each takes to compile (measured on two cores with an empty cache, rounded up).
 METHOD_KERNELS: dict[str, tuple[tuple[str, str], ...]] = {
-    "compensated": (("riccati", "_pdas"),),
+    "compensated": (("riccati", "_pdas_batch"),),
 }
-COMPILE_S: dict[str, float] = {"_pdas": 3.0}
+COMPILE_S: dict[str, float] = {"_pdas_batch": 3.0}
 
 
 #: Where the kernels of METHOD_KERNELS live.
