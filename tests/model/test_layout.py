@@ -71,7 +71,7 @@ def test_the_estimators_are_sized_by_the_model() -> None:
     est = odocal.calibrate(odocal.simulate(duration_s=300, seed=1, noise="white").drive).estimate
     assert est.covariance.shape == (MODEL.size, MODEL.size)
     assert len(est.verdicts) == len(est.free) == MODEL.size
-    with pytest.raises(odocal.ConfigError, match="4 values"):
+    with pytest.raises(odocal.ConfigError, match="3 values where the model has 4"):
         Settings().replace(identify={"theta0": (1.9, 0.0, 1.5)})
 
 

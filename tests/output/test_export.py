@@ -2,44 +2,88 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
-import yaml
 
 import odocal
 from odocal.model.parameters import Parameters
-from odocal.output.export import Calibrated, OdometryNoise, export
+from odocal.output.export import Calibrated, OdometryNoise, export, parameters_yaml
 from odocal.settings import DATASHEET_THETA, Settings
 from tests.conftest import run
+from tests.ros2.rosenv import keys_in_file, load_declared, require_rclpy, ros_context
 
 THETA = Parameters(c_e=1.952, c_d=-0.0021, t_r=1.527, d=0.00076)
 STATED = Parameters(1.95, 0.0, 1.5, 0.0)
+ROBOT = Parameters(c_e=0.4723, c_d=0.0008, t_r=0.3105, d=0.0)
+ROBOT_STATED = Parameters(0.47, 0.0, 0.31, 0.0)
 
-# The keys the current upstream schemas require (autoware_vehicle_velocity_converter's
-# schema/vehicle_velocity_converter.json; ros2_controllers' diff_drive_controller parameters,
-# whose wheel name lists must not be empty for the controller to configure).
-AUTOWARE_CONVERTER_REQUIRED = {
-    "velocity_stddev_xx": float, "frame_id": str, "angular_velocity_stddev_zz": float,
-    "speed_scale_factor": float, "enable_online_speed_scale_factor_calibration": bool,
-    "acceptable_speed_scale_factor_range": list, "stop_speed_threshold": float}
-DIFF_DRIVE_REQUIRED = {"left_wheel_names": list, "right_wheel_names": list,
-                       "wheel_separation": float, "wheel_radius": float}
+# The parameters each receiving node declares, with the types it declares them with:
+# - robot_localization 3.6.0 (src/ros_filter.cpp, RosFilter::loadParams; 3.5.2 for Humble
+#   declares these alike), node ekf_filter_node in the file;
+# - ros2_controllers 4.42.1 (Jazzy; diff_drive_controller/src/diff_drive_controller_parameter.yaml,
+#   the same types in 2.54.0 Humble and 5.17.0 Kilted), plus the ``type`` the controller_manager
+#   spawner (2.46.0 / 4.21.0 on) reads from --param-file;
+# - autoware_core 1.9.0 autoware_vehicle_velocity_converter
+#   (src/vehicle_velocity_converter_node.cpp)
+#   and 1.8.0, which also requires frame_id; autoware_vehicle_info_utils (vehicle_info_utils.hpp).
+EKF = {"two_d_mode": "BOOL", "odom0": "STRING", "odom0_config": "BOOL_ARRAY",
+       "odom0_queue_size": "INTEGER", "odom0_differential": "BOOL", "odom0_relative": "BOOL",
+       "odom0_twist_rejection_threshold": "DOUBLE"}
+DIFF_DRIVE = {"type": "STRING", "left_wheel_names": "STRING_ARRAY",
+              "right_wheel_names": "STRING_ARRAY", "wheel_separation": "DOUBLE",
+              "wheel_radius": "DOUBLE", "wheel_separation_multiplier": "DOUBLE",
+              "left_wheel_radius_multiplier": "DOUBLE", "right_wheel_radius_multiplier": "DOUBLE",
+              "odom_frame_id": "STRING", "base_frame_id": "STRING",
+              "pose_covariance_diagonal": "DOUBLE_ARRAY",
+              "twist_covariance_diagonal": "DOUBLE_ARRAY"}
+CONVERTER_1_9 = {"speed_scale_factor": "DOUBLE", "velocity_stddev_xx": "DOUBLE",
+                 "angular_velocity_stddev_zz": "DOUBLE"}
+CONVERTER_1_8 = {**CONVERTER_1_9, "frame_id": "STRING"}
+VEHICLE_INFO = {"wheel_radius": "DOUBLE", "wheel_tread": "DOUBLE"}
+# odocal's own --export yaml schema (no upstream node): what a node reading it declares
+OWN = {"effective_wheel_circumference": "DOUBLE", "wheel_radius": "DOUBLE",
+       "circumference_difference": "DOUBLE", "rear_track_width": "DOUBLE",
+       "load_transfer_coefficient": "DOUBLE", "parameter_names": "STRING_ARRAY",
+       "identified": "BOOL_ARRAY", "std": "DOUBLE_ARRAY", "covariance": "DOUBLE_ARRAY"}
+
+#: file -> (the node name it is loaded into, the declarations of each release it is for)
+FILES = {
+    "robot_localization/ekf_odometry.yaml": ("ekf_filter_node", [EKF]),
+    "ros2_control/diff_drive_controller.yaml": ("diff_drive_controller", [DIFF_DRIVE]),
+    "autoware/vehicle_velocity_converter.param.yaml": ("vehicle_velocity_converter",
+                                                       [CONVERTER_1_9, CONVERTER_1_8]),
+    "autoware/vehicle_info.param.yaml": ("vehicle_velocity_converter", [VEHICLE_INFO]),
+    "odometry_parameters.yaml": ("wheel_odometry", [OWN]),
+}
 
 
-def _ros_params(path: Path, node: str) -> dict[str, Any]:
-    data = yaml.safe_load(path.read_text())
-    assert list(data) == [node] and list(data[node]) == ["ros__parameters"]
-    return dict(data[node]["ros__parameters"])
+def _calibrated(datasheet: Parameters = STATED, theta: Parameters = THETA,
+                identified: tuple[bool, bool, bool, bool] = (True, True, True, False),
+                **kw: Any) -> Calibrated:
+    # what is not identified keeps the datasheet value (as every estimator hands it on)
+    values = [t if ok else d for t, d, ok in zip(theta.as_array(), datasheet.as_array(),
+                                                  identified, strict=True)]
+    # every entry its own value (c_e, c_d, t_r, d of different sizes, one correlation), so a
+    # covariance written reversed, transposed or shuffled is seen
+    variances = np.array([1e-8, 4e-10, 9e-6, 1e-11]) * np.array(identified, dtype=float)
+    cov = np.diag(variances)
+    cov[0, 2] = cov[2, 0] = 0.3 * math.sqrt(variances[0] * variances[2])
+    return Calibrated(theta=Parameters(*values), datasheet=datasheet,
+                      std=tuple(float(v) for v in np.sqrt(np.diag(cov))),  # type: ignore[arg-type]
+                      identified=identified, method="inverse",
+                      noise=kw.pop("noise", OdometryNoise(0.05, 0.004, 100)),
+                      covariance=tuple(tuple(row) for row in cov.tolist()), **kw)
 
 
-def _calibrated(datasheet: Parameters = STATED, **kw: Any) -> Calibrated:
-    return Calibrated(theta=THETA, datasheet=datasheet, std=(1e-4, 1e-4, 1e-3, 1e-5),
-                      identified=(True, True, True, False), method="inverse",
-                      noise=OdometryNoise(0.05, 0.004, 100), **kw)
+def _write_all(c: Calibrated, out: Path) -> None:
+    export(c, out)
+    parameters_yaml(c, out / "odometry_parameters.yaml")
 
 
 def _fill_ins(path: Path) -> list[str]:
@@ -47,39 +91,120 @@ def _fill_ins(path: Path) -> list[str]:
             if line.strip().startswith("# FILL IN")]
 
 
-def test_exports_carry_each_targets_documented_keys(tmp_path: Path) -> None:
-    export(_calibrated(wheel_joints=("rear_left", "rear_right")), tmp_path)
-    info = _ros_params(tmp_path / "autoware" / "vehicle_info.param.yaml", "/**")
-    assert set(info) == {"wheel_radius", "wheel_tread"}
-    assert info["wheel_radius"] == pytest.approx(1.952 / (2 * math.pi))
-    assert info["wheel_tread"] == pytest.approx(1.527)
-    conv = _ros_params(tmp_path / "autoware" / "vehicle_velocity_converter.param.yaml", "/**")
-    assert set(conv) == set(AUTOWARE_CONVERTER_REQUIRED)
-    for key, kind in AUTOWARE_CONVERTER_REQUIRED.items():
-        assert isinstance(conv[key], kind), key
-    assert conv["speed_scale_factor"] == pytest.approx(1.952 / 1.95)
-    low, high = conv["acceptable_speed_scale_factor_range"]
-    assert low <= conv["speed_scale_factor"] <= high
-    assert conv["velocity_stddev_xx"] == pytest.approx(0.05)
-    diff = _ros_params(tmp_path / "ros2_control" / "diff_drive_controller.yaml",
-                       "diff_drive_controller")
-    for key, kind in DIFF_DRIVE_REQUIRED.items():
-        assert isinstance(diff[key], kind), key
-    assert diff["left_wheel_names"] == ["rear_left"]
-    assert diff["right_wheel_names"] == ["rear_right"]
-    assert diff["wheel_separation"] == pytest.approx(1.5)          # the datasheet's
-    assert diff["wheel_separation"] * diff["wheel_separation_multiplier"] == pytest.approx(1.527)
-    left = diff["wheel_radius"] * diff["left_wheel_radius_multiplier"] * 2 * math.pi
-    assert left == pytest.approx(1.952 - 0.0021 / 2)
-    assert len(diff["twist_covariance_diagonal"]) == 6
+@pytest.fixture(scope="module")
+def ros() -> Any:
+    require_rclpy()
+    with ros_context() as context:
+        yield context
+
+
+def _load(out: Path, ros: Any) -> dict[str, dict[str, Any]]:
+    """Every file in ``out`` loaded in ROS 2 by each release's declarations; the values."""
+    values: dict[str, dict[str, Any]] = {}
+    for name, (node, releases) in FILES.items():
+        for declarations in releases:
+            loaded = load_declared(out / name, node, declarations, context=ros)
+            missing = [k for k, v in loaded.items() if v is None]
+            assert not missing, (name, missing)
+            values[name] = loaded
+    return values
+
+
+def _check_values(values: dict[str, dict[str, Any]], c: Calibrated) -> None:
+    th, ds = c.theta, (c.datasheet if c.datasheet_stated else c.theta)
+    diff = values["ros2_control/diff_drive_controller.yaml"]
+    assert diff["type"] == "diff_drive_controller/DiffDriveController"
+    assert diff["wheel_separation"] == pytest.approx(ds.t_r, rel=1e-9)
+    assert diff["wheel_separation"] * diff["wheel_separation_multiplier"] == \
+        pytest.approx(th.t_r, rel=1e-9)
+    two_pi_r = diff["wheel_radius"] * 2 * math.pi
+    assert two_pi_r * diff["left_wheel_radius_multiplier"] == \
+        pytest.approx(th.c_e + th.c_d / 2, rel=1e-9)
+    assert two_pi_r * diff["right_wheel_radius_multiplier"] == \
+        pytest.approx(th.c_e - th.c_d / 2, rel=1e-9)
     assert diff["twist_covariance_diagonal"][0] == pytest.approx(0.05**2)
-    ekf = _ros_params(tmp_path / "robot_localization" / "ekf_odometry.yaml", "ekf_filter_node")
-    assert ekf["two_d_mode"] is True and len(ekf["odom0_config"]) == 15
+    conv = values["autoware/vehicle_velocity_converter.param.yaml"]
+    scale = (th.c_e / c.speed_circumference_m if c.speed_circumference_m
+             else th.c_e / c.datasheet.c_e if c.datasheet_stated else 1.0)
+    assert conv["speed_scale_factor"] == pytest.approx(scale, rel=1e-9)
+    assert conv["velocity_stddev_xx"] == pytest.approx(0.05)
+    assert conv["frame_id"] == "base_link"
+    info = values["autoware/vehicle_info.param.yaml"]
+    assert info["wheel_radius"] == pytest.approx(th.c_e / (2 * math.pi), rel=1e-9)
+    assert info["wheel_tread"] == pytest.approx(th.t_r, rel=1e-9)
+    ekf = values["robot_localization/ekf_odometry.yaml"]
     assert [i for i, f in enumerate(ekf["odom0_config"]) if f] == [6, 11]   # vx, vyaw
-    text = (tmp_path / "autoware" / "vehicle_info.param.yaml").read_text()
-    assert "not identified by the data (datasheet values kept): d" in text
-    for path in tmp_path.rglob("*.yaml"):               # complete: nothing to fill in
-        assert _fill_ins(path) == [], path
+    assert ekf["two_d_mode"] is True and ekf["odom0_twist_rejection_threshold"] == 5.0
+    own = values["odometry_parameters.yaml"]
+    assert own["effective_wheel_circumference"] == pytest.approx(th.c_e, rel=1e-12)
+    assert own["load_transfer_coefficient"] == pytest.approx(th.d, rel=1e-12, abs=1e-15)
+    assert list(own["identified"]) == list(c.identified)
+    assert list(own["parameter_names"]) == ["c_e", "c_d", "t_r", "d"]
+    assert len(own["covariance"]) == 16
+    # row-major in the order of parameter_names, and the std its diagonal's roots
+    np.testing.assert_allclose(own["covariance"], np.asarray(c.covariance).ravel(), rtol=1e-12)
+    np.testing.assert_allclose(own["std"], np.sqrt(np.diag(np.asarray(c.covariance))),
+                               rtol=1e-12)
+
+
+COMBINATIONS = [(vehicle, stated, identified)
+                for vehicle in ("car", "robot") for stated in (True, False)
+                for identified in itertools.product((True, False), repeat=4)]
+
+
+def test_every_export_loads_in_ros2_as_the_upstream_nodes_declare_it(
+        tmp_path: Path, ros: Any) -> None:
+    """Car and robot, datasheet stated or not, each parameter identified or not: every file
+    loads in rcl with each parameter of the type the receiving node declares."""
+    for i, (vehicle, stated, identified) in enumerate(COMBINATIONS):
+        theta, datasheet = (THETA, STATED) if vehicle == "car" else (ROBOT, ROBOT_STATED)
+        c = _calibrated(datasheet if stated else Parameters(*DATASHEET_THETA), theta,
+                        identified)
+        out = tmp_path / str(i)
+        _write_all(c, out)
+        _check_values(_load(out, ros), c)
+    # and the other inputs that change a file: no noise measured (the targets' defaults), a
+    # speed circumference (wheel speeds in m/s), the wheel joints named
+    c = _calibrated(noise=None, speed_circumference_m=1.96, wheel_joints=("l", "r"))
+    _write_all(c, tmp_path / "other")
+    values = _load(tmp_path / "other", ros)
+    assert values["autoware/vehicle_velocity_converter.param.yaml"]["speed_scale_factor"] == \
+        pytest.approx(THETA.c_e / 1.96)
+    assert values["autoware/vehicle_velocity_converter.param.yaml"]["velocity_stddev_xx"] == 0.2
+    assert values["ros2_control/diff_drive_controller.yaml"]["left_wheel_names"] == ["l"]
+
+
+def test_the_files_load_as_a_nodes_global_params_file(tmp_path: Path) -> None:
+    """``rclpy.init(args=["--ros-args", "--params-file", F])``, as ``ros2 run ... --ros-args
+    --params-file F`` starts a node, for the case that broke each file (nothing identified but
+    c_e, no datasheet)."""
+    require_rclpy()
+    c = _calibrated(Parameters(*DATASHEET_THETA), identified=(True, False, False, False))
+    _write_all(c, tmp_path)
+    for name, (node, releases) in FILES.items():
+        for declarations in releases:
+            values = load_declared(tmp_path / name, node, declarations)
+            assert all(v is not None for v in values.values()), name
+
+
+HOSTILE = ["drive\nodom0_config: [true]\n.parquet", "a\rb: 1", "x\u2028wheel_radius: 9",
+           "x\x85y: 1", "# not a comment", "'quoted\"", "\u00e9t\u00e9 \U0001F697", "k: v"]
+
+
+@pytest.mark.parametrize("name", HOSTILE)
+def test_no_user_string_adds_a_key(name: str, tmp_path: Path, ros: Any) -> None:
+    """A log's name (or a fleet's vehicle name) in the provenance line, and wheel joint names,
+    stay a comment and values: rcl reads exactly the keys odocal writes."""
+    c = _calibrated(source=name, wheel_joints=(name, "true"))
+    _write_all(c, tmp_path)
+    for rel, (node, releases) in FILES.items():
+        path = tmp_path / rel
+        assert keys_in_file(path, node, ros) == set().union(*releases), rel
+        header = [line for line in path.read_text().splitlines() if "from:" in line]
+        assert len(header) == 1 and header[0].startswith("# from: ")
+    diff = load_declared(tmp_path / "ros2_control/diff_drive_controller.yaml",
+                         "diff_drive_controller", DIFF_DRIVE, context=ros)
+    assert diff["left_wheel_names"] == [name] and diff["right_wheel_names"] == ["true"]
 
 
 def test_what_the_data_cannot_give_is_named_in_one_fill_in_line(tmp_path: Path) -> None:
@@ -87,39 +212,51 @@ def test_what_the_data_cannot_give_is_named_in_one_fill_in_line(tmp_path: Path) 
     diff_path = tmp_path / "ros2_control" / "diff_drive_controller.yaml"
     [line] = _fill_ins(diff_path)
     assert "left_wheel_names and right_wheel_names" in line
-    diff = _ros_params(diff_path, "diff_drive_controller")
-    assert diff["left_wheel_names"] and diff["right_wheel_names"]      # loads and configures
-    # no datasheet: the nominal values are the calibrated ones, never a placeholder car's
-    assert diff["wheel_separation"] == pytest.approx(1.527)
-    assert diff["wheel_separation_multiplier"] == 1
-    assert diff["wheel_radius"] * 2 * math.pi == pytest.approx(1.952)
     conv_path = tmp_path / "autoware" / "vehicle_velocity_converter.param.yaml"
     [line] = _fill_ins(conv_path)
     assert line.startswith("# FILL IN speed_scale_factor") and "1.952" in line
-    assert _ros_params(conv_path, "/**")["speed_scale_factor"] == 1.0
     for path in tmp_path.rglob("*.yaml"):
         assert "no datasheet values were given" in path.read_text()
+        assert "# for: " in path.read_text()                      # the releases it is for
+    # stated, with joints: complete, nothing to fill in
+    export(_calibrated(wheel_joints=("l", "r")), tmp_path / "complete")
+    for path in (tmp_path / "complete").rglob("*.yaml"):
+        assert _fill_ins(path) == [], path
+    text = (tmp_path / "complete" / "autoware" / "vehicle_info.param.yaml").read_text()
+    assert "not identified by the data (datasheet values kept): d" in text
 
 
-def test_wheel_joint_names_from_the_command_line(tmp_path: Path,
-                                                 capsys: pytest.CaptureFixture[str],
-                                                 noisy_drive: Any) -> None:
+def test_wheel_joint_names_and_export_lists_from_the_command_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], noisy_drive: Any, ros: Any) -> None:
     drive = tmp_path / "d.parquet"
     odocal.save_drive(noisy_drive.drive, drive)
-    code, _, _ = run(capsys, "calibrate", str(drive), "--out", str(tmp_path / "o"), "-q",
-                     "--no-report", "--export", "ros2_control", "--wheel-joints",
-                     'wheel_"l", wheel_r', "--datasheet", "c_e=1.95,t_r=1.5")
+    code, out, _ = run(capsys, "calibrate", str(drive), "--out", str(tmp_path / "o"),
+                       "--no-report", "--export", "ros2_control,autoware", "--export", "yaml",
+                       "--wheel-joints", 'wheel_"l", wheel_r',
+                       "--datasheet", "wheel_radius=0.31,wheel_separation=1.5")
     assert code == 0
-    diff = _ros_params(tmp_path / "o" / "ros2_control" / "diff_drive_controller.yaml",
-                       "diff_drive_controller")
+    for rel in ("ros2_control/diff_drive_controller.yaml", "autoware/vehicle_info.param.yaml",
+                "autoware/vehicle_velocity_converter.param.yaml", "odometry_parameters.yaml"):
+        assert f"wrote {tmp_path / 'o' / rel}" in out
+    diff = load_declared(tmp_path / "o" / "ros2_control" / "diff_drive_controller.yaml",
+                         "diff_drive_controller", DIFF_DRIVE, context=ros)
     assert diff["left_wheel_names"] == ['wheel_"l"'] and diff["right_wheel_names"] == ["wheel_r"]
+    # a robot's datasheet in its stack's names: wheel_radius 0.31 m is c_e = 2 pi 0.31
+    assert diff["wheel_radius"] == pytest.approx(0.31)
+    assert diff["wheel_separation"] == pytest.approx(1.5)
+    data = json.loads((tmp_path / "o" / "calibration.json").read_text())
+    assert data["datasheet"]["theta"]["c_e"] == pytest.approx(2 * math.pi * 0.31)
     code, _, err = run(capsys, "calibrate", str(drive), "--out", str(tmp_path / "p"),
                        "--wheel-joints", "only_one")
     assert code == 1 and "--wheel-joints" in err and len(err.strip().splitlines()) == 1
+    code, _, err = run(capsys, "calibrate", str(drive), "--out", str(tmp_path / "p"),
+                       "--export", "autoware,ros3")
+    assert code == 2 and "unknown target 'ros3'" in err and not (tmp_path / "p").exists()
 
 
 @pytest.mark.parametrize("bad", ["c_e", "c_e=x", "c_e=1.9;t_r=1.5", "w=1.9", "c_e=-1",
-                                 "t_r=0", "c_e=nan", "c_e=inf"])
+                                 "t_r=0", "c_e=nan", "c_e=inf", "c_e=1.9,wheel_radius=0.3",
+                                 "t_r=1.5,t_r=1.6", "wheel_radius=-0.1"])
 def test_a_bad_datasheet_flag_is_one_line(bad: str, tmp_path: Path,
                                           capsys: pytest.CaptureFixture[str],
                                           noisy_drive: Any) -> None:
@@ -188,3 +325,34 @@ def test_a_small_robot_is_judged_against_its_own_datasheet(
     code, out, err = run(capsys, "calibrate", str(path), "--out", str(tmp_path / "c"),
                          "--no-report")
     assert code == 3 and "--datasheet" in out + err
+
+
+@pytest.mark.realdata
+def test_the_issues_real_logs_export_files_that_load(shared_data: Path, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str],
+                                                     ros: Any) -> None:
+    """The cases that stopped the receiving nodes (issue 29): a straight scene with a datasheet
+    (t_r not identified) and the comma2k19 segment without one (its wheel speeds were turned into
+    rates with a known circumference: the speed scale factor is relative to it)."""
+    code, _, err = run(capsys, "calibrate", "--from", "nuscenes",
+                       str(shared_data / "nuscenes-can-bus-mini"), "--scene", "scene-0796",
+                       "--datasheet", "c_e=1.95,t_r=1.51", "--out", str(tmp_path / "zoe"),
+                       "-q", "--no-report",
+                       "--export", "autoware,ros2_control,robot_localization,yaml")
+    assert code == 0, err
+    own = load_declared(tmp_path / "zoe" / "odometry_parameters.yaml", "wheel_odometry", OWN,
+                        context=ros)
+    assert own["identified"][2] is False                   # t_r: not identified
+    diff = load_declared(tmp_path / "zoe" / "ros2_control" / "diff_drive_controller.yaml",
+                         "diff_drive_controller", DIFF_DRIVE, context=ros)
+    assert diff["wheel_separation_multiplier"] == 1.0
+    segment = shared_data / "comma2k19-example" / "2018-08-02--08-34-47" / "40"
+    code, _, err = run(capsys, "calibrate", "--from", "comma2k19", str(segment), "-q",
+                       "--no-report", "--out", str(tmp_path / "comma"),
+                       "--export", "autoware,yaml")
+    assert code == 0, err
+    conv_path = tmp_path / "comma" / "autoware" / "vehicle_velocity_converter.param.yaml"
+    conv = load_declared(conv_path, "vehicle_velocity_converter", CONVERTER_1_8, context=ros)
+    theta = json.loads((tmp_path / "comma" / "calibration.json").read_text())["theta"]
+    assert conv["speed_scale_factor"] == pytest.approx(theta["c_e"] / DATASHEET_THETA[0])
+    assert _fill_ins(conv_path) == []

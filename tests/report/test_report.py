@@ -6,6 +6,7 @@ import contextlib
 import json
 import multiprocessing
 import os
+import re
 import shutil
 import time
 from pathlib import Path
@@ -24,8 +25,8 @@ from tests.conftest import straight_drive
 
 ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"
 #: The figures each method's report shows.
-FIGURES = {"inverse": ("map", "inverse", "segments", "coverage", "uncertainty"),
-           "compensated": ("map", "segments", "step1", "spread", "rates", "coverage",
+FIGURES = {"inverse": ("map", "inverse", "segments", "coverage", "fitted", "uncertainty"),
+           "compensated": ("map", "segments", "step1", "spread", "rates", "coverage", "fitted",
                            "uncertainty")}
 
 
@@ -76,6 +77,23 @@ def test_report_files_and_numbers(method: str, tmp_path_factory: pytest.TempPath
         assert data["bootstrap"]["count"] == 200 and "agree" in data["bootstrap"]
     for name, value in data["theta"].items():       # as the parameter table prints them
         assert _fmt(name, value) in page
+    # every caption says what its figure shows before any reference to the paper
+    captions = re.findall(r"<figcaption>([^<]*)</figcaption>", page)
+    assert len(captions) == len(FIGURES[method])
+    for caption in captions:
+        assert not caption.startswith("Fig") and len(caption) > 150, caption
+        assert "of the paper" not in caption and "paper" not in caption.split("(the paper")[0]
+    # the coverage shows what this method fitted
+    fitted = report["coverage"]["fitted"]
+    if method == "inverse":
+        assert fitted["unit"] == "window" and fitted["fitted"] == data["details"]["windows"]
+        assert fitted["clusters"] == data["details"]["clusters"] == data["used"]["clusters"]
+        assert fitted["not_fitted"] == 0
+    else:
+        assert fitted["unit"] == "segment" and fitted["fitted"] == data["segments_used"]
+        assert fitted["fitted"] + fitted["not_fitted"] == data["segments_total"]
+        assert fitted["clusters"] == data["used"]["clusters"]
+    assert f"fitted {'every 2 s window' if method == 'inverse' else fitted['fitted']}" in page
 
 
 def test_exports(calibrated: Path) -> None:

@@ -49,136 +49,27 @@ def _settings(args: argparse.Namespace) -> Settings:
     if getattr(args, "circumference", None) is not None:
         overrides.setdefault("convert", {})["wheel_circumference_m"] = args.circumference
     if getattr(args, "datasheet", None):
+        from odocal.output.export import parse_datasheet
         from odocal.pipeline.calibrate import datasheet_theta
 
         overrides.setdefault("identify", {})["theta0"] = datasheet_theta(
-            _datasheet_values(args.datasheet), settings.identify.theta0)
+            parse_datasheet(args.datasheet), settings.identify.theta0)
     return settings.replace(**overrides) if overrides else settings
-
-
-def _datasheet_values(text: str) -> dict[str, float]:
-    """``c_e=1.84,t_r=1.52`` as a dict; a one-line ConfigError for anything else (the values
-    checked by :func:`odocal.settings.datasheet_values`: each once, within a vehicle's range)."""
-    from odocal.settings import datasheet_values
-
-    pairs: list[tuple[str, float]] = []
-    for item in text.split(","):
-        key, sep, value = item.partition("=")
-        try:
-            pairs.append((key.strip(), float(value)))
-        except ValueError:
-            sep = ""
-        if not sep:
-            raise ConfigError(f"--datasheet {text!r}: write NAME=VALUE pairs separated by "
-                              "commas, e.g. c_e=1.84,t_r=1.52 (metres)")
-    return datasheet_values(pairs, source="--datasheet")
-
-
-def _datasheet_note(datasheet: Parameters) -> str | None:
-    """A line saying the datasheet values are odocal's placeholder, or None when stated."""
-    from odocal.settings import datasheet_stated
-
-    if datasheet_stated(datasheet):
-        return None
-    return (f"note: no datasheet values given: the 'datasheet' column is odocal's placeholder "
-            f"car (c_e {datasheet.c_e:g} m, t_r {datasheet.t_r:g} m), not yours; state them "
-            "with --datasheet c_e=..,t_r=..")
-
-
-def _fmt_param(name: str, value: float) -> str:
-    if name in ("c_d", "d"):
-        return f"{value * 1000:+.3f} mm" if name == "c_d" else f"{value * 1000:+.3f} mm/(m/s^2)"
-    return f"{value:.5f} m"
-
-
-def _fmt_std(name: str, std: float) -> str:
-    if name in ("c_d", "d"):
-        return f"+-{std * 1000:.3f}"
-    return f"+-{std:.5f}"
-
-
-def _print(text: str = "") -> None:
-    sys.stdout.write(text + "\n")
 
 
 def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
                   truth_error_m: float | None = None,
                   best_std: Sequence[float] | None = None) -> None:
-    """The calibration as a small table on stdout; ``best_std`` (a simulated drive's
-    Cramér-Rao bound) is shown beside the reported std."""
-    from odocal.estimators.estimate import NotIdentified, Reason, Status
-    from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS
-    from odocal.report.advice import finding_text, reason_text
+    """The calibration's summary (:func:`odocal.report.summary.summary_lines`) on stdout."""
+    from odocal.report.summary import summary_lines
 
-    est = result.estimate
-    drives = result.drives
-    total_km = sum(d.distance_m for d in drives) / 1000
-    total_min = sum(d.duration_s for d in drives) / 60
-    segs = result.settings.segments
-    _print(f"read {len(drives)} drive(s): {total_min:.1f} min, {total_km:.2f} km; "
-           f"{len(result.segments)} segments of {segs.length} samples, "
-           f"{int(result.segments.selected.sum())} with bends "
-           f"(peak yaw rate > {segs.yaw_rate_threshold_radps} rad/s)")
-    _print(f"method: {result.method}, identified from {result.used_text()} "
-           f"in {result.elapsed_s:.1f} s")
-    _print()
-    header = f"{'parameter':<10} {'datasheet':>16} {'calibrated':>16} {'std':>10}"
-    if best_std is not None:
-        header += f" {'best std':>10}"
-    if truth is not None:
-        header += f" {'true':>16} {'error':>10}"
-    _print(header)
-    theta0, theta = est.datasheet.as_dict(), est.theta.as_dict()
-    true = truth.as_dict() if truth is not None else None
-    std = dict(zip(PARAMETER_NAMES, est.std, strict=True))
-    exact = est.status is Status.EXACT
-    for name, ok in zip(PARAMETER_NAMES, est.identified, strict=True):
-        if ok:
-            cal = _fmt_param(name, theta[name])
-            sd = "exact" if exact else _fmt_std(name, std[name])
-        else:
-            cal, sd = "not identified", ""
-        line = f"{name:<10} {_fmt_param(name, theta0[name]):>16} {cal:>16} {sd:>10}"
-        if best_std is not None:
-            best = best_std[PARAMETER_NAMES.index(name)]
-            line += f" {_fmt_std(name, best) if math.isfinite(best) else '-':>10}"
-        if true is not None:
-            err = _fmt_std(name, abs(theta[name] - true[name])).replace("+-", "") if ok else ""
-            line += f" {_fmt_param(name, true[name]):>16} {err:>10}"
+    for line in summary_lines(result, truth=truth, truth_error_m=truth_error_m,
+                              best_std=best_std):
         _print(line)
-    if best_std is not None:
-        _print("best std: the smallest std an unbiased calibration of this drive can have (its "
-               "wheel errors' Cramér-Rao bound, the reference taken as exact)")
-    note = _datasheet_note(est.datasheet) if truth is None else None
-    if note:
-        _print(note)
-    _print()
-    if result.validation is not None and result.datasheet_validation is not None:
-        seg = result.validation.segments
-        line = (f"validation error E_p over {len(seg)} segments of "
-                f"~{segs.validation_distance_m:.0f} m: "
-                f"datasheet {result.datasheet_validation.mean_error_m:.2f} m -> calibrated "
-                f"{result.validation.mean_error_m:.2f} m")
-        if truth_error_m is not None:
-            line += f" (true parameters: {truth_error_m:.2f} m)"
-        _print(line)
-    else:
-        _print("validation error E_p: not available (no validation segment)")
-    if exact:
-        _print(f"note: {est.message}")
-    for finding in result.diagnosis.findings:
-        kind = {0: "note", 1: "warning", 2: "error"}[int(finding.severity)]
-        _print(f"{kind}: {finding_text(finding, result.settings)}")
-    for name, verdict in zip(PARAMETER_NAMES, est.verdicts, strict=True):
-        if isinstance(verdict, NotIdentified) and verdict.reason not in (
-                Reason.REJECTED, Reason.STANDSTILL, Reason.FAILED):
-            _print(f"note: {name} ({PARAMETER_UNITS[PARAMETER_NAMES.index(name)]}) is not "
-                   f"identified: "
-                   f"{reason_text(name, verdict, threshold_radps=segs.yaw_rate_threshold_radps)}")
-    for warning in result.warnings:
-        _print(f"warning: {warning}")
-    if not result.success and est.status is not Status.NOTHING_IDENTIFIABLE:
-        _print(f"calibration failed: {est.message}")
+
+
+def _print(text: str = "") -> None:
+    sys.stdout.write(text + "\n")
 
 
 def _compile_note(args: argparse.Namespace, methods: Sequence[str]) -> None:
@@ -317,51 +208,37 @@ def _write_outputs(result: CalibrationResult, args: argparse.Namespace,
                    inputs: Sequence[Any],
                    progress: Callable[[str, int, int], None] | None = None,
                    renderer: Any = None) -> None:
-    """The results folder, built beside ``--out`` and swapped in whole when complete."""
+    """The results folder, built beside ``--out`` and swapped in whole when complete
+    (:func:`odocal.output.results.write_results` decides what goes into it)."""
     from odocal.io.atomic import results_folder
-    from odocal.output.results import (
-        export_parameters,
-        export_stack,
-        write_calibration,
-        write_compensated_inputs,
-    )
+    from odocal.output.results import write_results
 
     _check_out_dir(args, inputs)
     out = Path(args.out)
-    written: list[Path] = []
     with results_folder(out) as tmp:
-        report_numbers = None
-        if not getattr(args, "no_report", False):
-            from odocal.report import write_report
-
-            report = write_report(result, tmp, progress=progress, renderer=renderer)
-            written += [report.html_path, *report.figure_paths]
-            report_numbers = report.data.to_dict()
-        written.insert(0, write_calibration(result, tmp, report=report_numbers))
-        exports = getattr(args, "export", None) or []
-        if "tum" in exports:                 # trajectories judge any result, even a refused one
-            from odocal.output.trajectories import write_trajectories
-
-            written += write_trajectories(result.drive_data, result.estimate.theta,
-                                          result.estimate.datasheet, tmp)
-            exports = [fmt for fmt in exports if fmt != "tum"]
-        if exports and not result.success:
-            _print("note: parameters not exported: the calibration did not succeed")
-            exports = []
-        for fmt in exports:
-            if fmt in ("yaml", "json"):
-                written.append(export_parameters(result, tmp, fmt))
-            else:
-                written += export_stack(result, tmp, fmt, wheel_joints=_wheel_joints(args))
-        if getattr(args, "save_inputs", False):
-            path = write_compensated_inputs(result, tmp)
-            if path is None:
-                _print("note: --save-inputs: this method does not compensate the wheel rates")
-            else:
-                written.append(path)
+        written = write_results(result, tmp, exports=getattr(args, "export", None) or (),
+                                report=not getattr(args, "no_report", False),
+                                save_inputs=getattr(args, "save_inputs", False),
+                                wheel_joints=_wheel_joints(args), progress=progress,
+                                renderer=renderer)
+    for note in written.notes:
+        _print(f"note: {note}")
     if not args.quiet:
-        for path in written:
-            _print(f"wrote {out / path.relative_to(tmp)}")
+        for path in written.paths:
+            _print(f"wrote {out / path}")
+
+
+def _export_targets(text: str) -> list[str]:
+    """``--export autoware,ros2_control``: the targets named, in order, each once."""
+    from odocal.output.results import EXPORT_TARGETS
+
+    names = [n.strip() for n in text.split(",")]
+    bad = [n for n in names if n not in EXPORT_TARGETS]
+    if bad:
+        raise argparse.ArgumentTypeError(
+            f"unknown target {bad[0]!r} in {text!r}; choose from {', '.join(EXPORT_TARGETS)} "
+            "(a comma list, e.g. autoware,ros2_control)")
+    return list(dict.fromkeys(names))
 
 
 def _wheel_joints(args: argparse.Namespace) -> tuple[str, str] | None:
@@ -591,6 +468,7 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
     from odocal.model.parameters import PARAMETER_NAMES
     from odocal.online.replay import TraceRow, replay
     from odocal.report.replay import convergence_km
+    from odocal.report.summary import parameter_text, std_text
 
     settings = _settings(args)
     inputs = _inputs(args, args.source)
@@ -600,7 +478,7 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
     def show(row: TraceRow, est: Any) -> None:
         if args.quiet:
             return
-        parts = [f"{n} {_fmt_param(n, v)} {_fmt_std(n, s)}" if ok else f"{n} -"
+        parts = [f"{n} {parameter_text(n, v)} {std_text(n, s)}" if ok else f"{n} -"
                  for n, v, s, ok in zip(PARAMETER_NAMES, row.theta, row.std, row.identified,
                                         strict=True)]
         _print(f"{row.t:9.1f} s {row.distance_km:8.2f} km  " + "  ".join(parts))
@@ -635,19 +513,19 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
     return EXIT_OK
 
 
-def _rejection(estimate: Any, findings: Sequence[Any], settings: Settings) -> str | None:
-    """One line that says why a calibration publishes no parameters (None: it does): the first
-    contradiction the checks found, and how many more the report lists."""
-    from odocal.estimators.estimate import Status
-    from odocal.report.advice import finding_text
+def cmd_ros2(args: argparse.Namespace) -> int:
+    """The online calibrator as a ROS 2 node (README, "ROS 2"), until Ctrl-C or SIGTERM."""
+    settings = _settings(args)
+    from odocal.ros2.node import run
 
-    if estimate.status is not Status.REJECTED:
-        return None
-    fatal = [f for f in findings if int(f.severity) == 2]
-    if not fatal:
-        return f"calibration failed: {estimate.message}"
-    more = f" (and {len(fatal) - 1} more: see the report)" if len(fatal) > 1 else ""
-    return f"error: {finding_text(fatal[0], settings)}{more}"
+    return run(list(getattr(args, "ros_args", [])), settings=settings)
+
+
+def _rejection(estimate: Any, findings: Sequence[Any], settings: Settings) -> str | None:
+    """:func:`odocal.report.summary.rejection_line`."""
+    from odocal.report.summary import rejection_line
+
+    return rejection_line(estimate, findings, settings)
 
 
 def _replay_files(out: Path, args: argparse.Namespace, result: Any, batch: Any,
@@ -736,7 +614,8 @@ def _add_common(p: argparse.ArgumentParser, *, workers: bool = True,
     if datasheet:
         p.add_argument("--datasheet", metavar="NAME=VALUE,...",
                        help="the vehicle's datasheet values, e.g. c_e=1.84,t_r=1.52 (effective "
-                            "wheel circumference and rear track width, m; also c_d, d): the "
+                            "wheel circumference and rear track width, m; also c_d, d; or a "
+                            "robot's wheel_radius=0.1,wheel_separation=0.4): the "
                             "start of the fit, the comparison in results and exports, and the "
                             "centre of the plausible ranges")
     if workers:
@@ -776,7 +655,13 @@ def _configure_logging(verbose: int, quiet: bool) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    ros_args: list[str] = []
+    if argv[:1] == ["ros2"] and "--ros-args" in argv:      # ROS 2's own arguments, as they are
+        ros_args, argv = argv[argv.index("--ros-args"):], argv[:argv.index("--ros-args")]
     args = parser.parse_args(argv)
+    if args.command == "ros2":
+        args.ros_args = ros_args
     _configure_logging(args.verbose, args.quiet)
     func: Callable[[argparse.Namespace], int] = args.func
     try:
@@ -864,14 +749,12 @@ def _add_calibration_commands(sub: Any) -> None:
     p.add_argument("--seed", type=SEED, help="seed of the step-1 batch draw")
     p.add_argument("--save-inputs", action="store_true",
                    help="also write the compensated wheel rates (compensated_inputs.parquet)")
-    p.add_argument("--export", action="append",
-                   choices=("yaml", "json", "autoware", "ros2_control", "robot_localization",
-                            "tum"),
+    p.add_argument("--export", action="extend", type=_export_targets, metavar="TARGET,...",
                    help="also write the parameters for a localisation stack: yaml (a ROS 2 "
                         "parameter file) or json, with their covariance, or the parameter files "
                         "of autoware, ros2_control, robot_localization; or tum: the reference "
                         "and the wheel odometry (calibrated and datasheet) as trajectories for "
-                        "evo (repeatable)")
+                        "evo (a comma list, or repeated)")
     p.add_argument("--wheel-joints", metavar="LEFT,RIGHT",
                    help="wheel joint names for --export ros2_control")
     p.add_argument("--no-report", action="store_true", help="skip report.html and the figures")
@@ -934,6 +817,17 @@ def _add_checking_commands(sub: Any) -> None:
     p.add_argument("--no-report", action="store_true", help="skip report.html")
     _add_common(p)
     p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("ros2", help="run the online calibrator as a ROS 2 node (the ros2 extra)",
+                       description="The online calibrator on live ROS 2 topics; node parameters "
+                                   "after --ros-args (README, 'ROS 2'), e.g. odocal ros2 "
+                                   "--datasheet c_e=1.95,t_r=1.51 --ros-args -p "
+                                   "pose_topic:=/odometry/filtered")
+    p.add_argument("--ros-args", dest="ros_args_help", action="store_true",
+                   help="everything after it goes to ROS 2: parameters (-p NAME:=VALUE), "
+                        "remappings, --params-file")
+    _add_common(p, workers=False)
+    p.set_defaults(func=cmd_ros2)
 
     p = sub.add_parser("minimum", help="the reachable minimum validation error (global search)")
     p.add_argument("logs", nargs="+", metavar="LOG",

@@ -129,6 +129,9 @@ class InverseDetails:
     """Why the lag found was not applied: ``within noise`` (under three standard deviations),
     ``does not hold out`` (found on half the clusters, it does not lower the other half's
     cost), ``flat`` (no bends to time the wheels by), ``edge`` (beyond the search range)."""
+    t0: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
+    """(W,): each window's first wheel step on its drive's clock, s (the drive is ``cluster //
+    10**9``): where the fitted windows lie, for the report."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"windows": self.windows, "window_s": self.window_s, "clusters": self.clusters,
@@ -247,7 +250,7 @@ def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
         prewhitening=(float(found.model.ma[0, 0]), float(found.model.ma[1, 0])),
         smoothing_steps2=float(2.0 * fit.p[core.KAPPA]), coupling=float(found.model.coupling),
         delay_found_s=found.lag.found * t_s, delay_note=found.lag.note,
-        wheel_offset_revps=found.offset[0], wheel_offset_std=found.offset[1])
+        wheel_offset_revps=found.offset[0], wheel_offset_std=found.offset[1], t0=windows.t0)
     if not free.any():
         status = Status.NOTHING_IDENTIFIABLE
     elif float(np.max(rms)) < 1e-9:

@@ -1,30 +1,37 @@
 """Parameter files for the localisation stacks users run, from a calibrated estimate.
 
+Every file is a ROS 2 parameter file written with a YAML library (``yaml.safe_dump``): every
+number is a float where the receiving node declares a double (a ``1`` where a double is declared
+stops a ROS 2 node at startup), and a string from the user (a log's file name, a fleet's vehicle
+name, a wheel joint name) is a quoted value or an escaped comment, never a key. Each file opens
+with comment lines saying what made it, from what, which parameters the data did not identify,
+and the releases of the receiving node it is written for.
+
 ``autoware``
     ``autoware/vehicle_info.param.yaml`` (``wheel_radius``, ``wheel_tread``: the two keys of
     Autoware's vehicle_info that odometry calibration determines; merge them into the vehicle's
     own file, whose other keys, such as the wheel base and overhangs, no drive can tell) and
-    ``autoware/vehicle_velocity_converter.param.yaml``, complete for the current
-    ``autoware_vehicle_velocity_converter`` schema (``speed_scale_factor``, ``frame_id``,
-    ``velocity_stddev_xx``, ``angular_velocity_stddev_zz``,
-    ``enable_online_speed_scale_factor_calibration``, ``acceptable_speed_scale_factor_range``,
-    ``stop_speed_threshold``), both as ROS 2 parameter files for any node
-    (``/**: ros__parameters``).
+    ``autoware/vehicle_velocity_converter.param.yaml``: the keys
+    ``autoware_vehicle_velocity_converter`` declares (autoware_core 1.0.0-1.9.0:
+    ``speed_scale_factor``, ``velocity_stddev_xx``, ``angular_velocity_stddev_zz``, and
+    ``frame_id``, which releases up to 1.8.0 require and 1.9.0 no longer declares).
 ``ros2_control``
-    ``ros2_control/diff_drive_controller.yaml``: the diff_drive_controller's wheel joint names,
-    ``wheel_separation`` and ``wheel_radius`` (datasheet values) with
-    ``wheel_separation_multiplier``, ``left_wheel_radius_multiplier`` and
-    ``right_wheel_radius_multiplier`` (the calibration), and the pose and twist covariance
-    diagonals. Without stated datasheet values the calibrated values go into ``wheel_separation``
-    and ``wheel_radius`` and the multipliers carry only the left/right difference.
+    ``ros2_control/diff_drive_controller.yaml``: the controller's ``type`` (so that the spawner's
+    ``--param-file`` can load it), the wheel joint names, ``wheel_separation`` and
+    ``wheel_radius`` (datasheet values) with ``wheel_separation_multiplier``,
+    ``left_wheel_radius_multiplier`` and ``right_wheel_radius_multiplier`` (the calibration),
+    and the pose and twist covariance diagonals (ros2_controllers 2.x Humble to 6.x Rolling).
+    Without stated datasheet values the calibrated values go into ``wheel_separation`` and
+    ``wheel_radius`` and the multipliers carry only the left/right difference.
 ``robot_localization``
     ``robot_localization/ekf_odometry.yaml``: the wheel-odometry input of an ``ekf_node``
-    (``odom0`` fusing forward speed and yaw rate, ``two_d_mode``), with the calibrated twist
-    standard deviations in a comment block to set as the odometry message's twist covariance.
+    (``odom0`` fusing forward speed and yaw rate, ``two_d_mode``; robot_localization 3.5 Humble,
+    3.6 Jazzy and later), with the calibrated twist standard deviations in a comment block to
+    set as the odometry message's twist covariance.
 
 A key the data cannot give (the controller's wheel joint names without ``--wheel-joints``, the
-speed scale factor without datasheet values) carries one comment line starting ``# FILL IN``
-that names it.
+speed scale factor without datasheet values or a known speed circumference) carries one comment
+line starting ``# FILL IN`` that names it.
 
 Speeds and yaw-rate standard deviations are measured: the calibrated wheel odometry against the
 reference motion over 1 s windows (:func:`odometry_noise`); where no drive is at hand the
@@ -34,32 +41,83 @@ target's default is kept and the file says so.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import yaml
 
 from odocal._version import __version__
 from odocal.data.drive import Drive
 from odocal.errors import ConfigError
 from odocal.io.atomic import write_text
 from odocal.model.kinematics import inverse_revolutions, motion_increments
-from odocal.model.parameters import Parameters
+from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS, PARAMETERS, Parameters
 from odocal.settings import datasheet_stated
 
 TARGETS = ("autoware", "ros2_control", "robot_localization")
 #: Autoware's vehicle_velocity_converter defaults (used where no noise was measured).
 AUTOWARE_VELOCITY_STD, AUTOWARE_YAW_RATE_STD = 0.2, 0.1
 
+#: The releases each file is written for (and tested against: tests/output/test_export.py).
+RELEASES = {
+    "autoware_info": "autoware_core autoware_vehicle_info_utils 1.0.0 and later",
+    "autoware": "autoware_core autoware_vehicle_velocity_converter 1.0.0 to 1.9.0",
+    "ros2_control": "ros2_controllers diff_drive_controller 2.x (Humble) to 6.x (Rolling); the "
+                    "spawner reads 'type' from --param-file from controller_manager 2.46.0 "
+                    "(Humble) and 4.21.0 (Jazzy) on",
+    "robot_localization": "robot_localization 3.5 (Humble) and 3.6 (Jazzy and later)",
+    "yaml": "any ROS 2 node that declares these parameters (odocal's own schema)",
+}
+
+#: The names stacks give the datasheet values, and the odocal parameter each one states:
+#: ``wheel_radius`` (m; c_e = 2 pi r), ``wheel_separation`` (ros2_control) and
+#: ``wheel_tread`` (Autoware), both the track width t_r (m).
+STACK_NAMES = {"wheel_radius": "c_e", "wheel_separation": "t_r", "wheel_tread": "t_r"}
+
+
+def stack_names(pairs: Sequence[tuple[str, float]]) -> list[tuple[str, float]]:
+    """``(name, value)`` pairs with the stacks' names (:data:`STACK_NAMES`) turned into odocal's
+    (a radius into a circumference); other names as given."""
+    return [(STACK_NAMES.get(key, key), value * 2.0 * math.pi if key == "wheel_radius" else value)
+            for key, value in pairs]
+
+
+def parse_datasheet(text: str, *, what: str = "--datasheet") -> dict[str, float]:
+    """``c_e=1.84,t_r=1.52`` (or the stacks' names, ``wheel_radius=0.1,wheel_separation=0.4``)
+    as datasheet values by odocal's names, checked by :func:`odocal.settings.datasheet_values`
+    (each once, within a vehicle's range); a one-line ConfigError naming ``what`` otherwise."""
+    from odocal.settings import datasheet_values
+
+    pairs: list[tuple[str, float]] = []
+    for item in text.split(","):
+        key, sep, value = item.partition("=")
+        try:
+            pairs.append((key.strip(), float(value)))
+        except ValueError:
+            sep = ""
+        if not sep:
+            raise ConfigError(f"{what} {text!r}: write NAME=VALUE pairs separated by commas, "
+                              "e.g. c_e=1.84,t_r=1.52 or wheel_radius=0.1,wheel_separation=0.4 "
+                              "(metres)")
+    unknown = [k for k, _ in pairs if k not in PARAMETER_NAMES and k not in STACK_NAMES]
+    if unknown:
+        raise ConfigError(f"{what}: {unknown[0]!r} is not one of "
+                          f"{', '.join((*PARAMETER_NAMES, *STACK_NAMES))}")
+    return datasheet_values(stack_names(pairs), source=what)
+
 
 @dataclass(frozen=True)
 class OdometryNoise:
-    """How far the calibrated wheel odometry is from the reference motion, 1 s averages."""
+    """How far the calibrated wheel odometry is from the reference motion, averaged over
+    ``window_s`` (1 s where measured against the reference by :func:`odometry_noise`)."""
 
     speed_std_mps: float
     yaw_rate_std_radps: float
     windows: int
+    window_s: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -75,6 +133,12 @@ class Calibrated:
     source: str = ""
     wheel_joints: tuple[str, str] | None = None
     """The left and right wheel joint names of the robot's description (ros2_control)."""
+    speed_circumference_m: float | None = None
+    """The circumference the vehicle's reported speed was turned into wheel rates with (logs
+    whose wheels are speeds in m/s, such as comma2k19): the speed scale factor is relative to
+    it."""
+    covariance: tuple[tuple[float, ...], ...] | None = None
+    """The 4x4 covariance of theta (``--export yaml``), order c_e, c_d, t_r, d."""
 
     @property
     def datasheet_stated(self) -> bool:
@@ -114,76 +178,83 @@ def odometry_noise(drives: Sequence[Drive], theta: Parameters,
                          windows=int(sv.size))
 
 
-def _header(c: Calibrated, what: str) -> list[str]:
-    lines = [f"# {what}, calibrated by odocal {__version__} (method {c.method})"]
+def comment(text: str) -> str:
+    """``text`` as one comment line: every character that could end the line (or that a YAML
+    reader takes for a line break, such as U+2028) or is not printable ASCII is escaped."""
+    escaped = "".join(ch if " " <= ch <= "~" else ch.encode("unicode_escape").decode("ascii")
+                      for ch in text)
+    return f"# {escaped}"
+
+
+def _float(value: Any) -> float:
+    """A finite Python float (YAML writes it with a decimal point or an exponent)."""
+    number = float(value)
+    if not math.isfinite(number):
+        raise ConfigError(f"cannot export the non-finite value {number!r}")
+    return number
+
+
+def parameter_file(header: Sequence[str], node: str, parameters: Mapping[str, Any]) -> str:
+    """A ROS 2 parameter file: the comment lines, then ``node: ros__parameters: ...``."""
+    body = yaml.safe_dump({node: {"ros__parameters": dict(parameters)}}, sort_keys=False,
+                          default_flow_style=None, allow_unicode=False, width=1 << 16)
+    return "".join(comment(line) + "\n" for line in header) + body
+
+
+def _header(c: Calibrated, what: str, release: str) -> list[str]:
+    lines = [f"{what}, calibrated by odocal {__version__} (method {c.method})",
+             f"for: {RELEASES[release]}"]
     if c.source:
-        lines.append(f"# from: {c.source}")
-    missing = [n for n, ok in zip(("c_e", "c_d", "t_r", "d"), c.identified, strict=True)
-               if not ok]
+        lines.append(f"from: {c.source}")
+    missing = [n for n, ok in zip(PARAMETER_NAMES, c.identified, strict=True) if not ok]
     if missing:
-        lines.append(f"# not identified by the data (datasheet values kept): {', '.join(missing)}")
+        lines.append(f"not identified by the data (datasheet values kept): {', '.join(missing)}")
     if not c.datasheet_stated:
-        lines.append("# no datasheet values were given (--datasheet): parameters not identified "
+        lines.append("no datasheet values were given (--datasheet): parameters not identified "
                      "hold odocal's placeholder")
     return lines
 
 
-def _num(value: float) -> str:
-    return f"{value:.9g}"
+def _noise(c: Calibrated) -> tuple[float, float, str]:
+    if c.noise is not None:
+        return (c.noise.speed_std_mps, c.noise.yaw_rate_std_radps,
+                f"measured over {c.noise.windows} windows of {c.noise.window_s:g} s")
+    return AUTOWARE_VELOCITY_STD, AUTOWARE_YAW_RATE_STD, "not measured here: Autoware's defaults"
 
 
 def autoware(c: Calibrated, out: Path) -> list[Path]:
     th, ds = c.theta, c.datasheet
-    info = [*_header(c, "Autoware vehicle_info: the keys wheel-odometry calibration sets"),
-            "# Merge into the vehicle's vehicle_info.param.yaml (its other keys stay).",
-            "/**:", "  ros__parameters:",
-            f"    wheel_radius: {_num(th.c_e / (2.0 * math.pi))}  # c_e / 2 pi, m",
-            f"    wheel_tread: {_num(th.t_r)}  # rear track width t_r, m"]
-    if c.noise is not None:
-        v_std, w_std, note = (c.noise.speed_std_mps, c.noise.yaw_rate_std_radps,
-                              f"measured over {c.noise.windows} windows of 1 s")
-    else:
-        v_std, w_std, note = (AUTOWARE_VELOCITY_STD, AUTOWARE_YAW_RATE_STD,
-                              "not measured here: Autoware's defaults")
-    if c.datasheet_stated:
+    info = parameter_file(
+        [*_header(c, "Autoware vehicle_info: the keys wheel-odometry calibration sets",
+                  "autoware_info"),
+         "Merge into the vehicle's vehicle_info.param.yaml (its other keys stay).",
+         "wheel_radius: c_e / 2 pi (m); wheel_tread: the rear track width t_r (m)"],
+        "/**", {"wheel_radius": _float(th.c_e / (2.0 * math.pi)),
+                "wheel_tread": _float(th.t_r)})
+    v_std, w_std, note = _noise(c)
+    if c.speed_circumference_m is not None:
+        scale = th.c_e / c.speed_circumference_m
+        scale_lines = ["speed_scale_factor: the true speed over the speed the vehicle reports: "
+                       f"c_e over the {c.speed_circumference_m:.9g} m its reported speed was "
+                       "turned into wheel rates with"]
+    elif c.datasheet_stated:
         scale = th.c_e / ds.c_e
-        scale_lines = ["# speed_scale_factor: the true speed over the speed the vehicle reports "
-                       "with its", "# datasheet circumference (c_e / c_e datasheet)."]
+        scale_lines = ["speed_scale_factor: the true speed over the speed the vehicle reports "
+                       "with its datasheet circumference (c_e / c_e datasheet)"]
     else:
         scale = 1.0
-        scale_lines = [f"# FILL IN speed_scale_factor: {_num(th.c_e)} m (calibrated c_e) over the "
+        scale_lines = [f"FILL IN speed_scale_factor: {th.c_e:.9g} m (calibrated c_e) over the "
                        "circumference the vehicle computes its speed with (no datasheet given)"]
-    # the range the node's own online estimate may move in; it must hold the factor written
-    low, high = min(0.98, round(scale - 0.01, 4)), max(1.02, round(scale + 0.01, 4))  # (not theta)
-    conv = [*_header(c, "Autoware vehicle_velocity_converter"), *scale_lines,
-            f"# standard deviations {note}",
-            "/**:", "  ros__parameters:",
-            f"    speed_scale_factor: {_num(scale)}",
-            f"    velocity_stddev_xx: {_num(v_std)}  # m/s",
-            f"    angular_velocity_stddev_zz: {_num(w_std)}  # rad/s",
-            "    frame_id: base_link",
-            "    enable_online_speed_scale_factor_calibration: false",
-            f"    acceptable_speed_scale_factor_range: [{_num(low)}, {_num(high)}]",
-            "    stop_speed_threshold: 0.1  # m/s"]
+    conv = parameter_file(
+        [*_header(c, "Autoware vehicle_velocity_converter", "autoware"), *scale_lines,
+         f"velocity_stddev_xx (m/s), angular_velocity_stddev_zz (rad/s): {note}",
+         "frame_id: declared (and required) up to 1.8.0, ignored from 1.9.0 on"],
+        "/**", {"speed_scale_factor": _float(scale), "velocity_stddev_xx": _float(v_std),
+                "angular_velocity_stddev_zz": _float(w_std), "frame_id": "base_link"})
     a, b = out / "vehicle_info.param.yaml", out / "vehicle_velocity_converter.param.yaml"
-    write_text(a, "\n".join(info) + "\n")
-    write_text(b, "\n".join(conv) + "\n")
+    write_text(a, info)
+    write_text(b, conv)
     return [a, b]
-
-
-def _wheel_names(c: Calibrated) -> list[str]:
-    if c.wheel_joints is not None:
-        left, right = c.wheel_joints
-        return [f"    left_wheel_names: [{_quoted(left)}]",
-                f"    right_wheel_names: [{_quoted(right)}]"]
-    return ["    # FILL IN left_wheel_names and right_wheel_names: the rear wheel joints of your "
-            "robot description (or calibrate with --wheel-joints LEFT,RIGHT)",
-            '    left_wheel_names: ["rear_left_wheel_joint"]',
-            '    right_wheel_names: ["rear_right_wheel_joint"]']
-
-
-def _quoted(name: str) -> str:
-    return '"' + name.replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
 def ros2_control(c: Calibrated, out: Path) -> list[Path]:
@@ -191,52 +262,77 @@ def ros2_control(c: Calibrated, out: Path) -> list[Path]:
     # without the user's datasheet the calibrated values are the nominal ones
     ds = c.datasheet if c.datasheet_stated else th
     c_l, c_r = th.c_e + th.c_d / 2.0, th.c_e - th.c_d / 2.0
-    v_var = (c.noise.speed_std_mps if c.noise else AUTOWARE_VELOCITY_STD) ** 2
-    w_var = (c.noise.yaw_rate_std_radps if c.noise else AUTOWARE_YAW_RATE_STD) ** 2
+    v_std, w_std, note = _noise(c)
     nominal = ("the datasheet values" if c.datasheet_stated
                else "the calibrated values (no datasheet given)")
-    lines = [*_header(c, "ros2_controllers diff_drive_controller"),
-             f"# wheel_separation and wheel_radius are {nominal}; the multipliers",
-             "# carry the calibration (effective = nominal x multiplier). The top key is the",
-             "# controller's name in your controller_manager configuration.",
-             "diff_drive_controller:", "  ros__parameters:",
-             *_wheel_names(c),
-             "    wheels_per_side: 1",
-             f"    wheel_separation: {_num(ds.t_r)}",
-             f"    wheel_radius: {_num(ds.c_e / (2.0 * math.pi))}",
-             f"    wheel_separation_multiplier: {_num(th.t_r / ds.t_r)}",
-             f"    left_wheel_radius_multiplier: {_num(c_l / ds.c_e)}",
-             f"    right_wheel_radius_multiplier: {_num(c_r / ds.c_e)}",
-             "    odom_frame_id: odom",
-             "    base_frame_id: base_link",
-             "    pose_covariance_diagonal: [0.001, 0.001, 1000000.0, 1000000.0, 1000000.0, "
-             "1000.0]",
-             f"    twist_covariance_diagonal: [{_num(v_var)}, 0.001, 1000000.0, 1000000.0, "
-             f"1000000.0, {_num(w_var)}]"]
+    header = [*_header(c, "ros2_controllers diff_drive_controller", "ros2_control"),
+              f"wheel_separation and wheel_radius are {nominal}; the multipliers carry the",
+              "calibration (effective = nominal x multiplier). The top key is the controller's",
+              "name in your controller_manager configuration.",
+              f"twist_covariance_diagonal: vx and vyaw variances {note}"]
+    if c.wheel_joints is not None:
+        left, right = c.wheel_joints
+    else:
+        header.append("FILL IN left_wheel_names and right_wheel_names: the rear wheel joints "
+                      "of your robot description (or calibrate with --wheel-joints LEFT,RIGHT)")
+        left, right = "rear_left_wheel_joint", "rear_right_wheel_joint"
+    params = {
+        "type": "diff_drive_controller/DiffDriveController",
+        "left_wheel_names": [str(left)], "right_wheel_names": [str(right)],
+        "wheel_separation": _float(ds.t_r),
+        "wheel_radius": _float(ds.c_e / (2.0 * math.pi)),
+        "wheel_separation_multiplier": _float(th.t_r / ds.t_r),
+        "left_wheel_radius_multiplier": _float(c_l / ds.c_e),
+        "right_wheel_radius_multiplier": _float(c_r / ds.c_e),
+        "odom_frame_id": "odom", "base_frame_id": "base_link",
+        "pose_covariance_diagonal": [0.001, 0.001, 1.0e6, 1.0e6, 1.0e6, 1000.0],
+        "twist_covariance_diagonal": [_float(v_std**2), 0.001, 1.0e6, 1.0e6, 1.0e6,
+                                      _float(w_std**2)]}
     path = out / "diff_drive_controller.yaml"
-    write_text(path, "\n".join(lines) + "\n")
+    write_text(path, parameter_file(header, "diff_drive_controller", params))
     return [path]
 
 
 def robot_localization(c: Calibrated, out: Path) -> list[Path]:
-    v_std = c.noise.speed_std_mps if c.noise else AUTOWARE_VELOCITY_STD
-    w_std = c.noise.yaw_rate_std_radps if c.noise else AUTOWARE_YAW_RATE_STD
+    v_std, w_std, note = _noise(c)
     flags = [False] * 15
     flags[6] = flags[11] = True                # vx and vyaw
-    lines = [*_header(c, "robot_localization ekf_node: the wheel-odometry input"),
-             "# Publish the odometry with this twist covariance (row-major 6x6 diagonal):",
-             f"#   vx variance {_num(v_std**2)} (m/s)^2, vyaw variance {_num(w_std**2)} (rad/s)^2",
-             "ekf_filter_node:", "  ros__parameters:",
-             "    two_d_mode: true",
-             "    odom0: /odom",
-             "    odom0_config: [" + ", ".join("true" if f else "false" for f in flags) + "]",
-             "    odom0_queue_size: 10",
-             "    odom0_differential: false",
-             "    odom0_relative: false",
-             f"    odom0_twist_rejection_threshold: {_num(5.0)}"]
+    header = [*_header(c, "robot_localization ekf_node: the wheel-odometry input",
+                       "robot_localization"),
+              f"Publish the odometry with this twist covariance (row-major 6x6 diagonal; {note}):",
+              f"  vx variance {v_std**2:.9g} (m/s)^2, vyaw variance {w_std**2:.9g} (rad/s)^2"]
+    params = {"two_d_mode": True, "odom0": "/odom", "odom0_config": flags,
+              "odom0_queue_size": 10, "odom0_differential": False, "odom0_relative": False,
+              "odom0_twist_rejection_threshold": 5.0}
     path = out / "ekf_odometry.yaml"
-    write_text(path, "\n".join(lines) + "\n")
+    write_text(path, parameter_file(header, "ekf_filter_node", params))
     return [path]
+
+
+def parameters_yaml(c: Calibrated, path: Path) -> Path:
+    """``odometry_parameters.yaml`` (``--export yaml``): theta, the derived wheel radius, which
+    parameters the drive identified and their covariance, as a ROS 2 parameter file."""
+    th = c.theta
+    cov = (np.zeros((PARAMETERS, PARAMETERS)) if c.covariance is None
+           else np.asarray(c.covariance, dtype=float))
+    header = [*_header(c, "Wheel-odometry parameters", "yaml"),
+              "Parameters a drive did not identify keep their datasheet values (identified: "
+              "false).",
+              "Units: " + ", ".join(f"{n} {u}" for n, u in
+                                    zip(PARAMETER_NAMES, PARAMETER_UNITS, strict=True))
+              + "; wheel_radius = c_e / (2 pi), m; c_d is left minus right.",
+              "covariance: row-major 4x4 in the order of parameter_names, SI units"]
+    params = {"effective_wheel_circumference": _float(th.c_e),
+              "wheel_radius": _float(th.c_e / (2.0 * math.pi)),
+              "circumference_difference": _float(th.c_d),
+              "rear_track_width": _float(th.t_r),
+              "load_transfer_coefficient": _float(th.d),
+              "parameter_names": list(PARAMETER_NAMES),
+              "identified": [bool(ok) for ok in c.identified],
+              "std": [_float(s) for s in c.std],
+              "covariance": [_float(v) for v in cov.ravel()]}
+    write_text(path, parameter_file(header, "wheel_odometry", params))
+    return path
 
 
 _WRITERS = {"autoware": autoware, "ros2_control": ros2_control,

@@ -5,6 +5,8 @@ Every file is written atomically, and no output may land on one of the inputs.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -12,12 +14,72 @@ import numpy as np
 
 from odocal._version import __version__
 from odocal.errors import OutputError
-from odocal.io.atomic import write_text
 from odocal.io.results import write_json
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS
 from odocal.pipeline.result import CalibrationResult
 
 CALIBRATION_FILE = "calibration.json"
+#: What ``--export`` may name: parameter files (yaml, json), the stacks' files, trajectories.
+EXPORT_TARGETS = ("yaml", "json", "autoware", "ros2_control", "robot_localization", "tum")
+
+
+@dataclass(frozen=True)
+class Written:
+    """What :func:`write_results` wrote (paths relative to the folder) and what it left out,
+    in words."""
+
+    paths: tuple[Path, ...]
+    notes: tuple[str, ...] = ()
+
+
+def write_results(result: CalibrationResult, out_dir: str | Path, *,
+                  exports: Sequence[str] = (), report: bool = True,
+                  save_inputs: bool = False, wheel_joints: tuple[str, str] | None = None,
+                  progress: Callable[[str, int, int], None] | None = None,
+                  renderer: Any = None) -> Written:
+    """Everything a calibration writes into ``out_dir`` (a folder that exists; the caller makes
+    it atomic): ``report.html`` and its figures (unless ``report`` is False), calibration.json
+    (with the report's numbers), the ``exports`` (:data:`EXPORT_TARGETS`: trajectories judge
+    any result, even a refused one; parameter files only a calibration that succeeded) and,
+    with ``save_inputs``, the compensated wheel rates."""
+    out = Path(out_dir)
+    written: list[Path] = []
+    notes: list[str] = []
+    report_numbers = None
+    if report:
+        from odocal.report import write_report
+
+        page = write_report(result, out, progress=progress, renderer=renderer)
+        written += [page.html_path, *page.figure_paths]
+        report_numbers = page.data.to_dict()
+    written.insert(0, write_calibration(result, out, report=report_numbers))
+    targets = list(dict.fromkeys(exports))
+    unknown = [t for t in targets if t not in EXPORT_TARGETS]
+    if unknown:
+        raise OutputError(f"unknown export target {unknown[0]!r}; choose from "
+                          f"{', '.join(EXPORT_TARGETS)}")
+    if "tum" in targets:
+        from odocal.output.trajectories import write_trajectories
+
+        written += write_trajectories(result.drive_data, result.estimate.theta,
+                                      result.estimate.datasheet, out)
+        targets.remove("tum")
+    if targets and not result.success:
+        notes.append("parameters not exported: the calibration did not succeed")
+        targets = []
+    for target in targets:
+        if target in ("yaml", "json"):
+            written.append(export_parameters(result, out, target))
+        else:
+            written += export_stack(result, out, target, wheel_joints=wheel_joints)
+    if save_inputs:
+        path = write_compensated_inputs(result, out)
+        if path is None:
+            notes.append("--save-inputs: this method does not compensate the wheel rates")
+        else:
+            written.append(path)
+    return Written(paths=tuple(p.relative_to(out) if p.is_absolute() and p.is_relative_to(out)
+                               else p for p in written), notes=tuple(notes))
 
 
 def write_calibration(result: CalibrationResult, out_dir: str | Path, *,
@@ -47,42 +109,40 @@ def export_parameters(result: CalibrationResult, out_dir: str | Path, fmt: str) 
             "method": result.method, "odocal_version": __version__})
     if fmt != "yaml":
         raise OutputError(f"unknown export format {fmt!r}; use yaml or json")
-    identified = ", ".join("true" if ok else "false" for ok in est.identified)
-    lines = [
-        f"# Wheel-odometry parameters calibrated by odocal {__version__} "
-        f"(method {result.method}).",
-        "# Parameters a drive did not identify keep their datasheet values (identified: false).",
-        "wheel_odometry:",
-        "  ros__parameters:",
-        f"    effective_wheel_circumference: {theta['c_e']:.9g}   # c_e, m",
-        f"    wheel_radius: {theta['c_e'] / (2 * np.pi):.9g}   # c_e / (2 pi), m",
-        f"    circumference_difference: {theta['c_d']:.9g}   # c_d, m, left minus right",
-        f"    rear_track_width: {theta['t_r']:.9g}   # t_r, m",
-        f"    load_transfer_coefficient: {theta['d']:.9g}   # d, m per m/s^2",
-        "    parameter_names: [c_e, c_d, t_r, d]",
-        f"    identified: [{identified}]",
-        "    # row-major 4x4 covariance in the order of parameter_names, SI units",
-        "    covariance: [" + ", ".join(f"{v:.9g}" for v in cov.ravel()) + "]",
-    ]
-    path = Path(out_dir) / "odometry_parameters.yaml"
-    write_text(path, "\n".join(lines) + "\n")
-    return path
+    from odocal.output.export import parameters_yaml
+
+    return parameters_yaml(_calibrated(result), Path(out_dir) / "odometry_parameters.yaml")
 
 
 def export_stack(result: CalibrationResult, out_dir: str | Path, target: str, *,
                  wheel_joints: tuple[str, str] | None = None) -> list[Path]:
     """Parameter files for ``target`` (see :mod:`odocal.output.export`) in ``out_dir/target/``;
     ``wheel_joints`` names the left and right wheel joints (ros2_control)."""
-    from odocal.output.export import Calibrated, export, odometry_noise
+    from odocal.output.export import export
+
+    return export(_calibrated(result, wheel_joints=wheel_joints), out_dir, [target])
+
+
+def _calibrated(result: CalibrationResult, *,
+                wheel_joints: tuple[str, str] | None = None) -> Any:
+    """What the exports need from a calibration (:class:`odocal.output.export.Calibrated`)."""
+    from odocal.output.export import Calibrated, odometry_noise
 
     est = result.estimate
-    calibrated = Calibrated(theta=est.theta, datasheet=est.datasheet,
-                            std=tuple(est.std.tolist()),
-                            identified=est.identified, method=result.method,
-                            noise=odometry_noise(result.drive_data, est.theta),
-                            source=", ".join(d.name for d in result.drives),
-                            wheel_joints=wheel_joints)
-    return export(calibrated, out_dir, [target])
+    # logs whose wheels were speeds (m/s) were turned into rates with one circumference: the
+    # vehicle's reported speed relates to it (the speed scale factor is relative to it)
+    circumferences = {d.metadata.get("wheel_circumference_m") for d in result.drive_data}
+    circumference = circumferences.pop() if len(circumferences) == 1 else None
+    return Calibrated(theta=est.theta, datasheet=est.datasheet,
+                      std=tuple(float(s) for s in est.std),
+                      identified=est.identified, method=result.method,
+                      noise=odometry_noise(result.drive_data, est.theta),
+                      source=", ".join(d.name for d in result.drives),
+                      wheel_joints=wheel_joints,
+                      speed_circumference_m=(float(circumference)
+                                             if isinstance(circumference, int | float) else None),
+                      covariance=tuple(tuple(float(v) for v in row)
+                                       for row in est.covariance))
 
 
 def write_compensated_inputs(result: CalibrationResult, out_dir: str | Path) -> Path | None:

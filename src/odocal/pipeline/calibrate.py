@@ -136,7 +136,7 @@ def stated_circumference(settings: Settings | None) -> float | None:
 
     if settings is None or not datasheet_stated(settings.identify.theta0):
         return None
-    return float(settings.identify.theta0[0])
+    return settings.identify.datasheet("c_e")
 
 
 def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],

@@ -137,7 +137,7 @@ def build_drive(log: RawLog, settings: Settings, *,
     metadata = {**dict(log.metadata), "conversion": report.to_dict()}
     if log.origin_lla is not None:
         metadata["origin_lla"] = list(log.origin_lla)
-    stated = settings.identify.theta0[0] if datasheet_stated(settings.identify.theta0) \
+    stated = settings.identify.datasheet("c_e") if datasheet_stated(settings.identify.theta0) \
         else None
     return Drive.from_columns(columns, name=log.name, metadata=metadata, circumference_m=stated)
 

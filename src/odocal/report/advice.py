@@ -19,6 +19,7 @@ from odocal.checks.findings import Check, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.data.segments import SegmentSet
 from odocal.estimators.estimate import Estimate, Identified, NotIdentified, Reason
+from odocal.model.layout import REAR_AXLE as LAYOUT
 from odocal.model.parameters import PARAMETER_LABELS, PARAMETER_NAMES
 from odocal.settings import Settings
 
@@ -112,6 +113,8 @@ def advise(estimate: Estimate, cov: Coverage, settings: Settings,
             if factor > 0.25:
                 text += (f". It is close to that limit: {_more(what, amount, 4 * factor)} "
                          "would halve the uncertainty")
+            if name in consistent_with_zero(estimate):
+                text += ". " + zero_text(name, estimate.theta.as_array()[j], verdict.std)
             out.append(ParameterAdvice(name, label, True, text + "."))
             continue
         out.append(ParameterAdvice(name, label, False, _not_identified(
@@ -188,6 +191,35 @@ def reason_text(name: str, verdict: NotIdentified, *, threshold_radps: float) ->
     if reason is Reason.REJECTED:
         return "the data contradict the model"
     return "held at the datasheet value"
+
+
+#: Parameters whose zero means "no such effect" (the layout's wheel difference and load
+#: transfer: c_d, d), and the effect.
+ZERO_MEANS = {LAYOUT.difference: "difference between the two wheels' circumferences",
+              LAYOUT.load: "load transfer"}
+#: An identified value within this many standard deviations of zero is consistent with zero.
+ZERO_SIGMAS = 2.0
+
+
+def consistent_with_zero(estimate: Estimate) -> tuple[str, ...]:
+    """Identified parameters whose zero means no effect (c_d, d) and whose value lies within
+    :data:`ZERO_SIGMAS` standard deviations of it: identified, but no evidence of the
+    effect."""
+    theta = estimate.theta.as_array()
+    return tuple(name for j, (name, ok) in enumerate(zip(PARAMETER_NAMES, estimate.identified,
+                                                         strict=True))
+                 if ok and name in ZERO_MEANS
+                 and abs(theta[j]) <= ZERO_SIGMAS * float(estimate.std[j]))
+
+
+def zero_text(name: str, value: float, std: float) -> str:
+    """An identified parameter consistent with zero, in a sentence (report, CLI)."""
+    sign = "-" if value < 0 else "+"
+    bound = format_value(name, abs(value) + ZERO_SIGMAS * std)
+    return (f"{name} = {sign}{format_value(name, abs(value))} +-{format_value(name, std)} is "
+            f"identified but consistent with zero (within {ZERO_SIGMAS:g} standard "
+            f"deviations): this drive shows no measurable {ZERO_MEANS[name]} (at most about "
+            f"{bound} either way), not evidence of one")
 
 
 def format_value(name: str, value: float) -> str:
@@ -302,9 +334,10 @@ def _reference_and_sensor_text(finding: Finding) -> str:
                 "vehicle turns: a missing or unplugged sensor?); d is not calibrated and its "
                 "uncertainty widens t_r's")
     if c is Check.LATERAL_DELAY:
-        return (f"a_y lags speed times the reference yaw rate by {v:+.2f} s: a calibration "
-                "aligns it before the fit (aligning the IMU stream's clock, the mapping's "
-                "offset_s, is better)")
+        way = "lags" if v > 0 else "leads"
+        return (f"a_y {way} speed times the reference yaw rate by {abs(v):.2f} s: a "
+                "calibration aligns it before the fit (aligning the IMU stream's clock, the "
+                "mapping's offset_s, is better)")
     if c is Check.LATERAL_OFFSET:
         tilt = np.degrees(np.arcsin(np.clip(v / 9.81, -1.0, 1.0)))
         return (f"a_y reads {v:+.2f} m/s^2 (+-{ref:.2f}) more than the reference's turning "

@@ -13,11 +13,11 @@ from typing import Any
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.collections import PolyCollection
-from matplotlib.ticker import MaxNLocator
+from matplotlib.ticker import FixedFormatter, FixedLocator, MaxNLocator, NullLocator
 from numpy.typing import NDArray
 
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES
-from odocal.report.style import CALIBRATED, DATASHEET, RAW, REFERENCE, STEP1
+from odocal.report.style import CALIBRATED, DATASHEET, FITTED_ALT, RAW, REFERENCE, STEP1
 
 FloatArray = NDArray[np.float64]
 #: Display scale and unit of each parameter (c_d and d read best in mm).
@@ -94,6 +94,7 @@ def plot_step1_sorted(ax: Axes, sorted_errors: FloatArray, picked_ranks: Sequenc
     ax.xaxis.set_major_locator(MaxNLocator(nbins="auto", integer=True))
     ax.set_ylabel("validation error E_p [m]")
     ax.set_title("Step 1: batch G-N on measured rates (picked sets in blue)", fontsize=9)
+    ax.set_axisbelow(True)
     ax.legend(fontsize=8, loc="upper left")
     ax.grid(True, axis="y", alpha=0.3)
     return artists
@@ -143,29 +144,117 @@ def plot_rates(ax: Axes, t: FloatArray, measured: FloatArray, compensated: Float
 
 
 def plot_segment_errors(ax: Axes, errors: dict[str, FloatArray]) -> list[Any]:
-    """Fig. 8: validation error of each validation segment, per parameter set."""
+    """Mean position error on each validation segment, per parameter set, on a linear axis
+    from zero: one bar twice as long as another is twice the error."""
     order = [k for k in ("datasheet", "raw", "calibrated") if k in errors]
     colours = {"datasheet": DATASHEET, "raw": RAW, "calibrated": CALIBRATED}
-    labels = {"datasheet": "datasheet", "raw": "batch G-N, measured rates",
+    labels = {"datasheet": "datasheet values", "raw": "batch G-N, measured rates",
               "calibrated": "calibrated"}
     n = errors[order[0]].size
     width = 0.8 / len(order)
     x = np.arange(1, n + 1)
-    positive = np.concatenate([e[e > 0] for e in errors.values()])
-    floor = 10.0 ** np.floor(np.log10(positive.min())) if positive.size else 1e-3
-    ax.set_yscale("log")
-    artists = [bars(ax, x + (i - (len(order) - 1) / 2) * width, np.maximum(errors[k], floor),
-                    width=width, color=colours[k], bottom=floor,
-                    label=f"{labels[k]} (mean {errors[k].mean():.2f} m)")
-               for i, k in enumerate(order)]
-    ax.set_xlabel("validation segment")
+    artists: list[Any] = [bars(ax, x + (i - (len(order) - 1) / 2) * width, errors[k],
+                               width=width, color=colours[k],
+                               label=f"{labels[k]} (mean {errors[k].mean():.2f} m)")
+                          for i, k in enumerate(order)]
+    top = max((float(np.nanmax(e)) for e in errors.values() if np.isfinite(e).any()),
+              default=1.0)
+    ax.set_ylim(0.0, 1.3 * top if top > 0 else 1.0)      # head room for the legend
+    ax.set_xlim(0.4, n + 0.6)
     ax.xaxis.set_major_locator(MaxNLocator(nbins="auto", integer=True))
     ax.set_ylabel("mean position error [m]")
-    low, high = ax.get_ylim()
-    ax.set_ylim(low, high * 10)                   # head room for the legend on the log scale
-    ax.set_title("Validation error per segment", fontsize=9)
+    ax.set_title("Validation error per segment (linear scale from 0)", fontsize=9)
+    ax.set_axisbelow(True)                        # the grid behind the bars, not across them
     ax.legend(fontsize=8, ncol=len(order), loc="upper center")
-    ax.grid(True, axis="y", alpha=0.3, which="both")
+    ax.grid(True, axis="y", alpha=0.3)
+    return artists
+
+
+#: Ratios are drawn no lower than this (a noise-free calibration's error is ~0): a marker
+#: pointing down stands for "this or less".
+RATIO_FLOOR = 1e-4
+#: Where a ratio axis may put its ticks, finest first: the first that puts at most
+#: :data:`_MAX_TICKS` in the range is used.
+_DECADES = 10.0 ** np.arange(0, 5)
+_RATIO_TIERS = tuple(np.unique(np.concatenate([m * _DECADES for m in mantissas]
+                                              + [1 / (m * _DECADES) for m in mantissas]))
+                     for mantissas in ((1.0, 2.0, 3.0, 5.0), (1.0, 3.0), (1.0,)))
+_MAX_TICKS = 7
+
+
+def ratio_label(value: float) -> str:
+    """A ratio as a reader says it: ``1/50``, ``1``, ``3``."""
+    if value <= 0 or not np.isfinite(value):
+        return "0"
+    magnitude = 1 / value if value < 1 else value
+    digits = f"{magnitude:.3g}" if magnitude < 1000 else f"{magnitude:.0f}"
+    return f"1/{digits}" if value < 1 else digits
+
+
+def ratio_axis(ax: Axes, values: FloatArray, *, include: Sequence[float] = (1.0,)) -> None:
+    """A log axis for ratios, spanning ``values`` and ``include``, with ticks labelled as
+    fractions (1/100 .. 1/3, 1, 3 ..): equal steps are equal factors."""
+    finite = np.asarray(values, dtype=np.float64)
+    finite = finite[np.isfinite(finite)]
+    low = min([*(np.maximum(finite, RATIO_FLOOR).tolist()), *include])
+    high = max([*(finite.tolist()), *include])
+    low, high = low / 1.8, high * 1.8
+    ax.set_yscale("log")
+    ax.set_ylim(low, high)
+    for tier in _RATIO_TIERS:
+        ticks = tier[(tier >= low) & (tier <= high)]
+        if ticks.size <= _MAX_TICKS:
+            break
+    ax.yaxis.set_major_locator(FixedLocator(ticks))
+    ax.yaxis.set_major_formatter(FixedFormatter([ratio_label(t) for t in ticks]))
+    ax.yaxis.set_minor_locator(NullLocator())
+
+
+def _floored(ax: Axes, x: FloatArray, values: FloatArray, *, colour: str, marker: str,
+             label: str | None, size: float = 24.0) -> list[Any]:
+    """Markers at ``values`` (log axis); those below :data:`RATIO_FLOOR` at the floor, pointing
+    down."""
+    ok = np.isfinite(values)
+    low = ok & (values < RATIO_FLOOR)
+    shown = ok & ~low
+    artists: list[Any] = [ax.scatter(x[shown], values[shown], s=size, color=colour,
+                                     marker=marker, label=label, zorder=3)]
+    if low.any():
+        artists.append(ax.scatter(x[low], np.full(int(low.sum()), RATIO_FLOOR), s=size,
+                                  color=colour, marker="v", zorder=3,
+                                  label=None if shown.any() else label))
+    return artists
+
+
+def plot_error_ratio(ax: Axes, errors: dict[str, FloatArray]) -> list[Any]:
+    """Each validation segment's error with the calibrated (and raw) parameters as a fraction
+    of the datasheet values' error on the same segment (log scale: 1/10 and 10 are equally far
+    from 1; below the line at 1 the calibration does better)."""
+    base = errors["datasheet"]
+    n = base.size
+    x = np.arange(1, n + 1, dtype=np.float64)
+    artists: list[Any] = [ax.axhline(1.0, color=REFERENCE, lw=1, ls="--",
+                                     label="as large as with the datasheet values")]
+    shown = []
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k, colour, marker, dx in (("raw", RAW, "D", -0.12), ("calibrated", CALIBRATED, "o",
+                                                                   0.12 if "raw" in errors
+                                                                   else 0.0)):
+            if k not in errors:
+                continue
+            ratio = np.where(base > 0, errors[k] / base, np.nan)
+            shown.append(ratio)
+            label = ("calibrated" if k == "calibrated" else "batch G-N, measured rates") + (
+                f" (median {ratio_label(float(np.nanmedian(ratio)))})"
+                if np.isfinite(ratio).any() else "")
+            artists += _floored(ax, x + dx, ratio, colour=colour, marker=marker, label=label)
+    ratio_axis(ax, np.concatenate(shown) if shown else np.ones(1))
+    ax.set_xlim(0.4, n + 0.6)
+    ax.xaxis.set_major_locator(MaxNLocator(nbins="auto", integer=True))
+    ax.set_xlabel("validation segment")
+    ax.set_ylabel("error / datasheet error")
+    ax.legend(fontsize=8, loc="best")
+    ax.grid(True, axis="y", alpha=0.3)
     return artists
 
 
@@ -185,46 +274,108 @@ def plot_histogram(ax: Axes, seconds: FloatArray, edges: FloatArray, *, xlabel: 
     return artists
 
 
-def plot_selection(ax: Axes, peak_yaw: FloatArray, threshold: float) -> list[Any]:
-    """Peak yaw rate of every identification segment against the selection threshold."""
-    selected = peak_yaw > threshold
-    idx = np.arange(peak_yaw.size)
-    artists = [ax.scatter(idx[selected], peak_yaw[selected], s=6, color=CALIBRATED,
-                          label=f"selected ({int(selected.sum())})"),
-               ax.scatter(idx[~selected], peak_yaw[~selected], s=6, color=STEP1,
-                          label=f"too straight ({int((~selected).sum())})"),
-               ax.axhline(threshold, color=DATASHEET, lw=1, ls="--",
-                          label=f"threshold {threshold} rad/s")]
-    ax.set_xlabel("identification segment")
-    ax.xaxis.set_major_locator(MaxNLocator(nbins="auto", integer=True))
-    ax.set_ylabel("peak |yaw rate| [rad/s]")
-    ax.legend(fontsize=8)
-    ax.grid(True, alpha=0.3)
-    return artists
-
-
 def plot_uncertainty(ax: Axes, covariance_std: FloatArray, bootstrap_std: FloatArray | None,
                      prior_std: FloatArray, identified: Sequence[bool],
                      limit_ratio: float) -> list[Any]:
-    """Standard deviations relative to the datasheet uncertainty (log scale).
+    """Each standard deviation as a fraction of the datasheet uncertainty: a point per
+    parameter on a log scale (a bar's length would mean nothing there), the identifiability
+    limit as a line, and "not identified" where a parameter is not.
 
     ``limit_ratio`` is the identifiability limit as a fraction of the datasheet uncertainty.
     """
-    x = np.arange(len(covariance_std))
-    ok = np.array(identified)
-    rel_cov = np.where(ok, covariance_std / prior_std, np.nan)
-    artists: list[Any] = [ax.bar(x - 0.2, rel_cov, width=0.4, color=CALIBRATED,
-                                 label="covariance")]
+    n = len(covariance_std)
+    x = np.arange(n, dtype=np.float64)
+    ok = np.asarray(identified, dtype=bool)
+    prior = np.asarray(prior_std, dtype=np.float64)
+    rel_cov = np.where(ok, np.asarray(covariance_std) / prior, np.nan)
+    dx = 0.12 if bootstrap_std is not None else 0.0
+    artists: list[Any] = [ax.axhline(limit_ratio, color=DATASHEET, lw=1, ls="--",
+                                     label=f"identifiability limit ({ratio_label(limit_ratio)})")]
+    artists += _floored(ax, x - dx, rel_cov, colour=CALIBRATED, marker="o", label="covariance",
+                        size=40.0)
+    shown = [rel_cov]
     if bootstrap_std is not None:
-        artists.append(ax.bar(x + 0.2, np.where(ok, bootstrap_std / prior_std, np.nan),
-                              width=0.4, color=RAW, label="bootstrap"))
-    artists.append(ax.axhline(limit_ratio, color=DATASHEET, lw=1, ls="--",
-                              label="identifiability limit"))
+        rel_boot = np.where(ok, np.asarray(bootstrap_std) / prior, np.nan)
+        shown.append(rel_boot)
+        artists += _floored(ax, x + dx, rel_boot, colour=RAW, marker="D", label="bootstrap",
+                            size=32.0)
+    ratio_axis(ax, np.concatenate(shown), include=(limit_ratio, 1.0))
+    for j in np.flatnonzero(~ok):
+        artists.append(ax.text(x[j], 0.5, "not\nidentified", ha="center", va="center",
+                               fontsize=8, color="#666666", transform=ax.get_xaxis_transform()))
     ax.set_xticks(x, list(PARAMETER_NAMES))
-    ax.set_yscale("log")
-    ax.set_ylabel("standard deviation / datasheet uncertainty")
-    ax.legend(fontsize=8)
-    ax.grid(True, axis="y", alpha=0.3, which="both")
+    ax.set_xlim(-0.6, n - 0.4)
+    ax.set_ylabel("std / datasheet uncertainty")
+    ax.legend(fontsize=8, loc="upper right")
+    ax.grid(True, axis="y", alpha=0.3)
+    return artists
+
+
+def plot_fitted(ax: Axes, start: FloatArray, stop: FloatArray, peak_yaw: FloatArray,
+                fitted: NDArray[np.bool_], cluster: NDArray[np.int64],
+                drives: Sequence[tuple[float, float, str]], used: FloatArray, *,
+                threshold: float,
+                unit: str, time_unit: str = "min", change: float | None = None) -> list[Any]:
+    """What the method fitted, along the drives' time: each window or segment as a line from
+    its start to its end at the height of its peak |yaw rate|, fitted ones in blue (neighbouring
+    clusters alternate their shade), the others in grey; beneath, each drive's span (grey) with
+    the time the fit used (blue).
+
+    start, stop : (N,) where each window or segment lies on the axis (``time_unit``)
+    drives : (start, stop, name) of each drive on the axis
+    used : (M, 2) the time the fit used, as disjoint (start, stop) spans on the axis
+    change : where a change inside the log was found (the fit is of the part after it)
+    """
+    from matplotlib.collections import LineCollection
+
+    peak = np.asarray(peak_yaw, dtype=np.float64)
+    top = max(float(peak.max()) if peak.size else 0.0, 1.5 * threshold)
+    artists: list[Any] = []
+    # a shade per cluster, alternating: where one cluster ends and the next begins shows
+    labels = np.unique(cluster[fitted]) if fitted.any() else np.zeros(0, dtype=np.int64)
+    parity = np.searchsorted(labels, cluster) % 2 if labels.size else np.zeros(peak.size, int)
+    colours = np.where(~fitted, STEP1, np.where(parity == 0, CALIBRATED, FITTED_ALT))
+    segments = np.stack([np.column_stack([start, peak]), np.column_stack([stop, peak])], axis=1)
+    order = np.argsort(fitted, kind="stable")            # grey first, blue drawn over it
+    lines = LineCollection(list(segments[order]), colors=colours[order], linewidths=2.2,
+                           capstyle="round")
+    ax.add_collection(lines)
+    artists.append(lines)
+    fitted_count, other = int(fitted.sum()), int((~fitted).sum())
+    # legend entries (the collection has one colour per line)
+    artists.append(ax.plot([], [], color=CALIBRATED, lw=2.2,
+                           label=f"fitted: {fitted_count} {unit}s in {labels.size} "
+                                 "clusters (shades alternate)")[0])
+    if other:
+        artists.append(ax.plot([], [], color=STEP1, lw=2.2,
+                               label=f"not fitted: {other} {unit}s")[0])
+    artists.append(ax.axhline(threshold, color=DATASHEET, lw=1, ls="--",
+                              label=f"bends: above {threshold:g} rad/s"))
+    # the drives' spans, and the time the fit used, as a strip beneath
+    strip = -0.08 * top
+    for a, b, name in drives:
+        artists.append(ax.hlines(strip, a, b, color="#cccccc", lw=6))
+        if len(drives) > 1:
+            artists.append(ax.axvline(a, color="#bbbbbb", lw=0.8))
+            artists.append(ax.text(a, top * 1.02, f" {name}", fontsize=7, color="#555555",
+                                   va="bottom", clip_on=True))
+    if len(used):
+        artists.append(ax.add_collection(LineCollection(
+            [((a, strip), (b, strip)) for a, b in used], colors=CALIBRATED, linewidths=6)))
+    if change is not None:
+        artists.append(ax.axvline(change, color=DATASHEET, lw=1.4,
+                                  label="change inside the log"))
+    ends = [b for _, b, _ in drives] or [float(stop.max()) if stop.size else 1.0]
+    begins = [a for a, _, _ in drives] or [0.0]
+    span = max(max(ends) - min(begins), 1e-9)
+    ax.set_xlim(min(begins) - 0.01 * span, max(ends) + 0.01 * span)
+    ax.set_ylim(2.0 * strip, top * (1.18 if len(drives) > 1 else 1.08))
+    ax.set_xlabel(f"time [{time_unit}]" + (", the drives one after another"
+                                           if len(drives) > 1 else ""))
+    ax.set_ylabel("peak |yaw rate| [rad/s]")
+    # above the axes: the drives' names take the top of the panel
+    ax.legend(fontsize=8, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=4, frameon=False)
+    ax.grid(True, axis="y", alpha=0.3)
     return artists
 
 

@@ -38,9 +38,14 @@ def _map(result: CalibrationResult, data: ReportData) -> Spec:
                   {"title": f"{Path(m.drive).name} at {m.start_s:.0f} s, {m.distance_m:.0f} m"},
                   col=i) for i, m in enumerate(data.maps)]
     calls.append(Call("legend", kwargs={"fontsize": 8, "loc": "best"}))
-    return FigureSpec("map", "Reference trajectory and dead reckoning with the datasheet and the "
-                      "calibrated parameters, on the validation segments that turn most.",
-                      4.0 * len(data.maps), 4.0, tuple(calls), cols=len(data.maps))
+    n = len(data.maps)
+    which = "the validation segment" if n == 1 else f"the {n} validation segments that turn most"
+    return FigureSpec("map", f"The map: {which}, each started at the reference's pose (the dot) "
+                      "and driven on the wheels alone. Black is where the vehicle went (the "
+                      "reference), red dashed where the wheels put it with the datasheet values, "
+                      "blue with the calibrated ones: the closer blue stays to black, the better "
+                      "the calibration. Positions in metres from the start.",
+                      4.0 * n, 4.0, tuple(calls), cols=n)
 
 
 def _step1(result: CalibrationResult, data: ReportData) -> Spec:
@@ -50,7 +55,15 @@ def _step1(result: CalibrationResult, data: ReportData) -> Spec:
     s1 = ts.step1
     ranks = [int(np.flatnonzero(s1.order == p)[0]) for p in s1.picked]
     raw = float(data.segment_errors["raw"].mean()) if "raw" in data.segment_errors else None
-    return FigureSpec("step1", "Fig. 4 of the paper: validation errors of the step-1 batches.",
+    cal = result.settings.calibrate
+    return FigureSpec("step1", "Step 1 of the three-step method: a batch Gauss-Newton fit on "
+                      f"each of {s1.validation_m.size} random batches of "
+                      f"{cal.step1_batch_size} selected segments, one bar per batch, sorted by "
+                      "its validation error E_p (linear scale from 0). The blue bars are the "
+                      f"{len(s1.picked)} batches picked at equal steps through that order as "
+                      "starting points for step 2; the lines are the final calibration's E_p "
+                      "and that of one fit on all segments. Bars of similar height mean the "
+                      "batches agree (the paper's Fig. 4).",
                       8.0, 3.4, (Call("plot_step1_sorted", (s1.validation_m[s1.order], ranks), {
                           "final_m": result.validation.mean_error_m if result.validation
                           else None, "raw_m": raw}),))
@@ -63,8 +76,12 @@ def _spread(result: CalibrationResult, data: ReportData) -> Spec:
     estimates = [("batch G-N, measured rates", ts.raw.theta.as_array(), ts.raw.std, RAW),
                  ("three-step (calibrated)", result.theta.as_array(), result.estimate.std,
                   CALIBRATED)]
-    return FigureSpec("spread", "Figs. 5 and 7 of the paper: the parameters of every step-1 "
-                      "batch, and the final estimates with one standard deviation.", 10.0, 3.2,
+    return FigureSpec("spread", "The parameters each step-1 batch gave (grey points; those "
+                      "picked for step 2 as blue squares) beside the final estimates with one "
+                      "standard deviation (error bars), one panel per parameter; the dotted "
+                      "line is the datasheet value. A tight cloud means the drive determines "
+                      "the parameter; a wide one that the batches disagree (the paper's Figs. 5 "
+                      "and 7).", 10.0, 3.2,
                       (Call("plot_parameter_spread", (ts.step1.thetas, list(ts.step1.picked),
                                                       estimates,
                                                       result.estimate.datasheet.as_array()),
@@ -81,8 +98,12 @@ def _rates(result: CalibrationResult, data: ReportData) -> Spec:
     busiest = int(np.argmax(peaks))
     u = result.batch.part(busiest, busiest + 1).inputs
     t = np.arange(u.n_rl.shape[1], dtype=np.float64) * result.batch.t_s
-    return FigureSpec("rates", "Fig. 6 of the paper: measured and compensated wheel rates on the "
-                      "selected segment with the highest lateral acceleration.", 8.0, 3.2,
+    return FigureSpec("rates", "Step 2, the compensation, on the selected segment with the "
+                      "highest lateral acceleration: each rear wheel's measured rotation rate "
+                      "(thin) and the rate the optimal-control step chose so that the model "
+                      "follows the reference (thick). The gap between them is what the method "
+                      "takes for wheel noise and slip; step 3 fits the parameters to the thick "
+                      "lines (the paper's Fig. 6).", 8.0, 3.2,
                       (Call("plot_rates", (t, np.column_stack([u.n_rl[0], u.n_rr[0]]),
                                            np.column_stack([ts.compensation.n_rl[busiest],
                                                             ts.compensation.n_rr[busiest]]))),))
@@ -96,36 +117,99 @@ def _inverse(result: CalibrationResult, data: ReportData) -> Spec:
         return None
     calls = tuple(Call("plot_inverse_fit", (d.measured, d.residual), {"channel": c}, col=c)
                   for c in (0, 1))
-    return FigureSpec("inverse", f"The fit: each {d.window_s:.0f} s window's measured wheel "
-                      "revolutions against those the reference motion implies with the "
-                      "calibrated parameters.", 10.0, 3.6, calls, cols=2)
+    return FigureSpec("inverse", f"The fit: one point per {d.window_s:.0f} s window of driving. "
+                      "Across, the wheel revolutions the reference's motion implies with the "
+                      "calibrated parameters; up, those the wheels counted. Left the mean of "
+                      "the two wheels (it carries the distance, and c_e), right the right "
+                      "wheel's minus the left's (it carries the turning, and c_d, t_r, d). On "
+                      "the diagonal the model explains a window exactly; the scatter about it "
+                      "is the noise the uncertainty is computed from.", 10.0, 3.6, calls, cols=2)
 
 
 def _segments(result: CalibrationResult, data: ReportData) -> Spec:
     if not data.segment_errors:
         return None
-    return FigureSpec("segments", "Fig. 8 of the paper: mean position error on each validation "
-                      "segment.", 8.0, 3.4, (Call("plot_segment_errors", (data.segment_errors,)),))
+    return segments_figure(data.segment_errors, result.settings.segments.validation_distance_m)
+
+
+def segments_figure(errors: dict[str, np.ndarray], segment_m: float) -> FigureSpec:
+    """The validation errors per segment: in metres on a linear axis, and as a fraction of the
+    datasheet values' (``errors``: per parameter set, each segment's mean position error)."""
+    sets = ("the datasheet values (red), the batch Gauss-Newton fit on the measured rates "
+            "(orange) and the calibrated parameters (blue)" if "raw" in errors
+            else "the datasheet values (red) and the calibrated ones (blue)")
+    return FigureSpec("segments", f"Validation: each segment is a stretch of about "
+                      f"{segment_m:.0f} m of the drive driven on the wheels alone from the "
+                      "reference's pose at its start; its error is the mean distance from the "
+                      f"reference along the way. Top: the errors in metres with {sets}, on "
+                      "a linear scale from zero, so a bar twice as long is twice the error. "
+                      "Bottom: the same "
+                      "errors as a fraction of the datasheet values' on that stretch (1/10: ten "
+                      "times smaller), on a log scale that keeps small fractions readable; a "
+                      "point above the dashed line at 1 is a stretch the calibration made "
+                      "worse. The stretches come from the drive the parameters were fitted on "
+                      "(--compare scores on held-out time).",
+                      8.0, 5.4, (Call("plot_segment_errors", (errors,)),
+                                 Call("plot_error_ratio", (errors,), row=1)),
+                      rows=2, height_ratios=(3.0, 2.0))
 
 
 def _coverage(result: CalibrationResult, data: ReportData) -> Spec:
     threshold = result.settings.segments.yaw_rate_threshold_radps
-    return FigureSpec("coverage", "Data coverage: time at each speed and yaw rate, and which "
-                      "segments the selection rule kept.", 10.0, 3.0, (
+    return FigureSpec("coverage", "What the drive holds: the time spent at each speed (left) "
+                      "and at each yaw rate (right; positive turns left). Beyond the dashed "
+                      f"lines (+-{threshold:g} rad/s) the vehicle is in a bend: t_r and d show "
+                      "only there, c_e and c_d in any driving.", 10.0, 3.0, (
                           Call("plot_histogram", data.speed_hist, {"xlabel": "speed [m/s]"}),
                           Call("plot_histogram", data.yaw_hist,
                                {"xlabel": "yaw rate [rad/s]", "marks": (-threshold, threshold),
-                                "mark_label": "selection threshold"}, col=1),
-                          Call("plot_selection", (result.segments.peak_yaw_rate_radps,
-                                                  threshold), col=2)), cols=3)
+                                "mark_label": "bend threshold"}, col=1)), cols=2)
+
+
+def _fitted(result: CalibrationResult, data: ReportData) -> Spec:
+    f = data.fitted
+    if f is None:
+        return None
+    threshold = result.settings.segments.yaw_rate_threshold_radps
+    minutes = f.drives[-1][1] > 300.0
+    scale = 1 / 60 if minutes else 1.0
+    spans = tuple((a * scale, b * scale, name) for a, b, name in f.drives)
+    if f.unit == "window":
+        what = (f"What the {result.method} method fitted: every {f.length_s:.0f} s window in "
+                "which the vehicle moves, straight or turning, each drawn where it lies in "
+                "the drive (across) at the height of its largest yaw rate (up). Neighbouring "
+                "windows share their errors and form clusters (the shades alternate from one "
+                "to the next): the clusters are the independent pieces of evidence the "
+                "uncertainty rests on.")
+    else:
+        what = (f"What the {result.method} method fitted: its identification segments "
+                f"({f.length_s:.0f} s each, overlapping), each a line where it lies in the "
+                "drive (across) at the height of its largest yaw rate (up); blue where the "
+                "method fitted it, grey where it was too straight for the selection rule. "
+                "Overlapping segments form clusters (the shades alternate from one to the "
+                "next), the independent pieces of evidence the uncertainty rests on.")
+    after = (" Only the part after the change inside the log (see the checks) was fitted."
+             if f.after_change_s is not None else "")
+    return FigureSpec("fitted", what + " The strip beneath shows each drive in grey and the "
+                      "time the fit used in blue." + after, 10.0, 3.2, (
+                          Call("plot_fitted", (f.start_s * scale, f.stop_s * scale,
+                                               f.peak_yaw_radps, f.fitted, f.cluster, spans,
+                                               f.used_spans() * scale),
+                               {"threshold": threshold, "unit": f.unit,
+                                "time_unit": "min" if minutes else "s",
+                                "change": f.after_change_s * scale
+                                if f.after_change_s is not None else None}),))
 
 
 def _uncertainty(result: CalibrationResult, data: ReportData) -> Spec:
     ident = result.settings.identify
-    sources = "the covariance" + (" and from the bootstrap" if result.bootstrap is not None
-                                  else "")
-    return FigureSpec("uncertainty", f"Standard deviations from {sources}, relative to the "
-                      "datasheet uncertainty.", 6.0, 3.2, (
+    sources = "the covariance" + (" (circles) and from the bootstrap (diamonds)"
+                                  if result.bootstrap is not None else "")
+    return FigureSpec("uncertainty", "How precisely the drive determines each parameter: its "
+                      f"standard deviation from {sources}, as a fraction of the datasheet "
+                      "uncertainty ([identify] prior_std), on a log scale (1/100: the drive "
+                      "knows it a hundred times better than the datasheet). A parameter is "
+                      "identified when its point lies below the dashed limit.", 6.0, 3.2, (
                           Call("plot_uncertainty", (
                               result.estimate.std,
                               result.bootstrap.std if result.bootstrap is not None else None,
@@ -136,7 +220,8 @@ def _uncertainty(result: CalibrationResult, data: ReportData) -> Spec:
 #: Every figure of the page, in page order.
 FIGURES: dict[str, Callable[[CalibrationResult, ReportData], Spec]] = {
     "map": _map, "inverse": _inverse, "step1": _step1, "spread": _spread, "rates": _rates,
-    "segments": _segments, "coverage": _coverage, "uncertainty": _uncertainty}
+    "segments": _segments, "coverage": _coverage, "fitted": _fitted,
+    "uncertainty": _uncertainty}
 
 
 def _figures(result: CalibrationResult, data: ReportData,
@@ -166,6 +251,10 @@ figure img { max-width: 100%; height: auto; display: block; }
 @media (max-width: 600px) { main { padding: 12px; } th, td { padding: 4px 6px; } }
 figcaption { color: #555; font-size: 0.9em; margin-top: 4px; }
 ul { line-height: 1.5; } .no { color: #c62828; } .yes { color: #2e9b3e; }
+.zero { color: #8a6100; } #corrections td { text-align: left; white-space: normal; }
+li.sev-note::marker { color: #888; } li.sev-fallback::marker { color: #d9a400; }
+li.sev-fatal::marker { color: #c62828; } .sev-fallback b { color: #8a6100; }
+.sev-fatal b { color: #c62828; }
 """
 
 
@@ -215,9 +304,24 @@ def _comparison(result: CalibrationResult) -> str:
             f"<table id='compare'>{head}{''.join(rows)}</table>")
 
 
+def _identified(row: dict[str, object], rejected: bool) -> str:
+    """The table's last cell: whether the data identify the parameter, and what that says."""
+    if rejected:
+        return "<td class='no'>rejected</td>"
+    if not row["identified"]:
+        return "<td class='no'>no</td>"
+    if row["consistent_with_zero"]:
+        # identified, but the value does not show that the effect exists
+        return "<td class='zero'>yes: consistent with zero</td>"
+    return "<td class='yes'>yes</td>"
+
+
 def _parameter_rows(result: CalibrationResult) -> list[str]:
     """The result table's rows: each parameter, datasheet, calibrated, std, verdict."""
+    from odocal.estimators.estimate import Status
+
     e = html.escape
+    rejected = result.estimate.status is Status.REJECTED
     rows = []
     for row, label in zip(parameter_rows(result), PARAMETER_LABELS, strict=True):
         name = row["name"]
@@ -227,9 +331,93 @@ def _parameter_rows(result: CalibrationResult) -> list[str]:
             f"<tr><td><b>{name}</b> {e(label)}</td><td>{_fmt(name, row['datasheet'])}</td>"
             f"<td>{cal}</td><td>{_fmt(name, row['std']) if ident else '-'}</td>"
             + (f"<td>{_fmt(name, row['bootstrap_std']) if ident else '-'}</td>"
-               if row["bootstrap_std"] is not None else "") +
-            f"<td class='{'yes' if ident else 'no'}'>{'yes' if ident else 'no'}</td></tr>")
+               if row["bootstrap_std"] is not None else "")
+            + _identified(row, rejected) + "</tr>")
     return rows
+
+
+#: How each severity of a finding reads, and its list style.
+_SEVERITY = {0: ("note", "sev-note"), 1: ("limits the calibration", "sev-fallback"),
+             2: ("refuses the calibration", "sev-fatal")}
+
+
+def _checks(result: CalibrationResult) -> str:
+    """The checks' findings, each with what it means for the calibration."""
+    from odocal.report.advice import finding_text
+
+    items = []
+    for f in result.diagnosis.findings:
+        word, style = _SEVERITY[int(f.severity)]
+        items.append(f"<li class='{style}'><b>{word}</b>: "
+                     f"{html.escape(finding_text(f, result.settings))}</li>")
+    if not items:
+        return ""
+    return ("<h2>Checks of the data against the model</h2><ul id='checks'>" + "".join(items)
+            + "</ul>")
+
+
+def _corrections(data: ReportData) -> str:
+    """What was measured of the sensors' departures from the model, and what was taken out."""
+    if not data.corrections:
+        return ""
+    e = html.escape
+    rows = "".join(f"<tr><td>{e(c.what)}</td><td>{e(c.measured)}</td>"
+                   f"<td class='{'yes' if c.taken_out else 'meta'}'>"
+                   f"{'yes' if c.taken_out else 'no'}</td><td>{e(c.note)}</td></tr>"
+                   for c in data.corrections)
+    return ("<h2>Corrections before the fit</h2><p>What odocal measured of the sensors' "
+            "departures from the model, against the reference, and took out where the data "
+            "determine it: the calibration above stands on the corrected data.</p>"
+            "<table id='corrections'><tr><th>what</th><th>measured</th><th>taken out</th>"
+            f"<th>how</th></tr>{rows}</table>")
+
+
+def _coverage_text(result: CalibrationResult, data: ReportData) -> str:
+    """What the drive holds and what the method fitted, in words."""
+    cov = data.coverage
+    f = data.fitted
+    seg = result.settings.segments
+    threshold = seg.yaw_rate_threshold_radps
+    logged = f"{cov['duration_s'] / 60:.1f} min logged"
+    bends = f"{cov['bend_s']:.0f} s of {cov['moving_s']:.0f} s of driving are in bends."
+    short = (f" {cov['time_in_pieces_too_short_s']:.0f} s lie in pieces too short for a "
+             "segment." if cov['time_in_pieces_too_short_s'] else "")
+    drives = len(result.drives)
+    from_drives = f"from {drives} drive{'s' if drives != 1 else ''}"
+    if f is None:
+        why = ("the vehicle does not move" if result.diagnosis.standstill
+               else "the checks refused the data (see below)" if result.diagnosis.fatal
+               else f"the drives hold too little moving data for the {result.method} method")
+        return f"<p id='fitted-text'>Nothing was fitted: {why}. {bends}{short}</p>"
+    method = html.escape(result.method)
+    if f.unit == "window":
+        text = (f"The {method} method fitted every {f.length_s:.0f} s window in which "
+                f"the vehicle moves, straight or turning: {f.count} windows "
+                f"({f.fitted_s() / 60:.1f} min of the {logged}) in {f.clusters} clusters, "
+                f"{from_drives}. {f.in_bends(threshold)} of them turn faster than "
+                f"{threshold:g} rad/s: t_r and d rest on those.")
+    else:
+        total = f.fitted.size
+        rule = (f"those whose peak yaw rate exceeds {threshold:g} rad/s (the selection rule); "
+                f"{total - f.count} were too straight"
+                if f.count < total else
+                f"every one: only {cov['selected']} pass the selection rule (a peak yaw rate "
+                f"above {threshold:g} rad/s), too few to fit alone")
+        text = (f"The {method} method fitted {f.count} of the {total} identification "
+                f"segments of {seg.length} samples ({f.length_s:.1f} s; a new one every "
+                f"{seg.step} samples, so they overlap), in {f.clusters} clusters, "
+                f"{from_drives}: {rule}. They cover {f.fitted_s() / 60:.1f} min of the "
+                f"{logged}.")
+    if f.after_change_s is not None:
+        text += (" The log changes inside (see the checks): only the part after the change "
+                 "was fitted and validated.")
+    return f"<p id='fitted-text'>{text} {bends}{short}</p>"
+
+
+def _advice_style(name: str, identified: bool, data: ReportData) -> str:
+    if not identified:
+        return "no"
+    return "zero" if name in data.zero else "yes"
 
 
 def _validation(result: CalibrationResult, data: ReportData) -> str:
@@ -265,14 +453,10 @@ def _page(result: CalibrationResult, data: ReportData,
     sheet = ("datasheet" if datasheet_stated(result.estimate.datasheet)
              else "datasheet (placeholder: no <span class='nowrap'>--datasheet</span>)")
     boot_head = "<th>std (bootstrap)</th>" if boot is not None else ""
-    from odocal.report.advice import finding_text
-
     warnings = "".join(f"<li>{e(w)}</li>" for w in result.warnings)
-    checks = "".join(f"<li class='{['yes', 'partial', 'no'][int(f.severity)]}'>"
-                     f"{e(finding_text(f, result.settings))}</li>"
-                     for f in result.diagnosis.findings)
-    advice = "".join(f"<li class='{'yes' if a.identified else 'no'}'><b>{a.name}</b>: "
-                     f"<span style='color:#222'>{e(a.text)}</span></li>" for a in data.advice)
+    advice = "".join(f"<li class='{_advice_style(a.name, a.identified, data)}'>"
+                     f"<b>{a.name}</b>: <span style='color:#222'>{e(a.text)}</span></li>"
+                     for a in data.advice)
     drives = ", ".join(e(Path(d.name).name) for d in result.drives)
     comparison = _comparison(result)
     paper = fig("step1") + fig("spread") + fig("rates") if result.three_step else ""
@@ -297,19 +481,15 @@ def _page(result: CalibrationResult, data: ReportData,
 {"<h2>Map</h2>" + fig('map') if 'map' in figs else ""}
 {"<h2>The fit</h2>" + fig('inverse') if 'inverse' in figs else ""}
 <h2>Validation</h2>{fig('segments')}
-{"<h2>The paper's views</h2>" + paper if paper else ""}
+{"<h2>Inside the three-step method</h2>" + paper if paper else ""}
 <h2>Uncertainty</h2>{fig('uncertainty')}
 <h2>Data coverage</h2>
-<p>{cov['segments']} identification segments of {result.settings.segments.length} samples;
-{cov['selected']} passed the selection rule (peak yaw rate above
-{result.settings.segments.yaw_rate_threshold_radps} rad/s), {cov['not_selected']} were too
-straight{f"; {cov['time_in_pieces_too_short_s']:.0f} s lie in pieces too short for a segment"
-         if cov['time_in_pieces_too_short_s'] else ""}.
-{cov['bend_s']:.0f} s of {cov['moving_s']:.0f} s of driving are in bends.</p>
+{_coverage_text(result, data)}
+{fig('fitted')}
 {fig('coverage')}
 <h2>Identifiability</h2><ul id="identifiability">{advice}</ul>
-{"<h2>Checks of the data against the model</h2><ul id='checks'>" + checks + "</ul>"
- if checks else ""}
+{_checks(result)}
+{_corrections(data)}
 {"<h2>Warnings</h2><ul>" + warnings + "</ul>" if warnings else ""}
 <p class="meta">Every number on this page is in calibration.json.</p>
 </main></body></html>

@@ -50,21 +50,29 @@ class FigureSpec:
     calls: tuple[Call, ...]
     rows: int = 1
     cols: int = 1
+    #: Relative heights of the rows (None: equal).
+    height_ratios: tuple[float, ...] | None = None
 
 
-def draw(spec: FigureSpec) -> bytes:
-    """The PNG of one figure."""
+def figure(spec: FigureSpec) -> Any:
+    """The matplotlib figure of one spec, drawn (not yet saved)."""
     from matplotlib.figure import Figure
 
     from odocal.report import figures
 
-    fig = Figure(figsize=(spec.width, spec.height), layout="constrained")
-    axes = fig.subplots(spec.rows, spec.cols, squeeze=False)
+    fig = Figure(figsize=(spec.width, spec.height), dpi=DPI, layout="constrained")
+    axes = fig.subplots(spec.rows, spec.cols, squeeze=False,
+                        height_ratios=list(spec.height_ratios) if spec.height_ratios else None)
     for call in spec.calls:
         target: Any = list(axes[0]) if call.row is None else axes[call.row][call.col]
         getattr(figures, call.function)(target, *call.args, **call.kwargs)
+    return fig
+
+
+def draw(spec: FigureSpec) -> bytes:
+    """The PNG of one figure."""
     buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=DPI, pil_kwargs={"compress_level": 3})
+    figure(spec).savefig(buffer, format="png", dpi=DPI, pil_kwargs={"compress_level": 3})
     return buffer.getvalue()
 
 
