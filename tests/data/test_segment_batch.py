@@ -31,7 +31,12 @@ def test_a_lazy_batch_gives_the_segments_a_gathered_one_holds(
     same(lazy.take(pick), eager.take(pick))
     same(lazy.subset(pick), eager.take(pick))
     assert lazy.subset(pick).lazy and not lazy.take(pick).lazy
+    for name in ("n_rl", "n_rr", "beta", "a_y"):
+        np.testing.assert_array_equal(lazy.input_rows(name, 2, 5),
+                                      getattr(eager.inputs, name)[2:5])
     rates = np.arange(len(eager) * eager.steps, dtype=float).reshape(len(eager), -1)
     same(lazy.with_wheel_rates(rates, -rates), eager.with_wheel_rates(rates, -rates))
     same(lazy.with_wheel_rates(rates, -rates).subset(pick).part(1, 3),
          eager.with_wheel_rates(rates, -rates).take(pick[1:3]))
+    np.testing.assert_array_equal(lazy.with_wheel_rates(rates, -rates).input_rows("n_rr", 1, 3),
+                                  -rates[1:3])

@@ -238,6 +238,22 @@ class SegmentBatch:
             return batch.with_wheel_rates(self._rates[0][inside], self._rates[1][inside])
         return batch
 
+    def input_rows(self, name: str, lo: int, hi: int) -> FloatArray:
+        """One input (``n_rl``, ``n_rr``, ``beta`` or ``a_y``) of segments ``lo`` to ``hi``,
+        shape (hi - lo, K), without copying the others out."""
+        if self._rates is not None and name in ("n_rl", "n_rr"):
+            return self._rates[0 if name == "n_rl" else 1][lo:hi]
+        if self._segments is None:
+            return np.asarray(getattr(self.inputs, name)[lo:hi])
+        segs = self._segments.subset(slice(lo, min(hi, len(self))))
+        out = np.empty((len(segs), self.steps))
+        offsets = np.arange(self.steps)
+        for i, drive in enumerate(self._drives):
+            mask = segs.drive == i
+            if mask.any():
+                out[mask] = getattr(drive, name)[segs.start[mask][:, None] + offsets]
+        return out
+
     def parts(self, size: int) -> Iterator[SegmentBatch]:
         """The segments a block of ``size`` at a time."""
         for lo in range(0, len(self), max(1, size)):

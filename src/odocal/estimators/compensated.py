@@ -26,7 +26,7 @@ from odocal.data.segments import RaggedSegments, SegmentBatch
 from odocal.estimators.base import MethodOutcome, Prepared, ProgressCallback
 from odocal.estimators.compensation import BatchCompensation, compensate_batch
 from odocal.estimators.estimate import CovarianceKind, Estimate, NotIdentified, held_as_weak, weak
-from odocal.estimators.gauss_newton import bootstrap_terms, gauss_newton
+from odocal.estimators.gauss_newton import Linearisation, bootstrap_terms, gauss_newton
 from odocal.estimators.parallel import map_chunks, resolve_workers
 from odocal.estimators.validation import mean_errors
 from odocal.model.parameters import PARAMETER_NAMES
@@ -94,6 +94,8 @@ class ThreeStepOutcome:
     warnings: tuple[str, ...]
     timings_s: dict[str, float]
     mean_relative_change: float
+    at_final: Linearisation | None = field(default=None, repr=False, compare=False)
+    """Step 3's linearisation at the calibration (what the bootstrap resamples)."""
 
     def to_dict(self) -> dict[str, Any]:
         comp = self.compensation
@@ -121,8 +123,8 @@ def relative_change(measured: SegmentBatch, comp: BatchCompensation) -> float:
     block = max(1, (1 << 16) // max(measured.steps, 1))
     for lo in range(0, n, block):
         part = slice(lo, lo + block)
-        rates = measured.part(lo, lo + block).inputs
-        for meas, new in ((rates.n_rl, comp.n_rl[part]), (rates.n_rr, comp.n_rr[part])):
+        for meas, new in ((measured.input_rows("n_rl", lo, lo + block), comp.n_rl[part]),
+                          (measured.input_rows("n_rr", lo, lo + block), comp.n_rr[part])):
             moving = np.abs(meas) > 0.5
             change = np.abs(new - meas)
             np.divide(change, np.abs(meas), out=change, where=moving)
@@ -268,8 +270,8 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
     # the calibration holds, so where the calibration held more it is fitted again
     _SHARED.update(compensated=compensated, measured=batch)
     try:
-        (final, held_final), raw = map_chunks(_step3, [("final", task), ("raw", task)],
-                                              workers=workers)
+        (final, held_final, at_final), raw = map_chunks(
+            _step3, [("final", task), ("raw", task)], workers=workers)
     finally:
         _SHARED.clear()
     if held_final != held:
@@ -280,7 +282,8 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
     timings["step3"] = time.perf_counter() - started
     return ThreeStepOutcome(step1=s1, compensation=comp, final=final, raw=raw,
                             warnings=tuple(warnings), timings_s=timings,
-                            mean_relative_change=relative_change(batch, comp))
+                            mean_relative_change=relative_change(batch, comp),
+                            at_final=at_final)
 
 
 #: What the workers of step 3 read (set only while they run): the compensated and the measured
@@ -307,17 +310,18 @@ def _step3(job: tuple[str, _Step3]) -> Any:
         return gauss_newton(_SHARED["measured"], settings=t.settings.identify, start=t.start,
                             clusters=t.clusters, held=t.held)
     held = dict(t.held)
+    kept: list[Linearisation] = []
     for _ in range(len(PARAMETER_NAMES)):
         final = gauss_newton(_SHARED["compensated"], settings=t.settings.identify,
                              start=t.start, clusters=t.clusters, held=held,
-                             method="compensated")
+                             method="compensated", keep=kept)
         final = _with_inheritance(final, t.step1_thetas, t.sets)
         too_weak = weak(final.std, final.free, t.settings.identify)
         if not too_weak.any():
             break
         # the inherited spread pushed a parameter over the limit: hold it and identify again
         held.update(held_as_weak(final.std, too_weak, t.settings.identify))
-    return final, held
+    return final, held, kept[-1]
 
 
 def _with_inheritance(final: Estimate, step1_thetas: FloatArray, sets: int) -> Estimate:
@@ -345,5 +349,6 @@ def run(prep: Prepared, settings: Settings,
     rates = prep.batch.with_wheel_rates(outcome.compensation.n_rl, outcome.compensation.n_rr)
     return MethodOutcome(estimate=outcome.final, three_step=outcome, warnings=outcome.warnings,
                          bootstrap=bootstrap_terms(rates, outcome.final, prep.clusters, settings,
+                                                   at_estimate=outcome.at_final,
                                                    step1_thetas=s1.thetas[s1.success],
                                                    step1_sets=int(s1.picked.size)))

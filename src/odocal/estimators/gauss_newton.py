@@ -139,7 +139,7 @@ class _Iteration:
 def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
                  start: FloatArray | None = None, clusters: IntArray | None = None,
                  held: Mapping[str, NotIdentified] | None = None,
-                 method: str = "raw") -> Estimate:
+                 method: str = "raw", keep: list[Linearisation] | None = None) -> Estimate:
     """Pure (one segment) or batch (several) Gauss-Newton identification.
 
     Parameters
@@ -153,6 +153,8 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
         time belong together. Each segment is its own group when None.
     held : parameters to keep at their datasheet values regardless of the data, with the reason
     method : the method name the estimate carries
+    keep : where given, the linearisation at the estimate is appended to it (what
+        :func:`bootstrap_terms` needs, so it is not computed twice)
 
     Returns
     -------
@@ -199,6 +201,8 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
     free, held = hold_unidentified(free, held, settings, covariance_of=covariance_of,
                                    refit=refit)
     it = fits[-1]
+    if keep is not None:
+        keep.append(it.lin)
     none = np.zeros((PARAMETERS, PARAMETERS))
     cov, cov_naive, kind = kinds[-1] if free.any() else (none, none, CovarianceKind.NONE)
     lin = it.lin
@@ -355,10 +359,15 @@ def _larger(a: FloatArray, b: FloatArray) -> FloatArray:
 
 
 def bootstrap_terms(rates: SegmentBatch, estimate: Estimate, clusters: IntArray,
-                    settings: Settings, **extra: Any) -> BootstrapTerms:
+                    settings: Settings, *, at_estimate: Linearisation | None = None,
+                    **extra: Any) -> BootstrapTerms:
     """What the bootstrap resamples for a Gauss-Newton estimate on ``rates`` (the segments it
-    used, with their ``clusters``): per-segment information and scores, and a refit."""
-    lin = linearise(rates, estimate.theta.as_array(), np.asarray(settings.identify.weights))
+    used, with their ``clusters``): per-segment information and scores, and a refit.
+    ``at_estimate``: the fit's own linearisation at the estimate (``gauss_newton(keep=...)``),
+    used instead of linearising again where it is at the estimate's theta."""
+    theta = estimate.theta.as_array()
+    lin = (at_estimate if at_estimate is not None and np.array_equal(at_estimate.theta, theta)
+           else linearise(rates, theta, np.asarray(settings.identify.weights)))
     held = {n: NotIdentified(Reason.HELD) for n, f in zip(PARAMETER_NAMES, estimate.free,
                                                          strict=True) if not f}
     loose = dataclasses.replace(settings.identify, judge_identifiability=False, max_iterations=3)

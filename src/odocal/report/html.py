@@ -93,8 +93,9 @@ def _rates(result: CalibrationResult, data: ReportData) -> Spec:
     if ts is None or result.batch is None:
         return None
     # the segments a block at a time (a long drive's batch is copied out of it when asked)
-    peaks = np.concatenate([np.abs(part.inputs.a_y).max(axis=1)
-                            for part in result.batch.parts(256)])
+    batch = result.batch
+    peaks = np.concatenate([np.abs(batch.input_rows("a_y", lo, lo + 256)).max(axis=1)
+                            for lo in range(0, len(batch), 256)])
     busiest = int(np.argmax(peaks))
     u = result.batch.part(busiest, busiest + 1).inputs
     t = np.arange(u.n_rl.shape[1], dtype=np.float64) * result.batch.t_s
