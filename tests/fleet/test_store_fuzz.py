@@ -64,16 +64,16 @@ def _same(stored: Any, written: Any) -> bool:
     return bool(stored == written)
 
 
-def _check(store: Any, drives: dict[str, dict[str, Any]],
+def _check(store: Any, drives: dict[tuple[str, str], dict[str, Any]],
            alarms: list[dict[str, Any]]) -> None:
-    got = {r["task_key"]: r for r in store.drives()}
+    got = {(r["vehicle"], r["task_key"]): r for r in store.drives()}
     assert got.keys() == drives.keys()
     for key, row in drives.items():
         assert all(_same(got[key][c], v) for c, v in row.items()), (key, got[key], row)
     assert sorted(store.vehicles()) == sorted({r["vehicle"] for r in drives.values()})
     for vehicle in {r["vehicle"] for r in drives.values()} - {""}:
         assert {r["task_key"] for r in store.drives(vehicle)} == \
-            {k for k, r in drives.items() if r["vehicle"] == vehicle}
+            {k for (v, k) in drives if v == vehicle}
     stored_alarms = store.alarms()
     assert len(stored_alarms) == len(alarms)
     key = ("vehicle", "parameter", "kind", "time")
@@ -88,14 +88,20 @@ def _check(store: Any, drives: dict[str, dict[str, Any]],
 def test_any_writes_and_reads_of_the_store_keep_what_was_written(ops: list[Any]) -> None:
     with tempfile.TemporaryDirectory(prefix="odocal-store-fuzz-") as tmp:
         path = Path(tmp) / "fleet.db"
-        drives: dict[str, dict[str, Any]] = {}
+        # one row per drive (vehicle and content; here the key stands for the content), and a
+        # new content at the same source of the same vehicle replaces the old one's row
+        drives: dict[tuple[str, str], dict[str, Any]] = {}
         alarms: list[dict[str, Any]] = []
         store = open_store(path)
         try:
             for op, arg in ops:
                 if op == "drive":
                     store.add_drive(arg)
-                    drives[arg["task_key"]] = arg
+                    key = (arg["vehicle"], arg["task_key"])
+                    drives = {k: r for k, r in drives.items()
+                              if k == key or (r["vehicle"], r["source"]) != (arg["vehicle"],
+                                                                             arg["source"])}
+                    drives[key] = arg
                 elif op == "alarms":
                     store.replace_analysis([], arg)
                     alarms = arg

@@ -96,9 +96,9 @@ def test_what_each_method_used_is_reported(scenes: dict[str, odocal.Drive],
         used = json.loads((out / "calibration.json").read_text())["used"]
         assert used["unit"] == unit and used["drives"] == 4
         if unit == "windows":                   # every window of every scene, straight or not
-            # (each scene loses the lag search's margin, a second and two steps, at either end)
+            # (each scene loses the lag scan's margin, 0.25 s and two steps, at either end)
             t_s = scenes[SINGAPORE[0]].t_s
-            margin = round(odocal.Settings().inverse.max_delay_s / t_s) + 2
+            margin = round(odocal.Settings().inverse.lag_scan_s / t_s) + 2
             expected = sum((scenes[n].n_samples - 1 - 2 * margin) // round(2.0 / t_s)
                            for n in SINGAPORE[:4])
             assert used["count"] == expected and used["length_s"] == pytest.approx(2.0, rel=1e-3)

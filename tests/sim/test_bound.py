@@ -192,8 +192,9 @@ def test_the_default_method_reaches_the_bound_on_white_noise() -> None:
     reported = np.mean(stds, axis=0)
     # c_e and c_d rest on every window; t_r and d on this five-minute route's few bends (about
     # seven and three clusters' worth): their std is widened for so few (Student's t), so it
-    # covers the error spread, above the bound by that factor
+    # covers the error spread, above the bound by that factor. The bound also takes the wheels'
+    # timing as known, where the calibration carries the lag's own uncertainty (c_e: ~1.25)
     ratio = reported / bound
     assert np.all(ratio > 0.85), ratio
-    assert np.all(ratio[:2] < 1.2) and np.all(ratio[2:] < 1.75), ratio
+    assert np.all(ratio[:2] < 1.3) and np.all(ratio[2:] < 1.75), ratio
     assert np.all(reported >= 0.85 * spread), reported / spread

@@ -93,8 +93,12 @@ class Departures:
         reference heading reads ``-(a1 cos psi + b1 sin psi + a2 cos 2 psi + b2 sin 2 psi)``
         more than the course; zeros where not determined
     heading_amplitude_rad : the largest |error| of that varying part over the headings
+    reference_shift_s : the wheel stream's lag behind the reference (positive: the wheels late)
+        by cross-correlation, taken out by delaying the reference as much (0: not applied: within
+        half the fit's own lag scan, ``[inverse] lag_scan_s``, or not determined)
     """
 
+    reference_shift_s: float = 0.0
     lateral_lag_s: float = 0.0
     lateral_offset_mps2: float = 0.0
     lateral_offset_std: float = float("nan")
@@ -106,11 +110,13 @@ class Departures:
 
     @property
     def any(self) -> bool:
-        return bool(self.lateral_lag_s or self.lateral_offset_applied
-                    or self.heading_amplitude_rad or any(self.standstill_offset_revps))
+        return bool(self.reference_shift_s or self.lateral_lag_s
+                    or self.lateral_offset_applied or self.heading_amplitude_rad
+                    or any(self.standstill_offset_revps))
 
     def to_dict(self) -> dict[str, object]:
-        return {"lateral_lag_s": self.lateral_lag_s,
+        return {"reference_shift_s": self.reference_shift_s,
+                "lateral_lag_s": self.lateral_lag_s,
                 "lateral_offset_mps2": self.lateral_offset_mps2,
                 "lateral_offset_std": self.lateral_offset_std,
                 "lateral_offset_applied": self.lateral_offset_applied,
@@ -312,6 +318,14 @@ def measure(drives: Sequence[Drive], settings: Settings, *,
             lateral: bool = True) -> Departures:
     """The departures of :mod:`the module docstring <odocal.checks.departures>` on ``drives``;
     ``lateral`` False where a_y carries no lateral acceleration (nothing to measure in it)."""
+    shift = 0.0
+    if settings.inverse.delay == "estimate":
+        # the reference on the wheels' clock first (the fit scans only lag_scan_s around it)
+        found = wheel_lag_s(drives, np.asarray(settings.identify.theta0, dtype=np.float64))
+        if found is not None and 0.5 * settings.inverse.lag_scan_s < abs(found) \
+                <= settings.inverse.max_delay_s:
+            shift = found
+            drives = [shifted_reference(d, shift) for d in drives]
     lag = (lateral_lag_s(drives) or 0.0) if lateral else 0.0
     if abs(lag) <= 0.5 * drives[0].t_s:
         lag = 0.0                          # within half a step: nothing the data can tell
@@ -323,12 +337,34 @@ def measure(drives: Sequence[Drive], settings: Settings, *,
         applied = abs(offset) > OFFSET_SIGMAS * offset_std
     straight = (np.abs(ds) > _STRAIGHT_MPS) & (np.abs(turn) < _STRAIGHT_TURN_RAD)
     harmonics, amplitude = _harmonics(gap[straight], heading[straight])
-    return Departures(lateral_lag_s=lag, lateral_offset_mps2=offset,
+    return Departures(reference_shift_s=shift, lateral_lag_s=lag, lateral_offset_mps2=offset,
                       lateral_offset_std=offset_std, lateral_offset_applied=applied,
                       heading_harmonics=tuple(float(h) for h in harmonics),
                       heading_amplitude_rad=amplitude,
                       standstill_offset_revps=standstill_offset(drives),
                       wheel_step_revps=wheel_step(drives))
+
+
+def shifted_reference(drive: Drive, lag_s: float) -> Drive:
+    """The drive with its reference pose (x, y, psi, their std) delayed by ``lag_s`` (the wheel
+    stream's lag behind it: at each sample the reference then shows where the vehicle was when
+    the wheels turned); samples whose shifted time falls outside their piece are left out, and
+    the drive's metadata records the shift (``reference_shift_s``)."""
+    x, y = np.array(drive.x, dtype=np.float64), np.array(drive.y, dtype=np.float64)
+    psi = np.array(drive.psi, dtype=np.float64)
+    keep = np.zeros(drive.n_samples, dtype=bool)
+    for a, b in drive.pieces:
+        t = drive.t[a:b]
+        at = t - lag_s
+        inside = (at >= t[0]) & (at <= t[-1])
+        keep[a:b] = inside
+        for column, values in ((x, drive.x), (y, drive.y), (psi, drive.psi)):
+            column[a:b] = np.interp(at, t, values[a:b])
+    if not keep.any():
+        return drive
+    out = drive.select(keep, x=x, y=y, psi=psi)
+    return dataclasses.replace(out, metadata={**drive.metadata,
+                                              "reference_shift_s": float(lag_s)})
 
 
 def heading_correction(psi: FloatArray, harmonics: Sequence[float]) -> FloatArray:
@@ -345,6 +381,8 @@ def corrected(drives: Sequence[Drive], found: Departures) -> list[Drive]:
         return list(drives)
     out = []
     for d in drives:
+        if found.reference_shift_s:
+            d = shifted_reference(d, found.reference_shift_s)
         a_y = np.array(d.a_y, dtype=np.float64)
         psi = np.array(d.psi, dtype=np.float64)
         if found.lateral_lag_s:

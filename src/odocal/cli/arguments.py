@@ -19,8 +19,8 @@ def number(lower: float, upper: float, *, unit: str = "", open_lower: bool = Fal
     def parse(text: str) -> float:
         try:
             value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number ({span})") from None
+        except ValueError as err:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number ({span})") from err
         inside = lower < value if open_lower else lower <= value
         if not (math.isfinite(value) and inside and value <= upper):
             raise argparse.ArgumentTypeError(f"{text} is out of range: {span}")
@@ -35,9 +35,9 @@ def integer(lower: int, upper: int) -> Callable[[str], int]:
     def parse(text: str) -> int:
         try:
             value = int(text)
-        except ValueError:
+        except ValueError as err:
             raise argparse.ArgumentTypeError(f"{text!r} is not an integer (from {lower} to "
-                                             f"{upper})") from None
+                                             f"{upper})") from err
         if not lower <= value <= upper:
             raise argparse.ArgumentTypeError(f"{text} is out of range: an integer from {lower} "
                                              f"to {upper}")

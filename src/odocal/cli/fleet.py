@@ -28,14 +28,28 @@ def _progress(args: argparse.Namespace) -> Any:
 
 
 def _settings(args: argparse.Namespace) -> Any:
-    from odocal.settings import load_settings
+    from odocal.io.remote import is_remote, read_toml, redact
+    from odocal.settings import load_settings, settings_from_dict
 
-    return load_settings(getattr(args, "config", None))
+    config = getattr(args, "config", None)
+    if config and is_remote(config):
+        return settings_from_dict(read_toml(config, "settings file"),
+                                  source=f"'{redact(config)}'")
+    return load_settings(config)
+
+
+def _refused(line: str) -> None:
+    """A catalog row left out, on stderr as it is known (the run goes on; it exits 1)."""
+    from odocal.errors import shown
+
+    sys.stderr.write(f"odocal fleet calibrate: error: {shown(line, 2000)}\n")
+    sys.stderr.flush()
 
 
 def _summary(run: Any) -> None:
     _print(f"{run.drives} drives in the catalog: {run.stored_before} already stored, "
-           f"{run.calibrated} calibrated now, {run.failed} could not be calibrated; "
+           f"{run.calibrated} calibrated now, {run.failed} could not be calibrated"
+           + (f", {len(run.refused)} not read" if run.refused else "") + "; "
            f"{run.pooled} pooled calibrations; {run.elapsed_s:.1f} s")
     if run.alarms:
         _print(f"{len(run.alarms)} alarm(s):")
@@ -63,7 +77,7 @@ def cmd_fleet_calibrate(args: argparse.Namespace) -> int:
                               connect_timeout_s=args.connect_timeout,
                               workers=args.workers, out=args.out,
                               drive_reports=not args.no_drive_reports, progress=progress,
-                              echo=None if args.quiet else _print)
+                              echo=None if args.quiet else _print, refuse=_refused)
     finally:
         if progress is not None:
             progress.close()
@@ -71,6 +85,10 @@ def cmd_fleet_calibrate(args: argparse.Namespace) -> int:
         _summary(run)
         if args.out:
             _print(f"wrote {Path(args.out) / 'report.html'} and {len(run.written) - 1} more files")
+    if run.refused:
+        sys.stderr.write(f"odocal fleet calibrate: error: {len(run.refused)} catalog row(s) "
+                         "could not be used (named above); the others are stored\n")
+        return 1
     return 0
 
 
@@ -195,8 +213,8 @@ def add_parsers(sub: Any) -> None:
     fsub = fleet.add_subparsers(dest="fleet_command", required=True, metavar="ACTION")
     p = fsub.add_parser("calibrate", help="calibrate a catalog of drives into the store")
     p.add_argument("catalog", metavar="CATALOG",
-                   help="CSV/Parquet catalog (vehicle, path, time, ...) or a VEHICLE/DATE_* "
-                        "folder")
+                   help="CSV/Parquet catalog (vehicle, path, time, ...), a path or a URL "
+                        "(s3://, gs://, az://, https://), or a VEHICLE/DATE_* folder")
     p.add_argument("--store", required=True, metavar="DB", help="the fleet's SQLite file")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="a running Dask scheduler (tcp://HOST:PORT); default: a local cluster")

@@ -37,7 +37,7 @@ EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_FAILED, EXIT_BUG = 0, 1, 2, 3, 4
 
 
 def _settings(args: argparse.Namespace) -> Settings:
-    settings = load_settings(getattr(args, "config", None))
+    settings = _load_config(getattr(args, "config", None))
     overrides: dict[str, dict[str, Any]] = {}
     if getattr(args, "workers", None) is not None:
         overrides.setdefault("calibrate", {})["workers"] = args.workers
@@ -55,6 +55,19 @@ def _settings(args: argparse.Namespace) -> Settings:
         overrides.setdefault("identify", {})["theta0"] = datasheet_theta(
             parse_datasheet(args.datasheet), settings.identify.theta0)
     return settings.replace(**overrides) if overrides else settings
+
+
+def _load_config(config: str | None) -> Settings:
+    """The settings file, a path or a URL (README, "Fleets where the data lives")."""
+    from odocal.io.remote import is_remote
+
+    if config and is_remote(config):
+        from odocal.io.remote import read_toml, redact
+        from odocal.settings import settings_from_dict
+
+        return settings_from_dict(read_toml(config, "settings file"),
+                                  source=f"'{redact(config)}'")
+    return load_settings(config)
 
 
 def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
@@ -259,10 +272,12 @@ def _drives_from(args: argparse.Namespace, settings: Settings) -> list[Any]:
     if getattr(args, "scene", None) and getattr(args, "source_format", None) != "nuscenes":
         raise ConfigError("--scene chooses nuScenes scenes: it needs --from nuscenes")
     if getattr(args, "source_format", None):
+        from odocal.io.remote import local_inputs
         from odocal.preprocess.convert import convert
 
-        drives = convert(args.source_format, args.logs, mapping=args.mapping,
-                         scenes=args.scene, settings=settings)
+        with local_inputs(args.logs, args.mapping) as (logs, mapping):   # URLs: copied here
+            drives = convert(args.source_format, logs, mapping=mapping,
+                             scenes=args.scene, settings=settings)
         if not args.quiet:
             for d in drives:
                 _print(_conversion_line(d))
@@ -358,11 +373,14 @@ def _safe(name: str) -> str:
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
+    from odocal.io.remote import local_inputs
     from odocal.preprocess.convert import inspect
 
     settings = _settings(args)
-    for found in inspect(args.source_format, args.logs, mapping=args.mapping, scenes=args.scene,
-                         settings=settings):
+    with local_inputs(args.logs, args.mapping) as (logs, mapping):     # URLs: copied here
+        found_logs = inspect(args.source_format, logs, mapping=mapping, scenes=args.scene,
+                             settings=settings)
+    for found in found_logs:
         _print(f"{found.log.name} ({found.log.metadata.get('source_format')}):")
         _print(f"  {'role':<8} {'stream':<34} {'samples':>8} {'rate Hz':>8} {'span s':>8} "
                f"{'gaps':>5} {'longest gap s':>13} {'repaired':>9}  units")
@@ -528,6 +546,12 @@ def _rejection(estimate: Any, findings: Sequence[Any], settings: Settings) -> st
     return rejection_line(estimate, findings, settings)
 
 
+def _shown_source(source: str) -> str:
+    from odocal.io.remote import redact
+
+    return redact(source)
+
+
 def _replay_files(out: Path, args: argparse.Namespace, result: Any, batch: Any,
                   settings: Settings, renderer: Any) -> list[Path]:
     import csv
@@ -546,7 +570,7 @@ def _replay_files(out: Path, args: argparse.Namespace, result: Any, batch: Any,
             "elapsed_s": result.elapsed_s,
             "details": est.details.to_dict() if est.details is not None else None,
             "batch": batch.to_dict() if batch is not None else None,
-            "inputs": [{"name": str(args.source)}], "settings": settings.to_dict()}
+            "inputs": [{"name": _shown_source(args.source)}], "settings": settings.to_dict()}
     written = [write_json(out / "calibration.json", data)]
     text = io.StringIO()
     table = csv.writer(text)

@@ -11,6 +11,7 @@ A drive may consist of several *pieces*: runs of samples on one uniform grid sep
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -173,6 +174,25 @@ class Drive:
                      yaw_rate=self.yaw_rate, t_s=self.t_s, pieces=self.pieces, name=self.name,
                      pose_std=self.pose_std, metadata=self.metadata)
 
+    def select(self, keep: NDArray[np.bool_], **columns: FloatArray) -> Drive:
+        """The samples where ``keep`` (pieces split where a run of kept samples breaks), with
+        ``columns`` (full length, by field name) replacing the drive's own first."""
+        keep = np.asarray(keep, dtype=bool)
+        values = {k: np.asarray(columns.get(k, getattr(self, k)))[keep]
+                  for k in ("t", "n_rl", "n_rr", "a_y", "beta", "x", "y", "psi", "yaw_rate")}
+        index = np.flatnonzero(keep)
+        if index.size == 0:
+            raise DataError(f"{self.name}: no sample left")
+        piece_of = np.zeros(self.n_samples, dtype=np.int64)
+        for k, (a, b) in enumerate(self.pieces):
+            piece_of[a:b] = k
+        breaks = np.flatnonzero((np.diff(index) != 1)
+                                | (np.diff(piece_of[index]) != 0)) + 1
+        edges = [0, *breaks.tolist(), index.size]
+        pose_std = None if self.pose_std is None else self.pose_std[keep]
+        return Drive(t_s=self.t_s, pieces=tuple(itertools.pairwise(edges)),
+                     name=self.name, pose_std=pose_std, metadata=self.metadata, **values)
+
     def since(self, t0: float) -> Drive:
         """The samples from time ``t0`` on (pieces cut there); the drive itself where it starts
         later."""
@@ -280,8 +300,8 @@ def _columns(columns: Mapping[str, Any], name: str) -> dict[str, FloatArray]:
             continue
         try:
             arr = _as_float_array(columns[key])
-        except (TypeError, ValueError):
-            raise DataError(f"'{name}' column {key} is not numeric") from None
+        except (TypeError, ValueError) as err:
+            raise DataError(f"'{name}' column {key} is not numeric") from err
         if arr.ndim != 1:
             raise DataError(f"'{name}' column {key} must be one-dimensional")
         arrays[key] = arr

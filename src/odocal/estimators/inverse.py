@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.checks.departures import wheel_step
+from odocal.checks.departures import wheel_lag_s, wheel_step
 from odocal.checks.findings import Finding
 from odocal.checks.residuals import change_finding, find_change, front_wheels
 from odocal.data.drive import Drive
@@ -167,7 +167,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
     t_s = common_sampling_time(drives)
     if progress:
         progress("inverse: fit", 0, 2)
-    windows, straight = windows_from_drives(drives, settings)
+    windows, straight = windows_from_drives(drives, settings, reach_s=_reach(drives, settings))
     offset = heading_offset(straight) if settings.inverse.heading_offset == "estimate" else 0.0
     if windows.size < MIN_WINDOWS:
         log.warning("inverse calibration: the drives hold fewer than %d moving windows",
@@ -183,7 +183,8 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
                                                 offset, held, distance_only)
     if progress:
         progress("inverse: fit", 2, 2)
-    estimate = _estimate(found, windows, settings, started, method="inverse")
+    estimate = _estimate(found, windows, settings, started, method="inverse",
+                         reference_shift_s=_shifted(drives))
     if findings:
         estimate = dataclasses.replace(estimate, details=dataclasses.replace(
             estimate.details, findings=tuple(findings)))
@@ -220,6 +221,26 @@ def _residual_checks(found: core.CoreFit, windows: WindowSet, drives: Sequence[D
     return [finding], refit, after
 
 
+def _reach(drives: Sequence[Drive], settings: Settings) -> float:
+    """How far the lag scan must reach: ``[inverse] lag_scan_s`` around the lag the
+    cross-correlation finds (none on drives already on the wheels' clock, as a calibration
+    aligns them: :mod:`odocal.checks.departures`), at most ``max_delay_s``."""
+    cfg = settings.inverse
+    if cfg.delay != "estimate":
+        return cfg.lag_scan_s
+    coarse = wheel_lag_s(drives, np.asarray(settings.identify.theta0, dtype=np.float64))
+    if coarse is None or abs(coarse) <= 0.5 * cfg.lag_scan_s:
+        return cfg.lag_scan_s
+    return min(abs(coarse) + 0.5 * cfg.lag_scan_s, cfg.max_delay_s)
+
+
+def _shifted(drives: Sequence[Drive]) -> float:
+    """The reference shift a calibration applied to these drives before the fit (their
+    metadata's ``reference_shift_s``; 0 where none)."""
+    shifts = {float(d.metadata.get("reference_shift_s", 0.0)) for d in drives}
+    return shifts.pop() if len(shifts) == 1 else 0.0
+
+
 def _origin(settings: Settings) -> FloatArray:
     """Where folded coupling moments are taken (the datasheet values, kappa and the offsets
     0)."""
@@ -228,7 +249,7 @@ def _origin(settings: Settings) -> FloatArray:
 
 
 def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
-              started: float, *, method: str) -> Estimate:
+              started: float, *, method: str, reference_shift_s: float = 0.0) -> Estimate:
     datasheet = np.asarray(settings.identify.theta0, dtype=np.float64)
     fit, free = found.fit, found.free
     noise = found.model.noise
@@ -238,7 +259,7 @@ def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
     t_s = windows.t_s
     details = InverseDetails(
         windows=windows.size, window_s=windows.length * t_s, clusters=found.clusters,
-        delay_s=found.lag.shift * t_s, delay_std_s=found.lag.std * t_s,
+        delay_s=found.lag.shift * t_s + reference_shift_s, delay_std_s=found.lag.std * t_s,
         heading_offset_rad=found.heading_offset,
         noise=((float(noise[0, 0]), float(noise[0, 1])), (float(noise[1, 0]),
                                                           float(noise[1, 1]))),
@@ -249,7 +270,7 @@ def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
         measured=windows.measured @ CHANNELS.T, residual=fit.residual,
         prewhitening=(float(found.model.ma[0, 0]), float(found.model.ma[1, 0])),
         smoothing_steps2=float(2.0 * fit.p[core.KAPPA]), coupling=float(found.model.coupling),
-        delay_found_s=found.lag.found * t_s, delay_note=found.lag.note,
+        delay_found_s=found.lag.found * t_s + reference_shift_s, delay_note=found.lag.note,
         wheel_offset_revps=found.offset[0], wheel_offset_std=found.offset[1], t0=windows.t0)
     if not free.any():
         status = Status.NOTHING_IDENTIFIABLE

@@ -345,16 +345,18 @@ def heading_offset(straight: FloatArray) -> float:
 
 
 def builder_for(settings: Settings, t_s: float, *, drive: int = 0,
-                cluster_steps: int | None = None) -> WindowBuilder:
+                cluster_steps: int | None = None, reach_s: float | None = None
+                ) -> WindowBuilder:
     """A builder with the default method's window length and margin (``[inverse]``); clusters
-    of a segment's length unless ``cluster_steps`` says otherwise. Every piece loses its margin
-    at either end (``max_delay_s`` and two steps): batch and live alike, so that the two give
-    the same windows."""
+    of a segment's length unless ``cluster_steps`` says otherwise. ``reach_s``: how far the lag
+    scan reaches either way (default ``lag_scan_s``: the clocks are aligned before, to within
+    it; at most ``max_delay_s``). Every piece loses the margin at either end."""
     cfg = settings.inverse
     length = max(round(cfg.window_s / t_s), 1)
+    reach = cfg.lag_scan_s if reach_s is None else min(reach_s, cfg.max_delay_s)
     # room for the lag scan (a step beyond the range, so a lag at its end is not at the
     # grid's edge) and one step either way for the counting window's spread
-    margin = math.ceil(cfg.max_delay_s / t_s - 1e-6) + 2 if cfg.delay == "estimate" else 0
+    margin = math.ceil(reach / t_s - 1e-6) + 2 if cfg.delay == "estimate" else 0
     return WindowBuilder(t_s=t_s, length=length, margin=margin,
                          cluster_steps=cluster_steps or settings.segments.length, drive=drive)
 
@@ -365,14 +367,15 @@ MIN_CLUSTERS = 10
 MIN_CLUSTER_WINDOWS = 2
 
 
-def cluster_steps_for(drives: Sequence[Drive], settings: Settings) -> int:
+def cluster_steps_for(drives: Sequence[Drive], settings: Settings, *,
+                      reach_s: float | None = None) -> int:
     """Steps per cluster of windows: a segment's length (``[segments] length``), or less where
     the drives are too short for :data:`MIN_CLUSTERS` of them, down to two windows. A 20 s
     scene is then five clusters of 4 s, not one: its evidence is judged (with the few-clusters
     widening) rather than refused as a single piece."""
     if not drives:
         return settings.segments.length
-    margin = builder_for(settings, drives[0].t_s).margin       # lost at either end of a piece
+    margin = builder_for(settings, drives[0].t_s, reach_s=reach_s).margin   # lost at each end
     steps = sum(max(b - a - 1 - 2 * margin, 0) for d in drives for a, b in d.pieces)
     window = max(round(settings.inverse.window_s / drives[0].t_s), 1)
     return int(min(settings.segments.length,
@@ -380,13 +383,16 @@ def cluster_steps_for(drives: Sequence[Drive], settings: Settings) -> int:
 
 
 def windows_from_drives(drives: Sequence[Drive], settings: Settings, *,
-                        chunk: int = 65536) -> tuple[WindowSet, FloatArray]:
+                        chunk: int = 65536, reach_s: float | None = None
+                        ) -> tuple[WindowSet, FloatArray]:
     """Every window of every piece of the drives, and their straight-stretch sums (the builder
-    fed each piece in chunks: memory stays bounded however long the drive)."""
+    fed each piece in chunks: memory stays bounded however long the drive); ``reach_s`` as
+    :func:`builder_for` takes it."""
     sets, straight = [], np.zeros(3)
-    cluster_steps = cluster_steps_for(drives, settings)
+    cluster_steps = cluster_steps_for(drives, settings, reach_s=reach_s)
     for k, d in enumerate(drives):
-        builder = builder_for(settings, d.t_s, drive=k, cluster_steps=cluster_steps)
+        builder = builder_for(settings, d.t_s, drive=k, cluster_steps=cluster_steps,
+                              reach_s=reach_s)
         for a, b in d.pieces:
             for lo in range(a, b, chunk):
                 hi = min(lo + chunk, b)

@@ -166,9 +166,9 @@ def local_client(n: int) -> Iterator[Any]:
                 cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                        host="127.0.0.1", dashboard_address="127.0.0.1:0",
                                        silence_logs=logging.CRITICAL, env=threads)
-            except Exception:
+            except Exception as err:
                 if flag.exists():
-                    raise ConfigError(GUARD_MESSAGE) from None
+                    raise ConfigError(GUARD_MESSAGE) from err
                 raise
             if flag.exists():
                 raise ConfigError(GUARD_MESSAGE)

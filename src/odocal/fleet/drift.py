@@ -21,7 +21,18 @@ Whether the change is a **step** (pressure, a tyre swap) or a **trend** (tread w
 by which fits the stretch better: a level that jumps at the change, or a line against the
 odometer (or time, where no odometer is known). After an alarm the stretch restarts at the change.
 
-Parameters not identified by a drive (or drives that failed) are skipped; they never alarm.
+Parameters not identified by a drive (or drives that failed) are skipped; they never alarm. A
+drive the quality gate rejected only because a parameter left its plausible range (the fit went
+well: a flat tyre moves c_d out of its range on every drive after it) is **evidence**: its
+estimates are used like any other drive's, so the bigger the fault the louder the fleet.
+
+Drives of two vehicles under one name give a stretch whose estimates fall into two **levels**
+that alternate in time: no step, no trend, and a baseline that blends both. Such a stretch is
+reported as an alarm of kind ``mixed`` (two groups of at least :data:`MIXED_MIN` drives whose
+levels lie more than :data:`MIXED_SEPARATION` times the groups' own scatter apart, and that
+take turns at least four times), with the two levels and what to check.
+
+Times are ordered as instants (a catalog may mix UTC offsets).
 """
 
 from __future__ import annotations
@@ -56,6 +67,7 @@ class Point:
     std: float
     odometer_km: float | None
     distance_km: float
+    rejected: bool = False     # the gate rejected the drive for a parameter's range
 
 
 @dataclass(frozen=True)
@@ -119,7 +131,22 @@ def excess_scatter(x: np.ndarray, var: np.ndarray) -> float:
 
 
 def parse_stamp(text: str) -> dt.datetime:
-    return dt.datetime.fromisoformat(text)
+    """A stored time as an instant (a time without an offset is UTC)."""
+    stamp = dt.datetime.fromisoformat(text)
+    return stamp if stamp.tzinfo else stamp.replace(tzinfo=dt.UTC)
+
+
+def _evidence(row: Mapping[str, Any]) -> bool:
+    """A drive rejected only for a parameter's range (see the module docstring)."""
+    value = row.get("out_of_range")
+    if isinstance(value, str):
+        import json
+
+        try:
+            value = json.loads(value)
+        except ValueError:
+            return False
+    return bool(value)
 
 
 def points(rows: Sequence[Mapping[str, Any]], parameter: str) -> tuple[list[Point], list[int]]:
@@ -130,13 +157,14 @@ def points(rows: Sequence[Mapping[str, Any]], parameter: str) -> tuple[list[Poin
         if r.get("event"):
             resets.append(i)
         value, std = r.get(parameter), r.get(f"{parameter}_std")
-        if not (r.get("success") and r.get(f"{parameter}_identified")):
+        evidence = not r.get("success") and _evidence(r)
+        if not ((r.get("success") or evidence) and r.get(f"{parameter}_identified")):
             continue
         if value is None or std is None or not (math.isfinite(value) and std > 0):
             continue
         out.append(Point(index=i, time=parse_stamp(r["time"]), value=float(value), std=float(std),
                          odometer_km=r.get("odometer_km"),
-                         distance_km=float(r.get("distance_km") or 0.0)))
+                         distance_km=float(r.get("distance_km") or 0.0), rejected=evidence))
     return out, resets
 
 
@@ -149,9 +177,10 @@ def analyse_vehicle(vehicle: str, rows: Sequence[Mapping[str, Any]],
         pts, resets = points(rows, name)
         floor = settings.excess_floor[j]
         for stretch in _stretches(pts, resets):
+            mixed = _mixed(vehicle, name, stretch, floor, rows)
             b, a = _detect(vehicle, name, stretch, floor, settings, rows)
             baselines += b
-            alarms += a
+            alarms += [mixed] if mixed is not None else a
     return Analysis(tuple(baselines), tuple(alarms))
 
 
@@ -250,10 +279,74 @@ def _alarm(vehicle: str, name: str, pts: list[Point], start: int, first: int, la
                    f"{'tread wear' if name == 'c_e' else 'a slow change'}; recalibrate")
     else:
         message = f"{name} {verb} {amount} since {since}: {CAUSES[name]}"
+    rejected = sum(p.rejected for p in after)
+    if rejected:
+        message += (f" ({rejected} of the {len(after)} drives since were rejected for an "
+                     "implausible parameter: calibrated values are not published for them)")
     return (Alarm(vehicle=vehicle, parameter=name, kind=kind, time=pts[first].time,
                   detected_time=pts[last].time, change=change, relative_change=relative,
                   confidence=confidence, drives_to_detect=last - first + 1, km_to_detect=km,
                   message=message), first)
+
+
+#: Least drives in each level of a ``mixed`` stretch, and the least distance between the levels
+#: in units of their own scatter.
+MIXED_MIN = 3
+MIXED_SEPARATION = 8.0
+
+
+def _mixed(vehicle: str, name: str, pts: list[Point], floor: float,
+           rows: Sequence[Mapping[str, Any]]) -> Alarm | None:
+    """Two levels that take turns within one stretch (two vehicles under one name), or None."""
+    n = len(pts)
+    if n < 2 * MIXED_MIN:
+        return None
+    x = np.array([p.value for p in pts])
+    var = np.array([p.std**2 for p in pts]) + floor**2
+    order = np.argsort(x, kind="stable")
+    best: tuple[float, int] | None = None
+    for k in range(MIXED_MIN, n - MIXED_MIN + 1):        # low group: order[:k]
+        lo, hi = order[:k], order[k:]
+        m_lo, _ = _weighted_mean(x[lo], var[lo])
+        m_hi, _ = _weighted_mean(x[hi], var[hi])
+        rss = float(np.sum((x[lo] - m_lo) ** 2) + np.sum((x[hi] - m_hi) ** 2))
+        if best is None or rss < best[0]:
+            best = (rss, k)
+    assert best is not None
+    rss, k = best
+    lo, hi = order[:k], order[k:]
+    m_lo, se_lo = _weighted_mean(x[lo], var[lo])
+    m_hi, se_hi = _weighted_mean(x[hi], var[hi])
+    spread = max(math.sqrt(rss / (n - 2)), float(np.sqrt(np.median(var))))
+    if (m_hi - m_lo) < MIXED_SEPARATION * spread:
+        return None
+    labels = np.zeros(n, dtype=int)
+    labels[hi] = 1
+    turns = int(np.sum(labels[1:] != labels[:-1]))
+    if turns < 4:                        # a step (1), or a step and back (2, 3): not a blend
+        return None
+    change = m_hi - m_lo
+    reference = m_lo if name != "c_d" else _baseline_ce(rows, pts[0].time, m_lo)
+    relative = change / abs(reference) if reference else float("nan")
+    z = change / math.sqrt(se_lo**2 + se_hi**2)
+    unit = _amount(name, change, relative)
+    message = (f"{name} of the drives named {vehicle} falls into two levels {unit} apart that "
+               f"take turns ({len(lo)} drives at {_level(name, m_lo)}, {len(hi)} at "
+               f"{_level(name, m_hi)}, since {pts[0].time.date().isoformat()}): two vehicles "
+               "under one name, or drives of another vehicle in its catalog rows; check the "
+               "catalog (the baseline blends both)")
+    return Alarm(vehicle=vehicle, parameter=name, kind="mixed", time=pts[0].time,
+                 detected_time=pts[-1].time, change=change, relative_change=relative,
+                 confidence=math.erf(z / math.sqrt(2.0)), drives_to_detect=n,
+                 km_to_detect=sum(p.distance_km for p in pts), message=message)
+
+
+def _level(name: str, value: float) -> str:
+    if name in ("c_e", "t_r"):
+        return f"{value:.4f} m"
+    if name == "c_d":
+        return f"{value * 1000:.2f} mm"
+    return f"{value:.3g} {PARAMETER_UNITS[PARAMETER_NAMES.index(name)]}"
 
 
 def _amount(name: str, change: float, relative: float) -> str:
@@ -302,7 +395,7 @@ def _wls_rss(design: np.ndarray, x: np.ndarray, w: np.ndarray) -> float:
 def analyse(rows: Sequence[Mapping[str, Any]], settings: FleetSettings) -> Analysis:
     """Baselines and alarms of every vehicle in ``rows`` (drive rows, any order)."""
     by_vehicle: dict[str, list[Mapping[str, Any]]] = {}
-    for r in sorted(rows, key=lambda r: (r["vehicle"], r["time"], r["task_key"])):
+    for r in sorted(rows, key=lambda r: (r["vehicle"], parse_stamp(r["time"]), r["task_key"])):
         by_vehicle.setdefault(r["vehicle"], []).append(r)
     baselines: list[Baseline] = []
     alarms: list[Alarm] = []
@@ -316,5 +409,5 @@ def analyse(rows: Sequence[Mapping[str, Any]], settings: FleetSettings) -> Analy
 def last_change(rows: Sequence[Mapping[str, Any]], alarms: Sequence[Alarm]) -> dt.datetime | None:
     """When the vehicle's current state began: its latest declared event or detected change."""
     times = [parse_stamp(r["time"]) for r in rows if r.get("event")]
-    times += [a.time for a in alarms]
+    times += [a.time for a in alarms if a.kind != "mixed"]
     return max(times) if times else None

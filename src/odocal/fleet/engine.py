@@ -9,7 +9,14 @@ the whole history, and calibrates each vehicle's latest drives together (pooled)
 By default the tasks run on an embedded Dask cluster on this machine (one single-threaded worker
 process per core, listening on the loopback address only); ``scheduler="tcp://HOST:PORT"`` runs
 them on an existing cluster, whose workers must have odocal installed and see the drive files
-at the catalog's paths.
+at the catalog's paths, or reach the objects at its URLs (each worker reads its own drives;
+the scheduler carries names and small results only).
+
+Before the first computation every remote object of the catalog is looked at (its size and
+version; no data is read): a missing object, a denied read or an endpoint that cannot be reached
+is named by its catalog row (``refused``), and that row is left out. A log that turns out
+unreadable on a worker (cut short, changed since, not a log) is named the same way. Nothing is
+stored for such a row; the other drives are calibrated and stored.
 """
 
 from __future__ import annotations
@@ -24,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from odocal.errors import ConfigError, DataError, OutputError, shown
+from odocal.errors import ConfigError, DataError, OdocalError, OutputError, shown
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
 from odocal.fleet.catalog import CatalogEntry, read_catalog
 from odocal.fleet.drift import Alarm, analyse, last_change, parse_stamp
@@ -36,8 +43,10 @@ from odocal.fleet.tasks import (
     pooled_task,
     run_drive_task,
     run_pooled_task,
+    with_content,
 )
 from odocal.io.atomic import check_fleet_folder, refuse_inputs
+from odocal.io.remote import name_of
 from odocal.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -59,6 +68,8 @@ class FleetRun:
     dashboard: str | None
     elapsed_s: float
     written: tuple[Path, ...] = field(default=())
+    refused: tuple[str, ...] = field(default=())     # catalog rows not read, one line each
+    bytes_read: int = 0          # read from object stores by the workers for the drives run now
 
 
 #: Seconds to wait for a scheduler given by address before saying it does not answer.
@@ -105,7 +116,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, *,
                    if isinstance(exc, MemoryError)
                    else str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
             raise ConfigError(f"cannot reach the Dask scheduler at {shown(scheduler)}: {why}"
-                              ) from None
+                              ) from exc
         try:
             yield client
         finally:
@@ -124,10 +135,11 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, *,
         yield client
 
 
-def _check_paths(store: Path, out: Path | None, catalog: Path,
+def _check_paths(store: Path, out: Path | None, catalog: Path | str,
                  entries: Sequence[CatalogEntry]) -> None:
-    inputs: list[Path] = [catalog, *(e.path for e in entries),
-                          *(e.mapping for e in entries if e.mapping is not None)]
+    inputs: list[Path] = [p for p in (catalog, *(e.path for e in entries),
+                                      *(e.mapping for e in entries if e.mapping is not None))
+                          if isinstance(p, Path)]
     refuse_inputs(store, inputs)
     if out is not None:
         refuse_inputs(out, inputs, folder=True)
@@ -137,11 +149,91 @@ def _check_paths(store: Path, out: Path | None, catalog: Path,
 def _unique(tasks: Sequence[DriveTask]) -> None:
     seen: dict[str, DriveTask] = {}
     for t in tasks:
+        if not t.key:
+            continue
         if t.key in seen:
             a, b = seen[t.key].entry, t.entry
             raise DataError(f"catalog rows {a.row} and {b.row} are the same drive "
-                            f"('{a.path.name}' and '{b.path.name}' have the same content)")
+                            f"('{name_of(a.path)}' and '{name_of(b.path)}' have the same "
+                            "content)")
         seen[t.key] = t
+
+
+def _row(entry: CatalogEntry) -> str:
+    return f"catalog row {entry.row} ({shown(entry.vehicle, 40)})"
+
+
+class _Planner:
+    """Each catalog row's task: a local log hashed, a remote object looked at (size and
+    version, no data) and its content taken from the store where it has read this version
+    before. Rows whose object cannot be had are refused, by name."""
+
+    def __init__(self, db: Store, settings: Settings, method: str,
+                 report_root: Path | None, refuse: Callable[[str], None]) -> None:
+        self.db, self.settings, self.method = db, settings, method
+        self.report_root, self.refuse = report_root, refuse
+        self.contents = db.contents()
+        self.dead: dict[str, str] = {}            # endpoint -> why it cannot be reached
+
+    def task(self, e: CatalogEntry) -> DriveTask | None:
+        from odocal.io.remote import RemoteError, is_remote, stat
+
+        pin = fingerprint = content = mapping_hash = None
+        try:
+            if e.remote:
+                endpoint = _endpoint(str(e.path))
+                if endpoint in self.dead:
+                    raise RemoteError(f"drive '{e.source}': {self.dead[endpoint]}")
+                try:
+                    info = stat(str(e.path), "drive")
+                except RemoteError as exc:
+                    if "cannot be reached" in str(exc):
+                        self.dead[endpoint] = str(exc).split(": ", 1)[-1]
+                    raise
+                pin, fingerprint = info.pin(), info.fingerprint()
+                content = self.contents.get(fingerprint)
+            if e.mapping is not None and is_remote(e.mapping):
+                mapping_hash = _remote_hash(str(e.mapping))
+            task = drive_task(e, self.settings, self.method, report_root=self.report_root,
+                              content=content, mapping_hash=mapping_hash, pin=pin,
+                              fingerprint=fingerprint)
+        except OdocalError as exc:
+            self.refuse(f"{_row(e)}: {exc}")
+            return None
+        if task.key and not self.allowed(task, task.input_hashes["source"]):
+            return None
+        return task
+
+    def allowed(self, task: DriveTask, content: str) -> bool:
+        """False (and the row named) when the store holds this drive under another vehicle:
+        a drive is never moved between vehicles."""
+        others = sorted(self.db.vehicles_of(content) - {task.entry.vehicle})
+        if others:
+            self.refuse(f"{_row(task.entry)}: drive '{task.entry.source}' is stored under "
+                        f"vehicle {shown(others[0], 40)}; a drive belongs to one vehicle: "
+                        "correct the catalog (or remove that drive from the store first)")
+            return False
+        return True
+
+
+def _endpoint(url: str) -> str:
+    """Where a URL's requests go: one S3 (GCS, Azure) endpoint per scheme, one HTTP server per
+    host."""
+    import urllib.parse
+
+    from odocal.io.remote import scheme_of
+
+    scheme = scheme_of(url)
+    return (f"{scheme}://{urllib.parse.urlsplit(url).netloc.rpartition('@')[2]}"
+            if scheme in ("http", "https") else scheme)
+
+
+def _remote_hash(url: str) -> str:
+    """A small remote file's (a mapping's) SHA-256, read now."""
+    from odocal.io.remote import local_copy
+
+    with local_copy(url, "mapping file") as copy:
+        return copy.sha256
 
 
 def calibrate_fleet(catalog: str | Path, store: str | Path, *,
@@ -150,11 +242,16 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
                     out: str | Path | None = None, drive_reports: bool = True,
                     client: Any = None, progress: Progress | None = None,
                     echo: Callable[[str], None] | None = None,
-                    connect_timeout_s: float = CONNECT_TIMEOUT_S) -> FleetRun:
+                    connect_timeout_s: float = CONNECT_TIMEOUT_S,
+                    refuse: Callable[[str], None] | None = None) -> FleetRun:
     """Calibrate every drive of a catalog into the store, then update baselines, alarms and the
     pooled calibrations; with ``out``, write the fleet report (and each drive's report) there.
 
     ``client``: an open Dask client to use instead of starting or joining a cluster.
+    ``refuse(line)``: told of each catalog row left out (its log cannot be read, or it names a
+    stored drive under another vehicle) as soon as that is known; the lines are also in
+    :attr:`FleetRun.refused`. The catalog may be a URL, and so may its rows (README, "Fleets
+    where the data lives"); the store and ``out`` are local.
     """
     from odocal.fleet.cluster import refuse_unguarded_start
 
@@ -172,17 +269,64 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
         from odocal.fleet.cluster import probe_scheduler
 
         probe_scheduler(scheduler, connect_timeout_s)
-    catalog_path, store_path = Path(catalog), Path(store)
+    from odocal.io.remote import is_url
+
+    catalog_path: Path | str = catalog if isinstance(catalog, str) and is_url(catalog) \
+        else Path(catalog)
+    store_path = Path(store)
     out_path = Path(out) if out is not None else None
     entries = read_catalog(catalog_path)
     _check_paths(store_path, out_path, catalog_path, entries)
     report_root = out_path / "drives" if out_path is not None and drive_reports else None
-    tasks = [drive_task(e, settings, method, report_root=report_root) for e in entries]
-    _unique(tasks)
+    refused: list[str] = []
+
+    def say(line: str) -> None:
+        refused.append(line)
+        if refuse is not None:
+            refuse(line)
+
     with open_store(store_path) as db:
+        planner = _Planner(db, settings, method, report_root, say)
+        planned = [planner.task(e) for e in entries]
+        tasks = [t for t in planned if t is not None]
+        tasks_planned = list(tasks)
+        stored_now: list[int] = []
+        received: list[int] = []
+        _unique(tasks)
         done = db.done_keys()
-        todo = [t for t in tasks if t.key not in done]
-        db.update_catalog_fields([t for t in tasks if t.key in done])
+        todo = [t for t in tasks if not t.key or t.key not in done]
+        db.update_catalog_fields([t for t in tasks if t.key and t.key in done])
+        resolved: dict[int, DriveTask] = {t.entry.row: t for t in tasks if t.key}
+        seen: dict[str, int] = {t.input_hashes["source"]: t.entry.row for t in tasks if t.key}
+
+        def store_drive(row: dict[str, Any]) -> None:
+            task = by_row[row["_row"]]
+            if "unwritable" in row:
+                raise OutputError(f"cannot write the report of {_row(task.entry)}: "
+                                  f"{row['unwritable']} (what was stored before stays)")
+            if "unreadable" in row:
+                say(f"{_row(task.entry)}: {row['unreadable']}")
+                return
+            if not row.get("task_key"):         # lost before its log's content was known
+                say(f"{_row(task.entry)}: {row.get('message')}: {row.get('error')}")
+                return
+            content = row.get("content")
+            if content and not task.key:      # a remote log read for the first time
+                task = with_content(task, content)
+                if seen.get(content, task.entry.row) != task.entry.row:
+                    say(f"{_row(task.entry)}: drive '{task.entry.source}' is the same drive "
+                        f"as catalog row {seen[content]} (the same content)")
+                    return
+                if not planner.allowed(task, content):
+                    return
+                seen[content] = task.entry.row
+            resolved[task.entry.row] = task
+            db.add_drive({k: v for k, v in row.items() if k != "_row"},
+                         fingerprint=task.fingerprint)
+            stored_now.append(task.entry.row)
+            received.append(int(row.get("bytes_read") or 0))
+
+        by_row = {t.entry.row: t for t in todo}
         if report_root is not None and out_path is not None:
             _claim(out_path)             # marked before the workers write into it
         _remove_report_leftovers(report_root)          # of a run that was killed
@@ -193,7 +337,8 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
                 dashboard = getattr(c, "dashboard_link", None)
                 if echo is not None and dashboard:
                     echo(f"Dask dashboard: {dashboard}")
-                _run(c, todo, run_drive_task, db.add_drive, "drives", progress)
+                _run(c, todo, run_drive_task, store_drive, "drives", progress)
+                tasks = [resolved[e.row] for e in entries if e.row in resolved]
                 rows = db.drives()
                 analysis = analyse(rows, settings.fleet)
                 db.replace_analysis([b.to_row() for b in analysis.baselines],
@@ -214,10 +359,11 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
 
             written = write_fleet_outputs(db, out_path,
                                           datasheet=Parameters(*settings.identify.theta0))
-    return FleetRun(drives=len(tasks), stored_before=len(tasks) - len(todo),
-                    calibrated=len(todo), failed=failed, pooled=len(pooled),
+    return FleetRun(drives=len(entries), stored_before=len(tasks_planned) - len(todo),
+                    calibrated=len(stored_now), failed=failed, pooled=len(pooled),
                     alarms=analysis.alarms, dashboard=dashboard,
-                    elapsed_s=time.perf_counter() - started, written=written)
+                    elapsed_s=time.perf_counter() - started, written=written,
+                    refused=tuple(refused), bytes_read=sum(received))
 
 
 def _claim(out: Path) -> None:
@@ -229,7 +375,7 @@ def _claim(out: Path) -> None:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"cannot create the output folder '{shown(out)}': "
-                          f"{exc.strerror or exc}") from None
+                          f"{exc.strerror or exc}") from exc
     if not (out / FLEET_MARKER).exists():
         write_text(out / FLEET_MARKER, "written by odocal fleet calibrate; updated in place\n")
 
@@ -258,8 +404,8 @@ def _run(client: Any, tasks: Sequence[DriveTask] | Sequence[PooledTask],
         return
     from distributed import as_completed
 
-    futures = {client.submit(function, t, key=f"odocal-{stage}-{t.key}", pure=False,
-                             retries=0): t for t in tasks}
+    futures = {client.submit(function, t, key=f"odocal-{stage}-{getattr(t, 'name', t.key)}",
+                             pure=False, retries=0): t for t in tasks}
     if progress:
         progress(stage, 0, len(tasks))
     for n, future in enumerate(as_completed(futures), start=1):
@@ -267,7 +413,10 @@ def _run(client: Any, tasks: Sequence[DriveTask] | Sequence[PooledTask],
         try:
             row = future.result()
         except Exception as exc:                 # the worker died or the task could not run
+            log.debug("a fleet task was lost", exc_info=True)
             row = _lost(task, exc)
+        if isinstance(task, DriveTask):
+            row["_row"] = task.entry.row
         store(row)
         future.release()
         if progress:
@@ -282,7 +431,8 @@ def _lost(task: DriveTask | PooledTask, exc: BaseException) -> dict[str, Any]:
                 "method": task.method, "status": "error", "success": False, "error": error}
     e = task.entry
     return {"task_key": task.key, "vehicle": e.vehicle, "time": e.time.isoformat(),
-            "odometer_km": e.odometer_km, "source": str(e.path), "format": e.format,
+            "content": task.input_hashes.get("source"),
+            "odometer_km": e.odometer_km, "source": e.source, "format": e.format,
             "event": e.event, "method": task.method, "status": "error", "success": False,
             "message": "the task was lost", "error": error, "input_hashes": task.input_hashes,
             "settings_hash": task.settings_hash}

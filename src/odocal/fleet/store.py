@@ -10,15 +10,24 @@ Schema (version :data:`SCHEMA_VERSION`; ``meta`` holds it, :func:`open_store` mi
 files in place):
 
 ``drives``
-    one row per drive estimate: ``task_key`` (primary key: the hash of the inputs' content,
-    the settings, the method and odocal's version), ``vehicle``, ``time`` (ISO 8601),
+    one row per drive: ``drive_id`` (primary key: the hash of the vehicle and the content of
+    the drive's log, ``content``, its SHA-256: the same bytes at another path or URL are the same
+    drive), ``task_key`` (the hash of the inputs' content, the mapping, the settings, the
+    method and odocal's version: the estimate's key; a rerun with other settings replaces the
+    row), ``vehicle``, ``time`` (ISO 8601 in UTC, so that text order is time order),
     ``odometer_km``, ``source``, ``format``, ``event``, ``method``, ``status``, ``success``,
     ``message``, the four parameters and their standard deviations (``c_e``, ``c_e_std``, ...),
     ``c_e_identified`` (...), ``covariance`` (JSON, 4x4 row-major in the order c_e, c_d, t_r,
     d), ``e_p_m`` and ``datasheet_e_p_m`` (validation errors), ``distance_km``, ``duration_s``,
     ``findings`` (JSON list of the checks' names), ``error``, ``input_hashes`` (JSON),
     ``settings_hash``, ``odocal_version``, ``report`` (the drive's own report.html, when
-    written), ``stored_at``
+    written), ``out_of_range`` (JSON list of the parameters for which the quality gate rejected
+    the drive, when that was its only reason: evidence for the drift detector),
+    ``stored_at``. A drive is never moved to another vehicle; a new content at the same source
+    of the same vehicle replaces the row of the old content.
+``objects``
+    what a remote object's version (``fingerprint``: its URL, size and ETag or version) was
+    found to hold (``content``, the SHA-256): a rerun skips it without reading it
 ``pooled``
     a calibration per vehicle over its last drives (``drives`` JSON list of task keys), same
     parameter columns, and the calibrated odometry's speed and yaw-rate standard deviations
@@ -39,6 +48,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import hashlib
 import json
 import sqlite3
 from collections.abc import Iterator, Mapping, Sequence
@@ -48,19 +58,24 @@ from typing import Any
 from odocal.errors import DataError, OutputError, input_file, shown
 from odocal.model.parameters import PARAMETER_NAMES
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 _PARAMS = ", ".join(f"{n} REAL, {n}_std REAL, {n}_identified INTEGER" for n in PARAMETER_NAMES)
 _SCHEMA = f"""
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS drives (
-    task_key TEXT PRIMARY KEY, vehicle TEXT NOT NULL, time TEXT NOT NULL, odometer_km REAL,
+    drive_id TEXT PRIMARY KEY, content TEXT, task_key TEXT NOT NULL, vehicle TEXT NOT NULL,
+    time TEXT NOT NULL, odometer_km REAL,
     source TEXT NOT NULL, format TEXT, event TEXT, method TEXT, status TEXT NOT NULL,
     success INTEGER NOT NULL, message TEXT, {_PARAMS}, covariance TEXT, e_p_m REAL,
     datasheet_e_p_m REAL, distance_km REAL, duration_s REAL, findings TEXT, error TEXT,
-    input_hashes TEXT, settings_hash TEXT, odocal_version TEXT, report TEXT,
+    input_hashes TEXT, settings_hash TEXT, odocal_version TEXT, report TEXT, out_of_range TEXT,
     stored_at TEXT NOT NULL);
 CREATE INDEX IF NOT EXISTS drives_by_vehicle ON drives (vehicle, time);
+CREATE INDEX IF NOT EXISTS drives_by_task ON drives (task_key);
+CREATE INDEX IF NOT EXISTS drives_by_content ON drives (content);
+CREATE TABLE IF NOT EXISTS objects (
+    fingerprint TEXT PRIMARY KEY, content TEXT NOT NULL, seen_at TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS pooled (
     task_key TEXT PRIMARY KEY, vehicle TEXT NOT NULL, time TEXT NOT NULL, drives TEXT NOT NULL,
     method TEXT, status TEXT NOT NULL, success INTEGER NOT NULL, message TEXT, {_PARAMS},
@@ -76,13 +91,13 @@ CREATE TABLE IF NOT EXISTS alarms (
     PRIMARY KEY (vehicle, parameter, kind, time));
 """
 #: Columns of ``drives`` a task result fills (besides the bookkeeping ones).
-DRIVE_COLUMNS = ("task_key", "vehicle", "time", "odometer_km", "source", "format", "event",
-                 "method", "status", "success", "message",
+DRIVE_COLUMNS = ("drive_id", "content", "task_key", "vehicle", "time", "odometer_km", "source",
+                 "format", "event", "method", "status", "success", "message",
                  *(f"{n}{suffix}" for n in PARAMETER_NAMES for suffix in ("", "_std",
                                                                           "_identified")),
                  "covariance", "e_p_m", "datasheet_e_p_m", "distance_km", "duration_s",
                  "findings", "error", "input_hashes", "settings_hash", "odocal_version",
-                 "report")
+                 "report", "out_of_range")
 POOLED_COLUMNS = ("task_key", "vehicle", "time", "drives", "method", "status", "success",
                   "message", *(f"{n}{suffix}" for n in PARAMETER_NAMES
                                for suffix in ("", "_std", "_identified")),
@@ -91,6 +106,22 @@ POOLED_COLUMNS = ("task_key", "vehicle", "time", "drives", "method", "status", "
 
 def _now() -> str:
     return dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
+
+
+def drive_id(vehicle: str, content: str) -> str:
+    """A drive's identity: its vehicle and the content of its log."""
+    return hashlib.sha256(f"{vehicle}\0{content}".encode()).hexdigest()
+
+
+def utc_text(text: str) -> str:
+    """An ISO 8601 time as the same instant in UTC (text order is then time order); text that
+    is not a time is kept."""
+    try:
+        stamp = dt.datetime.fromisoformat(text)
+    except (TypeError, ValueError):
+        return text
+    stamp = stamp.astimezone(dt.UTC) if stamp.tzinfo else stamp.replace(tzinfo=dt.UTC)
+    return stamp.isoformat()
 
 
 class Store:
@@ -111,31 +142,55 @@ class Store:
 
     @contextlib.contextmanager
     def transaction(self) -> Iterator[sqlite3.Connection]:
-        """Everything inside is stored together, or (on any error) not at all."""
+        """Everything inside is stored together, or (on any error) not at all. A write the
+        disk refuses (full, read-only, an I/O error) is an OutputError naming the store."""
         try:
             self.db.execute("BEGIN IMMEDIATE")
             yield self.db
             self.db.execute("COMMIT")
-        except BaseException:
+        except BaseException as exc:
             # a Ctrl-C may come before BEGIN took effect: roll back only what was begun, and
             # never let the rollback's own error hide why the transaction ended
             if self.db.in_transaction:
                 with contextlib.suppress(sqlite3.Error):
                     self.db.execute("ROLLBACK")
+            if isinstance(exc, sqlite3.DatabaseError) and _disk_said_no(exc):
+                raise store_error(self.path, exc) from exc
             raise
 
     def done_keys(self) -> set[str]:
         return {r[0] for r in self.db.execute("SELECT task_key FROM drives")}
 
+    def contents(self) -> dict[str, str]:
+        """Remote objects' fingerprints -> the content they were found to hold."""
+        return dict(self.db.execute("SELECT fingerprint, content FROM objects"))
+
+    def vehicles_of(self, content: str) -> set[str]:
+        """The vehicles a drive of this content is stored under (at most one)."""
+        return {r[0] for r in self.db.execute("SELECT vehicle FROM drives WHERE content = ?",
+                                              (content,))}
+
     def pooled_keys(self) -> set[str]:
         return {r[0] for r in self.db.execute("SELECT task_key FROM pooled")}
 
-    def add_drive(self, row: Mapping[str, Any]) -> None:
-        """Store one drive's result (in its own transaction)."""
+    def add_drive(self, row: Mapping[str, Any], *, fingerprint: str | None = None) -> None:
+        """Store one drive's result (in its own transaction): it replaces the row of the same
+        drive (vehicle and content), and a row of the same vehicle and source whose content
+        was another (the file changed)."""
+        row = dict(row)
+        content = row.get("content")
+        row.setdefault("drive_id", drive_id(row["vehicle"], content or row["task_key"]))
+        if row.get("time"):
+            row["time"] = utc_text(row["time"])
         values = [_sql(row.get(c)) for c in DRIVE_COLUMNS]
         with self.transaction() as db:
+            db.execute("DELETE FROM drives WHERE vehicle = ? AND source = ? AND drive_id != ?",
+                       (row["vehicle"], row.get("source"), row["drive_id"]))
             db.execute(f"INSERT OR REPLACE INTO drives ({', '.join(DRIVE_COLUMNS)}, stored_at) "
                        f"VALUES ({', '.join('?' * len(DRIVE_COLUMNS))}, ?)", [*values, _now()])
+            if fingerprint and content:
+                db.execute("INSERT OR REPLACE INTO objects VALUES (?, ?, ?)",
+                           (fingerprint, content, _now()))
 
     def add_pooled(self, row: Mapping[str, Any]) -> None:
         values = [_sql(row.get(c)) for c in POOLED_COLUMNS]
@@ -147,10 +202,12 @@ class Store:
         """Catalog fields of drives already stored (a corrected time, odometer or event needs
         no recalibration)."""
         with self.transaction() as db:
-            db.executemany("UPDATE drives SET vehicle = ?, time = ?, odometer_km = ?, event = ?, "
-                           "source = ? WHERE task_key = ?",
-                           [(t.entry.vehicle, t.entry.time.isoformat(), t.entry.odometer_km,
-                             t.entry.event, str(t.entry.path), t.key) for t in tasks])
+            # never the vehicle: a drive stays with the vehicle it was stored under
+            db.executemany("UPDATE drives SET time = ?, odometer_km = ?, event = ?, source = ? "
+                           "WHERE task_key = ? AND vehicle = ?",
+                           [(utc_text(t.entry.time.isoformat()), t.entry.odometer_km,
+                             t.entry.event, t.entry.source, t.key, t.entry.vehicle)
+                            for t in tasks])
 
     def drives(self, vehicle: str | None = None) -> list[dict[str, Any]]:
         """Stored drive rows (of one vehicle), by vehicle and time."""
@@ -229,8 +286,12 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
             raise DataError(f"'{shown(p)}' is an SQLite database, but not an odocal fleet store")
         if not read_only:
             db.execute("PRAGMA journal_mode=WAL")
+    except sqlite3.OperationalError as exc:
+        if not read_only and _disk_said_no(exc):
+            raise store_error(p, exc) from exc
+        raise DataError(f"'{shown(p)}' is not an odocal fleet store (SQLite: {exc})") from exc
     except sqlite3.DatabaseError as exc:
-        raise DataError(f"'{shown(p)}' is not an odocal fleet store (SQLite: {exc})") from None
+        raise DataError(f"'{shown(p)}' is not an odocal fleet store (SQLite: {exc})") from exc
     version = 0
     if "meta" in tables:
         row = db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
@@ -250,6 +311,8 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
         with store.transaction() as tx:
             if version == 1:
                 _migrate_1_to_2(tx)
+            if version in (1, 2):
+                _migrate_2_to_3(tx)
             for statement in _SCHEMA.split(";"):
                 if statement.strip():
                     tx.execute(statement)
@@ -257,6 +320,52 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
                        (str(SCHEMA_VERSION),))
             tx.execute("INSERT OR IGNORE INTO meta VALUES ('created_at', ?)", (_now(),))
     return store
+
+
+def _disk_said_no(exc: BaseException) -> bool:
+    text = str(exc).lower()
+    return any(w in text for w in ("full", "disk i/o", "readonly", "read-only"))
+
+
+def store_error(path: Path, exc: BaseException) -> OutputError:
+    """The one line for a store the disk will not take (full, read-only, failing)."""
+    import shutil
+
+    why = str(exc)
+    with contextlib.suppress(OSError):       # SQLite calls a full disk in WAL mode an I/O error
+        if shutil.disk_usage(path.parent).free < (1 << 20) and "full" not in why:
+            why += ": no space left on the device"
+    hint = "; free space and run again" if ("full" in why or "space" in why) else ""
+    return OutputError(f"cannot write the fleet store '{shown(path)}': {why} (what was stored "
+                       f"before stays{hint})")
+
+
+def _migrate_2_to_3(db: sqlite3.Connection) -> None:
+    """Version 2 keyed drives by their estimate (a rerun with other settings added a second
+    row of the same drive), stored times with their offsets (sorted as text) and let a catalog
+    move a drive to another vehicle. Rows become one per drive (the latest stored), keyed by
+    vehicle and content, times in UTC."""
+    names = [r[1] for r in db.execute("PRAGMA table_info(drives)")]
+    old = [dict(zip(names, r, strict=True))
+           for r in db.execute("SELECT * FROM drives ORDER BY stored_at")]
+    db.execute("ALTER TABLE drives RENAME TO drives_v2")
+    for statement in _SCHEMA.split(";"):
+        if statement.strip() and "drives" in statement and "INDEX" not in statement:
+            db.execute(statement)
+    db.execute("DROP INDEX IF EXISTS drives_by_vehicle")
+    for row in old:
+        try:
+            hashes = json.loads(row.get("input_hashes") or "{}")
+        except ValueError:
+            hashes = {}
+        content = hashes.get("source") if isinstance(hashes, dict) else None
+        row["content"] = content
+        row["drive_id"] = drive_id(row["vehicle"], content or row["task_key"])
+        row["time"] = utc_text(row["time"])
+        columns = [c for c in (*DRIVE_COLUMNS, "stored_at") if c in row]
+        db.execute(f"INSERT OR REPLACE INTO drives ({', '.join(columns)}) VALUES "
+                   f"({', '.join('?' * len(columns))})", [row[c] for c in columns])
+    db.execute("DROP TABLE drives_v2")
 
 
 def _migrate_1_to_2(db: sqlite3.Connection) -> None:

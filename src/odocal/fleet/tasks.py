@@ -7,12 +7,20 @@ A task's key is the SHA-256 of everything its answer depends on: the content of 
 (a folder source, such as a nuScenes tree, by its files' names, sizes and modification times),
 the mapping file's content, the format, the method, the settings and odocal's version. A rerun
 skips every key already in the store; a changed file, setting or version is a new task.
+
+A remote object's content is known once a worker has read it (the SHA-256 of its bytes, the
+same as the same bytes on disk give); until then the task carries the object's version as seen
+when the fleet was planned (``pin``) and its key is worked out when the result comes back. A
+drive whose log cannot be read (missing, denied, unreachable, changed, cut short, not a log of
+its format) comes back as ``unreadable``: named by its catalog row, never stored.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import logging
 import traceback
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -25,6 +33,8 @@ from odocal._version import __version__
 from odocal.fleet.catalog import CatalogEntry
 from odocal.model.parameters import PARAMETER_NAMES
 from odocal.settings import Settings, settings_from_dict
+
+log = logging.getLogger(__name__)
 
 
 def settings_hash(settings: Settings) -> str:
@@ -51,7 +61,8 @@ def content_hash(path: Path) -> str:
 
 @dataclass(frozen=True)
 class DriveTask:
-    """One drive to calibrate: its catalog entry, how, and the key of the answer."""
+    """One drive to calibrate: its catalog entry, how, and the key of the answer (empty while
+    a remote log's content is unknown: ``input_hashes`` then holds no ``source``)."""
 
     key: str
     entry: CatalogEntry
@@ -60,6 +71,21 @@ class DriveTask:
     input_hashes: dict[str, str]
     settings_hash: str
     report_dir: str | None = None
+    pin: dict[str, Any] | None = None          # the remote object's version when planned
+    fingerprint: str | None = None             # the remote object's version, as one hash
+    report_root: str | None = None
+
+    @property
+    def name(self) -> str:
+        """The task's name on the cluster (unique in the run)."""
+        return self.key or f"row{self.entry.row}-{self.fingerprint}"
+
+
+def task_key(hashes: dict[str, str], fmt: str, method: str, s_hash: str) -> str:
+    """The key of a drive's estimate: its inputs' content, format, method, settings, version."""
+    return hashlib.sha256(json.dumps({
+        "inputs": hashes, "format": fmt, "method": method, "settings": s_hash,
+        "version": __version__}, sort_keys=True).encode()).hexdigest()
 
 
 @dataclass(frozen=True)
@@ -72,21 +98,40 @@ class PooledTask:
     drive_keys: tuple[str, ...]
     method: str
     settings: dict[str, Any]
+    pins: tuple[dict[str, Any] | None, ...] = ()
+    contents: tuple[str | None, ...] = ()
 
 
 def drive_task(entry: CatalogEntry, settings: Settings, method: str, *,
-               report_root: Path | None = None) -> DriveTask:
-    hashes = {"source": content_hash(entry.path)}
+               report_root: Path | None = None, content: str | None = None,
+               mapping_hash: str | None = None, pin: dict[str, Any] | None = None,
+               fingerprint: str | None = None) -> DriveTask:
+    """The task of one catalog row. A local log is hashed here; a remote one's ``content`` is
+    given where the store knows its version (else the worker finds it)."""
+    hashes: dict[str, str] = {}
+    if not entry.remote:
+        hashes["source"] = content_hash(Path(entry.path))
+    elif content is not None:
+        hashes["source"] = content
     if entry.mapping is not None:
-        hashes["mapping"] = content_hash(entry.mapping)
+        hashes["mapping"] = mapping_hash or content_hash(Path(entry.mapping))
     s_hash = settings_hash(settings)
-    key = hashlib.sha256(json.dumps({
-        "inputs": hashes, "format": entry.format, "method": method, "settings": s_hash,
-        "version": __version__}, sort_keys=True).encode()).hexdigest()
-    report_dir = (str(report_root / _safe(entry.vehicle) / key[:16])
-                  if report_root is not None else None)
-    return DriveTask(key=key, entry=entry, method=method, settings=settings.to_dict(),
-                     input_hashes=hashes, settings_hash=s_hash, report_dir=report_dir)
+    task = DriveTask(key="", entry=entry, method=method, settings=settings.to_dict(),
+                     input_hashes=hashes, settings_hash=s_hash, pin=pin,
+                     fingerprint=fingerprint,
+                     report_root=str(report_root) if report_root is not None else None)
+    return with_content(task, hashes["source"]) if "source" in hashes else task
+
+
+def with_content(task: DriveTask, content: str) -> DriveTask:
+    """The task once its log's content is known: its key and report folder."""
+    import dataclasses
+
+    hashes = {**task.input_hashes, "source": content}
+    key = task_key(hashes, task.entry.format, task.method, task.settings_hash)
+    report_dir = (str(Path(task.report_root) / _safe(task.entry.vehicle) / key[:16])
+                  if task.report_root is not None else None)
+    return dataclasses.replace(task, key=key, input_hashes=hashes, report_dir=report_dir)
 
 
 def pooled_task(vehicle: str, tasks: Sequence[DriveTask], settings: Settings,
@@ -96,7 +141,9 @@ def pooled_task(vehicle: str, tasks: Sequence[DriveTask], settings: Settings,
                                      "settings": settings_hash(settings),
                                      "version": __version__}).encode()).hexdigest()
     return PooledTask(key=key, vehicle=vehicle, entries=tuple(t.entry for t in tasks),
-                      drive_keys=keys, method=method, settings=settings.to_dict())
+                      drive_keys=keys, method=method, settings=settings.to_dict(),
+                      pins=tuple(t.pin for t in tasks),
+                      contents=tuple(t.input_hashes.get("source") for t in tasks))
 
 
 def _safe(name: str) -> str:
@@ -110,18 +157,58 @@ def _one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text[0] if text else ''}".rstrip(": ")
 
 
-def _read(entries: Sequence[CatalogEntry], settings: Settings) -> list[Any]:
-    from odocal.pipeline.calibrate import load_drives
-
+def _read(entries: Sequence[CatalogEntry], settings: Settings,
+          pins: Sequence[dict[str, Any] | None] = (),
+          contents: Sequence[str | None] = ()) -> tuple[list[Any], list[str | None]]:
+    """The entries' drives, and each log's content (SHA-256) as read; a log whose content is
+    no longer what the fleet planned with is an error that names it."""
     drives: list[Any] = []
-    for e in entries:
-        if e.format == "drive":
-            drives += load_drives(e.path)
-        else:
-            from odocal.preprocess.convert import convert
+    found: list[str | None] = []
+    for i, e in enumerate(entries):
+        pin = pins[i] if i < len(pins) else None
+        got, content = _read_one(e, settings, pin)
+        planned = contents[i] if i < len(contents) else None
+        if planned is not None and content is not None and content != planned:
+            from odocal.errors import InputFileError
 
-            drives += convert(e.format, [e.path], mapping=e.mapping, settings=settings)
-    return drives
+            raise InputFileError(f"'{e.source}' changed since the fleet was planned (its "
+                                 "content is not what was hashed then): not read; run the "
+                                 "fleet again")
+        drives += got
+        found.append(content)
+    return drives, found
+
+
+def _read_one(e: CatalogEntry, settings: Settings, pin: dict[str, Any] | None
+              ) -> tuple[list[Any], str | None]:
+    from odocal.io.drivefile import load_drive
+    from odocal.io.remote import readable
+
+    if e.format == "drive" and not Path(str(e.path)).is_dir():
+        drive = load_drive(e.path, pin=pin)
+        return [drive], str(drive.metadata.get("sha256") or "") or None
+    from odocal.preprocess.convert import convert
+
+    with contextlib.ExitStack() as stack:
+        source, digest = stack.enter_context(readable(e.path, "drive", pin=pin))
+        mapping = None
+        if e.mapping is not None:
+            mapping = stack.enter_context(_mapping_here(e.mapping))
+        drives = convert(e.format, [source], mapping=mapping, settings=settings)
+    return drives, digest if digest is not None else (
+        content_hash(Path(e.path)) if e.format == "drive" else None)
+
+
+@contextlib.contextmanager
+def _mapping_here(mapping: Any) -> Any:
+    """A mapping file on this machine (a remote one copied, with the files it names)."""
+    from odocal.io.remote import is_remote, mapping_here
+
+    if not is_remote(mapping):
+        yield Path(mapping)
+        return
+    with mapping_here(str(mapping)) as local:
+        yield local
 
 
 def _parameter_columns(result: Any) -> dict[str, Any]:
@@ -149,19 +236,33 @@ def _limit_threads() -> None:
 
 
 def run_drive_task(task: DriveTask) -> dict[str, Any]:
-    """Calibrate one drive; a failure is a row with its error, never an exception."""
+    """Calibrate one drive; a failure is a row with its error, never an exception. A log that
+    cannot be read gives a row with only ``unreadable`` (the reason) and the catalog fields."""
     _limit_threads()
     e = task.entry
     row: dict[str, Any] = {
         "task_key": task.key, "vehicle": e.vehicle, "time": e.time.isoformat(),
-        "odometer_km": e.odometer_km, "source": str(e.path), "format": e.format,
+        "odometer_km": e.odometer_km, "source": e.source, "format": e.format,
         "event": e.event, "method": task.method, "input_hashes": task.input_hashes,
         "settings_hash": task.settings_hash, "odocal_version": __version__}
+    settings = settings_from_dict(task.settings)
+    from odocal.io.remote import bytes_read
+
+    before = bytes_read()
+    try:
+        drives, (content,) = _read([e], settings, [task.pin],
+                                   [task.input_hashes.get("source")])
+    except Exception as exc:                       # named by its row, nothing stored
+        log.debug("drive %s cannot be read", row.get("_row"), exc_info=True)
+        return {**row, "unreadable": _reason(exc)}
+    row["bytes_read"] = bytes_read() - before      # from a store (0 for a local file)
+    if content is not None and not task.key:
+        task = with_content(task, content)
+        row.update(task_key=task.key, input_hashes=task.input_hashes)
+    row["content"] = task.input_hashes.get("source")
     try:
         from odocal.pipeline.calibrate import calibrate
 
-        settings = settings_from_dict(task.settings)
-        drives = _read([e], settings)
         result = calibrate(drives, settings=settings, method=task.method)
         row.update(_parameter_columns(result))
         row["datasheet_e_p_m"] = (result.datasheet_validation.mean_error_m
@@ -169,14 +270,39 @@ def run_drive_task(task: DriveTask) -> dict[str, Any]:
         row["distance_km"] = sum(d.distance_m for d in result.drives) / 1000.0
         row["duration_s"] = sum(d.duration_s for d in result.drives)
         row["findings"] = [f["check"] for f in result.diagnosis.to_dict()]
+        row["out_of_range"] = out_of_range(result)
         if task.report_dir is not None:
-            row["report"] = _write_drive_report(result, Path(task.report_dir))
+            try:
+                row["report"] = _write_drive_report(result, Path(task.report_dir))
+            except OSError as exc:                 # the outputs' disk said no: the run stops
+                return {**row, "unwritable": _reason(exc)}
     except Exception as exc:                       # one drive's failure never stops the fleet
+        log.debug("drive %s could not be calibrated", row.get("_row"), exc_info=True)
         row.update(status="error", success=False, message="the drive could not be calibrated",
                    error=_one_line(exc))
         if not isinstance(exc, _expected_errors()):
             row["error"] += " | " + traceback.format_exc(limit=-1).strip().splitlines()[-2]
     return row
+
+
+def _reason(exc: BaseException) -> str:
+    """A read failure in one line, without secrets."""
+    from odocal.errors import OdocalError
+    from odocal.io.remote import clean
+
+    return clean(str(exc) if isinstance(exc, OdocalError) and str(exc) else _one_line(exc))
+
+
+def out_of_range(result: Any) -> list[str] | None:
+    """The parameters the quality gate found implausible, when that alone rejected the drive
+    (the fit itself went well): the drift detector takes such a drive as evidence of a change
+    (a flat tyre moves c_d out of its range on every drive after it)."""
+    from odocal.checks.findings import Check, Severity
+
+    fatal = [f for f in result.diagnosis.findings if f.severity is Severity.FATAL]
+    if not fatal or any(f.check is not Check.PARAMETER_RANGE for f in fatal):
+        return None
+    return sorted({f.name for f in fatal})
 
 
 def _expected_errors() -> tuple[type[BaseException], ...]:
@@ -207,7 +333,7 @@ def run_pooled_task(task: PooledTask) -> dict[str, Any]:
         from odocal.pipeline.calibrate import calibrate
 
         settings = settings_from_dict(task.settings)
-        drives = _read(task.entries, settings)
+        drives, _ = _read(task.entries, settings, task.pins, task.contents)
         result = calibrate(drives, settings=settings, method=task.method)
         row.update(_parameter_columns(result))
         if result.success:
@@ -219,5 +345,5 @@ def run_pooled_task(task: PooledTask) -> dict[str, Any]:
                 row["yaw_rate_std_radps"] = noise.yaw_rate_std_radps
     except Exception as exc:
         row.update(status="error", success=False, message="the drives could not be calibrated",
-                   error=_one_line(exc))
+                   error=_reason(exc))
     return row

@@ -193,7 +193,7 @@ def results_folder(target: str | Path) -> Iterator[Path]:
                                     dir=parent))
     except OSError as exc:
         raise OutputError(f"cannot create the output folder '{target}': "
-                          f"{exc.strerror or exc}") from None
+                          f"{exc.strerror or exc}") from exc
     old = tmp.with_suffix(".old")
     try:
         yield tmp
@@ -214,7 +214,7 @@ def results_folder(target: str | Path) -> Iterator[Path]:
                 os.replace(old, target)
             raise
     except OSError as exc:
-        raise OutputError(f"cannot write '{target}': {exc.strerror or exc}") from None
+        raise OutputError(f"cannot write '{target}': {exc.strerror or exc}") from exc
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
         shutil.rmtree(old, ignore_errors=True)
@@ -339,7 +339,7 @@ def atomic_path(target: str | Path, *, owned: bool = False) -> Iterator[Path]:
         fd, tmp = tempfile.mkstemp(prefix=_temporary(target), suffix=".part",
                                    dir=parent)
     except OSError as exc:
-        raise OutputError(f"cannot write '{target}': {exc.strerror or exc}") from None
+        raise OutputError(f"cannot write '{target}': {exc.strerror or exc}") from exc
     os.close(fd)
     tmp_path = Path(tmp)
     # mkstemp creates the file private (0600); give it the permissions a new file gets
@@ -353,7 +353,7 @@ def atomic_path(target: str | Path, *, owned: bool = False) -> Iterator[Path]:
         if owned:
             _record(target, digest)
     except OSError as exc:
-        raise OutputError(f"cannot write '{target}': {exc.strerror or exc}") from None
+        raise OutputError(f"cannot write '{target}': {exc.strerror or exc}") from exc
     finally:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()

@@ -40,7 +40,7 @@ def _load(folder: Path, rel: str) -> FloatArray:
     try:
         return np.asarray(np.load(path, allow_pickle=False), dtype=np.float64)
     except (ValueError, OSError) as exc:
-        raise DataError(f"comma2k19 segment '{folder}': {rel} cannot be read: {exc}") from None
+        raise DataError(f"comma2k19 segment '{folder}': {rel} cannot be read: {exc}") from exc
 
 
 def _series(folder: Path, name: str) -> tuple[FloatArray, FloatArray]:

@@ -15,6 +15,7 @@ import pyarrow.parquet as pq
 from odocal.data.drive import Drive
 from odocal.errors import DataError, InputFileError, input_file, shown
 from odocal.io.atomic import atomic_path
+from odocal.io.remote import is_url
 
 _FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}
 
@@ -46,7 +47,7 @@ def _arrow_table(p: Path, *, text: bool) -> pa.Table:
             column_types={n: pa.string() for n in names}, strings_can_be_null=True))
     except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, UnicodeDecodeError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise DataError(f"'{p}' cannot be read as {fmt.upper()}: {first}") from None
+        raise DataError(f"'{p}' cannot be read as {fmt.upper()}: {first}") from exc
 
 
 class Columns(dict[str, np.ndarray]):
@@ -57,8 +58,13 @@ class Columns(dict[str, np.ndarray]):
 
 
 def read_table(path: str | Path) -> Columns:
-    """Read a CSV or Parquet file into float columns (non-numeric columns raise DataError;
-    date-times become seconds since 1970 UTC)."""
+    """Read a CSV or Parquet file (a path or a URL) into float columns (non-numeric columns
+    raise DataError; date-times become seconds since 1970 UTC)."""
+    if is_url(path):
+        from odocal.io.remote import readable
+
+        with readable(str(path), "input file") as (local, _):
+            return read_table(local)
     p = Path(path)
     if p.is_dir():
         raise InputFileError(f"input '{shown(p)}' is a folder, not a drive file (.csv or "
@@ -67,8 +73,8 @@ def read_table(path: str | Path) -> Columns:
     table = _arrow_table(p, text=False)
     try:
         names = table.column_names
-    except UnicodeDecodeError:
-        raise DataError(f"'{p}' has column names that are not UTF-8 text") from None
+    except UnicodeDecodeError as err:
+        raise DataError(f"'{p}' has column names that are not UTF-8 text") from err
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise DataError(f"'{p}' names the column {_printable(twice[0])} more than once")
@@ -87,17 +93,17 @@ def read_table(path: str | Path) -> Columns:
                 or pa.types.is_null(col.type)
             columns[name] = np.asarray(col.to_numpy(zero_copy_only=False),
                                        dtype=np.float64 if numeric else object)
-        except (UnicodeDecodeError, pa.ArrowInvalid):
+        except (UnicodeDecodeError, pa.ArrowInvalid) as err:
             raise DataError(f"'{p}' column {_printable(name)} holds values that are neither "
-                            "numbers nor text") from None
+                            "numbers nor text") from err
     for name, values in columns.items():
         if values.dtype == object:
             try:
                 columns[name] = np.array([np.nan if v is None else float(v) for v in values])
-            except (TypeError, ValueError):
+            except (TypeError, ValueError) as err:
                 bad = next(v for v in values if not _is_number(v))
                 raise DataError(f"'{p}' column {_printable(name)} holds a non-numeric value "
-                                f"'{_printable(str(bad))}'") from None
+                                f"'{_printable(str(bad))}'") from err
     return columns
 
 
@@ -122,6 +128,11 @@ def _seconds(col: pa.ChunkedArray) -> np.ndarray:
 
 def read_text_table(path: str | Path) -> dict[str, list[str | None]]:
     """A CSV or Parquet file's columns as text (empty cells as None), for tables of names."""
+    if is_url(path):
+        from odocal.io.remote import readable
+
+        with readable(str(path), "input file") as (local, _):
+            return read_text_table(local)
     p = Path(path)
     table = _arrow_table(p, text=True)
     try:
@@ -129,8 +140,8 @@ def read_text_table(path: str | Path) -> dict[str, list[str | None]]:
             raise DataError(f"'{p}' names a column twice")
         return {name: [None if v is None else str(v) for v in table.column(name).to_pylist()]
                 for name in table.column_names}
-    except UnicodeDecodeError:
-        raise DataError(f"'{p}' holds text that is not UTF-8") from None
+    except UnicodeDecodeError as err:
+        raise DataError(f"'{p}' holds text that is not UTF-8") from err
 
 
 def _printable(text: str, limit: int = 40) -> str:
@@ -148,15 +159,28 @@ def _is_number(value: Any) -> bool:
 
 
 def load_drive(path: str | Path, *, metadata: Mapping[str, Any] | None = None,
-               circumference_m: float | None = None) -> Drive:
-    """Read a drive-format file (CSV or Parquet) into a checked :class:`Drive`
-    (``circumference_m``: the datasheet's wheel, see :meth:`Drive.from_columns`)."""
+               circumference_m: float | None = None,
+               pin: Mapping[str, Any] | None = None) -> Drive:
+    """Read a drive-format file (CSV or Parquet; a path or a URL) into a checked
+    :class:`Drive` (``circumference_m``: the datasheet's wheel, see
+    :meth:`Drive.from_columns`; ``pin``: the remote object's version it must still be,
+    :meth:`odocal.io.remote.ObjectInfo.pin`)."""
+    if is_url(path):
+        from odocal.io.remote import readable, redact
+
+        with readable(str(path), "drive file", pin=pin) as (local, digest):
+            label = redact(path) if digest is not None else str(local)
+            return _drive(local, label, digest, metadata, circumference_m)
     p = Path(path)
+    return _drive(p, str(p), None, metadata, circumference_m)
+
+
+def _drive(p: Path, label: str, digest: str | None, metadata: Mapping[str, Any] | None,
+           circumference_m: float | None) -> Drive:
     columns = read_table(p)
-    return Drive.from_columns(columns, name=str(p), metadata={"source": str(p),
-                                                              "sha256": file_sha256(p),
-                                                              **(metadata or {})},
-                              circumference_m=circumference_m)
+    return Drive.from_columns(columns, name=label, metadata={
+        "source": label, "sha256": digest or file_sha256(p), **(metadata or {})},
+        circumference_m=circumference_m)
 
 
 def file_sha256(path: str | Path) -> str:

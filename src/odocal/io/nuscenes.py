@@ -62,10 +62,10 @@ def _records(path: Path, scene: str, message: str) -> list[dict[str, Any]]:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DataError(f"{scene}: message {message} ('{path.name}') is not valid JSON: "
-                        f"{exc}") from None
-    except RecursionError:
+                        f"{exc}") from exc
+    except RecursionError as err:
         raise DataError(f"{scene}: message {message} ('{path.name}') nests too deeply to "
-                        "read") from None
+                        "read") from err
     if not isinstance(data, list) or not data:
         raise DataError(f"{scene}: message {message} ('{path.name}') holds no records")
     return data
@@ -74,10 +74,10 @@ def _records(path: Path, scene: str, message: str) -> list[dict[str, Any]]:
 def _field(records: list[dict[str, Any]], key: str, scene: str, message: str) -> np.ndarray:
     try:
         return np.array([r[key] for r in records], dtype=np.float64)
-    except KeyError:
-        raise DataError(f"{scene}: message {message} lacks the field '{key}'") from None
-    except (TypeError, ValueError):
-        raise DataError(f"{scene}: message {message} field '{key}' is not numeric") from None
+    except KeyError as err:
+        raise DataError(f"{scene}: message {message} lacks the field '{key}'") from err
+    except (TypeError, ValueError) as err:
+        raise DataError(f"{scene}: message {message} field '{key}' is not numeric") from err
 
 
 def read_scene(scene: str, files: dict[str, Path]) -> RawLog:

@@ -46,9 +46,9 @@ def read_json(path: str | Path) -> dict[str, Any]:
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise DataError(f"'{shown(p)}' is not valid JSON: {exc}") from None
-    except RecursionError:
-        raise DataError(f"'{shown(p)}' nests objects or arrays too deeply to read") from None
+        raise DataError(f"'{shown(p)}' is not valid JSON: {exc}") from exc
+    except RecursionError as err:
+        raise DataError(f"'{shown(p)}' nests objects or arrays too deeply to read") from err
     if not isinstance(data, dict):
         raise DataError(f"'{p}' must hold a JSON object")
     return data
@@ -73,7 +73,7 @@ def read_parameters(path: str | Path) -> Parameters:
     try:
         return plausible(Parameters(*values))
     except DataError as exc:
-        raise DataError(f"'{path}': {exc}") from None
+        raise DataError(f"'{path}': {exc}") from exc
 
 
 def plausible(theta: Parameters) -> Parameters:

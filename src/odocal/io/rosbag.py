@@ -86,9 +86,9 @@ def read_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,
     """One raw log from a ROS 1 bag, ROS 2 bag folder or MCAP file."""
     try:
         from rosbags.highlevel import AnyReader
-    except ImportError:  # pragma: no cover - rosbags is a dependency
+    except ImportError as err: # pragma: no cover - rosbags is a dependency
         raise MissingDependencyError("reading ROS bags needs 'rosbags' (pip install rosbags)") \
-            from None
+            from err
     path = Path(source)
     if not path.exists():
         raise InputFileError(f"bag '{path}' does not exist")
@@ -97,7 +97,7 @@ def read_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,
         reader.open()
     except Exception as exc:  # rosbags raises several kinds for a corrupt or unknown file
         raise DataError(f"'{path}' cannot be read as a ROS bag or MCAP file: "
-                        f"{type(exc).__name__}: {exc}") from None
+                        f"{type(exc).__name__}: {exc}") from exc
     try:
         topics = {c.topic: _normalise_type(c.msgtype) for c in reader.connections}
         plan = _plan(path, topics, mapping)
@@ -132,9 +132,9 @@ def iter_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,
     """
     try:
         from rosbags.highlevel import AnyReader
-    except ImportError:  # pragma: no cover - rosbags is a dependency
+    except ImportError as err: # pragma: no cover - rosbags is a dependency
         raise MissingDependencyError("reading ROS bags needs 'rosbags' (pip install rosbags)") \
-            from None
+            from err
     path = Path(source)
     if not path.exists():
         raise InputFileError(f"bag '{path}' does not exist")
@@ -143,7 +143,7 @@ def iter_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,
         reader.open()
     except Exception as exc:  # rosbags raises several kinds for a corrupt or unknown file
         raise DataError(f"'{path}' cannot be read as a ROS bag or MCAP file: "
-                        f"{type(exc).__name__}: {exc}") from None
+                        f"{type(exc).__name__}: {exc}") from exc
     try:
         topics = {c.topic: _normalise_type(c.msgtype) for c in reader.connections}
         plan = {role: entry for role, entry in _plan(path, topics, mapping).items()

@@ -123,6 +123,7 @@ class SourceKeyedCache(FunctionCache):
         try:
             return bool(self._cache_file._load_index())
         except Exception:                    # an unreadable index: numba itself recompiles
+            log.debug("numba's cache index of %s cannot be read", self._name, exc_info=True)
             return False
 
 

@@ -105,9 +105,9 @@ class Layout:
         """The position of ``name`` in theta."""
         try:
             return self.names.index(name)
-        except ValueError:
+        except ValueError as err:
             raise KeyError(f"{name!r} is not a parameter of this model "
-                           f"({', '.join(self.names)})") from None
+                           f"({', '.join(self.names)})") from err
 
     def indices(self, names: Iterable[str]) -> tuple[int, ...]:
         return tuple(self.index(n) for n in names)

@@ -69,19 +69,35 @@ class ReplayResult:
 
 
 def stream_drive_file(path: str | Path, *, rows: int) -> Iterator[Chunk]:
-    """A drive-format file (Parquet or CSV) in batches of about ``rows`` rows."""
+    """A drive-format file (Parquet or CSV; a path or a URL) in batches of about ``rows`` rows.
+    An object is read range by range (a Parquet row group, a CSV block at a time), never whole."""
+    from odocal.io.remote import is_remote
+
+    if is_remote(path):
+        from odocal.io.remote import name_of, open_input, redact
+
+        with open_input(str(path), "input file") as handle:
+            yield from _stream_drive(handle, redact(path), Path(name_of(str(path))).suffix,
+                                     rows=rows)
+        return
+    from odocal.io.remote import local_path
+
+    p = input_file(local_path(path))
+    if not p.is_file():
+        raise InputFileError(f"input file '{p}' does not exist"
+                             + (" (it is a folder)" if p.is_dir() else ""))
+    yield from _stream_drive(p, str(p), p.suffix, rows=rows)
+
+
+def _stream_drive(source: Any, p: str, suffix: str, *, rows: int) -> Iterator[Chunk]:
     import pyarrow as pa
     import pyarrow.csv as pacsv
     import pyarrow.parquet as pq
 
-    p = input_file(path)
-    if not p.is_file():
-        raise InputFileError(f"input file '{p}' does not exist"
-                             + (" (it is a folder)" if p.is_dir() else ""))
-    suffix = p.suffix.lower()
+    suffix = suffix.lower()
     try:
         if suffix in (".parquet", ".pq"):
-            pfile = pq.ParquetFile(p)
+            pfile = pq.ParquetFile(source)
             names = pfile.schema_arrow.names
             wanted = [n for n in (*REQUIRED_COLUMNS, "beta") if n in names]
             # one row group at a time (odocal writes groups of 65,536 rows): memory stays flat
@@ -90,7 +106,7 @@ def stream_drive_file(path: str | Path, *, rows: int) -> Iterator[Chunk]:
                 for batch in pfile.read_row_group(group, columns=wanted).to_batches(
                     max_chunksize=max(rows, 8192)))
         elif suffix == ".csv":
-            reader = pacsv.open_csv(p, read_options=pacsv.ReadOptions(block_size=1 << 20))
+            reader = pacsv.open_csv(source, read_options=pacsv.ReadOptions(block_size=1 << 20))
             names = reader.schema.names
             batches = iter(reader)
         else:
@@ -189,17 +205,23 @@ def stream_source(source: str | Path, *, fmt: str | None, settings: Settings,
         yield from stream_drive_file(source, rows=rows)
         return
     from odocal.io.mapping import check_mapping, load_mapping
+    from odocal.io.remote import local_inputs
     from odocal.io.rosbag import iter_rosbag
 
-    table = check_mapping(mapping) if isinstance(mapping, Mapping) else load_mapping(mapping)
-    circumference = (settings.convert.wheel_circumference_m
-                     or settings.identify.datasheet("c_e"))
-    grid = GridResampler(t_s=1.0 / settings.convert.rate_hz, max_gap_s=settings.convert.max_gap_s)
-    for streams in iter_rosbag(source, table, circumference_m=circumference,
-                               chunk_s=settings.online.chunk_s):
-        chunk = grid.add(streams)
-        if chunk is not None:
-            yield chunk
+    # a bag at a URL is copied here first, in chunks (rosbags reads files); then streamed
+    with local_inputs([source], None if isinstance(mapping, Mapping) else mapping) as (
+            (local,), mapping_file):
+        table = check_mapping(mapping) if isinstance(mapping, Mapping) \
+            else load_mapping(mapping_file)
+        circumference = (settings.convert.wheel_circumference_m
+                         or settings.identify.datasheet("c_e"))
+        grid = GridResampler(t_s=1.0 / settings.convert.rate_hz,
+                             max_gap_s=settings.convert.max_gap_s)
+        for streams in iter_rosbag(local, table, circumference_m=circumference,
+                                   chunk_s=settings.online.chunk_s):
+            chunk = grid.add(streams)
+            if chunk is not None:
+                yield chunk
 
 
 def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | None = None,
@@ -249,9 +271,13 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
             update(last_t)
             next_update = last_t + settings.online.update_s
     if first_t is None:
-        raise DataError(f"'{source}' holds no samples")
+        from odocal.io.remote import redact
+
+        raise DataError(f"'{redact(source)}' holds no samples")
     update(last_t)
-    return ReplayResult(source=str(source), estimate=calibrator.estimate(), trace=tuple(trace),
+    from odocal.io.remote import redact
+
+    return ReplayResult(source=redact(source), estimate=calibrator.estimate(), trace=tuple(trace),
                         alarms=calibrator.alarms, samples=calibrator.details_samples(),
                         duration_s=last_t - first_t, distance_km=calibrator.distance_km,
                         elapsed_s=time.perf_counter() - started)

@@ -611,6 +611,7 @@ class CalibrationNode(Node):
         try:
             radius, separation = (v.double_value for v in future.result().values)
         except Exception as exc:  # the service's own failure, as it said it
+            self.get_logger().debug(f"reading the controller's parameters: {exc!r}")
             self.controller_note = f"cannot read the controller's nominal values: {exc}"
             return
         if not (radius > 0 and separation > 0):
@@ -640,6 +641,7 @@ class CalibrationNode(Node):
         try:
             results = future.result().results
         except Exception as exc:  # the service's own failure, as it said it
+            self.get_logger().debug(f"setting the controller's multipliers: {exc!r}")
             self.controller_note = f"setting the multipliers failed: {exc}"
             return
         refused = [f"{k}: {r.reason}" for k, r in zip(wanted, results, strict=False)
