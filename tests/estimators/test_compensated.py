@@ -53,6 +53,12 @@ def test_three_step_result_is_the_same_with_one_or_two_workers(
     two = odocal.calibrate(noisy_drive.drive, method="compensated",
                            settings=Settings().replace(calibrate={"workers": 2}))
     np.testing.assert_array_equal(one.theta.as_array(), two.theta.as_array())
+    # step 1's batches and their validation, step 3's comparison fit: each computed alone
+    a, b = one.three_step, two.three_step
+    np.testing.assert_array_equal(a.step1.validation_m, b.step1.validation_m)
+    np.testing.assert_array_equal(a.step1.thetas, b.step1.thetas)
+    np.testing.assert_array_equal(a.raw.theta.as_array(), b.raw.theta.as_array())
+    np.testing.assert_array_equal(one.estimate.covariance, two.estimate.covariance)
 
 
 def test_compensated_validates_better_than_a_typical_step1_batch(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 import odocal
-from odocal.data.segments import SegmentBatch, gather, identification_segments
+from odocal.data.segments import SegmentBatch, gather, gather_lazily, identification_segments
 from odocal.estimators.estimate import (
     CovarianceKind,
     GaussNewtonDetails,
@@ -14,7 +14,7 @@ from odocal.estimators.estimate import (
     Reason,
     Status,
 )
-from odocal.estimators.gauss_newton import gauss_newton
+from odocal.estimators.gauss_newton import Linearisation, bootstrap_terms, gauss_newton
 from odocal.model.kinematics import rollout, wheel_rates_for
 from odocal.model.parameters import Inputs
 from odocal.settings import IdentifySettings, Settings
@@ -151,3 +151,25 @@ def test_noisy_calibration_is_close(noisy_drive: SimulatedDrive) -> None:
     assert err[0] < 2e-3 and err[1] < 3e-4 and err[2] < 2e-2 and err[3] < 3e-4
     assert result.validation is not None and result.datasheet_validation is not None
     assert result.validation.mean_error_m < 0.5 * result.datasheet_validation.mean_error_m
+
+
+def test_the_bootstrap_takes_the_fits_own_linearisation(noisy_drive: SimulatedDrive) -> None:
+    """gauss_newton(keep=...) hands on its linearisation at the estimate: the bootstrap's
+    information and scores are those of linearising there again; the segments gathered
+    lazily or at once give the same fit."""
+    settings = Settings()
+    segs = identification_segments([noisy_drive.drive], settings.segments)
+    used = segs.subset(segs.selected)
+    lazy = gather_lazily([noisy_drive.drive], used)
+    kept: list[Linearisation] = []
+    est = gauss_newton(lazy, settings=settings.identify, keep=kept)
+    assert len(kept) == 1
+    np.testing.assert_array_equal(kept[0].theta, est.theta.as_array())
+    clusters = np.arange(len(lazy))
+    reused = bootstrap_terms(lazy, est, clusters, settings, at_estimate=kept[0])
+    again = bootstrap_terms(lazy, est, clusters, settings)
+    np.testing.assert_array_equal(reused.information, again.information)
+    np.testing.assert_array_equal(reused.scores, again.scores)
+    eager = gauss_newton(selected_batch(noisy_drive), settings=settings.identify)
+    np.testing.assert_array_equal(eager.theta.as_array(), est.theta.as_array())
+    np.testing.assert_array_equal(eager.covariance, est.covariance)

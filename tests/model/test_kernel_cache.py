@@ -1,5 +1,6 @@
-"""The compiled kernels follow an edit to the model: their disk cache is keyed on every source
-they inline, not only on the file that defines them (numba's own key)."""
+"""An edit to the model reaches what runs it: the segment methods' Jacobians (numpy) at once, and
+a compiled kernel that inlines the step through its disk cache, which is keyed on every source
+it inlines, not only on the file that defines it (numba's own key)."""
 
 from __future__ import annotations
 
@@ -18,19 +19,52 @@ from odocal.model._jit import kernel_sources
 
 PACKAGE = Path(odocal.__file__).parent
 
-# Rolls a short drive out with its Jacobian through the compiled kernel and says whether the
-# kernel came from the disk cache.
+# A kernel compiled with odocal's jit that inlines the model step (as a user's or a future
+# model's kernel would), written beside the package copy; and the segment methods' Jacobian,
+# which runs the step on numpy arrays (nothing of the model is compiled).
+PROBE_KERNEL = """
+import types
+import numpy as np
+from odocal.model import step
+from odocal.model._jit import jit
+
+
+def _compiled(function, **callees):
+    env = dict(function.__globals__)
+    env.update(callees)
+    return jit(inline=True)(types.FunctionType(function.__code__, env, function.__name__))
+
+
+_circumferences = _compiled(step.circumferences)
+_body = _compiled(step.body, circumferences=_circumferences)
+_increment = _compiled(step.increment)
+_derivatives = _compiled(step.increment_derivatives)
+
+
+@jit
+def derivatives(th, n_rl, n_rr, a_y, out):
+    for k in range(n_rl.shape[0]):
+        v, w, c_rl, c_rr = _body(th, n_rl[k], n_rr[k], a_y[k])
+        dx, dy, _, ct, st = _increment(0.1 * k, v, w, 0.0, 0.025)
+        _derivatives(th, n_rl[k], n_rr[k], a_y[k], v, w, c_rl, c_rr, dx, dy, ct, st, 0.025,
+                     out[k])
+"""
+
 PROBE = """
 import json, numpy as np
-from odocal.model import compiled
+import probe_kernel
+from odocal.model import jacobians
 from odocal.model.parameters import Inputs
 k = 50
+theta = np.array([1.95, 0.001, 1.5, 0.001])
 u = Inputs(n_rl=np.full((2, k), 5.0), n_rr=np.linspace(5.0, 5.5, 2 * k).reshape(2, k),
            beta=np.zeros((2, k)), a_y=np.full((2, k), 1.0))
-poses, jac = compiled.rollout_with_jacobian(np.array([1.95, 0.001, 1.5, 0.001]), u,
-                                            np.zeros((2, 3)), 0.025)
-stats = compiled._jacobian_kernel.stats
+poses, jac = jacobians.rollout_with_jacobian(theta, u, np.zeros((2, 3)), 0.025)
+out = np.zeros((k, 3, 6))
+probe_kernel.derivatives(theta, u.n_rl[0], u.n_rr[0], u.a_y[0], out)
+stats = probe_kernel.derivatives.stats
 print(json.dumps({"jac": jac.ravel().tolist(), "poses": poses.ravel().tolist(),
+                  "kernel": out.ravel().tolist(),
                   "hits": sum(stats.cache_hits.values()),
                   "misses": sum(stats.cache_misses.values())}))
 """
@@ -49,6 +83,7 @@ def _run(root: Path) -> dict[str, object]:
 def test_an_edit_to_the_step_reaches_the_compiled_kernels(tmp_path: Path) -> None:
     root = tmp_path / "src"
     shutil.copytree(PACKAGE, root / "odocal", ignore=shutil.ignore_patterns("__pycache__"))
+    (root / "probe_kernel.py").write_text(PROBE_KERNEL)
     step = root / "odocal" / "model" / "step.py"
     original = step.read_text()
 
@@ -56,7 +91,7 @@ def test_an_edit_to_the_step_reaches_the_compiled_kernels(tmp_path: Path) -> Non
     assert first["misses"] == 1 and first["hits"] == 0          # compiled, then cached
     again = _run(root)
     assert again["hits"] == 1 and again["misses"] == 0          # from the disk cache
-    assert again["jac"] == first["jac"]
+    assert again["jac"] == first["jac"] and again["kernel"] == first["kernel"]
 
     # flip the sign of one Jacobian term in the step the kernel inlines
     edited = original.replace("out[1, p] = st * dv[p] + dx * dh",
@@ -67,16 +102,17 @@ def test_an_edit_to_the_step_reaches_the_compiled_kernels(tmp_path: Path) -> Non
     assert changed["misses"] == 1 and changed["hits"] == 0      # the edit is compiled
     assert changed["poses"] == first["poses"]                   # the rollout is untouched
     assert not np.allclose(changed["jac"], first["jac"])        # the Jacobian follows the edit
+    assert not np.allclose(changed["kernel"], first["kernel"])  # and so does the kernel
 
     step.write_text(original)
     back = _run(root)
-    assert back["jac"] == first["jac"]
+    assert back["jac"] == first["jac"] and back["kernel"] == first["kernel"]
 
 
 @pytest.mark.parametrize(("module", "kernel", "inlined"), [
-    ("odocal.model.compiled", "_r_factor_kernel", {"model/compiled.py", "model/step.py"}),
-    ("odocal.model.compiled", "_step_jacobian_kernel", {"model/compiled.py", "model/step.py"}),
     ("odocal.estimators.compensation.riccati", "_pdas",
+     {"estimators/compensation/riccati.py"}),
+    ("odocal.estimators.compensation.riccati", "_pdas_batch",
      {"estimators/compensation/riccati.py"}),
     ("odocal.preprocess.fusion", "_ekf_rts", {"preprocess/fusion.py"}),
 ])

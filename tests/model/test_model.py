@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from odocal.model.compiled import rollout_with_jacobian, step_jacobians
+from odocal.model.jacobians import rollout_with_jacobian, step_jacobians
 from odocal.model.kinematics import (
     body_rates,
     rollout,

@@ -23,7 +23,7 @@ from odocal.data.segments import (
     RaggedSegments,
     SegmentBatch,
     SegmentSet,
-    gather,
+    gather_lazily,
     identification_segments,
     validation_segments,
 )
@@ -70,8 +70,9 @@ class Prepared:
 
     @functools.cached_property
     def batch(self) -> SegmentBatch:
-        """The used segments' data (gathered when a segment-based method asks for it)."""
-        return gather(self.drives, self.segments.subset(self.used))
+        """The used segments' data (asked for by the segment-based methods only, and copied out
+        of the drives a block of segments at a time as they work through it)."""
+        return gather_lazily(self.drives, self.segments.subset(self.used))
 
 
 @dataclass(frozen=True)

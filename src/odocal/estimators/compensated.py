@@ -26,7 +26,7 @@ from odocal.data.segments import RaggedSegments, SegmentBatch
 from odocal.estimators.base import MethodOutcome, Prepared, ProgressCallback
 from odocal.estimators.compensation import BatchCompensation, compensate_batch
 from odocal.estimators.estimate import CovarianceKind, Estimate, NotIdentified, held_as_weak, weak
-from odocal.estimators.gauss_newton import bootstrap_terms, gauss_newton
+from odocal.estimators.gauss_newton import Linearisation, bootstrap_terms, gauss_newton
 from odocal.estimators.parallel import map_chunks, resolve_workers
 from odocal.estimators.validation import mean_errors
 from odocal.model.parameters import PARAMETER_NAMES
@@ -94,6 +94,8 @@ class ThreeStepOutcome:
     warnings: tuple[str, ...]
     timings_s: dict[str, float]
     mean_relative_change: float
+    at_final: Linearisation | None = field(default=None, repr=False, compare=False)
+    """Step 3's linearisation at the calibration (what the bootstrap resamples)."""
 
     def to_dict(self) -> dict[str, Any]:
         comp = self.compensation
@@ -114,13 +116,21 @@ class ThreeStepOutcome:
 
 
 def relative_change(measured: SegmentBatch, comp: BatchCompensation) -> float:
-    """Mean absolute relative change of the rates by compensation, where the wheels turn."""
-    n_meas = np.stack([measured.inputs.n_rl, measured.inputs.n_rr])
-    n_comp = np.stack([comp.n_rl, comp.n_rr])
-    moving = np.abs(n_meas) > 0.5
-    if not moving.any():
-        return 0.0
-    return float(np.mean(np.abs(n_comp[moving] - n_meas[moving]) / np.abs(n_meas[moving])))
+    """Mean absolute relative change of the rates by compensation, where the wheels turn
+    (summed a block of segments at a time: no copy of every segment's rates)."""
+    total, count = 0.0, 0
+    n = len(measured)
+    block = max(1, (1 << 16) // max(measured.steps, 1))
+    for lo in range(0, n, block):
+        part = slice(lo, lo + block)
+        for meas, new in ((measured.input_rows("n_rl", lo, lo + block), comp.n_rl[part]),
+                          (measured.input_rows("n_rr", lo, lo + block), comp.n_rr[part])):
+            moving = np.abs(meas) > 0.5
+            change = np.abs(new - meas)
+            np.divide(change, np.abs(meas), out=change, where=moving)
+            total += float(change.sum(where=moving))
+            count += int(moving.sum())
+    return total / count if count else 0.0
 
 
 def draw_batches(n_segments: int, n_batches: int, batch_size: int, seed: int) -> IntArray:
@@ -146,19 +156,31 @@ def pick_at_equal_steps(order: IntArray, count: int) -> IntArray:
 
 
 def _identify_batches(args: tuple[SegmentBatch, IntArray, IdentifySettings,
-                                  dict[str, NotIdentified]]) -> list[Estimate]:
+                                  dict[str, NotIdentified]]
+                      ) -> tuple[list[Estimate], FloatArray | None]:
+    """Worker: step-1 batches identified, and their thetas validated (E_p) where there are
+    validation segments (shared by the fork in _VALIDATION, not sent)."""
     batch, batches, settings, held = args
-    return [gauss_newton(batch.take(idx), settings=settings, held=held, method="step 1")
-            for idx in batches]
+    results = [gauss_newton(batch.take(idx), settings=settings, held=held, method="step 1")
+               for idx in batches]
+    validation = _VALIDATION.get("data")
+    if validation is None:
+        return results, None
+    return results, mean_errors(np.array([r.theta.as_array() for r in results]), validation)
+
+
+#: The validation segments while step 1's workers run (read through the fork).
+_VALIDATION: dict[str, RaggedSegments] = {}
 
 
 def step1(batch: SegmentBatch, validation: RaggedSegments | None, settings: Settings, *,
           held: Mapping[str, NotIdentified] | None = None,
-          progress: Callable[[int, int], None] | None = None) -> Step1Result:
+          progress: Callable[[int, int], None] | None = None,
+          workers: int = 1) -> Step1Result:
     """Identify independent batches on measured rates, validate, sort and pick.
 
-    The batches run one after another in this process: each is small, and the compiled model
-    kernel already spreads a batch's segments over the cores.
+    The batches are spread over ``workers`` processes (each is identified alone: the result
+    does not depend on their number).
     """
     cal = settings.calibrate
     batches = draw_batches(len(batch), cal.step1_batches, cal.step1_batch_size, cal.seed)
@@ -169,13 +191,18 @@ def step1(batch: SegmentBatch, validation: RaggedSegments | None, settings: Sett
     per_task = max(1, -(-batches.shape[0] // 10))
     tasks = [(batch.take(np.unique(batches[lo:lo + per_task])), _reindex(batches[lo:lo + per_task]),
               identify, dict(held or {})) for lo in range(0, batches.shape[0], per_task)]
-    chunks = map_chunks(_identify_batches, tasks, workers=1,
-                        weights=[t[1].shape[0] for t in tasks], progress=progress)
-    results = tuple(r for chunk in chunks for r in chunk)
+    if validation is not None:
+        _VALIDATION["data"] = validation
+    try:
+        chunks = map_chunks(_identify_batches, tasks, workers=workers,
+                            weights=[t[1].shape[0] for t in tasks], progress=progress)
+    finally:
+        _VALIDATION.clear()
+    results = tuple(r for chunk, _ in chunks for r in chunk)
     thetas = np.array([r.theta.as_array() for r in results])
     success = np.array([r.success for r in results])
     if validation is not None:
-        errors = mean_errors(thetas, validation)
+        errors = np.concatenate([np.zeros(0)] + [e for _, e in chunks if e is not None])
     else:  # no validation segments: rank by the identification cost per segment instead
         errors = np.array([r.details.cost_history[-1] / max(r.details.segments, 1)
                            for r in results])
@@ -209,7 +236,7 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
 
     started = time.perf_counter()
     s1 = step1(batch, validation, settings, held=held,
-               progress=stage("step 1: batches"))
+               progress=stage("step 1: batches"), workers=workers)
     timings["step1"] = time.perf_counter() - started
     if not s1.success.any():
         warnings.append("no step-1 batch could be identified; compensating with the datasheet "
@@ -236,23 +263,65 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
     start = sets.mean(axis=0) if s1.success.any() else None
     compensated = batch.with_wheel_rates(comp.n_rl, comp.n_rr)
     held = dict(held or {})
-    for _ in range(len(PARAMETER_NAMES)):
-        final = gauss_newton(compensated, settings=settings.identify, start=start,
-                             clusters=clusters, held=held, method="compensated")
-        final = _with_inheritance(final, s1.thetas[s1.success], sets.shape[0])
-        too_weak = weak(final.std, final.free, settings.identify)
-        if not too_weak.any():
-            break
-        # the inherited spread pushed a parameter over the limit: hold it and identify again
-        held.update(held_as_weak(final.std, too_weak, settings.identify))
-    raw = gauss_newton(batch, settings=settings.identify, start=start, clusters=clusters,
-                       held=held)
+    task = _Step3(settings=settings, start=start, clusters=clusters, held=held,
+                  step1_thetas=s1.thetas[s1.success], sets=sets.shape[0])
+    # the calibration and the comparison on the measured rates, side by side (forked workers
+    # read the segments from _SHARED instead of receiving them); the comparison holds what
+    # the calibration holds, so where the calibration held more it is fitted again
+    _SHARED.update(compensated=compensated, measured=batch)
+    try:
+        (final, held_final, at_final), raw = map_chunks(
+            _step3, [("final", task), ("raw", task)], workers=workers)
+    finally:
+        _SHARED.clear()
+    if held_final != held:
+        raw = gauss_newton(batch, settings=settings.identify, start=start, clusters=clusters,
+                           held=held_final)
     if progress:
         progress("step 3: identification", 1, 1)
     timings["step3"] = time.perf_counter() - started
     return ThreeStepOutcome(step1=s1, compensation=comp, final=final, raw=raw,
                             warnings=tuple(warnings), timings_s=timings,
-                            mean_relative_change=relative_change(batch, comp))
+                            mean_relative_change=relative_change(batch, comp),
+                            at_final=at_final)
+
+
+#: What the workers of step 3 read (set only while they run): the compensated and the measured
+#: segments, shared by the fork rather than sent to each worker.
+_SHARED: dict[str, SegmentBatch] = {}
+
+
+@dataclass(frozen=True)
+class _Step3:
+    """What both fits of step 3 start from."""
+
+    settings: Settings
+    start: FloatArray | None
+    clusters: IntArray | None
+    held: dict[str, NotIdentified]
+    step1_thetas: FloatArray
+    sets: int
+
+
+def _step3(job: tuple[str, _Step3]) -> Any:
+    """Step 3's calibration (with the held parameters it ends with) or its comparison fit."""
+    which, t = job
+    if which == "raw":
+        return gauss_newton(_SHARED["measured"], settings=t.settings.identify, start=t.start,
+                            clusters=t.clusters, held=t.held)
+    held = dict(t.held)
+    kept: list[Linearisation] = []
+    for _ in range(len(PARAMETER_NAMES)):
+        final = gauss_newton(_SHARED["compensated"], settings=t.settings.identify,
+                             start=t.start, clusters=t.clusters, held=held,
+                             method="compensated", keep=kept)
+        final = _with_inheritance(final, t.step1_thetas, t.sets)
+        too_weak = weak(final.std, final.free, t.settings.identify)
+        if not too_weak.any():
+            break
+        # the inherited spread pushed a parameter over the limit: hold it and identify again
+        held.update(held_as_weak(final.std, too_weak, t.settings.identify))
+    return final, held, kept[-1]
 
 
 def _with_inheritance(final: Estimate, step1_thetas: FloatArray, sets: int) -> Estimate:
@@ -280,5 +349,6 @@ def run(prep: Prepared, settings: Settings,
     rates = prep.batch.with_wheel_rates(outcome.compensation.n_rl, outcome.compensation.n_rr)
     return MethodOutcome(estimate=outcome.final, three_step=outcome, warnings=outcome.warnings,
                          bootstrap=bootstrap_terms(rates, outcome.final, prep.clusters, settings,
+                                                   at_estimate=outcome.at_final,
                                                    step1_thetas=s1.thetas[s1.success],
                                                    step1_sets=int(s1.picked.size)))

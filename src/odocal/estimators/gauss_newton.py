@@ -3,7 +3,7 @@
 Minimises ``V(theta) = sum_k (y~_k - y^_k)^T W (y~_k - y^_k)`` over the segments of a batch
 (one segment: *pure* G-N; several: *batch* G-N, their J and R stacked). Each iteration solves the
 weighted linear least-squares problem (7)-(8) by QR: every segment's ``[sqrt(W) J | sqrt(W) R]``
-is reduced to a 5x5 R factor in the compiled model kernel (:func:`odocal.model.segment_r_factors`),
+is reduced to a 5x5 R factor (:func:`odocal.model.jacobians.segment_r_factors`, vectorised),
 and the stacked factors once more (a tall-skinny QR), iterating while the cost decreases, at most
 ``i_max`` times. A step that would raise the cost is halved until it does not (up to ten times)
 before the iteration stops; near the solution the full step is always taken, so this only guards
@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import qr, solve_triangular
+from scipy.linalg import lapack, qr
 
 from odocal.data.segments import SegmentBatch
 from odocal.estimators.base import BootstrapTerms
@@ -43,7 +43,7 @@ from odocal.estimators.estimate import (
     hold_unidentified,
     judge,
 )
-from odocal.model.compiled import segment_r_factors
+from odocal.model.jacobians import CHUNK_STEPS, segment_r_factors
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
 from odocal.settings import IdentifySettings, Settings
 
@@ -61,6 +61,8 @@ _EXACT_RMS = 1e-9
 #: vary by about 1e-12 from the order of summation); a step predicted to gain less is at most
 #: about 0.01 of a standard deviation even on a 4 h drive.
 _COST_ROUNDING = 1e-11
+#: Columns of a segment's least-squares problem: the Jacobian's, then the residual.
+_COLS = PARAMETERS + 1
 
 
 @dataclass(frozen=True)
@@ -68,9 +70,9 @@ class Linearisation:
     """The weighted least-squares problem of one G-N iteration at ``theta``.
 
     cost : V(theta)
-    r_factor : ndarray, shape (5, 5)
+    r_factor : ndarray, shape (n+1, n+1)
         Upper-triangular R of the QR factorisation of ``[sqrt(W) J | sqrt(W) R]``.
-    segment_r : ndarray, shape (N, 5, 5)
+    segment_r : ndarray, shape (N, n+1, n+1)
         The same per segment.
     residual_ss : ndarray, shape (3,)
         Unweighted sums of squared residuals of p_x, p_y, psi.
@@ -91,22 +93,26 @@ class Linearisation:
     @property
     def scores(self) -> FloatArray:
         """Per-segment ``J_s^T W R_s``, shape (N, n)."""
-        return np.einsum("nij,ni->nj", self.segment_r[:, :4, :4], self.segment_r[:, :4, 4])
+        n = PARAMETERS
+        return np.einsum("nij,ni->nj", self.segment_r[:, :n, :n], self.segment_r[:, :n, n])
 
     @property
     def information(self) -> FloatArray:
         """Per-segment ``J_s^T W J_s``, shape (N, n, n)."""
-        a = self.segment_r[:, :4, :4]
+        a = self.segment_r[:, :PARAMETERS, :PARAMETERS]
         return np.einsum("nki,nkj->nij", a, a)
 
 
 def linearise(batch: SegmentBatch, theta: FloatArray, weights: FloatArray) -> Linearisation:
     """Residuals and Jacobians of every segment at ``theta``, reduced to R factors."""
-    segment_r, stats = segment_r_factors(theta, batch.inputs, batch.reference, batch.t_s, weights)
-    stacked = segment_r.reshape(-1, 5)
-    r_factor = qr(stacked, mode="r", check_finite=False)[0][:5]
-    if r_factor.shape[0] < 5:  # fewer rows than columns (a degenerate, tiny batch)
-        r_factor = np.vstack([r_factor, np.zeros((5 - r_factor.shape[0], 5))])
+    parts = [segment_r_factors(theta, part.inputs, part.reference, batch.t_s, weights)
+             for part in batch.parts(max(1, CHUNK_STEPS // max(batch.steps, 1)))]
+    segment_r = np.concatenate([r for r, _ in parts])
+    stats = np.concatenate([s for _, s in parts])
+    stacked = segment_r.reshape(-1, _COLS)
+    r_factor = qr(stacked, mode="r", check_finite=False)[0][:_COLS]
+    if r_factor.shape[0] < _COLS:  # fewer rows than columns (a degenerate, tiny batch)
+        r_factor = np.vstack([r_factor, np.zeros((_COLS - r_factor.shape[0], _COLS))])
     cost = float(stats[:, 0].sum())
     lagged = float(stats[:, 4].sum())
     return Linearisation(theta=np.asarray(theta, dtype=np.float64).copy(), cost=cost,
@@ -133,7 +139,7 @@ class _Iteration:
 def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
                  start: FloatArray | None = None, clusters: IntArray | None = None,
                  held: Mapping[str, NotIdentified] | None = None,
-                 method: str = "raw") -> Estimate:
+                 method: str = "raw", keep: list[Linearisation] | None = None) -> Estimate:
     """Pure (one segment) or batch (several) Gauss-Newton identification.
 
     Parameters
@@ -147,6 +153,8 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
         time belong together. Each segment is its own group when None.
     held : parameters to keep at their datasheet values regardless of the data, with the reason
     method : the method name the estimate carries
+    keep : where given, the linearisation at the estimate is appended to it (what
+        :func:`bootstrap_terms` needs, so it is not computed twice)
 
     Returns
     -------
@@ -193,6 +201,8 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
     free, held = hold_unidentified(free, held, settings, covariance_of=covariance_of,
                                    refit=refit)
     it = fits[-1]
+    if keep is not None:
+        keep.append(it.lin)
     none = np.zeros((PARAMETERS, PARAMETERS))
     cov, cov_naive, kind = kinds[-1] if free.any() else (none, none, CovarianceKind.NONE)
     lin = it.lin
@@ -274,17 +284,18 @@ def _covariance(lin: Linearisation, free: BoolArray, clusters: IntArray,
 def _predicted_decrease(r_factor: FloatArray, delta: FloatArray) -> float:
     """The cost decrease the linearisation predicts for ``delta``: ``||r||^2 - ||r - A d||^2``
     in terms of the R factor of ``[A | r]``."""
-    after = r_factor[:, 4] - r_factor[:, :4] @ delta
-    return float(r_factor[:, 4] @ r_factor[:, 4] - after @ after)
+    n = PARAMETERS
+    after = r_factor[:, n] - r_factor[:, :n] @ delta
+    return float(r_factor[:, n] @ r_factor[:, n] - after @ after)
 
 
 def _solve_step(r_factor: FloatArray, free: BoolArray) -> FloatArray:
     """Least-squares step of the free parameters from the R factor of ``[A | r]``.
 
-    Since ``[A | r] = Q R``, ``min ||A_F d - r||`` equals ``min ||R[:, F] d - R[:, 4]||``.
+    Since ``[A | r] = Q R``, ``min ||A_F d - r||`` equals ``min ||R[:, F] d - R[:, n]||``.
     """
     cols = np.flatnonzero(free)
-    step, *_ = np.linalg.lstsq(r_factor[:, cols], r_factor[:, 4], rcond=None)
+    step, *_ = np.linalg.lstsq(r_factor[:, cols], r_factor[:, PARAMETERS], rcond=None)
     return np.asarray(step)
 
 
@@ -294,7 +305,7 @@ def _numerically_free(r_factor: FloatArray, prior: FloatArray, rcond: float,
     free = free.copy()
     while free.any():
         cols = np.flatnonzero(free)
-        a = r_factor[:4, cols] * prior[cols]          # columns in units of the prior std
+        a = r_factor[:PARAMETERS, cols] * prior[cols]     # columns in units of the prior std
         _, s, vt = np.linalg.svd(a)
         s_max = s[0] if s.size else 0.0
         if s_max > 0 and s[-1] > rcond * s_max:
@@ -310,10 +321,13 @@ def information_inverse(r_factor: FloatArray, free: BoolArray) -> FloatArray:
     out = np.zeros((PARAMETERS, PARAMETERS))
     if cols.size == 0:
         return out
-    _, r = np.linalg.qr(r_factor[:4, cols])
+    _, r = np.linalg.qr(r_factor[:PARAMETERS, cols])
     if np.min(np.abs(np.diag(r))) == 0.0:
         return out
-    r_inv = solve_triangular(r, np.eye(cols.size))
+    # LAPACK's triangular inverse: scipy's solve_triangular takes milliseconds for a 4x4
+    r_inv, info = lapack.dtrtri(r, lower=0)
+    if info != 0:
+        return out
     out[np.ix_(cols, cols)] = r_inv @ r_inv.T
     return out
 
@@ -345,16 +359,21 @@ def _larger(a: FloatArray, b: FloatArray) -> FloatArray:
 
 
 def bootstrap_terms(rates: SegmentBatch, estimate: Estimate, clusters: IntArray,
-                    settings: Settings, **extra: Any) -> BootstrapTerms:
+                    settings: Settings, *, at_estimate: Linearisation | None = None,
+                    **extra: Any) -> BootstrapTerms:
     """What the bootstrap resamples for a Gauss-Newton estimate on ``rates`` (the segments it
-    used, with their ``clusters``): per-segment information and scores, and a refit."""
-    lin = linearise(rates, estimate.theta.as_array(), np.asarray(settings.identify.weights))
+    used, with their ``clusters``): per-segment information and scores, and a refit.
+    ``at_estimate``: the fit's own linearisation at the estimate (``gauss_newton(keep=...)``),
+    used instead of linearising again where it is at the estimate's theta."""
+    theta = estimate.theta.as_array()
+    lin = (at_estimate if at_estimate is not None and np.array_equal(at_estimate.theta, theta)
+           else linearise(rates, theta, np.asarray(settings.identify.weights)))
     held = {n: NotIdentified(Reason.HELD) for n, f in zip(PARAMETER_NAMES, estimate.free,
                                                          strict=True) if not f}
     loose = dataclasses.replace(settings.identify, judge_identifiability=False, max_iterations=3)
 
     def refit(take: IntArray) -> FloatArray:
-        return gauss_newton(rates.take(take), settings=loose, start=estimate.theta.as_array(),
+        return gauss_newton(rates.subset(take), settings=loose, start=estimate.theta.as_array(),
                             held=held).theta.as_array()
 
     return BootstrapTerms(information=lin.information, scores=lin.scores, clusters=clusters,

@@ -1,10 +1,11 @@
 """Which compiled kernels each method runs, and whether numba's disk cache holds them.
 
-The default method compiles nothing; the segment methods run the model's kernels
-(:mod:`odocal.model.compiled`) and the compensated method also the compensation QP's Riccati
-kernels (:mod:`odocal.estimators.compensation.riccati`). Their first run after an install, or
-after an edit to any source a kernel inlines, compiles them: the command line says so before the
-silent wait (:func:`compile_note`).
+The default and ``raw`` methods compile nothing (the model's rollouts and Jacobians are numpy:
+:mod:`odocal.model.jacobians`); the compensated method runs the compensation QP's Riccati
+kernels (:mod:`odocal.estimators.compensation.riccati`: ``_pdas_batch``, which calls ``_pdas``
+and ``_sweep``, compiled and cached with it).
+Its first run after an install, or after an edit to any source a kernel inlines, compiles them:
+the command line says so before the silent wait (:func:`compile_note`).
 """
 
 from __future__ import annotations
@@ -15,22 +16,19 @@ from typing import Any
 #: The cached kernels each method's first run compiles (module, kernel), and about how many
 #: seconds each takes to compile (measured on two cores with an empty cache, rounded up).
 METHOD_KERNELS: dict[str, tuple[tuple[str, str], ...]] = {
-    "raw": (("model", "_r_factor_kernel"),),
-    "compensated": (("model", "_r_factor_kernel"), ("model", "_step_jacobian_kernel"),
-                    ("riccati", "_pdas")),
+    "compensated": (("riccati", "_pdas_batch"),),
 }
-COMPILE_S: dict[str, float] = {"_r_factor_kernel": 2.0, "_step_jacobian_kernel": 5.0,
-                               "_pdas": 3.0}
+COMPILE_S: dict[str, float] = {"_pdas_batch": 3.0}
+
+
+#: Where the kernels of METHOD_KERNELS live.
+_MODULES = {"riccati": "odocal.estimators.compensation.riccati"}
 
 
 def _kernel(module: str, name: str) -> Any:
-    if module == "model":
-        from odocal.model import compiled
+    import importlib
 
-        return getattr(compiled, name)
-    from odocal.estimators.compensation import riccati
-
-    return getattr(riccati, name)
+    return getattr(importlib.import_module(_MODULES[module]), name)
 
 
 def uncached_kernels(methods: Sequence[str] = tuple(METHOD_KERNELS)) -> list[str] | None:

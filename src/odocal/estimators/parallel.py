@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import multiprocessing
 import os
 import signal
 import sys
@@ -96,8 +97,10 @@ def map_chunks(func: Callable[[T], R], tasks: Sequence[T], *, workers: int = 1,
     """``[func(t) for t in tasks]``, in order, over ``workers`` processes.
 
     The results are those of the serial loop whatever the number of workers: each task is
-    computed alone and the list keeps the tasks' order. ``progress(done, total)`` is called with
-    the summed ``weights`` of the finished tasks.
+    computed alone and the list keeps the tasks' order. Workers are forked, so a task may read
+    large inputs its caller set aside in a module before the call (they are not copied into
+    each task); where processes cannot be forked, the tasks run here, one after another.
+    ``progress(done, total)`` is called with the summed ``weights`` of the finished tasks.
     """
     weights = list(weights) if weights is not None else [1] * len(tasks)
     total = sum(weights)
@@ -105,6 +108,8 @@ def map_chunks(func: Callable[[T], R], tasks: Sequence[T], *, workers: int = 1,
     if progress:
         progress(0, total)
     n_workers = min(resolve_workers(workers), len(tasks))
+    if "fork" not in multiprocessing.get_all_start_methods():
+        n_workers = 1                    # workers read shared inputs through the fork
     if n_workers <= 1:
         out: list[R] = []
         for task, w in zip(tasks, weights, strict=True):
@@ -115,7 +120,8 @@ def map_chunks(func: Callable[[T], R], tasks: Sequence[T], *, workers: int = 1,
         return out
     with interrupts_held():             # the workers are forked while submitting
         pool = ProcessPoolExecutor(max_workers=n_workers, initializer=_worker_start,
-                                   initargs=(os.getpid(),))
+                                   initargs=(os.getpid(),),
+                                   mp_context=multiprocessing.get_context("fork"))
         try:
             futures = [pool.submit(func, task) for task in tasks]
         except BaseException:

@@ -21,7 +21,7 @@ from odocal.data.drive import Drive
 from odocal.data.segments import RaggedSegments, SegmentSet, gather_ragged
 from odocal.estimators.windows import drives_heading_offset
 from odocal.model.kinematics import body_rates, rollout_ragged
-from odocal.model.parameters import Parameters
+from odocal.model.parameters import Inputs, Parameters
 from odocal.settings import MinimumSettings, Settings
 
 FloatArray = NDArray[np.float64]
@@ -49,8 +49,40 @@ class SegmentErrors:
     distance_m: FloatArray
 
 
+#: Samples of validation segments rolled out per pass (whole segments: at least one).
+BLOCK_SAMPLES = 1 << 17
+
+
+def _blocks(data: RaggedSegments) -> list[RaggedSegments]:
+    """``data`` cut into runs of whole segments of about BLOCK_SAMPLES samples (views): every
+    segment is rolled out alone, so the errors are those of one pass, in less memory."""
+    ends = np.cumsum(data.steps)
+    if ends.size == 0 or ends[-1] <= BLOCK_SAMPLES:
+        return [data]
+    out = []
+    a = 0
+    while a < data.steps.shape[0]:
+        first = int(ends[a - 1]) if a else 0
+        b = max(a + 1, int(np.searchsorted(ends, first + BLOCK_SAMPLES, side="right")))
+        last = int(ends[b - 1])
+        u = data.inputs
+        out.append(RaggedSegments(
+            inputs=Inputs(n_rl=u.n_rl[first:last], n_rr=u.n_rr[first:last],
+                          beta=u.beta[first:last], a_y=u.a_y[first:last]),
+            initial=data.initial[a:b], reference=data.reference[first:last],
+            steps=data.steps[a:b], segment=data.segment[first:last] - a, t_s=data.t_s))
+        a = b
+    return out
+
+
 def segment_errors(theta: FloatArray, data: RaggedSegments) -> SegmentErrors:
     """Validation errors of ``theta`` on every segment of ``data``."""
+    parts = [_segment_errors(theta, block) for block in _blocks(data)]
+    return SegmentErrors(*(np.concatenate([getattr(p, f.name) for p in parts])
+                           for f in dataclasses.fields(SegmentErrors)))
+
+
+def _segment_errors(theta: FloatArray, data: RaggedSegments) -> SegmentErrors:
     theta = np.asarray(theta, dtype=np.float64)
     poses = rollout_ragged(theta, data.inputs, data.initial, data.steps, data.t_s,
                            segment=data.segment)
@@ -84,13 +116,19 @@ def mean_errors(thetas: FloatArray, data: RaggedSegments, *, chunk: int = 1) -> 
     (what a search over parameter sets needs), ``chunk`` sets per pass (one is fastest where a
     rollout's arrays outgrow the caches)."""
     thetas = np.atleast_2d(np.asarray(thetas, dtype=np.float64))
-    out = np.empty(thetas.shape[0])
-    for lo in range(0, thetas.shape[0], chunk):
-        poses = rollout_ragged(thetas[lo:lo + chunk], data.inputs, data.initial, data.steps,
-                               data.t_s)
-        err = np.hypot(poses[..., 0] - data.reference[:, 0], poses[..., 1] - data.reference[:, 1])
-        out[lo:lo + chunk] = (np.add.reduceat(err, data.first, axis=-1) / data.steps).mean(axis=-1)
-    return out
+    per_segment = np.empty((thetas.shape[0], len(data)))
+    done = 0
+    for block in _blocks(data):
+        cols = slice(done, done + len(block))
+        done += len(block)
+        for lo in range(0, thetas.shape[0], chunk):
+            poses = rollout_ragged(thetas[lo:lo + chunk], block.inputs, block.initial,
+                                   block.steps, block.t_s)
+            err = np.hypot(poses[..., 0] - block.reference[:, 0],
+                           poses[..., 1] - block.reference[:, 1])
+            per_segment[lo:lo + chunk, cols] = (np.add.reduceat(err, block.first, axis=-1)
+                                                / block.steps)
+    return per_segment.mean(axis=-1)
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ cumulative sum (the heading of (2b) summed, then the steps of (1) along it), vec
 time and segments. The model run backwards, the wheel revolutions a step's motion implies
 (:func:`inverse_revolutions`, with (1) inverted by :func:`motion_increments`), serves the
 default errors-in-variables estimator's checks and exports. The segment methods' rollouts
-with Jacobians are compiled (:mod:`odocal.model.compiled`).
+with Jacobians are in :mod:`odocal.model.jacobians`.
 
 The paper prints ``h = psi + w/2 + beta``; the intended midpoint heading is ``psi + w t_s/2 + beta``
 (with ``w/2`` a car at 10 m/s turning at 0.5 rad/s would be rotated by a quarter radian per 25 ms
@@ -35,7 +35,7 @@ IntArray = NDArray[np.int64]
 
 
 def _flat(values: FloatArray | float, shape: tuple[int, ...]) -> FloatArray:
-    """A C-contiguous float64 array of ``shape`` (one compiled signature per kernel)."""
+    """A C-contiguous float64 array of ``shape``."""
     return np.ascontiguousarray(np.broadcast_to(np.asarray(values, dtype=np.float64), shape))
 
 

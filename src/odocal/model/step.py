@@ -1,10 +1,11 @@
 """The model step, equations (1)-(3), their derivatives, and the step run backwards: written once.
 
 Plain Python on numbers: the same functions run on whole numpy arrays (every rollout of
-:mod:`odocal.model.kinematics`, vectorised over time: the default method and validation need no
-compiling) and, compiled by numba, inside the segment methods' kernels
-(:mod:`odocal.model.compiled`). Only :func:`increment_derivatives` (it writes into an array) and
-:func:`wrap` (a branch) are for single numbers only.
+:mod:`odocal.model.kinematics` and every Jacobian of :mod:`odocal.model.jacobians`, vectorised
+over time and segments: nothing of the model is compiled) and, compiled by numba, on single
+numbers (:mod:`odocal.model._jit` keys such kernels on this file). Only :func:`wrap` (a branch)
+is for single numbers only; :func:`increment_derivatives` writes into an array ``out`` of shape
+(3, 6, ...).
 
     (3a) c_rl = c_e + c_d/2 + d a_y          (3b) c_rr = c_e - c_d/2 - d a_y
     (2a) v = (n_rl c_rl + n_rr c_rr) / 2     (2b) w = (n_rr c_rr - n_rl c_rl) / t_r

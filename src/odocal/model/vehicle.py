@@ -3,8 +3,8 @@ window prediction the default method fits, with their Jacobians.
 
 :data:`MODEL` is the rear axle of METHOD 1. Estimators, checks, the gate, exports and the
 report take the parameter layout from it (``MODEL.layout``: names, units, order, roles) and
-the equations (``MODEL.step`` is :mod:`odocal.model.step`, compiled into the segment methods'
-kernels; ``MODEL.predict`` the window prediction of the default method).
+the equations (``MODEL.step`` is :mod:`odocal.model.step`, run on whole arrays by the segment
+methods' Jacobians; ``MODEL.predict`` the window prediction of the default method).
 
 The window prediction
 ---------------------

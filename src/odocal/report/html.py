@@ -92,8 +92,12 @@ def _rates(result: CalibrationResult, data: ReportData) -> Spec:
     ts = result.three_step
     if ts is None or result.batch is None:
         return None
-    u = result.batch.inputs
-    busiest = int(np.argmax(np.abs(u.a_y).max(axis=1)))
+    # the segments a block at a time (a long drive's batch is copied out of it when asked)
+    batch = result.batch
+    peaks = np.concatenate([np.abs(batch.input_rows("a_y", lo, lo + 256)).max(axis=1)
+                            for lo in range(0, len(batch), 256)])
+    busiest = int(np.argmax(peaks))
+    u = result.batch.part(busiest, busiest + 1).inputs
     t = np.arange(u.n_rl.shape[1], dtype=np.float64) * result.batch.t_s
     return FigureSpec("rates", "Step 2, the compensation, on the selected segment with the "
                       "highest lateral acceleration: each rear wheel's measured rotation rate "
@@ -101,8 +105,7 @@ def _rates(result: CalibrationResult, data: ReportData) -> Spec:
                       "follows the reference (thick). The gap between them is what the method "
                       "takes for wheel noise and slip; step 3 fits the parameters to the thick "
                       "lines (the paper's Fig. 6).", 8.0, 3.2,
-                      (Call("plot_rates", (t, np.column_stack([u.n_rl[busiest],
-                                                               u.n_rr[busiest]]),
+                      (Call("plot_rates", (t, np.column_stack([u.n_rl[0], u.n_rr[0]]),
                                            np.column_stack([ts.compensation.n_rl[busiest],
                                                             ts.compensation.n_rr[busiest]]))),))
 

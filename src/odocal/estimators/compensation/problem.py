@@ -22,8 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.model.compiled import step_jacobians
-from odocal.model.kinematics import rollout
+from odocal.model.jacobians import linearised_rollout
 from odocal.model.parameters import Inputs
 from odocal.settings import CompensateSettings
 
@@ -108,8 +107,7 @@ def build_problem(theta: FloatArray, inputs: Inputs, reference: FloatArray, t_s:
     measured = np.column_stack([inputs.n_rl, inputs.n_rr])
     nominal = measured if nominal_rates is None else nominal_rates
     u_nom = inputs.with_wheel_rates(nominal[:, 0], nominal[:, 1])
-    poses = rollout(theta, u_nom, reference[0], t_s)
-    jac = step_jacobians(theta, u_nom, poses, t_s)
+    poses, jac = linearised_rollout(theta, u_nom, reference[0], t_s)
     k = measured.shape[0]
     state_bound = np.asarray(settings.state_bounds)
     lo_rate = np.minimum((1 - settings.rate_bound) * measured, (1 + settings.rate_bound) * measured)
@@ -124,4 +122,61 @@ def build_problem(theta: FloatArray, inputs: Inputs, reference: FloatArray, t_s:
     return CompensationProblem(
         nominal_rates=nominal, nominal_poses=poses, A=jac.A, B=jac.B, tracking_error=error,
         rate_change=np.diff(nominal, axis=0), q_diag=np.asarray(settings.state_weights, float),
+        r_diag=np.asarray(settings.rate_change_weights, float), lower=lower, upper=upper)
+
+
+@dataclass(frozen=True)
+class ProblemBatch:
+    """The QPs of many segments of equal length, linearised at once (arrays with a leading
+    segment axis, the fields of :class:`CompensationProblem`): one vectorised rollout and one
+    set of step Jacobians for a chunk of segments instead of one per QP."""
+
+    nominal_rates: FloatArray          # (N, K, 2)
+    nominal_poses: FloatArray          # (N, K+1, 3)
+    A: FloatArray                      # (N, K, 3, 3)
+    B: FloatArray                      # (N, K, 3, 2)
+    tracking_error: FloatArray         # (N, K, 3)
+    rate_change: FloatArray            # (N, K-1, 2)
+    q_diag: FloatArray
+    r_diag: FloatArray
+    lower: FloatArray                  # (N, K, 5)
+    upper: FloatArray                  # (N, K, 5)
+
+    def __len__(self) -> int:
+        return int(self.A.shape[0])
+
+    def problem(self, i: int) -> CompensationProblem:
+        """Segment ``i``'s QP on its own."""
+        return CompensationProblem(
+            nominal_rates=self.nominal_rates[i], nominal_poses=self.nominal_poses[i],
+            A=self.A[i], B=self.B[i], tracking_error=self.tracking_error[i],
+            rate_change=self.rate_change[i], q_diag=self.q_diag, r_diag=self.r_diag,
+            lower=self.lower[i], upper=self.upper[i])
+
+
+def build_problems(theta: FloatArray, inputs: Inputs, reference: FloatArray, t_s: float,
+                   settings: CompensateSettings, *,
+                   nominal_rates: FloatArray | None = None) -> ProblemBatch:
+    """:func:`build_problem` for many segments at once (inputs arrays (N, K), reference
+    (N, K+1, 3), nominal_rates (N, K, 2)); ``problem(i)`` equals ``build_problem`` of segment
+    ``i``."""
+    measured = np.stack([inputs.n_rl, inputs.n_rr], axis=-1)
+    nominal = measured if nominal_rates is None else nominal_rates
+    u_nom = inputs.with_wheel_rates(nominal[..., 0], nominal[..., 1])
+    poses, jac = linearised_rollout(theta, u_nom, reference[:, 0], t_s)
+    n, k = inputs.n_rl.shape
+    state_bound = np.asarray(settings.state_bounds)
+    b = settings.rate_bound
+    lower = np.empty((n, k, STAGE))
+    upper = np.empty((n, k, STAGE))
+    np.subtract(np.minimum((1 - b) * measured, (1 + b) * measured), nominal,
+                out=lower[..., :2])
+    np.subtract(np.maximum((1 - b) * measured, (1 + b) * measured), nominal,
+                out=upper[..., :2])
+    error = reference[:, 1:] - poses[:, 1:]
+    np.subtract(error, state_bound, out=lower[..., 2:])
+    np.add(error, state_bound, out=upper[..., 2:])
+    return ProblemBatch(
+        nominal_rates=nominal, nominal_poses=poses, A=jac.A, B=jac.B, tracking_error=error,
+        rate_change=np.diff(nominal, axis=1), q_diag=np.asarray(settings.state_weights, float),
         r_diag=np.asarray(settings.rate_change_weights, float), lower=lower, upper=upper)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.estimators.compensation.problem import STAGE, CompensationProblem
+from odocal.estimators.compensation.problem import STAGE, CompensationProblem, ProblemBatch
 from odocal.model._jit import jit
 
 FloatArray = NDArray[np.float64]
@@ -238,6 +238,20 @@ def _pdas(A: FloatArray, B: FloatArray, e: FloatArray, c: FloatArray, qd: FloatA
     return 2, max_iterations
 
 
+@jit
+def _pdas_batch(A: FloatArray, B: FloatArray, e: FloatArray, c: FloatArray, qd: FloatArray,
+                rd: FloatArray, lo: FloatArray, hi: FloatArray, act_lo: BoolArray,
+                act_hi: BoolArray, max_iterations: int, dn: FloatArray, dx: FloatArray,
+                mu: FloatArray, status: NDArray[np.int64],
+                iterations: NDArray[np.int64]) -> None:  # pragma: no cover - compiled
+    """:func:`_pdas` for each of many segments (a leading axis on every per-segment array):
+    one call for a chunk of QPs."""
+    for s in range(A.shape[0]):
+        status[s], iterations[s] = _pdas(A[s], B[s], e[s], c[s], qd, rd, lo[s], hi[s],
+                                         act_lo[s], act_hi[s], max_iterations, dn[s], dx[s],
+                                         mu[s])
+
+
 @dataclass(frozen=True)
 class RiccatiSolution:
     """Outcome of the fast path.
@@ -290,3 +304,50 @@ def solve_riccati(p: CompensationProblem, *, max_iterations: int = 50,
     return RiccatiSolution(z=z.ravel(), converged=converged, states_feasible=states_ok,
                            iterations=iterations, active_lower=act_lo, active_upper=act_hi,
                            message=message)
+
+
+@dataclass(frozen=True)
+class RiccatiBatch:
+    """Outcome of the fast path for many segments (a leading segment axis on each field of
+    :class:`RiccatiSolution`; ``z`` as ``dn`` (N, K, 2) and ``dx`` (N, K, 3))."""
+
+    dn: FloatArray
+    dx: FloatArray
+    converged: BoolArray
+    states_feasible: BoolArray
+    iterations: NDArray[np.int64]
+    active_lower: BoolArray
+    active_upper: BoolArray
+
+
+def solve_riccati_batch(pb: ProblemBatch, *, max_iterations: int = 50,
+                        initial_active: tuple[BoolArray, BoolArray] | None = None
+                        ) -> RiccatiBatch:
+    """:func:`solve_riccati` of every segment of ``pb`` in one compiled call (the same answers:
+    each QP is solved alone). ``initial_active``: (N, K, 2) arrays, or None."""
+    n, k = pb.A.shape[:2]
+    lo = np.ascontiguousarray(pb.lower[..., :2])
+    hi = np.ascontiguousarray(pb.upper[..., :2])
+    fixed_by_bounds = hi - lo <= 0.0
+    if initial_active is None:
+        act_lo, act_hi = fixed_by_bounds.copy(), np.zeros_like(fixed_by_bounds)
+    else:
+        act_lo = np.ascontiguousarray(initial_active[0] | fixed_by_bounds)
+        act_hi = np.ascontiguousarray(initial_active[1] & ~act_lo)
+    dn = np.empty((n, k, 2))
+    dx = np.empty((n, k + 1, 3))
+    mu = np.empty((n, k, 2))
+    status = np.empty(n, dtype=np.int64)
+    iterations = np.empty(n, dtype=np.int64)
+    c = pb.rate_change if k > 1 else np.zeros((n, 1, 2))
+    _pdas_batch(np.ascontiguousarray(pb.A), np.ascontiguousarray(pb.B),
+                np.ascontiguousarray(pb.tracking_error), np.ascontiguousarray(c), pb.q_diag,
+                pb.r_diag, lo, hi, act_lo, act_hi, max_iterations, dn, dx, mu, status,
+                iterations)
+    states = dx[:, 1:]
+    margin = 1e-9 * (1.0 + np.abs(pb.lower[..., 2:]) + np.abs(pb.upper[..., 2:]))
+    states_ok = ((states >= pb.lower[..., 2:] - margin)
+                 & (states <= pb.upper[..., 2:] + margin)).all(axis=(1, 2))
+    return RiccatiBatch(dn=dn, dx=states, converged=status == 0,
+                        states_feasible=np.asarray(states_ok, dtype=bool),
+                        iterations=iterations, active_lower=act_lo, active_upper=act_hi)
