@@ -344,7 +344,8 @@ class OnlineCalibrator:
                 self._adopt(measure_departures([drive], self.settings,
                                                lateral=not diagnosis.lateral_missing),
                             driving_s=samples.shape[0] * step)
-            diagnosis = diagnosis.plus(departure_findings(self._departures.as_measured()))
+            diagnosis = diagnosis.plus(departure_findings(self._departures.as_measured(),
+                                                         self.settings))
         self._diagnosis = diagnosis
         if diagnosis.fatal:
             self._halted = True
@@ -358,7 +359,7 @@ class OnlineCalibrator:
         cfg = self.settings.inverse
         if cfg.delay != "estimate" or self._aligner is None or self._builder is None:
             return
-        found = wheel_lag_s([drive], self.datasheet)
+        found = wheel_lag_s([drive], self.datasheet, self.settings)
         if found is None or abs(found) > cfg.max_delay_s:
             return                                  # (not determined now: keep what is)
         shift = found if abs(found) > 0.5 * cfg.lag_scan_s else 0.0
@@ -379,7 +380,7 @@ class OnlineCalibrator:
         """A new measurement of the departures (on ``driving_s`` of driving): the corrections
         it determines replace the earlier ones; the windows in memory are corrected by the
         difference."""
-        old, new = self._departures, self._departures.adopt(found, driving_s)
+        old, new = self._departures, self._departures.adopt(found, driving_s, self.settings)
         if new == old:
             return
         self._departures = new
@@ -700,7 +701,8 @@ class OnlineCalibrator:
             # refuses them from its fit's residuals the same way)
             zero = windows.margin
             front = front_wheels(windows.measured @ CHANNELS.T, found.fit.residual,
-                                 windows.moments[:, zero, 0], windows.moments[:, zero, SERIES])
+                                 windows.moments[:, zero, 0], windows.moments[:, zero, SERIES],
+                                 self.settings)
             refused = [*refused, *([front] if front is not None else [])]
         if refused:
             status = Status.REJECTED

@@ -38,7 +38,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.checks.departures import (
-    MIN_HEADING_HARMONIC_RAD,
     Departures,
     heading_correction,
 )
@@ -80,7 +79,7 @@ class LiveDepartures:
                           standstill_offset_revps=self.wheel_offset_revps,
                           wheel_step_revps=self.wheel_step_revps)
 
-    def adopt(self, found: Departures, driving_s: float) -> LiveDepartures:
+    def adopt(self, found: Departures, driving_s: float, settings: Settings) -> LiveDepartures:
         """These corrections updated by a new measurement (on ``driving_s`` of driving) where
         it determines them."""
         out = self
@@ -90,7 +89,8 @@ class LiveDepartures:
         if any(found.standstill_offset_revps):
             out = dataclasses.replace(out, wheel_offset_revps=found.standstill_offset_revps)
         if driving_s >= HEADING_MIN_S and _apart(found.heading_harmonics,
-                                                 out.heading_harmonics):
+                                                 out.heading_harmonics,
+                                                 settings.checks.heading_harmonic_min_rad):
             out = dataclasses.replace(out, heading_harmonics=found.heading_harmonics,
                                       heading_amplitude_rad=found.heading_amplitude_rad)
         if found.wheel_step_revps and not out.wheel_step_revps:
@@ -111,9 +111,9 @@ class LiveDepartures:
         return out
 
 
-def _apart(new: tuple[float, ...], old: tuple[float, ...]) -> bool:
+def _apart(new: tuple[float, ...], old: tuple[float, ...], smallest_rad: float) -> bool:
     """Whether two heading-error fits differ by more than half the smallest one applied."""
-    return float(np.max(np.abs(np.subtract(new, old)))) > 0.5 * MIN_HEADING_HARMONIC_RAD
+    return float(np.max(np.abs(np.subtract(new, old)))) > 0.5 * smallest_rad
 
 
 def recorrected(windows: WindowSet, *, lateral_mps2: float,
