@@ -242,7 +242,8 @@ class SegmentBatch:
         """One input (``n_rl``, ``n_rr``, ``beta`` or ``a_y``) of segments ``lo`` to ``hi``,
         shape (hi - lo, K), without copying the others out."""
         if self._rates is not None and name in ("n_rl", "n_rr"):
-            return self._rates[0 if name == "n_rl" else 1][lo:hi]
+            left, right = self._rates
+            return (left if name == "n_rl" else right)[lo:hi]
         if self._segments is None:
             return np.asarray(getattr(self.inputs, name)[lo:hi])
         segs = self._segments.subset(slice(lo, min(hi, len(self))))
