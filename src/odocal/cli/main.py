@@ -685,6 +685,17 @@ def _configure_logging(verbose: int, quiet: bool) -> None:
         logging.getLogger("odocal").setLevel(logging.ERROR)
 
 
+def _causes(exc: BaseException) -> list[BaseException]:
+    """What led to an error, outermost first (``raise ... from err`` and errors raised while
+    handling another), without repeats."""
+    out: list[BaseException] = []
+    cause = exc.__cause__ or (None if exc.__suppress_context__ else exc.__context__)
+    while cause is not None and cause not in out and len(out) < 10:
+        out.append(cause)
+        cause = cause.__cause__ or (None if cause.__suppress_context__ else cause.__context__)
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     if argv is None:
         interrupt.install()           # the program itself: Ctrl-C remembered (cli/interrupt.py)
@@ -710,6 +721,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if _swallowed(args):
             return _interrupted(f"odocal {args.command}", argv)
         sys.stderr.write(f"odocal {args.command}: error: {shown(exc, 2000)}\n")
+        if args.verbose:
+            for cause in _causes(exc):
+                sys.stderr.write(f"  caused by {type(cause).__name__}: {shown(cause, 2000)}\n")
         return EXIT_ERROR
     except KeyboardInterrupt:
         return _interrupted(f"odocal {args.command}", argv)
