@@ -101,6 +101,27 @@ def test_rates_truncated_by_their_encoding_are_right(seed: int, make: object,
     assert abs(details.wheel_offset_revps + 0.5 * step) < 3 * details.wheel_offset_std + 1e-3
 
 
+@pytest.mark.parametrize(("seed", "make"), [
+    (49, lambda s: dep.truncated_rpm(s, 1.0)),
+    (50, lambda s: dep.truncated_speed(s, 0.1)),
+])
+def test_a_segment_method_on_truncated_rates_carries_the_offset_in_c_e(seed: int,
+                                                                      make: object) -> None:
+    """raw fits no offset: c_e's std takes the half step's effect in (it was 8-15 of its
+    standard deviations off), and the warning says why."""
+    drive = make(sim(seed, duration_s=600.0))  # type: ignore[operator]
+    truth = drive.true_parameters.as_array()
+    plain = odocal.calibrate(sim(seed, duration_s=600.0).drive, method="raw")
+    result = odocal.calibrate(drive.drive, method="raw")
+    assert result.estimate.success
+    error = result.estimate.theta.c_e - truth[0]
+    assert error > 0                         # a truncation reads low: c_e comes out long
+    assert abs(error) < 2.5 * result.estimate.std[0]
+    assert result.estimate.std[0] > 2 * plain.estimate.std[0]
+    assert any("grid" in w and "c_e's standard deviation" in w for w in result.warnings)
+    assert not any("grid" in w for w in plain.warnings)
+
+
 def test_rates_on_no_grid_fit_no_offset() -> None:
     result = odocal.calibrate(sim(31).drive)
     assert wheel_step(list(result.drive_data)) == 0.0

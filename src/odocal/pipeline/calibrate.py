@@ -71,12 +71,14 @@ from odocal.estimators.validation import (
 )
 from odocal.io.drivefile import load_drive
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.model.vehicle import MODEL
 from odocal.pipeline.result import CalibrationResult, summarise
 from odocal.settings import Settings
 
 log = logging.getLogger(__name__)
 IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
+LAYOUT = MODEL.layout
 Runner = Callable[[Prepared, Settings, ProgressCallback | None], MethodOutcome]
 
 
@@ -280,6 +282,10 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         estimate = outcome.estimate
     else:
         outcome, estimate, boot = _checked_by_bootstrap(method, prep, settings, clock)
+        step = departures.wheel_step_revps if departures is not None else 0.0
+        if step and method != "inverse" and estimate.success:
+            estimate, said = _encoding_widened(estimate, drive_list, step)
+            outcome = dataclasses.replace(outcome, warnings=(*outcome.warnings, said))
     fitted = tuple(getattr(estimate.details, "findings", ()))
     if fitted:
         # what the fit's residuals showed: front wheels (refused), a change inside the log
@@ -312,6 +318,33 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         three_step=outcome.three_step, batch=prep.__dict__.get("batch"),
         drive_data=tuple(drive_list),
         timings_s=dict(clock.seconds), diagnosis=diagnosis, departures=departures)
+
+
+def _encoding_widened(estimate: Estimate, drives: Sequence[Drive], step_revps: float
+                      ) -> tuple[Estimate, str]:
+    """A segment method's estimate on wheel rates that lie on an encoding's grid of
+    ``step_revps``: a truncating encoder reads them up to a step low (half a step on average),
+    an offset the default method fits (prior half a step) and the segment methods do not. Its
+    effect on the distance scale (the offset over the mean wheel rate while moving, times the
+    scale) is added to the scale's variance, as the default's prior would carry it, with the
+    words that say so."""
+    rates = np.concatenate([0.5 * np.abs(d.n_rl + d.n_rr) for d in drives])
+    moving = rates[rates > step_revps]
+    if not moving.size:
+        return estimate, ""
+    k = LAYOUT.index(LAYOUT.scale)
+    extra = 0.5 * step_revps / float(moving.mean()) * float(estimate.theta.as_array()[k])
+    cov = estimate.covariance.copy()
+    before = float(np.sqrt(max(cov[k, k], 0.0)))
+    cov[k, k] += extra ** 2
+    widening = estimate.widening.copy()
+    if before > 0:
+        widening[k] *= float(np.sqrt(cov[k, k])) / before
+    said = (f"the wheel rates lie on a {step_revps:.4g} rev/s grid (an encoding's steps): a "
+            f"truncating encoder reads them up to a step low, an offset {estimate.method} does "
+            f"not fit, so {LAYOUT.scale}'s standard deviation includes up to "
+            f"{extra * 1e3:.2g} mm for it (the default method fits the offset)")
+    return dataclasses.replace(estimate, covariance=cov, widening=widening), said
 
 
 def _after_change(drives: Sequence[Drive], change: Finding) -> list[Drive]:
