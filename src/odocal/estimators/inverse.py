@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 
 from odocal.checks.departures import wheel_lag_s, wheel_step
 from odocal.checks.findings import Finding
-from odocal.checks.residuals import change_finding, find_change, front_wheels
+from odocal.checks.residuals import change_finding, find_change, front_wheels, moving_offset
 from odocal.data.drive import Drive
 from odocal.data.segments import common_sampling_time
 from odocal.estimators import core
@@ -179,8 +179,24 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
                               core.offset_prior_std(settings, wheel_step(drives, settings)))
     found = core.fit(windows, prior, settings,
                      heading_offset=offset, held=held, distance_only=distance_only)
+    moving = None
+    if settings.inverse.wheel_offset == "encoded" and not prior.offset_std:
+        # rates on no encoding's grid fit no offset, unless the residuals show one (before the
+        # residuals' other checks: an offset's excess is largest in slow bends, as front
+        # wheels' is)
+        moving = moving_offset(windows.measured @ CHANNELS.T, found.fit.residual,
+                               windows.cluster, settings.inverse.window_s, settings)
+        if moving is not None:
+            log.warning("the wheels read %+.4f rev/s more than the reference's motion gives, "
+                        "at every speed: fitting that offset beside c_e", moving.value)
+            std = max(settings.inverse.wheel_offset_prior_revps, 2.0 * abs(moving.value))
+            prior = core.Folded.prior(_origin(settings), std)
+            found = core.fit(windows, prior, settings, heading_offset=offset, held=held,
+                             distance_only=distance_only)
     findings, found, windows = _residual_checks(found, windows, drives, prior, settings,
                                                 offset, held, distance_only)
+    if moving is not None:
+        findings = [moving, *findings]
     if progress:
         progress("inverse: fit", 2, 2)
     estimate = _estimate(found, windows, settings, started, method="inverse",
