@@ -955,10 +955,10 @@ def read_toml(path: str | Path, kind: str) -> dict[str, Any]:
     try:
         return tomllib.loads(p.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{kind} '{shown(p)}' is not valid TOML: {exc}") from None
-    except RecursionError:
+        raise ConfigError(f"{kind} '{shown(p)}' is not valid TOML: {exc}") from exc
+    except RecursionError as exc:
         raise ConfigError(f"{kind} '{shown(p)}' nests tables or arrays too deeply to read") \
-            from None
+            from exc
 
 
 def load_settings(path: str | Path | None) -> Settings:
