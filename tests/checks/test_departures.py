@@ -5,6 +5,7 @@ uncertainty; a calibration is never confidently wrong. Values other than the ben
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -245,3 +246,21 @@ def test_the_cusum_statistic_has_its_null_distribution() -> None:
     means[25:] += 2.0
     split, statistic = cusum(means)
     assert split == pytest.approx(25, abs=2) and statistic > 3.0
+
+
+@pytest.mark.realdata
+def test_highway_driving_at_one_speed_fits_no_offset_while_moving(shared_data: Path) -> None:
+    """40 s of a real highway log (comma2k19, the first and last 20 s of a segment) at about
+    one speed: the residuals' regression alone puts an offset at 4.1 standard errors there,
+    but the fit cannot tell it from c_e, so none is fitted (c_e stays identified)."""
+    from odocal import convert
+    from odocal.settings import Settings
+
+    segment = shared_data / "comma2k19-example" / "2018-08-02--08-34-47" / "40"
+    drive = convert("comma2k19", [segment],
+                    settings=Settings().replace(convert={"reference": "fused"}))[0]
+    cut = [drive.select((drive.t >= lo) & (drive.t < lo + 20.0))
+           for lo in (drive.t[0], drive.t[0] + 40.0)]
+    result = odocal.calibrate(cut)
+    assert Check.MOVING_OFFSET not in checks_of(result)
+    assert result.estimate.identified[0] and result.estimate.details.wheel_offset_std == 0.0
