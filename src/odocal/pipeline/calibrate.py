@@ -264,6 +264,17 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
                                             lateral=not diagnosis.lateral_missing)
             drive_list = corrected(drive_list, departures)
             diagnosis = diagnosis.plus(departure_findings(departures, settings))
+        if method != "inverse" and not (diagnosis.fatal or diagnosis.standstill
+                                        or diagnosis.no_differential):
+            # front wheels and a change inside the log show in the default method's residuals
+            # only: a segment method is refused, or fits the part after the change, as it is
+            from odocal.estimators.inverse import residual_findings
+
+            screened = residual_findings(drive_list, settings)
+            diagnosis = diagnosis.plus(tuple(screened))
+            changed = [f for f in screened if f.check is Check.CHANGE_IN_LOG]
+            if changed and not diagnosis.fatal:
+                drive_list = _after_change(drive_list, changed[0])
     with clock.stage("segments"):
         prep = prepare(drive_list, settings)
         prep = dataclasses.replace(prep, held={**prep.held, **held_by_checks(diagnosis)})
