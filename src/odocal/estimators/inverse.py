@@ -218,7 +218,9 @@ def residual_findings(drives: Sequence[Drive], settings: Settings) -> list[Findi
     """What the default method's residuals show on ``drives`` (front wheels, a change inside
     the log), for the methods that fit segments: their own residuals cannot show either (a
     segment's fit takes a change or a front wheel's excess into its theta). The windows and one
-    fit: about a tenth of a second per hour of driving."""
+    fit: about a tenth of a second per hour of driving (the reference as the calibration has
+    aligned it to the wheels' clock, no lag scanned around it)."""
+    settings = settings.replace(inverse={"delay": "off"})
     windows, straight = windows_from_drives(drives, settings, reach_s=_reach(drives, settings))
     if windows.size < MIN_WINDOWS:
         return []
