@@ -65,6 +65,7 @@ from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
 log = logging.getLogger(__name__)
 
 #: Fewer moving windows than this: nothing to fit.
@@ -214,23 +215,46 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
     return estimate
 
 
-def residual_findings(drives: Sequence[Drive], settings: Settings) -> list[Finding]:
-    """What the default method's residuals show on ``drives`` (front wheels, a change inside
-    the log), for the methods that fit segments: their own residuals cannot show either (a
-    segment's fit takes a change or a front wheel's excess into its theta). The windows and one
-    fit: about a tenth of a second per hour of driving (the reference as the calibration has
-    aligned it to the wheels' clock, no lag scanned around it)."""
+@dataclass(frozen=True)
+class Screen:
+    """What the default method's windows and one fit say of drives a segment method calibrates
+    (:func:`screen`).
+
+    findings : front wheels, or a change inside the log (from its residuals)
+    theta, std : its estimate and standard deviations; for a parameter it holds, what the data
+        determine it to where they give a number (nan otherwise)
+    free : the parameters it identifies
+    """
+
+    findings: tuple[Finding, ...]
+    theta: FloatArray
+    std: FloatArray
+    free: BoolArray
+
+
+def screen(drives: Sequence[Drive], settings: Settings) -> Screen | None:
+    """The default method's residuals and estimate on ``drives``, for the methods that fit
+    segments: their own residuals show neither front wheels nor a change inside the log (a
+    segment's fit takes a change or a front wheel's excess into its theta), and the default's
+    standard deviations are at the information's bound, which no unbiased method beats. The
+    windows and one fit: about a tenth of a second per hour of driving (the reference as the
+    calibration aligned it to the wheels' clock, no lag scanned around it). None where the
+    drives hold too few moving windows."""
     settings = settings.replace(inverse={"delay": "off"})
     windows, straight = windows_from_drives(drives, settings, reach_s=_reach(drives, settings))
     if windows.size < MIN_WINDOWS:
-        return []
+        return None
     offset = heading_offset(straight) if settings.inverse.heading_offset == "estimate" else 0.0
     prior = core.Folded.prior(_origin(settings),
                               core.offset_prior_std(settings, wheel_step(drives, settings)))
     found = core.fit(windows, prior, settings, heading_offset=offset)
     findings, _, _ = _residual_checks(found, windows, drives, prior, settings, offset, None,
                                       False)
-    return findings
+    std = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))
+    held = np.array([found.held[n].std if n in found.held else np.nan
+                     for n in PARAMETER_NAMES])
+    return Screen(findings=tuple(findings), theta=found.theta.copy(),
+                  std=np.where(found.free, std, held), free=np.asarray(found.free, dtype=bool))
 
 
 def _residual_checks(found: core.CoreFit, windows: WindowSet, drives: Sequence[Drive],
