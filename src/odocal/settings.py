@@ -657,6 +657,9 @@ class ChecksSettings:
     moving_offset_min_clusters: int = 10
     """The distance residuals are tested for a wheel-rate offset while moving on at least this
     many clusters of moving windows (their spread is taken cluster by cluster) ..."""
+    moving_offset_min_spread: float = 0.2
+    """... where the moving windows' revolutions spread by at least this share of their mean
+    (standard deviation over mean: at about one speed an offset is a scale error) ..."""
     moving_offset_sigmas: float = 4.0
     """... and an offset beyond this many standard errors is fitted beside c_e (on rates on no
     encoding's grid, which fit none otherwise; a drive at few speeds cannot tell the two apart,
@@ -673,7 +676,7 @@ class ChecksSettings:
                     "standstill_min_offset_revps", "encoding_max_step_revps", "window_min_revs",
                     "change_statistic", "change_min", "front_min_window_m",
                     "front_min_curvature_1pm", "front_sigmas", "front_min_distance_m",
-                    "moving_offset_sigmas")
+                    "moving_offset_sigmas", "moving_offset_min_spread")
         for key in positive:
             _check(0 < getattr(self, key) < float("inf"), s, key, getattr(self, key),
                    "a positive finite number")

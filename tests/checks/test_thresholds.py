@@ -466,13 +466,17 @@ def wheelbase(distance_m: float, curvature: FloatArray = BENDS) -> FloatArray:
 
 
 def offset_found(target: float, settings: Settings, *, clusters: int = 40,
-                 per_cluster: int = 5) -> bool:
-    """moving_offset on windows of 2 to 10 revolutions whose distance residual is a constant
-    plus fixed noise; the constant is set so that it lies ``target`` standard errors from zero
-    (the statistic is linear in the constant: its standard error does not depend on it)."""
+                 per_cluster: int = 5, spread: float | None = None) -> bool:
+    """moving_offset on windows of 2 to 10 revolutions (or, with ``spread``, 6 revolutions
+    times 1 -+ spread in turn: that standard deviation over the mean) whose distance residual
+    is a constant plus fixed noise; the constant is set so that it lies ``target`` standard
+    errors from zero (the statistic is linear in the constant: its standard error does not
+    depend on it)."""
     n = clusters * per_cluster
     rng = np.random.default_rng(12)
-    measured = np.column_stack([2.0 + 8.0 * rng.random(n), np.zeros(n)])
+    revs = (2.0 + 8.0 * rng.random(n) if spread is None
+            else 6.0 * (1.0 + spread * np.tile([-1.0, 1.0], n // 2 + 1)[:n]))
+    measured = np.column_stack([revs, np.zeros(n)])
     noise = 0.05 * rng.standard_normal(n)
     cluster = np.repeat(np.arange(clusters), per_cluster)
 
@@ -481,7 +485,8 @@ def offset_found(target: float, settings: Settings, *, clusters: int = 40,
         return residuals.moving_offset(measured, residual, cluster, 2.0, s)
 
     # far beyond the threshold, on any number of clusters: the constant's value and std
-    probe = found(1.0, DEFAULTS.replace(checks={"moving_offset_min_clusters": 3}))
+    probe = found(1.0, DEFAULTS.replace(checks={"moving_offset_min_clusters": 3,
+                                                "moving_offset_min_spread": 1e-6}))
     assert probe is not None
     std, bias = probe.reference * 2.0, probe.value * 2.0 - 1.0
     return found(target * std - bias, settings) is not None
@@ -764,6 +769,8 @@ CASES = [
                                   * np.tile([1.0, -1.0], 50), s),
          4.9, 5.1, "above", 4.8),
     Case(C, "moving_offset_sigmas", offset_found, 3.95, 4.05, "above", 3.9),
+    Case(C, "moving_offset_min_spread", lambda x, s: offset_found(6.0, s, spread=x),
+         0.19, 0.21, "above", 0.18),
     Case(C, "moving_offset_min_clusters",
          lambda n, s: offset_found(6.0, s, clusters=int(n)), 9, 10, "above", 9),
     Case(C, "front_min_distance_m",

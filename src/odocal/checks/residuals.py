@@ -21,7 +21,9 @@ its residuals, whatever the noise:
   speed, where a scale error grows with the revolutions. Regressed on the window's
   revolutions and a constant, with the spread taken cluster by cluster (sandwich: the windows
   of a cluster overlap), a constant beyond ``moving_offset_sigmas`` standard errors is an
-  offset: the default method then fits it beside ``c_e``.
+  offset, where the windows' speeds spread enough to tell it from ``c_e``
+  (``moving_offset_min_spread``): the default method then fits it beside ``c_e``, and keeps
+  that fit where it determines the offset (:func:`offset_determined`).
 
 The thresholds, with their reasons, are settings (``[checks]``:
 :class:`~odocal.settings.ChecksSettings`).
@@ -189,6 +191,9 @@ def moving_offset(measured: FloatArray, residual: FloatArray, cluster: IntArray,
     groups = np.unique(cluster[use])
     if groups.size < lim.moving_offset_min_clusters:
         return None
+    moving = np.abs(revs[use])
+    if float(moving.std()) < lim.moving_offset_min_spread * float(moving.mean()):
+        return None                        # about one speed: an offset is a scale error there
     design = np.column_stack([revs[use], np.ones(int(use.sum()))])
     y = residual[use, 0]
     bread = np.linalg.pinv(design.T @ design)
@@ -203,3 +208,19 @@ def moving_offset(measured: FloatArray, residual: FloatArray, cluster: IntArray,
         return None
     return Finding(Check.MOVING_OFFSET, Severity.NOTE, float(coef[1]) / window_s,
                    std / window_s)
+
+
+def offset_determined(value: float, value_std: float, prior_std: float, theta: FloatArray,
+                      settings: Settings) -> bool:
+    """Whether a fit with the wheel-rate offset free (its prior ``prior_std``) determines it:
+    by the data rather than the prior (a standard deviation below half the prior's), beyond
+    ``moving_offset_sigmas`` of it, with the parameters beside it finite and in their
+    plausible ranges (a fit that could not tell the offset from c_e runs away)."""
+    from odocal.checks.gate import gate
+
+    if not (np.isfinite(value) and np.isfinite(value_std) and np.all(np.isfinite(theta))):
+        return False
+    if not value_std < 0.5 * prior_std or not abs(value) > settings.checks.moving_offset_sigmas \
+            * value_std:
+        return False
+    return not gate(theta, settings, error_m=None, datasheet_error_m=None, segment_m=None)

@@ -40,7 +40,13 @@ from numpy.typing import NDArray
 
 from odocal.checks.departures import wheel_lag_s, wheel_step
 from odocal.checks.findings import Finding
-from odocal.checks.residuals import change_finding, find_change, front_wheels, moving_offset
+from odocal.checks.residuals import (
+    change_finding,
+    find_change,
+    front_wheels,
+    moving_offset,
+    offset_determined,
+)
 from odocal.data.drive import Drive
 from odocal.data.segments import common_sampling_time
 from odocal.estimators import core
@@ -195,7 +201,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
             value, value_std = refit.offset
             # kept where the fit itself tells the offset from c_e by as much (a drive at one
             # speed cannot: the residuals' regression alone overstates it there)
-            if abs(value) > settings.checks.moving_offset_sigmas * value_std:
+            if offset_determined(value, value_std, std, refit.theta, settings):
                 log.warning("the wheels read %+.4f rev/s more than the reference's motion "
                             "gives, at every speed: fitting that offset beside c_e", value)
                 prior, found = wider, refit

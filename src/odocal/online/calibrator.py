@@ -43,7 +43,7 @@ from odocal.checks.departures import measure as measure_departures
 from odocal.checks.diagnosis import check_drives
 from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.checks.gate import gate
-from odocal.checks.residuals import front_wheels, moving_offset
+from odocal.checks.residuals import front_wheels, moving_offset, offset_determined
 from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.estimators import core
@@ -733,7 +733,7 @@ class OnlineCalibrator:
                          held=held_by_checks(self._diagnosis),
                          distance_only=self._diagnosis.no_differential)
         value, value_std = refit.offset
-        if not abs(value) > self.settings.checks.moving_offset_sigmas * value_std:
+        if not offset_determined(value, value_std, std, refit.theta, self.settings):
             return found
         self._folded, self._moving = wider, moving
         if refit.free.any():
