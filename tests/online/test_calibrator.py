@@ -117,6 +117,24 @@ def test_a_step_in_c_e_is_detected_and_the_estimate_follows() -> None:
     assert abs(est.theta.c_e - after.c_e) < 3 * est.std[0] + 1e-4
 
 
+def test_a_two_percent_step_in_c_e_is_alarmed_within_a_kilometre() -> None:
+    """How soon a change is seen with the default [online] cusum_h: a 2 % smaller c_e (a tyre
+    losing pressure) half-way through a ten-minute drive is alarmed 0.7 km after it, named as
+    c_e and sized; a threshold twice as high would take 1.4 km on this drive."""
+    true = odocal.TRUE_PARAMETERS
+    after = Parameters(true.c_e * 0.98, true.c_d, true.t_r, true.d)
+    drive = odocal.simulate(duration_s=600, seed=1, noise="realistic",
+                            change=(300.0, after)).drive
+    alarms = pushed(drive, 400).alarms
+    assert [a.parameter for a in alarms] == ["c_e"]
+    alarm = alarms[0]
+    assert alarm.t == pytest.approx(300.0, abs=15.0)
+    assert alarm.relative_change == pytest.approx(-0.02, abs=0.003)
+    driven_m = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(drive.x), np.diff(drive.y)))])
+    late_m = np.interp(alarm.detected_t, drive.t, driven_m) - np.interp(300.0, drive.t, driven_m)
+    assert 0.0 < late_m < 1000.0, late_m
+
+
 def test_no_alarm_without_a_change(noisy_drive: SimulatedDrive) -> None:
     assert pushed(noisy_drive.drive, 40).alarms == ()
 
