@@ -206,3 +206,30 @@ def test_replay_bad_inputs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     assert code == EXIT_ERROR and "lacks columns" in err
     code = main(["replay", str(bad), "--out", str(bad)])
     assert code == EXIT_ERROR and "would overwrite" in capsys.readouterr().err
+
+
+def test_both_wheels_shrinking_unequally_are_named_as_c_e() -> None:
+    """Both circumferences smaller (by 2 and 4 cm): a change of both wheels, c_e, even where
+    the wheels' difference stands out more in its own standard deviations; two wheels moving
+    opposite ways are named by the larger."""
+    from odocal.estimators import core
+    from odocal.online.changes import Change, Suspect, describe
+
+    before = np.zeros(core.P)
+    before[core.THETA] = odocal.TRUE_PARAMETERS.as_array()
+    suspect = Suspect(parameter=0, since_t=90.0, until_t=150.0, reference=before, sigmas=5.0)
+
+    def named(left_m: float, right_m: float) -> tuple[str, str, float]:
+        step = np.array([(left_m + right_m) / 2.0, left_m - right_m])     # c_e, c_d
+        change = Change(index=3, t=100.0, distance_m=1500.0, before=before, step=step,
+                        std=np.array([0.01, 0.002]))
+        alarm = describe(change, suspect, detected_t=160.0, detected_distance_km=2.4)
+        assert alarm.distance_km == 1.5 and alarm.detected_distance_km == 2.4
+        return alarm.parameter, alarm.wheel, alarm.relative_change
+
+    parameter, wheel, relative = named(-0.02, -0.04)
+    assert (parameter, wheel) == ("c_e", "both")
+    assert relative == pytest.approx(-0.03 / before[0])
+    assert named(-0.02, 0.0)[:2] == ("c_d", "left")
+    assert named(0.01, -0.03)[:2] == ("c_d", "right")
+
