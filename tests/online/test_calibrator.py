@@ -233,3 +233,31 @@ def test_both_wheels_shrinking_unequally_are_named_as_c_e() -> None:
     assert named(-0.02, 0.0)[:2] == ("c_d", "left")
     assert named(0.01, -0.03)[:2] == ("c_d", "right")
 
+
+
+def test_a_cluster_that_shows_c_e_alone_gives_its_step_and_leaves_c_d_open() -> None:
+    """Where a cluster carries no differential signal (its information singular in c_d), the
+    detector still takes c_e's step with its standard deviation; c_d's is not a number."""
+    from odocal.online.changes import _solve2
+
+    for coupled, h_cd in ((0.0, 0.0), (200.0, 1.0)):    # none, or only c_e's own again
+        h = np.array([[4.0e4, coupled], [coupled, h_cd]])
+        step, std = _solve2(h, np.array([200.0, 0.0]))
+        assert step[0] == pytest.approx(0.005) and std[0] == pytest.approx(0.005)
+        assert np.isnan(step[1]) and np.isnan(std[1])
+
+
+def test_folding_memory_keeps_the_uncertainty_and_the_lag() -> None:
+    """Four minutes in memory instead of twenty on a 15-minute drive: what is folded still
+    counts, so each parameter's std stays within a factor of two of batch's, and the
+    reference's lag found is the one found with everything in memory."""
+    drive = odocal.simulate(duration_s=900, seed=3, noise="quantised-coarse").drive
+    whole = pushed(drive, 400).estimate()
+    settings = odocal.Settings().replace(online={"max_windows": 60})
+    folded = pushed(drive, 400, OnlineCalibrator(settings)).estimate()
+    assert folded.details.windows_in_memory < folded.details.windows // 4
+    batch = odocal.calibrate(drive).estimate
+    ratio = np.asarray(folded.std) / np.asarray(batch.std)
+    assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
+    assert whole.details.delay_s > 0.01
+    assert folded.details.delay_s == pytest.approx(whole.details.delay_s, abs=0.002)
