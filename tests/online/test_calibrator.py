@@ -261,3 +261,14 @@ def test_folding_memory_keeps_the_uncertainty_and_the_lag() -> None:
     assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
     assert whole.details.delay_s > 0.01
     assert folded.details.delay_s == pytest.approx(whole.details.delay_s, abs=0.002)
+
+
+def test_a_small_robots_starting_estimate_is_taken_and_a_non_positive_length_refused() -> None:
+    """theta0 of a small robot (wheels of 0.47 m, a 0.31 m track) is a starting estimate
+    like any other; a circumference or track of zero or less is refused by name."""
+    robot = Parameters(c_e=0.4723, c_d=0.0008, t_r=0.3105, d=0.0)
+    calibrator = OnlineCalibrator(theta0=robot)
+    np.testing.assert_array_equal(calibrator.theta, robot.as_array())
+    for bad in (Parameters(0.0, 0.0, 0.31, 0.0), Parameters(0.47, 0.0, -0.31, 0.0)):
+        with pytest.raises(DataError, match=r"theta0 .* is not a usable starting estimate"):
+            OnlineCalibrator(theta0=bad)
