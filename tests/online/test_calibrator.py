@@ -13,6 +13,7 @@ import odocal
 from odocal.cli.main import EXIT_ERROR, EXIT_OK, main
 from odocal.errors import DataError
 from odocal.estimators.estimate import CovarianceKind
+from odocal.estimators.windows import windows_from_drives
 from odocal.model.kinematics import inverse_revolutions
 from odocal.model.parameters import Parameters
 from odocal.model.vehicle import MODEL, SERIES
@@ -272,3 +273,31 @@ def test_a_small_robots_starting_estimate_is_taken_and_a_non_positive_length_ref
     for bad in (Parameters(0.0, 0.0, 0.31, 0.0), Parameters(0.47, 0.0, -0.31, 0.0)):
         with pytest.raises(DataError, match=r"theta0 .* is not a usable starting estimate"):
             OnlineCalibrator(theta0=bad)
+
+
+def test_a_clusters_evidence_on_a_change_is_that_of_its_moving_windows_alone() -> None:
+    """Windows at a standstill (or disturbed) say nothing about a tyre: the evidence a cluster
+    gives the change detector is the sum over the windows it can use, whatever the others
+    hold."""
+    from odocal.estimators import core
+    from odocal.estimators.error_model import ErrorModel
+    from odocal.online.changes import window_steps
+
+    drive = odocal.simulate(duration_s=240, seed=6, noise="realistic").drive
+    windows, _ = windows_from_drives([drive], odocal.Settings())
+    p = np.zeros(core.P)
+    p[core.THETA] = odocal.TRUE_PARAMETERS.as_array()
+    steps = window_steps(windows, p, 0.0, 0.0, ErrorModel())
+    assert steps.usable.sum() > 20 and (~steps.usable).sum() >= 2    # it stops on the way
+    alone = window_steps(windows.take(steps.usable), p, 0.0, 0.0, ErrorModel())
+    np.testing.assert_allclose(steps.g.sum(axis=0), alone.g.sum(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(steps.h.sum(axis=0), alone.h.sum(axis=0), rtol=1e-12)
+
+
+def test_before_any_sample_nothing_is_identified_in_seconds() -> None:
+    """Asked before the first sample: the datasheet values, nothing free, no distance, and the
+    clock read in seconds (what replay's files and the live node report)."""
+    est = OnlineCalibrator().estimate()
+    assert not est.success and est.free == (False,) * MODEL.layout.size
+    assert est.details.time_unit == "s" and est.details.distance_km == 0.0
+    assert est.details.samples == 0 and est.details.alarms == ()
