@@ -7,6 +7,12 @@ import signal
 import subprocess
 from pathlib import Path
 
+# One BLAS thread per test process (and per odocal the tests start): two pytest workers on two
+# cores, each with a BLAS pool as wide as the machine, spend most of their time spinning
+# against each other (a 0.6 s test took 7 s). Set before numpy loads its BLAS.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
 import numpy as np
 import pytest
 from hypothesis import settings

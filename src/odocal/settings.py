@@ -654,6 +654,16 @@ class ChecksSettings:
     front_min_distance_m: float = 1.6
     """... as a wheel this far ahead of the rear axle would (m; a car's wheelbase is over 2 m)
     are front wheels mapped as rear ones; refused."""
+    moving_offset_min_clusters: int = 10
+    """The distance residuals are tested for a wheel-rate offset while moving on at least this
+    many clusters of moving windows (their spread is taken cluster by cluster) ..."""
+    moving_offset_min_spread: float = 0.2
+    """... where the moving windows' revolutions spread by at least this share of their mean
+    (standard deviation over mean: at about one speed an offset is a scale error) ..."""
+    moving_offset_sigmas: float = 4.0
+    """... and an offset beyond this many standard errors is fitted beside c_e (on rates on no
+    encoding's grid, which fit none otherwise; a drive at few speeds cannot tell the two apart,
+    and fitting one always cost c_e three times its precision)."""
 
     def __post_init__(self) -> None:
         s = "checks"
@@ -665,7 +675,8 @@ class ChecksSettings:
                     "lateral_offset_sigmas", "heading_harmonic_sigmas", "standstill_speed_mps",
                     "standstill_min_offset_revps", "encoding_max_step_revps", "window_min_revs",
                     "change_statistic", "change_min", "front_min_window_m",
-                    "front_min_curvature_1pm", "front_sigmas", "front_min_distance_m")
+                    "front_min_curvature_1pm", "front_sigmas", "front_min_distance_m",
+                    "moving_offset_sigmas", "moving_offset_min_spread")
         for key in positive:
             _check(0 < getattr(self, key) < float("inf"), s, key, getattr(self, key),
                    "a positive finite number")
@@ -696,7 +707,8 @@ class ChecksSettings:
                   "standstill_min_seconds": 1, "encoding_min_samples": 2,
                   "encoding_samples_per_value": 1, "encoding_min_values": 2,
                   "change_min_windows": 1, "change_min_side_clusters": 1,
-                  "front_min_windows": 3, "front_min_curved_windows": 1}
+                  "front_min_windows": 3, "front_min_curved_windows": 1,
+                  "moving_offset_min_clusters": 3}
         for key, least in counts.items():
             _check(least <= getattr(self, key) <= 10**9, s, key, getattr(self, key),
                    f"an integer from {least} to 10**9")
@@ -955,10 +967,10 @@ def read_toml(path: str | Path, kind: str) -> dict[str, Any]:
     try:
         return tomllib.loads(p.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{kind} '{shown(p)}' is not valid TOML: {exc}") from None
-    except RecursionError:
+        raise ConfigError(f"{kind} '{shown(p)}' is not valid TOML: {exc}") from exc
+    except RecursionError as exc:
         raise ConfigError(f"{kind} '{shown(p)}' nests tables or arrays too deeply to read") \
-            from None
+            from exc
 
 
 def load_settings(path: str | Path | None) -> Settings:

@@ -465,6 +465,33 @@ def wheelbase(distance_m: float, curvature: FloatArray = BENDS) -> FloatArray:
     return 0.5 * distance_m**2 * curvature**2
 
 
+def offset_found(target: float, settings: Settings, *, clusters: int = 40,
+                 per_cluster: int = 5, spread: float | None = None) -> bool:
+    """moving_offset on windows of 2 to 10 revolutions (or, with ``spread``, 6 revolutions
+    times 1 -+ spread in turn: that standard deviation over the mean) whose distance residual
+    is a constant plus fixed noise; the constant is set so that it lies ``target`` standard
+    errors from zero (the statistic is linear in the constant: its standard error does not
+    depend on it)."""
+    n = clusters * per_cluster
+    rng = np.random.default_rng(12)
+    revs = (2.0 + 8.0 * rng.random(n) if spread is None
+            else 6.0 * (1.0 + spread * np.tile([-1.0, 1.0], n // 2 + 1)[:n]))
+    measured = np.column_stack([revs, np.zeros(n)])
+    noise = 0.05 * rng.standard_normal(n)
+    cluster = np.repeat(np.arange(clusters), per_cluster)
+
+    def found(constant: float, s: Settings) -> Finding | None:
+        residual = np.column_stack([constant + noise, np.zeros(n)])
+        return residuals.moving_offset(measured, residual, cluster, 2.0, s)
+
+    # far beyond the threshold, on any number of clusters: the constant's value and std
+    probe = found(1.0, DEFAULTS.replace(checks={"moving_offset_min_clusters": 3,
+                                                "moving_offset_min_spread": 1e-6}))
+    assert probe is not None
+    std, bias = probe.reference * 2.0, probe.value * 2.0 - 1.0
+    return found(target * std - bias, settings) is not None
+
+
 # ----------------------------------------------------------------------------- the gate
 
 def gate_flags(theta: Sequence[float], *, error: float | None = None, datasheet: float = 100.0,
@@ -741,6 +768,11 @@ CASES = [
          lambda z, s: front_found(BENDS, z * 0.3 * BENDS**2 + front_sigma_noise(0.3)
                                   * np.tile([1.0, -1.0], 50), s),
          4.9, 5.1, "above", 4.8),
+    Case(C, "moving_offset_sigmas", offset_found, 3.95, 4.05, "above", 3.9),
+    Case(C, "moving_offset_min_spread", lambda x, s: offset_found(6.0, s, spread=x),
+         0.19, 0.21, "above", 0.18),
+    Case(C, "moving_offset_min_clusters",
+         lambda n, s: offset_found(6.0, s, clusters=int(n)), 9, 10, "above", 9),
     Case(C, "front_min_distance_m",
          lambda x, s: front_found(BENDS, wheelbase(x), s), 1.58, 1.62, "above", 1.55),
 ]

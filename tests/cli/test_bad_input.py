@@ -193,3 +193,17 @@ def test_wheel_rates_in_another_unit_are_named_by_that_unit(factor: float, words
     with pytest.raises(odocal.DataError) as err:
         odocal.Drive.from_columns(cols)
     assert words in str(err.value)
+
+
+def test_the_cause_of_an_error_is_shown_under_verbose_only(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "drive.parquet"
+    bad.write_bytes(b"garbage")
+    code, _, err = run(capsys, "calibrate", str(bad), "--out", str(tmp_path / "out"))
+    line = _one_line(code, err)
+    assert "cannot be read as PARQUET" in line and "caused by" not in line
+    code, _, err = run(capsys, "calibrate", str(bad), "--out", str(tmp_path / "out"), "-v")
+    assert code == 1 and "Traceback" not in err
+    causes = [row for row in err.splitlines() if row.startswith("  caused by ")]
+    assert causes and causes[0].startswith("  caused by ArrowInvalid: ")    # pyarrow's words
+    assert not (tmp_path / "out").exists()

@@ -96,11 +96,11 @@ def test_reachable_minimum_is_no_worse_than_the_truth(noisy_drive: SimulatedDriv
     data = gather_ragged(drives, validation_segments(drives, Settings().segments))
     truth = noisy_drive.true_parameters.as_array()
     result = reachable_minimum(data, truth + np.array([0.01, 0.001, 0.05, 0.001]),
-                               settings=MinimumSettings(max_generations=60), seed=1)
+                               settings=MinimumSettings(max_generations=20), seed=1)
     assert result.mean_error_m <= mean_error(truth, data) + 1e-9
     assert np.all(result.bounds[:, 0] < result.theta.as_array())
     again = reachable_minimum(data, truth + np.array([0.01, 0.001, 0.05, 0.001]),
-                              settings=MinimumSettings(max_generations=60), seed=1)
+                              settings=MinimumSettings(max_generations=20), seed=1)
     assert again.mean_error_m == result.mean_error_m
 
 

@@ -97,7 +97,8 @@ def test_a_catalogs_mapping_file_that_is_not_a_file_is_one_line(
     code = main(["fleet", "calibrate", str(catalog), "--store", str(tmp_path / "s.db"), "-q"])
     err = capsys.readouterr().err
     assert code == 1 and len(err.splitlines()) == 1 and "map.toml" in err
-    assert time.monotonic() - started < 10
+    # (a hang guard, not a speed limit: reading the FIFO would block for ever)
+    assert time.monotonic() - started < 120
     assert not (tmp_path / "s.db").exists()       # refused before the store was made
 
 
@@ -109,13 +110,12 @@ def test_a_catalogs_mapping_file_that_is_not_a_file_is_one_line(
 def test_a_malformed_scheduler_address_is_one_line(small_fleet: Any, tmp_path: Path,
                                                    capsys: pytest.CaptureFixture[str],
                                                    address: str) -> None:
-    started = time.monotonic()
     code = main(["fleet", "calibrate", str(small_fleet.catalog), "--store",
                  str(tmp_path / "s.db"), "--scheduler", address, "-q"])
     err = capsys.readouterr().err
     assert code == 1 and len(err.splitlines()) == 1 and "scheduler" in err
     assert "\x1b" not in err and "Traceback" not in err
-    assert time.monotonic() - started < 5 and not (tmp_path / "s.db").exists()
+    assert not (tmp_path / "s.db").exists()
 
 
 def _silent_server(accept: bool) -> tuple[socket.socket, int]:
@@ -170,7 +170,9 @@ def test_a_scheduler_that_never_answers_is_given_up_after_the_timeout(
     err = capsys.readouterr().err
     assert code == 1 and len(err.splitlines()) == 1, err
     assert "scheduler" in err and "Traceback" not in err
-    assert elapsed < timeout + 3.0, elapsed            # Dask alone waited over 100 s
+    # --connect-timeout is honoured (Dask alone waited over 100 s): a bound on behaviour,
+    # with room for a loaded machine, not a speed figure
+    assert elapsed < timeout + 30.0, elapsed
     assert not (tmp_path / "s.db").exists()
 
 
@@ -293,7 +295,7 @@ def test_ctrl_c_ends_a_fleet_run_within_a_second(small_fleet: Any, tmp_path: Pat
     assert said == ["odocal fleet: interrupted"], err      # progress lines aside
     # (a stopped run, not one that finishes first: the run still had minutes to go; the time
     # itself, about 0.1 s on a quiet machine, is benchmark material, not a unit test's)
-    assert elapsed < 10.0, f"Ctrl-C took {elapsed:.2f} s"
+    assert elapsed < 60.0, f"Ctrl-C took {elapsed:.2f} s"        # a hang guard
     assert _gone(_group(proc.pid), 3.0) == []
     with open_store(store, create=False, read_only=True) as db:
         assert len(db.drives()) >= before
@@ -308,7 +310,6 @@ def test_a_script_without_the_main_guard_is_told_in_one_line(small_fleet: Any,
     script.write_text("from odocal.fleet.engine import calibrate_fleet\n"
                       f"calibrate_fleet({str(small_fleet.catalog)!r}, "
                       f"{str(tmp_path / 's.db')!r}, workers=2)\n")
-    started = time.monotonic()
     proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
                           timeout=120, cwd=tmp_path)
     assert proc.returncode == 1
@@ -316,7 +317,6 @@ def test_a_script_without_the_main_guard_is_told_in_one_line(small_fleet: Any,
     assert last.startswith("odocal.errors.ConfigError") and '__name__ == "__main__"' in last
     assert proc.stderr.count("Traceback") == 1 and len(proc.stderr.splitlines()) < 25
     assert "distributed" not in proc.stderr.replace("odocal", "")
-    assert time.monotonic() - started < 60
     guarded = tmp_path / "guarded.py"
     guarded.write_text("from odocal.fleet.engine import calibrate_fleet\n"
                        "if __name__ == '__main__':\n"

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -71,11 +70,9 @@ def test_ctrl_c_stops_a_replay_with_130(long_drive: Path, tmp_path: Path) -> Non
     first = proc.stdout.readline()
     assert " km " in first, first
     assert proc.poll() is None, "the replay ended before it could be interrupted"
-    sent = time.monotonic()
     err = send_interrupt(proc, 20, "the replay")
     assert proc.returncode == 130, err
     assert err.strip().splitlines() == ["odocal replay: interrupted"]
-    assert time.monotonic() - sent < 20
     assert not (tmp_path / "o").exists()
 
 

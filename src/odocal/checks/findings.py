@@ -39,6 +39,7 @@ class Check(enum.Enum):
     LATERAL_OFFSET = "lateral-offset"
     HEADING_ERROR = "heading-error"
     WHEEL_OFFSET = "wheel-offset"
+    MOVING_OFFSET = "moving-offset"
     CHANGE_IN_LOG = "change-in-log"
     FRONT_WHEELS = "front-wheels"
 

@@ -15,6 +15,15 @@ its residuals, whatever the noise:
   wheelbase times the curvature across the direction of travel: its revolutions exceed a rear
   wheel's by about ``(L kappa)^2 / 2`` of them. Regressed on the windows' curvature squared, the
   distance channel's relative residual gives ``L^2 / 2``; a rear axle's wheels give about none.
+* **a wheel-rate offset while moving** (a speed signal that reads a constant rate too much or
+  too little, on a drive that never stands still long enough to measure it at rest): every
+  window's distance residual (revolutions) holds the same number of revolutions whatever its
+  speed, where a scale error grows with the revolutions. Regressed on the window's
+  revolutions and a constant, with the spread taken cluster by cluster (sandwich: the windows
+  of a cluster overlap), a constant beyond ``moving_offset_sigmas`` standard errors is an
+  offset, where the windows' speeds spread enough to tell it from ``c_e``
+  (``moving_offset_min_spread``): the default method then fits it beside ``c_e``, and keeps
+  that fit where it determines the offset (:func:`offset_determined`).
 
 The thresholds, with their reasons, are settings (``[checks]``:
 :class:`~odocal.settings.ChecksSettings`).
@@ -170,3 +179,48 @@ def front_wheels(measured: FloatArray, residual: FloatArray, along_m: FloatArray
         return None
     return Finding(Check.FRONT_WHEELS, Severity.FATAL, distance,
                    slope_std / max(2.0 * distance, 1e-9))
+
+
+def moving_offset(measured: FloatArray, residual: FloatArray, cluster: IntArray,
+                  window_s: float, settings: Settings) -> Finding | None:
+    """The wheels' rate offset while moving, where the distance residuals show one (see the
+    module docstring): value the offset (rev/s, both wheels), reference its standard error."""
+    lim = settings.checks
+    revs = measured[:, 0]
+    use = np.abs(revs) > lim.window_min_revs
+    groups = np.unique(cluster[use])
+    if groups.size < lim.moving_offset_min_clusters:
+        return None
+    moving = np.abs(revs[use])
+    if float(moving.std()) < lim.moving_offset_min_spread * float(moving.mean()):
+        return None                        # about one speed: an offset is a scale error there
+    design = np.column_stack([revs[use], np.ones(int(use.sum()))])
+    y = residual[use, 0]
+    bread = np.linalg.pinv(design.T @ design)
+    coef = bread @ design.T @ y
+    rest = y - design @ coef
+    _, where = np.unique(cluster[use], return_inverse=True)
+    scores = np.zeros((groups.size, 2))
+    np.add.at(scores, where, design * rest[:, None])
+    cov = bread @ (scores.T @ scores) @ bread * groups.size / (groups.size - 1)
+    std = float(math.sqrt(max(cov[1, 1], 0.0)))
+    if not std > 0 or abs(coef[1]) <= lim.moving_offset_sigmas * std:
+        return None
+    return Finding(Check.MOVING_OFFSET, Severity.NOTE, float(coef[1]) / window_s,
+                   std / window_s)
+
+
+def offset_determined(value: float, value_std: float, prior_std: float, theta: FloatArray,
+                      settings: Settings) -> bool:
+    """Whether a fit with the wheel-rate offset free (its prior ``prior_std``) determines it:
+    by the data rather than the prior (a standard deviation below half the prior's), beyond
+    ``moving_offset_sigmas`` of it, with the parameters beside it finite and in their
+    plausible ranges (a fit that could not tell the offset from c_e runs away)."""
+    from odocal.checks.gate import gate
+
+    if not (np.isfinite(value) and np.isfinite(value_std) and np.all(np.isfinite(theta))):
+        return False
+    if not value_std < 0.5 * prior_std or not abs(value) > settings.checks.moving_offset_sigmas \
+            * value_std:
+        return False
+    return not gate(theta, settings, error_m=None, datasheet_error_m=None, segment_m=None)

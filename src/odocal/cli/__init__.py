@@ -12,7 +12,15 @@ def run() -> None:
     Ctrl-C is handled from the first moment: the handler is installed before the command line
     module and what it imports load (:mod:`odocal.cli.interrupt`).
     """
+    import os
     import sys
+
+    # odocal's matrices are small and its parallel work runs in processes: one BLAS thread
+    # each (unless the user says otherwise), or the BLAS pools of the processes spin against
+    # each other on a busy machine (a clock-offset search took 7 s instead of 1). Set before
+    # numpy loads its BLAS.
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(name, "1")
 
     from odocal.cli import interrupt
 

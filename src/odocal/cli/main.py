@@ -523,7 +523,11 @@ def _replay(args: argparse.Namespace, renderer: Any) -> int:
                f"{alarm.detected_distance_km:.2f} km)")
     written: list[Path] = []
     with results_folder(out) as tmp:
-        written += _replay_files(tmp, args, result, batch, settings, renderer)
+        from odocal.output.results import write_replay_results
+
+        written += write_replay_results(result, tmp, batch=batch, settings=settings,
+                                        source_name=_shown_source(args.source),
+                                        report=not args.no_report, renderer=renderer)
     if rejected:
         _print(rejected)
         return EXIT_FAILED
@@ -558,41 +562,6 @@ def _shown_source(source: str) -> str:
     from odocal.io.remote import redact
 
     return redact(source)
-
-
-def _replay_files(out: Path, args: argparse.Namespace, result: Any, batch: Any,
-                  settings: Settings, renderer: Any) -> list[Path]:
-    import csv
-    import io
-
-    from odocal.io.atomic import write_text
-    from odocal.io.results import write_json
-    from odocal.online.replay import TraceRow
-    from odocal.report.replay import convergence_km, write_replay_report
-
-    est = result.estimate
-    data = {"odocal_version": __version__, **est.to_dict(), "method": "online",
-            "alarms": [a.to_dict() for a in result.alarms],
-            "convergence_km": convergence_km(result), "samples": result.samples,
-            "duration_s": result.duration_s, "distance_km": result.distance_km,
-            "elapsed_s": result.elapsed_s,
-            "details": est.details.to_dict() if est.details is not None else None,
-            "batch": batch.to_dict() if batch is not None else None,
-            "inputs": [{"name": _shown_source(args.source)}], "settings": settings.to_dict()}
-    written = [write_json(out / "calibration.json", data)]
-    text = io.StringIO()
-    table = csv.writer(text)
-    table.writerow(TraceRow.header())
-    for row in result.trace:
-        table.writerow(row.values())
-    write_text(out / "trace.csv", text.getvalue())
-    written.append(out / "trace.csv")
-    written.append(write_json(out / "alarms.json", {"alarms": [a.to_dict()
-                                                               for a in result.alarms]}))
-    if not args.no_report:
-        written.append(write_replay_report(result, out, batch=batch, renderer=renderer))
-        written.append(out / "figures" / "trace.png")
-    return written
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
@@ -685,6 +654,17 @@ def _configure_logging(verbose: int, quiet: bool) -> None:
         logging.getLogger("odocal").setLevel(logging.ERROR)
 
 
+def _causes(exc: BaseException) -> list[BaseException]:
+    """What led to an error, outermost first (``raise ... from err`` and errors raised while
+    handling another), without repeats."""
+    out: list[BaseException] = []
+    cause = exc.__cause__ or (None if exc.__suppress_context__ else exc.__context__)
+    while cause is not None and cause not in out and len(out) < 10:
+        out.append(cause)
+        cause = cause.__cause__ or (None if cause.__suppress_context__ else cause.__context__)
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     if argv is None:
         interrupt.install()           # the program itself: Ctrl-C remembered (cli/interrupt.py)
@@ -710,6 +690,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if _swallowed(args):
             return _interrupted(f"odocal {args.command}", argv)
         sys.stderr.write(f"odocal {args.command}: error: {shown(exc, 2000)}\n")
+        if args.verbose:
+            for cause in _causes(exc):
+                sys.stderr.write(f"  caused by {type(cause).__name__}: {shown(cause, 2000)}\n")
         return EXIT_ERROR
     except KeyboardInterrupt:
         return _interrupted(f"odocal {args.command}", argv)

@@ -394,11 +394,12 @@ def tail_inflation(clusters: int) -> float:
     errors, whose spread is itself estimated from few pieces."""
     if clusters < 2:
         return float("inf")
-    from scipy.stats import norm
-    from scipy.stats import t as student
+    # scipy.special's distribution functions (scipy.stats would take half a second to import,
+    # on every calibration)
+    from scipy.special import ndtr, stdtrit
 
-    quantile = float(norm.cdf(_TAIL_SIGMAS))
-    return float(student.ppf(quantile, clusters - 1) / _TAIL_SIGMAS)
+    quantile = float(ndtr(_TAIL_SIGMAS))
+    return float(stdtrit(clusters - 1, quantile) / _TAIL_SIGMAS)
 
 
 #: Relative singular value of the scaled information's root below which it is rank deficient.

@@ -40,7 +40,13 @@ from numpy.typing import NDArray
 
 from odocal.checks.departures import wheel_lag_s, wheel_step
 from odocal.checks.findings import Finding
-from odocal.checks.residuals import change_finding, find_change, front_wheels
+from odocal.checks.residuals import (
+    change_finding,
+    find_change,
+    front_wheels,
+    moving_offset,
+    offset_determined,
+)
 from odocal.data.drive import Drive
 from odocal.data.segments import common_sampling_time
 from odocal.estimators import core
@@ -65,6 +71,7 @@ from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
 log = logging.getLogger(__name__)
 
 #: Fewer moving windows than this: nothing to fit.
@@ -179,8 +186,31 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
                               core.offset_prior_std(settings, wheel_step(drives, settings)))
     found = core.fit(windows, prior, settings,
                      heading_offset=offset, held=held, distance_only=distance_only)
+    moving = None
+    if settings.inverse.wheel_offset == "encoded" and not prior.offset_std:
+        # rates on no encoding's grid fit no offset, unless the residuals show one (before the
+        # residuals' other checks: an offset's excess is largest in slow bends, as front
+        # wheels' is)
+        moving = moving_offset(windows.measured @ CHANNELS.T, found.fit.residual,
+                               windows.cluster, settings.inverse.window_s, settings)
+        if moving is not None:
+            std = max(settings.inverse.wheel_offset_prior_revps, 2.0 * abs(moving.value))
+            wider = core.Folded.prior(_origin(settings), std)
+            refit = core.fit(windows, wider, settings, heading_offset=offset, held=held,
+                             distance_only=distance_only)
+            value, value_std = refit.offset
+            # kept where the fit itself tells the offset from c_e by as much (a drive at one
+            # speed cannot: the residuals' regression alone overstates it there)
+            if offset_determined(value, value_std, std, refit.theta, settings):
+                log.warning("the wheels read %+.4f rev/s more than the reference's motion "
+                            "gives, at every speed: fitting that offset beside c_e", value)
+                prior, found = wider, refit
+            else:
+                moving = None
     findings, found, windows = _residual_checks(found, windows, drives, prior, settings,
                                                 offset, held, distance_only)
+    if moving is not None:
+        findings = [moving, *findings]
     if progress:
         progress("inverse: fit", 2, 2)
     estimate = _estimate(found, windows, settings, started, method="inverse",
@@ -189,6 +219,48 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         estimate = dataclasses.replace(estimate, details=dataclasses.replace(
             estimate.details, findings=tuple(findings)))
     return estimate
+
+
+@dataclass(frozen=True)
+class Screen:
+    """What the default method's windows and one fit say of drives a segment method calibrates
+    (:func:`screen`).
+
+    findings : front wheels, or a change inside the log (from its residuals)
+    theta, std : its estimate and standard deviations; for a parameter it holds, what the data
+        determine it to where they give a number (nan otherwise)
+    free : the parameters it identifies
+    """
+
+    findings: tuple[Finding, ...]
+    theta: FloatArray
+    std: FloatArray
+    free: BoolArray
+
+
+def screen(drives: Sequence[Drive], settings: Settings) -> Screen | None:
+    """The default method's residuals and estimate on ``drives``, for the methods that fit
+    segments: their own residuals show neither front wheels nor a change inside the log (a
+    segment's fit takes a change or a front wheel's excess into its theta), and the default's
+    standard deviations are at the information's bound, which no unbiased method beats. The
+    windows and one fit: about a tenth of a second per hour of driving (the reference as the
+    calibration aligned it to the wheels' clock, no lag scanned around it). None where the
+    drives hold too few moving windows."""
+    settings = settings.replace(inverse={"delay": "off"})
+    windows, straight = windows_from_drives(drives, settings, reach_s=_reach(drives, settings))
+    if windows.size < MIN_WINDOWS:
+        return None
+    offset = heading_offset(straight) if settings.inverse.heading_offset == "estimate" else 0.0
+    prior = core.Folded.prior(_origin(settings),
+                              core.offset_prior_std(settings, wheel_step(drives, settings)))
+    found = core.fit(windows, prior, settings, heading_offset=offset)
+    findings, _, _ = _residual_checks(found, windows, drives, prior, settings, offset, None,
+                                      False)
+    std = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))
+    held = np.array([found.held[n].std if n in found.held else np.nan
+                     for n in PARAMETER_NAMES])
+    return Screen(findings=tuple(findings), theta=found.theta.copy(),
+                  std=np.where(found.free, std, held), free=np.asarray(found.free, dtype=bool))
 
 
 def _residual_checks(found: core.CoreFit, windows: WindowSet, drives: Sequence[Drive],

@@ -38,7 +38,7 @@ def _arrow_table(p: Path, *, text: bool) -> pa.Table:
         raise DataError(f"'{p}' is empty")
     try:
         if fmt != "csv":
-            return pq.read_table(p)
+            return pq.ParquetFile(p).read()     # (read_table imports pandas: 0.3 s)
         if not text:
             return pacsv.read_csv(p)
         names = pacsv.read_csv(p, read_options=pacsv.ReadOptions(skip_rows_after_names=0)

@@ -43,7 +43,7 @@ from odocal.checks.departures import measure as measure_departures
 from odocal.checks.diagnosis import check_drives
 from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.checks.gate import gate
-from odocal.checks.residuals import front_wheels
+from odocal.checks.residuals import front_wheels, moving_offset, offset_determined
 from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.estimators import core
@@ -83,6 +83,7 @@ from odocal.online.departures import (
     ReferenceAligner,
     recorrected,
     with_offset_prior,
+    with_offset_std,
 )
 from odocal.online.samples import SAMPLE, Regrid, step_s, time_unit
 from odocal.online.samples import rows as pushed_rows
@@ -211,6 +212,7 @@ class OnlineCalibrator:
         self._recent_t = -math.inf                # the newest of them
         self._diagnosis = Diagnosis(())
         self._failure: Finding | None = None      # the numbers could not be fitted
+        self._moving: Finding | None = None       # a wheel-rate offset while moving, fitted
         self._halted = False
 
     # ---------------------------------------------------------------- input
@@ -686,6 +688,9 @@ class OnlineCalibrator:
         windows = self._fitted()
         try:
             found = self._refit(windows)
+            if (self.settings.inverse.wheel_offset == "encoded" and windows.size
+                    and not self._folded.offset_free):
+                found = self._moving_offset(windows, found)
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
             self._failed(exc)
             return self._nothing(Reason.REJECTED, Status.REJECTED)
@@ -713,6 +718,29 @@ class OnlineCalibrator:
                         verdicts=judge(std, free, self.settings.identify, held=found.held),
                         status=status, details=self._details(found.clusters, refused),
                         widening=found.uncertainty.widening)
+
+    def _moving_offset(self, windows: WindowSet, found: core.CoreFit) -> core.CoreFit:
+        """A wheel-rate offset while moving, where the windows in memory show one and a fit
+        with it tells it from c_e (as batch: :func:`odocal.checks.residuals.moving_offset`):
+        from then on fitted, and named."""
+        moving = moving_offset(windows.measured @ CHANNELS.T, found.fit.residual,
+                               windows.cluster, self.settings.inverse.window_s, self.settings)
+        if moving is None:
+            return found
+        std = max(self.settings.inverse.wheel_offset_prior_revps, 2.0 * abs(moving.value))
+        wider = with_offset_std(self._folded, std)
+        refit = core.fit(windows, wider, self.settings, heading_offset=self.heading_offset(),
+                         held=held_by_checks(self._diagnosis),
+                         distance_only=self._diagnosis.no_differential)
+        value, value_std = refit.offset
+        if not offset_determined(value, value_std, std, refit.theta, self.settings):
+            return found
+        self._folded, self._moving = wider, moving
+        if refit.free.any():
+            self._take_p(refit.fit.p)
+        self._model, self._lag = refit.model, refit.lag
+        self._changes.reset()          # a model fitted anew is not a change of the wheels
+        return refit
 
     @property
     def diagnosis(self) -> Diagnosis:
@@ -752,7 +780,8 @@ class OnlineCalibrator:
             alarms=tuple(self._alarms), forgetting_s=self.settings.online.forgetting_s,
             coupling=float(self._model.coupling),
             findings=(*self._diagnosis.findings,
-                      *((self._failure,) if self._failure is not None else ()), *more),
+                      *((self._failure,) if self._failure is not None else ()),
+                      *((self._moving,) if self._moving is not None else ()), *more),
             halted=self._halted,
             time_unit=self._unit or "s",
             sampling_s=self._t_s if self._t_s is not None else float("nan"))

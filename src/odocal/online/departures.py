@@ -143,7 +143,12 @@ def with_offset_prior(folded: core.Folded, settings: Settings, step_revps: float
     """The folded sums with the wheel-rate offset's prior for rates encoded on a grid of
     ``step_revps`` (as :meth:`odocal.estimators.core.Folded.prior` gives batch); as they are
     where it is already fitted or the settings do not fit it."""
-    std = core.offset_prior_std(settings, step_revps)
+    return with_offset_std(folded, core.offset_prior_std(settings, step_revps))
+
+
+def with_offset_std(folded: core.Folded, std: float) -> core.Folded:
+    """The folded sums with a wheel-rate offset prior of ``std`` (rev/s); as they are where the
+    offset is already fitted or ``std`` is 0."""
     if folded.offset_free or std <= 0:
         return folded
     precision = std ** -2.0

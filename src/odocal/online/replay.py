@@ -126,7 +126,7 @@ def _stream_drive(source: Any, p: str, suffix: str, *, rows: int) -> Iterator[Ch
         if isinstance(exc, DataError):
             raise
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise DataError(f"'{p}' cannot be read as a drive file: {first}") from None
+        raise DataError(f"'{p}' cannot be read as a drive file: {first}") from exc
 
 
 _SECONDS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}

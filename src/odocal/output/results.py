@@ -177,3 +177,47 @@ def write_compensated_inputs(result: CalibrationResult, out_dir: str | Path) -> 
     with atomic_path(path) as tmp:
         pq.write_table(table, tmp)
     return path
+
+
+def write_replay_results(result: Any, out_dir: str | Path, *, batch: Any, settings: Any,
+                         source_name: str, report: bool = True,
+                         renderer: Any = None) -> list[Path]:
+    """What ``odocal replay`` writes into ``out_dir`` (a folder that exists; the caller makes
+    it atomic): calibration.json (the live estimate, its alarms and, where there is one, the
+    batch estimate of the same log), trace.csv (the estimate after every update), alarms.json
+    and, unless ``report`` is False, report.html with its trace figure. ``result`` is an
+    :class:`odocal.online.replay.ReplayResult`, ``batch`` a batch estimate or None."""
+    import csv
+    import io
+
+    from odocal.io.atomic import write_text
+    from odocal.online.replay import TraceRow
+
+    out = Path(out_dir)
+    est = result.estimate
+    from odocal.report.replay import convergence_km
+
+    data = {"odocal_version": __version__, **est.to_dict(), "method": "online",
+            "alarms": [a.to_dict() for a in result.alarms],
+            "convergence_km": convergence_km(result), "samples": result.samples,
+            "duration_s": result.duration_s, "distance_km": result.distance_km,
+            "elapsed_s": result.elapsed_s,
+            "details": est.details.to_dict() if est.details is not None else None,
+            "batch": batch.to_dict() if batch is not None else None,
+            "inputs": [{"name": source_name}], "settings": settings.to_dict()}
+    written = [write_json(out / CALIBRATION_FILE, data)]
+    text = io.StringIO()
+    table = csv.writer(text)
+    table.writerow(TraceRow.header())
+    for row in result.trace:
+        table.writerow(row.values())
+    write_text(out / "trace.csv", text.getvalue())
+    written.append(out / "trace.csv")
+    written.append(write_json(out / "alarms.json",
+                              {"alarms": [a.to_dict() for a in result.alarms]}))
+    if report:
+        from odocal.report.replay import write_replay_report
+
+        written.append(write_replay_report(result, out, batch=batch, renderer=renderer))
+        written.append(out / "figures" / "trace.png")
+    return written

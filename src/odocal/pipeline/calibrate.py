@@ -27,7 +27,7 @@ import logging
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -60,6 +60,7 @@ from odocal.estimators.estimate import (
     Reason,
     Status,
     held_as_weak,
+    identifiability_limits,
     refused_estimate,
     weak,
 )
@@ -71,12 +72,18 @@ from odocal.estimators.validation import (
 )
 from odocal.io.drivefile import load_drive
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.model.vehicle import MODEL
 from odocal.pipeline.result import CalibrationResult, summarise
 from odocal.settings import Settings
 
+if TYPE_CHECKING:
+    from odocal.estimators.inverse import Screen
+
 log = logging.getLogger(__name__)
 IntArray = NDArray[np.int64]
+FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
+LAYOUT = MODEL.layout
 Runner = Callable[[Prepared, Settings, ProgressCallback | None], MethodOutcome]
 
 
@@ -249,6 +256,9 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     if method not in METHODS:
         raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     clock = Stopwatch(progress)
+    from odocal.estimators.kernels import compile_in_background
+
+    compile_in_background([method])     # a first run's kernels, beside reading and step 1
     with clock.stage("read"):
         drive_list = load_drives(drives, settings=settings)
     settings = with_stated_datasheet(drive_list, settings)
@@ -262,6 +272,21 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
                                             lateral=not diagnosis.lateral_missing)
             drive_list = corrected(drive_list, departures)
             diagnosis = diagnosis.plus(departure_findings(departures, settings))
+        screened = None
+        if method != "inverse" and not (diagnosis.fatal or diagnosis.standstill
+                                        or diagnosis.no_differential):
+            # front wheels and a change inside the log show in the default method's residuals
+            # only: a segment method is refused, or fits the part after the change, as it is;
+            # the default's uncertainty is what a segment method's may not undercut
+            from odocal.estimators.inverse import screen
+
+            screened = screen(drive_list, settings)
+            found = screened.findings if screened is not None else ()
+            diagnosis = diagnosis.plus(found)
+            changed = [f for f in found if f.check is Check.CHANGE_IN_LOG]
+            if changed and not diagnosis.fatal:
+                drive_list = _after_change(drive_list, changed[0])
+                screened = screen(drive_list, settings)
     with clock.stage("segments"):
         prep = prepare(drive_list, settings)
         prep = dataclasses.replace(prep, held={**prep.held, **held_by_checks(diagnosis)})
@@ -279,7 +304,12 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         outcome = run_distance_only(prep, settings, clock)
         estimate = outcome.estimate
     else:
-        outcome, estimate, boot = _checked_by_bootstrap(method, prep, settings, clock)
+        outcome, estimate, boot = _checked_by_bootstrap(method, prep, settings, clock,
+                                                        screened)
+        step = departures.wheel_step_revps if departures is not None else 0.0
+        if step and method != "inverse" and estimate.success:
+            estimate, said = _encoding_widened(estimate, drive_list, step)
+            outcome = dataclasses.replace(outcome, warnings=(*outcome.warnings, said))
     fitted = tuple(getattr(estimate.details, "findings", ()))
     if fitted:
         # what the fit's residuals showed: front wheels (refused), a change inside the log
@@ -312,6 +342,57 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         three_step=outcome.three_step, batch=prep.__dict__.get("batch"),
         drive_data=tuple(drive_list),
         timings_s=dict(clock.seconds), diagnosis=diagnosis, departures=departures)
+
+
+def _against_the_default(estimate: Estimate, screened: Screen,
+                         settings: Settings) -> FloatArray:
+    """Per parameter, the factor (>= 1) that widens a segment method's standard deviation to
+    the default method's on the same drives (at the information's bound: no unbiased method is
+    surer; where the default does not identify a parameter, past the identifiability limit),
+    and, where both identify it, to half the distance between their estimates and a third of
+    that distance plus two of the default's standard deviations: the default is unbiased where
+    the segment methods depart from the model, so the segment method's answer then lies within
+    three of its standard deviations of the truth wherever the default's lies within two."""
+    std = estimate.std
+    free = np.asarray(estimate.free, dtype=bool) & (std > 0)
+    past = 1.01 * identifiability_limits(settings.identify)
+    floor = np.where(screened.free, screened.std,
+                     np.fmax(np.nan_to_num(screened.std, nan=0.0), past))
+    target = np.where(free, np.maximum(std, floor), std)
+    both = free & screened.free
+    apart = np.abs(estimate.theta.as_array() - screened.theta)
+    # within three of them of the truth wherever the default lies within two of its own
+    reach = np.maximum(0.5 * apart, (apart + 2.0 * np.nan_to_num(screened.std)) / 3.0)
+    target = np.where(both, np.maximum(target, reach), target)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(free, target / np.where(std > 0, std, 1.0), 1.0)
+
+
+def _encoding_widened(estimate: Estimate, drives: Sequence[Drive], step_revps: float
+                      ) -> tuple[Estimate, str]:
+    """A segment method's estimate on wheel rates that lie on an encoding's grid of
+    ``step_revps``: a truncating encoder reads them up to a step low (half a step on average),
+    an offset the default method fits (prior half a step) and the segment methods do not. Its
+    effect on the distance scale (the offset over the mean wheel rate while moving, times the
+    scale) is added to the scale's variance, as the default's prior would carry it, with the
+    words that say so."""
+    rates = np.concatenate([0.5 * np.abs(d.n_rl + d.n_rr) for d in drives])
+    moving = rates[rates > step_revps]
+    if not moving.size:
+        return estimate, ""
+    k = LAYOUT.index(LAYOUT.scale)
+    extra = 0.5 * step_revps / float(moving.mean()) * float(estimate.theta.as_array()[k])
+    cov = estimate.covariance.copy()
+    before = float(np.sqrt(max(cov[k, k], 0.0)))
+    cov[k, k] += extra ** 2
+    widening = estimate.widening.copy()
+    if before > 0:
+        widening[k] *= float(np.sqrt(cov[k, k])) / before
+    said = (f"the wheel rates lie on a {step_revps:.4g} rev/s grid (an encoding's steps): a "
+            f"truncating encoder reads them up to a step low, an offset {estimate.method} does "
+            f"not fit, so {LAYOUT.scale}'s standard deviation includes up to "
+            f"{extra * 1e3:.2g} mm for it (the default method fits the offset)")
+    return dataclasses.replace(estimate, covariance=cov, widening=widening), said
 
 
 def _after_change(drives: Sequence[Drive], change: Finding) -> list[Drive]:
@@ -377,33 +458,39 @@ class Stopwatch:
 
 
 def _checked_by_bootstrap(method: str, prep: Prepared, settings: Settings,
-                          progress: ProgressCallback | None
+                          progress: ProgressCallback | None, screened: Screen | None = None,
                           ) -> tuple[MethodOutcome, Estimate, BootstrapResult | None]:
     """Run the method, check it by the bootstrap over segment clusters, keep the larger spread.
 
     Where the bootstrap's spread exceeds the covariance's by more than the disagreement factor,
     the standard deviation is widened to the bootstrap's (what is printed and exported is the
-    larger); a parameter that is then beyond the identifiability limit is held at its datasheet
-    value and the method runs again without it.
+    larger); where the default method's (``screened``) is larger, or the two estimates lie
+    further apart than two of the segment method's standard deviations, it is widened to that
+    (:func:`_against_the_default`). A parameter that is then beyond the identifiability limit
+    is held at its datasheet value and the method runs again without it.
     """
+    boot = None
     for _ in range(len(PARAMETER_NAMES)):
         outcome = METHODS[method](prep, settings, progress)
         estimate = outcome.estimate
         terms = outcome.bootstrap
-        if settings.uncertainty.bootstrap_count <= 1 or terms is None or not estimate.success \
-                or estimate.status is Status.EXACT or not any(estimate.free):
+        if not estimate.success or estimate.status is Status.EXACT or not any(estimate.free):
             return outcome, estimate, None
-        if progress:
-            progress("bootstrap", 0, 1)
-        boot = bootstrap(estimate, terms.information, terms.scores, terms.clusters,
-                         settings=settings.uncertainty, seed=settings.calibrate.seed,
-                         refit=terms.refit, step1_thetas=terms.step1_thetas,
-                         step1_sets=terms.step1_sets)
-        if progress:
-            progress("bootstrap", 1, 1)
-        factor = np.where(np.isfinite(boot.ratio)
-                          & (boot.ratio > settings.uncertainty.disagreement_factor),
-                          boot.ratio, 1.0)
+        factor = np.ones(len(PARAMETER_NAMES))
+        if settings.uncertainty.bootstrap_count > 1 and terms is not None:
+            if progress:
+                progress("bootstrap", 0, 1)
+            boot = bootstrap(estimate, terms.information, terms.scores, terms.clusters,
+                             settings=settings.uncertainty, seed=settings.calibrate.seed,
+                             refit=terms.refit, step1_thetas=terms.step1_thetas,
+                             step1_sets=terms.step1_sets)
+            if progress:
+                progress("bootstrap", 1, 1)
+            factor = np.where(np.isfinite(boot.ratio)
+                              & (boot.ratio > settings.uncertainty.disagreement_factor),
+                              boot.ratio, 1.0)
+        if screened is not None:
+            factor = np.maximum(factor, _against_the_default(estimate, screened, settings))
         if (factor == 1.0).all():
             return outcome, estimate, boot
         widened = estimate.with_covariance(estimate.covariance * np.outer(factor, factor),

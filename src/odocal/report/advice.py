@@ -359,6 +359,11 @@ def _reference_and_sensor_text(finding: Finding) -> str:
         return (f"the wheels read {v:+.3f} and {ref:+.3f} rev/s (rear left, right) while the "
                 "reference stands still: an offset of the speed signal, taken out of every "
                 "sample before the fit")
+    if c is Check.MOVING_OFFSET:
+        return (f"the wheels read {v:+.4f} rev/s (+-{ref:.4f}) more than the reference's motion "
+                "gives, at every speed (an offset of the speed signal; the drive did not stand "
+                "still long enough to measure it at rest): fitted beside c_e, whose standard "
+                "deviation carries it; a drive with stops measures it better")
     if c is Check.HEADING_ERROR:
         return (f"the reference heading's error varies with the heading by up to "
                 f"{np.degrees(v):.1f} degrees against its course on straights (a compass or "
