@@ -294,6 +294,20 @@ def test_the_cusum_statistic_has_its_null_distribution() -> None:
     assert split == pytest.approx(25, abs=2) and statistic > 3.0
 
 
+def test_an_odd_cluster_at_either_end_is_not_where_a_change_splits() -> None:
+    """The split keeps at least [checks] change_min_side_clusters values on either side: one
+    odd cluster at the start of a log (a cold tyre, a late reference) cannot be the change."""
+    from odocal.settings import ChecksSettings
+
+    side = ChecksSettings().change_min_side_clusters
+    rng = np.random.default_rng(8)
+    for odd in (0, 59):
+        means = 0.1 * rng.standard_normal(60)
+        means[odd] += 12.0
+        split, _ = cusum(means)
+        assert side <= split <= 60 - side, (odd, split)
+
+
 @pytest.mark.realdata
 def test_highway_driving_at_one_speed_fits_no_offset_while_moving(shared_data: Path) -> None:
     """40 s of a real highway log (comma2k19, the first and last 20 s of a segment) at about

@@ -91,7 +91,11 @@ def test_a_constant_lateral_acceleration_leaves_d_unidentified_and_widens_t_r(
     """a_y stuck at a constant (unplugged, a missing mapping): d is not identified (not 'exactly
     0 with std 0'), and t_r either is not identified or its uncertainty covers the truth."""
     drive = faulty(noisy_drive, lambda c: {**c, "a_y": np.full_like(c["a_y"], value)})
-    assert found(drive)[Check.LATERAL_MISSING].severity is Severity.FALLBACK
+    missing = found(drive)[Check.LATERAL_MISSING]
+    assert missing.severity is Severity.FALLBACK and missing.name == "a_y"
+    # what it says: a_y's share of speed times yaw rate (none varies) against the least share
+    assert missing.reference == odocal.Settings().checks.lateral_min_share
+    assert missing.value == pytest.approx(0.0, abs=1e-9)
     truth = noisy_drive.true_parameters.as_array()
     for estimate in (odocal.calibrate(drive).estimate, online(drive).estimate()):
         assert estimate.success

@@ -33,3 +33,20 @@ def test_a_value_outside_its_range_names_the_bound_it_crossed(c_e: float, t_r: f
                  datasheet_error_m=None, segment_m=None)
     [finding] = [f for f in found if f.check is Check.PARAMETER_RANGE]
     assert finding.name == name and finding.reference == pytest.approx(bound)
+
+
+def test_a_load_transfer_or_wheel_difference_out_of_range_is_named_with_its_limit() -> None:
+    """|d| beyond [gate] max_abs_d and |c_d| beyond its share of c_e: each a parameter-range
+    finding naming the parameter, its value and the limit it crossed."""
+    settings = Settings()
+    lim = settings.gate
+    d = 2.0 * lim.max_abs_d
+    c_d = -2.0 * lim.max_abs_c_d_fraction * 1.95
+    found = gate(np.array([1.95, c_d, 1.53, d]), settings, error_m=None,
+                 datasheet_error_m=None, segment_m=None)
+    named = {f.name: f for f in found}
+    assert set(named) == {"c_d", "d"}
+    assert all(f.check is Check.PARAMETER_RANGE for f in found)
+    assert named["d"].value == d and named["d"].reference == lim.max_abs_d
+    assert named["c_d"].value == c_d
+    assert named["c_d"].reference == pytest.approx(lim.max_abs_c_d_fraction * 1.95)

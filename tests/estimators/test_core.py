@@ -149,3 +149,24 @@ def test_every_public_name_resolves() -> None:
     """The lazy public API (``odocal.X``) points at where each name lives after the layout."""
     for name in odocal.__all__:
         assert getattr(odocal, name) is not None, name
+
+
+def test_each_window_knows_the_distance_driven_before_it_across_gaps() -> None:
+    """A window's distance (where an alarm places a change, in km driven) is the reference's
+    path from the log's first sample to the window's start, piece after piece: the driving
+    of an earlier piece counts, the gap adds nothing."""
+    d = odocal.simulate(duration_s=150, seed=6, noise="realistic").drive
+    cols = d.columns()
+    keep = (d.t < 50.0) | (d.t > 56.0) & (d.t < 100.0) | (d.t > 103.0)    # three pieces
+    cut = {k: np.asarray(v)[keep] for k, v in cols.items()}
+    cut["piece"] = (cut["t"] > 50.0).astype(float) + (cut["t"] > 100.0)
+    drive = odocal.Drive.from_columns(cut, name="gaps")
+    assert len(drive.pieces) == 3
+    step_m = np.hypot(np.diff(drive.x), np.diff(drive.y))
+    step_m[[b - 1 for _, b in drive.pieces[:-1]]] = 0.0               # the steps over a gap
+    driven_m = np.concatenate([[0.0], np.cumsum(step_m)])
+    windows, _ = windows_from_drives([drive], Settings())
+    later = windows.t0 > 56.0
+    assert later.sum() > 10 and (windows.t0 > 103.0).sum() > 10
+    np.testing.assert_allclose(windows.distance_m, np.interp(windows.t0, drive.t, driven_m),
+                               rtol=1e-9, atol=1e-6)

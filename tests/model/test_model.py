@@ -155,3 +155,57 @@ def test_parameters_round_trip() -> None:
     p = Parameters(1.9, -0.001, 1.5, 0.002)
     assert Parameters.from_array(p.as_array()) == p
     assert p.as_dict() == {"c_e": 1.9, "c_d": -0.001, "t_r": 1.5, "d": 0.002}
+
+
+def test_the_unseen_load_transfer_column_is_the_models_d_derivative_with_v_w_as_a_y(
+        rng: np.random.Generator) -> None:
+    """Where a_y is missing, d's column is taken with the reference's own v w: it must be the
+    model's own derivative in d (at d = 0) of windows whose a_y were v w, for both wheels (an
+    unequal c_d, so a wheel's circumference taken for the other's is seen)."""
+    from odocal.model.vehicle import MODEL, SERIES
+
+    theta = np.array([1.95, -0.03, 1.53, 0.0])
+    windows = 40
+    moments = rng.normal(0.0, 1.0, (windows, 3 * SERIES + 1))
+    moments[:, 0] = rng.uniform(5.0, 30.0, windows)             # sum ds: moving
+    along_vw, turn_vw = moments[:, 2 * SERIES], moments[:, 2 * SERIES + 1]
+    as_a_y = moments.copy()
+    as_a_y[:, 1], as_a_y[:, SERIES + 1] = along_vw, turn_vw      # sum ds a, sum dpsi a := v w's
+    _, jac = MODEL.predict(theta, as_a_y)
+    d = MODEL.layout.index(MODEL.layout.load)
+    np.testing.assert_allclose(MODEL.load_transfer_column(theta, moments), jac[:, :, d],
+                               rtol=1e-12, atol=1e-15)
+
+
+def test_wrapped_angles_lie_in_the_half_open_interval_of_the_step() -> None:
+    """(-pi, pi]: a heading residual of half a turn is +pi whichever way it came, as the
+    compiled step's own wrap gives it."""
+    from odocal.model.step import wrap
+
+    angles = np.array([-3 * np.pi, -np.pi, np.pi, 3 * np.pi, 0.5, -0.5 - 4 * np.pi])
+    wrapped = wrap_angle(angles)
+    np.testing.assert_allclose(wrapped, [np.pi, np.pi, np.pi, np.pi, 0.5, -0.5], atol=1e-12)
+    np.testing.assert_allclose(wrapped, [wrap(float(a)) for a in angles], atol=1e-12)
+
+
+def test_a_ragged_rollout_of_many_parameter_sets_is_each_sets_own(
+        rng: np.random.Generator) -> None:
+    """Validation rolls several parameter sets (the bootstrap's) through segments of different
+    lengths at once: each set's poses are those of its rollout alone, segment by segment."""
+    steps = np.array([30, 55, 12])
+    u = random_inputs(rng, (int(steps.sum()),))
+    x0 = rng.standard_normal((3, 3))
+    thetas = THETA + np.array([[0.0, 0.0, 0.0, 0.0], [0.02, 0.001, -0.03, 0.0002],
+                               [-0.05, -0.004, 0.1, -0.0005]])
+    together = rollout_ragged(thetas, u, x0, steps, T_S)
+    assert together.shape == (3, int(steps.sum()), 3)
+    first = np.concatenate([[0], np.cumsum(steps)[:-1]])
+    for p, theta in enumerate(thetas):
+        np.testing.assert_allclose(together[p], rollout_ragged(theta, u, x0, steps, T_S),
+                                   rtol=1e-12, atol=1e-12)
+        for s, (a, n) in enumerate(zip(first, steps, strict=True)):
+            part = Inputs(*(np.asarray(getattr(u, f))[a:a + n]
+                            for f in ("n_rl", "n_rr", "beta", "a_y")))
+            alone = rollout(theta, part, x0[s], T_S)
+            np.testing.assert_allclose(together[p, a:a + n], alone[1:], rtol=1e-12,
+                                       atol=1e-12)

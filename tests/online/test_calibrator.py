@@ -13,6 +13,7 @@ import odocal
 from odocal.cli.main import EXIT_ERROR, EXIT_OK, main
 from odocal.errors import DataError
 from odocal.estimators.estimate import CovarianceKind
+from odocal.estimators.windows import windows_from_drives
 from odocal.model.kinematics import inverse_revolutions
 from odocal.model.parameters import Parameters
 from odocal.model.vehicle import MODEL, SERIES
@@ -117,6 +118,24 @@ def test_a_step_in_c_e_is_detected_and_the_estimate_follows() -> None:
     assert abs(est.theta.c_e - after.c_e) < 3 * est.std[0] + 1e-4
 
 
+def test_a_two_percent_step_in_c_e_is_alarmed_within_a_kilometre() -> None:
+    """How soon a change is seen with the default [online] cusum_h: a 2 % smaller c_e (a tyre
+    losing pressure) half-way through a ten-minute drive is alarmed 0.7 km after it, named as
+    c_e and sized; a threshold twice as high would take 1.4 km on this drive."""
+    true = odocal.TRUE_PARAMETERS
+    after = Parameters(true.c_e * 0.98, true.c_d, true.t_r, true.d)
+    drive = odocal.simulate(duration_s=600, seed=1, noise="realistic",
+                            change=(300.0, after)).drive
+    alarms = pushed(drive, 400).alarms
+    assert [a.parameter for a in alarms] == ["c_e"]
+    alarm = alarms[0]
+    assert alarm.t == pytest.approx(300.0, abs=15.0)
+    assert alarm.relative_change == pytest.approx(-0.02, abs=0.003)
+    driven_m = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(drive.x), np.diff(drive.y)))])
+    late_m = np.interp(alarm.detected_t, drive.t, driven_m) - np.interp(300.0, drive.t, driven_m)
+    assert 0.0 < late_m < 1000.0, late_m
+
+
 def test_no_alarm_without_a_change(noisy_drive: SimulatedDrive) -> None:
     assert pushed(noisy_drive.drive, 40).alarms == ()
 
@@ -188,3 +207,97 @@ def test_replay_bad_inputs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     assert code == EXIT_ERROR and "lacks columns" in err
     code = main(["replay", str(bad), "--out", str(bad)])
     assert code == EXIT_ERROR and "would overwrite" in capsys.readouterr().err
+
+
+def test_both_wheels_shrinking_unequally_are_named_as_c_e() -> None:
+    """Both circumferences smaller (by 2 and 4 cm): a change of both wheels, c_e, even where
+    the wheels' difference stands out more in its own standard deviations; two wheels moving
+    opposite ways are named by the larger."""
+    from odocal.estimators import core
+    from odocal.online.changes import Change, Suspect, describe
+
+    before = np.zeros(core.P)
+    before[core.THETA] = odocal.TRUE_PARAMETERS.as_array()
+    suspect = Suspect(parameter=0, since_t=90.0, until_t=150.0, reference=before, sigmas=5.0)
+
+    def named(left_m: float, right_m: float) -> tuple[str, str, float]:
+        step = np.array([(left_m + right_m) / 2.0, left_m - right_m])     # c_e, c_d
+        change = Change(index=3, t=100.0, distance_m=1500.0, before=before, step=step,
+                        std=np.array([0.01, 0.002]))
+        alarm = describe(change, suspect, detected_t=160.0, detected_distance_km=2.4)
+        assert alarm.distance_km == 1.5 and alarm.detected_distance_km == 2.4
+        return alarm.parameter, alarm.wheel, alarm.relative_change
+
+    parameter, wheel, relative = named(-0.02, -0.04)
+    assert (parameter, wheel) == ("c_e", "both")
+    assert relative == pytest.approx(-0.03 / before[0])
+    assert named(-0.02, 0.0)[:2] == ("c_d", "left")
+    assert named(0.01, -0.03)[:2] == ("c_d", "right")
+
+
+
+def test_a_cluster_that_shows_c_e_alone_gives_its_step_and_leaves_c_d_open() -> None:
+    """Where a cluster carries no differential signal (its information singular in c_d), the
+    detector still takes c_e's step with its standard deviation; c_d's is not a number."""
+    from odocal.online.changes import _solve2
+
+    for coupled, h_cd in ((0.0, 0.0), (200.0, 1.0)):    # none, or only c_e's own again
+        h = np.array([[4.0e4, coupled], [coupled, h_cd]])
+        step, std = _solve2(h, np.array([200.0, 0.0]))
+        assert step[0] == pytest.approx(0.005) and std[0] == pytest.approx(0.005)
+        assert np.isnan(step[1]) and np.isnan(std[1])
+
+
+def test_folding_memory_keeps_the_uncertainty_and_the_lag() -> None:
+    """Four minutes in memory instead of twenty on a 15-minute drive: what is folded still
+    counts, so each parameter's std stays within a factor of two of batch's, and the
+    reference's lag found is the one found with everything in memory."""
+    drive = odocal.simulate(duration_s=900, seed=3, noise="quantised-coarse").drive
+    whole = pushed(drive, 400).estimate()
+    settings = odocal.Settings().replace(online={"max_windows": 60})
+    folded = pushed(drive, 400, OnlineCalibrator(settings)).estimate()
+    assert folded.details.windows_in_memory < folded.details.windows // 4
+    batch = odocal.calibrate(drive).estimate
+    ratio = np.asarray(folded.std) / np.asarray(batch.std)
+    assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
+    assert whole.details.delay_s > 0.01
+    assert folded.details.delay_s == pytest.approx(whole.details.delay_s, abs=0.002)
+
+
+def test_a_small_robots_starting_estimate_is_taken_and_a_non_positive_length_refused() -> None:
+    """theta0 of a small robot (wheels of 0.47 m, a 0.31 m track) is a starting estimate
+    like any other; a circumference or track of zero or less is refused by name."""
+    robot = Parameters(c_e=0.4723, c_d=0.0008, t_r=0.3105, d=0.0)
+    calibrator = OnlineCalibrator(theta0=robot)
+    np.testing.assert_array_equal(calibrator.theta, robot.as_array())
+    for bad in (Parameters(0.0, 0.0, 0.31, 0.0), Parameters(0.47, 0.0, -0.31, 0.0)):
+        with pytest.raises(DataError, match=r"theta0 .* is not a usable starting estimate"):
+            OnlineCalibrator(theta0=bad)
+
+
+def test_a_clusters_evidence_on_a_change_is_that_of_its_moving_windows_alone() -> None:
+    """Windows at a standstill (or disturbed) say nothing about a tyre: the evidence a cluster
+    gives the change detector is the sum over the windows it can use, whatever the others
+    hold."""
+    from odocal.estimators import core
+    from odocal.estimators.error_model import ErrorModel
+    from odocal.online.changes import window_steps
+
+    drive = odocal.simulate(duration_s=240, seed=6, noise="realistic").drive
+    windows, _ = windows_from_drives([drive], odocal.Settings())
+    p = np.zeros(core.P)
+    p[core.THETA] = odocal.TRUE_PARAMETERS.as_array()
+    steps = window_steps(windows, p, 0.0, 0.0, ErrorModel())
+    assert steps.usable.sum() > 20 and (~steps.usable).sum() >= 2    # it stops on the way
+    alone = window_steps(windows.take(steps.usable), p, 0.0, 0.0, ErrorModel())
+    np.testing.assert_allclose(steps.g.sum(axis=0), alone.g.sum(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(steps.h.sum(axis=0), alone.h.sum(axis=0), rtol=1e-12)
+
+
+def test_before_any_sample_nothing_is_identified_in_seconds() -> None:
+    """Asked before the first sample: the datasheet values, nothing free, no distance, and the
+    clock read in seconds (what replay's files and the live node report)."""
+    est = OnlineCalibrator().estimate()
+    assert not est.success and est.free == (False,) * MODEL.layout.size
+    assert est.details.time_unit == "s" and est.details.distance_km == 0.0
+    assert est.details.samples == 0 and est.details.alarms == ()

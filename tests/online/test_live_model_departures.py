@@ -137,3 +137,31 @@ def test_windows_corrected_after_the_fact_equal_windows_of_corrected_samples(
     assert then.size == first.size > 20
     np.testing.assert_allclose(then.moments, first.moments, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(then.measured, first.measured, rtol=1e-12, atol=1e-12)
+
+
+def test_the_live_reference_alignment_is_batchs_chunk_by_chunk() -> None:
+    """A late (or early) wheel stream: the reference put on the wheels' clock as the samples
+    arrive, in chunks that do not meet the gap, gives the samples batch's shifted_reference
+    keeps, once each, with the same poses."""
+    from odocal.checks.departures import shifted_reference
+    from odocal.online.departures import ReferenceAligner
+
+    d = odocal.simulate(duration_s=90, seed=11, noise="realistic").drive
+    cols = d.columns()
+    keep = (d.t < 40.0) | (d.t > 43.0)                            # a 3 s gap: two pieces
+    cut = {k: np.asarray(v)[keep] for k, v in cols.items()}
+    cut["piece"] = (cut["t"] > 43.0).astype(float)
+    drive = odocal.Drive.from_columns(cut, name="gap")
+    rows = np.column_stack([drive.t, drive.n_rl, drive.n_rr, drive.beta, drive.a_y, drive.x,
+                            drive.y, drive.psi])
+    for shift_s in (0.34, -0.21):                 # (between samples: interpolated)
+        aligner = ReferenceAligner(drive.t_s, shift_s)
+        parts = [aligner.add(rows[i:i + 37]) for i in range(0, rows.shape[0], 37)]
+        live = np.vstack([*parts, aligner.flush()])
+        batch = shifted_reference(drive, shift_s)
+        np.testing.assert_allclose(live[:, 0], batch.t, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(live[:, 5], batch.x, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(live[:, 6], batch.y, rtol=0, atol=1e-9)
+        gap = np.remainder(live[:, 7] - batch.psi + np.pi, 2 * np.pi) - np.pi
+        assert np.max(np.abs(gap)) < 1e-9
+        np.testing.assert_array_equal(live[:, 1], batch.n_rl)

@@ -187,6 +187,36 @@ def test_the_files_load_as_a_nodes_global_params_file(tmp_path: Path) -> None:
             assert all(v is not None for v in values.values()), name
 
 
+def test_a_later_export_into_the_same_folder_replaces_the_earlier(tmp_path: Path,
+                                                                   ros: Any) -> None:
+    """The live node's export service (and a fleet report run again) writes each newer
+    estimate into the folder of the last: the files then hold the newer values."""
+    _write_all(_calibrated(), tmp_path)
+    newer = _calibrated(theta=Parameters(c_e=1.948, c_d=-0.0018, t_r=1.531, d=0.0007))
+    _write_all(newer, tmp_path)
+    _check_values(_load(tmp_path, ros), newer)
+
+
+def test_the_odometry_noise_is_the_wheels_error_through_their_own_circumferences() -> None:
+    """The twist covariance written for the EKF: a right wheel reading 0.2 rev/s too much for
+    one second and too little the next, on a noise-free drive, is a speed error of
+    +-0.1 C_rr m/s and a yaw-rate error of +-0.2 C_rr / t_r rad/s: their median absolute
+    deviations, times 1.4826 (the normal's std from the MAD)."""
+    from odocal.output.export import odometry_noise
+
+    sim = odocal.simulate(duration_s=120.0, seed=11, noise="none")
+    d, theta = sim.drive, sim.true_parameters
+    per_second = round(1.0 / d.t_s)
+    sign = np.where((np.arange(d.n_samples) // per_second) % 2 == 0, 1.0, -1.0)
+    drive = odocal.Drive.from_columns({**d.columns(), "n_rr": d.n_rr + 0.2 * sign},
+                                      name="right wheel off")
+    noise = odometry_noise([drive], theta)
+    assert noise is not None and noise.windows == d.n_samples // per_second
+    c_rr = theta.c_e - theta.c_d / 2.0
+    assert noise.speed_std_mps == pytest.approx(1.4826 * 0.1 * c_rr, rel=1e-4)
+    assert noise.yaw_rate_std_radps == pytest.approx(1.4826 * 0.2 * c_rr / theta.t_r, rel=1e-4)
+
+
 HOSTILE = ["drive\nodom0_config: [true]\n.parquet", "a\rb: 1", "x\u2028wheel_radius: 9",
            "x\x85y: 1", "# not a comment", "'quoted\"", "\u00e9t\u00e9 \U0001F697", "k: v"]
 
