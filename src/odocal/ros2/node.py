@@ -40,7 +40,6 @@ import math
 import re
 import signal
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -220,12 +219,6 @@ class CalibrationNode(Node):
         self._good: Estimate | None = None        # the latest estimate that may be published
         self._alarms_seen = 0
         self.updates = 0
-        # the estimate every update_s of data is taken in a thread of its own, so that the
-        # callbacks go on taking messages (and publishing the odometry) meanwhile; no sample
-        # is pushed while it runs (flush keeps them in the topics until it is done), so the
-        # estimates are those replay takes at the same times
-        self._estimator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="odocal-estimate")
-        self._pending: Future[Estimate] | None = None
         # the odometry published per wheel message
         self._theta = self.datasheet.as_array()
         self._a_y = 0.0
@@ -356,12 +349,7 @@ class CalibrationNode(Node):
 
     def flush(self) -> None:
         """Push what has arrived into the calibrator (on the drive's grid); take the estimate
-        every ``[online] update_s`` of data (in the estimate's thread: the samples wait in the
-        topics until it is done), publish an alarm as soon as it is raised."""
-        if self._pending is not None:
-            if not self._pending.done():
-                return
-            self._published(self._take_pending())
+        every ``[online] update_s`` of data, publish an alarm as soon as it is raised."""
         if self._lagging():
             # an input is missing (not heard yet, or silent): nothing is calibrated from the
             # others alone; what arrived within the silence timeout is kept for when it comes
@@ -391,24 +379,12 @@ class CalibrationNode(Node):
             self._publish_alarms()
         assert self._next_update is not None
         if self._last_t >= self._next_update:
-            self._pending = self._estimator.submit(self.calibrator.estimate)
+            self.update()
             self._next_update = self._last_t + self.settings.online.update_s
 
-    def _take_pending(self) -> Estimate:
-        assert self._pending is not None
-        est = self._pending.result()
-        self._pending = None
-        return est
-
     def update(self) -> Estimate:
-        """Take the estimate now and publish it on ``/diagnostics`` (after the one the
-        estimate's thread may be taking)."""
-        if self._pending is not None:
-            self._published(self._take_pending())
-        return self._published(self.calibrator.estimate())
-
-    def _published(self, est: Estimate) -> Estimate:
-        """``est`` taken as the node's estimate and published."""
+        """Take the estimate now and publish it on ``/diagnostics``."""
+        est = self.calibrator.estimate()
         self.estimate = est
         self.updates += 1
         if publishable(est):
