@@ -256,9 +256,6 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     if method not in METHODS:
         raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
     clock = Stopwatch(progress)
-    from odocal.estimators.kernels import compile_in_background
-
-    compile_in_background([method])     # a first run's kernels, beside reading and step 1
     with clock.stage("read"):
         drive_list = load_drives(drives, settings=settings)
     settings = with_stated_datasheet(drive_list, settings)

@@ -325,9 +325,6 @@ def solve_riccati_batch(pb: ProblemBatch, *, max_iterations: int = 50,
                         ) -> RiccatiBatch:
     """:func:`solve_riccati` of every segment of ``pb`` in one compiled call (the same answers:
     each QP is solved alone). ``initial_active``: (N, K, 2) arrays, or None."""
-    from odocal.estimators.kernels import ready
-
-    ready()                     # (a calibration's background compilation of the kernel)
     n, k = pb.A.shape[:2]
     lo = np.ascontiguousarray(pb.lower[..., :2])
     hi = np.ascontiguousarray(pb.upper[..., :2])
