@@ -324,3 +324,17 @@ def test_highway_driving_at_one_speed_fits_no_offset_while_moving(shared_data: P
     result = odocal.calibrate(cut)
     assert Check.MOVING_OFFSET not in checks_of(result)
     assert result.estimate.identified[0] and result.estimate.details.wheel_offset_std == 0.0
+
+
+def test_a_lag_between_two_steps_is_found_between_them_and_one_past_the_search_at_its_end(
+        ) -> None:
+    """best_lag's parabola puts a lag of 2.4 steps at 2.4 (not the grid's 2), and a lag beyond
+    the searched span is reported at the span's end, not past it (from the mutation sample)."""
+    from odocal.checks.departures import best_lag
+
+    t = np.arange(4000) * 0.1
+    a = np.sin(0.7 * t) + 0.5 * np.sin(0.23 * t + 1.0)
+    late = np.sin(0.7 * (t - 0.24)) + 0.5 * np.sin(0.23 * (t - 0.24) + 1.0)
+    assert best_lag([(a, late)], 10, 0.1, 0.5) == pytest.approx(0.24, abs=0.01)
+    far = np.sin(0.7 * (t - 0.9)) + 0.5 * np.sin(0.23 * (t - 0.9) + 1.0)
+    assert best_lag([(a, far)], 5, 0.1, 0.1) == pytest.approx(0.5, abs=1e-12)

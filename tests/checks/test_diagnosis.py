@@ -191,3 +191,15 @@ def test_a_reference_heading_offset_does_not_decide_the_validation(
     assert off.theta.c_d == pytest.approx(plain.theta.c_d, abs=1e-5)
     raw = odocal.calibrate(turned, method="raw")
     assert raw.validation is not None and raw.validation.mean_error_m > off.validation.mean_error_m
+
+
+def test_repaired_samples_are_noted_by_drive_and_column(noisy_drive: SimulatedDrive) -> None:
+    """What an importer repaired (its metadata's ``repaired``) is a note per column (from the
+    mutation sample: a mutant that read no metadata survived)."""
+    d = noisy_drive.drive
+    drive = odocal.Drive.from_columns(d.columns(), name="logged",
+                                      metadata={**d.metadata, "repaired": {"t": 3, "n_rl": 1}})
+    found = [f for f in check_drives([drive], Settings()).findings
+             if f.check is Check.DATA_REPAIRED]
+    assert sorted((f.name, f.value, f.severity) for f in found) == [
+        ("logged:n_rl", 1.0, Severity.NOTE), ("logged:t", 3.0, Severity.NOTE)]

@@ -170,3 +170,15 @@ def test_each_window_knows_the_distance_driven_before_it_across_gaps() -> None:
     assert later.sum() > 10 and (windows.t0 > 103.0).sum() > 10
     np.testing.assert_allclose(windows.distance_m, np.interp(windows.t0, drive.t, driven_m),
                                rtol=1e-9, atol=1e-6)
+
+
+def test_the_windows_of_two_drives_never_share_a_cluster(noisy_drive: SimulatedDrive) -> None:
+    """Each drive's windows are clusters of their own drive (the cluster's number says which:
+    a change is placed in its drive by it; from the mutation sample, where every drive numbered
+    as the first survived)."""
+    d = noisy_drive.drive
+    windows, _ = windows_from_drives([d, d], Settings())
+    half = windows.size // 2
+    first, second = set(windows.cluster[:half].tolist()), set(windows.cluster[half:].tolist())
+    assert first.isdisjoint(second)
+    assert all(c // 10**9 == 0 for c in first) and all(c // 10**9 == 1 for c in second)
