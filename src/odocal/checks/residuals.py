@@ -210,6 +210,13 @@ def moving_offset(measured: FloatArray, residual: FloatArray, cluster: IntArray,
                    std / window_s)
 
 
+def moving_offset_prior_std(moving: Finding, settings: Settings) -> float:
+    """The prior standard deviation (rev/s) of the offset a fit takes on where
+    :func:`moving_offset` found one: the settings' own, or twice the offset found where that is
+    larger (the prior must not pull the offset in)."""
+    return max(settings.inverse.wheel_offset_prior_revps, 2.0 * abs(moving.value))
+
+
 def offset_determined(value: float, value_std: float, prior_std: float, theta: FloatArray,
                       settings: Settings) -> bool:
     """Whether a fit with the wheel-rate offset free (its prior ``prior_std``) determines it:

@@ -45,6 +45,7 @@ from odocal.checks.residuals import (
     find_change,
     front_wheels,
     moving_offset,
+    moving_offset_prior_std,
     offset_determined,
 )
 from odocal.data.drive import Drive
@@ -194,7 +195,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         moving = moving_offset(windows.measured @ CHANNELS.T, found.fit.residual,
                                windows.cluster, settings.inverse.window_s, settings)
         if moving is not None:
-            std = max(settings.inverse.wheel_offset_prior_revps, 2.0 * abs(moving.value))
+            std = moving_offset_prior_std(moving, settings)
             wider = core.Folded.prior(_origin(settings), std)
             refit = core.fit(windows, wider, settings, heading_offset=offset, held=held,
                              distance_only=distance_only)

@@ -43,7 +43,12 @@ from odocal.checks.departures import measure as measure_departures
 from odocal.checks.diagnosis import check_drives
 from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.checks.gate import gate
-from odocal.checks.residuals import front_wheels, moving_offset, offset_determined
+from odocal.checks.residuals import (
+    front_wheels,
+    moving_offset,
+    moving_offset_prior_std,
+    offset_determined,
+)
 from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.estimators import core
@@ -727,7 +732,7 @@ class OnlineCalibrator:
                                windows.cluster, self.settings.inverse.window_s, self.settings)
         if moving is None:
             return found
-        std = max(self.settings.inverse.wheel_offset_prior_revps, 2.0 * abs(moving.value))
+        std = moving_offset_prior_std(moving, self.settings)
         wider = with_offset_std(self._folded, std)
         refit = core.fit(windows, wider, self.settings, heading_offset=self.heading_offset(),
                          held=held_by_checks(self._diagnosis),
