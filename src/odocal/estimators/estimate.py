@@ -386,12 +386,13 @@ def few_clusters_inflation(clusters: int) -> float:
 _TAIL_SIGMAS = 2.0
 
 
-def tail_inflation(clusters: int) -> float:
+def tail_inflation(clusters: float) -> float:
     """Factor for a standard deviation estimated from ``clusters`` independent clusters so
     that an error beyond two of them is as rare as a normal error's (4.6%): Student's t with
-    ``clusters - 1`` degrees of freedom, at that quantile, over 2. 2.27 for 3 clusters, 1.20
-    for 10 (a one-minute drive), 1.04 for 30: a short drive's uncertainty must cover its
-    errors, whose spread is itself estimated from few pieces."""
+    ``clusters - 1`` degrees of freedom (Satterthwaite's: not a whole number where the
+    clusters share the information unevenly), at that quantile, over 2. 2.26 for 3 clusters,
+    1.99 for 3.3, 1.16 for 10 (a one-minute drive), 1.04 for 30: a short drive's uncertainty
+    must cover its errors, whose spread is itself estimated from few pieces."""
     if clusters < 2:
         return float("inf")
     # scipy.special's distribution functions (scipy.stats would take half a second to import,
@@ -399,7 +400,7 @@ def tail_inflation(clusters: int) -> float:
     from scipy.special import ndtr, stdtrit
 
     quantile = float(ndtr(_TAIL_SIGMAS))
-    return float(stdtrit(clusters - 1, quantile) / _TAIL_SIGMAS)
+    return float(stdtrit(clusters - 1.0, quantile) / _TAIL_SIGMAS)
 
 
 #: Relative singular value of the scaled information's root below which it is rank deficient.

@@ -55,6 +55,7 @@ from odocal.estimators.base import (
     prepare,
 )
 from odocal.estimators.covariance import BootstrapResult, bootstrap
+from odocal.estimators.departures import corrected as corrected_drives
 from odocal.estimators.estimate import (
     Estimate,
     Reason,
@@ -320,9 +321,13 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     with clock.stage("validation"):
         judged, val_segs, val_data = drive_list, prep.validation_segments, prep.validation
         changed = [f for f in fitted if f.check is Check.CHANGE_IN_LOG]
-        if changed:
-            # calibrated on the part after a change inside the log: judged there too
-            judged = _after_change(drive_list, changed[0])
+        fitted_departures = dict(getattr(estimate.details, "fitted_departures", {}) or {})
+        if changed or fitted_departures:
+            # judged as it was fitted: the departures the fit found taken out, and on the part
+            # after a change inside the log where it calibrated that part
+            judged = corrected_drives(drive_list, fitted_departures, estimate.theta.as_array())
+            if changed:
+                judged = _after_change(judged, changed[0])
             val_segs = validation_segments(judged, settings.segments)
             val_data = validation_data(judged, val_segs, settings) if len(val_segs) else None
         if val_data is not None:

@@ -392,15 +392,6 @@ def corrections(result: CalibrationResult) -> tuple[Correction, ...]:
             "a_y's clock against the reference's (speed times yaw rate)",
             f"{abs(lag):.2f} s {'late' if lag > 0 else 'early'}" if lag else "in step",
             bool(lag), "a_y moved onto the reference's clock" if lag else "nothing to move"))
-        if np.isfinite(dep.lateral_offset_std):
-            tilt = np.degrees(np.arcsin(np.clip(dep.lateral_offset_mps2 / 9.81, -1.0, 1.0)))
-            out.append(Correction(
-                "a_y's constant offset (an IMU's roll tilt)",
-                f"{dep.lateral_offset_mps2:+.4f} +-{dep.lateral_offset_std:.4f} m/s^2"
-                f" ({abs(tilt):.1f} degrees)",
-                dep.lateral_offset_applied,
-                "subtracted from every sample" if dep.lateral_offset_applied
-                else "not taken out: within four standard deviations of zero"))
         out.append(Correction(
             "the reference heading's error varying with the heading (a compass)",
             f"up to {np.degrees(dep.heading_amplitude_rad):.1f} degrees"
@@ -435,11 +426,23 @@ def corrections(result: CalibrationResult) -> tuple[Correction, ...]:
                               bool(details.heading_offset_rad),
                               "taken out of the heading on every window"
                               if details.heading_offset_rad else "nothing taken out"))
-        if details.wheel_offset_std > 0 or details.wheel_offset_revps:
+        if details.wheel_offset_std > 0 and "offset" not in details.fitted_departures:
             out.append(Correction("the wheel rates' offset while moving (in the fit)",
                                   f"{details.wheel_offset_revps:+.4f} "
                                   f"+-{details.wheel_offset_std:.4f} rev/s", True,
-                                  "estimated with the parameters; its uncertainty is in c_e's"))
+                                  "the encoding's: estimated with the parameters, with half "
+                                  "a step as its prior; its uncertainty is in c_e's"))
+        from odocal.estimators.departures import NAMES, NUISANCES
+
+        for key, number, spread in details.departures:
+            if key == "lag":
+                continue                            # (the wheel stream's clock, above)
+            spec = NUISANCES[NAMES.index(key)]
+            unit = "" if spec.unit == "1" else f" {spec.unit}"
+            out.append(Correction(f"{spec.label} (in the fit)",
+                                  f"{number:+.4g} +-{spread:.2g}{unit}", True,
+                                  "it held out on both halves of the drive: estimated with "
+                                  "the parameters, its uncertainty in theirs"))
     return tuple(out)
 
 
