@@ -268,15 +268,8 @@ def measure(drives: Sequence[Drive], settings: Settings, *,
     """The departures of :mod:`the module docstring <odocal.checks.departures>` on ``drives``;
     ``lateral`` False where a_y carries no lateral acceleration (nothing to measure in it)."""
     lim = settings.checks
-    shift = 0.0
-    if settings.inverse.delay == "estimate":
-        # the reference on the wheels' clock first (the fit scans only lag_scan_s around it)
-        found = wheel_lag_s(drives, np.asarray(settings.identify.theta0, dtype=np.float64),
-                            settings)
-        if found is not None and 0.5 * settings.inverse.lag_scan_s < abs(found) \
-                <= settings.inverse.max_delay_s:
-            shift = found
-            drives = [shifted_reference(d, shift) for d in drives]
+    # the reference on the wheels' clock first (the fit scans only lag_scan_s around it)
+    drives, shift = _on_wheels_clock(drives, settings)
     lag = (lateral_lag_s(drives, settings) or 0.0) if lateral else 0.0
     if abs(lag) <= 0.5 * drives[0].t_s:
         lag = 0.0                          # within half a step: nothing the data can tell
@@ -288,6 +281,21 @@ def measure(drives: Sequence[Drive], settings: Settings, *,
                       heading_amplitude_rad=amplitude,
                       standstill_offset_revps=standstill_offset(drives, settings),
                       wheel_step_revps=wheel_step(drives, settings))
+
+
+def _on_wheels_clock(drives: Sequence[Drive], settings: Settings
+                     ) -> tuple[list[Drive], float]:
+    """The drives with the reference on the wheels' clock, where the wheels' yaw rate lags it
+    by more than half the fit's own lag scan (up to ``[inverse] max_delay_s``), and the shift
+    (s; 0 where none is applied)."""
+    if settings.inverse.delay != "estimate":
+        return list(drives), 0.0
+    found = wheel_lag_s(drives, np.asarray(settings.identify.theta0, dtype=np.float64),
+                        settings)
+    if found is None or not 0.5 * settings.inverse.lag_scan_s < abs(found) \
+            <= settings.inverse.max_delay_s:
+        return list(drives), 0.0
+    return [shifted_reference(d, found) for d in drives], found
 
 
 def shifted_reference(drive: Drive, lag_s: float) -> Drive:
@@ -357,8 +365,16 @@ def findings(found: Departures, settings: Settings) -> list[Finding]:
 
 def lateral_delay(drives: Sequence[Drive], settings: Settings) -> list[Finding]:
     """a_y's lag behind the reference, named where it exceeds ``lateral_delay_named_s`` (value:
-    the lag, s; positive: a_y late)."""
+    the lag, s; positive: a_y late), and a_y is off the wheels' clock as well: a_y in step
+    with the wheels, with the reference late, is the reference's lag (the fit names it), not
+    a_y's."""
     lag = lateral_lag_s(drives, settings)
-    if lag is not None and abs(lag) > settings.checks.lateral_delay_named_s:
-        return [Finding(Check.LATERAL_DELAY, Severity.NOTE, lag, 0.0, "a_y")]
-    return []
+    limit = settings.checks.lateral_delay_named_s
+    if lag is None or abs(lag) <= limit:
+        return []
+    aligned, shift = _on_wheels_clock(drives, settings)
+    if shift:
+        behind_wheels = lateral_lag_s(aligned, settings)
+        if behind_wheels is not None and abs(behind_wheels) <= limit:
+            return []
+    return [Finding(Check.LATERAL_DELAY, Severity.NOTE, lag, 0.0, "a_y")]

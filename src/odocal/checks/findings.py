@@ -50,6 +50,7 @@ class Check(enum.Enum):
     LATERAL_GAIN = "lateral-gain"
     SIDESLIP = "sideslip"
     DRIFT = "drift"
+    DRIVE_DEPARTS = "drive-departs"
 
 
 class Severity(enum.IntEnum):

@@ -113,6 +113,10 @@ _DIFFERENTIAL = np.array(LAYOUT.indices(LAYOUT.differential))
 #: Every other held parameter is uncertain by its datasheet uncertainty, which widens the free
 #: ones as far as the data cannot tell them apart (:func:`covariance`).
 _KNOWN = (Reason.HELD,)
+#: The least spread the reference channels' residuals are given (a millimetre of sideways
+#: motion, a thousandth of a m/s of a_y's sum per window): a simulated a_y that is exactly the
+#: reference's ``v w`` would otherwise weigh infinitely.
+_REFERENCE_FLOOR = np.array([1e-3, 1e-3])
 #: Most change locations a test tries (cluster boundaries, evenly spread).
 _CHANGE_LOCATIONS = 60
 
@@ -592,7 +596,8 @@ class CoreFit:
     entered : the departures fitted (:mod:`.departures`), in the order they entered
     statistics : each departure's last score test (entered or not)
     change : the first window after a change inside the log (-1: none)
-    view : the view of the final fit
+    before_verdict : the fit of every parameter the data inform, before the identifiability
+        verdict held any (what the drives' agreement is judged on), and which were free
     """
 
     fit: Fit
@@ -605,6 +610,7 @@ class CoreFit:
     entered: tuple[str, ...] = ()
     statistics: tuple[dep.Statistic, ...] = ()
     change: int = -1
+    before_verdict: tuple[Fit, BoolArray] | None = None
 
     @property
     def theta(self) -> FloatArray:
@@ -682,7 +688,7 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
               and (setup.lateral or b[0] not in dep.LATERAL)
               and (setup.across or b[0] not in dep.ACROSS)
               and not (distance_only and b[0] in ("offset_left", "offset_right", "lag",
-                                                  "spread"))
+                                                  "spread", "arm_y", "curve"))
               and not any(n in setup.stated for n in b)]
     channels = np.array([1.0, 0.0 if distance_only else 1.0])
     unseen_d = LAYOUT.load in held and held[LAYOUT.load].reason is Reason.NO_LATERAL
@@ -725,6 +731,8 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
         if best.block[0] == "change_e":
             change = best.where
     with_nuisance = nuisance_free()
+    before_verdict = (state.fit, free_of(free, entered=[n for n in entered if n != "lag"])
+                      | (with_nuisance & (np.arange(P) == OFFSET)))
     if folded.clusters:
         # live, with windows folded: their sums stand at the shifts of their time, so the lag
         # is the windows' shift (found on the scan of every window, folded or not), not a
@@ -737,7 +745,45 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
                                   std=float(uncertainty.p_std[LAG]))
     return CoreFit(fit=state.fit, free=free, held=held, uncertainty=uncertainty, lag=lag,
                    model=state.model, heading_offset=heading_offset, entered=tuple(entered),
-                   statistics=statistics, change=change)
+                   statistics=statistics, change=change, before_verdict=before_verdict)
+
+
+#: A drive departs from the others where its windows' evidence against their fit is beyond
+#: this chance (chi-square: one drive in a thousand that agrees is left out).
+_DEPARTING = 1e-3
+
+
+def departing_drive(found: CoreFit, windows: WindowSet) -> tuple[int, float, float] | None:
+    """The drive whose windows depart most from the others' fit, where one does (with two
+    drives or more): its index (``cluster // 10**9``), its statistic and the limit. The
+    statistic is how far the drive moves the fit from the others', in the others' own
+    information (``g_d' (H - H_d)^-1 g_d``, the drive's gradient ``g_d`` at the fit of all,
+    every parameter the data inform free, before the identifiability verdict):
+    chi-square with as many degrees of freedom as parameters fitted where the drive agrees
+    with the others. A scene that stands still but for one tight crawl, or a log of another
+    tyre, is named and left out, not allowed to spoil what the others identify."""
+    from scipy.special import chdtri
+
+    drive = windows.cluster // 10**9
+    labels = np.unique(drive)
+    if labels.size < 2 or found.before_verdict is None:
+        return None
+    fit, free = found.before_verdict
+    cols = np.flatnonzero(free)
+    if not cols.size:
+        return None
+    rows, res = fit.white[..., 1:][..., cols], fit.white[..., 0]
+    h = np.einsum("wck,wcl->kl", rows, rows)
+    limit = float(chdtri(cols.size, _DEPARTING))
+    worst: tuple[int, float, float] | None = None
+    for label in labels:
+        mine = drive == label
+        h_d = np.einsum("wck,wcl->kl", rows[mine], rows[mine])
+        g_d = np.einsum("wck,wc->k", rows[mine], res[mine])
+        statistic = float(g_d @ np.linalg.pinv(h - h_d) @ g_d)
+        if statistic > limit and (worst is None or statistic > worst[1]):
+            worst = (int(label), statistic, limit)
+    return worst
 
 
 def _acceptable(state: _State, settings: Settings) -> bool:
@@ -857,9 +903,11 @@ class _Context:
             halves.append((jj.T @ jj + h_k, jj.T @ rr + b_k - h_k @ p))
         rest_h = folded.h - folded.half_h.sum(axis=0)         # (a prior: in both trainings)
         common = (rest_h, folded.b - folded.half_b.sum(axis=0) - rest_h @ p)
-        n = float(self.windows.size + self.folded.windows)
+        white = current.white
         out = []
         for block in blocks:
+            index = [dep.at(name) for name in block] if block[0] != "change_e" else [_E, _D]
+            n = _informing(white, index) + float(folded.windows)
             if block[0] == "lag":
                 timed = _lag_test(scan_lag(self.windows, p[THETA], self.heading_offset,
                                            state.model, folded, p))
@@ -872,16 +920,26 @@ class _Context:
                     out.append(dataclasses.replace(found, penalty=dep.penalty(
                         2, n, _change_locations(self.windows, self.settings))))
                 continue
-            gains = dep.held_out(halves, free_p, [dep.at(name) for name in block], common)
+            gains = dep.held_out(halves, free_p, index, common)
             out.append(dep.Statistic(block, gains, penalty=dep.penalty(len(block), n)))
         return tuple(out)
 
 
 def _halves(windows: WindowSet) -> IntArray:
-    """(W,): each window's half of the clusters (alternate ones, in time: 0 or 1)."""
-    _, first, index = np.unique(windows.cluster, return_index=True, return_inverse=True)
-    rank = np.argsort(np.argsort(first))
-    return np.asarray(rank[index] % 2, dtype=np.int64)
+    """(W,): each window's half of the clusters: alternate ones in time, counted within each
+    drive (a drive added to a calibration does not move the others' windows between halves;
+    the lag's scan splits them so too)."""
+    return np.asarray(windows.cluster % 2, dtype=np.int64)
+
+
+def _informing(white: FloatArray, index: Sequence[int]) -> float:
+    """The effective number of windows that inform the parameters ``index`` of p: ``(sum
+    i_w)^2 / sum i_w^2`` with ``i_w`` a window's information in them (its rows' squared
+    columns). A drive that stands still or drives straight adds windows that say nothing of a
+    lag or a lever arm: it does not raise their penalty."""
+    info = np.sum(white[..., [1 + i for i in index]] ** 2, axis=(1, 2))
+    squares = float(np.sum(info ** 2))
+    return float(np.sum(info)) ** 2 / squares if squares > 0 else 0.0
 
 
 def _stated_mask(setup: Setup) -> BoolArray:
@@ -1019,7 +1077,7 @@ def refit_reference(model: ErrorModel, current: Fit, folded: Folded) -> ErrorMod
         sums = folded.reference + reference_sums(current.across, model)
         with np.errstate(divide="ignore", invalid="ignore"):
             spread = np.sqrt(np.where(sums[:, 1] > 0, sums[:, 0] / sums[:, 1], np.inf))
-        spread = np.where(spread > 0, spread, np.inf)
+        spread = np.where(spread > 0, np.maximum(spread, _REFERENCE_FLOOR), np.inf)
         model = dataclasses.replace(model, reference=spread)
     return model
 

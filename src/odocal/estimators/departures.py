@@ -36,8 +36,9 @@ name                what it does to a window                                    
 One rule decides which enter (:func:`held_out`): a departure enters where it *holds out*.
 The clusters of windows are split in two halves (alternate ones, in time); fitted on either
 half with the departure and without it, the fit with it must lower the other half's cost more,
-on both halves, and by more than Schwarz's penalty in all (``k ln n`` for ``k`` parameters and
-``n`` windows, and the log of the times tried for a change: the cost is a sum of squares of
+on either half by more than half of Schwarz's penalty (``k ln n`` for ``k`` parameters and
+``n`` the effective number of windows that inform them, and the log of the times tried for a
+change: the cost is a sum of squares of
 standardised residuals, so a departure that is not there gains about nothing, and one of twelve
 tried passes by chance on few windows otherwise). Of those that hold out, the one that lowers
 the held-out cost most enters first, the fit is redone with it, and the others are tested
@@ -45,9 +46,9 @@ again. What enters is estimated jointly with theta, and its uncertainty is in th
 covariance (the joint information's inverse, sandwiched over clusters); what does not enter
 moves nothing. A change's time, and a lag (nonlinear: found on a grid), are chosen on the half
 they are fitted on. A fit a departure spoils (not finite, a departure beyond any vehicle's,
-theta beyond any vehicle) leaves it out. The encoding's offset is the exception a log's format states: where
-the wheel rates lie on an encoding's grid, ``offset`` is in the fit with a prior of half a
-step from the start.
+theta beyond any vehicle) leaves it out. The encoding's offset is the exception a log's format
+states: where the wheel rates lie on an encoding's grid, ``offset`` is in the fit with a prior
+of half a step from the start.
 """
 
 from __future__ import annotations
@@ -167,7 +168,7 @@ class Statistic:
 
     @property
     def holds(self) -> bool:
-        return min(self.gains) > 0.0 and self.value > self.penalty
+        return min(self.gains) > 0.5 * self.penalty
 
     @property
     def value(self) -> float:

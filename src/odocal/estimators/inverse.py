@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.checks.departures import wheel_lag_s, wheel_step
-from odocal.checks.findings import Finding
+from odocal.checks.findings import Check, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.data.segments import common_sampling_time
 from odocal.estimators import core, departures
@@ -200,18 +200,72 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         progress("inverse: fit", 1, 2)
     prior = core.Folded.prior(_origin(settings),
                               core.offset_prior_std(settings, wheel_step(drives, settings)))
-    setup = fit_setup(windows, settings, held=held)
-    found = core.fit(windows, prior, settings, heading_offset=offset, held=held,
-                     distance_only=distance_only, setup=setup)
+    found, windows, departing = _fit_agreeing(windows, prior, settings, drives,
+                                              heading_offset=offset, held=held,
+                                              distance_only=distance_only)
     if progress:
         progress("inverse: fit", 2, 2)
     estimate = _estimate(found, windows, settings, started, method="inverse",
                          reference_shift_s=_shifted(drives))
-    findings = _findings(found, windows, drives, reference_shift_s=_shifted(drives))
+    findings = [*departing,
+                *_findings(found, windows, drives, reference_shift_s=_shifted(drives))]
     if findings:
         estimate = dataclasses.replace(estimate, details=dataclasses.replace(
             estimate.details, findings=tuple(findings)))
     return estimate
+
+
+#: Most drives whose leaving out is tried (:func:`_fit_agreeing`).
+_MAX_TRIED = 12
+
+
+def _fit_agreeing(windows: WindowSet, prior: core.Folded, settings: Settings,
+                  drives: Sequence[Drive], *, heading_offset: float,
+                  held: Mapping[str, NotIdentified] | None, distance_only: bool,
+                  ) -> tuple[core.CoreFit, WindowSet, list[Finding]]:
+    """The one fit of the drives that agree. A drive departs where its windows depart from
+    the others' fit (:func:`odocal.estimators.core.departing_drive`), or where the others
+    without it identify a parameter they do not with it (it takes knowledge away: a scene that
+    stands still but for one tight crawl, a log of another tyre): it is named and left out,
+    and the rest fitted again, while two drives or more are left. More data never makes the
+    calibration know less."""
+    named: list[Finding] = []
+
+    def one(win: WindowSet) -> core.CoreFit:
+        return core.fit(win, prior, settings, heading_offset=heading_offset, held=held,
+                        distance_only=distance_only, setup=fit_setup(win, settings, held))
+
+    found = one(windows)
+    while True:
+        labels = np.unique(windows.cluster // 10**9)
+        if labels.size < 2:
+            return found, windows, named
+        departing = core.departing_drive(found, windows)
+        choice: tuple[int, float, float, core.CoreFit | None] | None = None
+        if departing is not None:
+            choice = (*departing, None)
+        elif not found.free.all() and labels.size <= _MAX_TRIED:
+            knows = set(np.flatnonzero(found.free))
+            for label in labels:
+                rest = windows.take(windows.cluster // 10**9 != label)
+                if rest.size < MIN_WINDOWS:
+                    continue
+                without = one(rest)
+                gained = set(np.flatnonzero(without.free)) - knows
+                if gained and knows <= set(np.flatnonzero(without.free)) \
+                        and (choice is None or len(gained) > choice[1]):
+                    choice = (int(label), float(len(gained)), 0.0, without)
+        if choice is None:
+            return found, windows, named
+        label, statistic, limit, without = choice
+        kept = windows.take(windows.cluster // 10**9 != label)
+        if kept.size < MIN_WINDOWS:
+            return found, windows, named
+        log.warning("%s departs from the other drives: left out", drives[label].name)
+        named.append(Finding(Check.DRIVE_DEPARTS, Severity.NOTE, statistic, limit,
+                             drives[label].name))
+        windows = kept
+        found = one(windows) if without is None else without
 
 
 def fit_setup(windows: WindowSet, settings: Settings,

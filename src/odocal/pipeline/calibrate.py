@@ -322,10 +322,13 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         judged, val_segs, val_data = drive_list, prep.validation_segments, prep.validation
         changed = [f for f in fitted if f.check is Check.CHANGE_IN_LOG]
         fitted_departures = dict(getattr(estimate.details, "fitted_departures", {}) or {})
+        if fitted_departures:
+            # judged (and exported) as it was fitted: the departures the fit found taken out
+            drive_list = corrected_drives(drive_list, fitted_departures,
+                                          estimate.theta.as_array())
         if changed or fitted_departures:
-            # judged as it was fitted: the departures the fit found taken out, and on the part
-            # after a change inside the log where it calibrated that part
-            judged = corrected_drives(drive_list, fitted_departures, estimate.theta.as_array())
+            # and on the part after a change inside the log where it calibrated that part
+            judged = drive_list
             if changed:
                 judged = _after_change(judged, changed[0])
             val_segs = validation_segments(judged, settings.segments)
