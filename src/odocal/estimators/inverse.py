@@ -250,14 +250,14 @@ def _fit_agreeing(windows: WindowSet, prior: core.Folded, settings: Settings,
                 rest = windows.take(windows.cluster // 10**9 != label)
                 if rest.size < MIN_WINDOWS:
                     continue
-                without = one(rest)
-                gained = set(np.flatnonzero(without.free)) - knows
-                if gained and knows <= set(np.flatnonzero(without.free)) \
+                others = one(rest)
+                gained = set(np.flatnonzero(others.free)) - knows
+                if gained and knows <= set(np.flatnonzero(others.free)) \
                         and (choice is None or len(gained) > choice[1]):
-                    choice = (int(label), float(len(gained)), 0.0, without)
+                    choice = (int(label), float(len(gained)), 0.0, others)
         if choice is None:
             return found, windows, named
-        label, statistic, limit, without = choice
+        label, statistic, limit, refit = choice
         kept = windows.take(windows.cluster // 10**9 != label)
         if kept.size < MIN_WINDOWS:
             return found, windows, named
@@ -265,7 +265,7 @@ def _fit_agreeing(windows: WindowSet, prior: core.Folded, settings: Settings,
         named.append(Finding(Check.DRIVE_DEPARTS, Severity.NOTE, statistic, limit,
                              drives[label].name))
         windows = kept
-        found = one(windows) if without is None else without
+        found = one(windows) if refit is None else refit
 
 
 def fit_setup(windows: WindowSet, settings: Settings,
