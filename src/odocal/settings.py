@@ -635,7 +635,11 @@ class ChecksSettings:
     # the one fit's departures (the default method)
     change_min_side_clusters: int = 4
     """A change inside the log is sought only with at least this many clusters on either side
-    (:mod:`odocal.estimators.departures`)."""
+    (:mod:`odocal.estimators.departures`) ..."""
+    change_min: float = 0.003
+    """... and fitted only where it is at least this share of c_e (in c_e, or in c_d: a tyre's
+    pressure or a tyre change; smaller steps between a log's parts are what a reference's slow
+    errors and the tyres' warming make of them)."""
 
     def __post_init__(self) -> None:
         s = "checks"
@@ -645,7 +649,7 @@ class ChecksSettings:
                     "vehicles_max_ratio_gap", "vehicles_sigmas", "lag_min_piece_s",
                     "wheel_lag_search_s", "lateral_lag_search_s", "lateral_delay_named_s",
                     "heading_harmonic_sigmas", "standstill_speed_mps",
-                    "standstill_min_offset_revps", "encoding_max_step_revps")
+                    "standstill_min_offset_revps", "encoding_max_step_revps", "change_min")
         for key in positive:
             _check(0 < getattr(self, key) < float("inf"), s, key, getattr(self, key),
                    "a positive finite number")

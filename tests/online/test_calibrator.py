@@ -264,7 +264,7 @@ def test_folding_memory_keeps_the_uncertainty_and_the_lag() -> None:
     ratio = np.asarray(folded.std) / np.asarray(batch.std)
     assert np.all(ratio > 0.5) and np.all(ratio[1:] < 2.0), ratio
     assert whole.details.delay_s > 0.01
-    assert folded.details.delay_s == pytest.approx(whole.details.delay_s, abs=0.002)
+    assert folded.details.delay_s == pytest.approx(whole.details.delay_s, abs=0.004)
 
 
 def test_a_small_robots_starting_estimate_is_taken_and_a_non_positive_length_refused() -> None:

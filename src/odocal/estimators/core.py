@@ -788,12 +788,16 @@ def departing_drive(found: CoreFit, windows: WindowSet) -> tuple[int, float, flo
 
 def _acceptable(state: _State, settings: Settings) -> bool:
     """Whether a fit with a departure just entered can stand: finite, every departure within
-    its bound, theta within any vehicle's range."""
+    its bound (a change at least ``[checks] change_min`` of c_e), theta within any vehicle's
+    range."""
     from odocal.checks.gate import gate
 
     p = state.fit.p
     if not np.all(np.isfinite(p)) or np.any(np.abs(p[LAYOUT.size:]) > dep.BOUNDS):
         return False
+    if np.any(p[CHANGE]) and np.all(np.abs(p[CHANGE]) < settings.checks.change_min
+                                    * abs(float(p[_E]))):
+        return False                   # a step that small is no change of the wheels
     return not gate(p[THETA], settings, error_m=None, datasheet_error_m=None, segment_m=None)
 
 
@@ -971,6 +975,13 @@ def _lag_test(scan: LagScan) -> dep.Statistic:
     return dep.Statistic(("lag",), (gains[0], gains[1]))
 
 
+def change_sought(windows: WindowSet, settings: Settings) -> bool:
+    """Whether the windows hold enough clusters for a change inside the log to be sought:
+    ``[checks] change_min_side_clusters`` either side of one at least."""
+    side = settings.checks.change_min_side_clusters
+    return bool(np.unique(windows.cluster).size >= 2 * side + 2)
+
+
 def _change_locations(windows: WindowSet, settings: Settings) -> int:
     """How many times a change is sought at (:func:`_change_test`)."""
     clusters = np.unique(windows.cluster).size
@@ -986,11 +997,11 @@ def _change_test(current: Fit, windows: WindowSet, half: IntArray, halves: dep.H
     statistic, over cluster boundaries at least ``[checks] change_min_side_clusters``
     clusters from either end), and the change fitted there must lower the other half's cost
     (:func:`.departures.held_out`). The time reported is the one of the half that gains more."""
+    if not change_sought(windows, settings):
+        return None
     _, first = np.unique(windows.cluster, return_index=True)
     order = np.sort(first)
     side = settings.checks.change_min_side_clusters
-    if order.size < 2 * side + 2:
-        return None
     candidates = order[side:order.size - side + 1]
     if candidates.size > _CHANGE_LOCATIONS:
         candidates = candidates[np.linspace(0, candidates.size - 1,

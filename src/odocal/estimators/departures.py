@@ -93,7 +93,7 @@ NUISANCES: tuple[Nuisance, ...] = (
     Nuisance("lateral_offset", "m/s^2", "a_y's offset", 5.0),
     Nuisance("lateral_scale", "1", "a_y's scale less one", 0.9),
     Nuisance("slip", "rad/(m/s^2)", "the rear axle's sideslip per m/s^2", 0.1),
-    Nuisance("drift", "1/h", "c_e's relative change per hour", 0.5),
+    Nuisance("drift", "1/h", "c_e's relative change per hour", 0.015),
     Nuisance("change_e", "m", "c_e before the change less after it", 1.0),
     Nuisance("change_d", "m", "c_d before the change less after it", 1.0),
 )
@@ -168,7 +168,7 @@ class Statistic:
 
     @property
     def holds(self) -> bool:
-        return min(self.gains) > 0.5 * self.penalty
+        return min(self.gains) > self.penalty
 
     @property
     def value(self) -> float:

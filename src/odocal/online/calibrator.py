@@ -676,8 +676,6 @@ class OnlineCalibrator:
             p = found.fit.p.copy()
             p[core.LAG] = 0.0                      # (the lag is the view's shift)
             self._take_p(p)
-        if found.entered != self._entered:
-            self._changes.reset()      # a model fitted anew is not a change of the wheels
         self._model, self._lag, self._entered = found.model, found.lag, found.entered
         self._since_fit = 0
         return found

@@ -9,6 +9,7 @@ had to what would bring the standard deviation to the identifiability limit.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -321,6 +322,55 @@ def finding_text(finding: Finding, settings: Settings) -> str:
     return _reference_and_sensor_text(finding)
 
 
+def _departure_text(finding: Finding) -> str:
+    """A departure the one fit took in (:mod:`odocal.estimators.departures`), in plain words;
+    empty for any other finding."""
+    c, v, ref = finding.check, finding.value, finding.reference
+    fitted = "fitted with the parameters, its uncertainty in theirs"
+    if c is Check.REFERENCE_LAG:
+        way = "after" if v > 0 else "before"
+        return (f"the reference reports each pose {abs(v):.3f} s (+-{ref:.3f}) {way} the wheels "
+                f"turned for it (a localisation stack's latency, or two loggers' clocks): "
+                f"{fitted}")
+    if c is Check.WHEEL_SMOOTHING:
+        return (f"the wheel rates are smoothed over about {v:.2f} s (+-{ref:.2f}) more than the "
+                f"reference (a CAN gateway's filter, ticks counted over a window): {fitted}")
+    if c is Check.WHEEL_SKEW:
+        return (f"the {finding.name} wheel alone reads {v:+.4f} rev/s (+-{ref:.4f}) more than "
+                f"its motion gives, at every speed (its sensor's offset): {fitted}")
+    if c is Check.REFERENCE_ARM:
+        return (f"the reference point is {v:+.2f} m (+-{ref:.2f}) {finding.name} of the rear "
+                "axle's midpoint (a GNSS antenna, an INS, a camera): fitted, and taken out of "
+                "validation and the exported trajectories; state it with [reference] offset_m")
+    if c is Check.CURVE_EXCESS:
+        if v > 0:
+            return (f"the wheels travel more than the rear axle in bends, as steered wheels "
+                    f"{math.sqrt(2.0 * v):.1f} m ahead of it do (front wheels mapped as the "
+                    "rear ones? or a reference smoothed through bends): fitted, so the "
+                    "parameters are those of the wheels given; map the rear wheels for the "
+                    "rear axle's")
+        return (f"the wheels travel less than the reference in bends, as a reference "
+                f"{math.sqrt(-2.0 * v):.1f} m ahead of the axle whose heading is its course "
+                f"does (or tyres that slip in tight bends): {fitted}")
+    if c is Check.LATERAL_GAIN:
+        return (f"a_y reads {1.0 + v:.3f} (+-{ref:.3f}) times the reference's lateral "
+                "acceleration (an accelerometer's scale, or a body that rolls in bends): "
+                f"{fitted}; d is per m/s^2 of the true lateral acceleration")
+    if c is Check.SIDESLIP:
+        return (f"the rear axle slides {np.degrees(v):+.2f} degrees (+-{np.degrees(ref):.2f}) "
+                f"sideways per m/s^2 of lateral acceleration: {fitted}")
+    if c is Check.DRIFT:
+        return (f"c_e grows by {v:+.2%} (+-{ref:.2%}) of itself per hour of the log (tyres "
+                f"warming?): {fitted}; c_e is reported at the end of each drive")
+    if c is Check.DRIVE_DEPARTS:
+        why = (f"its windows depart from the others' fit ({v:.1f} against a limit of "
+               f"{ref:.1f})" if ref > 0 else
+               "without it the others identify more than with it")
+        return (f"'{finding.name}' is left out: {why}; calibrate it on its own to see why "
+                "(another tyre, a crawl in a tight turn, a slip)")
+    return ""
+
+
 def _reference_and_sensor_text(finding: Finding) -> str:
     """The checks of the reference pose and of single sensors, in plain words."""
     c, v, ref = finding.check, finding.value, finding.reference
@@ -341,20 +391,19 @@ def _reference_and_sensor_text(finding: Finding) -> str:
     if c is Check.LATERAL_OFFSET:
         tilt = np.degrees(np.arcsin(np.clip(v / 9.81, -1.0, 1.0)))
         return (f"a_y reads {v:+.2f} m/s^2 (+-{ref:.2f}) more than the reference's turning "
-                f"gives, on every moving second (an IMU rolled by {abs(tilt):.1f} degrees?): "
-                "taken out before the fit")
+                f"gives (an IMU rolled by {abs(tilt):.1f} degrees?): fitted with the "
+                "parameters, d acts on the lateral acceleration without it")
+    departure = _departure_text(finding)
+    if departure:
+        return departure
     if c is Check.CHANGE_IN_LOG:
         parameter, _, where = finding.name.partition("|")
         what = (f"c_e changed by {v:+.2%}" if parameter == "c_e" else
                 f"the wheels' circumference difference c_d changed by {v:+.2%} of c_e (one "
                 "tyre's pressure?)")
         return (f"{what} at t = {ref:.0f} s of {where}: the calibration is of the part after "
-                "the change (the vehicle as it is now); calibrate the part before on its own if "
-                "you need it")
-    if c is Check.FRONT_WHEELS:
-        return (f"the wheel speeds turn as wheels {v:.1f} m (+-{ref:.1f}) ahead of the rear "
-                "axle do in bends: front wheels mapped as the rear ones? odocal's model is the "
-                "rear axle's; map the rear wheels (nothing is calibrated from these)")
+                "the change (the vehicle as it is now; the part before still informs t_r and "
+                "d); calibrate the part before on its own if you need it")
     if c is Check.WHEEL_OFFSET:
         return (f"the wheels read {v:+.3f} and {ref:+.3f} rev/s (rear left, right) while the "
                 "reference stands still: an offset of the speed signal, taken out of every "

@@ -231,15 +231,13 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
 
 
 #: The notes of departures measured and taken out before the fit (the checks' findings).
-TAKEN_OUT = (Check.LATERAL_DELAY, Check.LATERAL_OFFSET, Check.HEADING_ERROR, Check.WHEEL_OFFSET)
+TAKEN_OUT = (Check.LATERAL_DELAY, Check.HEADING_ERROR, Check.WHEEL_OFFSET)
 
 
 def _taken_out(f: Finding) -> str:
     """A departure taken out before the fit, in a few words (the verdict line)."""
     if f.check is Check.LATERAL_DELAY:
         return f"a_y's {'lag' if f.value > 0 else 'lead'} of {abs(f.value):.2f} s"
-    if f.check is Check.LATERAL_OFFSET:
-        return f"a_y's offset of {f.value:+.2f} m/s^2"
     if f.check is Check.HEADING_ERROR:
         return (f"a heading error varying with the heading (up to "
                 f"{np.degrees(f.value):.1f} degrees)")

@@ -410,8 +410,9 @@ def _coverage_text(result: CalibrationResult, data: ReportData) -> str:
                 f"{from_drives}: {rule}. They cover {f.fitted_s() / 60:.1f} min of the "
                 f"{logged}.")
     if f.after_change_s is not None:
-        text += (" The log changes inside (see the checks): only the part after the change "
-                 "was fitted and validated.")
+        text += (" The log changes inside (see the checks): the parameters are those after "
+                 "the change (the part before it has c_e and c_d of its own, and informs the "
+                 "rest), and only the part after it was validated.")
     return f"<p id='fitted-text'>{text} {bends}{short}</p>"
 
 
