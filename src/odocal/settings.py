@@ -580,9 +580,9 @@ class ChecksSettings:
     them."""
 
     # the streams' clocks
-    lag_min_piece_s: float = 20.0
+    lag_min_piece_s: float = 10.0
     """Pieces at least this long (s) are cross-correlated for a stream's clock (the wheels' yaw
-    rate, a_y) against the reference's."""
+    rate, a_y) against the reference's (a 20 s scene of a public dataset holds one)."""
     lag_min_correlation: float = 0.5
     """A lag is taken only where the correlation at it reaches this (a signal that hardly
     varies, a circle at one rate, has no timing to find)."""

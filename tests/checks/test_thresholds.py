@@ -582,7 +582,7 @@ CASES = [
     Case(C, "lag_min_piece_s",
          lambda n, s: departures.lateral_lag_s(
              white(a_y_lag_s=0.5, seconds_=(n - 1) / RATE), s) is not None,
-         799, 800, "above", 19.9),
+         399, 400, "above", 9.9),
     Case(C, "lag_min_correlation",
          lambda x, s: departures.lateral_lag_s(white(correlation=x), s) is not None,
          0.49, 0.51, "above", 0.48),

@@ -76,12 +76,14 @@ from odocal.estimators.windows import (
     AT_ACCEL,
     AT_AREF,
     AT_BETA_TURN,
+    AT_COS_TURN,
     AT_CURVE,
     AT_LAT,
     AT_MOVING,
+    AT_TURN2,
     WindowSet,
 )
-from odocal.model.vehicle import MODEL, SERIES
+from odocal.model.vehicle import MODEL
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
@@ -309,12 +311,15 @@ def wheels(p: FloatArray, view: View, *, smooth: bool, unseen_d: bool = False,
     (W, 2, P), the departures included (:mod:`.departures`)."""
     theta = p[THETA]
     base = view.at
-    matrix, by_offset, by_scale = dep.lateral_transform(float(p[LAT_OFFSET]),
-                                                        float(p[LAT_SCALE]))
-    moments = dep.apply_lateral(base, matrix)
-    # the axle's travel from the reference point's: ds + arm_y dpsi - arm_x beta dpsi, and the
-    # wheels' excess in bends (``curve``)
-    turn, beta_turn, curve = base[:, SERIES], base[:, AT_BETA_TURN], base[:, AT_CURVE]
+    # the load transfer acts on a_y as logged (the specific force the tyres carry: a road's
+    # crossfall is in it as much as the turning); a_y's offset and scale against the
+    # reference's v w are the a_y channel's alone (:func:`reference_rows`), and what they would
+    # make of c_d and d were they the sensor's is in their uncertainty (:func:`_lateral_doubt`)
+    moments = np.array(base, dtype=np.float64, copy=True)
+    # the axle's travel from the reference point's (the chord the point turns through, along
+    # the axle's direction of travel: ds + arm_y 2 sin(dpsi/2) cos(beta) - arm_x ... sin(beta)),
+    # and the wheels' excess in bends (``curve``)
+    turn, beta_turn, curve = base[:, AT_COS_TURN], base[:, AT_BETA_TURN], base[:, AT_CURVE]
     moments[:, 0] += p[ARM_Y] * turn - p[ARM_X] * beta_turn + p[CURVE] * curve
     pred, jac_theta = MODEL.predict(theta, moments)
     if unseen_d:
@@ -340,7 +345,7 @@ def wheels(p: FloatArray, view: View, *, smooth: bool, unseen_d: bool = False,
         pred += p[DRIFT] * drift_col
     spread = np.zeros_like(pred)
     if smooth:
-        spread, _ = MODEL.predict(theta, dep.apply_lateral(view.second, matrix))
+        spread, _ = MODEL.predict(theta, view.second)
         pred += p[KAPPA] * spread
     if not jacobian:
         return pred, jac
@@ -349,8 +354,6 @@ def wheels(p: FloatArray, view: View, *, smooth: bool, unseen_d: bool = False,
     jac[..., ARM_Y] = turn[:, None] * gain
     jac[..., ARM_X] = -beta_turn[:, None] * gain
     jac[..., CURVE] = curve[:, None] * gain
-    jac[..., LAT_OFFSET] = MODEL.predict(theta, dep.apply_lateral(base, by_offset))[0]
-    jac[..., LAT_SCALE] = MODEL.predict(theta, dep.apply_lateral(base, by_scale))[0]
     jac[:, 0, OFFSET] = jac[:, 1, OFFSET] = moving
     jac[:, 0, LEFT], jac[:, 1, RIGHT] = moving, moving
     if tau is not None:
@@ -364,8 +367,7 @@ def _lag_column(p: FloatArray, view: View) -> FloatArray:
     is judged on the yaw channel alone (:meth:`_Context.tests`: a slip that grows with
     acceleration is common to both wheels and would pass for a lag in the distance channel);
     once fitted, it moves both."""
-    matrix, _, _ = dep.lateral_transform(float(p[LAT_OFFSET]), float(p[LAT_SCALE]))
-    d_pred, _ = MODEL.predict(p[THETA], dep.apply_lateral(view.first, matrix))
+    d_pred, _ = MODEL.predict(p[THETA], view.first)
     return np.asarray(d_pred @ CHANNELS.T)
 
 
@@ -377,15 +379,18 @@ def reference_rows(p: FloatArray, view: View) -> tuple[FloatArray, FloatArray]:
     count = at.shape[0]
     residual, jac = np.zeros((count, 2)), np.zeros((count, 2, P))
     if view.across:
-        turn, beta_turn, lateral = at[:, SERIES], at[:, AT_BETA_TURN], at[:, 1]
+        turn, beta_turn, lateral = at[:, AT_COS_TURN], at[:, AT_BETA_TURN], at[:, 1]
         residual[:, 0] = at[:, AT_LAT] - (p[ARM_X] * turn + p[ARM_Y] * beta_turn
                                            + p[SLIP] * lateral)
         jac[:, 0, ARM_X], jac[:, 0, ARM_Y], jac[:, 0, SLIP] = turn, beta_turn, lateral
     if view.lateral:
+        # a_y against the axle's own v w: the reference point's, less what its being beside
+        # the axle adds (arm_y w^2)
         span = view.windows.length * view.windows.t_s
-        residual[:, 1] = at[:, AT_ACCEL] - ((1.0 + p[LAT_SCALE]) * at[:, AT_AREF]
-                                             + p[LAT_OFFSET] * span)
-        jac[:, 1, LAT_SCALE], jac[:, 1, LAT_OFFSET] = at[:, AT_AREF], span
+        axle = at[:, AT_AREF] + p[ARM_Y] * at[:, AT_TURN2]
+        residual[:, 1] = at[:, AT_ACCEL] - ((1.0 + p[LAT_SCALE]) * axle + p[LAT_OFFSET] * span)
+        jac[:, 1, LAT_SCALE], jac[:, 1, LAT_OFFSET] = axle, span
+        jac[:, 1, ARM_Y] = (1.0 + p[LAT_SCALE]) * at[:, AT_TURN2]
     return residual, jac
 
 
@@ -739,6 +744,7 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
         # parameter whose information the sums could share with theta's
         with_nuisance[LAG] = False
     free, held, state, uncertainty = _identified(state, ctx, free, held, with_nuisance, change)
+    uncertainty = _lateral_doubt(uncertainty, state.fit.p, free)
     lag = state.lag
     if "lag" in entered:
         lag = dataclasses.replace(lag, shift=lag.shift + float(state.fit.p[LAG]),
@@ -784,6 +790,31 @@ def departing_drive(found: CoreFit, windows: WindowSet) -> tuple[int, float, flo
         if statistic > limit and (worst is None or statistic > worst[1]):
             worst = (int(label), statistic, limit)
     return worst
+
+
+def _lateral_doubt(found: Uncertainty, p: FloatArray, free: BoolArray) -> Uncertainty:
+    """theta is for a_y as logged. Where a_y departs from the reference's ``v w`` (an offset
+    ``o``, a scale ``1 + s``), that is a road's crossfall or a body's roll the tyres feel, or an
+    IMU's tilt or scale they do not: the two cannot be told apart, and the sensor's reading
+    would make c_d ``2 d o / (1 + s)`` and d ``d s / (1 + s)`` other than they are. That much is
+    added to their variance (zero where a_y holds to ``v w``)."""
+    offset, scale = float(p[LAT_OFFSET]), float(p[LAT_SCALE])
+    if not (offset or scale):
+        return found
+    i_d, i_l = LAYOUT.index(LAYOUT.difference), LAYOUT.index(LAYOUT.load)
+    d = float(p[i_l])
+    extra = np.zeros(LAYOUT.size)
+    extra[i_d] = 2.0 * d * offset / (1.0 + scale)
+    extra[i_l] = d * scale / (1.0 + scale)
+    extra[~np.asarray(free, dtype=bool)] = 0.0
+    cov = found.covariance + np.diag(extra ** 2)
+    before = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))
+    after = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        widening = found.widening * np.where(before > 0, after / before, 1.0)
+    p_std = found.p_std.copy()
+    p_std[THETA] = after
+    return dataclasses.replace(found, covariance=cov, widening=widening, p_std=p_std)
 
 
 def _acceptable(state: _State, settings: Settings) -> bool:

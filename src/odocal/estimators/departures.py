@@ -25,9 +25,10 @@ name                what it does to a window                                    
 ``curve``           the wheels travel ``q dpsi^2 / ds`` more than the axle: wheels a  m^2
                     distance ``L`` ahead (``q = L^2 / 2``), or a reference whose
                     heading is its course, ``arm_x`` ahead (``q = -arm_x^2 / 2``)
-``lateral_offset``  a_y reads ``o`` more than the lateral acceleration ...            m/s^2
-``lateral_scale``   ... and ``1 + s`` times it (the load transfer acts on the true    1
-                    one; the window's mean a_y is measured against ``v w``)
+``lateral_offset``  a_y reads ``o`` more than the reference's ``v w`` ...             m/s^2
+``lateral_scale``   ... and ``1 + s`` times it (the window's a_y against its ``v w``;   1
+                    theta is for a_y as logged, and what the two would make of c_d
+                    and d were they the sensor's is in their uncertainty)
 ``slip``            the axle moves ``k a`` sideways of its heading                   rad/(m/s^2)
 ``drift``           c_e grows by ``r`` of itself per hour (tyres warming)             1/h
 ``change_e, _d``    before a time in the log, c_e and c_d differ by these             m
@@ -63,7 +64,7 @@ from numpy.typing import NDArray
 
 from odocal.checks.findings import Check, Finding, Severity
 from odocal.data.drive import Drive
-from odocal.model.vehicle import MODEL, SERIES
+from odocal.model.vehicle import MODEL
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -126,33 +127,6 @@ TIMING = ("spread", "lag")
 LATERAL = ("lateral_offset", "lateral_scale")
 #: Those the sideways motion of the reference shows (a heading of its own, not the course).
 ACROSS = ("arm_x", "slip")
-
-
-def lateral_transform(offset: float, scale: float) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """The map of the moments ``sum x a^j`` (j < SERIES) to those of ``a' = (a - o) / (1 + s)``,
-    and its derivatives in ``o`` and ``s`` (each (SERIES, SERIES)): ``sum x a'^j =
-    (1 + s)^-j sum_i C(j, i) (-o)^(j - i) sum x a^i``, exact."""
-    t, dt_do, dt_ds = (np.zeros((SERIES, SERIES)) for _ in range(3))
-    g = max(1.0 + scale, 0.05)                  # (a scale beyond its bound is refused later)
-    offset = min(max(offset, -1e3), 1e3)
-    for j in range(SERIES):
-        for i in range(j + 1):
-            c = math.comb(j, i) * g ** -j
-            t[j, i] = c * (-offset) ** (j - i)
-            if j > i:
-                dt_do[j, i] = -c * (j - i) * (-offset) ** (j - i - 1)
-            dt_ds[j, i] = -j * t[j, i] / g
-    return t, dt_do, dt_ds
-
-
-def apply_lateral(moments: FloatArray, matrix: FloatArray) -> FloatArray:
-    """``moments`` (W, >= 2 SERIES) with their a-power groups (along, turn) mapped by
-    ``matrix`` (:func:`lateral_transform`); the other columns as they are."""
-    out = np.array(moments, dtype=np.float64, copy=True)
-    for k in range(2):
-        group = slice(k * SERIES, (k + 1) * SERIES)
-        out[:, group] = moments[:, group] @ matrix.T
-    return out
 
 
 @dataclass(frozen=True)
@@ -229,7 +203,7 @@ def corrected(drives: Sequence[Drive], values: Mapping[str, float],
               theta: FloatArray) -> list[Drive]:
     """The drives as the model sees them once the fitted departures ``values`` (name: value,
     as :data:`NUISANCES` keys them) are taken out: the reference on the wheels' clock and at
-    the rear axle, a_y without its offset and scale, the wheel rates without their offsets,
+    the rear axle, the wheel rates without their offsets,
     their excess in bends and c_e's drift (theta at the end of each drive), the sideslip the
     axle's slip adds. What validation rolls out, and the exports' trajectories, so that the
     parameters are judged as they were fitted. A smoothing of the wheels is not undone."""
@@ -247,8 +221,7 @@ def corrected(drives: Sequence[Drive], values: Mapping[str, float],
         arm_x, arm_y = float(values.get("arm_x", 0.0)), float(values.get("arm_y", 0.0))
         x -= arm_x * np.cos(psi) - arm_y * np.sin(psi)
         y -= arm_x * np.sin(psi) + arm_y * np.cos(psi)
-        scale = 1.0 + float(values.get("lateral_scale", 0.0))
-        a_y = (np.asarray(d.a_y) - float(values.get("lateral_offset", 0.0))) / scale
+        a_y = np.asarray(d.a_y)                    # (theta is for a_y as logged)
         speed = np.hypot(np.gradient(x, d.t), np.gradient(y, d.t))
         moving = np.where(speed > 0.5, 1.0, 0.0)
         n_rl, n_rr = np.array(d.n_rl, dtype=np.float64), np.array(d.n_rr, dtype=np.float64)

@@ -37,15 +37,17 @@ BoolArray = NDArray[np.bool_]
 #: transfer d it cannot show is still felt: :func:`load_transfer_column`), then the time the
 #: reference moves (signed by the direction of travel: what a wheel-rate offset, or rates
 #: truncated towards zero, add to the revolutions), then what the departures of
-#: :mod:`odocal.estimators.departures` act through: ``beta dpsi`` (a reference point off the
-#: axle, seen through the sideslip), ``dpsi^2 / ds`` on moving steps (the curvature squared:
-#: wheels ahead of the axle, or a reference whose heading is its course), ``a t_s`` and
-#: ``v w t_s`` (the lateral acceleration against the reference's own).
-COLUMNS = 3 * SERIES + 8
+#: :mod:`odocal.estimators.departures` act through: ``2 sin(dpsi / 2) sin(beta)`` and ``...
+#: cos(beta)`` (the chord a point off the axle turns through, across and along the axle's
+#: direction of travel), ``dpsi^2 / ds`` on moving steps (the curvature squared: wheels ahead
+#: of the axle, or a reference whose heading is its course), ``a t_s`` and ``v w t_s`` (the
+#: lateral acceleration against the reference's own).
+COLUMNS = 3 * SERIES + 10
 #: The index of the moving time among the moment columns ...
 MOVING = 3 * SERIES + 3
-#: ... of ``beta dpsi``, ``dpsi^2 / ds``, ``a t_s`` and ``v w t_s``.
-BETA_TURN, CURVE, ACCEL, AREF = MOVING + 1, MOVING + 2, MOVING + 3, MOVING + 4
+#: ... of the chord's two parts, ``dpsi^2 / ds``, ``a t_s``, ``v w t_s`` and ``w^2 t_s`` (what a
+#: point beside the axle adds to ``v w``).
+BETA_TURN, CURVE, ACCEL, AREF, COS_TURN, TURN2 = (MOVING + k for k in range(1, 7))
 #: The largest curvature a moving step counts in ``dpsi^2 / ds`` (1/m: a 2 m radius; beyond it a
 #: reference's jitter at a crawl, not a bend).
 MAX_CURVATURE = 0.5
@@ -53,7 +55,8 @@ MAX_CURVATURE = 0.5
 #: departures: ``beta dpsi``, ``dpsi^2 / ds``, ``a t_s``, ``v w t_s`` and the step across the
 #: turned heading (the reference's sideways motion).
 AT_MOVING = 2 * SERIES + 2
-AT_BETA_TURN, AT_CURVE, AT_ACCEL, AT_AREF, AT_LAT = (AT_MOVING + k for k in range(1, 6))
+AT_BETA_TURN, AT_CURVE, AT_ACCEL, AT_AREF, AT_COS_TURN, AT_TURN2, AT_LAT = (
+    AT_MOVING + k for k in range(1, 8))
 AT_WIDTH = AT_LAT + 1
 #: A step moves when the reference goes faster than this (m/s).
 MOVING_MPS = 0.5
@@ -202,7 +205,7 @@ def _rotated(moments: FloatArray, offset: float) -> FloatArray:
         c, s = math.cos(offset), math.sin(offset)
         across = lat[..., :1] * c - ds[..., :1] * s
         ds, rds = ds * c + lat * s, rds * c + rlat * s
-    return np.concatenate([ds, dpsi, rds, rdpsi, moments[..., MOVING:MOVING + 5], across],
+    return np.concatenate([ds, dpsi, rds, rdpsi, moments[..., MOVING:MOVING + 7], across],
                           axis=-1)
 
 
@@ -310,8 +313,10 @@ class WindowBuilder:
         with np.errstate(divide="ignore", invalid="ignore"):
             kappa = np.where(fast, dpsi / ds, 0.0)
         kappa = np.clip(kappa, -MAX_CURVATURE, MAX_CURVATURE)
-        extra = np.column_stack([ring[:, _BETA] * dpsi, kappa * kappa * np.abs(ds),
-                                 a * self.t_s, a_ref[:, 0] * self.t_s])
+        chord = 2.0 * np.sin(0.5 * dpsi)
+        extra = np.column_stack([chord * np.sin(ring[:, _BETA]), kappa * kappa * np.abs(ds),
+                                 a * self.t_s, a_ref[:, 0] * self.t_s,
+                                 chord * np.cos(ring[:, _BETA]), dpsi * dpsi / self.t_s])
         columns = np.concatenate([ds[:, None] * power, dpsi[:, None] * power,
                                   ring[:, _LAT, None] * power,
                                   ring[:, [_DS, _DPSI, _LAT]] * a_ref, moving, extra], axis=1)

@@ -260,6 +260,12 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     with clock.stage("read"):
         drive_list = load_drives(drives, settings=settings)
     settings = with_stated_datasheet(drive_list, settings)
+    arm = settings.reference.offset_m
+    if arm is not None and method != "inverse":
+        # a segment method rolls the axle out: the reference moved to it first (the default
+        # method holds the stated lever arm in its fit)
+        drive_list = corrected_drives(drive_list, {"arm_x": arm[0], "arm_y": arm[1]},
+                                      np.asarray(settings.identify.theta0, dtype=np.float64))
     with clock.stage("checks"):
         diagnosis = check_drives(drive_list, settings)
         departures = None
@@ -322,6 +328,10 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         judged, val_segs, val_data = drive_list, prep.validation_segments, prep.validation
         changed = [f for f in fitted if f.check is Check.CHANGE_IN_LOG]
         fitted_departures = dict(getattr(estimate.details, "fitted_departures", {}) or {})
+        if settings.reference.offset_m is not None and method == "inverse":
+            # a lever arm stated: held in the fit, taken out of what is judged as fitted ones are
+            fitted_departures.update(arm_x=settings.reference.offset_m[0],
+                                     arm_y=settings.reference.offset_m[1])
         if fitted_departures:
             # judged (and exported) as it was fitted: the departures the fit found taken out
             drive_list = corrected_drives(drive_list, fitted_departures,

@@ -354,8 +354,9 @@ def _departure_text(finding: Finding) -> str:
                 f"does (or tyres that slip in tight bends): {fitted}")
     if c is Check.LATERAL_GAIN:
         return (f"a_y reads {1.0 + v:.3f} (+-{ref:.3f}) times the reference's lateral "
-                "acceleration (an accelerometer's scale, or a body that rolls in bends): "
-                f"{fitted}; d is per m/s^2 of the true lateral acceleration")
+                "acceleration (a body that rolls in bends, or an accelerometer's scale): the "
+                "parameters are for a_y as logged, and d's uncertainty carries what it would "
+                "be were the scale the sensor's")
     if c is Check.SIDESLIP:
         return (f"the rear axle slides {np.degrees(v):+.2f} degrees (+-{np.degrees(ref):.2f}) "
                 f"sideways per m/s^2 of lateral acceleration: {fitted}")
@@ -391,8 +392,9 @@ def _reference_and_sensor_text(finding: Finding) -> str:
     if c is Check.LATERAL_OFFSET:
         tilt = np.degrees(np.arcsin(np.clip(v / 9.81, -1.0, 1.0)))
         return (f"a_y reads {v:+.2f} m/s^2 (+-{ref:.2f}) more than the reference's turning "
-                f"gives (an IMU rolled by {abs(tilt):.1f} degrees?): fitted with the "
-                "parameters, d acts on the lateral acceleration without it")
+                f"gives (a road's crossfall, or an IMU rolled by {abs(tilt):.1f} degrees?): the "
+                "parameters are for a_y as logged, and c_d's uncertainty carries what it "
+                "would be were the offset the sensor's")
     departure = _departure_text(finding)
     if departure:
         return departure
