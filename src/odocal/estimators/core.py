@@ -660,6 +660,8 @@ class Setup:
     across, lateral : the reference channels it has (:class:`View`)
     stated : nuisance parameters stated by the user (held at these values; e.g. the lever arm)
     tau_h : hours to each window's drive's end (c_e's drift), or None
+    kept : departures in the fit from the start (the live path's: what held out once holds on
+        the evidence folded since, which its windows in memory alone no longer show)
     """
 
     blocks: tuple[tuple[str, ...], ...] = dep.BLOCKS
@@ -667,6 +669,7 @@ class Setup:
     lateral: bool = False
     stated: Mapping[str, float] = field(default_factory=dict)
     tau_h: FloatArray | None = None
+    kept: tuple[str, ...] = ()
 
 
 def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offset: float,
@@ -701,7 +704,7 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
     for name, value in setup.stated.items():
         p0[dep.at(name)] = value
     ctx = _Context(windows, folded, settings, heading_offset, channels, unseen_d, setup)
-    entered: list[str] = []
+    entered: list[str] = [n for b in blocks for n in b if b[0] in setup.kept]
     excluded: set[tuple[str, ...]] = set()
 
     def nuisance_free() -> BoolArray:
@@ -728,7 +731,8 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
         entered.extend(best.block)
         trial = ctx.run(state.fit.p, free, nuisance_free(),
                         change=best.where if best.block[0] == "change_e" else change)
-        if not _acceptable(trial, settings):
+        if not _acceptable(trial, settings) or not _determined(
+                trial, windows, folded, free_of(free) | nuisance_free(), best.block):
             del entered[-len(best.block):]
             excluded.add(best.block)
             continue
@@ -815,6 +819,26 @@ def _lateral_doubt(found: Uncertainty, p: FloatArray, free: BoolArray) -> Uncert
     p_std = found.p_std.copy()
     p_std[THETA] = after
     return dataclasses.replace(found, covariance=cov, widening=widening, p_std=p_std)
+
+
+#: A departure fitted must lie this many of its standard deviations from zero (one a drive
+#: cannot pin down is not one it shows: fitted, it would only move theta).
+_DETERMINED = 3.0
+
+
+def _determined(state: _State, windows: WindowSet, folded: Folded, free_p: BoolArray,
+                block: Sequence[str]) -> bool:
+    """Whether the departure ``block`` just entered is determined by the fit: some element
+    beyond :data:`_DETERMINED` of its standard deviations from zero (the lag: its shift from
+    the scan's start, which is the reference's own alignment)."""
+    found = covariance(state.fit, windows, folded, free_p, few=False)
+    for name in block:
+        j = dep.at(name)
+        value = state.lag.shift + float(state.fit.p[j]) if name == "lag" else float(
+            state.fit.p[j])
+        if abs(value) > _DETERMINED * float(found.p_std[j]):
+            return True
+    return False
 
 
 def _acceptable(state: _State, settings: Settings) -> bool:
@@ -1177,7 +1201,7 @@ class Uncertainty:
 
 
 def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray,
-               nuisance: FloatArray | None = None) -> Uncertainty:
+               nuisance: FloatArray | None = None, *, few: bool = True) -> Uncertainty:
     """Sandwich covariance of p over clusters of windows (folded clusters' meat included),
     from the prewhitened rows, each cluster's score scaled by its leverage, cross products of
     clusters up to three apart with Newey and West's weights; theta's block is the one
@@ -1185,6 +1209,9 @@ def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray
     it adds beyond the residual-variance formula is widened by Student's t for the clusters
     each parameter's information comes from (with fewer than :data:`MIN_CLUSTERS_FOR_ROBUST`
     clusters in all, the larger of the two).
+
+    ``few`` False leaves the widening for few clusters out (what a departure's own value is
+    judged by: whether the fit determines it, not how far a rare error reaches).
 
     ``nuisance`` (n,): the datasheet uncertainty of each parameter held at its datasheet value
     (0 for the free ones). A held parameter that is wrong by that much moves the free ones by
@@ -1227,7 +1254,7 @@ def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray
     effective = _effective_clusters(info, windows.cluster, folded, h_inv) if windows.size \
         else np.full(P, float(clusters))
     f = np.array([tail_inflation(max(float(e), 2.0)) if e > 0 else 1.0 for e in effective])
-    if clusters < 2:
+    if clusters < 2 or not few:
         f[:] = 1.0                # one cluster: the one-cluster rule leaves nothing identified
     with np.errstate(divide="ignore", invalid="ignore"):
         if clusters < MIN_CLUSTERS_FOR_ROBUST:

@@ -46,8 +46,9 @@ the held-out cost most enters first, the fit is redone with it, and the others a
 again. What enters is estimated jointly with theta, and its uncertainty is in theta's
 covariance (the joint information's inverse, sandwiched over clusters); what does not enter
 moves nothing. A change's time, and a lag (nonlinear: found on a grid), are chosen on the half
-they are fitted on. A fit a departure spoils (not finite, a departure beyond any vehicle's,
-theta beyond any vehicle) leaves it out. The encoding's offset is the exception a log's format
+they are fitted on. A departure the fit with it does not determine (within three of its
+standard deviations of zero: it would only move theta), or whose fit it spoils (not finite,
+a departure beyond any vehicle's, theta beyond any vehicle) is left out. The encoding's offset is the exception a log's format
 states: where the wheel rates lie on an encoding's grid, ``offset`` is in the fit with a prior
 of half a step from the start.
 """
@@ -142,7 +143,7 @@ class Statistic:
 
     @property
     def holds(self) -> bool:
-        return min(self.gains) > self.penalty
+        return min(self.gains) > 0.5 * self.penalty
 
     @property
     def value(self) -> float:

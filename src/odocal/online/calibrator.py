@@ -596,8 +596,9 @@ class OnlineCalibrator:
     def _setup(self, windows: WindowSet) -> core.Setup:
         """What the live fit may take beside theta (:func:`~odocal.estimators.inverse.
         fit_setup`, the live departures: a change it detects itself, a drift it follows)."""
-        return fit_setup(windows, self.settings, held_by_checks(self._diagnosis),
-                         blocks=fitted.LIVE)
+        setup = fit_setup(windows, self.settings, held_by_checks(self._diagnosis),
+                          blocks=fitted.LIVE)
+        return dataclasses.replace(setup, kept=self._entered)
 
     def _kept(self, p: FloatArray | None = None) -> BoolArray:
         """Which windows in memory the fit takes: all but those a disturbance spoils (a wheel

@@ -62,7 +62,8 @@ def write_results(result: CalibrationResult, out_dir: str | Path, *,
         from odocal.output.trajectories import write_trajectories
 
         written += write_trajectories(result.drive_data, result.estimate.theta,
-                                      result.estimate.datasheet, out)
+                                      result.estimate.datasheet, out,
+                                      arm=result.reference_arm)
         targets.remove("tum")
     if targets and not result.success:
         notes.append("parameters not exported: the calibration did not succeed")

@@ -332,13 +332,11 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
             # a lever arm stated: held in the fit, taken out of what is judged as fitted ones are
             fitted_departures.update(arm_x=settings.reference.offset_m[0],
                                      arm_y=settings.reference.offset_m[1])
-        if fitted_departures:
-            # judged (and exported) as it was fitted: the departures the fit found taken out
-            drive_list = corrected_drives(drive_list, fitted_departures,
-                                          estimate.theta.as_array())
         if changed or fitted_departures:
-            # and on the part after a change inside the log where it calibrated that part
-            judged = drive_list
+            # judged as it was fitted: the departures the fit found taken out, and on the part
+            # after a change inside the log where it calibrated that part
+            judged = corrected_drives(drive_list, fitted_departures,
+                                      estimate.theta.as_array())
             if changed:
                 judged = _after_change(judged, changed[0])
             val_segs = validation_segments(judged, settings.segments)

@@ -157,6 +157,16 @@ class CalibrationResult:
         return self.estimate.theta
 
     @property
+    def reference_arm(self) -> tuple[float, float]:
+        """Where the reference reports, forward and left of the rear axle (m): as stated
+        (``[reference] offset_m``) or as the default method's fit found it (0 where neither)."""
+        stated = self.settings.reference.offset_m
+        if stated is not None:
+            return float(stated[0]), float(stated[1])
+        fitted = dict(getattr(self.estimate.details, "fitted_departures", {}) or {})
+        return float(fitted.get("arm_x", 0.0)), float(fitted.get("arm_y", 0.0))
+
+    @property
     def method(self) -> str:
         return self.estimate.method
 
