@@ -72,43 +72,6 @@ RELEASES = {
     "yaml": "any ROS 2 node that declares these parameters (odocal's own schema)",
 }
 
-#: The names stacks give the datasheet values, and the odocal parameter each one states:
-#: ``wheel_radius`` (m; c_e = 2 pi r), ``wheel_separation`` (ros2_control) and
-#: ``wheel_tread`` (Autoware), both the track width t_r (m).
-STACK_NAMES = {"wheel_radius": "c_e", "wheel_separation": "t_r", "wheel_tread": "t_r"}
-
-
-def stack_names(pairs: Sequence[tuple[str, float]]) -> list[tuple[str, float]]:
-    """``(name, value)`` pairs with the stacks' names (:data:`STACK_NAMES`) turned into odocal's
-    (a radius into a circumference); other names as given."""
-    return [(STACK_NAMES.get(key, key), value * 2.0 * math.pi if key == "wheel_radius" else value)
-            for key, value in pairs]
-
-
-def parse_datasheet(text: str, *, what: str = "--datasheet") -> dict[str, float]:
-    """``c_e=1.84,t_r=1.52`` (or the stacks' names, ``wheel_radius=0.1,wheel_separation=0.4``)
-    as datasheet values by odocal's names, checked by :func:`odocal.settings.datasheet_values`
-    (each once, within a vehicle's range); a one-line ConfigError naming ``what`` otherwise."""
-    from odocal.settings import datasheet_values
-
-    pairs: list[tuple[str, float]] = []
-    for item in text.split(","):
-        key, sep, value = item.partition("=")
-        try:
-            pairs.append((key.strip(), float(value)))
-        except ValueError:
-            sep = ""
-        if not sep:
-            raise ConfigError(f"{what} {text!r}: write NAME=VALUE pairs separated by commas, "
-                              "e.g. c_e=1.84,t_r=1.52 or wheel_radius=0.1,wheel_separation=0.4 "
-                              "(metres)")
-    unknown = [k for k, _ in pairs if k not in PARAMETER_NAMES and k not in STACK_NAMES]
-    if unknown:
-        raise ConfigError(f"{what}: {unknown[0]!r} is not one of "
-                          f"{', '.join((*PARAMETER_NAMES, *STACK_NAMES))}")
-    return datasheet_values(stack_names(pairs), source=what)
-
-
 @dataclass(frozen=True)
 class OdometryNoise:
     """How far the calibrated wheel odometry is from the reference motion, averaged over
