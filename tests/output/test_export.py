@@ -278,7 +278,7 @@ def test_wheel_joint_names_and_export_lists_from_the_command_line(
     assert data["datasheet"]["theta"]["c_e"] == pytest.approx(2 * math.pi * 0.31)
     code, _, err = run(capsys, "calibrate", str(drive), "--out", str(tmp_path / "p"),
                        "--wheel-joints", "only_one")
-    assert code == 1 and "--wheel-joints" in err and len(err.strip().splitlines()) == 1
+    assert code == 2 and "--wheel-joints" in err and "left and the right" in err
     code, _, err = run(capsys, "calibrate", str(drive), "--out", str(tmp_path / "p"),
                        "--export", "autoware,ros3")
     assert code == 2 and "unknown target 'ros3'" in err and not (tmp_path / "p").exists()
