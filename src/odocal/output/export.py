@@ -285,6 +285,17 @@ def parameters_yaml(c: Calibrated, path: Path) -> Path:
                                     zip(PARAMETER_NAMES, PARAMETER_UNITS, strict=True))
               + "; wheel_radius = c_e / (2 pi), m; c_d is left minus right.",
               "covariance: row-major 4x4 in the order of parameter_names, SI units"]
+    speed: dict[str, Any] = {}
+    if c.speed_circumference_m is not None:
+        # the wheels were speeds turned into rates with an assumed circumference: c_e is that
+        # assumption times the speed signal's scale factor, which is what a stack can use
+        header.append(f"The wheels were logged as speeds and turned into rates with "
+                      f"{c.speed_circumference_m:.9g} m: c_e is that circumference times "
+                      "speed_scale_factor (the true speed over the reported one), c_d "
+                      "relative to it alike.")
+        speed = {"speed_scale_factor": _float(th.c_e / c.speed_circumference_m),
+                 "speed_scale_factor_std": _float(c.std[0] / c.speed_circumference_m),
+                 "assumed_wheel_circumference": _float(c.speed_circumference_m)}
     params = {"effective_wheel_circumference": _float(th.c_e),
               "wheel_radius": _float(th.c_e / (2.0 * math.pi)),
               "circumference_difference": _float(th.c_d),
@@ -293,7 +304,7 @@ def parameters_yaml(c: Calibrated, path: Path) -> Path:
               "parameter_names": list(PARAMETER_NAMES),
               "identified": [bool(ok) for ok in c.identified],
               "std": [_float(s) for s in c.std],
-              "covariance": [_float(v) for v in cov.ravel()]}
+              "covariance": [_float(v) for v in cov.ravel()], **speed}
     write_text(path, parameter_file(header, "wheel_odometry", params))
     return path
 

@@ -141,6 +141,8 @@ def export_parameters(result: CalibrationResult, out_dir: str | Path, fmt: str) 
             "std": dict(zip(PARAMETER_NAMES, est.std.tolist(), strict=True)),
             "identified": dict(zip(PARAMETER_NAMES, est.identified, strict=True)),
             "units": dict(zip(PARAMETER_NAMES, PARAMETER_UNITS, strict=True)),
+            "speed_scale": (result.speed_scale.to_dict() if result.speed_scale is not None
+                            else None),
             "method": result.method, "odocal_version": __version__})
     if fmt != "yaml":
         raise OutputError(f"unknown export format {fmt!r}; use yaml or json")
