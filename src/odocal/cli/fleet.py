@@ -53,7 +53,9 @@ def _summary(run: Any) -> None:
 
 
 def cmd_fleet_calibrate(args: argparse.Namespace) -> int:
-    from odocal.fleet.engine import calibrate_fleet
+    from odocal.fleet.engine import calibrate_fleet, require_dask
+
+    require_dask()
 
     progress = _progress(args)
     if args.workers and not args.scheduler and not args.quiet:
@@ -84,7 +86,9 @@ def cmd_fleet_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_fleet_demo(args: argparse.Namespace) -> int:
-    from odocal.fleet.engine import calibrate_fleet
+    from odocal.fleet.engine import calibrate_fleet, require_dask
+
+    require_dask()
     from odocal.fleet.simulate import simulate_fleet
 
     with tempfile.TemporaryDirectory(prefix="odocal-fleet-") as tmp:

@@ -240,6 +240,10 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     method = method or DEFAULT_METHOD
     if method not in METHODS:
         raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if method == "compensated":                  # its QP is compiled: before anything is read
+        from odocal.model._jit import require
+
+        require("the compensated method (--method compensated)")
     clock = Stopwatch(progress)
     with clock.stage("read"):
         drive_list = load_drives(drives, settings=settings)
