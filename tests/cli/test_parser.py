@@ -43,9 +43,9 @@ def test_simulate_help_names_the_truth_file_it_writes(capsys: pytest.CaptureFixt
 
 @pytest.mark.parametrize(("argv", "meant"), [
     (["calibrate", "x.csv", "--out", "r", "--datashet", "c_e=2"], "--datasheet"),
-    (["calibrate", "x.csv", "--out", "r", "--expor", "tum"], "--export"),
+    (["calibrate", "x.csv", "--out", "r", "--exprot", "tum"], "--export"),
     (["demo", "--no-compre"], "--no-compare"),
-    (["fleet", "alarms", "--stor", "f.db"], "--store"),
+    (["fleet", "alarms", "--sotre", "f.db"], "--store"),
     (["calibrte", "x.csv"], "calibrate"),
     (["simulat", "--out", "d.csv"], "simulate"),
 ])

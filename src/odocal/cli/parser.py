@@ -27,6 +27,14 @@ def suggestion(word: str, known: Sequence[str]) -> str | None:
 class Parser(argparse.ArgumentParser):
     """argparse's parser, with "did you mean" for misspelt options and commands."""
 
+    _words: Sequence[str] = ()
+
+    def parse_known_args(self, args: Sequence[str] | None = None,  # type: ignore[override]
+                         namespace: argparse.Namespace | None = None
+                         ) -> tuple[argparse.Namespace, list[str]]:
+        self._words = list(sys.argv[1:] if args is None else args)
+        return super().parse_known_args(args, namespace)
+
     def parse_args(self, args: Sequence[str] | None = None,  # type: ignore[override]
                    namespace: argparse.Namespace | None = None) -> argparse.Namespace:
         parsed, extras = self.parse_known_args(args, namespace)
@@ -63,6 +71,14 @@ class Parser(argparse.ArgumentParser):
             near = suggestion(match.group(1), choices)
             if near:
                 message += f" (did you mean {near}?)"
+        elif message.startswith("the following arguments are required"):
+            # a required option misspelt: the misspelling is why it is missing
+            known = [o for a in self._actions for o in a.option_strings]
+            for word in self._words:
+                near = suggestion(word, known) if word.startswith("--") else None
+                if near and word.split("=", 1)[0] not in known:
+                    message += f"; {word.split('=', 1)[0]} is not an option (did you mean {near}?)"
+                    break
         self.print_usage(sys.stderr)
         self.exit(2, f"{self.prog}: error: {message}\n")
 
