@@ -242,13 +242,13 @@ FLEET_INSTALL_HINT = "pip install 'odocal[fleet]'"
 
 def require_dask() -> None:
     """A one-line MissingDependencyError unless Dask's distributed scheduler is installed."""
-    import importlib.util
-
-    if importlib.util.find_spec("distributed") is None:
+    try:
+        import distributed  # noqa: F401
+    except ImportError as err:
         from odocal.errors import MissingDependencyError
 
         raise MissingDependencyError("the fleet runs its drives on Dask (dask.distributed), "
-                                     f"which is not installed: {FLEET_INSTALL_HINT}")
+                                     f"which is not installed: {FLEET_INSTALL_HINT}") from err
 
 
 def calibrate_fleet(catalog: str | Path, store: str | Path, *,
