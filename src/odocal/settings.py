@@ -469,7 +469,7 @@ class FleetSettings:
 
 @dataclass(frozen=True)
 class GateSettings:
-    """The checks of the data against the model and the quality gate (README, "When odocal
+    """The checks of the data against the model and the quality gate (docs/checks.md, "When odocal
     refuses"). A calibration outside these limits fails (exit 3) with the reason."""
 
     c_e_m: tuple[float, float] | None = None

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from odocal.pipeline.result import CalibrationResult
     from odocal.settings import Settings
 
-#: The one rule for exit codes (README, docs: command line).
+#: The one rule for exit codes (docs/command-line.md).
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_FAILED, EXIT_BUG = 0, 1, 2, 3, 4
 EXIT_INTERRUPTED = 130
 

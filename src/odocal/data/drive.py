@@ -470,7 +470,7 @@ def _derivative_pieces(values: FloatArray, t_s: float,
 _SPIKE_SCALE = {"n_rl": 5.0, "n_rr": 5.0, "a_y": 20.0}
 #: Share of a column's samples that may be repaired; beyond it the column is broken.
 _MAX_REPAIRED = 0.01
-#: Largest magnitudes a car's log can hold (README, "Input limits").
+#: Largest magnitudes a car's log can hold (docs/command-line.md, "Input limits").
 LIMITS = {"a_y": (30.0, "m/s^2"), "beta": (0.8, "rad"), "x": (1e7, "m"), "y": (1e7, "m")}
 
 

@@ -265,7 +265,7 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
     ``client``: an open Dask client to use instead of starting or joining a cluster.
     ``refuse(line)``: told of each catalog row left out (its log cannot be read, or it names a
     stored drive under another vehicle) as soon as that is known; the lines are also in
-    :attr:`FleetRun.refused`. The catalog may be a URL, and so may its rows (README, "Fleets
+    :attr:`FleetRun.refused`. The catalog may be a URL, and so may its rows (docs/remote.md, "Fleets
     where the data lives"); the store and ``out`` are local.
     """
     require_dask()

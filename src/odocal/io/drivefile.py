@@ -1,4 +1,4 @@
-"""The drive format: one row per sample, CSV or Parquet (see README, "The drive format")."""
+"""The drive format: one row per sample, CSV or Parquet (docs/drive-format.md)."""
 
 from __future__ import annotations
 

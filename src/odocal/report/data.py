@@ -252,7 +252,7 @@ def _taken_out(f: Finding) -> str:
 
 
 #: Less driving than this never gets the green verdict: its validation rests on a handful of
-#: segments, and a few bends decide t_r and d (README, "Real logs").
+#: segments, and a few bends decide t_r and d (docs/real-logs.md).
 MIN_DISTANCE_KM = 2.0
 
 
