@@ -204,3 +204,26 @@ def test_the_report_says_what_its_maps_show_and_what_to_run_next(
 
     assert _drive_label("2018-08-02--08-34-47/40") == "2018-08-02--08-34-47/40"
     assert _drive_label("/data/logs/drive.parquet") == "drive.parquet"
+
+
+def test_the_banner_says_when_a_validation_segment_got_worse() -> None:
+    """E_p falling overall while one segment got worse is said in the verdict (not "fell 16%"
+    alone), and the verdict is not the plain green one."""
+    import dataclasses
+
+    from odocal.report.data import build
+
+    result = odocal.calibrate(odocal.simulate(duration_s=300, seed=22).drive)
+    val, sheet = result.validation, result.datasheet_validation
+    assert val is not None and sheet is not None and len(val.segments) >= 2
+    good = build(result)
+    assert "got worse" not in good.verdict
+    # the datasheet better than the calibration on the first segment only
+    lower = sheet.errors.mean_m.copy()
+    lower[0] = val.errors.mean_m[0] / 2
+    worse = dataclasses.replace(result, datasheet_validation=dataclasses.replace(
+        sheet, errors=dataclasses.replace(sheet.errors, mean_m=lower)))
+    data = build(worse)
+    n = len(val.segments)
+    assert f", though 1 of the {n} got worse" in data.verdict
+    assert data.verdict_level == "partial" and good.verdict_level in ("good", "partial")

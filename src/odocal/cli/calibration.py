@@ -13,6 +13,7 @@ from odocal.cli.common import (
     EXIT_OK,
     check_out_dir,
     check_out_file,
+    compared,
     compile_note,
     drives_from,
     exit_code,
@@ -25,7 +26,6 @@ from odocal.cli.common import (
     write_outputs,
 )
 from odocal.cli.progress import Progress
-from odocal.cli.simulation import compared
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
 
 

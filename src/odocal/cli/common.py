@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 from odocal.errors import ConfigError, OdocalError
 
 if TYPE_CHECKING:
+    from odocal.model.parameters import Parameters
     from odocal.pipeline.result import CalibrationResult
     from odocal.settings import Settings
 
@@ -161,12 +162,34 @@ def exit_code(result: CalibrationResult) -> int:
     return EXIT_FAILED
 
 
-def print_summary(result: CalibrationResult, **extra: Any) -> None:
+def print_summary(result: CalibrationResult, *, truth: Parameters | None = None,
+                  truth_error_m: float | None = None,
+                  best_std: Sequence[float] | None = None) -> None:
     """The calibration's summary (:func:`odocal.report.summary.summary_lines`) on stdout."""
     from odocal.report.summary import summary_lines
 
-    for line in summary_lines(result, **extra):
+    for line in summary_lines(result, truth=truth, truth_error_m=truth_error_m,
+                              best_std=best_std):
         say(line)
+
+
+def compared(result: CalibrationResult, drives: Sequence[Any], settings: Settings,
+             truth: Parameters | None, *, quiet: bool,
+             progress: ProgressCallback | None = None) -> CalibrationResult:
+    """``result`` with every method scored on held-out blocks (printed unless quiet)."""
+    import dataclasses
+
+    from odocal.cli.progress import Progress
+    from odocal.pipeline.compare import compare, format_table
+
+    comparison = compare(drives, settings=settings, truth=truth, progress=progress)
+    if isinstance(progress, Progress):
+        progress.close()                        # its bars end before the table is printed
+    if not quiet:
+        for line in format_table(comparison):
+            say(line)
+        say()
+    return dataclasses.replace(result, comparison=comparison)
 
 
 def rejection(estimate: Any, findings: Sequence[Any], settings: Settings) -> str | None:

@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from odocal.cli.arguments import DURATION_S, SEED, add_common, add_quiet, number
 from odocal.cli.common import (
     EXIT_OK,
-    ProgressCallback,
     check_out_dir,
     check_out_file,
+    compared,
     compile_note,
     exit_code,
     inputs_of,
@@ -28,9 +27,7 @@ from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
 from odocal.sim.noise import NOISE_PROFILES
 
 if TYPE_CHECKING:
-    from odocal.model.parameters import Parameters
-    from odocal.pipeline.result import CalibrationResult
-    from odocal.settings import Settings
+    pass
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -66,24 +63,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
     elif not args.quiet:
         say("(add --out DIR to write calibration.json and the report with its figures)")
     return exit_code(result)
-
-
-def compared(result: CalibrationResult, drives: Sequence[Any], settings: Settings,
-             truth: Parameters | None, *, quiet: bool,
-             progress: ProgressCallback | None = None) -> CalibrationResult:
-    """``result`` with every method scored on held-out blocks (printed unless quiet)."""
-    import dataclasses
-
-    from odocal.pipeline.compare import compare, format_table
-
-    comparison = compare(drives, settings=settings, truth=truth, progress=progress)
-    if isinstance(progress, Progress):
-        progress.close()                        # its bars end before the table is printed
-    if not quiet:
-        for line in format_table(comparison):
-            say(line)
-        say()
-    return dataclasses.replace(result, comparison=comparison)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
