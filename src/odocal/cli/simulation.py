@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from odocal.cli.arguments import DURATION_S, SEED, add_common, add_quiet, number
 from odocal.cli.common import (
@@ -25,9 +25,6 @@ from odocal.cli.progress import Progress
 from odocal.errors import OutputError
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
 from odocal.sim.noise import NOISE_PROFILES
-
-if TYPE_CHECKING:
-    pass
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
