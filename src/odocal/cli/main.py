@@ -78,8 +78,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         return _interrupted("odocal", argv)
     _configure_logging(args.verbose, args.quiet)
-    command = "odocal " + args.command + (f" {args.fleet_command}" if args.command == "fleet"
-                                          else "")
+    command = f"odocal {args.command}"
     func: Callable[[argparse.Namespace], int] = args.func
     try:
         code = func(args)
