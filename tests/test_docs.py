@@ -218,6 +218,7 @@ def test_every_command_of_a_page_runs(page: Path, tmp_path: Path, shared_data: P
                                       capsys: pytest.CaptureFixture[str],
                                       monkeypatch: pytest.MonkeyPatch) -> None:
     """A page's commands, in its order, in one folder (what one writes, the next reads)."""
+    (tmp_path / "home").mkdir()                   # a user's home (evo keeps its settings there)
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     env = {"HOME": str(tmp_path / "home")}
     odocal.save_drive(odocal.simulate(duration_s=300, seed=5).drive, tmp_path / "drive.csv")
