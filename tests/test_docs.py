@@ -71,12 +71,12 @@ ELSEWHERE: dict[str, tuple[str, tuple[str, ...]]] = {
         ('calibrate_fleet("s3://fleet/v1/catalog.csv"',)),
     # docs/fleet.md, run below as the page shows it (the fleet extra's Dask cluster)
     **{c: ("tests/test_docs.py::test_the_fleet_pages_commands_run", ("_fleet_commands()",))
-       for c in ("odocal fleet demo --out fleet-demo/ --drives 4",
+       for c in ("odocal fleet demo --out fleet-demo/ --drives 3",
                  "odocal fleet alarms --store fleet-demo/fleet.db --json",
                  "odocal fleet history --store fleet-demo/fleet.db --vehicle car001",
                  "sqlite3 fleet-demo/fleet.db \"SELECT vehicle, time, c_e, c_e_std FROM drives "
                  "ORDER BY vehicle, time\"",
-                 "odocal simulate-fleet --out fleet/ --vehicles 2 --drives 3 --duration 300",
+                 "odocal simulate-fleet --out fleet/ --vehicles 2 --drives 2 --duration 300",
                  "odocal fleet calibrate fleet/catalog.csv --store fleet.db --out "
                  "fleet-report/")},
 }
