@@ -71,14 +71,14 @@ def test_replace_checks_keys() -> None:
         Settings().replace(calibrate={"method": "raw"})
 
 
-def test_the_readme_settings_example_is_valid() -> None:
+def test_the_documented_settings_example_is_valid() -> None:
     import tomllib
     from pathlib import Path
 
     from odocal.settings import settings_from_dict
 
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    start = text.index("```toml", text.index("## Settings")) + len("```toml")
+    text = (Path(__file__).resolve().parents[1] / "docs" / "settings.md").read_text()
+    start = text.index("```toml") + len("```toml")
     block = text[start:text.index("```", start)]
     settings = settings_from_dict(tomllib.loads(block))
     assert settings.fleet.cusum_h == 4.0 and settings.inverse.window_s == 2.0

@@ -97,6 +97,69 @@ def datasheet_values(pairs: Any, *, source: str = "--datasheet") -> dict[str, fl
     return values
 
 
+#: The names the localisation stacks give datasheet values (ROS 2's diff_drive_controller,
+#: Autoware's vehicle_info), by odocal's parameter they state (a radius is c_e / 2 pi).
+STACK_NAMES: dict[str, str] = {"wheel_radius": "c_e", "wheel_separation": "t_r",
+                               "wheel_tread": "t_r"}
+#: A circumference difference beyond this share of the circumference is no pair of tyres of one
+#: axle (a space-saver spare differs by about 5%): a c_d given in mm as metres is named.
+MAX_DIFFERENCE_SHARE = 0.1
+
+
+def datasheet_pairs(text: str, *, what: str = "--datasheet") -> list[tuple[str, float]]:
+    """``c_e=1.84,t_r=1.52`` (or the stacks' names, ``wheel_radius=0.1,wheel_separation=0.4``)
+    as ``(name, value)`` pairs by odocal's names, in the order given (a radius made a
+    circumference); a one-line ConfigError naming ``what`` for text that is not such pairs or
+    names no parameter. Values are checked by :func:`datasheet_values`."""
+    pairs: list[tuple[str, float]] = []
+    for item in text.split(","):
+        key, sep, value = item.partition("=")
+        try:
+            pairs.append((key.strip(), float(value)))
+        except ValueError:
+            sep = ""
+        if not sep:
+            raise ConfigError(f"{what} {shown(text)!r}: write NAME=VALUE pairs separated by "
+                              "commas, e.g. c_e=1.84,t_r=1.52 or "
+                              "wheel_radius=0.1,wheel_separation=0.4 (metres)")
+    unknown = [k for k, _ in pairs if k not in DATASHEET_NAMES and k not in STACK_NAMES]
+    if unknown:
+        raise ConfigError(f"{what}: {shown(unknown[0])!r} is not one of "
+                          f"{', '.join((*DATASHEET_NAMES, *STACK_NAMES))}")
+    return [(STACK_NAMES.get(k, k), v * 2.0 * math.pi if k == "wheel_radius" else v)
+            for k, v in pairs]
+
+
+def parse_datasheet(text: str, *, what: str = "--datasheet") -> dict[str, float]:
+    """:func:`datasheet_pairs` checked by :func:`datasheet_values` (each name once, within a
+    vehicle's range): the datasheet values by odocal's names."""
+    return datasheet_values(datasheet_pairs(text, what=what), source=what)
+
+
+def datasheet_theta(values: Any, base: Any = (), *, source: str = "datasheet"
+                    ) -> tuple[float, ...]:
+    """theta0 from named datasheet values (c_e, c_d, t_r, d; missing ones from ``base`` or the
+    placeholder), or a one-line ConfigError naming ``source``: a vehicle no wheels make
+    (:func:`vehicle_problem`), or a circumference difference beyond
+    :data:`MAX_DIFFERENCE_SHARE` of the circumference (millimetres given as metres)."""
+    theta = [float(v) for v in (base if len(base) else DATASHEET_THETA)]
+    given = datasheet_values(values, source=source)
+    for key, value in given.items():
+        theta[DATASHEET_NAMES.index(key)] = value
+    problem = vehicle_problem(theta)
+    if problem is not None:
+        raise ConfigError(f"{source}: {problem}")
+    difference = REAR_AXLE.value(theta, REAR_AXLE.difference)
+    scale = REAR_AXLE.value(theta, REAR_AXLE.scale)
+    if REAR_AXLE.difference in given and abs(difference) > MAX_DIFFERENCE_SHARE * scale:
+        raise ConfigError(
+            f"{source}: {REAR_AXLE.difference} = {difference:g} m is {abs(difference) / scale:.0%} "
+            f"of {REAR_AXLE.scale} = {scale:g} m, where two tyres of one axle differ by a few "
+            f"millimetres; {REAR_AXLE.difference} is in metres ({difference:g} mm is "
+            f"{REAR_AXLE.difference}={difference / 1000:g})")
+    return tuple(theta)
+
+
 def _check(condition: bool, section: str, key: str, value: object, expected: str) -> None:
     if not condition:
         raise ConfigError(f"setting [{section}] {key} = {value!r} is invalid: expected {expected}")
@@ -423,7 +486,7 @@ class FleetSettings:
 
 @dataclass(frozen=True)
 class GateSettings:
-    """The checks of the data against the model and the quality gate (README, "When odocal
+    """The checks of the data against the model and the quality gate (docs/checks.md, "When odocal
     refuses"). A calibration outside these limits fails (exit 3) with the reason."""
 
     c_e_m: tuple[float, float] | None = None

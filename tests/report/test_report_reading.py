@@ -193,7 +193,7 @@ def test_a_change_inside_the_log_is_never_the_plain_green_verdict(
     assert data.verdict.startswith(f"A change inside the log: c_e changed by {change.value:+.2%} "
                                    f"at t = {change.reference:.0f} s of ")
     assert "the calibration is of the part after the change" in data.verdict
-    assert "segments of ~300 m after the change" in data.verdict
+    assert "up to 300 m each) after the change" in data.verdict
     page = _page(changed, data, {})
     assert 'class="verdict partial"' in page
     assert ("<li class='sev-fallback'><b>limits the calibration</b>: c_e changed by"

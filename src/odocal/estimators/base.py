@@ -57,6 +57,8 @@ class Prepared:
     clusters : cluster label of each used segment (overlapping segments share one)
     validation_segments, validation : the validation segments and their data (None without any)
     warnings : what the user should know about the data
+    selection_warnings : what the segment selection says of the data (few segments with
+        bends): words of the segment methods only (the default fits every window)
     """
 
     drives: tuple[Drive, ...]
@@ -67,6 +69,7 @@ class Prepared:
     validation_segments: SegmentSet
     validation: RaggedSegments | None
     warnings: tuple[str, ...]
+    selection_warnings: tuple[str, ...] = ()
 
     @functools.cached_property
     def batch(self) -> SegmentBatch:
@@ -139,7 +142,8 @@ def select_identification(segments: SegmentSet, settings: Settings
 def prepare(drives: Sequence[Drive], settings: Settings) -> Prepared:
     """Cut the drives into identification and validation segments (METHOD 2)."""
     id_segments = identification_segments(drives, settings.segments)
-    used, held, warnings = select_identification(id_segments, settings)
+    used, held, selection_warnings = select_identification(id_segments, settings)
+    warnings: tuple[str, ...] = ()
     val_segments = validation_segments(drives, settings.segments)
     val_data = (validation_data(drives, val_segments, settings) if len(val_segments)
                 else None)
@@ -150,7 +154,8 @@ def prepare(drives: Sequence[Drive], settings: Settings) -> Prepared:
                      "E_p is not available",)
     return Prepared(drives=tuple(drives), segments=id_segments, used=used, held=held,
                     clusters=segment_clusters(id_segments.subset(used), settings.segments.length),
-                    validation_segments=val_segments, validation=val_data, warnings=warnings)
+                    validation_segments=val_segments, validation=val_data, warnings=warnings,
+                    selection_warnings=selection_warnings)
 
 
 

@@ -48,9 +48,9 @@ covariance (the joint information's inverse, sandwiched over clusters); what doe
 moves nothing. A change's time, and a lag (nonlinear: found on a grid), are chosen on the half
 they are fitted on. A departure the fit with it does not determine (within three of its
 standard deviations of zero: it would only move theta), or whose fit it spoils (not finite,
-a departure beyond any vehicle's, theta beyond any vehicle) is left out. The encoding's offset is the exception a log's format
-states: where the wheel rates lie on an encoding's grid, ``offset`` is in the fit with a prior
-of half a step from the start.
+a departure beyond any vehicle's, theta beyond any vehicle) is left out. The encoding's offset
+is the exception a log's format states: where the wheel rates lie on an encoding's grid,
+``offset`` is in the fit with a prior of half a step from the start.
 """
 
 from __future__ import annotations

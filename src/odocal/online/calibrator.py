@@ -805,3 +805,20 @@ class OnlineCalibrator:
         return 0.0 if self._builder is None else self._builder.distance_m / 1000.0
 
 
+
+    def __repr__(self) -> str:
+        """What it has taken in, and the running parameters beside the datasheet values (the
+        table a replay prints; :meth:`estimate` gives their uncertainty and verdicts)."""
+        from odocal.estimators.estimate import parameter_text
+
+        windows = 0 if self._windows is None else self._windows.size
+        state = ("halted: the data contradict the model (estimate().details.findings)"
+                 if self._halted else f"{len(self._alarms)} alarm(s)")
+        lines = [f"OnlineCalibrator({self._samples} samples, {self.distance_km:.2f} km, "
+                 f"{windows} windows in memory, {self._folded.clusters} clusters folded, "
+                 f"{state})",
+                 f"{'parameter':<10} {'datasheet':>16} {'running':>16}"]
+        for name, sheet, now in zip(PARAMETER_NAMES, self.datasheet, self.theta, strict=True):
+            lines.append(f"{name:<10} {parameter_text(name, float(sheet)):>16} "
+                         f"{parameter_text(name, float(now)):>16}")
+        return "\n".join(lines)

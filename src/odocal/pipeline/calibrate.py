@@ -75,7 +75,7 @@ from odocal.io.drivefile import load_drive
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.model.vehicle import MODEL
 from odocal.pipeline.result import CalibrationResult, summarise
-from odocal.settings import Settings
+from odocal.settings import Settings, datasheet_theta
 
 if TYPE_CHECKING:
     from odocal.estimators.inverse import Screen
@@ -216,21 +216,6 @@ def with_stated_datasheet(drives: Sequence[Drive], settings: Settings) -> Settin
     return settings.replace(identify={"theta0": datasheet_theta(next(iter(stated.values())))})
 
 
-def datasheet_theta(values: Mapping[str, Any], base: Sequence[float] = ()) -> tuple[
-        float, ...]:
-    """theta0 from named datasheet values (c_e, c_d, t_r, d; missing ones from ``base`` or the
-    placeholder), or a one-line ConfigError."""
-    from odocal.settings import DATASHEET_THETA, datasheet_values, vehicle_problem
-
-    theta = list(base or DATASHEET_THETA)
-    for key, value in datasheet_values(values, source="datasheet").items():
-        theta[PARAMETER_NAMES.index(key)] = value
-    problem = vehicle_problem(theta)
-    if problem is not None:
-        raise ConfigError(f"datasheet: {problem}")
-    return tuple(theta)
-
-
 def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
               settings: Settings | None = None, method: str | None = None,
               progress: ProgressCallback | None = None) -> CalibrationResult:
@@ -256,6 +241,10 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     method = method or DEFAULT_METHOD
     if method not in METHODS:
         raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if method == "compensated":                  # its QP is compiled: before anything is read
+        from odocal.model._jit import require
+
+        require("the compensated method (--method compensated)")
     clock = Stopwatch(progress)
     with clock.stage("read"):
         drive_list = load_drives(drives, settings=settings)
@@ -320,7 +309,9 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         diagnosis = diagnosis.plus(fitted)
         if diagnosis.fatal:
             estimate = dataclasses.replace(estimate, status=Status.REJECTED)
-    warnings = [*prep.warnings, *outcome.warnings]
+    # the segment selection's words are the segment methods' (the default fits every window)
+    selection = prep.selection_warnings if method != "inverse" else ()
+    warnings = [*selection, *prep.warnings, *outcome.warnings]
     if boot is not None and not all(boot.agree):
         warnings.append(boot.message)
     val = datasheet = None

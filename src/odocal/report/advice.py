@@ -130,9 +130,8 @@ def _not_identified(name: str, label: str, verdict: NotIdentified, cov: Coverage
     if reason is Reason.NEEDS_BENDS:
         return (f"{label} needs bends: its effect shows only when the vehicle turns, and this "
                 f"drive's yaw rate exceeds {threshold} rad/s for {cov.bend_s:.0f} s (the "
-                f"largest segment peak is {verdict.detail:.3f} rad/s). Drive through at least "
-                f"10 bends or junction turns (each in a {segment_s:.0f} s segment, as the "
-                "method's batches use) or a few roundabouts, then calibrate again.")
+                f"largest is {verdict.detail:.3f} rad/s). Drive through at least 10 bends or "
+                "junction turns, or a few roundabouts, then calibrate again.")
     if reason is Reason.WEAK:
         factor = (verdict.std / verdict.limit) ** 2 if verdict.limit > 0 else float("inf")
         return (f"{label} is determined only to +-{format_value(name, verdict.std)} by {have}, "
@@ -170,8 +169,8 @@ def reason_text(name: str, verdict: NotIdentified, *, threshold_radps: float) ->
     """Why a parameter is not identified, in one clause (for the CLI and warnings)."""
     reason = verdict.reason
     if reason is Reason.NEEDS_BENDS:
-        return (f"needs bends: no segment has a peak yaw rate above {threshold_radps} rad/s "
-                f"(the largest is {verdict.detail:.3f} rad/s); kept at the datasheet value")
+        return (f"needs bends: the yaw rate never exceeds {threshold_radps} rad/s (at most "
+                f"{verdict.detail:.3f} rad/s); kept at the datasheet value")
     if reason is Reason.WEAK:
         return (f"the data determine {name} only to +-{format_value(name, verdict.std)} (the "
                 f"limit is +-{format_value(name, verdict.limit)}); kept at the datasheet value")
@@ -287,7 +286,13 @@ def finding_text(finding: Finding, settings: Settings) -> str:
             return (f"with the datasheet c_e ({c_e:g} m) the wheels imply {v:.3f} times the "
                     "distance the reference travels: is [identify] theta0 set for this "
                     f"vehicle?{speeds}")
-        factor, cause = min(_SCALE_HINTS, key=lambda h: abs(np.log(v / h[0])))
+        c_e = settings.identify.datasheet("c_e")
+        unit_hints = ((3.6 * c_e, 'wheel speeds in km/h given as rev/s: give the mapping\'s unit = '
+                              '"km/h"'),
+                  (c_e, 'wheel speeds in m/s given as rev/s: give the mapping\'s unit = "m/s"'),
+                  (3.6 * c_e / 1.609344, 'wheel speeds in mph given as rev/s: give the '
+                                         'mapping\'s unit = "mph"'))
+        factor, cause = min((*_SCALE_HINTS, *unit_hints), key=lambda h: abs(np.log(v / h[0])))
         hint = f" ({cause}?)" if abs(np.log(v / factor)) < 0.25 else ""
         from odocal.settings import datasheet_stated
 

@@ -39,6 +39,8 @@ class MapSegment:
     reference: FloatArray
     datasheet: FloatArray
     calibrated: FloatArray
+    turn_rad: float = 0.0
+    """How far the reference's heading turns over the segment."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"drive": self.drive, "start_s": self.start_s, "distance_m": self.distance_m,
@@ -188,11 +190,14 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
         if after >= before:
             return (f"Do not use: the calibrated parameters validate no better than the datasheet "
                     f"values ({after:.2f} m against {before:.2f} m).", "bad")
+        worse = int(np.sum(np.asarray(result.validation.errors.mean_m)
+                           > np.asarray(result.datasheet_validation.errors.mean_m)))
+        n = len(result.validation.segments)
         base = (f"Calibrated: the validation error E_p falls from {before:.2f} m to {after:.2f} m "
-                f"(-{(1 - after / before) * 100:.0f}%) over {len(result.validation.segments)} "
-                f"segments of ~{result.settings.segments.validation_distance_m:.0f} m"
-                + (" after the change" if change is not None else ""))
-        level = "good"
+                f"(-{(1 - after / before) * 100:.0f}%) over {result.validation_text()}"
+                + (" after the change" if change is not None else "")
+                + (f", though {worse} of the {n} got worse" if worse and n > 1 else ""))
+        level = "good" if not worse else "partial"
     zero = consistent_with_zero(est)
     said_zero = (f" ({', '.join(zero)} consistent with zero: no measurable "
                  f"{' or '.join(ZERO_MEANS[n] for n in zero)})" if zero else "")
@@ -212,7 +217,7 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
     if km < MIN_DISTANCE_KM:
         # said first: the numbers after it look good and are not to be trusted yet
         base = (f"Drive too short to trust: {km:.2f} km of driving, less than the "
-                f"{MIN_DISTANCE_KM:g} km a calibration should rest on (README, 'Real logs'); "
+                f"{MIN_DISTANCE_KM:g} km a calibration should rest on (docs: real logs); "
                 f"check it on another drive. {base}")
         level = "partial" if level == "good" else level
     if result.bootstrap is not None and not all(result.bootstrap.agree):
@@ -245,7 +250,7 @@ def _taken_out(f: Finding) -> str:
 
 
 #: Less driving than this never gets the green verdict: its validation rests on a handful of
-#: segments, and a few bends decide t_r and d (README, "Real logs").
+#: segments, and a few bends decide t_r and d (docs/real-logs.md).
 MIN_DISTANCE_KM = 2.0
 
 
@@ -463,6 +468,7 @@ def _maps(result: CalibrationResult, drives: Sequence[Drive], segs: Any) -> list
         began = first.get(d.name, float(d.t[0]))
         out.append(MapSegment(drive=d.name, start_s=float(d.t[s]) - began,
                               distance_m=float(segs.distance_m[i]), reference=ref,
+                              turn_rad=float(turn[i]),
                               datasheet=rollout(theta0, u, x0, d.t_s)[:, :2],
                               calibrated=rollout(theta, u, x0, d.t_s)[:, :2]))
     return out
