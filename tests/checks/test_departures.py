@@ -258,17 +258,41 @@ def test_one_tyre_losing_pressure_inside_a_log_is_named() -> None:
 @pytest.mark.parametrize(("seed", "wheelbase", "method"), [(44, 2.9, "inverse"),
                                                            (45, 2.3, "inverse"),
                                                            (53, 2.6, "raw")])
-def test_front_wheels_mapped_as_rear_ones_are_named_not_refused(seed: int, wheelbase: float,
-                                                                method: str) -> None:
-    """Front wheels travel (L kappa)^2 / 2 more than the rear axle in bends: the one fit takes
-    that in (``curve``) and names it with the distance ahead; the calibration is of the wheels
-    given (nothing is refused for a departure; a four-wheel log tells front from rear)."""
+def test_front_wheels_mapped_as_rear_ones_are_refused(seed: int, wheelbase: float,
+                                                      method: str) -> None:
+    """Front wheels travel (L kappa)^2 / 2 more than the rear axle in bends: on a reference
+    with a heading of its own, where nothing else the one fit takes in explains it (a lever
+    arm, a smoothed reference), they are refused, with the distance ahead."""
     drive = dep.front_wheels(sim(seed), wheelbase)
     result = odocal.calibrate(drive.drive, method=method)
+    assert result.estimate.status is odocal.Status.REJECTED
+    (finding,) = [f for f in result.diagnosis.findings if f.check is Check.FRONT_WHEELS]
+    assert finding.severity is Severity.FATAL
+    assert finding.value == pytest.approx(wheelbase, rel=0.2)
+
+
+@pytest.mark.parametrize(("seed", "tau"), [(54, 0.3), (59, 1.0)])
+def test_a_smoothed_reference_is_never_refused_as_front_wheels(seed: int, tau: float) -> None:
+    """A pose low-pass filtered (x, y and heading, time constant tau) cuts the bends short, by
+    (w sigma)^2 / 2: the one fit takes that in (``cut``, which grows with speed, where front
+    wheels' excess does not), and theta stays right."""
+    plain = sim(seed, duration_s=1200.0)
+    cols = dict(plain.drive.columns())
+    cols.pop("yaw_rate", None)
+    alpha = plain.drive.t_s / tau
+    for key in ("x", "y", "psi"):
+        x = np.unwrap(cols[key]) if key == "psi" else cols[key]
+        y = np.empty_like(x)
+        y[0] = x[0]
+        for k in range(1, x.size):
+            y[k] = y[k - 1] + alpha * (x[k] - y[k - 1])
+        cols[key] = y
+    result = odocal.calibrate(odocal.Drive.from_columns(cols, name="smoothed"))
     assert result.estimate.status is not odocal.Status.REJECTED
-    (finding,) = [f for f in result.diagnosis.findings if f.check is Check.CURVE_EXCESS]
-    assert finding.severity is Severity.NOTE
-    assert np.sqrt(2.0 * finding.value) == pytest.approx(wheelbase, rel=0.2)
+    assert Check.FRONT_WHEELS not in checks_of(result)
+    assert Check.REFERENCE_SMOOTHED in checks_of(result)
+    truth = odocal.calibrate(plain.drive).estimate.theta.as_array()
+    assert confidently_wrong(result, truth) == []
 
 
 @pytest.mark.parametrize("seed", [46, 47, 48])

@@ -112,15 +112,14 @@ def test_a_heading_error_varying_with_the_heading_is_taken_out() -> None:
         assert run.estimate.identified[0]
 
 
-def test_front_wheels_logged_as_the_rear_ones_are_named_not_refused() -> None:
-    """The live path's one fit takes the wheels' excess in bends in as batch's does, names it
-    with the distance ahead, and publishes the wheels given (a tyre change, a lever arm or a
-    smoothed reference never turns into a refusal)."""
+def test_front_wheels_logged_as_the_rear_ones_are_refused() -> None:
+    """The live path's one fit takes the wheels' excess in bends in as batch's does, and
+    refuses front wheels the same way (on a reference with its own heading)."""
     for seed, wheelbase in ((38, 2.9), (39, 2.4)):
         run = pushed(_simulated(departures.front_wheels(dep.base(seed, 420.0), wheelbase)))
-        assert run.estimate.status is not Status.REJECTED
-        (curve,) = [f for f in run.estimate.details.findings if f.check is Check.CURVE_EXCESS]
-        assert np.sqrt(2.0 * curve.value) == pytest.approx(wheelbase, rel=0.25)
+        assert run.estimate.status is Status.REJECTED
+        (front,) = [f for f in run.estimate.details.findings if f.check is Check.FRONT_WHEELS]
+        assert front.value == pytest.approx(wheelbase, rel=0.25)
 
 
 def test_windows_corrected_after_the_fact_equal_windows_of_corrected_samples(

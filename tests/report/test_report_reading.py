@@ -263,21 +263,19 @@ def test_the_departures_taken_out_are_named_with_their_numbers(
     assert json.dumps(data.to_dict()["corrections"])          # in calibration.json as well
 
 
-def test_front_wheels_are_named_and_the_wheels_given_calibrated() -> None:
-    """Front wheels mapped as the rear ones travel (L kappa)^2 / 2 more in bends: the one fit
-    takes that excess in (``curve``), names it with the distance ahead, and calibrates the
-    wheels given; nothing is refused for a departure."""
+def test_front_wheels_are_refused_and_nothing_reads_as_calibrated() -> None:
     sim = dep.front_wheels(odocal.simulate(duration_s=600.0, seed=44, noise="realistic"), 2.9)
     result = odocal.calibrate(sim.drive)
-    assert result.success
-    (curve,) = [f for f in result.diagnosis.findings if f.check is Check.CURVE_EXCESS]
-    assert np.sqrt(2.0 * curve.value) == pytest.approx(2.9, abs=0.3)
-    page = _page(result, build(result), {})
-    assert re.search(r"as steered wheels 2\.\d m ahead of it do \(front wheels mapped as the "
-                     r"rear ones\?", _text(page))
-    # the wheels given are calibrated: their circumference as the simulation made it
-    est = result.estimate
-    assert abs(est.theta.c_e - sim.true_parameters.c_e) < 3.0 * est.std[0]
+    data = build(result)
+    assert data.verdict_level == "bad"
+    assert data.verdict.startswith("Do not use: the wheel speeds turn as wheels ")
+    page = _page(result, data, {})
+    cells = re.findall(r"<td class='(\w+)'>([^<]*)</td></tr>", page.split(
+        '<table id="parameters">')[1].split("</table>")[0])
+    assert cells == [("no", "rejected")] * 4
+    assert "<li class='sev-fatal'><b>refuses the calibration</b>: the wheel speeds turn" in page
+    assert "nothing else the fit took in (a lever arm, a smoothed reference, slip) explains it" \
+        in _text(page)
 
 
 # ---------------------------------------------------------------- consistent with zero

@@ -51,6 +51,7 @@ class Check(enum.Enum):
     SIDESLIP = "sideslip"
     DRIFT = "drift"
     DRIVE_DEPARTS = "drive-departs"
+    REFERENCE_SMOOTHED = "reference-smoothed"
 
 
 class Severity(enum.IntEnum):

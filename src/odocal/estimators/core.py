@@ -78,6 +78,7 @@ from odocal.estimators.windows import (
     AT_BETA_TURN,
     AT_COS_TURN,
     AT_CURVE,
+    AT_CUT,
     AT_LAT,
     AT_MOVING,
     AT_TURN2,
@@ -97,7 +98,7 @@ THETA = slice(0, LAYOUT.size)
 P = dep.P
 KAPPA, LAG, OFFSET = (dep.at(n) for n in ("spread", "lag", "offset"))
 LEFT, RIGHT = dep.at("offset_left"), dep.at("offset_right")
-ARM_X, ARM_Y, CURVE = (dep.at(n) for n in ("arm_x", "arm_y", "curve"))
+ARM_X, ARM_Y, CURVE, CUT = (dep.at(n) for n in ("arm_x", "arm_y", "curve", "cut"))
 LAT_OFFSET, LAT_SCALE, SLIP, DRIFT = (dep.at(n) for n in ("lateral_offset", "lateral_scale",
                                                           "slip", "drift"))
 CHANGE = np.array([dep.at("change_e"), dep.at("change_d")])
@@ -320,7 +321,9 @@ def wheels(p: FloatArray, view: View, *, smooth: bool, unseen_d: bool = False,
     # the axle's direction of travel: ds + arm_y 2 sin(dpsi/2) cos(beta) - arm_x ... sin(beta)),
     # and the wheels' excess in bends (``curve``)
     turn, beta_turn, curve = base[:, AT_COS_TURN], base[:, AT_BETA_TURN], base[:, AT_CURVE]
-    moments[:, 0] += p[ARM_Y] * turn - p[ARM_X] * beta_turn + p[CURVE] * curve
+    cut = base[:, AT_CUT]
+    moments[:, 0] += (p[ARM_Y] * turn - p[ARM_X] * beta_turn + p[CURVE] * curve
+                      + p[CUT] * cut)
     pred, jac_theta = MODEL.predict(theta, moments)
     if unseen_d:
         jac_theta[..., LAYOUT.index(LAYOUT.load)] = MODEL.load_transfer_column(theta, moments)
@@ -354,6 +357,7 @@ def wheels(p: FloatArray, view: View, *, smooth: bool, unseen_d: bool = False,
     jac[..., ARM_Y] = turn[:, None] * gain
     jac[..., ARM_X] = -beta_turn[:, None] * gain
     jac[..., CURVE] = curve[:, None] * gain
+    jac[..., CUT] = cut[:, None] * gain
     jac[:, 0, OFFSET] = jac[:, 1, OFFSET] = moving
     jac[:, 0, LEFT], jac[:, 1, RIGHT] = moving, moving
     if tau is not None:
@@ -696,7 +700,7 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
               and (setup.lateral or b[0] not in dep.LATERAL)
               and (setup.across or b[0] not in dep.ACROSS)
               and not (distance_only and b[0] in ("offset_left", "offset_right", "lag",
-                                                  "spread", "arm_y", "curve"))
+                                                  "spread", "arm_y", "curve", "cut"))
               and not any(n in setup.stated for n in b)]
     channels = np.array([1.0, 0.0 if distance_only else 1.0])
     unseen_d = LAYOUT.load in held and held[LAYOUT.load].reason is Reason.NO_LATERAL
@@ -843,17 +847,17 @@ def _determined(state: _State, windows: WindowSet, folded: Folded, free_p: BoolA
 
 def _acceptable(state: _State, settings: Settings) -> bool:
     """Whether a fit with a departure just entered can stand: finite, every departure within
-    its bound (a change at least ``[checks] change_min`` of c_e), theta within any vehicle's
-    range."""
-    from odocal.checks.gate import gate
-
+    its bound (a change at least ``[checks] change_min`` of c_e), theta within any wheeled
+    vehicle's range (the layout's; whether it is this vehicle's is the gate's, after the fit:
+    a tyre that lost 2% is named, and then refused there)."""
     p = state.fit.p
     if not np.all(np.isfinite(p)) or np.any(np.abs(p[LAYOUT.size:]) > dep.BOUNDS):
         return False
     if np.any(p[CHANGE]) and np.all(np.abs(p[CHANGE]) < settings.checks.change_min
                                     * abs(float(p[_E]))):
         return False                   # a step that small is no change of the wheels
-    return not gate(p[THETA], settings, error_m=None, datasheet_error_m=None, segment_m=None)
+    return all(spec.vehicle_range[0] <= float(v) <= spec.vehicle_range[1]
+               for spec, v in zip(LAYOUT.parameters, p[THETA], strict=True))
 
 
 @dataclass(frozen=True)

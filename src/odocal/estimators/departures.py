@@ -25,6 +25,8 @@ name                what it does to a window                                    
 ``curve``           the wheels travel ``q dpsi^2 / ds`` more than the axle: wheels a  m^2
                     distance ``L`` ahead (``q = L^2 / 2``), or a reference whose
                     heading is its course, ``arm_x`` ahead (``q = -arm_x^2 / 2``)
+``cut``             the reference travels ``c w^2 ds`` less than the axle: smoothed  s^2
+                    in time over ``sigma`` it cuts bends short (``c = sigma^2 / 2``)
 ``lateral_offset``  a_y reads ``o`` more than the reference's ``v w`` ...             m/s^2
 ``lateral_scale``   ... and ``1 + s`` times it (the window's a_y against its ``v w``;   1
                     theta is for a_y as logged, and what the two would make of c_d
@@ -92,6 +94,8 @@ NUISANCES: tuple[Nuisance, ...] = (
     Nuisance("arm_x", "m", "the reference point ahead of the rear axle", 20.0),
     Nuisance("arm_y", "m", "the reference point left of the rear axle", 20.0),
     Nuisance("curve", "m^2", "the wheels' excess travel per unit of curvature squared", 50.0),
+    Nuisance("cut", "s^2", "the reference's shortfall in bends per unit of yaw rate squared",
+             10.0),
     Nuisance("lateral_offset", "m/s^2", "a_y's offset", 5.0),
     Nuisance("lateral_scale", "1", "a_y's scale less one", 0.9),
     Nuisance("slip", "rad/(m/s^2)", "the rear axle's sideslip per m/s^2", 0.1),
@@ -115,8 +119,8 @@ def at(name: str) -> int:
 #: The groups that enter together (a change is a step of c_e and c_d at one time).
 BLOCKS: tuple[tuple[str, ...], ...] = (
     ("spread",), ("lag",), ("offset",), ("offset_left",), ("offset_right",), ("arm_x",),
-    ("arm_y",), ("curve",), ("lateral_offset",), ("lateral_scale",), ("slip",), ("drift",),
-    ("change_e", "change_d"))
+    ("arm_y",), ("curve",), ("cut",), ("lateral_offset",), ("lateral_scale",), ("slip",),
+    ("drift",), ("change_e", "change_d"))
 #: Those that act through the reference channels (the reference's sideways motion, a_y).
 REFERENCE_CHANNEL = ("arm_x", "slip", "lateral_offset", "lateral_scale")
 #: Those the live path tries (a change it detects, and a drift it follows, over time).
@@ -246,11 +250,19 @@ def corrected(drives: Sequence[Drive], values: Mapping[str, float],
     return out
 
 
+#: Wheels whose excess in bends puts them this far ahead of the rear axle (m, a short car's
+#: wheelbase) ...
+FRONT_MIN_M = 1.5
+#: ... determined beyond this many standard deviations, are front wheels mapped as rear ones.
+_FRONT_SIGMAS = 5.0
+
+
 def findings(p: FloatArray, std: FloatArray, entered: Sequence[str], *, t_s: float,
              reference_shift_s: float = 0.0, change: tuple[float, str] | None = None,
-             ) -> list[Finding]:
+             heading_own: bool = False) -> list[Finding]:
     """What the entered departures say, each named with its value and standard deviation
-    (``std`` (P,)). ``change``: the change's time and drive."""
+    (``std`` (P,)). ``change``: the change's time and drive; ``heading_own``: the reference's
+    heading is its own, not its course (front wheels can then be told from a lever arm)."""
     out: list[Finding] = []
     names = set(entered)
 
@@ -276,7 +288,18 @@ def findings(p: FloatArray, std: FloatArray, entered: Sequence[str], *, t_s: flo
         if name in names:
             out.append(Finding(Check.REFERENCE_ARM, Severity.NOTE, *value(name), label))
     if "curve" in names:
-        out.append(Finding(Check.CURVE_EXCESS, Severity.NOTE, *value("curve")))
+        q, q_std = value("curve")
+        distance = math.sqrt(2.0 * q) if q > 0 else 0.0
+        if heading_own and distance >= FRONT_MIN_M and q > _FRONT_SIGMAS * q_std:
+            # wheels a wheelbase ahead of the axle, on a reference with its own heading (no
+            # course for a lever arm to hide in), and nothing else the fit took in explains
+            # them (a smoothed reference is ``cut``, a lever arm ``arm_x``)
+            out.append(Finding(Check.FRONT_WHEELS, Severity.FATAL, distance,
+                               q_std / max(2.0 * distance, 1e-9)))
+        else:
+            out.append(Finding(Check.CURVE_EXCESS, Severity.NOTE, q, q_std))
+    if "cut" in names:
+        out.append(Finding(Check.REFERENCE_SMOOTHED, Severity.NOTE, *value("cut")))
     if "lateral_offset" in names:
         out.append(Finding(Check.LATERAL_OFFSET, Severity.NOTE, *value("lateral_offset"),
                            "a_y"))

@@ -42,12 +42,13 @@ BoolArray = NDArray[np.bool_]
 #: direction of travel), ``dpsi^2 / ds`` on moving steps (the curvature squared: wheels ahead
 #: of the axle, or a reference whose heading is its course), ``a t_s`` and ``v w t_s`` (the
 #: lateral acceleration against the reference's own).
-COLUMNS = 3 * SERIES + 10
+COLUMNS = 3 * SERIES + 11
 #: The index of the moving time among the moment columns ...
 MOVING = 3 * SERIES + 3
-#: ... of the chord's two parts, ``dpsi^2 / ds``, ``a t_s``, ``v w t_s`` and ``w^2 t_s`` (what a
-#: point beside the axle adds to ``v w``).
-BETA_TURN, CURVE, ACCEL, AREF, COS_TURN, TURN2 = (MOVING + k for k in range(1, 7))
+#: ... of the chord's two parts, ``dpsi^2 / ds``, ``a t_s``, ``v w t_s``, ``w^2 t_s`` (what a
+#: point beside the axle adds to ``v w``) and ``w^2 ds`` (a reference smoothed in time cuts a
+#: bend short by ``(w sigma)^2 / 2`` of it).
+BETA_TURN, CURVE, ACCEL, AREF, COS_TURN, TURN2, CUT = (MOVING + k for k in range(1, 8))
 #: The largest curvature a moving step counts in ``dpsi^2 / ds`` (1/m: a 2 m radius; beyond it a
 #: reference's jitter at a crawl, not a bend).
 MAX_CURVATURE = 0.5
@@ -55,8 +56,8 @@ MAX_CURVATURE = 0.5
 #: departures: ``beta dpsi``, ``dpsi^2 / ds``, ``a t_s``, ``v w t_s`` and the step across the
 #: turned heading (the reference's sideways motion).
 AT_MOVING = 2 * SERIES + 2
-AT_BETA_TURN, AT_CURVE, AT_ACCEL, AT_AREF, AT_COS_TURN, AT_TURN2, AT_LAT = (
-    AT_MOVING + k for k in range(1, 8))
+AT_BETA_TURN, AT_CURVE, AT_ACCEL, AT_AREF, AT_COS_TURN, AT_TURN2, AT_CUT, AT_LAT = (
+    AT_MOVING + k for k in range(1, 9))
 AT_WIDTH = AT_LAT + 1
 #: A step moves when the reference goes faster than this (m/s).
 MOVING_MPS = 0.5
@@ -205,7 +206,7 @@ def _rotated(moments: FloatArray, offset: float) -> FloatArray:
         c, s = math.cos(offset), math.sin(offset)
         across = lat[..., :1] * c - ds[..., :1] * s
         ds, rds = ds * c + lat * s, rds * c + rlat * s
-    return np.concatenate([ds, dpsi, rds, rdpsi, moments[..., MOVING:MOVING + 7], across],
+    return np.concatenate([ds, dpsi, rds, rdpsi, moments[..., MOVING:MOVING + 8], across],
                           axis=-1)
 
 
@@ -316,7 +317,8 @@ class WindowBuilder:
         chord = 2.0 * np.sin(0.5 * dpsi)
         extra = np.column_stack([chord * np.sin(ring[:, _BETA]), kappa * kappa * np.abs(ds),
                                  a * self.t_s, a_ref[:, 0] * self.t_s,
-                                 chord * np.cos(ring[:, _BETA]), dpsi * dpsi / self.t_s])
+                                 chord * np.cos(ring[:, _BETA]), dpsi * dpsi / self.t_s,
+                                 np.abs(ds) * (dpsi / self.t_s) ** 2])
         columns = np.concatenate([ds[:, None] * power, dpsi[:, None] * power,
                                   ring[:, _LAT, None] * power,
                                   ring[:, [_DS, _DPSI, _LAT]] * a_ref, moving, extra], axis=1)

@@ -720,7 +720,10 @@ class OnlineCalibrator:
         total[core.LAG] = found.lag.shift if "lag" in found.entered else 0.0
         named = fitted.findings(total, found.nuisance_std, found.entered,
                                 t_s=self._t_s or 0.0,
-                                reference_shift_s=self._departures.reference_shift_s)
+                                reference_shift_s=self._departures.reference_shift_s,
+                                heading_own=self._setup(windows).across)
+        if any(f.severity is Severity.FATAL for f in named):
+            status = Status.REJECTED
         return Estimate(method="online", theta=Parameters.from_array(theta),
                         datasheet=Parameters.from_array(self.datasheet),
                         covariance=found.covariance, covariance_kind=CovarianceKind.RECURSIVE,

@@ -349,14 +349,24 @@ def _departure_text(finding: Finding) -> str:
                 "validation and the exported trajectories; state it with [reference] offset_m")
     if c is Check.CURVE_EXCESS:
         if v > 0:
-            return (f"the wheels travel more than the rear axle in bends, as steered wheels "
+            return (f"the wheels travel more than the rear axle in bends, as wheels "
                     f"{math.sqrt(2.0 * v):.1f} m ahead of it do (front wheels mapped as the "
-                    "rear ones? or a reference smoothed through bends): fitted, so the "
+                    "rear ones, on a reference whose heading is its course?): fitted, so the "
                     "parameters are those of the wheels given; map the rear wheels for the "
                     "rear axle's")
         return (f"the wheels travel less than the reference in bends, as a reference "
                 f"{math.sqrt(-2.0 * v):.1f} m ahead of the axle whose heading is its course "
                 f"does (or tyres that slip in tight bends): {fitted}")
+    if c is Check.FRONT_WHEELS:
+        return (f"the wheel speeds turn as wheels {v:.1f} m (+-{ref:.1f}) ahead of the rear "
+                "axle do in bends, on a reference with a heading of its own, and nothing else "
+                "the fit took in (a lever arm, a smoothed reference, slip) explains it: front "
+                "wheels mapped as the rear ones? odocal's model is the rear axle's; map the "
+                "rear wheels (nothing is calibrated from these)")
+    if c is Check.REFERENCE_SMOOTHED:
+        return (f"the reference travels less than the wheels in bends at speed, as a pose "
+                f"smoothed over about {math.sqrt(2.0 * max(v, 0.0)):.2f} s does (it cuts the "
+                f"bends short): {fitted}")
     if c is Check.LATERAL_GAIN:
         return (f"a_y reads {1.0 + v:.3f} (+-{ref:.3f}) times the reference's lateral "
                 "acceleration (a body that rolls in bends, or an accelerometer's scale): the "
