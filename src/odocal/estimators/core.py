@@ -699,8 +699,8 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
               if (timing or b[0] not in dep.TIMING)
               and (setup.lateral or b[0] not in dep.LATERAL)
               and (setup.across or b[0] not in dep.ACROSS)
-              and not (distance_only and b[0] in ("offset_left", "offset_right", "lag",
-                                                  "spread", "arm_y", "curve", "cut"))
+              and not (distance_only and b[0] in ("offset_left", "lag", "spread", "arm_y",
+                                                  "curve", "cut"))
               and not any(n in setup.stated for n in b)]
     channels = np.array([1.0, 0.0 if distance_only else 1.0])
     unseen_d = LAYOUT.load in held and held[LAYOUT.load].reason is Reason.NO_LATERAL
@@ -832,17 +832,20 @@ _DETERMINED = 3.0
 
 def _determined(state: _State, windows: WindowSet, folded: Folded, free_p: BoolArray,
                 block: Sequence[str]) -> bool:
-    """Whether the departure ``block`` just entered is determined by the fit: some element
-    beyond :data:`_DETERMINED` of its standard deviations from zero (the lag: its shift from
-    the scan's start, which is the reference's own alignment)."""
+    """Whether the departure ``block`` just entered is determined by the fit: its values
+    beyond :data:`_DETERMINED` of their standard deviations from zero, jointly (Wald's
+    statistic against the chi-square quantile of a normal's three-sigma tail: one wheel's
+    offset is told well by the wheels' difference even where which wheel it is is not); the
+    lag's value is its shift from the scan's start, which is the reference's own alignment."""
+    from scipy.special import chdtri, ndtr
+
     found = covariance(state.fit, windows, folded, free_p, few=False)
-    for name in block:
-        j = dep.at(name)
-        value = state.lag.shift + float(state.fit.p[j]) if name == "lag" else float(
-            state.fit.p[j])
-        if abs(value) > _DETERMINED * float(found.p_std[j]):
-            return True
-    return False
+    index = [dep.at(name) for name in block]
+    values = np.array([state.lag.shift + float(state.fit.p[j]) if name == "lag"
+                       else float(state.fit.p[j]) for name, j in zip(block, index, strict=True)])
+    cov = found.p_cov[np.ix_(index, index)]
+    wald = float(values @ np.linalg.pinv(cov) @ values)
+    return wald > float(chdtri(len(block), 2.0 * (1.0 - ndtr(_DETERMINED))))
 
 
 def _acceptable(state: _State, settings: Settings) -> bool:
@@ -1202,6 +1205,7 @@ class Uncertainty:
     widening: FloatArray
     offset_std: float = 0.0
     p_std: FloatArray = field(default_factory=lambda: np.zeros(P))
+    p_cov: FloatArray = field(default_factory=lambda: np.zeros((P, P)))
 
 
 def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray,
@@ -1277,7 +1281,7 @@ def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray
         widening = np.where(base > 0, std / base, 1.0)
     p_std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     return Uncertainty(cov[THETA, THETA], clusters, info[:, THETA, THETA], scores[:, THETA],
-                       widening, float(p_std[OFFSET]), p_std)
+                       widening, float(p_std[OFFSET]), p_std, cov)
 
 
 def _effective_clusters(info: FloatArray, cluster: IntArray, folded: Folded,

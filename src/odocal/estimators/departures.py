@@ -17,8 +17,8 @@ name                what it does to a window                                    
                     channel (a slip that grows with acceleration is common to both
                     wheels and would pass for a lag in the distance channel)
 ``offset``          both wheels read ``o`` more per second of moving                 rev/s
-``offset_left``     the left one alone reads ``o`` more per second of moving         rev/s
-``offset_right``    the right one alone does                                          rev/s
+``offset_left``     the left one reads ``o`` more per second of moving, and ...       rev/s
+``offset_right``    ... the right one its own (the two enter together)                 rev/s
 ``arm_x, arm_y``    the reference point ahead of and left of the axle: the axle       m
                     travels ``ds + arm_y dpsi - arm_x beta dpsi``, and the reference
                     moves ``arm_x dpsi + arm_y beta dpsi`` across its heading
@@ -116,9 +116,11 @@ def at(name: str) -> int:
     return THETA_SIZE + NAMES.index(name)
 
 
-#: The groups that enter together (a change is a step of c_e and c_d at one time).
+#: The groups that enter together (a change is a step of c_e and c_d at one time; each wheel's
+#: own offset with the other's: the wheels' difference tells one wheel's offset well, and
+#: which wheel it is, their mean against c_e, poorly, so neither is left out of the other).
 BLOCKS: tuple[tuple[str, ...], ...] = (
-    ("spread",), ("lag",), ("offset",), ("offset_left",), ("offset_right",), ("arm_x",),
+    ("spread",), ("lag",), ("offset",), ("offset_left", "offset_right"), ("arm_x",),
     ("arm_y",), ("curve",), ("cut",), ("lateral_offset",), ("lateral_scale",), ("slip",),
     ("drift",), ("change_e", "change_d"))
 #: Those that act through the reference channels (the reference's sideways motion, a_y).
