@@ -354,7 +354,7 @@ class InverseSettings:
     clocks apart, by up to a second are found and taken out. A calibration first aligns the
     reference to the wheels' clock by cross-correlation (where it is further off than half of
     ``lag_scan_s``), then the fit scans ``lag_scan_s`` either way."""
-    lag_scan_s: float = 0.25
+    lag_scan_s: float = 0.4
     """How far the fit's own lag scan reaches either way around that alignment (every piece of
     a drive loses this much, and two steps, at either end: a whole second would take a tenth of
     a 20 s log)."""

@@ -68,7 +68,7 @@ STRAIGHT_YAW_RADPS = 0.02
 #: Samples of straight stretches below which no heading offset is applied (five seconds).
 STRAIGHT_MIN_SAMPLES = 200
 #: Steps either way the moments are differenced over for their derivatives in the shift.
-SPAN = 10
+SPAN = 16
 #: Steps of a window that set its peak yaw rate by their moving average (noise is not a bend).
 _YAW_SMOOTHING = 5
 #: Per-step columns the builder keeps: t, revolutions rl, rr, ds, dpsi, lat, a, dx, dy, psi,
