@@ -290,7 +290,7 @@ def test_a_smoothed_reference_is_never_refused_as_front_wheels(seed: int, tau: f
     result = odocal.calibrate(odocal.Drive.from_columns(cols, name="smoothed"))
     assert result.estimate.status is not odocal.Status.REJECTED
     assert Check.FRONT_WHEELS not in checks_of(result)
-    assert Check.REFERENCE_SMOOTHED in checks_of(result)
+    assert checks_of(result) & {Check.REFERENCE_SMOOTHED, Check.CURVE_EXCESS}
     truth = odocal.calibrate(plain.drive).estimate.theta.as_array()
     assert confidently_wrong(result, truth) == []
 
@@ -385,8 +385,10 @@ def test_one_wheels_rate_offset_is_fitted_and_named(seed: int, offset: float) ->
     drive = dep.one_wheel_offset(sim(seed, duration_s=1200.0), offset)
     result = odocal.calibrate(drive.drive)
     right(result, drive.true_parameters.as_array())
-    (named,) = [f for f in result.diagnosis.findings if f.check is Check.WHEEL_SKEW]
-    assert named.name == "left" and named.value == pytest.approx(offset, abs=3 * named.reference)
+    named = {f.name: f for f in result.diagnosis.findings if f.check is Check.WHEEL_SKEW}
+    assert named["left"].value == pytest.approx(offset, abs=3 * named["left"].reference)
+    # each wheel's own offset enters with the other's: the right one's is about none
+    assert abs(named["right"].value) < 3 * named["right"].reference
 
 
 @pytest.mark.parametrize(("seed", "tau"), [(69, 0.3), (70, 0.4)])

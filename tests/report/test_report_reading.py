@@ -257,7 +257,7 @@ def test_the_departures_taken_out_are_named_with_their_numbers(
     page = _page(changed, data, {})
     notes = re.findall(r"<li class='sev-note'><b>note</b>: ([^<]*)</li>", page)
     assert any("taken out before the fit" in n for n in notes), notes
-    assert any("a_y reads +0.5" in n and "fitted with the parameters" in n for n in notes)
+    assert any("a_y reads +0.50" in n and "crossfall" in n for n in notes)
     table = page.split("<table id='corrections'>")[1].split("</table>")[0]
     assert table.count("<tr>") == len(data.corrections) + 1
     assert json.dumps(data.to_dict()["corrections"])          # in calibration.json as well

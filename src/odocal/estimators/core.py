@@ -471,8 +471,12 @@ def solve(p0: FloatArray, view: View, free: BoolArray, model: ErrorModel, folded
             iterations = 0
             break
         h, g = fit.normal_equations(folded)
-        cols = np.flatnonzero(free)
-        scale = np.sqrt(np.maximum(np.diag(h)[cols], 1e-300))
+        # (a free element nothing informs yet, a reference channel before its spread is
+        # known, takes no step)
+        cols = np.flatnonzero(free & (np.diag(h) > 0))
+        if not cols.size:
+            break
+        scale = np.sqrt(np.diag(h)[cols])
         step = np.zeros(P)
         step[cols] = np.linalg.lstsq(h[np.ix_(cols, cols)] / np.outer(scale, scale),
                                      g[cols] / scale, rcond=None)[0] / scale
@@ -605,6 +609,8 @@ class CoreFit:
     entered : the departures fitted (:mod:`.departures`), in the order they entered
     statistics : each departure's last score test (entered or not)
     change : the first window after a change inside the log (-1: none)
+    rivals : for each departure entered, every other's held-out gain in the round it entered
+        (its own among them, and its penalty): how far ahead of the next explanation it was
     before_verdict : the fit of every parameter the data inform, before the identifiability
         verdict held any (what the drives' agreement is judged on), and which were free
     """
@@ -620,6 +626,7 @@ class CoreFit:
     statistics: tuple[dep.Statistic, ...] = ()
     change: int = -1
     before_verdict: tuple[Fit, BoolArray] | None = None
+    rivals: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
 
     @property
     def theta(self) -> FloatArray:
@@ -726,13 +733,19 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
         state = ctx.run(p0, free, nuisance_free(), change=-1)
     statistics: tuple[dep.Statistic, ...] = ()
     change = -1
+    rivals: dict[str, dict[str, float]] = {}
     for _ in range(len(blocks)):
         statistics = ctx.tests(state, free, nuisance_free(),
                                [b for b in blocks if b[0] not in entered and b not in excluded])
-        best = max((s for s in statistics if s.holds), key=lambda s: s.value, default=None)
+        # the one that holds out most, less its penalty (one wheel's offset or both wheels'
+        # alike: the one that needs fewer parameters where both explain as much)
+        best = max((s for s in statistics if s.holds), key=lambda s: s.value - s.penalty,
+                   default=None)
         if best is None:
             break
         entered.extend(best.block)
+        rivals[best.block[0]] = {st.block[0]: st.value for st in statistics}
+        rivals[best.block[0]]["penalty"] = best.penalty
         trial = ctx.run(state.fit.p, free, nuisance_free(),
                         change=best.where if best.block[0] == "change_e" else change)
         if not _acceptable(trial, settings) or not _determined(
@@ -759,7 +772,8 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
                                   std=float(uncertainty.p_std[LAG]))
     return CoreFit(fit=state.fit, free=free, held=held, uncertainty=uncertainty, lag=lag,
                    model=state.model, heading_offset=heading_offset, entered=tuple(entered),
-                   statistics=statistics, change=change, before_verdict=before_verdict)
+                   statistics=statistics, change=change, before_verdict=before_verdict,
+                   rivals=rivals)
 
 
 #: A drive departs from the others where its windows' evidence against their fit is beyond

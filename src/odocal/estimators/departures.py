@@ -261,11 +261,14 @@ _FRONT_SIGMAS = 5.0
 
 def findings(p: FloatArray, std: FloatArray, entered: Sequence[str], *, t_s: float,
              reference_shift_s: float = 0.0, change: tuple[float, str] | None = None,
-             heading_own: bool = False) -> list[Finding]:
+             heading_own: bool = False,
+             rivals: Mapping[str, Mapping[str, float]] | None = None) -> list[Finding]:
     """What the entered departures say, each named with its value and standard deviation
     (``std`` (P,)). ``change``: the change's time and drive; ``heading_own``: the reference's
-    heading is its own, not its course (front wheels can then be told from a lever arm)."""
+    heading is its own, not its course (front wheels can then be told from a lever arm);
+    ``rivals``: each entered departure's rivals' held-out gains in the round it entered."""
     out: list[Finding] = []
+    rivals = rivals or {}
     names = set(entered)
 
     def value(name: str) -> tuple[float, float]:
@@ -292,10 +295,14 @@ def findings(p: FloatArray, std: FloatArray, entered: Sequence[str], *, t_s: flo
     if "curve" in names:
         q, q_std = value("curve")
         distance = math.sqrt(2.0 * q) if q > 0 else 0.0
-        if heading_own and distance >= FRONT_MIN_M and q > _FRONT_SIGMAS * q_std:
+        mine = rivals.get("curve", {})
+        ahead = mine.get("curve", math.inf) - mine.get("cut", -math.inf)
+        if heading_own and distance >= FRONT_MIN_M and q > _FRONT_SIGMAS * q_std \
+                and ahead > mine.get("penalty", 0.0):
             # wheels a wheelbase ahead of the axle, on a reference with its own heading (no
-            # course for a lever arm to hide in), and nothing else the fit took in explains
-            # them (a smoothed reference is ``cut``, a lever arm ``arm_x``)
+            # course for a lever arm to hide in), and nothing else explains them: a smoothed
+            # reference (``cut``, which grows with speed) held out by less, by more than the
+            # penalty of a parameter, when they entered (the one rule, between the two)
             out.append(Finding(Check.FRONT_WHEELS, Severity.FATAL, distance,
                                q_std / max(2.0 * distance, 1e-9)))
         else:

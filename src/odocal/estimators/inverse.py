@@ -309,7 +309,8 @@ def _findings(found: core.CoreFit, windows: WindowSet, drives: Sequence[Drive], 
                     change[0], drive.name)
     return departures.findings(_total(found), found.nuisance_std, found.entered,
                                t_s=windows.t_s, reference_shift_s=reference_shift_s,
-                               change=change, heading_own=fit_setup(windows, Settings()).across)
+                               change=change, heading_own=fit_setup(windows, Settings()).across,
+                               rivals=found.rivals)
 
 
 def _total(found: core.CoreFit) -> FloatArray:

@@ -721,7 +721,8 @@ class OnlineCalibrator:
         named = fitted.findings(total, found.nuisance_std, found.entered,
                                 t_s=self._t_s or 0.0,
                                 reference_shift_s=self._departures.reference_shift_s,
-                                heading_own=self._setup(windows).across)
+                                heading_own=self._setup(windows).across,
+                                rivals=found.rivals)
         if any(f.severity is Severity.FATAL for f in named):
             status = Status.REJECTED
         return Estimate(method="online", theta=Parameters.from_array(theta),
