@@ -492,7 +492,7 @@ def solve(p0: FloatArray, view: View, free: BoolArray, model: ErrorModel, folded
         p, fit = p + step, trial
         history.append(fit.cost)
         std = np.sqrt(np.clip(np.diag(np.linalg.pinv(h[np.ix_(cols, cols)])), 0.0, None))
-        if (np.max(np.abs(step[cols]) / np.maximum(std, 1e-300)) < _STEP_SIGMAS
+        if (np.all(np.abs(step[cols]) <= _STEP_SIGMAS * std)
                 or np.max(np.abs(step) / np.maximum(np.abs(p), 1e-3)) < tolerance):
             break
     else:
@@ -673,6 +673,8 @@ class Setup:
     tau_h : hours to each window's drive's end (c_e's drift), or None
     kept : departures in the fit from the start (the live path's: what held out once holds on
         the evidence folded since, which its windows in memory alone no longer show)
+    coupled : whether the live path took a common wheel error's coupling before (kept at a
+        lower Wald statistic: :data:`~odocal.estimators.error_model.COUPLING_KEEP_WALD`)
     """
 
     blocks: tuple[tuple[str, ...], ...] = dep.BLOCKS
@@ -681,6 +683,7 @@ class Setup:
     stated: Mapping[str, float] = field(default_factory=dict)
     tau_h: FloatArray | None = None
     kept: tuple[str, ...] = ()
+    coupled: bool = False
 
 
 def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offset: float,
@@ -943,7 +946,7 @@ class _Context:
         for _ in range(2):                 # the error model refitted at the lag
             current = self.solve(current.p, view, model, free_p)
             model = refit_model(current, self.windows, self.folded,
-                                coupling=self._coupling())
+                                coupling=self._coupling(), kept=self.setup.coupled)
         for _ in range(_SHIFT_ROUNDS if lag_on else 0):
             # the lag's fine step taken into the view, until it settles
             step = float(current.p[LAG])
@@ -954,7 +957,8 @@ class _Context:
             view = view.moved(shift, self.heading_offset)
             lag = dataclasses.replace(lag, shift=shift)
             current = self.solve(_with(current.p, LAG, 0.0), view, model, free_p)
-            model = refit_model(current, self.windows, self.folded, coupling=self._coupling())
+            model = refit_model(current, self.windows, self.folded, coupling=self._coupling(),
+                                kept=self.setup.coupled)
         current = self.solve(current.p, view, model, free_p)
         return _State(fit=current, model=model, lag=lag, view=view)
 
@@ -1125,13 +1129,14 @@ def _change_test(current: Fit, windows: WindowSet, half: IntArray, halves: dep.H
 
 
 def refit_model(current: Fit, windows: WindowSet, folded: Folded, *,
-                coupling: bool) -> ErrorModel:
-    """The error model from the residuals of ``current`` (and the folded windows' sums)."""
+                coupling: bool, kept: bool = False) -> ErrorModel:
+    """The error model from the residuals of ``current`` (and the folded windows' sums);
+    ``kept``: a coupling taken before is kept at a lower Wald statistic."""
     beta = 0.0
     if coupling:
         beta = coupling_from_sums(coupling_sums_at(folded.coupling, current.p - folded.origin)
                                   + coupling_sums(windows.measured, current.residual,
-                                                  current.weight))
+                                                  current.weight), kept=kept)
     gain = coupling_gain(windows.measured, current.residual, beta)
     noise = noise_from_sums(folded.noise + noise_sums(windows.measured, current.residual, gain))
     # the prewhitening from the residuals as the fit standardised them (with its own coupling)

@@ -36,6 +36,10 @@ HUBER = 4.0
 _MAX_MA = 0.95            # prewhitening stays a stable filter
 COUPLING_WALD = 10.83     # the common wheel error's share in the yaw channel: used where its
 COUPLING_RANGE = (0.5, 1.5)  # Wald statistic (chi-square, 1 dof, p = 0.001) and value allow
+#: The Wald statistic a coupling the live path took keeps it by (p = 0.01): its windows are
+#: folded with it, and a statistic that wanders about one threshold would fold some with and
+#: some without it.
+COUPLING_KEEP_WALD = 6.63
 _RHO_MAX = 0.5            # windows with a larger wheel difference over mean (reversing, spikes)
 
 
@@ -213,17 +217,19 @@ def coupling_sums_at(moments: FloatArray, offset: FloatArray) -> FloatArray:
     return np.asarray(np.einsum("kij,i,j->k", moments, v, v))
 
 
-def coupling_from_sums(sums: FloatArray) -> float:
+def coupling_from_sums(sums: FloatArray, *, kept: bool = False) -> float:
     """``beta``, the common wheel error's share in the yaw channel, or 0 where it does not stand
     out (Wald statistic below :data:`COUPLING_WALD`; the weights standardise the residuals, so
-    it is chi-square with one degree of freedom where there is no such error) or lies outside
+    it is chi-square with one degree of freedom where there is no such error; ``kept``: at
+    :data:`COUPLING_KEEP_WALD`, for a coupling taken before) or lies outside
     :data:`COUPLING_RANGE` (a common slip gives 1; what else correlates the channels, e.g.
     rounded tick counts that telescope, can pass the Wald test with a beta of 2 to 12)."""
     sxx, sxy = float(sums[0]), float(sums[1])
     if not (math.isfinite(sxx) and math.isfinite(sxy)) or sxx <= 0.0:
         return 0.0
     beta = sxy / sxx
-    if beta * beta * sxx < COUPLING_WALD or not COUPLING_RANGE[0] <= beta <= COUPLING_RANGE[1]:
+    wald = COUPLING_KEEP_WALD if kept else COUPLING_WALD
+    if beta * beta * sxx < wald or not COUPLING_RANGE[0] <= beta <= COUPLING_RANGE[1]:
         return 0.0
     return beta
 

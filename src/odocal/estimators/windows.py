@@ -146,7 +146,11 @@ class WindowSet:
         per step squared): how they move with the reference side's lag, and a spread of the
         wheels' timing. The derivatives are differences :data:`SPAN` steps either way (fewer
         near the margin's end): a difference of neighbouring shifts is the reference's
-        position noise differenced twice, which would drown the signal."""
+        position noise differenced twice, which would drown the signal. The second derivative
+        leaves the moments at the shift itself out (those at half the span and the span either
+        way: ``(m(+s) + m(-s) - m(+s/2) - m(-s/2)) / (3 s^2 / 4)``): the residual holds the
+        reference's noise at the shift, and a derivative holding it too would fit a spread of
+        about a third of the span squared to noise alone."""
         moments = self.moments
         if moments.shape[1] < 3:
             m = _rotated(moments[:, 0], heading_offset)
@@ -156,9 +160,14 @@ class WindowSet:
         span = float(max(1, min(SPAN, math.floor(min(x, moments.shape[1] - 1 - x)))))
         at = _interpolate(moments, x)
         ahead, behind = _interpolate(moments, x + span), _interpolate(moments, x - span)
+        if span >= 4.0:
+            inner = _interpolate(moments, x + span / 2) + _interpolate(moments, x - span / 2)
+            second = (ahead + behind - inner) / (0.75 * span ** 2)
+        else:
+            second = (ahead + behind - 2.0 * at) / span ** 2
         return (_rotated(at, heading_offset),
                 _rotated(0.5 * (ahead - behind) / span, heading_offset),
-                _rotated((ahead + behind - 2.0 * at) / span ** 2, heading_offset))
+                _rotated(second, heading_offset))
 
     @staticmethod
     def concat(sets: Sequence[WindowSet]) -> WindowSet:

@@ -502,7 +502,8 @@ class OnlineCalibrator:
         self._take_p(current.p)
         self._updates += 1
         coupling = self.settings.inverse.common_wheel_error == "estimate"
-        self._model = core.refit_model(current, windows, self._folded, coupling=coupling)
+        self._model = core.refit_model(current, windows, self._folded, coupling=coupling,
+                                       kept=bool(self._model.coupling))
         if self._smooth and "lag" in self._entered and self._clusters_done % _LAG_EVERY == 0:
             self._lag = core.choose_lag(core.scan_lag(windows, self.theta, offset,
                                                       self._model, self._folded, self._p()))
@@ -587,9 +588,10 @@ class OnlineCalibrator:
         self._nuisance = np.asarray(p[MODEL.size:], dtype=np.float64).copy()
 
     def _free_p(self) -> BoolArray:
-        """The elements of p the running fit takes: theta, the spread where the lag is fitted,
-        the offset where it has a prior, and the departures the core last took in."""
-        return core.free_of(np.ones(self.theta.size, dtype=bool), kappa=self._smooth,
+        """The elements of p the running fit takes: theta, the offset where it has a prior, and
+        the departures the core last took in (the wheels' smoothing among them only where it
+        held out, as in batch: freed always, it took up what the common slip's coupling is)."""
+        return core.free_of(np.ones(self.theta.size, dtype=bool),
                             offset=self._folded.offset_free,
                             entered=[n for n in self._entered if n != "lag"])
 
@@ -598,7 +600,8 @@ class OnlineCalibrator:
         fit_setup`, the live departures: a change it detects itself, a drift it follows)."""
         setup = fit_setup(windows, self.settings, held_by_checks(self._diagnosis),
                           blocks=fitted.LIVE)
-        return dataclasses.replace(setup, kept=self._entered)
+        return dataclasses.replace(setup, kept=self._entered,
+                                   coupled=bool(self._model.coupling))
 
     def _kept(self, p: FloatArray | None = None) -> BoolArray:
         """Which windows in memory the fit takes: all but those a disturbance spoils (a wheel

@@ -262,6 +262,7 @@ table { border-collapse: collapse; background: white; margin: 8px 0; display: bl
 th, td { padding: 6px 12px; border-bottom: 1px solid #e2e4e8; text-align: right; }
 td:not(:first-child), .nowrap { white-space: nowrap; }
 th { background: #eef0f3; } td:first-child, th:first-child { text-align: left; }
+pre { white-space: pre-wrap; overflow-wrap: anywhere; max-width: 100%; }
 figure { background: white; margin: 12px 0; padding: 8px; border-radius: 6px; }
 figure img { max-width: 100%; height: auto; display: block; }
 @media (max-width: 600px) { main { padding: 12px; } th, td { padding: 4px 6px; } }
