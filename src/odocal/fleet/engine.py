@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from odocal import cancel
 from odocal.errors import ConfigError, DataError, OdocalError, OutputError, shown
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
 from odocal.fleet.catalog import CatalogEntry, read_catalog
@@ -331,9 +332,13 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
             _claim(out_path)             # marked before the workers write into it
         _remove_report_leftovers(report_root)          # of a run that was killed
         try:
+            if progress and client is None:
+                progress(_STARTING, 0, 1)
             with (contextlib.nullcontext(client) if client is not None
                   else dask_client(scheduler, workers,
                                    connect_timeout_s=connect_timeout_s)) as c:
+                if progress and client is None:
+                    progress(_STARTING, 1, 1)
                 dashboard = getattr(c, "dashboard_link", None)
                 if echo is not None and dashboard:
                     echo(f"Dask dashboard: {dashboard}")
@@ -364,6 +369,10 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
                     alarms=analysis.alarms, dashboard=dashboard,
                     elapsed_s=time.perf_counter() - started, written=written,
                     refused=tuple(refused), bytes_read=sum(received))
+
+
+#: The progress stage while the cluster starts (or a scheduler is joined): a few seconds.
+_STARTING = "starting the Dask workers"
 
 
 def _claim(out: Path) -> None:
@@ -409,6 +418,7 @@ def _run(client: Any, tasks: Sequence[DriveTask] | Sequence[PooledTask],
     if progress:
         progress(stage, 0, len(tasks))
     for n, future in enumerate(as_completed(futures), start=1):
+        cancel.check()                           # a stop asked for (odocal.cancel)
         task = futures[future]
         try:
             row = future.result()

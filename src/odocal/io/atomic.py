@@ -8,11 +8,31 @@ import hashlib
 import os
 import re
 import shutil
+import signal
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
+from odocal import cancel
 from odocal.errors import OutputError, shown
+
+
+@contextlib.contextmanager
+def _committing() -> Iterator[None]:
+    """The moment a finished output replaces an earlier one: a run asked to stop (Ctrl-C, even
+    one some library swallowed: :mod:`odocal.cancel`) stops here, before anything is replaced,
+    and Ctrl-C is held back while the rename (or the two renames of a folder) happen, so that
+    an interrupt never lands between them (the earlier folder moved aside, the new one not yet
+    in its place)."""
+    held = threading.current_thread() is threading.main_thread()
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if held else None
+    try:
+        cancel.check()
+        yield
+    finally:
+        if previous is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -204,15 +224,16 @@ def results_folder(target: str | Path) -> Iterator[Path]:
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o777 & ~umask)
-        moved = target.exists()
-        if moved:
-            os.replace(target, old)
-        try:
-            os.replace(tmp, target)
-        except OSError:
-            if moved:                    # put the earlier results back
-                os.replace(old, target)
-            raise
+        with _committing():
+            moved = target.exists()
+            if moved:
+                os.replace(target, old)
+            try:
+                os.replace(tmp, target)
+            except OSError:
+                if moved:                    # put the earlier results back
+                    os.replace(old, target)
+                raise
     except OSError as exc:
         raise OutputError(f"cannot write '{target}': {exc.strerror or exc}") from exc
     finally:
@@ -349,9 +370,10 @@ def atomic_path(target: str | Path, *, owned: bool = False) -> Iterator[Path]:
     try:
         yield tmp_path
         digest = _sha256(tmp_path) if owned else ""
-        os.replace(tmp_path, target)
-        if owned:
-            _record(target, digest)
+        with _committing():
+            os.replace(tmp_path, target)
+            if owned:
+                _record(target, digest)
     except OSError as exc:
         raise OutputError(f"cannot write '{target}': {exc.strerror or exc}") from exc
     finally:

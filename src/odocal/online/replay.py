@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal import cancel
 from odocal.data.drive import REQUIRED_COLUMNS
 from odocal.errors import ConfigError, DataError, InputFileError, input_file
 from odocal.estimators.estimate import Estimate
@@ -297,6 +298,7 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
             on_update(row, est)
 
     for chunk in stream_source(source, fmt=fmt, settings=settings, mapping=mapping):
+        cancel.check()                            # a stop asked for (odocal.cancel)
         if chunk["t"].size == 0:
             continue
         calibrator.push(chunk)

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal import cancel
 from odocal.checks.departures import corrected
 from odocal.checks.departures import findings as departure_findings
 from odocal.checks.departures import measure as measure_departures
@@ -424,7 +425,8 @@ class Stopwatch:
     """A progress callback that also times each stage (and passes progress on).
 
     A stage starts when it first reports ``done == 0`` (or enters :meth:`stage`) and its time
-    accumulates until it reports ``done >= total``.
+    accumulates until it reports ``done >= total``. Every report is also a point where a run
+    asked to stop stops (:func:`odocal.cancel.check`).
     """
 
     def __init__(self, progress: ProgressCallback | None = None) -> None:
@@ -433,6 +435,7 @@ class Stopwatch:
         self._open: dict[str, float] = {}
 
     def __call__(self, stage: str, done: int, total: int) -> None:
+        cancel.check()
         now = time.perf_counter()
         if stage not in self._open and done < total:
             self._open[stage] = now
@@ -443,6 +446,7 @@ class Stopwatch:
 
     @contextlib.contextmanager
     def stage(self, name: str) -> Iterator[None]:
+        cancel.check()
         begun = time.perf_counter()
         if self.progress:
             self.progress(name, 0, 1)
