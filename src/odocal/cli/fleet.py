@@ -15,7 +15,9 @@ from odocal.sim.limits import MAX_CIRCUMFERENCE_LOSS, MAX_DRIVES, MAX_VEHICLES
 
 
 def _print(text: str = "") -> None:
-    sys.stdout.write(text + "\n")
+    from odocal.redaction import redact_text
+
+    sys.stdout.write(redact_text(text) + "\n")          # no URL query or secret in any line
     sys.stdout.flush()
 
 

@@ -47,7 +47,7 @@ from odocal.fleet.tasks import (
     with_content,
 )
 from odocal.io.atomic import check_fleet_folder, refuse_inputs
-from odocal.io.remote import name_of
+from odocal.io.urls import name_of
 from odocal.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -181,6 +181,7 @@ class _Planner:
 
         pin = fingerprint = content = mapping_hash = None
         try:
+            _check_local(e)
             if e.remote:
                 endpoint = _endpoint(str(e.path))
                 if endpoint in self.dead:
@@ -217,12 +218,27 @@ class _Planner:
         return True
 
 
+def _check_local(e: CatalogEntry) -> None:
+    """An InputFileError naming a local log or mapping file that is missing or not a file (a
+    local catalog's were checked when it was read; a remote catalog's ``file://`` rows are
+    checked here)."""
+    from odocal.errors import InputFileError, input_file
+
+    if isinstance(e.path, Path):
+        if not e.path.exists():
+            raise InputFileError(f"drive '{shown(e.path)}' does not exist")
+        if not e.path.is_dir():
+            input_file(e.path, "drive")
+    if isinstance(e.mapping, Path):
+        input_file(e.mapping, "mapping file")
+
+
 def _endpoint(url: str) -> str:
     """Where a URL's requests go: one S3 (GCS, Azure) endpoint per scheme, one HTTP server per
     host."""
     import urllib.parse
 
-    from odocal.io.remote import scheme_of
+    from odocal.io.urls import scheme_of
 
     scheme = scheme_of(url)
     return (f"{scheme}://{urllib.parse.urlsplit(url).netloc.rpartition('@')[2]}"
@@ -270,7 +286,7 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
         from odocal.fleet.cluster import probe_scheduler
 
         probe_scheduler(scheduler, connect_timeout_s)
-    from odocal.io.remote import is_url
+    from odocal.io.urls import is_url
 
     catalog_path: Path | str = catalog if isinstance(catalog, str) and is_url(catalog) \
         else Path(catalog)

@@ -288,7 +288,7 @@ def run_drive_task(task: DriveTask) -> dict[str, Any]:
 def _reason(exc: BaseException) -> str:
     """A read failure in one line, without secrets."""
     from odocal.errors import OdocalError
-    from odocal.io.remote import clean
+    from odocal.io.urls import clean
 
     return clean(str(exc) if isinstance(exc, OdocalError) and str(exc) else _one_line(exc))
 

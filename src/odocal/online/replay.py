@@ -73,22 +73,25 @@ class ReplayResult:
 def stream_drive_file(path: str | Path, *, rows: int) -> Iterator[Chunk]:
     """A drive-format file (Parquet or CSV; a path or a URL) in batches of about ``rows`` rows.
     An object is read range by range (a Parquet row group, a CSV block at a time), never whole."""
-    from odocal.io.remote import is_remote
+    from odocal.io.urls import is_remote
 
     if is_remote(path):
-        from odocal.io.remote import name_of, open_input, redact
+        from odocal.io.remote import open_input
+        from odocal.io.urls import name_of, redact
 
         with open_input(str(path), "input file") as handle:
             yield from _stream_drive(handle, redact(path), Path(name_of(str(path))).suffix,
                                      rows=rows)
         return
-    from odocal.io.remote import local_path
+    from odocal.io.urls import local_path
 
     p = input_file(local_path(path))
     if not p.is_file():
         raise InputFileError(f"input file '{p}' does not exist"
                              + (" (it is a folder)" if p.is_dir() else ""))
-    yield from _stream_drive(p, str(p), p.suffix, rows=rows)
+    from odocal.io.drivefile import suffix_of
+
+    yield from _stream_drive(p, str(p), suffix_of(p), rows=rows)
 
 
 def _stream_drive(source: Any, p: str, suffix: str, *, rows: int) -> Iterator[Chunk]:
@@ -314,11 +317,11 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
             update(last_t)
             next_update = last_t + settings.online.update_s
     if first_t is None:
-        from odocal.io.remote import redact
+        from odocal.io.urls import redact
 
         raise DataError(f"'{redact(source)}' holds no samples (or a single one)")
     update(last_t)
-    from odocal.io.remote import redact
+    from odocal.io.urls import redact
 
     return ReplayResult(source=redact(source), estimate=calibrator.estimate(), trace=tuple(trace),
                         alarms=calibrator.alarms, samples=calibrator.details_samples(),

@@ -125,16 +125,32 @@ def load_drives(sources: Drive | str | Path | Sequence[Drive | str | Path], *,
     if not drives:
         raise DataError("no drives were given")
     common_sampling_time(drives)
-    seen: dict[str, str] = {}
-    for d in drives:                 # the same bytes twice (a copy, a link) would count twice
-        digest = d.metadata.get("sha256")
-        if digest is None:
-            continue
-        if digest in seen:
-            raise DataError(f"the logs '{seen[digest]}' and '{d.name}' are the same drive "
-                            "(identical content); give each drive once")
-        seen[digest] = d.name
+    _refuse_copies(drives)
     return drives
+
+
+def _refuse_copies(drives: Sequence[Drive]) -> None:
+    """A DataError naming two logs of one recording (:mod:`odocal.data.copies`): the same bytes
+    (a copy, a link), the same samples (another format, a shifted clock), or one holding a
+    stretch of the other's samples: each would count its evidence twice."""
+    from odocal.data.copies import samples_digest, shared_stretch
+
+    seen: dict[str, str] = {}
+    for d in drives:
+        for digest in {d.metadata.get("sha256"), samples_digest(d)} - {None}:
+            if digest in seen:
+                raise DataError(f"the logs '{seen[digest]}' and '{d.name}' are the same drive "
+                                "(the same samples); give each drive once")
+            seen[str(digest)] = d.name
+    copy = shared_stretch(drives)
+    if copy is not None:
+        a, b = drives[copy.first], drives[copy.second]
+        raise DataError(
+            f"the log '{b.name}' is a copy of a stretch of '{a.name}': from "
+            f"{copy.start_second_s:.1f} s of it and {copy.start_first_s:.1f} s of '{a.name}', "
+            f"{copy.shared_s:.0f} s of driving agree within {copy.difference_revps:.2g} rev/s, "
+            f"less than the wheels' own noise ({copy.noise_revps:.2g} rev/s): one recording "
+            "counted twice; give each drive once (cut the shared stretch out of one)")
 
 
 def stated_circumference(settings: Settings | None) -> float | None:
