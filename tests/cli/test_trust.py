@@ -85,7 +85,7 @@ def test_the_same_samples_as_parquet_and_csv_are_one_drive(drive: Path, tmp_path
     every standard deviation 1.43 times too small)."""
     csv = tmp_path / "drive.csv"
     save_drive(odocal.load_drive(drive), csv)
-    code, out, err = run(capsys, "calibrate", str(drive), str(csv), "--out",
+    code, _, err = run(capsys, "calibrate", str(drive), str(csv), "--out",
                          str(tmp_path / "o"))
     assert code == 1 and len(err.strip().splitlines()) == 1, err
     assert "the same drive" in err and "drive.parquet" in err and "drive.csv" in err
@@ -142,3 +142,37 @@ def test_the_results_say_nothing_of_copies_for_one_drive(drive: Path, tmp_path: 
                        "--no-report")
     assert code == 0, err
     assert json.loads((tmp_path / "o" / "calibration.json").read_text())["theta"]
+
+
+def test_a_log_with_swapped_wheels_beside_a_good_one_is_named(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Its wheels turn against its reference, the good log's with it: pooled they looked like
+    no differential information (on main: c_e alone, exit 0, no log named)."""
+    good = tmp_path / "good.parquet"
+    save_drive(odocal.simulate(duration_s=600.0, seed=41, noise="realistic").drive, good)
+    other = tmp_path / "other.parquet"
+    save_drive(odocal.simulate(duration_s=600.0, seed=40, noise="realistic").drive, other)
+    d = odocal.load_drive(other)
+    swapped = _copy_with(other, tmp_path / "swapped.parquet", n_rl=d.n_rr.copy(),
+                         n_rr=d.n_rl.copy())
+    code, out, err = run(capsys, "calibrate", str(good), str(swapped), "--out",
+                         str(tmp_path / "o"), "--no-report")
+    assert code == 3, out + err
+    assert "the wheels of '" + str(swapped) + "' imply turns against" in out
+    assert "no differential information" not in out
+    assert str(good) + "' imply" not in out
+
+
+def test_a_relative_output_folder_is_named_as_it_ends_up(tmp_path: Path, drive: Path,
+                                                        monkeypatch: pytest.MonkeyPatch,
+                                                        capsys: pytest.CaptureFixture[str]
+                                                        ) -> None:
+    """'wrote' names the files where they are after the run (on main, with a relative --out:
+    'wrote rel/.rel.PID.xxx.part/calibration.json', the temporary folder's path)."""
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run(capsys, "calibrate", str(drive), "--out", "rel", "--export", "yaml")
+    assert code == 0, err
+    wrote = [line.removeprefix("wrote ") for line in out.splitlines()
+             if line.startswith("wrote ")]
+    assert "rel/calibration.json" in wrote and len(wrote) >= 3
+    assert all((tmp_path / w).is_file() for w in wrote), wrote

@@ -41,7 +41,7 @@ from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.model.kinematics import body_rates, motion_increments
 from odocal.model.layout import REAR_AXLE as LAYOUT
-from odocal.settings import ChecksSettings, Settings
+from odocal.settings import ChecksSettings, GateSettings, Settings
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -151,7 +151,11 @@ def check_drives(drives: Sequence[Drive], settings: Settings) -> Diagnosis:
         findings.append(Finding(Check.WHEELS_IDENTICAL, Severity.FALLBACK, 0.0))
     elif bends.sum() >= lim.min_bend_windows:
         agree = _agreement(win.wheel_dpsi[bends], win.dpsi[bends])
-        if agree < -lim.min_yaw_correlation:
+        swapped = _swapped_drives(drives, win, bends, lim) if agree < lim.min_yaw_correlation \
+            else []
+        if swapped:              # one log's swapped wheels cancel another's in the pooled sum
+            findings += swapped
+        elif agree < -lim.min_yaw_correlation:
             findings.append(Finding(Check.WHEELS_SWAPPED, Severity.FATAL, agree, 1.0))
         elif agree < lim.min_yaw_correlation:
             findings.append(Finding(Check.NO_DIFFERENTIAL, Severity.FALLBACK, agree, 1.0))
@@ -160,6 +164,24 @@ def check_drives(drives: Sequence[Drive], settings: Settings) -> Diagnosis:
             findings += lateral or lateral_delay(drives, settings)
             findings += _clock(drives, theta, settings)
     return Diagnosis(tuple(findings))
+
+
+def _swapped_drives(drives: Sequence[Drive], win: _Windows, bends: BoolArray,
+                    lim: GateSettings) -> list[Finding]:
+    """Among several drives, each one whose own wheels turn against its reference in bends
+    (named): beside good logs, their pooled agreement only looked like no differential
+    information."""
+    if len(drives) < 2:
+        return []
+    out = []
+    for index, d in enumerate(drives):
+        mine = bends & (win.drive == index)
+        if mine.sum() < lim.min_bend_windows:
+            continue
+        agree = _agreement(win.wheel_dpsi[mine], win.dpsi[mine])
+        if agree < -lim.min_yaw_correlation:
+            out.append(Finding(Check.WHEELS_SWAPPED, Severity.FATAL, agree, 1.0, d.name))
+    return out
 
 
 def _repaired(drives: Sequence[Drive]) -> list[Finding]:

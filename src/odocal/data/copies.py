@@ -156,7 +156,7 @@ def shared_stretch(drives: Sequence[Drive]) -> SharedStretch | None:
     if len(drives) < 2:
         return None
     t_s = drives[0].t_s
-    block = max(1, int(round(BLOCK_S / t_s)))
+    block = max(1, round(BLOCK_S / t_s))
     speeds = [_blocks(0.5 * (d.n_rl + d.n_rr), block) for d in drives]
     noise = [max(wheel_noise_revps(d.n_rl), wheel_noise_revps(d.n_rr)) for d in drives]
     for i in range(len(drives)):

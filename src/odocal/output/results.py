@@ -78,8 +78,8 @@ def write_results(result: CalibrationResult, out_dir: str | Path, *,
             notes.append("--save-inputs: this method does not compensate the wheel rates")
         else:
             written.append(path)
-    return Written(paths=tuple(p.relative_to(out) if p.is_absolute() and p.is_relative_to(out)
-                               else p for p in written), notes=tuple(notes))
+    return Written(paths=tuple(p.relative_to(out) if p.is_relative_to(out) else p
+                               for p in written), notes=tuple(notes))
 
 
 def write_calibration(result: CalibrationResult, out_dir: str | Path, *,

@@ -268,7 +268,8 @@ def finding_text(finding: Finding, settings: Settings) -> str:
         return (f"the vehicle does not move (the wheels turn {v:.1f} m in all): there is "
                 "nothing to calibrate")
     if c is Check.WHEELS_SWAPPED:
-        return (f"the yaw rate the wheels imply turns against the reference's in bends "
+        where = f" of '{finding.name}'" if finding.name else ""
+        return (f"the yaw rate the wheels{where} imply turns against the reference's in bends "
                 f"(correlation {v:+.2f}): the left and right wheel columns are swapped, or the "
                 "heading is mirrored; fix the mapping and calibrate again")
     if c is Check.WHEELS_IDENTICAL:
