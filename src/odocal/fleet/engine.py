@@ -160,6 +160,43 @@ def _unique(tasks: Sequence[DriveTask]) -> None:
         seen[t.key] = t
 
 
+class _SameSamples:
+    """The drives' samples (:func:`odocal.data.copies.samples_digest`, which a task returns
+    in its row's ``input_hashes``), stored before and stored now: a log of other bytes but the
+    same samples as another drive (another format, a shifted clock) is that drive again."""
+
+    def __init__(self, stored: Sequence[dict[str, Any]]) -> None:
+        self.known: dict[str, tuple[str | None, str]] = {}
+        for r in stored:
+            digest = _samples_of(r.get("input_hashes"))
+            if digest:
+                self.known[digest] = (r.get("content"), f"the stored drive '{r.get('source')}' "
+                                                        f"({shown(str(r.get('vehicle')), 40)})")
+
+    def of(self, row: dict[str, Any], where: str) -> str | None:
+        """What ``row``'s samples are a copy of (None: nothing), remembering them if new."""
+        digest = _samples_of(row.get("input_hashes"))
+        if not digest:
+            return None
+        other = self.known.get(digest)
+        if other is not None and other[0] != row.get("content"):
+            return other[1]
+        self.known[digest] = (row.get("content"), f"{where} ('{row.get('source')}')")
+        return None
+
+
+def _samples_of(hashes: Any) -> str | None:
+    if isinstance(hashes, str):
+        import json
+
+        try:
+            hashes = json.loads(hashes)
+        except ValueError:
+            return None
+    value = hashes.get("samples") if isinstance(hashes, dict) else None
+    return value if isinstance(value, str) else None
+
+
 def _row(entry: CatalogEntry) -> str:
     return f"catalog row {entry.row} ({shown(entry.vehicle, 40)})"
 
@@ -315,6 +352,7 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
         db.update_catalog_fields([t for t in tasks if t.key and t.key in done])
         resolved: dict[int, DriveTask] = {t.entry.row: t for t in tasks if t.key}
         seen: dict[str, int] = {t.input_hashes["source"]: t.entry.row for t in tasks if t.key}
+        samples = _SameSamples(db.drives())
 
         def store_drive(row: dict[str, Any]) -> None:
             task = by_row[row["_row"]]
@@ -337,6 +375,12 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
                 if not planner.allowed(task, content):
                     return
                 seen[content] = task.entry.row
+            copied = samples.of(row, _row(task.entry))
+            if copied:
+                say(f"{_row(task.entry)}: drive '{task.entry.source}' holds the same samples as "
+                    f"{copied} (the same recording in another file: another format, or its "
+                    "clock shifted); not stored: give each drive once")
+                return
             resolved[task.entry.row] = task
             db.add_drive({k: v for k, v in row.items() if k != "_row"},
                          fingerprint=task.fingerprint)

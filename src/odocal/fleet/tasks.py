@@ -260,6 +260,11 @@ def run_drive_task(task: DriveTask) -> dict[str, Any]:
         task = with_content(task, content)
         row.update(task_key=task.key, input_hashes=task.input_hashes)
     row["content"] = task.input_hashes.get("source")
+    from odocal.data.copies import samples_digest
+
+    # what the log holds, whatever its format and clock (the same recording twice is one drive)
+    row["input_hashes"] = {**row["input_hashes"],
+                           "samples": ",".join(samples_digest(d) for d in drives)}
     try:
         from odocal.pipeline.calibrate import calibrate
 
