@@ -27,6 +27,7 @@ from odocal.io.streams import Stream
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.online.calibrator import OnlineCalibrator
 from odocal.online.changes import Alarm
+from odocal.online.samples import MAX_PUSHED_RATE_REVPS
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
@@ -271,6 +272,49 @@ def stream_source(source: str | Path, *, fmt: str | None, settings: Settings,
                 yield chunk
 
 
+def located(exc: DataError, source: str | Path, chunk: Chunk, read: int,
+            previous_t: float | None) -> DataError:
+    """A push's DataError about a chunk of ``source`` (``read`` samples came before it, the last
+    at ``previous_t``), as batch says it: the log, the column, the first bad row (1 = the first
+    sample) and its time (as the log's t has it)."""
+    from odocal.io.urls import redact
+
+    name = redact(source)
+    t = np.asarray(chunk["t"], dtype=np.float64)
+
+    def at(i: int) -> str:
+        return f"row {read + i + 1}" + (f", t={t[i]:.6g}" if np.isfinite(t[i]) else "")
+
+    for key in ("t", "n_rl", "n_rr", "a_y", "beta", "x", "y", "psi"):
+        values = chunk.get(key)
+        if values is None:
+            continue
+        bad = ~np.isfinite(np.asarray(values, dtype=np.float64))
+        if bad.any():
+            i = int(np.argmax(bad))
+            return DataError(f"'{name}' column {key} holds {int(bad.sum())} NaN or infinite "
+                             f"values in rows {read + 1}-{read + t.size} (first at {at(i)})")
+    before = np.concatenate([[previous_t], t]) if previous_t is not None else t
+    back = np.flatnonzero(np.diff(before) <= 0)
+    if back.size:
+        j = int(back[0])                          # before[j + 1] does not follow before[j]
+        i = j if previous_t is not None else j + 1            # its index in this chunk
+        return DataError(f"'{name}' column t is not strictly increasing: t={before[j + 1]:.6g} "
+                         f"follows t={before[j]:.6g} at row {read + i + 1}; sort the log or "
+                         "drop duplicate stamps")
+    for key in ("n_rl", "n_rr"):
+        rates = np.abs(np.asarray(chunk[key], dtype=np.float64))
+        too_fast = rates > MAX_PUSHED_RATE_REVPS
+        if too_fast.any():
+            i = int(np.argmax(too_fast))
+            return DataError(f"'{name}' column {key} reaches {float(rates.max()):.4g} (first "
+                             f"beyond {MAX_PUSHED_RATE_REVPS:g} at {at(i)}): wheel rates must be "
+                             "in rev/s")
+    text = str(exc).replace("pushed samples' ", "").replace("pushed ", "")
+    return DataError(f"'{name}' rows {read + 1}-{read + t.size} (t={t[0]:.6g} to "
+                     f"{t[-1]:.6g}): {text}")
+
+
 def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | None = None,
            mapping: str | Path | Mapping[str, Mapping[str, Any]] | None = None,
            theta0: Parameters | None = None,
@@ -284,7 +328,9 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
     """
     started = time.perf_counter()
     settings = settings or Settings()
-    calibrator = OnlineCalibrator(settings, theta0)
+    from odocal.io.urls import redact
+
+    calibrator = OnlineCalibrator(settings, theta0, source=redact(source))
     trace: list[TraceRow] = []
     first_t: float | None = None
     last_t = 0.0
@@ -300,11 +346,18 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
         if on_update is not None:
             on_update(row, est)
 
+    read = 0                                      # samples read before this chunk
+    previous_t: float | None = None               # the last one's t, as the log has it
     for chunk in stream_source(source, fmt=fmt, settings=settings, mapping=mapping):
         cancel.check()                            # a stop asked for (odocal.cancel)
         if chunk["t"].size == 0:
             continue
-        calibrator.push(chunk)
+        try:
+            calibrator.push(chunk)
+        except DataError as exc:                  # named by the log, the row and the time
+            raise located(exc, source, chunk, read, previous_t) from exc
+        read += int(chunk["t"].size)
+        previous_t = float(chunk["t"][-1])
         span = calibrator.span_s                  # in seconds, whatever unit the log's t has
         if span is None:
             continue                              # (a lone first sample)

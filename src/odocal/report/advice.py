@@ -287,6 +287,16 @@ def finding_text(finding: Finding, settings: Settings) -> str:
             return (f"with the datasheet c_e ({c_e:g} m) the wheels imply {v:.3f} times the "
                     "distance the reference travels: is [identify] theta0 set for this "
                     f"vehicle?{speeds}")
+        if not v > 0:                         # (a log of it would be NaN, and a warning)
+            if not v < 0:
+                return (f"the wheels imply {v:.3g} times the distance the reference travels: "
+                        "do the wheel columns hold the wheel rates?")
+            scale = (f"; and by {abs(v):.3g} times its distance, also a wrong unit or scale"
+                     if abs(np.log(abs(v))) > 0.25 else "")
+            return (f"the wheels turn backwards while the reference moves forwards (they imply "
+                    f"{v:+.3g} times the distance it travels): the wheel rates' sign is "
+                    f"flipped{scale}; n_rl and n_rr count forward revolutions as positive "
+                    "(negate both columns, or fix the mapping)")
         factor, cause = min(_SCALE_HINTS, key=lambda h: abs(np.log(v / h[0])))
         hint = f" ({cause}?)" if abs(np.log(v / factor)) < 0.25 else ""
         from odocal.settings import datasheet_stated
