@@ -176,3 +176,158 @@ def test_a_relative_output_folder_is_named_as_it_ends_up(tmp_path: Path, drive: 
              if line.startswith("wrote ")]
     assert "rel/calibration.json" in wrote and len(wrote) >= 3
     assert all((tmp_path / w).is_file() for w in wrote), wrote
+
+
+# ---------------------------------------------------------------- errors that name where
+
+@pytest.fixture(scope="module")
+def columns() -> dict[str, np.ndarray]:
+    """A ten-minute drive's columns, to break."""
+    d = odocal.simulate(duration_s=600.0, seed=7, noise="realistic").drive
+    return {k: np.asarray(v).copy() for k, v in d.columns().items() if k != "yaw_rate"}
+
+
+def _write(path: Path, cols: dict[str, np.ndarray], types: dict[str, object] | None = None
+           ) -> Path:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    pq.write_table(pa.table({k: pa.array(v, type=(types or {}).get(k))
+                             for k, v in cols.items()}), path)
+    return path
+
+
+@pytest.mark.parametrize(("break_", "words"), [
+    ("nan", ["column n_rl holds 1 NaN or infinite values", "first at row 5001, t=125"]),
+    ("duplicate", ["column t is not strictly increasing", "at row 6001"]),
+    ("too fast", ["column n_rl reaches 2621", "first beyond 100 at row 7001, t=175"]),
+])
+def test_replays_data_errors_name_the_log_the_row_and_the_time(
+        columns: dict[str, np.ndarray], tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        break_: str, words: list[str]) -> None:
+    """As batch names them (on main: "pushed column n_rl holds NaN or infinite values", no
+    file, row or time)."""
+    cols = {k: v.copy() for k, v in columns.items()}
+    if break_ == "nan":
+        cols["n_rl"][5000] = np.nan
+    elif break_ == "duplicate":
+        cols["t"][6000] = cols["t"][5999]
+    else:
+        cols["n_rl"][7000:7100] = 2621.0
+    path = _write(tmp_path / "log.parquet", cols)
+    code, _, err = run(capsys, "replay", str(path), "--out", str(tmp_path / "o"), "-q")
+    assert code == 1 and len(err.strip().splitlines()) == 1, err
+    assert f"'{path}'" in err and "pushed" not in err
+    assert all(w in err for w in words), err
+    if break_ == "too fast":                     # batch names the burst too (it blamed the sync)
+        code, _, err = run(capsys, "calibrate", str(path), "--out", str(tmp_path / "b"), "-q")
+        assert code == 1 and "column n_rl reaches 2621 rev/s (first at t=175.000 s" in err
+
+
+@pytest.mark.parametrize(("break_", "words", "not_words"), [
+    ("held 1 Hz", ["columns x, y stay the same", "(it changes every 1 s, 1 Hz)",
+                   "held between the updates"], ["pose jumps by"]),
+    ("10 then 40 Hz", ["steps 0.1 s (10 Hz) from t=0.000 s to t=39.900 s",
+                       "0.025 s (40 Hz) elsewhere", "changes its rate"], ["a gap"]),
+    ("epoch float32", ["holds times near 1.7e+09 with 32-bit precision",
+                       "steps by 128 s there"], ["sort the log"]),
+    ("noisy heading", ["rad per sample", "radians, not degrees", "noisy or jumps"],
+     ["in degrees?"]),
+    ("10 s", ["holds 401 samples (10.0 s)", "takes 651 samples (16.2 s at 40 Hz"],
+     ["K = "]),
+])
+def test_a_broken_log_is_told_as_what_it_is(columns: dict[str, np.ndarray], tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str], break_: str,
+                                            words: list[str], not_words: list[str]) -> None:
+    """(on main: a pose jump; a gap of 0.1 s at t=0.000 s; "sort the log or drop duplicate
+    stamps"; "is it in degrees?" for radians; "K = 650 steps")"""
+    import pyarrow as pa
+
+    cols = {k: v.copy() for k, v in columns.items()}
+    types: dict[str, object] = {}
+    if break_ == "held 1 Hz":
+        held = (np.arange(cols["t"].size) // 40) * 40
+        for k in ("x", "y", "psi"):
+            cols[k] = cols[k][held]
+    elif break_ == "10 then 40 Hz":
+        slow = np.arange(400) * 0.1
+        fast = slow[-1] + 0.025 * (1 + np.arange(cols["t"].size - 1600))
+        t = np.concatenate([slow, fast])
+        cols = {k: np.interp(t, columns["t"], v) for k, v in columns.items()}
+    elif break_ == "epoch float32":
+        cols["t"] = (1.7e9 + cols["t"]).astype(np.float32)
+        types["t"] = pa.float32()
+    elif break_ == "noisy heading":
+        cols["psi"] = cols["psi"] + np.random.default_rng(0).normal(0, 0.2, cols["t"].size)
+    else:
+        cols = {k: v[:401] for k, v in cols.items()}
+    path = _write(tmp_path / "log.parquet", cols, types)
+    code, out, err = run(capsys, "calibrate", str(path), "--out", str(tmp_path / "o"))
+    said = out + err
+    lines = [line for line in err.strip().splitlines() if not line.startswith("[")]
+    assert code == 1 and len(lines) == 1, said                   # (progress lines aside)
+    assert all(w in said for w in words), said
+    assert not any(w in said for w in not_words), said
+
+
+def test_wheel_rates_with_a_flipped_sign_are_called_so(columns: dict[str, np.ndarray],
+                                                      tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]
+                                                      ) -> None:
+    """(on main: "a wrong wheel-speed unit or scale", and numpy's RuntimeWarning)"""
+    import warnings
+
+    cols = {k: v.copy() for k, v in columns.items()}
+    cols["n_rl"], cols["n_rr"] = -cols["n_rl"], -cols["n_rr"]
+    path = _write(tmp_path / "log.parquet", cols)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        code, out, err = run(capsys, "calibrate", str(path), "--out", str(tmp_path / "o"),
+                             "--no-report")
+    assert code == 3, out + err
+    assert "the wheel rates' sign is flipped" in out and "unit or scale" not in out
+    assert "RuntimeWarning" not in err
+
+
+def test_an_hour_parked_with_a_jittering_pose_adds_no_distance(
+        columns: dict[str, np.ndarray], tmp_path: Path) -> None:
+    """An hour parked, 2 cm of pose noise at 40 Hz, then the drive: the distance is the
+    drive's (on main: 11.34 km for 6.24 km)."""
+    drive = odocal.Drive.from_columns(columns)
+    parked = int(3600 / drive.t_s)
+    rng = np.random.default_rng(1)
+    cols = {"t": np.concatenate([np.arange(parked) * drive.t_s,
+                                 parked * drive.t_s + columns["t"]])}
+    for k in ("n_rl", "n_rr", "a_y", "beta"):
+        cols[k] = np.concatenate([np.zeros(parked), columns[k]])
+    for k in ("x", "y"):
+        cols[k] = np.concatenate([columns[k][0] + 0.02 * rng.standard_normal(parked),
+                                  columns[k]])
+    cols["psi"] = np.concatenate([np.full(parked, columns["psi"][0]), columns["psi"]])
+    with_parking = odocal.Drive.from_columns(cols)
+    assert with_parking.distance_m == pytest.approx(drive.distance_m, rel=0.002)
+    assert drive.distance_m == pytest.approx(5560.0, rel=0.01)
+
+
+def test_c_d_drift_is_told_in_mm_with_its_share_of_c_e() -> None:
+    """(on main: "c_d fell 4.00% (78.20 mm)", the 4% a share of c_e)"""
+    import datetime as dt
+
+    from odocal.fleet.drift import analyse
+    from odocal.settings import FleetSettings
+
+    rng = np.random.default_rng(0)
+    rows = []
+    t0 = dt.datetime(2026, 1, 1, tzinfo=dt.UTC)
+    for i in range(30):
+        c_d = rng.normal(0.0, 2e-4) - (0.0782 if i >= 17 else 0.0)
+        row: dict[str, object] = {"task_key": f"k{i:04d}", "vehicle": "v",
+                                  "time": (t0 + dt.timedelta(days=i)).isoformat(),
+                                  "odometer_km": None, "distance_km": 20.0, "success": 1,
+                                  "event": None}
+        for n, value in (("c_e", 1.955), ("c_d", c_d), ("t_r", 1.5), ("d", 0.0)):
+            row[n], row[f"{n}_std"], row[f"{n}_identified"] = value, 2e-4, 1
+        rows.append(row)
+    alarms = [a for a in analyse(rows, FleetSettings()).alarms if a.parameter == "c_d"]
+    assert len(alarms) == 1
+    assert "c_d fell 78.1" in alarms[0].message and "% of c_e)" in alarms[0].message

@@ -105,7 +105,7 @@ def _stream_drive(source: Any, p: str, suffix: str, *, rows: int) -> Iterator[Ch
         if suffix in (".parquet", ".pq"):
             pfile = pq.ParquetFile(source)
             names = pfile.schema_arrow.names
-            wanted = [n for n in (*REQUIRED_COLUMNS, "beta") if n in names]
+            wanted = [n for n in (*REQUIRED_COLUMNS, "beta", "piece") if n in names]
             # one row group at a time (odocal writes groups of 65,536 rows): memory stays flat
             batches: Iterator[Any] = (
                 batch for group in range(pfile.num_row_groups)
@@ -124,7 +124,7 @@ def _stream_drive(source: Any, p: str, suffix: str, *, rows: int) -> Iterator[Ch
                             f"{', '.join(missing)}")
         for batch in batches:           # read in large batches, handed on in chunks of ``rows``
             cols = {name: _numbers(batch.column(name))
-                    for name in (*REQUIRED_COLUMNS, "beta") if name in names}
+                    for name in (*REQUIRED_COLUMNS, "beta", "piece") if name in names}
             for lo in range(0, batch.num_rows, rows):
                 yield {k: v[lo:lo + rows] for k, v in cols.items()}
     except (pa.ArrowInvalid, pa.ArrowTypeError, ValueError, TypeError) as exc:
@@ -272,6 +272,28 @@ def stream_source(source: str | Path, *, fmt: str | None, settings: Settings,
                 yield chunk
 
 
+def _one_piece(chunk: Chunk, piece: float | None, source: str | Path, read: int
+               ) -> float | None:
+    """The chunk's ``piece`` (a drive-format column that marks separate runs of one log), or a
+    DataError where a new piece starts: the live calibrator takes one run of samples, and
+    would see the step between two runs as a jump of the pose."""
+    values = chunk.get("piece")
+    if values is None or not np.asarray(values).size:
+        return piece
+    values = np.asarray(values, dtype=np.float64)
+    first = float(values[0]) if piece is None else piece
+    change = np.flatnonzero(values != first)
+    if change.size:
+        from odocal.io.urls import redact
+
+        i = int(change[0])
+        raise DataError(f"'{redact(source)}' starts a new piece at row {read + i + 1} "
+                        f"(t={chunk['t'][i]:.6g}; column piece {first:g} -> {values[i]:g}): "
+                        "replay streams one run of samples; replay each piece on its own, or "
+                        "calibrate the log (batch keeps its pieces apart)")
+    return first
+
+
 def located(exc: DataError, source: str | Path, chunk: Chunk, read: int,
             previous_t: float | None) -> DataError:
     """A push's DataError about a chunk of ``source`` (``read`` samples came before it, the last
@@ -347,11 +369,13 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
             on_update(row, est)
 
     read = 0                                      # samples read before this chunk
+    piece: float | None = None                    # the drive format's piece, if it has one
     previous_t: float | None = None               # the last one's t, as the log has it
     for chunk in stream_source(source, fmt=fmt, settings=settings, mapping=mapping):
         cancel.check()                            # a stop asked for (odocal.cancel)
         if chunk["t"].size == 0:
             continue
+        piece = _one_piece(chunk, piece, source, read)
         try:
             calibrator.push(chunk)
         except DataError as exc:                  # named by the log, the row and the time
