@@ -571,7 +571,7 @@ def _check_held_reference(name: str, arrays: Mapping[str, FloatArray],
     """A DataError where the reference position repeats while the wheels turn: a slower
     source (a 1 Hz GNSS) held between its updates, whose steps then look like jumps."""
     x, y, t = arrays["x"], arrays["y"], arrays["t"]
-    turning = held = 0
+    turning = held = changed = 0
     updates: list[float] = []
     for a, b in pieces:
         moving = 0.5 * np.abs(arrays["n_rl"][a:b - 1] + arrays["n_rr"][a:b - 1]) \
@@ -580,10 +580,11 @@ def _check_held_reference(name: str, arrays: Mapping[str, FloatArray],
         turning += int(moving.sum())
         held += int((same & moving).sum())
         changes = np.flatnonzero(~same & moving)
+        changed += int(changes.size)
         if changes.size > 1:
             updates.append(float(np.median(np.diff(t[a:b][changes]))))
-    if turning < 100 or held < _HELD_SHARE * turning:
-        return
+    if turning < 100 or held < _HELD_SHARE * turning or changed < 10:
+        return                       # (a reference that never moves is not held: it is dead)
     period = float(np.median(updates)) if updates else float("nan")
     rate = f" (it changes every {period:.3g} s, {1.0 / period:.3g} Hz)" if period > 0 else ""
     raise DataError(f"'{name}' columns x, y stay the same on {held / turning:.0%} of the steps "
