@@ -331,3 +331,18 @@ def test_c_d_drift_is_told_in_mm_with_its_share_of_c_e() -> None:
     alarms = [a for a in analyse(rows, FleetSettings()).alarms if a.parameter == "c_d"]
     assert len(alarms) == 1
     assert "c_d fell 78.1" in alarms[0].message and "% of c_e)" in alarms[0].message
+
+
+def test_wheels_that_read_nothing_while_the_reference_drives_are_named(
+        columns: dict[str, np.ndarray], tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Both wheel columns zero, the reference driving 5.5 km (found by the hostile run: on main
+    "the vehicle does not move ... nothing to calibrate", exit 0)."""
+    cols = {k: v.copy() for k, v in columns.items()}
+    cols["n_rl"] = np.zeros_like(cols["n_rl"])
+    cols["n_rr"] = np.zeros_like(cols["n_rr"])
+    path = _write(tmp_path / "log.parquet", cols)
+    code, out, _ = run(capsys, "calibrate", str(path), "--out", str(tmp_path / "o"),
+                       "--no-report")
+    assert code == 3 and "the wheels read no motion while the reference travels (5.5" in out
+    assert "does not move" not in out

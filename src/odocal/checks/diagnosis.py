@@ -132,8 +132,13 @@ def check_drives(drives: Sequence[Drive], settings: Settings) -> Diagnosis:
     findings = _repaired(drives)
     wheel_m = float(np.abs(win.wheel_ds).sum())
     if wheel_m < lim.min_distance_m:
-        findings.append(Finding(Check.STANDSTILL, Severity.FALLBACK, wheel_m,
-                                lim.min_distance_m))
+        reference_m = float(np.abs(win.ds).sum())
+        if reference_m >= 10.0 * lim.min_distance_m:   # the reference drives, the wheels not
+            findings.append(Finding(Check.SPEED_SCALE, Severity.FATAL,
+                                    wheel_m / reference_m, reference_m))
+        else:
+            findings.append(Finding(Check.STANDSTILL, Severity.FALLBACK, wheel_m,
+                                    lim.min_distance_m))
         return Diagnosis(tuple(findings))
     moving = np.abs(win.ds) > lim.min_speed_mps * 1.0        # windows of one second
     reference = _pose_jumps(drives, settings.checks)

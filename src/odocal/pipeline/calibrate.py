@@ -135,6 +135,8 @@ def _refuse_copies(drives: Sequence[Drive]) -> None:
     stretch of the other's samples: each would count its evidence twice."""
     from odocal.data.copies import samples_digest, shared_stretch
 
+    if len(drives) < 2:
+        return                               # (one drive: nothing to be a copy of)
     seen: dict[str, str] = {}
     for d in drives:
         for digest in {d.metadata.get("sha256"), samples_digest(d)} - {None}:

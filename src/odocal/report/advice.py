@@ -289,8 +289,10 @@ def finding_text(finding: Finding, settings: Settings) -> str:
                     f"vehicle?{speeds}")
         if not v > 0:                         # (a log of it would be NaN, and a warning)
             if not v < 0:
-                return (f"the wheels imply {v:.3g} times the distance the reference travels: "
-                        "do the wheel columns hold the wheel rates?")
+                travelled = f" ({ref / 1000:.2f} km)" if ref > 1.0 else ""
+                return (f"the wheels read no motion while the reference travels{travelled}: "
+                        "the wheel columns are empty, unmapped or dead (or the vehicle was "
+                        "carried); fix the mapping")
             scale = (f"; and by {abs(v):.3g} times its distance, also a wrong unit or scale"
                      if abs(np.log(abs(v))) > 0.25 else "")
             return (f"the wheels turn backwards while the reference moves forwards (they imply "
