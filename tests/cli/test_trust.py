@@ -98,14 +98,15 @@ def test_a_copy_with_its_clock_shifted_is_the_same_drive(drive: Path, tmp_path: 
         odocal.calibrate([drive, shifted])
 
 
-@pytest.mark.parametrize("how", ["cropped", "noisier", "resampled-start"])
+@pytest.mark.parametrize("how", ["cropped", "middle", "noisier", "resampled-start"])
 def test_a_near_copy_is_named(drive: Path, tmp_path: Path, how: str) -> None:
     """The same recording cut shorter, with a little noise added, or starting a sample later:
     named as a copy of the other log, with the stretch they share."""
     rng = np.random.default_rng(5)
-    if how == "cropped":
+    if how in ("cropped", "middle"):
         d = odocal.load_drive(drive)
-        cols = {k: np.asarray(v)[2000:12000] for k, v in d.columns().items()}
+        cut = slice(2000, 12000) if how == "cropped" else slice(5600, 11200)
+        cols = {k: np.asarray(v)[cut] for k, v in d.columns().items()}
         near = tmp_path / "near.parquet"
         save_drive(odocal.Drive.from_columns(cols, name="near"), near)
     elif how == "noisier":
@@ -122,6 +123,20 @@ def test_a_near_copy_is_named(drive: Path, tmp_path: Path, how: str) -> None:
                                                r"near\.parquet") as info:
         odocal.calibrate([drive, near])
     assert "copy" in str(info.value) or "same drive" in str(info.value)
+
+
+def test_one_log_holding_a_run_of_samples_twice_is_named(drive: Path) -> None:
+    """Two pieces of one file with the same samples (found by the hostile run: on main one
+    file could not be a copy of anything)."""
+    d = odocal.load_drive(drive)
+    cols = {k: np.asarray(v) for k, v in d.columns().items()}
+    n = cols["t"].size
+    twice = {k: np.concatenate([v, v + (cols["t"][-1] + 100.0 if k == "t" else 0.0)])
+             for k, v in cols.items()}
+    twice["piece"] = np.concatenate([np.zeros(n), np.ones(n)])
+    with pytest.raises(odocal.DataError, match=r"'twice' holds one run of samples twice \(its "
+                                               r"pieces 1 and 2\)"):
+        odocal.calibrate(odocal.Drive.from_columns(twice, name="twice"))
 
 
 def test_two_drives_of_one_car_are_not_copies(tmp_path: Path) -> None:

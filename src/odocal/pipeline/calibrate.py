@@ -133,10 +133,10 @@ def _refuse_copies(drives: Sequence[Drive]) -> None:
     """A DataError naming two logs of one recording (:mod:`odocal.data.copies`): the same bytes
     (a copy, a link), the same samples (another format, a shifted clock), or one holding a
     stretch of the other's samples: each would count its evidence twice."""
-    from odocal.data.copies import samples_digest, shared_stretch
+    from odocal.data.copies import piece_digests, samples_digest, shared_stretch
 
-    if len(drives) < 2:
-        return                               # (one drive: nothing to be a copy of)
+    if len(drives) < 2 and len(drives[0].pieces) < 2:
+        return                               # (one run of samples: nothing to be a copy of)
     seen: dict[str, str] = {}
     for d in drives:
         for digest in {d.metadata.get("sha256"), samples_digest(d)} - {None}:
@@ -144,6 +144,16 @@ def _refuse_copies(drives: Sequence[Drive]) -> None:
                 raise DataError(f"the logs '{seen[digest]}' and '{d.name}' are the same drive "
                                 "(the same samples); give each drive once")
             seen[str(digest)] = d.name
+    pieces: dict[str, tuple[str, int]] = {}
+    for d in drives:
+        for k, digest in (piece_digests(d) if len(d.pieces) > 1 else {}).items():
+            if digest in pieces:
+                name, other = pieces[digest]
+                where = (f"'{d.name}' holds one run of samples twice (its pieces {other + 1} "
+                         f"and {k + 1})" if name == d.name else
+                         f"piece {k + 1} of '{d.name}' is piece {other + 1} of '{name}'")
+                raise DataError(f"{where}: one recording counted twice; cut one of them out")
+            pieces[digest] = (d.name, k)
     copy = shared_stretch(drives)
     if copy is not None:
         a, b = drives[copy.first], drives[copy.second]
