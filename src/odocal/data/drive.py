@@ -234,7 +234,7 @@ class Drive:
         dt = np.diff(t)
         if (dt <= 0).any():
             first = int(np.argmax(dt <= 0))
-            _check_time_precision(name, t)
+            check_time_precision(name, t)
             raise DataError(f"'{name}' column t is not strictly increasing: t={t[first + 1]:.6g} "
                             f"follows t={t[first]:.6g} at row {first + 2}; sort the log or drop "
                             "duplicate stamps")
@@ -526,7 +526,7 @@ def _repair_spikes(name: str, key: str, arr: FloatArray, scale: float,
 RESTING_REVPS = 0.1
 
 
-def _check_time_precision(name: str, t: FloatArray) -> None:
+def check_time_precision(name: str, t: FloatArray) -> None:
     """A DataError where stamps repeat because they lost their precision: times of the epoch
     (1.7e9 s) kept as 32-bit floats step by 128 s, so most stamps of a log share a value."""
     finite = t[np.isfinite(t)]
@@ -539,8 +539,8 @@ def _check_time_precision(name: str, t: FloatArray) -> None:
         distinct = int(np.unique(finite).size)
         raise DataError(f"'{name}' column t holds times near {peak:.4g} with 32-bit precision, "
                         f"which steps by {spacing:.4g} s there: {finite.size} stamps take only "
-                        f"{distinct} values. Store t as 64-bit floats (or as seconds from the "
-                        "log's start)")
+                        f"{distinct} value{'s' if distinct != 1 else ''}. Store t as 64-bit "
+                        "floats (or as seconds from the log's start)")
 
 
 def _check_wheel_bursts(name: str, t: FloatArray, n_rl: FloatArray, n_rr: FloatArray, *,

@@ -319,6 +319,9 @@ def located(exc: DataError, source: str | Path, chunk: Chunk, read: int,
     before = np.concatenate([[previous_t], t]) if previous_t is not None else t
     back = np.flatnonzero(np.diff(before) <= 0)
     if back.size:
+        from odocal.data.drive import check_time_precision
+
+        check_time_precision(name, before)        # (stamps that lost their precision)
         j = int(back[0])                          # before[j + 1] does not follow before[j]
         i = j if previous_t is not None else j + 1            # its index in this chunk
         return DataError(f"'{name}' column t is not strictly increasing: t={before[j + 1]:.6g} "
