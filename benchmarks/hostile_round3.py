@@ -98,9 +98,15 @@ def case(cls: str, name: str) -> Callable[[Callable[[Ctx], Check]], Callable[[Ct
 # ---------------------------------------------------------------- judgements
 
 def one_line_error(r: Result, *words: str, code: int = 1) -> Check:
-    """Exit ``code``, one line on stderr (progress aside), no traceback, ``words`` in it."""
+    """Exit ``code``, one line on stderr (progress aside; for a usage error, exit 2, argparse's
+    usage lines before it), no traceback, ``words`` in it."""
     if r.code != code:
         return False, f"exit {r.code}, wanted {code}: {r.err.strip()[-200:]}"
+    if code == 2 and r.said and r.said[0].startswith("usage:") and "Traceback" not in r.err:
+        last = r.said[-1]
+        missing = [w for w in words if w not in last]
+        ok = last.startswith("odocal") and ": error: " in last and not missing
+        return ok, last[:120] if ok else f"usage error unclear: {last[:200]}"
     if "Traceback" in r.err or len(r.said) != 1:
         return False, f"{len(r.said)} lines / traceback: {r.err.strip()[-200:]}"
     missing = [w for w in words if w not in r.said[0]]
@@ -1271,9 +1277,9 @@ for _delay in (1.0, 3.0):
     case("interrupts", f"reproduce after {_delay} s")(_int_reproduce)
 
 
-@case("interrupts", "validate after 1 s")
+@case("interrupts", "validate of an hour after 1 s")
 def _int_validate(ctx: Ctx) -> Check:
-    d = drive_file(ctx, seconds=600.0, seed=7)
+    d = drive_file(ctx, seconds=3600.0, seed=7)
     return _interrupt(ctx, ["validate", str(d)], [], delay=1.0)
 
 

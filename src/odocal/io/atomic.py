@@ -289,6 +289,35 @@ def results_folder(target: str | Path) -> Iterator[Path]:
         shutil.rmtree(old, ignore_errors=True)
 
 
+@contextlib.contextmanager
+def new_folder(target: str | Path) -> Iterator[Path]:
+    """Yield a temporary folder beside ``target`` (which must be absent or an empty folder);
+    on success it becomes ``target``. A failed or interrupted run leaves no half-written
+    folder (and ``target`` as it was)."""
+    target = Path(target)
+    parent = target.parent if str(target.parent) else Path(".")
+    remove_leftovers(target)
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=_temporary(target), suffix=".part", dir=parent))
+    except OSError as exc:
+        raise OutputError(f"cannot create the folder '{shown(target)}': "
+                          f"{exc.strerror or exc}") from exc
+    try:
+        yield tmp
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)
+        with _committing():
+            if target.is_dir() and not any(target.iterdir()):
+                target.rmdir()
+            os.rename(tmp, target)
+    except OSError as exc:
+        raise OutputError(f"cannot write '{shown(target)}': {exc.strerror or exc}") from exc
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 #: Lists the single files odocal wrote in a folder, in ``sha256sum``'s format (the SHA-256 of
 #: the content, two spaces, the name): a later run replaces a file only where this line still
 #: matches its content (``sha256sum -c .odocal-outputs`` checks them by hand).
