@@ -157,3 +157,13 @@ def test_an_interrupt_a_library_swallowed_still_stops_the_run(place: Path, comma
     assert o.code == 130, o.stderr[-2000:]
     assert o.intact, "the interrupted run replaced the earlier results"
     assert "Traceback" not in o.stderr and o.left == () and o.leftovers == ()
+
+
+def test_simulate_fleet_leaves_no_half_a_fleet(place: Path) -> None:
+    """Interrupted while it writes the drives (found by the hostile run: on main the folder was
+    left with some drives and no catalog, and a rerun refused it as not empty)."""
+    o = interrupt_at(["simulate-fleet", "--out", "half", "--vehicles", "3", "--drives", "4",
+                      "--duration", "300"], outputs=[place / "half"], line="simulate",
+                     delay_s=0.5, cwd=place)
+    _stopped_cleanly(o)
+    assert not (place / "half").exists()
