@@ -43,6 +43,10 @@ def _truths(name: str, sim: Any, value: float) -> list[np.ndarray]:
         after = first.copy()
         after[0] *= 1.0 + value
         return [first, after]
+    if name == "drift":
+        end = first.copy()
+        end[0] *= 1.0 + value
+        return [end]
     if name == "pressure-change":
         left = first[0] + 0.5 * first[1]
         after = first.copy()
@@ -86,11 +90,15 @@ def _outcome(run: dict[str, Any], expected: set[str]) -> str:
 
 
 #: Findings that name each departure (a run that ends with one of them is "named").
-NAMES = {"reference-late": {"reference-sync", "clock-offset"},
+NAMES = {"reference-late": {"reference-sync", "clock-offset", "reference-lag"},
          "heading-error": {"reference-heading", "heading-error"},
          "c_e-change": {"change-in-log"}, "pressure-change": {"change-in-log"},
-         "front-wheels": {"front-wheels"}, "wheel-offset": {"wheel-offset"},
-         "a_y-offset": {"lateral-offset"}}
+         "front-wheels": {"front-wheels", "curve-excess"},
+         "wheel-offset": {"wheel-offset", "moving-offset"},
+         "a_y-offset": {"lateral-offset"}, "one-wheel-offset": {"wheel-skew"},
+         "filtered-rates": {"reference-lag", "wheel-smoothing"},
+         "a_y-scale": {"lateral-gain"}, "drift": {"drift"},
+         "arm-ahead": {"reference-arm"}, "arm-left": {"reference-arm"}}
 
 
 def main() -> None:

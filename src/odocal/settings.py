@@ -97,6 +97,69 @@ def datasheet_values(pairs: Any, *, source: str = "--datasheet") -> dict[str, fl
     return values
 
 
+#: The names the localisation stacks give datasheet values (ROS 2's diff_drive_controller,
+#: Autoware's vehicle_info), by odocal's parameter they state (a radius is c_e / 2 pi).
+STACK_NAMES: dict[str, str] = {"wheel_radius": "c_e", "wheel_separation": "t_r",
+                               "wheel_tread": "t_r"}
+#: A circumference difference beyond this share of the circumference is no pair of tyres of one
+#: axle (a space-saver spare differs by about 5%): a c_d given in mm as metres is named.
+MAX_DIFFERENCE_SHARE = 0.1
+
+
+def datasheet_pairs(text: str, *, what: str = "--datasheet") -> list[tuple[str, float]]:
+    """``c_e=1.84,t_r=1.52`` (or the stacks' names, ``wheel_radius=0.1,wheel_separation=0.4``)
+    as ``(name, value)`` pairs by odocal's names, in the order given (a radius made a
+    circumference); a one-line ConfigError naming ``what`` for text that is not such pairs or
+    names no parameter. Values are checked by :func:`datasheet_values`."""
+    pairs: list[tuple[str, float]] = []
+    for item in text.split(","):
+        key, sep, value = item.partition("=")
+        try:
+            pairs.append((key.strip(), float(value)))
+        except ValueError:
+            sep = ""
+        if not sep:
+            raise ConfigError(f"{what} {shown(text)!r}: write NAME=VALUE pairs separated by "
+                              "commas, e.g. c_e=1.84,t_r=1.52 or "
+                              "wheel_radius=0.1,wheel_separation=0.4 (metres)")
+    unknown = [k for k, _ in pairs if k not in DATASHEET_NAMES and k not in STACK_NAMES]
+    if unknown:
+        raise ConfigError(f"{what}: {shown(unknown[0])!r} is not one of "
+                          f"{', '.join((*DATASHEET_NAMES, *STACK_NAMES))}")
+    return [(STACK_NAMES.get(k, k), v * 2.0 * math.pi if k == "wheel_radius" else v)
+            for k, v in pairs]
+
+
+def parse_datasheet(text: str, *, what: str = "--datasheet") -> dict[str, float]:
+    """:func:`datasheet_pairs` checked by :func:`datasheet_values` (each name once, within a
+    vehicle's range): the datasheet values by odocal's names."""
+    return datasheet_values(datasheet_pairs(text, what=what), source=what)
+
+
+def datasheet_theta(values: Any, base: Any = (), *, source: str = "datasheet"
+                    ) -> tuple[float, ...]:
+    """theta0 from named datasheet values (c_e, c_d, t_r, d; missing ones from ``base`` or the
+    placeholder), or a one-line ConfigError naming ``source``: a vehicle no wheels make
+    (:func:`vehicle_problem`), or a circumference difference beyond
+    :data:`MAX_DIFFERENCE_SHARE` of the circumference (millimetres given as metres)."""
+    theta = [float(v) for v in (base if len(base) else DATASHEET_THETA)]
+    given = datasheet_values(values, source=source)
+    for key, value in given.items():
+        theta[DATASHEET_NAMES.index(key)] = value
+    problem = vehicle_problem(theta)
+    if problem is not None:
+        raise ConfigError(f"{source}: {problem}")
+    difference = REAR_AXLE.value(theta, REAR_AXLE.difference)
+    scale = REAR_AXLE.value(theta, REAR_AXLE.scale)
+    if REAR_AXLE.difference in given and abs(difference) > MAX_DIFFERENCE_SHARE * scale:
+        raise ConfigError(
+            f"{source}: {REAR_AXLE.difference} = {difference:g} m is {abs(difference) / scale:.0%} "
+            f"of {REAR_AXLE.scale} = {scale:g} m, where two tyres of one axle differ by a few "
+            f"millimetres; {REAR_AXLE.difference} is in metres ({difference:g} mm is "
+            f"{REAR_AXLE.difference}={difference / 1000:g})")
+    return tuple(theta)
+
+
 def _check(condition: bool, section: str, key: str, value: object, expected: str) -> None:
     if not condition:
         raise ConfigError(f"setting [{section}] {key} = {value!r} is invalid: expected {expected}")
@@ -336,6 +399,23 @@ class InverseSettings:
 
 
 @dataclass(frozen=True)
+class ReferenceSettings:
+    """Where the reference pose is on the vehicle (``--reference-offset``)."""
+
+    offset_m: tuple[float, float] | None = None
+    """The reference point's offset from the rear axle's midpoint, forward and left (m): a GNSS
+    antenna on the roof, an INS reporting at its IMU, a camera on the windscreen. Unset, odocal
+    estimates it where the drive's bends show it (and says so), and takes it as zero where they
+    do not."""
+
+    def __post_init__(self) -> None:
+        if self.offset_m is not None:
+            _check(len(self.offset_m) == 2 and all(abs(v) <= 20.0 for v in self.offset_m),
+                   "reference", "offset_m", self.offset_m,
+                   "two lengths (forward, left) within 20 m of the rear axle")
+
+
+@dataclass(frozen=True)
 class OnlineSettings:
     """The online calibrator (``odocal replay``, ``odocal.OnlineCalibrator``)."""
 
@@ -406,7 +486,7 @@ class FleetSettings:
 
 @dataclass(frozen=True)
 class GateSettings:
-    """The checks of the data against the model and the quality gate (README, "When odocal
+    """The checks of the data against the model and the quality gate (docs/checks.md, "When odocal
     refuses"). A calibration outside these limits fails (exit 3) with the reason."""
 
     c_e_m: tuple[float, float] | None = None
@@ -477,9 +557,9 @@ class ChecksSettings:
     (``pose_jump_``, ``straight_``, ``heading_``, ``sync_``), the wheels (``dead_wheel_``,
     ``scale_``), a_y (``lateral_``), several drives (``vehicles_``), the streams' clocks
     (``lag_``, ``wheel_lag_``, ``lateral_lag_``, ``lateral_delay_``); then the departures
-    measured and taken out before the fit (``lateral_offset_``, ``heading_harmonic_``,
-    ``standstill_``, ``encoding_``, with ``error_correlation_s``) and what the fit's residuals
-    show (``window_min_revs``, ``change_``, ``front_``). The first checks' limits stay in
+    measured and taken out before the fit (``heading_harmonic_``, ``standstill_``,
+    ``encoding_``, with ``error_correlation_s``) and where the one fit seeks a change
+    (``change_``). The first checks' limits stay in
     ``[gate]``, where they were: ``min_distance_m``, ``min_speed_mps`` (the moving seconds
     every check here means), ``min_scale``/``max_scale``, ``datasheet_scale_note``,
     ``bend_yaw_rate_radps``, ``min_bend_windows``, ``min_yaw_correlation`` and
@@ -563,9 +643,9 @@ class ChecksSettings:
     them."""
 
     # the streams' clocks
-    lag_min_piece_s: float = 20.0
+    lag_min_piece_s: float = 10.0
     """Pieces at least this long (s) are cross-correlated for a stream's clock (the wheels' yaw
-    rate, a_y) against the reference's."""
+    rate, a_y) against the reference's (a 20 s scene of a public dataset holds one)."""
     lag_min_correlation: float = 0.5
     """A lag is taken only where the correlation at it reaches this (a signal that hardly
     varies, a circle at one rate, has no timing to find)."""
@@ -580,15 +660,7 @@ class ChecksSettings:
     # departures measured and taken out before the fit
     error_correlation_s: int = 30
     """Neighbouring seconds share their errors (a reference's drift, a slip that lasts): the
-    standard errors of a_y's offset and of the heading harmonics are taken from groups of this
-    many seconds (at least three groups for an offset)."""
-    lateral_offset_min_seconds: int = 90
-    """a_y's constant offset is measured on at least this many moving seconds ..."""
-    lateral_offset_sigmas: float = 4.0
-    """... and taken out where it is this many standard errors from zero (a constant d a_y term
-    is a c_d term: left in, it moves c_d by 2 d times it) ..."""
-    lateral_offset_named_mps2: float = 0.1
-    """... and named from this size on (m/s^2)."""
+    standard errors of the heading harmonics are taken from groups of this many seconds."""
     heading_harmonic_min_seconds: int = 60
     """A heading error varying with the heading is fitted on at least this many straight
     seconds ..."""
@@ -623,47 +695,14 @@ class ChecksSettings:
     encoding_min_on_grid: float = 0.99
     """... and more than this share of the distinct values on it."""
 
-    # the fit's residuals (the default method)
-    window_min_revs: float = 0.5
-    """Windows turning the wheels at least this many revolutions count for the residual checks."""
-    change_min_windows: int = 20
-    """Fewer such windows than this: no change inside the log is looked for."""
-    change_min_cluster_share: float = 0.25
-    """Clusters turning the wheels less than this share of the median cluster (a stop, a crawl)
-    are left out of the change test."""
+    # the one fit's departures (the default method)
     change_min_side_clusters: int = 4
-    """A change is tested only with at least this many clusters on either side."""
-    change_statistic: float = 1.95
-    """The CUSUM statistic beyond which the log holds a change (Kolmogorov's distribution
-    exceeds 1.95 with probability 0.001: one false alarm in a thousand logs) ..."""
-    change_min: float = 0.005
-    """... by at least this much: of c_e's level (a relative change), or of the wheels'
-    difference per revolution (c_d over c_e). The part after it is calibrated."""
-    front_min_window_m: float = 1.0
-    """Windows moving at least this far (m) give a curvature for the front-wheel test ..."""
-    front_min_windows: int = 30
-    """... which needs this many windows ..."""
-    front_min_curvature_1pm: float = 0.02
-    """... and curving windows: more than this (1/m) ..."""
-    front_min_curved_windows: int = 10
-    """... at least this many of them (a rear axle's distance does not grow with the curvature
-    squared: without bends there is nothing to tell them apart) ..."""
-    front_sigmas: float = 5.0
-    """Wheels whose distance grows with the curvature squared by this many standard errors
-    ..."""
-    front_min_distance_m: float = 1.6
-    """... as a wheel this far ahead of the rear axle would (m; a car's wheelbase is over 2 m)
-    are front wheels mapped as rear ones; refused."""
-    moving_offset_min_clusters: int = 10
-    """The distance residuals are tested for a wheel-rate offset while moving on at least this
-    many clusters of moving windows (their spread is taken cluster by cluster) ..."""
-    moving_offset_min_spread: float = 0.2
-    """... where the moving windows' revolutions spread by at least this share of their mean
-    (standard deviation over mean: at about one speed an offset is a scale error) ..."""
-    moving_offset_sigmas: float = 4.0
-    """... and an offset beyond this many standard errors is fitted beside c_e (on rates on no
-    encoding's grid, which fit none otherwise; a drive at few speeds cannot tell the two apart,
-    and fitting one always cost c_e three times its precision)."""
+    """A change inside the log is sought only with at least this many clusters on either side
+    (:mod:`odocal.estimators.departures`) ..."""
+    change_min: float = 0.003
+    """... and fitted only where it is at least this share of c_e (in c_e, or in c_d: a tyre's
+    pressure or a tyre change; smaller steps between a log's parts are what a reference's slow
+    errors and the tyres' warming make of them)."""
 
     def __post_init__(self) -> None:
         s = "checks"
@@ -672,17 +711,11 @@ class ChecksSettings:
                     "lateral_min_vw_spread_mps2", "vehicles_min_wheel_revs",
                     "vehicles_max_ratio_gap", "vehicles_sigmas", "lag_min_piece_s",
                     "wheel_lag_search_s", "lateral_lag_search_s", "lateral_delay_named_s",
-                    "lateral_offset_sigmas", "heading_harmonic_sigmas", "standstill_speed_mps",
-                    "standstill_min_offset_revps", "encoding_max_step_revps", "window_min_revs",
-                    "change_statistic", "change_min", "front_min_window_m",
-                    "front_min_curvature_1pm", "front_sigmas", "front_min_distance_m",
-                    "moving_offset_sigmas", "moving_offset_min_spread")
+                    "heading_harmonic_sigmas", "standstill_speed_mps",
+                    "standstill_min_offset_revps", "encoding_max_step_revps", "change_min")
         for key in positive:
             _check(0 < getattr(self, key) < float("inf"), s, key, getattr(self, key),
                    "a positive finite number")
-        for key in ("lateral_offset_named_mps2",):
-            _check(0 <= getattr(self, key) < float("inf"), s, key, getattr(self, key),
-                   "a finite number >= 0")
         angles = ("straight_turn_rad", "heading_max_gap_rad", "vehicles_max_turn_rad",
                   "heading_harmonic_min_rad")
         for key in angles:
@@ -695,20 +728,16 @@ class ChecksSettings:
             _check(0 < getattr(self, key) < 1, s, key, getattr(self, key), "a number in (0, 1)")
         for key in ("sync_lag_min_correlation", "standstill_min_share", "encoding_min_on_grid"):
             _check(0 < getattr(self, key) <= 1, s, key, getattr(self, key), "a number in (0, 1]")
-        _check(0 <= self.change_min_cluster_share < 1, s, "change_min_cluster_share",
-               self.change_min_cluster_share, "a number in [0, 1)")
         _check(0 < self.lateral_min_slope < 1 < self.lateral_max_slope < float("inf"), s,
                "lateral_min_slope/lateral_max_slope",
                (self.lateral_min_slope, self.lateral_max_slope),
                "0 < lateral_min_slope < 1 < lateral_max_slope")
         counts = {"heading_min_seconds": 1, "sync_min_seconds": 3, "dead_wheel_min_seconds": 1,
                   "scale_min_seconds": 1, "vehicles_min_seconds": 1, "error_correlation_s": 1,
-                  "lateral_offset_min_seconds": 1, "heading_harmonic_min_seconds": 5,
+                  "heading_harmonic_min_seconds": 5,
                   "standstill_min_seconds": 1, "encoding_min_samples": 2,
                   "encoding_samples_per_value": 1, "encoding_min_values": 2,
-                  "change_min_windows": 1, "change_min_side_clusters": 1,
-                  "front_min_windows": 3, "front_min_curved_windows": 1,
-                  "moving_offset_min_clusters": 3}
+                  "change_min_side_clusters": 1}
         for key, least in counts.items():
             _check(least <= getattr(self, key) <= 10**9, s, key, getattr(self, key),
                    f"an integer from {least} to 10**9")
@@ -836,6 +865,7 @@ class Settings:
     minimum: MinimumSettings = field(default_factory=MinimumSettings)
     uncertainty: UncertaintySettings = field(default_factory=UncertaintySettings)
     inverse: InverseSettings = field(default_factory=InverseSettings)
+    reference: ReferenceSettings = field(default_factory=ReferenceSettings)
     gate: GateSettings = field(default_factory=GateSettings)
     checks: ChecksSettings = field(default_factory=ChecksSettings)
     online: OnlineSettings = field(default_factory=OnlineSettings)

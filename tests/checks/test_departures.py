@@ -13,7 +13,6 @@ import pytest
 import odocal
 from odocal.checks.departures import heading_correction, wheel_step
 from odocal.checks.findings import Check, Severity
-from odocal.checks.residuals import cusum
 from odocal.pipeline.result import CalibrationResult
 from odocal.sim import departures as dep
 from odocal.sim.simulate import TRUE_PARAMETERS, SimulatedDrive
@@ -60,7 +59,7 @@ def test_a_late_or_early_reference_is_taken_out(seed: int, delay_s: float) -> No
 
 
 @pytest.mark.parametrize(("seed", "offset"), [(24, 0.4), (25, -0.7)])
-def test_a_lateral_acceleration_offset_is_measured_and_taken_out(seed: int,
+def test_a_lateral_acceleration_offset_is_fitted_and_named(seed: int,
                                                                  offset: float) -> None:
     drive = dep.lateral_offset(sim(seed), offset)
     result = odocal.calibrate(drive.drive)
@@ -68,10 +67,8 @@ def test_a_lateral_acceleration_offset_is_measured_and_taken_out(seed: int,
     (finding,) = [f for f in result.diagnosis.findings if f.check is Check.LATERAL_OFFSET]
     assert finding.severity is Severity.NOTE
     assert finding.value == pytest.approx(offset, abs=0.02)
-    # a small offset is taken out as well, without a word
+    # a small offset is fitted where it holds out, and never leaves a confident wrong number
     small = odocal.calibrate(dep.lateral_offset(sim(seed), 0.06).drive)
-    assert Check.LATERAL_OFFSET not in checks_of(small)
-    assert small.departures is not None and small.departures.lateral_offset_applied
     assert confidently_wrong(small, drive.true_parameters.as_array()) == []
 
 
@@ -261,14 +258,17 @@ def test_one_tyre_losing_pressure_inside_a_log_is_named() -> None:
 @pytest.mark.parametrize(("seed", "wheelbase", "method"), [(44, 2.9, "inverse"),
                                                            (45, 2.3, "inverse"),
                                                            (53, 2.6, "raw")])
-def test_front_wheels_mapped_as_rear_ones_are_refused(seed: int, wheelbase: float,
-                                                      method: str) -> None:
+def test_front_wheels_mapped_as_rear_ones_are_named_not_refused(seed: int, wheelbase: float,
+                                                                method: str) -> None:
+    """Front wheels travel (L kappa)^2 / 2 more than the rear axle in bends: the one fit takes
+    that in (``curve``) and names it with the distance ahead; the calibration is of the wheels
+    given (nothing is refused for a departure; a four-wheel log tells front from rear)."""
     drive = dep.front_wheels(sim(seed), wheelbase)
     result = odocal.calibrate(drive.drive, method=method)
-    assert result.estimate.status is odocal.Status.REJECTED
-    (finding,) = [f for f in result.diagnosis.findings if f.check is Check.FRONT_WHEELS]
-    assert finding.severity is Severity.FATAL
-    assert finding.value == pytest.approx(wheelbase, rel=0.2)
+    assert result.estimate.status is not odocal.Status.REJECTED
+    (finding,) = [f for f in result.diagnosis.findings if f.check is Check.CURVE_EXCESS]
+    assert finding.severity is Severity.NOTE
+    assert np.sqrt(2.0 * finding.value) == pytest.approx(wheelbase, rel=0.2)
 
 
 @pytest.mark.parametrize("seed", [46, 47, 48])
@@ -276,36 +276,11 @@ def test_a_plain_drive_shows_none_of_them(seed: int) -> None:
     for noise in ("realistic", "everything"):
         result = odocal.calibrate(odocal.simulate(duration_s=DURATION, seed=seed,
                                                   noise=noise).drive)
-        named = checks_of(result) & {Check.CHANGE_IN_LOG, Check.FRONT_WHEELS,
-                                     Check.HEADING_ERROR, Check.LATERAL_OFFSET,
-                                     Check.WHEEL_OFFSET}
+        named = checks_of(result) & {Check.CHANGE_IN_LOG, Check.CURVE_EXCESS,
+                                     Check.HEADING_ERROR, Check.WHEEL_OFFSET, Check.DRIFT,
+                                     Check.REFERENCE_ARM, Check.WHEEL_SKEW,
+                                     Check.DRIVE_DEPARTS}
         assert named == set(), (noise, result.diagnosis)
-
-
-def test_the_cusum_statistic_has_its_null_distribution() -> None:
-    """Independent cluster means: beyond 1.95 in about 0.1% of logs; a step of two spreads
-    half-way: found at its place."""
-    rng = np.random.default_rng(5)
-    stats = [cusum(rng.standard_normal(60))[1] for _ in range(2000)]
-    assert np.mean(np.array(stats) > 1.95) < 0.006
-    means = rng.standard_normal(60)
-    means[25:] += 2.0
-    split, statistic = cusum(means)
-    assert split == pytest.approx(25, abs=2) and statistic > 3.0
-
-
-def test_an_odd_cluster_at_either_end_is_not_where_a_change_splits() -> None:
-    """The split keeps at least [checks] change_min_side_clusters values on either side: one
-    odd cluster at the start of a log (a cold tyre, a late reference) cannot be the change."""
-    from odocal.settings import ChecksSettings
-
-    side = ChecksSettings().change_min_side_clusters
-    rng = np.random.default_rng(8)
-    for odd in (0, 59):
-        means = 0.1 * rng.standard_normal(60)
-        means[odd] += 12.0
-        split, _ = cusum(means)
-        assert side <= split <= 60 - side, (odd, split)
 
 
 @pytest.mark.realdata
@@ -338,3 +313,144 @@ def test_a_lag_between_two_steps_is_found_between_them_and_one_past_the_search_a
     assert best_lag([(a, late)], 10, 0.1, 0.5) == pytest.approx(0.24, abs=0.01)
     far = np.sin(0.7 * (t - 0.9)) + 0.5 * np.sin(0.23 * (t - 0.9) + 1.0)
     assert best_lag([(a, far)], 5, 0.1, 0.1) == pytest.approx(0.5, abs=1e-12)
+
+
+# ----------------------------------------------------------- the one fit's departures (issue 36)
+
+@pytest.mark.parametrize(("seed", "forward", "left"), [(60, 2.0, 0.0), (61, -0.8, 0.0),
+                                                       (62, 0.0, 0.5), (63, 0.0, -2.0),
+                                                       (64, 1.5, 1.0)])
+def test_a_reference_off_the_rear_axle_is_estimated_within_its_std(seed: int, forward: float,
+                                                                  left: float) -> None:
+    """A GNSS antenna, an INS or a camera ahead of or beside the rear axle: its offset is
+    estimated (the reference's sideways motion in bends, the axle's travel against its own)
+    within three of its standard deviations, and theta stays right (2 m ahead gave c_e at
+    z -5.6; 0.5 m to the left was refused as front wheels)."""
+    plain = sim(seed, duration_s=1200.0)
+    drive = dep.lever_arm(plain, forward, left)
+    result = odocal.calibrate(drive.drive)
+    # theta as the same drive with its reference at the axle gives it (the realistic profile's
+    # slip leaves c_e of a 20 min drive about a standard deviation off on its own)
+    right(result, odocal.calibrate(plain.drive).estimate.theta.as_array())
+    fitted = {n: (v, s) for n, v, s in result.estimate.details.departures}
+    for name, truth in (("arm_x", forward), ("arm_y", left)):
+        value, std = fitted.get(name, (0.0, 0.0))
+        if truth:
+            assert abs(value - truth) < 3.0 * std, (name, value, std)
+        else:
+            assert name not in fitted or abs(value) < 3.0 * std
+    assert Check.REFERENCE_ARM in checks_of(result)
+    assert Check.CURVE_EXCESS not in checks_of(result)
+
+
+def test_a_stated_reference_offset_is_held_and_used() -> None:
+    plain = sim(65, duration_s=900.0)
+    drive = dep.lever_arm(plain, 1.2, -0.4)
+    settings = odocal.Settings().replace(reference={"offset_m": [1.2, -0.4]})
+    result = odocal.calibrate(drive.drive, settings=settings)
+    right(result, odocal.calibrate(plain.drive).estimate.theta.as_array())
+    fitted = {n for n, _, _ in result.estimate.details.departures}
+    assert not fitted & {"arm_x", "arm_y"}                       # stated, not fitted
+    assert result.reference_arm == (1.2, -0.4)                   # and the exports use it
+
+
+@pytest.mark.parametrize(("seed", "offset"), [(66, 0.01), (67, 0.03), (68, -0.05)])
+def test_one_wheels_rate_offset_is_fitted_and_named(seed: int, offset: float) -> None:
+    """One rear wheel's sensor reading a constant rate too many: c_d was 20-42 standard
+    deviations off."""
+    drive = dep.one_wheel_offset(sim(seed, duration_s=1200.0), offset)
+    result = odocal.calibrate(drive.drive)
+    right(result, drive.true_parameters.as_array())
+    (named,) = [f for f in result.diagnosis.findings if f.check is Check.WHEEL_SKEW]
+    assert named.name == "left" and named.value == pytest.approx(offset, abs=3 * named.reference)
+
+
+@pytest.mark.parametrize(("seed", "tau"), [(69, 0.3), (70, 0.4)])
+def test_wheel_rates_smoothed_by_a_gateway_are_right(seed: int, tau: float) -> None:
+    """A first-order low-pass on the wheel rates (t_r was at z -3.3 to -5.4): its delay and
+    spread are fitted (the lag and the smoothing), and named."""
+    plain = sim(seed, duration_s=1200.0)
+    drive = dep.filtered_rates(plain, tau)
+    result = odocal.calibrate(drive.drive)
+    # theta as the same drive unfiltered gives it (the realistic profile's slip leaves c_e of a
+    # 20 min drive about a standard deviation off on its own)
+    right(result, odocal.calibrate(plain.drive).estimate.theta.as_array())
+    assert {Check.REFERENCE_LAG, Check.WHEEL_SMOOTHING} <= checks_of(result)
+    assert abs(result.estimate.details.delay_s) == pytest.approx(tau, abs=0.05)
+
+
+@pytest.mark.parametrize(("seed", "scale"), [(71, 1.3), (72, 0.8)])
+def test_a_scaled_lateral_acceleration_is_fitted_and_named(seed: int, scale: float) -> None:
+    """An accelerometer's scale error (d was at z -5.4 to -6.5): a_y's sum against the
+    reference's v w, fitted with the rest."""
+    drive = dep.lateral_scale(sim(seed, duration_s=1200.0), scale)
+    result = odocal.calibrate(drive.drive)
+    right(result, drive.true_parameters.as_array())
+    (gain,) = [f for f in result.diagnosis.findings if f.check is Check.LATERAL_GAIN]
+    assert 1.0 + gain.value == pytest.approx(scale, abs=0.05)
+
+
+@pytest.mark.parametrize(("seed", "fraction"), [(74, 0.003), (75, -0.003)])
+def test_c_e_drifting_over_the_log_is_named_and_reported_at_its_end(seed: int,
+                                                                    fraction: float) -> None:
+    """Tyres warming: c_e 0.3% larger at the end of 20 minutes (the average was 3.8-6.4
+    standard deviations from either end)."""
+    drive = dep.drift(sim(seed, duration_s=1200.0), fraction)
+    end = drive.true_parameters.as_array().copy()
+    end[0] *= 1.0 + fraction
+    result = odocal.calibrate(drive.drive)
+    right(result, end)
+    assert Check.DRIFT in checks_of(result)
+
+
+def test_two_logs_whose_tyres_differ_are_never_averaged_confidently() -> None:
+    """Two logs of one car whose tyres differ by 0.3% (a change between them): the part the
+    calibration is of is named, or its uncertainty covers either log."""
+    first = sim(76, duration_s=900.0)
+    wider = dataclasses.replace(TRUE_PARAMETERS, c_e=TRUE_PARAMETERS.c_e * 1.003)
+    second = odocal.simulate(duration_s=900.0, seed=77, noise="realistic", theta=wider)
+    result = odocal.calibrate([first.drive, second.drive])
+    est = result.estimate
+    errors = [abs(est.theta.c_e - c) / est.std[0] for c in (TRUE_PARAMETERS.c_e, wider.c_e)]
+    named = checks_of(result) & {Check.CHANGE_IN_LOG, Check.DRIVE_DEPARTS, Check.DRIFT}
+    assert named or min(errors) < 3.0
+    if Check.CHANGE_IN_LOG in named:                 # the part after: the second log
+        assert errors[1] < 3.0
+
+
+def test_a_drive_followed_by_parking_is_never_refused() -> None:
+    """Ten minutes parked after a plain drive, the pose jittering by 2 cm (it was refused as
+    front wheels 1.6 m ahead)."""
+    drive = dep.parked(sim(78, duration_s=600.0), 10.0)
+    result = odocal.calibrate(drive.drive)
+    right(result, drive.true_parameters.as_array())
+    assert Check.CURVE_EXCESS not in checks_of(result)
+
+
+@pytest.mark.realdata
+def test_a_late_reference_on_a_real_log_is_named_as_the_reference(shared_data: Path) -> None:
+    """The Singapore scenes with their reference 0.4 s late: the reference's lag is found and
+    named (not a_y's clock), and c_e stays as sure as without it (its std grew tenfold)."""
+    from odocal import convert
+
+    scenes = [d for d in convert("nuscenes", [shared_data / "nuscenes-can-bus-mini"])
+              if d.name in ("scene-0061", "scene-0796", "scene-0916", "scene-1077")]
+    plain = odocal.calibrate(scenes)
+
+    def late(d: odocal.Drive) -> odocal.Drive:
+        cols = dict(d.columns())
+        cols.pop("yaw_rate", None)
+        psi = np.unwrap(cols["psi"])
+        for key, values in (("x", cols["x"]), ("y", cols["y"]), ("psi", psi)):
+            cols[key] = np.interp(cols["t"] - 0.4, cols["t"], values)
+        return odocal.Drive.from_columns(cols, name=d.name)
+
+    result = odocal.calibrate([late(d) for d in scenes])
+    assert Check.LATERAL_DELAY not in checks_of(result)
+    assert Check.REFERENCE_LAG in checks_of(result) or abs(
+        result.estimate.details.delay_s - plain.estimate.details.delay_s) > 0.3
+    assert result.estimate.details.delay_s == pytest.approx(
+        plain.estimate.details.delay_s - 0.4, abs=0.05)
+    assert result.estimate.std[0] < 2.0 * plain.estimate.std[0]
+    assert all(result.estimate.identified) or result.estimate.identified == \
+        plain.estimate.identified

@@ -21,10 +21,12 @@ import numpy as np
 import pytest
 
 import odocal
-from odocal.checks import departures, residuals
+from odocal.checks import departures
 from odocal.checks.diagnosis import check_drives
 from odocal.checks.findings import Check, Finding, Severity
 from odocal.checks.gate import gate
+from odocal.estimators import core
+from odocal.estimators.windows import empty_windows
 from odocal.model.kinematics import rollout, wheel_rates_for
 from odocal.model.parameters import Inputs
 from odocal.settings import ChecksSettings, GateSettings, Settings
@@ -305,18 +307,6 @@ def close(value: float | None, target: float, tolerance: float = 0.05) -> bool:
 
 # ----------------------------------------------------------------------- departures
 
-@cache
-def lateral_offset(offset: float, spread: float = 0.1, n: int = 120) -> list[odocal.Drive]:
-    """A straight drive whose a_y reads ``offset``, plus and minus ``spread`` in turn over
-    30-s groups."""
-    groups = np.where((np.arange(n) // 30) % 2 == 0, spread, -spread)
-    return [drive(columns(seconds((10.0, n)), a_y=per_second(offset + groups)))]
-
-
-def offset_applied(drives: Sequence[odocal.Drive], settings: Settings) -> bool:
-    return departures.measure(drives, settings).lateral_offset_applied
-
-
 def harmonics_found(gap: FloatArray, heading: FloatArray, settings: Settings) -> bool:
     _, amplitude = departures._harmonics(gap, heading, settings.checks)
     return amplitude > 0
@@ -402,97 +392,24 @@ def step_found(drives: Sequence[odocal.Drive], settings: Settings) -> bool:
     return departures.wheel_step(drives, settings) > 0
 
 
-# ------------------------------------------------------------------ the fit's residuals
+# --------------------------------------------------------------------------- the one fit
 
-def change_found(means: FloatArray, settings: Settings, *, revs: Any = 10.0,
-                 per_cluster: int = 1) -> bool:
-    """find_change on windows whose distance channel's relative residual is ``means`` (one
-    cluster each, of ``per_cluster`` windows turning ``revs``); the yaw channel is flat."""
-    m = np.repeat(means, per_cluster)
-    turned = np.broadcast_to(np.repeat(np.broadcast_to(revs, means.shape), per_cluster), m.shape)
-    measured = np.column_stack([turned, np.zeros(m.size)])
-    residual = np.column_stack([m * turned, np.zeros(m.size)])
-    cluster = np.repeat(np.arange(means.size), per_cluster).astype(np.int64)
-    return residuals.find_change(measured, residual, cluster, settings) is not None
+def stepped_fit(size: float) -> Any:
+    """A fit whose c_e was ``size`` of itself larger before a change inside the log."""
+    p = core.pack(np.array([2.0, 0.0, 1.5, 0.0]))
+    p[core.CHANGE[0]] = 2.0 * size
+    fit = core.Fit(p=p, residual=np.zeros((0, 2)), jac=np.zeros((0, 2, core.P)),
+                   weight=np.zeros((0, 2)), stacked=np.zeros((0, 2, 1 + core.P)),
+                   white=np.zeros((0, 4, 1 + core.P)), cost=0.0)
+    return core._State(fit=fit, model=core.ErrorModel(), lag=core.Lag(), view=None)
 
 
-def stepped(size: float, n: int = 40, noise: float = 0.001) -> FloatArray:
-    """``n`` levels alternating by +-noise, stepping by ``size`` half-way."""
-    return noise * np.resize([1.0, -1.0], n) + size * (np.arange(n) >= n // 2)
+def change_room(clusters: int, settings: Settings) -> bool:
+    """Whether a change inside the log is sought on windows in ``clusters`` clusters."""
+    windows = empty_windows(length=80, margin=0, t_s=0.025)
+    windows = dataclasses.replace(windows, cluster=np.arange(clusters, dtype=np.int64))
+    return core.change_sought(windows, settings)
 
-
-@cache
-def at_statistic(target: float, n: int = 40) -> tuple[float, ...]:
-    """Noisy levels with a step whose CUSUM statistic is ``target`` (found by bisection)."""
-    noise = 0.01 * np.random.default_rng(9).standard_normal(n)
-
-    def series(size: float) -> FloatArray:
-        return noise + size * (np.arange(n) >= n // 2)
-
-    lo, hi = 0.0, 0.2
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if residuals.cusum(series(mid))[1] < target else (lo, mid)
-    out = series(hi)
-    assert residuals.cusum(out)[1] == pytest.approx(target, rel=1e-6)
-    return tuple(out)
-
-
-def front_found(curvature: FloatArray, relative: FloatArray, settings: Settings, *,
-                along_m: float = 20.0, revs: float = 10.0) -> bool:
-    """front_wheels on windows of the given curvature whose distance channel's relative
-    residual is ``relative``."""
-    w = curvature.size
-    measured = np.column_stack([np.full(w, revs), np.zeros(w)])
-    residual = np.column_stack([relative * revs, np.zeros(w)])
-    return residuals.front_wheels(measured, residual, np.full(w, along_m),
-                                  curvature * along_m, settings) is not None
-
-
-#: Curvatures from -0.1 to 0.1 1/m, each twice (a pair's residuals can err by +-e).
-BENDS = np.repeat(np.linspace(-0.1, 0.1, 50), 2)
-
-
-def front_sigma_noise(target_std: float) -> float:
-    """The +-e in turn over each pair of BENDS that makes the slope's standard error
-    ``target_std`` (1.4826 MAD times the root of (D'D)^-1's slope entry)."""
-    design = np.column_stack([np.ones(BENDS.size), BENDS**2])
-    return target_std / (1.4826 * math.sqrt(np.linalg.inv(design.T @ design)[1, 1]))
-
-
-def wheelbase(distance_m: float, curvature: FloatArray = BENDS) -> FloatArray:
-    """A front wheel's relative excess ``(L kappa)^2 / 2``."""
-    return 0.5 * distance_m**2 * curvature**2
-
-
-def offset_found(target: float, settings: Settings, *, clusters: int = 40,
-                 per_cluster: int = 5, spread: float | None = None) -> bool:
-    """moving_offset on windows of 2 to 10 revolutions (or, with ``spread``, 6 revolutions
-    times 1 -+ spread in turn: that standard deviation over the mean) whose distance residual
-    is a constant plus fixed noise; the constant is set so that it lies ``target`` standard
-    errors from zero (the statistic is linear in the constant: its standard error does not
-    depend on it)."""
-    n = clusters * per_cluster
-    rng = np.random.default_rng(12)
-    revs = (2.0 + 8.0 * rng.random(n) if spread is None
-            else 6.0 * (1.0 + spread * np.tile([-1.0, 1.0], n // 2 + 1)[:n]))
-    measured = np.column_stack([revs, np.zeros(n)])
-    noise = 0.05 * rng.standard_normal(n)
-    cluster = np.repeat(np.arange(clusters), per_cluster)
-
-    def found(constant: float, s: Settings) -> Finding | None:
-        residual = np.column_stack([constant + noise, np.zeros(n)])
-        return residuals.moving_offset(measured, residual, cluster, 2.0, s)
-
-    # far beyond the threshold, on any number of clusters: the constant's value and std
-    probe = found(1.0, DEFAULTS.replace(checks={"moving_offset_min_clusters": 3,
-                                                "moving_offset_min_spread": 1e-6}))
-    assert probe is not None
-    std, bias = probe.reference * 2.0, probe.value * 2.0 - 1.0
-    return found(target * std - bias, settings) is not None
-
-
-# ----------------------------------------------------------------------------- the gate
 
 def gate_flags(theta: Sequence[float], *, error: float | None = None, datasheet: float = 100.0,
                segment: float = 300.0) -> Callable[[Settings], set[str]]:
@@ -665,7 +582,7 @@ CASES = [
     Case(C, "lag_min_piece_s",
          lambda n, s: departures.lateral_lag_s(
              white(a_y_lag_s=0.5, seconds_=(n - 1) / RATE), s) is not None,
-         799, 800, "above", 19.9),
+         399, 400, "above", 9.9),
     Case(C, "lag_min_correlation",
          lambda x, s: departures.lateral_lag_s(white(correlation=x), s) is not None,
          0.49, 0.51, "above", 0.48),
@@ -679,18 +596,6 @@ CASES = [
          lambda x, s: bool(departures.lateral_delay(white(a_y_lag_s=x), s)),
          0.225, 0.275, "above", 0.2),
     # -- departures
-    Case(C, "lateral_offset_sigmas",
-         on(lambda z: lateral_offset(z * 0.1 / math.sqrt(3)), offset_applied),
-         3.92, 4.08, "above", 3.9),
-    # (groups of 20 s: 89 s hold enough of them for a spread, so the minimum alone decides)
-    Case(C, "lateral_offset_min_seconds",
-         lambda n, s: offset_applied(lateral_offset(1.0, 0.01, int(n)),
-                                     s.replace(checks={"error_correlation_s": 20})),
-         89, 90, "above", 89),
-    Case(C, "lateral_offset_named_mps2",
-         lambda x, s: bool(departures.findings(departures.Departures(
-             lateral_offset_mps2=-x, lateral_offset_std=0.01, lateral_offset_applied=True), s)),
-         0.099, 0.101, "above", 0.098),
     Case(C, "heading_harmonic_min_seconds",
          lambda n, s: harmonics_found(0.05 * np.sin(compass(8)[:int(n)]),
                                       compass(8)[:int(n)], s),
@@ -727,54 +632,11 @@ CASES = [
     Case(C, "encoding_min_on_grid",
          on(lambda m: encoded(distinct=200, off_grid=int(m)), step_found),
          1, 3, "below", 0.996),
-    # -- the fit's residuals
-    Case(C, "window_min_revs",
-         lambda x, s: change_found(stepped(0.05), s, revs=x), 0.49, 0.51, "above", 0.48,
-         label="change"),
-    Case(C, "window_min_revs",
-         lambda x, s: front_found(BENDS, wheelbase(2.5), s, revs=x), 0.49, 0.51, "above",
-         0.48, label="front"),
-    Case(C, "change_min_windows",
-         lambda n, s: change_found(stepped(0.05, int(n)), s), 19, 20, "above", 19),
-    Case(C, "change_min_cluster_share",
-         lambda x, s: change_found(np.concatenate([stepped(0.0), np.full(20, 0.05)]), s,
-                                   revs=np.concatenate([np.full(40, 10.0),
-                                                        np.full(20, 10.0 * x)])),
-         0.24, 0.26, "above", 0.23),
-    Case(C, "change_min_side_clusters",
-         lambda n, s: change_found(stepped(0.05, int(n)), s, per_cluster=3), 9, 10, "above", 3),
-    Case(C, "change_statistic",
-         lambda x, s: change_found(np.asarray(at_statistic(x)), s),
-         1.95 * 0.98, 1.95 * 1.02, "above", 1.9),
-    Case(C, "change_min", lambda x, s: change_found(stepped(x, noise=0.0005), s),
-         0.0049, 0.0051, "above", 0.0048),
-    Case(C, "front_min_window_m",
-         lambda x, s: front_found(BENDS, wheelbase(2.5), s, along_m=x), 0.98, 1.02, "above",
-         0.97),
-    Case(C, "front_min_windows",
-         lambda n, s: front_found(np.linspace(-0.1, 0.1, int(n)),
-                                  wheelbase(2.5, np.linspace(-0.1, 0.1, int(n))), s),
-         29, 30, "above", 29),
-    Case(C, "front_min_curvature_1pm",
-         lambda x, s: front_found(np.r_[np.zeros(50), np.full(10, x)],
-                                  wheelbase(2.5, np.r_[np.zeros(50), np.full(10, x)]), s),
-         0.0196, 0.0204, "above", 0.019),
-    Case(C, "front_min_curved_windows",
-         lambda n, s: front_found(np.r_[np.zeros(50), np.full(int(n), 0.05)],
-                                  wheelbase(2.5, np.r_[np.zeros(50), np.full(int(n), 0.05)]),
-                                  s),
-         9, 10, "above", 9),
-    Case(C, "front_sigmas",
-         lambda z, s: front_found(BENDS, z * 0.3 * BENDS**2 + front_sigma_noise(0.3)
-                                  * np.tile([1.0, -1.0], 50), s),
-         4.9, 5.1, "above", 4.8),
-    Case(C, "moving_offset_sigmas", offset_found, 3.95, 4.05, "above", 3.9),
-    Case(C, "moving_offset_min_spread", lambda x, s: offset_found(6.0, s, spread=x),
-         0.19, 0.21, "above", 0.18),
-    Case(C, "moving_offset_min_clusters",
-         lambda n, s: offset_found(6.0, s, clusters=int(n)), 9, 10, "above", 9),
-    Case(C, "front_min_distance_m",
-         lambda x, s: front_found(BENDS, wheelbase(x), s), 1.58, 1.62, "above", 1.55),
+    # -- the one fit
+    Case(C, "change_min", lambda x, s: core._acceptable(stepped_fit(x), s),
+         0.00298, 0.00302, "above", 0.0029),
+    Case(C, "change_min_side_clusters", lambda n, s: change_room(2 * int(n) + 2, s) and not
+         change_room(2 * int(n) + 1, s), 3, 4, "above", 3),
 ]
 
 
@@ -795,13 +657,9 @@ def test_every_threshold_of_the_checks_has_its_boundary_case() -> None:
     assert (checks | gates) - covered == {("checks", "error_correlation_s")}
 
 
-def test_the_offsets_groups_are_read_from_the_settings() -> None:
+def test_the_groups_are_read_from_the_settings() -> None:
     """error_correlation_s is no threshold but the length over which seconds share errors:
-    90 s hold three groups of 30 s (an offset's spread), not of 31 s."""
-    drives = lateral_offset(1.0, 0.01, 90)
-    assert offset_applied(drives, DEFAULTS)
-    assert not offset_applied(drives, DEFAULTS.replace(checks={"error_correlation_s": 31}))
-    # and the heading harmonics' standard errors grow with the groups' length
+    the heading harmonics' standard errors grow with the groups' length."""
     gap, heading = harmonic_error(4.5 * harmonic_error_std(0.01), 0.01)
     assert harmonics_found(gap, heading, DEFAULTS)
     assert not harmonics_found(gap, heading, DEFAULTS.replace(checks={"error_correlation_s": 40}))

@@ -82,26 +82,48 @@ def test_simulate_fleet_refuses_a_truth_no_vehicle_has(tmp_path: Path,
 
 
 @pytest.mark.parametrize(("datasheet", "words"), [
-    ("c_e=1e308", "c_e = 1e+308 is not a wheeled vehicle's effective wheel circumference "
-                  "(0.05 to 50 m)"),
-    ("c_e=1.9,t_r=1e308", "t_r = 1e+308 is not a wheeled vehicle's rear track width"),
-    ("c_e=-1.9", "c_e = -1.9 is not"),
-    ("t_r=inf", "t_r = inf is not"),
-    ("d=1e308", "d = 1e+308 is not"),
-    ("c_e=1.9,c_e=1.9", "--datasheet gives c_e twice (1.9 and 1.9): give each value once"),
-    ("c_e=1.9,t_r=1.5,c_e=2.1", "--datasheet gives c_e twice (1.9 and 2.1)"),
+    (["c_e=1e308"], "c_e = 1e+308 is not a wheeled vehicle's effective wheel circumference "
+                    "(0.05 to 50 m)"),
+    (["c_e=100"], "c_e = 100 is not a wheeled vehicle's effective wheel circumference"),
+    (["c_e=1.9,t_r=1e308"], "t_r = 1e+308 is not a wheeled vehicle's rear track width"),
+    (["c_e=-1.9"], "c_e = -1.9 is not"),
+    (["t_r=inf"], "t_r = inf is not"),
+    (["d=1e308"], "d = 1e+308 is not"),
+    (["c_e=1.9,c_e=1.9"], "the datasheet gives c_e twice (1.9 and 1.9): give each value once"),
+    (["c_e=1.9,t_r=1.5,c_e=2.1"], "the datasheet gives c_e twice (1.9 and 2.1)"),
+    # a second --datasheet is merged with the first, and a name in both is refused
+    (["c_e=1.9", "c_e=2.1"], "the datasheet gives c_e twice (1.9 and 2.1)"),
+    (["t_r=1.5", "wheel_separation=1.6"], "the datasheet gives t_r twice (1.5 and 1.6)"),
+    # millimetres given as metres: a circumference difference no axle has
+    (["c_d=0.5"], "c_d = 0.5 m is 25% of c_e = 2 m, where two tyres of one axle differ by a "
+                  "few millimetres; c_d is in metres (0.5 mm is c_d=0.0005)"),
+    (["c_e=1.95", "c_d=0.3"], "c_d = 0.3 m is 15% of c_e = 1.95 m"),
 ])
-def test_a_datasheet_no_vehicle_has_is_one_line_without_warnings(
-        tmp_path: Path, drive_file: Path, capsys: pytest.CaptureFixture[str], datasheet: str,
-        words: str) -> None:
+def test_a_datasheet_no_vehicle_has_is_a_usage_error_without_warnings(
+        tmp_path: Path, drive_file: Path, capsys: pytest.CaptureFixture[str],
+        datasheet: list[str], words: str) -> None:
+    flags = [w for value in datasheet for w in ("--datasheet", value)]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         code, out, err = run(capsys, "calibrate", str(drive_file), "--out", str(tmp_path / "r"),
-                             "--datasheet", datasheet)
-    assert code == EXIT_ERROR and len(err.strip().splitlines()) == 1, err
-    assert words in err and out == ""
+                             *flags)
+    _usage_error(code, err, "--datasheet", words)
+    assert out == "" and "Traceback" not in err
     assert [str(w.message) for w in caught] == []                 # no RuntimeWarning flood
     assert not (tmp_path / "r").exists()
+
+
+def test_two_datasheets_are_merged(tmp_path: Path, drive_file: Path,
+                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """--datasheet c_e=.. --datasheet t_r=..: both values stated, neither replaced."""
+    import json
+
+    code, _, err = run(capsys, "calibrate", str(drive_file), "--out", str(tmp_path / "r"),
+                       "--datasheet", "c_e=1.95", "--datasheet", "t_r=1.51,c_d=0.001",
+                       "--no-report", "-q")
+    assert code == 0, err
+    sheet = json.loads((tmp_path / "r" / "calibration.json").read_text())["datasheet"]["theta"]
+    assert sheet == {"c_e": 1.95, "c_d": 0.001, "t_r": 1.51, "d": 0.0}
 
 
 @pytest.mark.parametrize("prior", ["[1e300, 0.01, 0.1, 0.005]", "[0.05, 0.01, 1e300, 0.005]",

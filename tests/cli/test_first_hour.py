@@ -50,7 +50,7 @@ def test_validate_and_minimum_read_raw_logs(tmp_path: Path, capsys: pytest.Captu
     assert code == 0, err
     assert "converted scene-1077" in out and "validation error E_p" in out
     code, _, err = run(capsys, "validate", logs, "--scene", "scene-1077")
-    assert code == 1 and "--from nuscenes" in err
+    assert code == 2 and "--from nuscenes" in err            # a usage error (exit 2)
 
 
 def test_a_comma2k19_route_folder_reads_its_segments(tmp_path: Path,

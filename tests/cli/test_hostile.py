@@ -15,7 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import odocal
-from odocal.cli.main import EXIT_ERROR, main
+from odocal.cli.main import EXIT_ERROR, EXIT_USAGE, main
 from odocal.data.drive import Drive
 from odocal.errors import ConfigError, DataError, OdocalError, OutputError
 from odocal.io import save_drive
@@ -341,7 +341,7 @@ def test_small_cli_promises(short: Path, tmp_path: Path,
                             capsys: pytest.CaptureFixture[str]) -> None:
     code, _, err = run(capsys, "calibrate", str(short), "--scene", "scene-0001", "--out",
                        str(tmp_path / "o"))
-    assert code == EXIT_ERROR and "--scene" in err and "--from nuscenes" in err
+    assert code == EXIT_USAGE and "--scene" in err and "--from nuscenes" in err
     code, out, err = run(capsys, "validate", str(short), "-q")
     assert code == 0 and out == "" and err == ""
     code, out, _ = run(capsys, "demo", "--duration", "300", "--no-compare", "-q")

@@ -119,8 +119,13 @@ def test_a_wheel_slip_around_its_mean_does_not_bias_c_e() -> None:
                      / (sim.true_n_rl + sim.true_n_rr).sum() - 1.0)
         c_e = sim.true_parameters.c_e
         estimate = odocal.calibrate(sim.drive).estimate
-        offsets.append(estimate.theta.c_e - c_e / (1.0 + mean_slip))
-    assert abs(np.mean(offsets)) < 1e-4                  # 0.1 mm
+        offset = estimate.theta.c_e - c_e / (1.0 + mean_slip)
+        assert abs(offset) < 2.0 * estimate.std[0]
+        if not estimate.details.departures:
+            # (a slip correlated over a second can hold out as a wheel-rate offset on a
+            # drive: fitted, it widens c_e as far as it moves it)
+            offsets.append(offset)
+    assert len(offsets) >= 3 and abs(np.mean(offsets)) < 1e-4          # 0.1 mm
 
 
 def test_decoupling_takes_the_distance_channels_share_out_of_the_yaw_channel() -> None:

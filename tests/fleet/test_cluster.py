@@ -199,11 +199,15 @@ def test_the_connect_timeout_defaults_to_10_s_and_is_checked(
     args = build_parser().parse_args(["fleet", "calibrate", "c.csv", "--store", "s.db"])
     assert args.connect_timeout == CONNECT_TIMEOUT_S == 10.0
     for bad in ("0", "-1", "1e9", "nan"):
-        code = main(["fleet", "calibrate", str(small_fleet.catalog), "--store",
-                     str(tmp_path / "s.db"), "--scheduler", "tcp://127.0.0.1:1",
-                     "--connect-timeout", bad, "-q"])
+        with pytest.raises(SystemExit) as exit_:
+            main(["fleet", "calibrate", str(small_fleet.catalog), "--store",
+                  str(tmp_path / "s.db"), "--scheduler", "tcp://127.0.0.1:1",
+                  "--connect-timeout", bad, "-q"])
         err = capsys.readouterr().err
-        assert code == 1 and "timeout" in err and len(err.splitlines()) == 1, (bad, err)
+        # a number out of its range on the command line: a usage error, as everywhere
+        assert exit_.value.code == 2, (bad, err)
+        assert "argument --connect-timeout: " in err.splitlines()[-1], (bad, err)
+        assert not (tmp_path / "s.db").exists()
 
 
 # ---------------------------------------------------------------- workers

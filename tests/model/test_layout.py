@@ -63,8 +63,12 @@ def test_the_layout_names_and_orders_every_parameter() -> None:
 
 def test_the_estimators_are_sized_by_the_model() -> None:
     """The default method's p and its covariance come from the layout: theta first, then the
-    nuisance parameters; the settings refuse a theta0 of another size."""
-    assert core.THETA == slice(0, MODEL.size) and core.P == MODEL.size + 2
+    departures' nuisance parameters; the settings refuse a theta0 of another size."""
+    from odocal.estimators import departures
+
+    assert core.THETA == slice(0, MODEL.size)
+    assert core.P == MODEL.size + len(departures.NUISANCES) == departures.P
+    assert [departures.at(n) for n in departures.NAMES] == list(range(MODEL.size, core.P))
     p = core.pack(np.arange(MODEL.size, dtype=float), kappa=7.0, offset=8.0)
     assert p[core.THETA].tolist() == list(range(MODEL.size))
     assert p[core.KAPPA] == 7.0 and p[core.OFFSET] == 8.0

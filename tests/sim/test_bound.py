@@ -191,11 +191,11 @@ def test_the_default_method_reaches_the_bound_on_white_noise() -> None:
     assert np.all(spread / bound > 0.75) and np.all(spread / bound < 1.35), spread / bound
     reported = np.mean(stds, axis=0)
     # c_e and c_d rest on every window; t_r and d on this five-minute route's few bends (about
-    # seven and three clusters' worth): their std is widened for so few (Student's t at two
-    # and six degrees of freedom: up to twice the bound for d), so it
+    # seven and three clusters' worth): their std is widened for so few (Student's t at
+    # Satterthwaite's degrees of freedom, not rounded: up to 2.2 times the bound for d), so it
     # covers the error spread, above the bound by that factor. The bound also takes the wheels'
     # timing as known, where the calibration carries the lag's own uncertainty (c_e: ~1.25)
     ratio = reported / bound
     assert np.all(ratio > 0.85), ratio
-    assert np.all(ratio[:2] < 1.3) and ratio[2] < 1.75 and ratio[3] < 2.1, ratio
+    assert np.all(ratio[:2] < 1.3) and ratio[2] < 1.75 and ratio[3] < 2.3, ratio
     assert np.all(reported >= 0.85 * spread), reported / spread

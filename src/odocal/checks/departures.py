@@ -7,9 +7,6 @@ data themselves, on every path alike:
   times the reference yaw rate (cross-correlation over every piece of 20 s or more). The wheel
   stream's own lag is found later, by the estimator, shifting the reference side with ``a_y``
   on it: so ``a_y`` is first brought onto the reference's clock.
-* **a constant offset of** ``a_y``: its mean less the reference's own lateral acceleration
-  ``v w`` on moving seconds (an IMU rolled by 3 degrees reads 0.5 m/s^2 in every straight).
-  A constant ``d a`` term is a ``c_d`` term, so left in it would move ``c_d`` by ``2 d`` times it.
 * **a heading error that varies with the heading** (a magnetometer's hard- and soft-iron
   errors): the gap between the reference's course and its heading on straight seconds, fitted
   with the first two harmonics of the heading. A constant gap (a mounting yaw) is the
@@ -56,8 +53,6 @@ class Departures:
     """What was measured.
 
     lateral_lag_s : a_y's lag behind the reference (positive: a_y late); 0 where not determined
-    lateral_offset_mps2 : a_y's constant offset, and its standard error; applied only where
-        ``lateral_offset_applied``
     heading_harmonics : (a1, b1, a2, b2) of the heading error's varying part (rad): the
         reference heading reads ``-(a1 cos psi + b1 sin psi + a2 cos 2 psi + b2 sin 2 psi)``
         more than the course; zeros where not determined
@@ -69,9 +64,6 @@ class Departures:
 
     reference_shift_s: float = 0.0
     lateral_lag_s: float = 0.0
-    lateral_offset_mps2: float = 0.0
-    lateral_offset_std: float = float("nan")
-    lateral_offset_applied: bool = False
     heading_harmonics: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)   # a1, b1, a2, b2 (not theta)
     heading_amplitude_rad: float = 0.0
     standstill_offset_revps: tuple[float, float] = (0.0, 0.0)
@@ -80,15 +72,12 @@ class Departures:
     @property
     def any(self) -> bool:
         return bool(self.reference_shift_s or self.lateral_lag_s
-                    or self.lateral_offset_applied or self.heading_amplitude_rad
+                    or self.heading_amplitude_rad
                     or any(self.standstill_offset_revps))
 
     def to_dict(self) -> dict[str, object]:
         return {"reference_shift_s": self.reference_shift_s,
                 "lateral_lag_s": self.lateral_lag_s,
-                "lateral_offset_mps2": self.lateral_offset_mps2,
-                "lateral_offset_std": self.lateral_offset_std,
-                "lateral_offset_applied": self.lateral_offset_applied,
                 "heading_harmonics_rad": list(self.heading_harmonics),
                 "heading_amplitude_rad": self.heading_amplitude_rad,
                 "standstill_offset_revps": list(self.standstill_offset_revps),
@@ -161,46 +150,29 @@ def wheel_lag_s(drives: Sequence[Drive], theta: FloatArray, settings: Settings) 
     return best_lag(pairs, round(lim.wheel_lag_search_s / t_s), t_s, lim.lag_min_correlation)
 
 
-def _seconds(drives: Sequence[Drive], lag_s: float
-             ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    """One-second sums of every piece: distance, turn, a_y - v w (a_y on the reference's
-    clock), the course's gap to the heading (rad) and the heading at the middle."""
-    out: list[list[FloatArray]] = [[], [], [], [], []]
+def _seconds(drives: Sequence[Drive]) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """One-second sums of every piece: distance, turn, the course's gap to the heading (rad)
+    and the heading at the middle."""
+    out: list[list[FloatArray]] = [[], [], [], []]
     for d in drives:
         size = max(round(1.0 / d.t_s), 1)
         for a, b in d.pieces:
             n = (b - a - 1) // size
             if n < 1:
                 continue
-            ds, dpsi = motion_increments(d.x[a:b], d.y[a:b], d.psi[a:b], d.beta[a:b])
-            t = d.t[a:b - 1]
-            a_y = np.interp(t + lag_s, t, d.a_y[a:b - 1]) if lag_s else d.a_y[a:b - 1]
-            excess = a_y - ds * dpsi / d.t_s**2
-            cut = n * size
+            ds, _ = motion_increments(d.x[a:b], d.y[a:b], d.psi[a:b], d.beta[a:b])
             starts = a + size * np.arange(n)
             dx = d.x[starts + size] - d.x[starts]
             dy = d.y[starts + size] - d.y[starts]
             turn = d.psi[starts + size] - d.psi[starts]
             heading = d.psi[starts] + 0.5 * turn + d.beta[starts]
             gap = np.remainder(np.arctan2(dy, dx) - heading + np.pi, 2 * np.pi) - np.pi
-            out[0].append(ds[:cut].reshape(n, size).sum(axis=1))
+            out[0].append(ds[:n * size].reshape(n, size).sum(axis=1))
             out[1].append(turn)
-            out[2].append(excess[:cut].reshape(n, size).mean(axis=1))
-            out[3].append(gap)
-            out[4].append(heading)
+            out[2].append(gap)
+            out[3].append(heading)
     cat = [np.concatenate(x) if x else np.zeros(0) for x in out]
-    return cat[0], cat[1], cat[2], cat[3], cat[4]
-
-
-def _mean_and_error(values: FloatArray, group: int) -> tuple[float, float]:
-    """The mean and its standard error, from the spread of means over groups of ``group``
-    consecutive values (neighbouring seconds are correlated); infinite with fewer than three
-    groups (no spread to take)."""
-    n = values.size // group
-    if n < 3:
-        return float(values.mean()) if values.size else 0.0, float("inf")
-    means = values[:n * group].reshape(n, group).mean(axis=1)
-    return float(values.mean()), float(means.std(ddof=1) / math.sqrt(n))
+    return cat[0], cat[1], cat[2], cat[3]
 
 
 def _harmonics(gap: FloatArray, heading: FloatArray,
@@ -296,32 +268,34 @@ def measure(drives: Sequence[Drive], settings: Settings, *,
     """The departures of :mod:`the module docstring <odocal.checks.departures>` on ``drives``;
     ``lateral`` False where a_y carries no lateral acceleration (nothing to measure in it)."""
     lim = settings.checks
-    shift = 0.0
-    if settings.inverse.delay == "estimate":
-        # the reference on the wheels' clock first (the fit scans only lag_scan_s around it)
-        found = wheel_lag_s(drives, np.asarray(settings.identify.theta0, dtype=np.float64),
-                            settings)
-        if found is not None and 0.5 * settings.inverse.lag_scan_s < abs(found) \
-                <= settings.inverse.max_delay_s:
-            shift = found
-            drives = [shifted_reference(d, shift) for d in drives]
+    # the reference on the wheels' clock first (the fit scans only lag_scan_s around it)
+    drives, shift = _on_wheels_clock(drives, settings)
     lag = (lateral_lag_s(drives, settings) or 0.0) if lateral else 0.0
     if abs(lag) <= 0.5 * drives[0].t_s:
         lag = 0.0                          # within half a step: nothing the data can tell
-    ds, turn, excess, gap, heading = _seconds(drives, lag)
-    moving = np.abs(ds) > settings.gate.min_speed_mps
-    offset, offset_std, applied = 0.0, float("nan"), False
-    if lateral and moving.sum() >= lim.lateral_offset_min_seconds:
-        offset, offset_std = _mean_and_error(excess[moving], lim.error_correlation_s)
-        applied = abs(offset) > lim.lateral_offset_sigmas * offset_std
+    ds, turn, gap, heading = _seconds(drives)
     straight = (np.abs(ds) > lim.straight_speed_mps) & (np.abs(turn) < lim.straight_turn_rad)
     harmonics, amplitude = _harmonics(gap[straight], heading[straight], lim)
-    return Departures(reference_shift_s=shift, lateral_lag_s=lag, lateral_offset_mps2=offset,
-                      lateral_offset_std=offset_std, lateral_offset_applied=applied,
+    return Departures(reference_shift_s=shift, lateral_lag_s=lag,
                       heading_harmonics=tuple(float(h) for h in harmonics),
                       heading_amplitude_rad=amplitude,
                       standstill_offset_revps=standstill_offset(drives, settings),
                       wheel_step_revps=wheel_step(drives, settings))
+
+
+def _on_wheels_clock(drives: Sequence[Drive], settings: Settings
+                     ) -> tuple[list[Drive], float]:
+    """The drives with the reference on the wheels' clock, where the wheels' yaw rate lags it
+    by more than half the fit's own lag scan (up to ``[inverse] max_delay_s``), and the shift
+    (s; 0 where none is applied)."""
+    if settings.inverse.delay != "estimate":
+        return list(drives), 0.0
+    found = wheel_lag_s(drives, np.asarray(settings.identify.theta0, dtype=np.float64),
+                        settings)
+    if found is None or not 0.5 * settings.inverse.lag_scan_s < abs(found) \
+            <= settings.inverse.max_delay_s:
+        return list(drives), 0.0
+    return [shifted_reference(d, found) for d in drives], found
 
 
 def shifted_reference(drive: Drive, lag_s: float) -> Drive:
@@ -367,8 +341,6 @@ def corrected(drives: Sequence[Drive], found: Departures) -> list[Drive]:
         if found.lateral_lag_s:
             for a, b in d.pieces:
                 a_y[a:b] = np.interp(d.t[a:b] + found.lateral_lag_s, d.t[a:b], d.a_y[a:b])
-        if found.lateral_offset_applied:
-            a_y -= found.lateral_offset_mps2
         if found.heading_amplitude_rad:
             psi += heading_correction(psi, found.heading_harmonics)
         o_rl, o_rr = found.standstill_offset_revps
@@ -382,10 +354,6 @@ def findings(found: Departures, settings: Settings) -> list[Finding]:
     a_y's lag is named by the checks of every path (:func:`lateral_delay`)."""
     lim = settings.checks
     out = []
-    if found.lateral_offset_applied and abs(found.lateral_offset_mps2) >= \
-            lim.lateral_offset_named_mps2:
-        out.append(Finding(Check.LATERAL_OFFSET, Severity.NOTE, found.lateral_offset_mps2,
-                           found.lateral_offset_std, "a_y"))
     if found.heading_amplitude_rad:
         out.append(Finding(Check.HEADING_ERROR, Severity.NOTE, found.heading_amplitude_rad,
                            lim.heading_harmonic_min_rad))
@@ -397,8 +365,16 @@ def findings(found: Departures, settings: Settings) -> list[Finding]:
 
 def lateral_delay(drives: Sequence[Drive], settings: Settings) -> list[Finding]:
     """a_y's lag behind the reference, named where it exceeds ``lateral_delay_named_s`` (value:
-    the lag, s; positive: a_y late)."""
+    the lag, s; positive: a_y late), and a_y is off the wheels' clock as well: a_y in step
+    with the wheels, with the reference late, is the reference's lag (the fit names it), not
+    a_y's."""
     lag = lateral_lag_s(drives, settings)
-    if lag is not None and abs(lag) > settings.checks.lateral_delay_named_s:
-        return [Finding(Check.LATERAL_DELAY, Severity.NOTE, lag, 0.0, "a_y")]
-    return []
+    limit = settings.checks.lateral_delay_named_s
+    if lag is None or abs(lag) <= limit:
+        return []
+    aligned, shift = _on_wheels_clock(drives, settings)
+    if shift:
+        behind_wheels = lateral_lag_s(aligned, settings)
+        if behind_wheels is not None and abs(behind_wheels) <= limit:
+            return []
+    return [Finding(Check.LATERAL_DELAY, Severity.NOTE, lag, 0.0, "a_y")]

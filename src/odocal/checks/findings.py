@@ -42,6 +42,15 @@ class Check(enum.Enum):
     MOVING_OFFSET = "moving-offset"
     CHANGE_IN_LOG = "change-in-log"
     FRONT_WHEELS = "front-wheels"
+    REFERENCE_LAG = "reference-lag"
+    WHEEL_SMOOTHING = "wheel-smoothing"
+    WHEEL_SKEW = "wheel-skew"
+    REFERENCE_ARM = "reference-arm"
+    CURVE_EXCESS = "curve-excess"
+    LATERAL_GAIN = "lateral-gain"
+    SIDESLIP = "sideslip"
+    DRIFT = "drift"
+    DRIVE_DEPARTS = "drive-departs"
 
 
 class Severity(enum.IntEnum):

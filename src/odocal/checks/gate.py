@@ -1,5 +1,5 @@
-"""The quality gate after a fit: plausible ranges and the validation error (README, "When odocal
-refuses"). A failing check rejects the calibration (exit 3) with the reason."""
+"""The quality gate after a fit: plausible ranges and the validation error (docs/checks.md,
+"When odocal refuses"). A failing check rejects the calibration (exit 3) with the reason."""
 
 from __future__ import annotations
 

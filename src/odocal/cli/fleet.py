@@ -9,15 +9,15 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from odocal.cli.arguments import DURATION_S, SEED, WORKERS, integer, number
+from odocal.cli.arguments import DURATION_S, SEED, WORKERS, add_config, add_quiet, integer, number
+from odocal.cli.common import load_config, say
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
 from odocal.sim.limits import MAX_CIRCUMFERENCE_LOSS, MAX_DRIVES, MAX_VEHICLES
 
 
-def _print(text: str = "") -> None:
-    from odocal.redaction import redact_text
-
-    sys.stdout.write(redact_text(text) + "\n")          # no URL query or secret in any line
+def _echo(text: str) -> None:
+    """A line as the fleet goes (flushed: a long run shows it at once)."""
+    say(text)
     sys.stdout.flush()
 
 
@@ -29,17 +29,6 @@ def _progress(args: argparse.Namespace) -> Any:
     return Progress(True)
 
 
-def _settings(args: argparse.Namespace) -> Any:
-    from odocal.io.remote import is_remote, read_toml, redact
-    from odocal.settings import load_settings, settings_from_dict
-
-    config = getattr(args, "config", None)
-    if config and is_remote(config):
-        return settings_from_dict(read_toml(config, "settings file"),
-                                  source=f"'{redact(config)}'")
-    return load_settings(config)
-
-
 def _refused(line: str) -> None:
     """A catalog row left out, on stderr as it is known (the run goes on; it exits 1)."""
     from odocal.errors import shown
@@ -49,22 +38,24 @@ def _refused(line: str) -> None:
 
 
 def _summary(run: Any) -> None:
-    _print(f"{run.drives} drives in the catalog: {run.stored_before} already stored, "
+    say(f"{run.drives} drives in the catalog: {run.stored_before} already stored, "
            f"{run.calibrated} calibrated now, {run.failed} could not be calibrated"
            + (f", {len(run.refused)} not read" if run.refused else "") + "; "
            f"{run.pooled} pooled calibrations; {run.elapsed_s:.1f} s")
     if run.alarms:
-        _print(f"{len(run.alarms)} alarm(s):")
+        say(f"{len(run.alarms)} alarm(s):")
         for a in run.alarms:
-            _print(f"  {a.vehicle} {a.parameter}: {a.message} "
+            say(f"  {a.vehicle} {a.parameter}: {a.message} "
                    f"(confidence {a.confidence:.3f}, detected after {a.drives_to_detect} "
                    f"drives, {a.km_to_detect:.0f} km)")
     else:
-        _print("no alarms")
+        say("no alarms")
 
 
 def cmd_fleet_calibrate(args: argparse.Namespace) -> int:
-    from odocal.fleet.engine import calibrate_fleet
+    from odocal.fleet.engine import calibrate_fleet, require_dask
+
+    require_dask()
 
     progress = _progress(args)
     if args.workers and not args.scheduler and not args.quiet:
@@ -74,19 +65,19 @@ def cmd_fleet_calibrate(args: argparse.Namespace) -> int:
             sys.stderr.write(f"note: --workers {args.workers}: this machine has "
                              f"{available_cores()} cores; starting {available_cores()}\n")
     try:
-        run = calibrate_fleet(args.catalog, args.store, settings=_settings(args),
+        run = calibrate_fleet(args.catalog, args.store, settings=load_config(args.config),
                               method=args.method, scheduler=args.scheduler,
                               connect_timeout_s=args.connect_timeout,
                               workers=args.workers, out=args.out,
                               drive_reports=not args.no_drive_reports, progress=progress,
-                              echo=None if args.quiet else _print, refuse=_refused)
+                              echo=None if args.quiet else _echo, refuse=_refused)
     finally:
         if progress is not None:
             progress.close()
     if not args.quiet:
         _summary(run)
         if args.out:
-            _print(f"wrote {Path(args.out) / 'report.html'} and {len(run.written) - 1} more files")
+            say(f"wrote {Path(args.out) / 'report.html'} and {len(run.written) - 1} more files")
     if run.refused:
         sys.stderr.write(f"odocal fleet calibrate: error: {len(run.refused)} catalog row(s) "
                          "could not be used (named above); the others are stored\n")
@@ -95,7 +86,9 @@ def cmd_fleet_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_fleet_demo(args: argparse.Namespace) -> int:
-    from odocal.fleet.engine import calibrate_fleet
+    from odocal.fleet.engine import calibrate_fleet, require_dask
+
+    require_dask()
     from odocal.fleet.simulate import simulate_fleet
 
     with tempfile.TemporaryDirectory(prefix="odocal-fleet-") as tmp:
@@ -114,19 +107,19 @@ def cmd_fleet_demo(args: argparse.Namespace) -> int:
                 out.mkdir(parents=True, exist_ok=True)
             run = calibrate_fleet(fleet.catalog, store, workers=args.workers, out=out,
                                   drive_reports=False, progress=progress,
-                                  echo=None if args.quiet else _print)
+                                  echo=None if args.quiet else _echo)
         finally:
             if progress is not None:
                 progress.close()
         if not args.quiet:
-            _print("Simulated: 4 vehicles; car001 loses 0.4% of c_e (left rear tyre pressure), "
+            say("Simulated: 4 vehicles; car001 loses 0.4% of c_e (left rear tyre pressure), "
                    "car002 wears, car003 gets new tyres (declared), car000 has one mis-mapped "
                    "log.")
             for e in fleet.events:
-                _print(f"  truth: {e.vehicle} {e.kind} from drive {e.drive} ({e.time[:10]})")
+                say(f"  truth: {e.vehicle} {e.kind} from drive {e.drive} ({e.time[:10]})")
             _summary(run)
             if out is not None:
-                _print(f"wrote {out / 'report.html'} and the store {store}")
+                say(f"wrote {out / 'report.html'} and the store {store}")
     return 0
 
 
@@ -136,12 +129,12 @@ def cmd_fleet_alarms(args: argparse.Namespace) -> int:
     with store_of(args.store) as db:
         alarms = db.alarms(args.vehicle)
     if args.json:
-        _print(json.dumps(alarms, indent=1))
+        say(json.dumps(alarms, indent=1))
     elif not alarms:
-        _print("no alarms")
+        say("no alarms")
     else:
         for a in alarms:
-            _print(f"{a['vehicle']} {a['parameter']} {a['kind']} since {a['time'][:10]}: "
+            say(f"{a['vehicle']} {a['parameter']} {a['kind']} since {a['time'][:10]}: "
                    f"{a['message']} (confidence {a['confidence']:.3f})")
     return 0
 
@@ -162,11 +155,11 @@ def cmd_fleet_history(args: argparse.Namespace) -> int:
             for key in ("covariance", "findings", "input_hashes"):
                 if isinstance(r.get(key), str):
                     r[key] = json.loads(r[key])
-        _print(json.dumps(rows, indent=1))
+        say(json.dumps(rows, indent=1))
         return 0
     head = "time              status      " + "".join(
         f"{n + ' [' + PARAMETER_DISPLAY[n][1] + ']':>24}" for n in PARAMETER_NAMES) + "   E_p m"
-    _print(head)
+    say(head)
     for r in rows:
         cells = []
         for n in PARAMETER_NAMES:
@@ -177,10 +170,10 @@ def cmd_fleet_history(args: argparse.Namespace) -> int:
                 mark = "" if r[f"{n}_identified"] else "*"
                 cells.append(f"{r[n] * scale:>13.6g} ± {r[f'{n}_std'] * scale:<7.2g}{mark:1}")
         e_p = f"{r['e_p_m']:.3f}" if r["e_p_m"] is not None else "-"
-        _print(f"{r['time'][:16]:17} {r['status'][:11]:11} {''.join(cells)}   {e_p}"
+        say(f"{r['time'][:16]:17} {r['status'][:11]:11} {''.join(cells)}   {e_p}"
                + (f"   event: {r['event']}" if r["event"] else "")
                + (f"   error: {r['error']}" if r["error"] else ""))
-    _print("* not identified by that drive (datasheet value)")
+    say("* not identified by that drive (datasheet value)")
     return 0
 
 
@@ -197,13 +190,8 @@ def cmd_simulate_fleet(args: argparse.Namespace) -> int:
         if progress is not None:
             progress.close()
     if not args.quiet:
-        _print(f"wrote {fleet.drives} drives, {fleet.catalog} and {fleet.truth}")
+        say(f"wrote {fleet.drives} drives, {fleet.catalog} and {fleet.truth}")
     return 0
-
-
-def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("-q", "--quiet", action="store_true", help="print only errors")
-    p.add_argument("-v", "--verbose", action="count", default=0)
 
 
 def add_parsers(sub: Any) -> None:
@@ -220,60 +208,72 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--store", required=True, metavar="DB", help="the fleet's SQLite file")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="a running Dask scheduler (tcp://HOST:PORT); default: a local cluster")
-    p.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
+    p.add_argument("--connect-timeout", type=number(0.1, 3600.0, unit="s"), default=10.0,
+                   metavar="S",
                    help="seconds to wait for --scheduler to answer (default 10)")
-    p.add_argument("--workers", type=int, metavar="N",
-                   help="local cluster worker processes (default: one per core)")
+    p.add_argument("--workers", type=WORKERS, metavar="N",
+                   help="local cluster worker processes (0 or default: one per core)")
     p.add_argument("--method", choices=METHOD_NAMES,
                    help=f"calibration method (default {DEFAULT_METHOD})")
     p.add_argument("--out", metavar="DIR",
                    help="write the fleet report, each drive's report and parameter files here")
     p.add_argument("--no-drive-reports", action="store_true",
                    help="with --out, skip each drive's own report")
-    p.add_argument("--config", metavar="TOML", help="settings file (README, 'Settings')")
-    _common(p)
+    add_config(p)
+    add_quiet(p)
     p.set_defaults(func=cmd_fleet_calibrate)
 
     p = fsub.add_parser("alarms", help="list the alarms in the store")
-    p.add_argument("--store", required=True, metavar="DB")
-    p.add_argument("--vehicle", metavar="ID")
+    p.add_argument("--store", required=True, metavar="DB",
+                   help="the fleet's SQLite file (written by fleet calibrate)")
+    p.add_argument("--vehicle", metavar="ID", help="only this vehicle's alarms")
     p.add_argument("--json", action="store_true", help="a JSON list, one object per alarm")
-    _common(p)
+    add_quiet(p)
     p.set_defaults(func=cmd_fleet_alarms)
 
     p = fsub.add_parser("history", help="one vehicle's estimates over time")
-    p.add_argument("--store", required=True, metavar="DB")
-    p.add_argument("--vehicle", required=True, metavar="ID")
-    p.add_argument("--json", action="store_true")
-    _common(p)
+    p.add_argument("--store", required=True, metavar="DB",
+                   help="the fleet's SQLite file (written by fleet calibrate)")
+    p.add_argument("--vehicle", required=True, metavar="ID", help="the vehicle, as the catalog "
+                                                                  "names it")
+    p.add_argument("--json", action="store_true", help="a JSON list, one object per drive")
+    add_quiet(p)
     p.set_defaults(func=cmd_fleet_history)
 
     p = fsub.add_parser("demo", help="simulate a small fleet with events and calibrate it "
                                      "(under a minute)")
     p.add_argument("--out", metavar="DIR", help="keep the store and the fleet report here")
-    p.add_argument("--drives", type=integer(2, MAX_DRIVES), default=10,
-                   help="drives per vehicle (default 10)")
-    p.add_argument("--seed", type=SEED, default=0)
-    p.add_argument("--workers", type=WORKERS, metavar="N")
-    _common(p)
+    p.add_argument("--drives", type=integer(2, MAX_DRIVES), default=10, metavar="N",
+                   help=f"drives per vehicle (default 10, from 2 to {MAX_DRIVES})")
+    p.add_argument("--seed", type=SEED, default=0, metavar="N",
+                   help="simulation seed (default 0)")
+    p.add_argument("--workers", type=WORKERS, metavar="N",
+                   help="local cluster worker processes (0 or default: one per core)")
+    add_quiet(p)
     p.set_defaults(func=cmd_fleet_demo)
 
     p = sub.add_parser("simulate-fleet", help="write a simulated fleet with known truth and "
                                               "events")
     p.add_argument("--out", required=True, metavar="DIR", help="new folder for the fleet")
-    p.add_argument("--vehicles", type=integer(1, MAX_VEHICLES), default=8)
-    p.add_argument("--drives", type=integer(2, MAX_DRIVES), default=12,
-                   help="drives per vehicle")
+    p.add_argument("--vehicles", type=integer(1, MAX_VEHICLES), default=8, metavar="N",
+                   help=f"vehicles (default 8, from 1 to {MAX_VEHICLES})")
+    p.add_argument("--drives", type=integer(2, MAX_DRIVES), default=12, metavar="N",
+                   help=f"drives per vehicle (default 12, from 2 to {MAX_DRIVES})")
     p.add_argument("--duration", type=DURATION_S, default=900.0, metavar="S",
                    help="length of each drive (default 900, at most 86400)")
-    p.add_argument("--seed", type=SEED, default=0)
-    p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic")
+    p.add_argument("--seed", type=SEED, default=0, metavar="N",
+                   help="simulation seed (default 0)")
+    p.add_argument("--noise", choices=sorted(NOISE_PROFILES), default="realistic",
+                   metavar="PROFILE",
+                   help=f"noise profile (default realistic): {', '.join(NOISE_PROFILES)}")
     p.add_argument("--plan", choices=("mixed", "pressure", "wear", "tyres", "none"),
                    default="mixed", help="which events (default mixed: one kind per vehicle)")
     p.add_argument("--size", type=number(0.0, MAX_CIRCUMFERENCE_LOSS), default=0.002,
+                   metavar="SHARE",
                    help="relative c_e loss of a pressure event (default 0.002, at most 0.05)")
     p.add_argument("--wear", type=number(0.0, MAX_CIRCUMFERENCE_LOSS), default=0.003,
+                   metavar="SHARE",
                    help="relative c_e loss by wear over a vehicle's history (default 0.003, "
                         "at most 0.05)")
-    _common(p)
+    add_quiet(p)
     p.set_defaults(func=cmd_simulate_fleet)

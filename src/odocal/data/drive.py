@@ -298,9 +298,14 @@ def _columns(columns: Mapping[str, Any], name: str) -> dict[str, FloatArray]:
     sample, finite."""
     missing = [c for c in REQUIRED_COLUMNS if c not in columns]
     if missing:
+        known = {*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS}
+        other = [str(c) for c in columns if c not in known]
+        hint = (f"; it has other columns ({', '.join(other[:6])}{', ...' if len(other) > 6 else ''}"
+                "): a log of other columns is read with a mapping that names each stream's "
+                "columns and units, --from table --mapping MAP.toml" if other else "")
         raise DataError(f"'{name}' lacks column{'s' if len(missing) > 1 else ''} "
                         f"{', '.join(missing)} (the drive format needs "
-                        f"{', '.join(REQUIRED_COLUMNS)})")
+                        f"{', '.join(REQUIRED_COLUMNS)}){hint}")
     arrays: dict[str, FloatArray] = {}
     for key in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS):
         if key not in columns:
@@ -497,7 +502,7 @@ def _derivative_pieces(values: FloatArray, t_s: float,
 _SPIKE_SCALE = {"n_rl": 5.0, "n_rr": 5.0, "a_y": 20.0}
 #: Share of a column's samples that may be repaired; beyond it the column is broken.
 _MAX_REPAIRED = 0.01
-#: Largest magnitudes a car's log can hold (README, "Input limits").
+#: Largest magnitudes a car's log can hold (docs/command-line.md, "Input limits").
 LIMITS = {"a_y": (30.0, "m/s^2"), "beta": (0.8, "rad"), "x": (1e7, "m"), "y": (1e7, "m")}
 
 
@@ -635,8 +640,10 @@ def _check_wheel_units(name: str, n_rl: FloatArray, n_rr: FloatArray, *,
             continue
         peak = float(np.percentile(finite, percentile))
         if peak > limit:
+            speed = ("; or wheel speeds in km/h (or m/s, mph), not rates: a mapping's "
+                     "unit = \"km/h\" turns them into rates")
             if peak <= 2 * np.pi * limit:
-                hint = " (it looks like rad/s: divide by 2 pi; or rpm: divide by 60)"
+                hint = f" (it looks like rad/s: divide by 2 pi{speed}; or rpm: divide by 60)"
             elif peak < 60 * limit:
                 hint = " (it looks like rpm: divide by 60)"
             else:

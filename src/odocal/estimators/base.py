@@ -57,6 +57,8 @@ class Prepared:
     clusters : cluster label of each used segment (overlapping segments share one)
     validation_segments, validation : the validation segments and their data (None without any)
     warnings : what the user should know about the data
+    selection_warnings : what the segment selection says of the data (few segments with
+        bends): words of the segment methods only (the default fits every window)
     """
 
     drives: tuple[Drive, ...]
@@ -67,6 +69,7 @@ class Prepared:
     validation_segments: SegmentSet
     validation: RaggedSegments | None
     warnings: tuple[str, ...]
+    selection_warnings: tuple[str, ...] = ()
 
     @functools.cached_property
     def batch(self) -> SegmentBatch:
@@ -140,7 +143,8 @@ def prepare(drives: Sequence[Drive], settings: Settings) -> Prepared:
     """Cut the drives into identification and validation segments (METHOD 2)."""
     _long_enough(drives, settings)
     id_segments = identification_segments(drives, settings.segments)
-    used, held, warnings = select_identification(id_segments, settings)
+    used, held, selection_warnings = select_identification(id_segments, settings)
+    warnings: tuple[str, ...] = ()
     val_segments = validation_segments(drives, settings.segments)
     val_data = (validation_data(drives, val_segments, settings) if len(val_segments)
                 else None)
@@ -151,7 +155,8 @@ def prepare(drives: Sequence[Drive], settings: Settings) -> Prepared:
                      "E_p is not available",)
     return Prepared(drives=tuple(drives), segments=id_segments, used=used, held=held,
                     clusters=segment_clusters(id_segments.subset(used), settings.segments.length),
-                    validation_segments=val_segments, validation=val_data, warnings=warnings)
+                    validation_segments=val_segments, validation=val_data, warnings=warnings,
+                    selection_warnings=selection_warnings)
 
 
 

@@ -1,4 +1,4 @@
-"""The default method's core, for batch and live alike: one procedure over a window set.
+"""The default method's core, for batch and live alike: one fit of the model and its departures.
 
 The windows (:mod:`odocal.estimators.windows`) predict their revolutions for any theta; this
 module fits them. Batch calibration hands it every window of the drives and nothing folded;
@@ -10,23 +10,25 @@ same computation, to the last digit.
 The procedure (:func:`fit`):
 
 1. Gauss-Newton on the windows' channel residuals (distance and yaw), weighted by the error
-   model and prewhitened (:mod:`odocal.estimators.error_model`), from the datasheet values;
-   ``p = [theta, kappa, o]``, with ``kappa`` the spread of the window the wheel unit counts its
-   ticks over (half its variance, steps^2; fitted with the lag) and ``o`` a constant offset of
-   both wheel rates while moving (rev/s: a biased speed signal, or rates truncated towards zero
-   by their encoding), held near zero by a prior (``[inverse] wheel_offset_prior_revps``) that
-   the data overrule where they determine it. (An offset of one wheel alone would be a c_d at
-   one speed: left to c_d.)
-2. **The lag.** A wheel stream that lags the reference biases the yaw terms in every bend. The
-   yaw channel's cost is scanned over a half-step grid of shifts of the reference side (which
-   carries no wheel noise), the minimum refined by a parabola. It is applied only where the data
-   determine it: beyond three standard deviations of zero, and only if it holds out, i.e. the
-   lag found on either half of the clusters (alternate ones) lowers the other half's cost too.
-   theta is refitted at the lag and the scan repeated until the lag settles.
-3. The error model refitted twice at each lag; then the covariance, a sandwich over clusters of
-   windows (Newey-West weights on neighbours, each cluster's score scaled by its leverage), and
-   the identifiability verdict: parameters the data do not determine well enough keep their
-   datasheet values and are named, and the rest is refitted.
+   model and prewhitened (:mod:`odocal.estimators.error_model`), from the datasheet values,
+   over ``p = [theta, nuisance]``: the departures of :mod:`odocal.estimators.departures`
+   (a lag, a wheel unit's smoothing, wheel-rate offsets, a reference point off the axle, ...),
+   each with its columns in the same Jacobian. Beside the wheels' two channels, two channels
+   of the reference alone: its motion across its heading (a lever arm, the axle's sideslip)
+   and a_y against the reference's ``v w`` (a_y's offset and scale).
+2. **Which departures.** None at first (but the encoding's offset, where the rates lie on a
+   grid); then one rule: the one whose score statistic exceeds Schwarz's penalty most enters,
+   the fit is redone, and the rest tested again (:mod:`odocal.estimators.departures`). The
+   lag, once in, is found on a half-step grid of the yaw channel's cost first (a lag beyond
+   the linear range is not found by a gradient), then fitted jointly.
+3. The error model refitted at each fit; then the covariance of everything fitted, a sandwich
+   over clusters of windows (Newey-West weights on neighbours, each cluster's score scaled by
+   its leverage), and the identifiability verdict: parameters the data do not determine well
+   enough keep their datasheet values and are named, and the rest is refitted.
+
+Gauss-Newton stops when its step is below a thousandth of every parameter's standard
+deviation (the cost's own scale: a reweighted fit approaches its fixed point geometrically, and
+a relative tolerance on the parameters never reaches it).
 """
 
 from __future__ import annotations
@@ -34,15 +36,21 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.estimators.covariance import NEWEY_WEST, added_meat, leverage_adjusted_scores
+from odocal.estimators import departures as dep
+from odocal.estimators.covariance import (
+    NEWEY_WEST,
+    added_meat,
+    leverage_adjusted_scores,
+)
 from odocal.estimators.error_model import (
     CHANNELS,
+    HUBER,
     ErrorModel,
     arma_from_sums,
     correlation_sums,
@@ -64,7 +72,17 @@ from odocal.estimators.estimate import (
     numerically_free,
     tail_inflation,
 )
-from odocal.estimators.windows import AT_MOVING, WindowSet
+from odocal.estimators.windows import (
+    AT_ACCEL,
+    AT_AREF,
+    AT_BETA_TURN,
+    AT_COS_TURN,
+    AT_CURVE,
+    AT_LAT,
+    AT_MOVING,
+    AT_TURN2,
+    WindowSet,
+)
 from odocal.model.vehicle import MODEL
 from odocal.settings import Settings
 
@@ -73,36 +91,56 @@ IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 log = logging.getLogger(__name__)
 
-#: The layout of p: theta, the counting window's spread kappa, the wheel-rate offset.
+#: The layout of p: theta, then the nuisance parameters of :mod:`.departures`.
 LAYOUT = MODEL.layout
 THETA = slice(0, LAYOUT.size)
-KAPPA = LAYOUT.size
-OFFSET = KAPPA + 1
-P = KAPPA + 2
+P = dep.P
+KAPPA, LAG, OFFSET = (dep.at(n) for n in ("spread", "lag", "offset"))
+LEFT, RIGHT = dep.at("offset_left"), dep.at("offset_right")
+ARM_X, ARM_Y, CURVE = (dep.at(n) for n in ("arm_x", "arm_y", "curve"))
+LAT_OFFSET, LAT_SCALE, SLIP, DRIFT = (dep.at(n) for n in ("lateral_offset", "lateral_scale",
+                                                          "slip", "drift"))
+CHANGE = np.array([dep.at("change_e"), dep.at("change_d")])
+_E, _D = LAYOUT.index(LAYOUT.scale), LAYOUT.index(LAYOUT.difference)
 #: Fewer clusters than this: the covariance is the larger of the sandwich and the residual
 #: formula, widened for the clusters' small number.
 MIN_CLUSTERS_FOR_ROBUST = 10
 _SHIFT_ROUNDS = 6         # the lag scanned and theta refitted in turn at most so often
 _SHIFT_SETTLED = 1e-3     # steps
-_LAG_SIGMAS = 3.0         # a lag within this many standard deviations of zero is not applied
+_STEP_SIGMAS = 1e-3       # Gauss-Newton has converged when no step exceeds this many std
+_HALVINGS = 30            # a step that spoils the fit is halved at most so often
 #: The parameters that act through the wheels' difference, in p.
 _DIFFERENTIAL = np.array(LAYOUT.indices(LAYOUT.differential))
 #: Why a held parameter is known (its datasheet value is taken as exact): held on request.
 #: Every other held parameter is uncertain by its datasheet uncertainty, which widens the free
 #: ones as far as the data cannot tell them apart (:func:`covariance`).
 _KNOWN = (Reason.HELD,)
+#: The least spread the reference channels' residuals are given (a millimetre of sideways
+#: motion, a thousandth of a m/s of a_y's sum per window): a simulated a_y that is exactly the
+#: reference's ``v w`` would otherwise weigh infinitely.
+_REFERENCE_FLOOR = np.array([1e-3, 1e-3])
+#: Most change locations a test tries (cluster boundaries, evenly spread).
+_CHANGE_LOCATIONS = 60
 
 
 def pack(theta: FloatArray, kappa: float = 0.0, offset: float = 0.0) -> FloatArray:
-    """p from its parts (see the module docstring)."""
+    """p from theta (the departures at zero but the spread ``kappa`` and the wheel-rate
+    ``offset``)."""
     p = np.zeros(P)
     p[THETA], p[KAPPA], p[OFFSET] = theta, kappa, offset
     return p
 
 
-def free_of(theta_free: BoolArray, *, kappa: bool, offset: bool = False) -> BoolArray:
-    """Which elements of p are fitted, from theta's and the nuisance parameters'."""
-    return np.concatenate([np.asarray(theta_free, dtype=bool), [kappa, offset]])
+def free_of(theta_free: BoolArray, *, kappa: bool = False, offset: bool = False,
+            entered: Sequence[str] = ()) -> BoolArray:
+    """Which elements of p are fitted: theta's free ones and the departures entered."""
+    free = np.zeros(P, dtype=bool)
+    free[THETA] = np.asarray(theta_free, dtype=bool)
+    free[KAPPA] |= kappa
+    free[OFFSET] |= offset
+    for name in entered:
+        free[dep.at(name)] = True
+    return free
 
 
 @dataclass(frozen=True)
@@ -117,6 +155,10 @@ class Folded:
         :func:`~odocal.estimators.error_model.noise_sums`,
         :func:`~odocal.estimators.error_model.coupling_moments` about ``origin``,
         :func:`~odocal.estimators.error_model.correlation_sums`)
+    reference : (2, 2) the reference channels' sums of squared standardised residuals and
+        their count
+    half_h, half_b : (2, P, P), (2, P) the normal equations of each half of the folded
+        clusters (alternate ones), for the departures' held-out test
     scan : (2, G) the yaw channel's cost on the lag grid, per half of the clusters, or None
     cost, count : the weighted sum of squared residuals and their number
     last : the last folded window, for the prewhitening to run on: the p it was linearised at,
@@ -134,6 +176,9 @@ class Folded:
     noise: FloatArray = field(default_factory=lambda: np.zeros((2, 5)))
     coupling: FloatArray = field(default_factory=lambda: np.zeros((2, 1 + P, 1 + P)))
     correlation: FloatArray = field(default_factory=lambda: np.zeros((2, 6)))
+    reference: FloatArray = field(default_factory=lambda: np.zeros((2, 2)))
+    half_h: FloatArray = field(default_factory=lambda: np.zeros((2, P, P)))
+    half_b: FloatArray = field(default_factory=lambda: np.zeros((2, P)))
     scan: FloatArray | None = None
     cost: float = 0.0
     count: int = 0
@@ -150,13 +195,21 @@ class Folded:
         precision = np.zeros(P)
         if offset_std > 0:
             precision[OFFSET] = offset_std ** -2.0
-        return Folded(origin=np.asarray(origin, dtype=np.float64), h=np.diag(precision),
-                      meat=np.diag(precision), offset_std=max(offset_std, 0.0))
+        origin = np.asarray(origin, dtype=np.float64)
+        if origin.size < P:
+            origin = np.concatenate([origin, np.zeros(P - origin.size)])
+        return Folded(origin=origin, h=np.diag(precision), meat=np.diag(precision),
+                      offset_std=max(offset_std, 0.0))
 
     @property
     def offset_free(self) -> bool:
-        """Whether the wheel-rate offset is fitted (it has a prior)."""
+        """Whether the wheel-rate offset is fitted from the start (it has a prior)."""
         return self.offset_std > 0
+
+    @property
+    def windows(self) -> int:
+        """Windows folded (each counts two wheel channels)."""
+        return self.count // 2
 
     def decayed(self, factor: float) -> Folded:
         """The sums with older evidence faded by ``factor`` (forgetting)."""
@@ -164,22 +217,44 @@ class Folded:
             self, h=self.h * factor, b=self.b * factor, meat=self.meat * factor,
             recent=self.recent * math.sqrt(factor), noise=self.noise * factor,
             coupling=self.coupling * factor, correlation=self.correlation * factor,
+            reference=self.reference * factor, half_h=self.half_h * factor,
+            half_b=self.half_b * factor,
             scan=None if self.scan is None else self.scan * factor, cost=self.cost * factor)
 
 
 @dataclass(frozen=True)
 class View:
-    """The windows as the model takes them at one shift and heading offset."""
+    """The windows as the model takes them at one shift and heading offset.
+
+    at, first, second : (W, AT_WIDTH) the moments, their first and second difference in the
+        shift
+    before : (W,) the windows before a change inside the log (None: no change)
+    tau_h : (W,) hours from each window to the end of its drive (c_e's drift), or None
+    across, lateral : whether the reference's sideways motion and a_y are channels of their own
+        (a heading that is not the course; an a_y that carries a lateral acceleration)
+    """
 
     windows: WindowSet
     shift: float
-    at: FloatArray          # (W, 2 SERIES)
-    second: FloatArray      # (W, 2 SERIES): the moments' second difference in the shift
+    at: FloatArray
+    first: FloatArray
+    second: FloatArray
+    before: BoolArray | None = None
+    tau_h: FloatArray | None = None
+    across: bool = False
+    lateral: bool = False
 
     @staticmethod
-    def of(windows: WindowSet, shift: float, heading_offset: float) -> View:
-        at, second = windows.at(shift, heading_offset)
-        return View(windows, shift, at, second)
+    def of(windows: WindowSet, shift: float, heading_offset: float, *,
+           before: BoolArray | None = None, tau_h: FloatArray | None = None,
+           across: bool = False, lateral: bool = False) -> View:
+        at, first, second = windows.around(shift, heading_offset)
+        return View(windows, shift, at, first, second, before, tau_h, across, lateral)
+
+    def moved(self, shift: float, heading_offset: float) -> View:
+        """The same view at another shift."""
+        return View.of(self.windows, shift, heading_offset, before=self.before,
+                       tau_h=self.tau_h, across=self.across, lateral=self.lateral)
 
 
 @dataclass(frozen=True)
@@ -189,8 +264,11 @@ class Fit:
     residual : (W, 2) channel residuals, before the common wheel error is taken out
     jac : (W, 2, P) their Jacobian in p
     weight : (W, 2) the error model's weights
-    stacked, white : (W, 2, 1 + P) the standardised rows ``[residual, Jacobian]``, before and
-        after prewhitening
+    stacked : (W, 2, 1 + P) the wheel channels' standardised rows ``[residual, Jacobian]``,
+        before prewhitening
+    white : (W, 4, 1 + P) every channel's rows as the fit takes them: the wheel channels
+        prewhitened, then the reference's sideways motion and a_y (zero where not fitted)
+    across : (W, 2) the reference channels' residuals (sideways motion, m; a_y, m/s)
     cost : the weighted sum of squares of the windows (the folded ones' is in Folded.cost)
     """
 
@@ -201,7 +279,9 @@ class Fit:
     stacked: FloatArray
     white: FloatArray
     cost: float
+    across: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
     iterations: int = 0
+    converged: bool = True
     history: tuple[float, ...] = ()
 
     @property
@@ -225,27 +305,110 @@ def _channels(per_wheel: FloatArray) -> FloatArray:
     return np.stack([0.5 * (left + right), right - left], axis=1)
 
 
-def evaluate(p: FloatArray, view: View, model: ErrorModel, folded: Folded,
-             channels: FloatArray, *, smooth: bool, unseen_d: bool = False) -> Fit:
-    """Residuals, weights and prewhitened rows of every window at ``p``. ``unseen_d``: the a_y
-    column carries no lateral acceleration, so d's Jacobian is taken with the reference's own
-    (``v w``): what a load transfer the data cannot show would do (d is held, its datasheet
-    uncertainty widens the others')."""
-    win = view.windows
+def wheels(p: FloatArray, view: View, *, smooth: bool, unseen_d: bool = False,
+           jacobian: bool = True) -> tuple[FloatArray, FloatArray]:
+    """Each window's predicted revolutions per wheel (W, 2) and their Jacobian in p
+    (W, 2, P), the departures included (:mod:`.departures`)."""
     theta = p[THETA]
-    pred, jac4 = MODEL.predict(theta, view.at)
+    base = view.at
+    # the load transfer acts on a_y as logged (the specific force the tyres carry: a road's
+    # crossfall is in it as much as the turning); a_y's offset and scale against the
+    # reference's v w are the a_y channel's alone (:func:`reference_rows`), and what they would
+    # make of c_d and d were they the sensor's is in their uncertainty (:func:`_lateral_doubt`)
+    moments = np.array(base, dtype=np.float64, copy=True)
+    # the axle's travel from the reference point's (the chord the point turns through, along
+    # the axle's direction of travel: ds + arm_y 2 sin(dpsi/2) cos(beta) - arm_x ... sin(beta)),
+    # and the wheels' excess in bends (``curve``)
+    turn, beta_turn, curve = base[:, AT_COS_TURN], base[:, AT_BETA_TURN], base[:, AT_CURVE]
+    moments[:, 0] += p[ARM_Y] * turn - p[ARM_X] * beta_turn + p[CURVE] * curve
+    pred, jac_theta = MODEL.predict(theta, moments)
     if unseen_d:
-        jac4[..., LAYOUT.index(LAYOUT.load)] = MODEL.load_transfer_column(theta, view.at)
+        jac_theta[..., LAYOUT.index(LAYOUT.load)] = MODEL.load_transfer_column(theta, moments)
+    jac = np.zeros((pred.shape[0], 2, P)) if jacobian else np.zeros((0, 2, P))
+    before = view.before
+    if before is not None and before.any():
+        early = theta.copy()
+        early[[_E, _D]] += p[CHANGE]
+        pred_b, jac_b = MODEL.predict(early, moments[before])
+        pred[before] = pred_b
+        if jacobian:
+            jac[before[:, None] & np.ones(2, dtype=bool)[None, :], :] = 0.0
+            jac[before, :, CHANGE[0]] = jac_b[..., _E]
+            jac[before, :, CHANGE[1]] = jac_b[..., _D]
+            jac_theta[before] = jac_b
+    moving = base[:, AT_MOVING]
+    pred[:, 0] += (p[OFFSET] + p[LEFT]) * moving
+    pred[:, 1] += (p[OFFSET] + p[RIGHT]) * moving
+    tau = view.tau_h
+    if tau is not None:
+        drift_col = jac_theta[..., _E] * float(theta[_E]) * tau[:, None]
+        pred += p[DRIFT] * drift_col
     spread = np.zeros_like(pred)
     if smooth:
         spread, _ = MODEL.predict(theta, view.second)
-        pred = pred + p[KAPPA] * spread
-    # the offset: each wheel reads o more for every second it moves
-    moving = np.repeat(view.at[:, AT_MOVING, None], 2, axis=1)                  # (W, 2)
-    pred = pred + p[OFFSET] * moving
-    jac = np.concatenate([jac4, spread[..., None], moving[..., None]], axis=2)
+        pred += p[KAPPA] * spread
+    if not jacobian:
+        return pred, jac
+    jac[..., THETA] = jac_theta
+    gain = MODEL.along_gain(theta)[None, :]
+    jac[..., ARM_Y] = turn[:, None] * gain
+    jac[..., ARM_X] = -beta_turn[:, None] * gain
+    jac[..., CURVE] = curve[:, None] * gain
+    jac[:, 0, OFFSET] = jac[:, 1, OFFSET] = moving
+    jac[:, 0, LEFT], jac[:, 1, RIGHT] = moving, moving
+    if tau is not None:
+        jac[..., DRIFT] = drift_col
+    jac[..., KAPPA] = spread
+    return pred, jac
+
+
+def _lag_column(p: FloatArray, view: View) -> FloatArray:
+    """The channels' derivative in the reference side's shift (W, 2). Whether a lag is fitted
+    is judged on the yaw channel alone (:meth:`_Context.tests`: a slip that grows with
+    acceleration is common to both wheels and would pass for a lag in the distance channel);
+    once fitted, it moves both."""
+    d_pred, _ = MODEL.predict(p[THETA], view.first)
+    return np.asarray(d_pred @ CHANNELS.T)
+
+
+def reference_rows(p: FloatArray, view: View) -> tuple[FloatArray, FloatArray]:
+    """The reference channels' residuals (W, 2) and their Jacobian (W, 2, P): the reference's
+    motion across its heading (``arm_x dpsi + arm_y beta dpsi + slip sum ds a``), and a_y's sum
+    against ``(1 + s) v w + o`` (zero where the view has no such channel)."""
+    at = view.at
+    count = at.shape[0]
+    residual, jac = np.zeros((count, 2)), np.zeros((count, 2, P))
+    if view.across:
+        turn, beta_turn, lateral = at[:, AT_COS_TURN], at[:, AT_BETA_TURN], at[:, 1]
+        residual[:, 0] = at[:, AT_LAT] - (p[ARM_X] * turn + p[ARM_Y] * beta_turn
+                                           + p[SLIP] * lateral)
+        jac[:, 0, ARM_X], jac[:, 0, ARM_Y], jac[:, 0, SLIP] = turn, beta_turn, lateral
+    if view.lateral:
+        # a_y against the axle's own v w: the reference point's, less what its being beside
+        # the axle adds (arm_y w^2)
+        span = view.windows.length * view.windows.t_s
+        axle = at[:, AT_AREF] + p[ARM_Y] * at[:, AT_TURN2]
+        residual[:, 1] = at[:, AT_ACCEL] - ((1.0 + p[LAT_SCALE]) * axle + p[LAT_OFFSET] * span)
+        jac[:, 1, LAT_SCALE], jac[:, 1, LAT_OFFSET] = axle, span
+        jac[:, 1, ARM_Y] = (1.0 + p[LAT_SCALE]) * at[:, AT_TURN2]
+    return residual, jac
+
+
+def evaluate(p: FloatArray, view: View, model: ErrorModel, folded: Folded,
+             channels: FloatArray, *, smooth: bool, unseen_d: bool = False,
+             reference: bool = False) -> Fit:
+    """Residuals, weights and prewhitened rows of every window at ``p``. ``unseen_d``: the a_y
+    column carries no lateral acceleration, so d's Jacobian is taken with the reference's own
+    (``v w``): what a load transfer the data cannot show would do (d is held, its datasheet
+    uncertainty widens the others'). ``reference``: the reference channels count in the cost
+    (a departure they show is fitted); their rows are there for the score tests either way."""
+    win = view.windows
+    pred, jac_w = wheels(p, view, smooth=smooth, unseen_d=unseen_d)
     r = (win.measured - pred) @ CHANNELS.T
-    j = _channels(jac)
+    j = _channels(jac_w)
+    lag_col = _lag_column(p, view)
+    r -= p[LAG] * lag_col
+    j[:, :, LAG] = lag_col
     gain = coupling_gain(win.measured, r, model.coupling)
     w = window_weights(win.measured, r, model.noise, gain) * channels * win.weight[:, None]
     stacked = decouple(np.concatenate([r[..., None], j], axis=2), gain) * np.sqrt(w)[..., None]
@@ -257,24 +420,48 @@ def evaluate(p: FloatArray, view: View, model: ErrorModel, folded: Folded,
                                              np.zeros_like(row[:, 1:])], axis=1)
                        for row in folded.last[1:])
     white = prewhiten(stacked, win.follows, model.ma, before)
-    return Fit(p=p, residual=r, jac=j, weight=w, stacked=stacked, white=white,
-               cost=float(np.sum(white[..., 0] ** 2)))
+    across, across_jac = reference_rows(p, view)
+    rows = _reference_weighted(across, across_jac, model, win.weight)
+    full = np.concatenate([white, rows], axis=1)
+    cost = float(np.sum(white[..., 0] ** 2))
+    if reference:
+        cost += float(np.sum(rows[..., 0] ** 2))
+    else:
+        full[:, 2:, 0] = 0.0             # the channels say nothing of what is fitted now
+    return Fit(p=p, residual=r, jac=j, weight=w, stacked=stacked, white=full, cost=cost,
+               across=across)
+
+
+def _reference_weighted(residual: FloatArray, jac: FloatArray, model: ErrorModel,
+                        weight: FloatArray) -> FloatArray:
+    """The reference channels' rows ``[residual, Jacobian]`` (W, 2, 1 + P), standardised by
+    their spread (:attr:`ErrorModel.reference`), Huber-limited."""
+    spread = np.asarray(model.reference, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.abs(residual) / spread[None, :]
+        w = np.where(spread[None, :] > 0, 1.0 / spread[None, :] ** 2, 0.0) \
+            * np.minimum(1.0, HUBER / np.maximum(z, 1e-300)) * weight[:, None]
+    w = np.where(np.isfinite(w), w, 0.0)
+    return np.concatenate([residual[..., None], jac], axis=2) * np.sqrt(w)[..., None]
 
 
 def solve(p0: FloatArray, view: View, free: BoolArray, model: ErrorModel, folded: Folded,
           channels: FloatArray, *, max_iterations: int, tolerance: float,
-          unseen_d: bool = False) -> Fit:
+          unseen_d: bool = False, reference: bool = False) -> Fit:
     """Gauss-Newton on the prewhitened residuals of the windows and the folded normal
-    equations (nearly linear in p); ``free`` (P,) marks the free parameters of p."""
+    equations (nearly linear in p); ``free`` (P,) marks the free parameters of p. It stops
+    when no step exceeds a thousandth of the parameter's standard deviation (or its relative
+    change ``tolerance``), and says whether it did."""
     smooth = bool(free[KAPPA])
     p = p0.copy()
 
     def evaluate_at(p: FloatArray) -> Fit:
-        return evaluate(p, view, model, folded, channels, smooth=smooth, unseen_d=unseen_d)
+        return evaluate(p, view, model, folded, channels, smooth=smooth, unseen_d=unseen_d,
+                        reference=reference)
 
     fit = evaluate_at(p)
     history = [fit.cost]
-    iterations = 0
+    iterations, converged = 0, True
     for iterations in range(1, max_iterations + 1):
         if not free.any():
             iterations = 0
@@ -285,12 +472,25 @@ def solve(p0: FloatArray, view: View, free: BoolArray, model: ErrorModel, folded
         step = np.zeros(P)
         step[cols] = np.linalg.lstsq(h[np.ix_(cols, cols)] / np.outer(scale, scale),
                                      g[cols] / scale, rcond=None)[0] / scale
-        p = p + step
-        fit = evaluate_at(p)
+        trial = evaluate_at(p + step)
+        for _ in range(_HALVINGS):
+            # a step that spoils the fit (not finite, or far worse: a departure the windows
+            # barely show, linearised too far) is halved
+            if math.isfinite(trial.cost) and np.all(np.isfinite(trial.white)) \
+                    and trial.cost <= 2.0 * fit.cost + 10.0:
+                break
+            step = 0.5 * step
+            trial = evaluate_at(p + step)
+        p, fit = p + step, trial
         history.append(fit.cost)
-        if np.max(np.abs(step) / np.maximum(np.abs(p), 1e-3)) < tolerance:
+        std = np.sqrt(np.clip(np.diag(np.linalg.pinv(h[np.ix_(cols, cols)])), 0.0, None))
+        if (np.max(np.abs(step[cols]) / np.maximum(std, 1e-300)) < _STEP_SIGMAS
+                or np.max(np.abs(step) / np.maximum(np.abs(p), 1e-3)) < tolerance):
             break
-    return dataclasses.replace(fit, iterations=iterations, history=tuple(history))
+    else:
+        converged = not free.any()
+    return dataclasses.replace(fit, iterations=iterations, converged=converged,
+                               history=tuple(history))
 
 
 @dataclass(frozen=True)
@@ -302,25 +502,31 @@ class LagScan:
 
 
 def scan_lag(windows: WindowSet, theta: FloatArray, heading_offset: float, model: ErrorModel,
-             folded: Folded, offset: float = 0.0) -> LagScan:
+             folded: Folded, offset: float | FloatArray = 0.0) -> LagScan:
     """The yaw channel's weighted cost at every half step of shift of the reference side, with
-    theta fixed (the distance channel is left out: a slip that grows with acceleration is
-    common to both wheels and would pass for a lag there).
+    p fixed (the distance channel is left out: a slip that grows with acceleration is common
+    to both wheels and would pass for a lag there).
 
     The prediction is linear in the moments, so it is made once at every whole-step shift and
-    interpolated between them, as the moments are. ``offset``: the wheel-rate offset of the fit
-    (rev/s; none by default).
+    interpolated between them, as the moments are. ``offset``: the wheel-rate offset of the
+    fit (rev/s), or the whole p of it.
     """
+    p = np.asarray(offset, dtype=np.float64) if np.ndim(offset) else pack(theta,
+                                                                        offset=float(offset))
+    p = p.copy()
+    p[THETA] = theta
     limit = windows.shifts
     grid = np.arange(-limit, limit + 0.25, 0.5)
     half = (windows.cluster % 2).astype(np.int64)
     costs = np.zeros((2, grid.size))
     w_count, shifts = windows.size, windows.moments.shape[1]
     if w_count and limit > 0:
-        rotated = windows.rotated(heading_offset)                    # (W, S, 2 SERIES + 2)
+        rotated = windows.rotated(heading_offset)                    # (W, S, AT_WIDTH)
+        second = np.zeros_like(rotated)
+        second[:, 1:-1] = rotated[:, 2:] + rotated[:, :-2] - 2.0 * rotated[:, 1:-1]
         flat = rotated.reshape(w_count * shifts, -1)
-        whole, _ = MODEL.predict(theta, flat)
-        whole += offset * flat[:, AT_MOVING, None]
+        view = View(windows, 0.0, flat, flat, second.reshape(w_count * shifts, -1))
+        whole, _ = wheels(p, view, smooth=bool(p[KAPPA]), jacobian=False)
         whole = whole.reshape(w_count, shifts, 2)
         x = grid + windows.margin
         lo = np.floor(x).astype(np.int64)
@@ -341,8 +547,8 @@ def scan_lag(windows: WindowSet, theta: FloatArray, heading_offset: float, model
 
 @dataclass(frozen=True)
 class Lag:
-    """The lag found: ``shift`` steps applied (0: none), its standard deviation (nan: not
-    determined), and why it was not applied where it was not."""
+    """The lag applied: ``shift`` steps (0: none), its standard deviation (nan: not fitted),
+    the minimum of the scan (``found``), and why it was not fitted where it was not."""
 
     shift: float = 0.0
     std: float = float("nan")
@@ -366,8 +572,9 @@ def _minimum(grid: FloatArray, costs: FloatArray) -> tuple[float, float] | None:
 
 
 def choose_lag(scan: LagScan) -> Lag:
-    """The lag to apply: determined by the data (beyond three standard deviations of zero) and
-    holding out (see the module docstring); else none, with the reason."""
+    """The lag at the scan's minimum (refined by a parabola); none at the grid's edge or where
+    the cost is flat (with the reason). Whether a lag is fitted at all is the departures'
+    rule (:mod:`.departures`); this finds where."""
     total = scan.costs.sum(axis=0)
     found = _minimum(scan.grid, total)
     if found is None:
@@ -378,16 +585,6 @@ def choose_lag(scan: LagScan) -> Lag:
                     "(widen [inverse] max_delay_s)")
         return Lag(note="edge")
     best, std = found
-    if abs(best) < _LAG_SIGMAS * std:
-        return Lag(std=std, found=best, note="within noise")
-    for half in (0, 1):
-        mine, other = scan.costs[half], scan.costs[1 - half]
-        if not other.any() or not mine.any():
-            continue                                    # one half only: nothing to hold out
-        own = _minimum(scan.grid, mine)
-        if own is None or np.interp(own[0], scan.grid, other) >= np.interp(0.0, scan.grid,
-                                                                           other):
-            return Lag(std=std, found=best, note="does not hold out")
     return Lag(shift=best, std=std, found=best)
 
 
@@ -395,12 +592,17 @@ def choose_lag(scan: LagScan) -> Lag:
 class CoreFit:
     """What :func:`fit` found.
 
-    fit : the final fit (theta and kappa in ``fit.p``)
+    fit : the final fit (theta and the departures in ``fit.p``)
     free : the parameters of theta estimated; ``held`` why the others were not
     uncertainty : the covariance of theta and what it rests on
     lag : the wheel stream's lag behind the reference, in steps
     model : the error model of the final fit
     heading_offset : the reference heading's offset applied (rad)
+    entered : the departures fitted (:mod:`.departures`), in the order they entered
+    statistics : each departure's last score test (entered or not)
+    change : the first window after a change inside the log (-1: none)
+    before_verdict : the fit of every parameter the data inform, before the identifiability
+        verdict held any (what the drives' agreement is judged on), and which were free
     """
 
     fit: Fit
@@ -410,6 +612,10 @@ class CoreFit:
     lag: Lag
     model: ErrorModel
     heading_offset: float
+    entered: tuple[str, ...] = ()
+    statistics: tuple[dep.Statistic, ...] = ()
+    change: int = -1
+    before_verdict: tuple[Fit, BoolArray] | None = None
 
     @property
     def theta(self) -> FloatArray:
@@ -428,10 +634,16 @@ class CoreFit:
     def clusters(self) -> int:
         return self.uncertainty.clusters
 
+    @property
+    def nuisance_std(self) -> FloatArray:
+        """(P,): the standard deviation of every element of p (0 where not fitted)."""
+        return self.uncertainty.p_std
+
 
 def offset_prior_std(settings: Settings, wheel_step_revps: float) -> float:
-    """The wheel-rate offset's prior standard deviation (rev/s; 0: not fitted) by ``[inverse]
-    wheel_offset`` and the step of the rates' encoding (0 where they lie on no grid)."""
+    """The wheel-rate offset's prior standard deviation (rev/s; 0: not fitted from the start)
+    by ``[inverse] wheel_offset`` and the step of the rates' encoding (0 where they lie on no
+    grid)."""
     mode = settings.inverse.wheel_offset
     if mode == "always":
         return settings.inverse.wheel_offset_prior_revps
@@ -440,13 +652,35 @@ def offset_prior_std(settings: Settings, wheel_step_revps: float) -> float:
     return 0.0
 
 
+@dataclass(frozen=True)
+class Setup:
+    """What a fit is asked to do beyond the windows (:func:`fit`'s options, prepared).
+
+    blocks : the departures it may fit (:data:`.departures.BLOCKS` in batch)
+    across, lateral : the reference channels it has (:class:`View`)
+    stated : nuisance parameters stated by the user (held at these values; e.g. the lever arm)
+    tau_h : hours to each window's drive's end (c_e's drift), or None
+    kept : departures in the fit from the start (the live path's: what held out once holds on
+        the evidence folded since, which its windows in memory alone no longer show)
+    """
+
+    blocks: tuple[tuple[str, ...], ...] = dep.BLOCKS
+    across: bool = False
+    lateral: bool = False
+    stated: Mapping[str, float] = field(default_factory=dict)
+    tau_h: FloatArray | None = None
+    kept: tuple[str, ...] = ()
+
+
 def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offset: float,
-        held: Mapping[str, NotIdentified] | None = None, distance_only: bool = False) -> CoreFit:
+        held: Mapping[str, NotIdentified] | None = None, distance_only: bool = False,
+        setup: Setup | None = None) -> CoreFit:
     """The default method's estimate from ``windows`` and ``folded`` (see the module docstring).
 
     ``distance_only`` fits the distance channel alone (the wheels carry no differential signal:
     c_d, t_r and d held by the caller).
     """
+    setup = setup or Setup(blocks=())
     cfg = settings.inverse
     datasheet = np.asarray(settings.identify.theta0, dtype=np.float64)
     held = dict(held or {})
@@ -456,76 +690,417 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
         for name in LAYOUT.bends:
             held.setdefault(name, NotIdentified(Reason.NEEDS_BENDS, detail=peak))
     free = np.array([name not in held for name in LAYOUT.names])
-    lag_on = cfg.delay == "estimate" and not distance_only and windows.shifts > 0
-    offsets_on = folded.offset_free
-
-    def with_nuisance(free: BoolArray) -> BoolArray:
-        return free_of(free, kappa=lag_on, offset=offsets_on)
-
-    free_p = with_nuisance(free)
+    timing = cfg.delay == "estimate" and not distance_only and windows.shifts > 0
+    blocks = [b for b in setup.blocks
+              if (timing or b[0] not in dep.TIMING)
+              and (setup.lateral or b[0] not in dep.LATERAL)
+              and (setup.across or b[0] not in dep.ACROSS)
+              and not (distance_only and b[0] in ("offset_left", "offset_right", "lag",
+                                                  "spread", "arm_y", "curve"))
+              and not any(n in setup.stated for n in b)]
     channels = np.array([1.0, 0.0 if distance_only else 1.0])
-    coupling = not distance_only and cfg.common_wheel_error == "estimate"
-    p = pack(datasheet)
-
     unseen_d = LAYOUT.load in held and held[LAYOUT.load].reason is Reason.NO_LATERAL
+    p0 = pack(datasheet)
+    for name, value in setup.stated.items():
+        p0[dep.at(name)] = value
+    ctx = _Context(windows, folded, settings, heading_offset, channels, unseen_d, setup)
+    entered: list[str] = [n for b in blocks for n in b if b[0] in setup.kept]
+    excluded: set[tuple[str, ...]] = set()
 
-    def solve_at(p: FloatArray, lag: Lag, model: ErrorModel, free_p: BoolArray) -> Fit:
-        # where no parameter the wheels' difference shows (c_d, t_r, d) is fitted, the yaw
-        # channel holds nothing to learn, only the held ones' errors: the distance channel alone
-        theirs = channels if free_p[_DIFFERENTIAL].any() else np.array([1.0, 0.0])
-        return solve(p, View.of(windows, lag.shift, heading_offset), free_p, model, folded,
-                     theirs, max_iterations=cfg.max_iterations, tolerance=cfg.tolerance,
-                     unseen_d=unseen_d)
+    def nuisance_free() -> BoolArray:
+        return free_of(np.zeros(LAYOUT.size, dtype=bool), offset=folded.offset_free,
+                       entered=entered)
 
-    model = ErrorModel()
-    lag = Lag()
-    current = solve_at(p, lag, model, free_p)
-    h, _ = current.normal_equations(folded)
-    informed = numerically_free(h[THETA, THETA], settings.identify.prior_std, free)
+    state = ctx.run(p0, free, nuisance_free(), change=-1)
+    h_theta = state.fit.normal_equations(folded)[0][THETA, THETA]
+    informed = numerically_free(h_theta, settings.identify.prior_std, free)
     if not np.array_equal(informed, free):
         # a parameter the windows say nothing about (a_y zero throughout: d): named, not fitted
         for j in np.flatnonzero(free & ~informed):
             held[LAYOUT.names[j]] = NotIdentified(Reason.NO_INFORMATION)
         free = informed
-        free_p = with_nuisance(free)
-        current = solve_at(p, lag, model, free_p)
-    model = dataclasses.replace(model, noise=noise_from_sums(
-        folded.noise + noise_sums(windows.measured, current.residual)))
-    if lag_on:
-        current = solve_at(current.p, lag, model, free_p)
-        lag = choose_lag(scan_lag(windows, current.p[THETA], heading_offset, model, folded,
-                                  float(current.p[OFFSET])))
-    for _ in range(2):                  # the error model refitted at the lag
-        current = solve_at(current.p, lag, model, free_p)
-        model = refit_model(current, windows, folded, coupling=coupling)
-    for _ in range(_SHIFT_ROUNDS - 1 if lag_on else 0):
-        # the lag again with the theta fitted at it, until the two agree
-        again = choose_lag(scan_lag(windows, current.p[THETA], heading_offset, model, folded,
-                                    float(current.p[OFFSET])))
-        if abs(again.shift - lag.shift) < _SHIFT_SETTLED:
+        state = ctx.run(p0, free, nuisance_free(), change=-1)
+    statistics: tuple[dep.Statistic, ...] = ()
+    change = -1
+    for _ in range(len(blocks)):
+        statistics = ctx.tests(state, free, nuisance_free(),
+                               [b for b in blocks if b[0] not in entered and b not in excluded])
+        best = max((s for s in statistics if s.holds), key=lambda s: s.value, default=None)
+        if best is None:
             break
-        lag = again
-        for _ in range(2):
-            current = solve_at(current.p, lag, model, free_p)
-            model = refit_model(current, windows, folded, coupling=coupling)
-    current = solve_at(current.p, lag, model, free_p)
+        entered.extend(best.block)
+        trial = ctx.run(state.fit.p, free, nuisance_free(),
+                        change=best.where if best.block[0] == "change_e" else change)
+        if not _acceptable(trial, settings) or not _determined(
+                trial, windows, folded, free_of(free) | nuisance_free(), best.block):
+            del entered[-len(best.block):]
+            excluded.add(best.block)
+            continue
+        state = trial
+        if best.block[0] == "change_e":
+            change = best.where
+    with_nuisance = nuisance_free()
+    before_verdict = (state.fit, free_of(free, entered=[n for n in entered if n != "lag"])
+                      | (with_nuisance & (np.arange(P) == OFFSET)))
+    if folded.clusters:
+        # live, with windows folded: their sums stand at the shifts of their time, so the lag
+        # is the windows' shift (found on the scan of every window, folded or not), not a
+        # parameter whose information the sums could share with theta's
+        with_nuisance[LAG] = False
+    free, held, state, uncertainty = _identified(state, ctx, free, held, with_nuisance, change)
+    uncertainty = _lateral_doubt(uncertainty, state.fit.p, free)
+    lag = state.lag
+    if "lag" in entered:
+        lag = dataclasses.replace(lag, shift=lag.shift + float(state.fit.p[LAG]),
+                                  std=float(uncertainty.p_std[LAG]))
+    return CoreFit(fit=state.fit, free=free, held=held, uncertainty=uncertainty, lag=lag,
+                   model=state.model, heading_offset=heading_offset, entered=tuple(entered),
+                   statistics=statistics, change=change, before_verdict=before_verdict)
 
-    def lag_spread(p: FloatArray, free: BoolArray) -> FloatArray:
-        # how far theta moves with the lag, times the lag's own uncertainty: a lag found to
-        # +-0.5 steps on a short drive moves t_r by as much as its noise does
-        variance = _lag_variance(lag, windows.shifts) if lag_on else 0.0
-        if variance <= 0 or not free.any():
-            return np.zeros(LAYOUT.size)
-        ahead, behind = (solve_at(p, dataclasses.replace(lag, shift=lag.shift + step), model,
-                                  with_nuisance(free)).p[THETA]
-                         for step in (_LAG_STEP, -_LAG_STEP))
-        return np.asarray((ahead - behind) / (2.0 * _LAG_STEP) * math.sqrt(variance))
 
-    free, held, current, uncertainty = _identified(
-        current, windows, folded, settings, free, held, lambda p, f: solve_at(
-            p, lag, model, with_nuisance(f)), with_nuisance, lag_spread)
-    return CoreFit(fit=current, free=free, held=held, uncertainty=uncertainty, lag=lag,
-                   model=model, heading_offset=heading_offset)
+#: A drive departs from the others where its windows' evidence against their fit is beyond
+#: this chance (chi-square: one drive in a thousand that agrees is left out).
+_DEPARTING = 1e-3
+
+
+def departing_drive(found: CoreFit, windows: WindowSet) -> tuple[int, float, float] | None:
+    """The drive whose windows depart most from the others' fit, where one does (with two
+    drives or more): its index (``cluster // 10**9``), its statistic and the limit. The
+    statistic is how far the drive moves the fit from the others', in the others' own
+    information (``g_d' (H - H_d)^-1 g_d``, the drive's gradient ``g_d`` at the fit of all,
+    every parameter the data inform free, before the identifiability verdict):
+    chi-square with as many degrees of freedom as parameters fitted where the drive agrees
+    with the others. A scene that stands still but for one tight crawl, or a log of another
+    tyre, is named and left out, not allowed to spoil what the others identify."""
+    from scipy.special import chdtri
+
+    drive = windows.cluster // 10**9
+    labels = np.unique(drive)
+    if labels.size < 2 or found.before_verdict is None:
+        return None
+    fit, free = found.before_verdict
+    cols = np.flatnonzero(free)
+    if not cols.size:
+        return None
+    rows, res = fit.white[..., 1:][..., cols], fit.white[..., 0]
+    h = np.einsum("wck,wcl->kl", rows, rows)
+    limit = float(chdtri(cols.size, _DEPARTING))
+    worst: tuple[int, float, float] | None = None
+    for label in labels:
+        mine = drive == label
+        h_d = np.einsum("wck,wcl->kl", rows[mine], rows[mine])
+        g_d = np.einsum("wck,wc->k", rows[mine], res[mine])
+        statistic = float(g_d @ np.linalg.pinv(h - h_d) @ g_d)
+        if statistic > limit and (worst is None or statistic > worst[1]):
+            worst = (int(label), statistic, limit)
+    return worst
+
+
+def _lateral_doubt(found: Uncertainty, p: FloatArray, free: BoolArray) -> Uncertainty:
+    """theta is for a_y as logged. Where a_y departs from the reference's ``v w`` (an offset
+    ``o``, a scale ``1 + s``), that is a road's crossfall or a body's roll the tyres feel, or an
+    IMU's tilt or scale they do not: the two cannot be told apart, and the sensor's reading
+    would make c_d ``2 d o / (1 + s)`` and d ``d s / (1 + s)`` other than they are. That much is
+    added to their variance (zero where a_y holds to ``v w``)."""
+    offset, scale = float(p[LAT_OFFSET]), float(p[LAT_SCALE])
+    if not (offset or scale):
+        return found
+    i_d, i_l = LAYOUT.index(LAYOUT.difference), LAYOUT.index(LAYOUT.load)
+    d = float(p[i_l])
+    extra = np.zeros(LAYOUT.size)
+    extra[i_d] = 2.0 * d * offset / (1.0 + scale)
+    extra[i_l] = d * scale / (1.0 + scale)
+    extra[~np.asarray(free, dtype=bool)] = 0.0
+    cov = found.covariance + np.diag(extra ** 2)
+    before = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))
+    after = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        widening = found.widening * np.where(before > 0, after / before, 1.0)
+    p_std = found.p_std.copy()
+    p_std[THETA] = after
+    return dataclasses.replace(found, covariance=cov, widening=widening, p_std=p_std)
+
+
+#: A departure fitted must lie this many of its standard deviations from zero (one a drive
+#: cannot pin down is not one it shows: fitted, it would only move theta).
+_DETERMINED = 3.0
+
+
+def _determined(state: _State, windows: WindowSet, folded: Folded, free_p: BoolArray,
+                block: Sequence[str]) -> bool:
+    """Whether the departure ``block`` just entered is determined by the fit: some element
+    beyond :data:`_DETERMINED` of its standard deviations from zero (the lag: its shift from
+    the scan's start, which is the reference's own alignment)."""
+    found = covariance(state.fit, windows, folded, free_p, few=False)
+    for name in block:
+        j = dep.at(name)
+        value = state.lag.shift + float(state.fit.p[j]) if name == "lag" else float(
+            state.fit.p[j])
+        if abs(value) > _DETERMINED * float(found.p_std[j]):
+            return True
+    return False
+
+
+def _acceptable(state: _State, settings: Settings) -> bool:
+    """Whether a fit with a departure just entered can stand: finite, every departure within
+    its bound (a change at least ``[checks] change_min`` of c_e), theta within any vehicle's
+    range."""
+    from odocal.checks.gate import gate
+
+    p = state.fit.p
+    if not np.all(np.isfinite(p)) or np.any(np.abs(p[LAYOUT.size:]) > dep.BOUNDS):
+        return False
+    if np.any(p[CHANGE]) and np.all(np.abs(p[CHANGE]) < settings.checks.change_min
+                                    * abs(float(p[_E]))):
+        return False                   # a step that small is no change of the wheels
+    return not gate(p[THETA], settings, error_m=None, datasheet_error_m=None, segment_m=None)
+
+
+@dataclass(frozen=True)
+class _State:
+    """One fit of the procedure: the fit, its error model, its lag and view."""
+
+    fit: Fit
+    model: ErrorModel
+    lag: Lag
+    view: View
+
+
+@dataclass(frozen=True)
+class _Context:
+    """What every fit of one procedure shares."""
+
+    windows: WindowSet
+    folded: Folded
+    settings: Settings
+    heading_offset: float
+    channels: FloatArray
+    unseen_d: bool
+    setup: Setup
+
+    def view(self, shift: float, change: int) -> View:
+        before = None
+        if change > 0:
+            before = np.arange(self.windows.size) < change
+        return View.of(self.windows, shift, self.heading_offset, before=before,
+                       tau_h=self.setup.tau_h, across=self.setup.across,
+                       lateral=self.setup.lateral)
+
+    def solve(self, p: FloatArray, view: View, model: ErrorModel, free_p: BoolArray) -> Fit:
+        # where no parameter the wheels' difference shows (c_d, t_r, d) is fitted, the yaw
+        # channel holds nothing to learn, only the held ones' errors: the distance channel alone
+        differential = free_p[_DIFFERENTIAL].any() or free_p[[LEFT, RIGHT, LAG, KAPPA]].any()
+        theirs = self.channels if differential else np.array([1.0, 0.0])
+        reference = bool(free_p[[dep.at(n) for n in dep.REFERENCE_CHANNEL]].any())
+        cfg = self.settings.inverse
+        return solve(p, view, free_p, model, self.folded, theirs,
+                     max_iterations=cfg.max_iterations, tolerance=cfg.tolerance,
+                     unseen_d=self.unseen_d, reference=reference)
+
+    def run(self, p0: FloatArray, free: BoolArray, nuisance: BoolArray, *, change: int,
+            model: ErrorModel | None = None) -> _State:
+        """A fit of theta's ``free`` parameters and the departures ``nuisance`` from ``p0``:
+        the error model refitted twice, the lag (where fitted) found on its grid and fitted
+        with the rest until the two agree."""
+        free_p = free_of(free) | nuisance
+        p = p0.copy()
+        # a departure not fitted is zero (or as the user stated it)
+        p[(np.arange(P) >= LAYOUT.size) & ~free_p & ~_stated_mask(self.setup)] = 0.0
+        model = model or ErrorModel()
+        lag = Lag()
+        view = self.view(0.0, change)
+        current = self.solve(p, view, model, free_p)
+        model = dataclasses.replace(model, noise=noise_from_sums(
+            self.folded.noise + noise_sums(self.windows.measured, current.residual)))
+        model = refit_reference(model, current, self.folded)
+        lag_on = bool(free_p[LAG])
+        if lag_on:
+            lag = choose_lag(scan_lag(self.windows, current.p[THETA], self.heading_offset,
+                                      model, self.folded, current.p))
+            view = view.moved(lag.shift, self.heading_offset)
+            current = dataclasses.replace(current, p=_with(current.p, LAG, 0.0))
+        for _ in range(2):                 # the error model refitted at the lag
+            current = self.solve(current.p, view, model, free_p)
+            model = refit_model(current, self.windows, self.folded,
+                                coupling=self._coupling())
+        for _ in range(_SHIFT_ROUNDS if lag_on else 0):
+            # the lag's fine step taken into the view, until it settles
+            step = float(current.p[LAG])
+            if abs(step) < _SHIFT_SETTLED:
+                break
+            limit = self.windows.shifts
+            shift = min(max(view.shift + step, -limit), limit)
+            view = view.moved(shift, self.heading_offset)
+            lag = dataclasses.replace(lag, shift=shift)
+            current = self.solve(_with(current.p, LAG, 0.0), view, model, free_p)
+            model = refit_model(current, self.windows, self.folded, coupling=self._coupling())
+        current = self.solve(current.p, view, model, free_p)
+        return _State(fit=current, model=model, lag=lag, view=view)
+
+    def _coupling(self) -> bool:
+        return bool(self.channels[1]) and self.settings.inverse.common_wheel_error == "estimate"
+
+    def tests(self, state: _State, free: BoolArray, nuisance: BoolArray,
+              blocks: Sequence[tuple[str, ...]]) -> tuple[dep.Statistic, ...]:
+        """Each departure's held-out test at ``state`` (:func:`.departures.held_out`)."""
+        if not blocks:
+            return ()
+        free_p = free_of(free) | nuisance
+        current = evaluate(state.fit.p, state.view, state.model, self.folded, self.channels,
+                           smooth=True, unseen_d=self.unseen_d, reference=True)
+        half = _halves(self.windows)
+        rows, res = current.white[..., 1:].copy(), current.white[..., 0]
+        rows[:, 0, LAG] = 0.0            # a lag is judged on the yaw channel alone
+        halves = []
+        p = state.fit.p
+        folded = self.folded
+        for k in (0, 1):
+            mine = half == k
+            jj, rr = rows[mine].reshape(-1, P), res[mine].reshape(-1)
+            # the folded clusters of this half beside the windows of this half
+            h_k, b_k = folded.half_h[k], folded.half_b[k]
+            halves.append((jj.T @ jj + h_k, jj.T @ rr + b_k - h_k @ p))
+        rest_h = folded.h - folded.half_h.sum(axis=0)         # (a prior: in both trainings)
+        common = (rest_h, folded.b - folded.half_b.sum(axis=0) - rest_h @ p)
+        white = current.white
+        out = []
+        for block in blocks:
+            index = [dep.at(name) for name in block] if block[0] != "change_e" else [_E, _D]
+            n = _informing(white, index) + float(folded.windows)
+            if block[0] == "lag":
+                timed = _lag_test(scan_lag(self.windows, p[THETA], self.heading_offset,
+                                           state.model, folded, p))
+                out.append(dataclasses.replace(timed, penalty=dep.penalty(1, n)))
+                continue
+            if block[0] == "change_e":
+                found = _change_test(current, self.windows, half, halves, free_p, common,
+                                     self.settings)
+                if found is not None:
+                    out.append(dataclasses.replace(found, penalty=dep.penalty(
+                        2, n, _change_locations(self.windows, self.settings))))
+                continue
+            gains = dep.held_out(halves, free_p, index, common)
+            out.append(dep.Statistic(block, gains, penalty=dep.penalty(len(block), n)))
+        return tuple(out)
+
+
+def _halves(windows: WindowSet) -> IntArray:
+    """(W,): each window's half of the clusters: alternate ones in time, counted within each
+    drive (a drive added to a calibration does not move the others' windows between halves;
+    the lag's scan splits them so too)."""
+    return np.asarray(windows.cluster % 2, dtype=np.int64)
+
+
+def _informing(white: FloatArray, index: Sequence[int]) -> float:
+    """The effective number of windows that inform the parameters ``index`` of p: ``(sum
+    i_w)^2 / sum i_w^2`` with ``i_w`` a window's information in them (its rows' squared
+    columns). A drive that stands still or drives straight adds windows that say nothing of a
+    lag or a lever arm: it does not raise their penalty."""
+    info = np.sum(white[..., [1 + i for i in index]] ** 2, axis=(1, 2))
+    squares = float(np.sum(info ** 2))
+    return float(np.sum(info)) ** 2 / squares if squares > 0 else 0.0
+
+
+def _stated_mask(setup: Setup) -> BoolArray:
+    mask = np.zeros(P, dtype=bool)
+    for name in setup.stated:
+        mask[dep.at(name)] = True
+    return mask
+
+
+def _with(p: FloatArray, index: int, value: float) -> FloatArray:
+    out = p.copy()
+    out[index] = value
+    return out
+
+
+def _lag_test(scan: LagScan) -> dep.Statistic:
+    """The held-out test of a lag: on each half of the clusters, the lag is where that half's
+    yaw cost is least (:func:`scan_lag`: the lag is nonlinear, found on a grid), and it must
+    lower the other half's cost against none."""
+    gains = []
+    for k in (0, 1):
+        found = _minimum(scan.grid, scan.costs[k])
+        other = scan.costs[1 - k]
+        if found is None or not other.any():
+            gains.append(-math.inf)
+            continue
+        gains.append(float(np.interp(0.0, scan.grid, other)
+                           - np.interp(found[0], scan.grid, other)))
+    return dep.Statistic(("lag",), (gains[0], gains[1]))
+
+
+def change_sought(windows: WindowSet, settings: Settings) -> bool:
+    """Whether the windows hold enough clusters for a change inside the log to be sought:
+    ``[checks] change_min_side_clusters`` either side of one at least."""
+    side = settings.checks.change_min_side_clusters
+    return bool(np.unique(windows.cluster).size >= 2 * side + 2)
+
+
+def _change_locations(windows: WindowSet, settings: Settings) -> int:
+    """How many times a change is sought at (:func:`_change_test`)."""
+    clusters = np.unique(windows.cluster).size
+    side = settings.checks.change_min_side_clusters
+    return int(min(max(clusters - 2 * side + 1, 1), _CHANGE_LOCATIONS))
+
+
+def _change_test(current: Fit, windows: WindowSet, half: IntArray, halves: dep.Halves,
+                 free_p: BoolArray, common: tuple[FloatArray, FloatArray],
+                 settings: Settings) -> dep.Statistic | None:
+    """The held-out test of a change of c_e and c_d inside the log: on each half of the
+    clusters, the change's time is where that half's evidence for one is largest (its score
+    statistic, over cluster boundaries at least ``[checks] change_min_side_clusters``
+    clusters from either end), and the change fitted there must lower the other half's cost
+    (:func:`.departures.held_out`). The time reported is the one of the half that gains more."""
+    if not change_sought(windows, settings):
+        return None
+    _, first = np.unique(windows.cluster, return_index=True)
+    order = np.sort(first)
+    side = settings.checks.change_min_side_clusters
+    candidates = order[side:order.size - side + 1]
+    if candidates.size > _CHANGE_LOCATIONS:
+        candidates = candidates[np.linspace(0, candidates.size - 1,
+                                            _CHANGE_LOCATIONS).round().astype(int)]
+    jw, rw = current.white[..., 1:], current.white[..., 0]
+    cols = np.flatnonzero(free_p)
+    rows = jw[..., [_E, _D]]                                      # (W, C, 2)
+    per_h = np.einsum("wck,wcp->wkp", rows, jw)                   # (W, 2, P)
+    per_g = np.einsum("wck,wc->wk", rows, rw)                     # (W, 2)
+    cums = []
+    for k in (0, 1):
+        mine = (half == k)[:, None, None]
+        cums.append((np.concatenate([np.zeros((1, 2, P)), np.cumsum(per_h * mine, axis=0)]),
+                     np.concatenate([np.zeros((1, 2)),
+                                     np.cumsum(per_g * mine[:, :, 0], axis=0)])))
+
+    def extended(k: int, where: int) -> tuple[FloatArray, FloatArray]:
+        h, g = halves[k]
+        block_h, block_g = cums[k][0][where], cums[k][1][where]
+        out_h = np.zeros((P + 2, P + 2))
+        out_h[:P, :P], out_h[P:, :P], out_h[:P, P:] = h, block_h, block_h.T
+        out_h[P:, P:] = block_h[:, [_E, _D]]
+        return out_h, np.concatenate([g, block_g])
+
+    def statistic(k: int, where: int) -> float:
+        h, g = extended(k, where)
+        h[:P, :P] += common[0]
+        g[:P] += common[1]
+        inv = np.linalg.pinv(h[np.ix_(cols, cols)])
+        proj = h[P:, cols] @ inv
+        score = g[P:] - proj @ g[cols]
+        info = h[P:, P:] - proj @ h[P:, cols].T
+        return float(score @ np.linalg.pinv(info, rcond=1e-10) @ score)
+
+    free_ext = np.concatenate([free_p, [False, False]])
+    ext_common = (np.pad(common[0], (0, 2)), np.pad(common[1], (0, 2)))
+    gains, places = [], []
+    for k in (0, 1):
+        where = max(candidates.tolist(), key=lambda c: statistic(k, c))
+        pair = [extended(0, where), extended(1, where)]
+        gains.append(dep.held_out(pair, free_ext, [P, P + 1], ext_common)[k])
+        places.append(where)
+    return dep.Statistic(("change_e", "change_d"), (gains[0], gains[1]),
+                         int(places[int(np.argmax(gains))]))
 
 
 def refit_model(current: Fit, windows: WindowSet, folded: Folded, *,
@@ -541,34 +1116,45 @@ def refit_model(current: Fit, windows: WindowSet, folded: Folded, *,
     # the prewhitening from the residuals as the fit standardised them (with its own coupling)
     ma = arma_from_sums(folded.correlation
                         + correlation_sums(current.stacked[..., 0], windows.follows))
-    return ErrorModel(noise=noise, ma=ma, coupling=beta)
+    model = ErrorModel(noise=noise, ma=ma, coupling=beta)
+    return refit_reference(model, current, folded)
 
 
-#: Steps the lag is moved either way to see how theta follows it.
-_LAG_STEP = 0.5
+def reference_sums(across: FloatArray, model: ErrorModel) -> FloatArray:
+    """(2, 2): per reference channel the sum of its squared residuals (Huber-limited at the
+    model's spread) and their number; sums of parts add up."""
+    out = np.zeros((2, 2))
+    spread = np.asarray(model.reference, dtype=np.float64)
+    for c in range(2):
+        r = across[:, c]
+        if not r.size:
+            continue
+        limit = HUBER * spread[c] if np.isfinite(spread[c]) and spread[c] > 0 else np.inf
+        out[c] = float(np.sum(np.minimum(r * r, limit * limit))), float(r.size)
+    return out
 
 
-def _lag_variance(lag: Lag, shifts: int) -> float:
-    """The variance (steps^2) of the lag the fit stands on: that of the lag applied, or, where
-    the one found was not applied (within noise, or not holding out), of taking none in its
-    place: its std and its own size; never more than a lag spread evenly over the searched
-    range (``shifts`` steps either way: the checks refuse a larger one). Zero where no lag
-    could be timed (no bends)."""
-    if not math.isfinite(lag.std):
-        return 0.0
-    variance = lag.std ** 2 if lag.shift != 0.0 else lag.std ** 2 + lag.found ** 2
-    return min(variance, shifts ** 2 / 3.0)
+def refit_reference(model: ErrorModel, current: Fit, folded: Folded) -> ErrorModel:
+    """The reference channels' spread from the residuals of ``current`` (and the folded
+    sums): their RMS, Huber-limited, twice (a first pass without a limit)."""
+    if not current.across.size:
+        return model
+    for _ in range(2):
+        sums = folded.reference + reference_sums(current.across, model)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            spread = np.sqrt(np.where(sums[:, 1] > 0, sums[:, 0] / sums[:, 1], np.inf))
+        spread = np.where(spread > 0, np.maximum(spread, _REFERENCE_FLOOR), np.inf)
+        model = dataclasses.replace(model, reference=spread)
+    return model
 
 
-def _identified(current: Fit, windows: WindowSet, folded: Folded, settings: Settings,
-                free: BoolArray, held: dict[str, NotIdentified],
-                refit: Callable[[FloatArray, BoolArray], Fit],
-                with_nuisance: Callable[[BoolArray], BoolArray],
-                lag_spread: Callable[[FloatArray, BoolArray], FloatArray],
-                ) -> tuple[BoolArray, dict[str, NotIdentified], Fit, Uncertainty]:
+def _identified(state: _State, ctx: _Context, free: BoolArray, held: dict[str, NotIdentified],
+                nuisance: BoolArray, change: int,
+                ) -> tuple[BoolArray, dict[str, NotIdentified], _State, Uncertainty]:
     """The identifiability verdict (:func:`~odocal.estimators.estimate.hold_unidentified`)
     with this core's covariance. Parameters held because the windows cannot see them widen the
     free ones by their datasheet uncertainty (:func:`covariance`)."""
+    settings = ctx.settings
     datasheet = np.asarray(settings.identify.theta0, dtype=np.float64)
     prior = np.asarray(settings.identify.prior_std, dtype=np.float64)
     # parameters held at their datasheet values that the free ones are sensitive to (a_y
@@ -576,27 +1162,18 @@ def _identified(current: Fit, windows: WindowSet, folded: Folded, settings: Sett
     # judged too weak) widen them by their datasheet uncertainty: a free parameter that cannot
     # be told apart from a held one is not identified either
     known = np.array([n in held and held[n].reason in _KNOWN for n in LAYOUT.names])
-    fits, uncertainties = [current], []
+    states, uncertainties = [state], []
 
     def covariance_of(free: BoolArray) -> tuple[FloatArray, int]:
-        found = covariance(fits[-1], windows, folded, with_nuisance(free),
+        found = covariance(states[-1].fit, ctx.windows, ctx.folded, free_of(free) | nuisance,
                            np.where(~known & ~free, prior, 0.0))
-        spread = lag_spread(fits[-1].p, free)
-        if spread.any():
-            # the lag's uncertainty is the wheels' timing: theta's covariance takes it in
-            base = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))
-            cov = found.covariance + np.outer(spread, spread)
-            std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-            with np.errstate(divide="ignore", invalid="ignore"):
-                more = np.where(base > 0, std / base, 1.0)
-            found = dataclasses.replace(found, covariance=cov, widening=found.widening * more)
         uncertainties.append(found)
-        return uncertainties[-1].covariance, uncertainties[-1].clusters
+        return found.covariance, found.clusters
 
     def refit_at(free: BoolArray) -> None:
-        p = fits[-1].p.copy()
+        p = states[-1].fit.p.copy()
         p[THETA][~free] = datasheet[~free]
-        fits.append(refit(p, free))
+        states.append(ctx.run(p, free, nuisance, change=change, model=states[-1].model))
 
     free, held = hold_unidentified(free, held, settings.identify, covariance_of=covariance_of,
                                    refit=refit_at)
@@ -604,15 +1181,15 @@ def _identified(current: Fit, windows: WindowSet, folded: Folded, settings: Sett
     if not free.any():
         n = LAYOUT.size
         found = dataclasses.replace(found, covariance=np.zeros((n, n)), widening=np.ones(n))
-    return free, held, fits[-1], found
+    return free, held, states[-1], found
 
 
 @dataclass(frozen=True)
 class Uncertainty:
     """The covariance of theta (n, n), the clusters it rests on, each window's information
     (W, n, n) and score (W, n), how much each standard deviation was widened for the
-    parameters held at their datasheet values (1: not), and the wheel-rate offsets' standard
-    deviation (rev/s; zero where not fitted)."""
+    parameters held at their datasheet values (1: not), the wheel-rate offset's standard
+    deviation (rev/s; zero where not fitted) and every element of p's (P,)."""
 
     covariance: FloatArray
     clusters: int
@@ -620,16 +1197,21 @@ class Uncertainty:
     scores: FloatArray
     widening: FloatArray
     offset_std: float = 0.0
+    p_std: FloatArray = field(default_factory=lambda: np.zeros(P))
 
 
 def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray,
-               nuisance: FloatArray | None = None) -> Uncertainty:
-    """Sandwich covariance of theta over clusters of windows (folded clusters' meat included),
+               nuisance: FloatArray | None = None, *, few: bool = True) -> Uncertainty:
+    """Sandwich covariance of p over clusters of windows (folded clusters' meat included),
     from the prewhitened rows, each cluster's score scaled by its leverage, cross products of
-    clusters up to three apart with Newey and West's weights; kappa and the offset profiled
-    out (the offset's prior is in ``folded``). What it adds beyond the residual-variance
-    formula is widened by Student's t for the clusters each parameter's information comes from
-    (with fewer than :data:`MIN_CLUSTERS_FOR_ROBUST` clusters in all, the larger of the two).
+    clusters up to three apart with Newey and West's weights; theta's block is the one
+    reported (the departures fitted beside it profiled out: their uncertainty is in it). What
+    it adds beyond the residual-variance formula is widened by Student's t for the clusters
+    each parameter's information comes from (with fewer than :data:`MIN_CLUSTERS_FOR_ROBUST`
+    clusters in all, the larger of the two).
+
+    ``few`` False leaves the widening for few clusters out (what a departure's own value is
+    judged by: whether the fit determines it, not how far a rare error reaches).
 
     ``nuisance`` (n,): the datasheet uncertainty of each parameter held at its datasheet value
     (0 for the free ones). A held parameter that is wrong by that much moves the free ones by
@@ -656,8 +1238,9 @@ def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray
     meat = (vectors * np.clip(values, 0.0, None)) @ vectors.T
     correction = clusters / (clusters - 1) if clusters > 1 else 1.0
     cov = correction * (h_inv @ meat @ h_inv)
-    # the residual-variance (model-based) covariance: the error model's, from every window
-    count = current.white[..., 0].size + folded.count
+    # the residual-variance (model-based) covariance: the error model's, from every row that
+    # counts in the cost
+    count = int(np.count_nonzero(current.white[..., 0])) + folded.count
     naive = (current.cost + folded.cost) / max(count - int(free.sum()), 1) * h_inv
     s_n = np.sqrt(np.clip(np.diag(naive), 0.0, None))
     s_r = np.sqrt(np.clip(np.diag(cov), 0.0, None))
@@ -670,8 +1253,8 @@ def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray
     # MIN_CLUSTERS_FOR_ROBUST clusters the larger of the two is taken as it stands.
     effective = _effective_clusters(info, windows.cluster, folded, h_inv) if windows.size \
         else np.full(P, float(clusters))
-    f = np.array([tail_inflation(max(round(e), 2)) if e > 0 else 1.0 for e in effective])
-    if clusters < 2:
+    f = np.array([tail_inflation(max(float(e), 2.0)) if e > 0 else 1.0 for e in effective])
+    if clusters < 2 or not few:
         f[:] = 1.0                # one cluster: the one-cluster rule leaves nothing identified
     with np.errstate(divide="ignore", invalid="ignore"):
         if clusters < MIN_CLUSTERS_FOR_ROBUST:
@@ -688,8 +1271,9 @@ def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray
     std = np.sqrt(np.clip(np.diag(cov)[THETA], 0.0, None))
     with np.errstate(divide="ignore", invalid="ignore"):
         widening = np.where(base > 0, std / base, 1.0)
+    p_std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     return Uncertainty(cov[THETA, THETA], clusters, info[:, THETA, THETA], scores[:, THETA],
-                       widening, float(np.sqrt(max(cov[OFFSET, OFFSET], 0.0))))
+                       widening, float(p_std[OFFSET]), p_std)
 
 
 def _effective_clusters(info: FloatArray, cluster: IntArray, folded: Folded,
@@ -714,19 +1298,35 @@ def _effective_clusters(info: FloatArray, cluster: IntArray, folded: Folded,
 
 def fold(folded: Folded, windows: WindowSet, p: FloatArray, shift: float, heading_offset: float,
          model: ErrorModel, *, smooth: bool, total_h: FloatArray | None,
-         scan: LagScan | None) -> Folded:
+         scan: LagScan | None, free: BoolArray | None = None,
+         setup: Setup | None = None) -> Folded:
     """``folded`` with ``windows`` (one complete cluster, the oldest) folded in, linearised at
     ``p`` with the error model and lag of now; ``total_h`` the information of the whole fit so
-    far (for the cluster's leverage), ``scan`` the windows' own lag-grid costs."""
+    far (for the cluster's leverage), ``scan`` the windows' own lag-grid costs, ``free`` the
+    elements of p the live fit takes (default theta, the spread where ``smooth``, the offset
+    where it has a prior)."""
+    setup = setup or Setup(blocks=())
     channels = np.ones(2)
-    current = evaluate(p, View.of(windows, shift, heading_offset), model, folded, channels,
-                       smooth=smooth)
+    view = View.of(windows, shift, heading_offset, across=setup.across, lateral=setup.lateral)
+    if free is None:
+        free = free_of(np.ones(LAYOUT.size, dtype=bool), kappa=smooth,
+                       offset=folded.offset_free)
+    reference = bool(free[[dep.at(n) for n in dep.REFERENCE_CHANNEL]].any())
+    current = evaluate(p, view, model, folded, channels, smooth=smooth, reference=reference)
     jj, rr = current.white[..., 1:], current.white[..., 0]
     rows, res = jj.reshape(-1, jj.shape[-1]), rr.reshape(-1)
     h, g = rows.T @ rows, rows.T @ res
-    free = free_of(np.ones(KAPPA, dtype=bool), kappa=smooth, offset=folded.offset_free)
     if not folded.offset_free:             # no offset fitted: nothing of it folded either
         h[OFFSET, :] = h[:, OFFSET] = g[OFFSET] = 0.0
+    # the lag is the windows' shift when they are folded, not a parameter of their sums: they
+    # keep what they say of its precision, not how it moved the rest at that shift
+    own = h[LAG, LAG]
+    h[LAG, :] = h[:, LAG] = g[LAG] = 0.0
+    h[LAG, LAG] = own
+    half = folded.clusters % 2
+    half_h, half_b = folded.half_h.copy(), folded.half_b.copy()
+    half_h[half] += h
+    half_b[half] += g + h @ p
     adjusted = leverage_adjusted_scores(h[None], g[None], free, np.zeros(1, dtype=np.int64),
                                         total=total_h if total_h is not None else h + folded.h
                                         )[0][0]
@@ -744,8 +1344,10 @@ def fold(folded: Folded, windows: WindowSet, p: FloatArray, shift: float, headin
                                                     current.weight),
         correlation=folded.correlation + correlation_sums(current.stacked[..., 0],
                                                           windows.follows),
-        scan=folded_scan, cost=folded.cost + current.cost,
-        count=folded.count + current.white[..., 0].size,
-        last=(p.copy(), current.stacked[-1].copy(), current.white[-1].copy()),
+        reference=folded.reference + reference_sums(current.across, model),
+        half_h=half_h, half_b=half_b, scan=folded_scan, cost=folded.cost + current.cost,
+        count=folded.count + current.white[:, :2, 0].size,
+        last=(p.copy(), current.stacked[-1].copy(), current.white[-1, :2].copy()),
         peak_yaw_radps=max(folded.peak_yaw_radps,
                            float(windows.peak_yaw_radps.max(initial=0.0))))
+

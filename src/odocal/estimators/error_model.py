@@ -52,11 +52,15 @@ class ErrorModel:
     noise : (2, 2) per channel (distance, yaw): ``s0`` (revolutions per window) and ``f``
     ma : (2, 2) per channel the prewhitening's ``m, phi`` (0: no filter)
     coupling : ``beta``, the share of the distance channel's errors in the yaw channel (0: none)
+    reference : (2,) the spread of the reference channels' residuals: its motion across its
+        heading (m per window) and a_y's sum against ``v w`` (m/s per window); infinite where
+        not yet fitted
     """
 
     noise: FloatArray = field(default_factory=lambda: np.full((2, 2), 1e-3))
     ma: FloatArray = field(default_factory=lambda: np.zeros((2, 2)))
     coupling: float = 0.0
+    reference: FloatArray = field(default_factory=lambda: np.full(2, np.inf))
 
 
 def prewhiten(x: FloatArray, follows: BoolArray, ma: FloatArray,

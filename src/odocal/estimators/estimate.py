@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
+from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES, PARAMETERS, Parameters
 from odocal.settings import IdentifySettings
 
 FloatArray = NDArray[np.float64]
@@ -62,6 +62,82 @@ STATUS_MESSAGES: Mapping[Status, str] = {
     Status.REJECTED: "rejected by the checks of the data and the quality gate (the errors "
                      "above say which)",
 }
+
+
+class ByName(np.ndarray):
+    """A value per parameter, read by order or by name: ``est.std[0] == est.std["c_e"]``.
+
+    An ndarray of shape (n,) in the order c_e, c_d, t_r, d; what is computed from it
+    (``std * 2``, a slice) is a plain ndarray.
+    """
+
+    names: tuple[str, ...] = PARAMETER_NAMES
+
+    def __new__(cls, values: Any) -> ByName:
+        out = np.asarray(values, dtype=np.float64).view(cls)
+        if out.shape != (len(cls.names),):
+            raise ValueError(f"one value per parameter ({', '.join(cls.names)}), not shape "
+                             f"{out.shape}")
+        return out
+
+    def __array_wrap__(self, array: Any, context: Any = None,
+                       return_scalar: bool = False) -> Any:
+        out = np.asarray(array).view(np.ndarray)
+        return out[()] if return_scalar else out
+
+    def __getitem__(self, key: Any) -> Any:
+        if isinstance(key, str):
+            key = _index(key)
+        out = super().__getitem__(key)
+        return out.view(np.ndarray) if isinstance(out, np.ndarray) else out
+
+    def as_dict(self) -> dict[str, float]:
+        return dict(zip(self.names, np.asarray(self).tolist(), strict=True))
+
+    def __repr__(self) -> str:
+        return "ByName(" + ", ".join(f"{n}={v:.6g}" for n, v in self.as_dict().items()) + ")"
+
+
+class Flags(tuple[bool, ...]):
+    """A yes or no per parameter, read by order or by name: ``est.identified["t_r"]``."""
+
+    names: tuple[str, ...] = PARAMETER_NAMES
+
+    def __new__(cls, values: Any) -> Flags:
+        out = super().__new__(cls, (bool(v) for v in values))
+        if len(out) != len(cls.names):
+            raise ValueError(f"one flag per parameter ({', '.join(cls.names)}), not {len(out)}")
+        return out
+
+    def __getitem__(self, key: Any) -> Any:
+        return super().__getitem__(_index(key) if isinstance(key, str) else key)
+
+    def as_dict(self) -> dict[str, bool]:
+        return dict(zip(self.names, self, strict=True))
+
+    def __repr__(self) -> str:
+        return "Flags(" + ", ".join(f"{n}={v}" for n, v in self.as_dict().items()) + ")"
+
+
+def _index(name: str) -> int:
+    try:
+        return PARAMETER_NAMES.index(name)
+    except ValueError:
+        raise KeyError(f"{name!r} is not a parameter; the parameters are "
+                       f"{', '.join(PARAMETER_NAMES)}") from None
+
+
+def parameter_text(name: str, value: float) -> str:
+    """A parameter's value in the unit it reads best in (c_d, d in mm), signed where a sign
+    means something."""
+    scale, unit = PARAMETER_DISPLAY[name]
+    return f"{value * scale:+.3f} {unit}" if scale != 1.0 else f"{value:.5f} {unit}"
+
+
+def std_text(name: str, std: float) -> str:
+    """A standard deviation in the parameter's display unit, as ``+-value``."""
+    scale, _ = PARAMETER_DISPLAY[name]
+    return f"+-{std * scale:.3f}" if scale != 1.0 else f"+-{std:.5f}"
 
 
 class Reason(enum.Enum):
@@ -205,13 +281,28 @@ class Estimate:
         return STATUS_MESSAGES[self.status]
 
     @property
-    def std(self) -> FloatArray:
-        """Standard deviations of c_e, c_d, t_r, d (zero where not estimated)."""
-        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+    def std(self) -> ByName:
+        """Standard deviations of c_e, c_d, t_r, d (zero where not estimated), by order or by
+        name (``std["t_r"]``)."""
+        return ByName(np.sqrt(np.clip(np.diag(self.covariance), 0.0, None)))
 
     @property
-    def identified(self) -> tuple[bool, ...]:
-        return tuple(isinstance(v, Identified) for v in self.verdicts)
+    def identified(self) -> Flags:
+        """Whether the data identify each parameter, by order or by name
+        (``identified["t_r"]``)."""
+        return Flags(isinstance(v, Identified) for v in self.verdicts)
+
+    def table(self, *, speed_scale: bool = False) -> list[str]:
+        """The parameters as the command line prints them: datasheet, calibrated, std (the
+        parameters the data do not identify read "not identified"). ``speed_scale``: the
+        wheels' own circumference is unknown (wheel speeds in m/s or km/h), so c_e is shown as
+        the scale factor it is on the speed signal."""
+        return parameter_table(self, speed_scale=speed_scale)
+
+    def __repr__(self) -> str:
+        head = (f"Estimate(method={self.method!r}, status={self.status.name.lower()}, "
+                f"covariance_kind={self.covariance_kind.value!r})")
+        return "\n".join([head, *self.table()])
 
     @property
     def unidentified(self) -> tuple[str, ...]:
@@ -250,6 +341,46 @@ class Estimate:
                        "success": self.success, "message": self.message},
             "datasheet": self.datasheet.as_dict(),
         }
+
+
+def parameter_table(est: Estimate, *, truth: Parameters | None = None,
+                    best_std: Any = None, speed_scale: bool = False) -> list[str]:
+    """The parameter table of the command line's summary (and of ``repr(estimate)``):
+    ``truth`` (a simulated drive's) adds the true values and the errors, ``best_std`` (its
+    Cramér-Rao bound) the least std possible; ``speed_scale`` shows c_e as the factor it is
+    on a speed signal of unknown circumference (the datasheet column: the circumference the
+    speeds were turned into wheel rates with)."""
+    import math
+
+    header = f"{'parameter':<10} {'datasheet':>16} {'calibrated':>16} {'std':>10}"
+    if best_std is not None:
+        header += f" {'best std':>10}"
+    if truth is not None:
+        header += f" {'true':>16} {'error':>10}"
+    lines = [header]
+    theta0, theta = est.datasheet.as_dict(), est.theta.as_dict()
+    true = truth.as_dict() if truth is not None else None
+    std = est.std
+    exact = est.status is Status.EXACT
+    for j, (name, ok) in enumerate(zip(PARAMETER_NAMES, est.identified, strict=True)):
+        if ok:
+            cal = parameter_text(name, theta[name])
+            sd = "exact" if exact else std_text(name, float(std[j]))
+        else:
+            cal, sd = "not identified", ""
+        line = f"{name:<10} {parameter_text(name, theta0[name]):>16} {cal:>16} {sd:>10}"
+        if best_std is not None:
+            best = float(best_std[j])
+            line += f" {std_text(name, best) if math.isfinite(best) else '-':>10}"
+        if true is not None:
+            err = std_text(name, abs(theta[name] - true[name])).replace("+-", "") if ok else ""
+            line += f" {parameter_text(name, true[name]):>16} {err:>10}"
+        lines.append(line)
+    if speed_scale and est.identified[0] and theta0[PARAMETER_NAMES[0]] > 0:
+        factor = theta[PARAMETER_NAMES[0]] / theta0[PARAMETER_NAMES[0]]
+        lines.append(f"{'scale':<10} {'1':>16} {factor:>16.5f} "
+                     f"{'+-' + format(float(std[0]) / theta0[PARAMETER_NAMES[0]], '.5f'):>10}")
+    return lines
 
 
 def _replace(estimate: Estimate, **changes: Any) -> Estimate:
@@ -386,12 +517,13 @@ def few_clusters_inflation(clusters: int) -> float:
 _TAIL_SIGMAS = 2.0
 
 
-def tail_inflation(clusters: int) -> float:
+def tail_inflation(clusters: float) -> float:
     """Factor for a standard deviation estimated from ``clusters`` independent clusters so
     that an error beyond two of them is as rare as a normal error's (4.6%): Student's t with
-    ``clusters - 1`` degrees of freedom, at that quantile, over 2. 2.27 for 3 clusters, 1.20
-    for 10 (a one-minute drive), 1.04 for 30: a short drive's uncertainty must cover its
-    errors, whose spread is itself estimated from few pieces."""
+    ``clusters - 1`` degrees of freedom (Satterthwaite's: not a whole number where the
+    clusters share the information unevenly), at that quantile, over 2. 2.26 for 3 clusters,
+    1.99 for 3.3, 1.16 for 10 (a one-minute drive), 1.04 for 30: a short drive's uncertainty
+    must cover its errors, whose spread is itself estimated from few pieces."""
     if clusters < 2:
         return float("inf")
     # scipy.special's distribution functions (scipy.stats would take half a second to import,
@@ -399,7 +531,7 @@ def tail_inflation(clusters: int) -> float:
     from scipy.special import ndtr, stdtrit
 
     quantile = float(ndtr(_TAIL_SIGMAS))
-    return float(stdtrit(clusters - 1, quantile) / _TAIL_SIGMAS)
+    return float(stdtrit(clusters - 1.0, quantile) / _TAIL_SIGMAS)
 
 
 #: Relative singular value of the scaled information's root below which it is rank deficient.

@@ -39,18 +39,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.checks.departures import wheel_lag_s, wheel_step
-from odocal.checks.findings import Finding
-from odocal.checks.residuals import (
-    change_finding,
-    find_change,
-    front_wheels,
-    moving_offset,
-    moving_offset_prior_std,
-    offset_determined,
-)
+from odocal.checks.findings import Check, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.data.segments import common_sampling_time
-from odocal.estimators import core
+from odocal.estimators import core, departures
 from odocal.estimators.base import MethodOutcome, Prepared, ProgressCallback
 from odocal.estimators.error_model import (
     CHANNELS,
@@ -66,8 +58,14 @@ from odocal.estimators.estimate import (
     Status,
     judge,
 )
-from odocal.estimators.windows import SERIES, WindowSet, heading_offset, windows_from_drives
+from odocal.estimators.windows import (
+    AT_LAT,
+    WindowSet,
+    heading_offset,
+    windows_from_drives,
+)
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
+from odocal.model.vehicle import MODEL
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
@@ -77,6 +75,7 @@ log = logging.getLogger(__name__)
 
 #: Fewer moving windows than this: nothing to fit.
 MIN_WINDOWS = 4
+LAYOUT = MODEL.layout
 
 
 @dataclass(frozen=True)
@@ -140,6 +139,17 @@ class InverseDetails:
     t0: FloatArray = field(default_factory=lambda: np.zeros(0), repr=False)
     """(W,): each window's first wheel step on its drive's clock, s (the drive is ``cluster //
     10**9``): where the fitted windows lie, for the report."""
+    departures: tuple[tuple[str, float, float], ...] = ()
+    """The departures fitted beside theta (:mod:`odocal.estimators.departures`): name, value
+    and standard deviation, in the order they entered."""
+    @property
+    def fitted_departures(self) -> dict[str, float]:
+        """The departures fitted, by name: what validation takes out of the drives."""
+        return {name: value for name, value, _ in self.departures}
+
+    tests: tuple[tuple[str, float, float], ...] = ()
+    """Each departure's last held-out test: name, and how much it lowered the other half's
+    cost fitted on either half (it enters where both are positive)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"windows": self.windows, "window_s": self.window_s, "clusters": self.clusters,
@@ -158,6 +168,10 @@ class InverseDetails:
                 "delay_found_s": self.delay_found_s, "delay_note": self.delay_note,
                 "wheel_offset_revps": self.wheel_offset_revps,
                 "wheel_offset_std_revps": self.wheel_offset_std,
+                "departures": {name: {"value": value, "std": std}
+                               for name, value, std in self.departures},
+                "departure_tests": {name: {"held_out_gains": [first, second]}
+                                    for name, first, second in self.tests},
                 "elapsed_s": self.elapsed_s}
 
 
@@ -165,7 +179,8 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
                         held: Mapping[str, NotIdentified] | None = None,
                         distance_only: bool = False,
                         progress: Callable[[str, int, int], None] | None = None) -> Estimate:
-    """Calibrate theta by fitting the wheel revolutions the reference motion implies.
+    """Calibrate theta by fitting the wheel revolutions the reference motion implies, with the
+    departures the drives show (:mod:`odocal.estimators.departures`).
 
     ``distance_only`` fits the distance channel alone (the wheels carry no differential signal:
     hold c_d, t_r and d). Returns an :class:`~odocal.estimators.estimate.Estimate` with
@@ -185,41 +200,123 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         progress("inverse: fit", 1, 2)
     prior = core.Folded.prior(_origin(settings),
                               core.offset_prior_std(settings, wheel_step(drives, settings)))
-    found = core.fit(windows, prior, settings,
-                     heading_offset=offset, held=held, distance_only=distance_only)
-    moving = None
-    if settings.inverse.wheel_offset == "encoded" and not prior.offset_std:
-        # rates on no encoding's grid fit no offset, unless the residuals show one (before the
-        # residuals' other checks: an offset's excess is largest in slow bends, as front
-        # wheels' is)
-        moving = moving_offset(windows.measured @ CHANNELS.T, found.fit.residual,
-                               windows.cluster, settings.inverse.window_s, settings)
-        if moving is not None:
-            std = moving_offset_prior_std(moving, settings)
-            wider = core.Folded.prior(_origin(settings), std)
-            refit = core.fit(windows, wider, settings, heading_offset=offset, held=held,
-                             distance_only=distance_only)
-            value, value_std = refit.offset
-            # kept where the fit itself tells the offset from c_e by as much (a drive at one
-            # speed cannot: the residuals' regression alone overstates it there)
-            if offset_determined(value, value_std, std, refit.theta, settings):
-                log.warning("the wheels read %+.4f rev/s more than the reference's motion "
-                            "gives, at every speed: fitting that offset beside c_e", value)
-                prior, found = wider, refit
-            else:
-                moving = None
-    findings, found, windows = _residual_checks(found, windows, drives, prior, settings,
-                                                offset, held, distance_only)
-    if moving is not None:
-        findings = [moving, *findings]
+    found, windows, departing = _fit_agreeing(windows, prior, settings, drives,
+                                              heading_offset=offset, held=held,
+                                              distance_only=distance_only)
     if progress:
         progress("inverse: fit", 2, 2)
     estimate = _estimate(found, windows, settings, started, method="inverse",
                          reference_shift_s=_shifted(drives))
+    findings = [*departing,
+                *_findings(found, windows, drives, reference_shift_s=_shifted(drives))]
     if findings:
         estimate = dataclasses.replace(estimate, details=dataclasses.replace(
             estimate.details, findings=tuple(findings)))
     return estimate
+
+
+#: Most drives whose leaving out is tried (:func:`_fit_agreeing`).
+_MAX_TRIED = 12
+
+
+def _fit_agreeing(windows: WindowSet, prior: core.Folded, settings: Settings,
+                  drives: Sequence[Drive], *, heading_offset: float,
+                  held: Mapping[str, NotIdentified] | None, distance_only: bool,
+                  ) -> tuple[core.CoreFit, WindowSet, list[Finding]]:
+    """The one fit of the drives that agree. A drive departs where its windows depart from
+    the others' fit (:func:`odocal.estimators.core.departing_drive`), or where the others
+    without it identify a parameter they do not with it (it takes knowledge away: a scene that
+    stands still but for one tight crawl, a log of another tyre): it is named and left out,
+    and the rest fitted again, while two drives or more are left. More data never makes the
+    calibration know less."""
+    named: list[Finding] = []
+
+    def one(win: WindowSet) -> core.CoreFit:
+        return core.fit(win, prior, settings, heading_offset=heading_offset, held=held,
+                        distance_only=distance_only, setup=fit_setup(win, settings, held))
+
+    found = one(windows)
+    while True:
+        labels = np.unique(windows.cluster // 10**9)
+        if labels.size < 2:
+            return found, windows, named
+        departing = core.departing_drive(found, windows)
+        choice: tuple[int, float, float, core.CoreFit | None] | None = None
+        if departing is not None:
+            choice = (*departing, None)
+        elif not found.free.all() and labels.size <= _MAX_TRIED:
+            knows = set(np.flatnonzero(found.free))
+            for label in labels:
+                rest = windows.take(windows.cluster // 10**9 != label)
+                if rest.size < MIN_WINDOWS:
+                    continue
+                others = one(rest)
+                gained = set(np.flatnonzero(others.free)) - knows
+                if gained and knows <= set(np.flatnonzero(others.free)) \
+                        and (choice is None or len(gained) > choice[1]):
+                    choice = (int(label), float(len(gained)), 0.0, others)
+        if choice is None:
+            return found, windows, named
+        label, statistic, limit, refit = choice
+        kept = windows.take(windows.cluster // 10**9 != label)
+        if kept.size < MIN_WINDOWS:
+            return found, windows, named
+        log.warning("%s departs from the other drives: left out", drives[label].name)
+        named.append(Finding(Check.DRIVE_DEPARTS, Severity.NOTE, statistic, limit,
+                             drives[label].name))
+        windows = kept
+        found = one(windows) if refit is None else refit
+
+
+def fit_setup(windows: WindowSet, settings: Settings,
+              held: Mapping[str, NotIdentified] | None = None, *,
+              blocks: tuple[tuple[str, ...], ...] = departures.BLOCKS) -> core.Setup:
+    """What the one fit may take beside theta on these windows: every departure of ``blocks``
+    (:mod:`odocal.estimators.departures`); the reference's sideways motion as a channel where
+    its heading is its own (not the course: a course has no sideways motion at all); a_y as a
+    channel where it carries a lateral acceleration; the lever arm where the settings state it;
+    each window's hours to its drive's end (c_e's drift)."""
+    lateral = not (held and LAYOUT.load in held
+                   and held[LAYOUT.load].reason is Reason.NO_LATERAL)
+    at, _ = windows.at(0.0, 0.0)
+    across = float(np.sqrt(np.mean(at[:, AT_LAT] ** 2))) if windows.size else 0.0
+    along = float(np.sqrt(np.mean(at[:, 0] ** 2))) if windows.size else 0.0
+    stated: dict[str, float] = {}
+    if settings.reference.offset_m is not None:
+        stated = {"arm_x": settings.reference.offset_m[0],
+                  "arm_y": settings.reference.offset_m[1]}
+    drive = windows.cluster // 10**9
+    span = windows.length * windows.t_s
+    ends = {int(k): float((windows.t0[drive == k] + span).max()) for k in np.unique(drive)}
+    tau = (windows.t0 + 0.5 * span - np.array([ends[int(k)] for k in drive])) / 3600.0
+    return core.Setup(blocks=blocks, across=across > _COURSE_RATIO * along, lateral=lateral,
+                      stated=stated, tau_h=tau)
+
+
+#: A reference whose motion across its heading is smaller than this share of its motion along
+#: it has no heading of its own (its heading is its course): the sideways channel is left out.
+_COURSE_RATIO = 1e-4
+
+
+def _findings(found: core.CoreFit, windows: WindowSet, drives: Sequence[Drive], *,
+              reference_shift_s: float) -> list[Finding]:
+    """What the fit's departures say (:func:`odocal.estimators.departures.findings`)."""
+    change = None
+    if found.change > 0:
+        drive = drives[int(windows.cluster[found.change] // 10**9)]
+        change = (float(windows.t0[found.change]), drive.name)
+        log.warning("the drives change at t = %.0f s of %s: calibrating the part after it",
+                    change[0], drive.name)
+    return departures.findings(_total(found), found.nuisance_std, found.entered,
+                               t_s=windows.t_s, reference_shift_s=reference_shift_s,
+                               change=change)
+
+
+def _total(found: core.CoreFit) -> FloatArray:
+    """The fit's p with the lag as a whole (the shift the fit stands at, in steps)."""
+    p = found.fit.p.copy()
+    p[core.LAG] = found.lag.shift if "lag" in found.entered else 0.0
+    return p
 
 
 @dataclass(frozen=True)
@@ -227,7 +324,7 @@ class Screen:
     """What the default method's windows and one fit say of drives a segment method calibrates
     (:func:`screen`).
 
-    findings : front wheels, or a change inside the log (from its residuals)
+    findings : the departures it found (a change inside the log among them)
     theta, std : its estimate and standard deviations; for a parameter it holds, what the data
         determine it to where they give a number (nan otherwise)
     free : the parameters it identifies
@@ -240,58 +337,25 @@ class Screen:
 
 
 def screen(drives: Sequence[Drive], settings: Settings) -> Screen | None:
-    """The default method's residuals and estimate on ``drives``, for the methods that fit
-    segments: their own residuals show neither front wheels nor a change inside the log (a
-    segment's fit takes a change or a front wheel's excess into its theta), and the default's
-    standard deviations are at the information's bound, which no unbiased method beats. The
-    windows and one fit: about a tenth of a second per hour of driving (the reference as the
-    calibration aligned it to the wheels' clock, no lag scanned around it). None where the
-    drives hold too few moving windows."""
-    settings = settings.replace(inverse={"delay": "off"})
+    """The default method's departures and estimate on ``drives``, for the methods that fit
+    segments: their own residuals show no change inside the log (a segment's fit takes a
+    change into its theta), and the default's standard deviations are at the information's
+    bound, which no unbiased method beats. None where the drives hold too few moving
+    windows."""
     windows, straight = windows_from_drives(drives, settings, reach_s=_reach(drives, settings))
     if windows.size < MIN_WINDOWS:
         return None
     offset = heading_offset(straight) if settings.inverse.heading_offset == "estimate" else 0.0
     prior = core.Folded.prior(_origin(settings),
                               core.offset_prior_std(settings, wheel_step(drives, settings)))
-    found = core.fit(windows, prior, settings, heading_offset=offset)
-    findings, _, _ = _residual_checks(found, windows, drives, prior, settings, offset, None,
-                                      False)
+    found = core.fit(windows, prior, settings, heading_offset=offset,
+                     setup=fit_setup(windows, settings))
+    findings = _findings(found, windows, drives, reference_shift_s=_shifted(drives))
     std = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))
     held = np.array([found.held[n].std if n in found.held else np.nan
                      for n in PARAMETER_NAMES])
     return Screen(findings=tuple(findings), theta=found.theta.copy(),
                   std=np.where(found.free, std, held), free=np.asarray(found.free, dtype=bool))
-
-
-def _residual_checks(found: core.CoreFit, windows: WindowSet, drives: Sequence[Drive],
-                     prior: core.Folded, settings: Settings, offset: float,
-                     held: Mapping[str, NotIdentified] | None, distance_only: bool,
-                     ) -> tuple[list[Finding], core.CoreFit, WindowSet]:
-    """What the fit's residuals show (:mod:`odocal.checks.residuals`): front wheels (the
-    calibration is refused), or a change inside the log (the calibration is of the part after
-    it, named with its time and size)."""
-    measured = windows.measured @ CHANNELS.T
-    residual = found.fit.residual
-    zero = windows.margin
-    if not distance_only:
-        front = front_wheels(measured, residual, windows.moments[:, zero, 0],
-                             windows.moments[:, zero, SERIES], settings)
-        if front is not None:
-            return [front], found, windows
-    change = find_change(measured, residual, windows.cluster, settings)
-    if change is None:
-        return [], found, windows
-    after = windows.take(np.arange(windows.size) >= change.index)
-    if after.size < MIN_WINDOWS:
-        return [], found, windows
-    drive = drives[int(windows.cluster[change.index] // 10**9)]
-    finding = change_finding(change, float(windows.t0[change.index]), drive.name)
-    log.warning("the drives change at t = %.0f s of %s: calibrating the part after it",
-                finding.reference, drive.name)
-    refit = core.fit(after, prior, settings, heading_offset=offset, held=held,
-                     distance_only=distance_only)
-    return [finding], refit, after
 
 
 def _reach(drives: Sequence[Drive], settings: Settings) -> float:
@@ -345,14 +409,17 @@ def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
         prewhitening=(float(found.model.ma[0, 0]), float(found.model.ma[1, 0])),
         smoothing_steps2=float(2.0 * fit.p[core.KAPPA]), coupling=float(found.model.coupling),
         delay_found_s=found.lag.found * t_s + reference_shift_s, delay_note=found.lag.note,
-        wheel_offset_revps=found.offset[0], wheel_offset_std=found.offset[1], t0=windows.t0)
+        wheel_offset_revps=found.offset[0], wheel_offset_std=found.offset[1], t0=windows.t0,
+        departures=tuple((name, float(_total(found)[departures.at(name)]),
+                          float(found.nuisance_std[departures.at(name)]))
+                         for name in found.entered),
+        tests=tuple(("+".join(s.block), *s.gains) for s in found.statistics))
     if not free.any():
         status = Status.NOTHING_IDENTIFIABLE
     elif float(np.max(rms)) < 1e-9:
         status = Status.EXACT
     else:
-        status = Status.CONVERGED if fit.iterations < settings.inverse.max_iterations \
-            else Status.ITERATION_LIMIT
+        status = Status.CONVERGED if fit.converged else Status.ITERATION_LIMIT
     theta = found.theta.copy()
     theta[~free] = datasheet[~free]
     std = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))

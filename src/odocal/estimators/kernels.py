@@ -52,6 +52,10 @@ def kernels_cached(methods: Sequence[str] = tuple(METHOD_KERNELS)) -> bool:
 def compile_note(methods: Sequence[str]) -> str | None:
     """The line to print before the silent wait of a first compilation, or None if there is
     none (the kernels are cached, or ``methods`` need none)."""
+    from odocal.model._jit import AVAILABLE
+
+    if not AVAILABLE:                    # nothing is compiled (and compensated refuses to run)
+        return None
     missing = uncached_kernels(methods)
     if missing == []:
         return None

@@ -36,12 +36,28 @@ BoolArray = NDArray[np.bool_]
 #: times the reference's own lateral acceleration ``v w`` (where a_y is missing, the load
 #: transfer d it cannot show is still felt: :func:`load_transfer_column`), then the time the
 #: reference moves (signed by the direction of travel: what a wheel-rate offset, or rates
-#: truncated towards zero, add to the revolutions).
-COLUMNS = 3 * SERIES + 4
-#: The index of the moving time among the moment columns (the last) ...
-MOVING = COLUMNS - 1
-#: ... and among the columns the model takes (:meth:`WindowSet.at`, the last too).
+#: truncated towards zero, add to the revolutions), then what the departures of
+#: :mod:`odocal.estimators.departures` act through: ``2 sin(dpsi / 2) sin(beta)`` and ``...
+#: cos(beta)`` (the chord a point off the axle turns through, across and along the axle's
+#: direction of travel), ``dpsi^2 / ds`` on moving steps (the curvature squared: wheels ahead
+#: of the axle, or a reference whose heading is its course), ``a t_s`` and ``v w t_s`` (the
+#: lateral acceleration against the reference's own).
+COLUMNS = 3 * SERIES + 10
+#: The index of the moving time among the moment columns ...
+MOVING = 3 * SERIES + 3
+#: ... of the chord's two parts, ``dpsi^2 / ds``, ``a t_s``, ``v w t_s`` and ``w^2 t_s`` (what a
+#: point beside the axle adds to ``v w``).
+BETA_TURN, CURVE, ACCEL, AREF, COS_TURN, TURN2 = (MOVING + k for k in range(1, 7))
+#: The largest curvature a moving step counts in ``dpsi^2 / ds`` (1/m: a 2 m radius; beyond it a
+#: reference's jitter at a crawl, not a bend).
+MAX_CURVATURE = 0.5
+#: ... and among the columns the model takes (:meth:`WindowSet.at`), with those of the
+#: departures: ``beta dpsi``, ``dpsi^2 / ds``, ``a t_s``, ``v w t_s`` and the step across the
+#: turned heading (the reference's sideways motion).
 AT_MOVING = 2 * SERIES + 2
+AT_BETA_TURN, AT_CURVE, AT_ACCEL, AT_AREF, AT_COS_TURN, AT_TURN2, AT_LAT = (
+    AT_MOVING + k for k in range(1, 8))
+AT_WIDTH = AT_LAT + 1
 #: A step moves when the reference goes faster than this (m/s).
 MOVING_MPS = 0.5
 #: Straight stretches for the heading offset: one second long, faster than this (m/s) ...
@@ -50,10 +66,14 @@ STRAIGHT_SPEED_MPS = 3.0
 STRAIGHT_YAW_RADPS = 0.02
 #: Samples of straight stretches below which no heading offset is applied (five seconds).
 STRAIGHT_MIN_SAMPLES = 200
+#: Steps either way the moments are differenced over for their derivatives in the shift.
+SPAN = 10
 #: Steps of a window that set its peak yaw rate by their moving average (noise is not a bend).
 _YAW_SMOOTHING = 5
-#: Per-step columns the builder keeps: t, revolutions rl, rr, ds, dpsi, lat, a, dx, dy, psi.
-_T, _RL, _RR, _DS, _DPSI, _LAT, _A, _DX, _DY, _PSI = range(10)
+#: Per-step columns the builder keeps: t, revolutions rl, rr, ds, dpsi, lat, a, dx, dy, psi,
+#: beta.
+_T, _RL, _RR, _DS, _DPSI, _LAT, _A, _DX, _DY, _PSI, _BETA = range(11)
+_STEP_COLUMNS = 11
 
 
 @dataclass(frozen=True)
@@ -107,24 +127,37 @@ class WindowSet:
         return replace(self, weight=self.weight * factor)
 
     def rotated(self, heading_offset: float) -> FloatArray:
-        """The moments the model takes at every whole-step shift (W, S, 2 SERIES + 3)."""
+        """The moments the model takes at every whole-step shift (W, S, AT_WIDTH)."""
         return _rotated(self.moments, heading_offset)
 
     def at(self, shift: float, heading_offset: float) -> tuple[FloatArray, FloatArray]:
-        """The moments the model takes, ``[along_j, dpsi_j, along v w, dpsi v w, moving]``
-        (W, 2 SERIES + 3), at a (fractional) shift of the reference side (steps; linear
-        between whole steps, kept within :attr:`shifts`), the along-track ones turned by the
-        heading offset; and their second difference in the shift (the counting window's
-        spread; zero without a margin)."""
+        """The moments the model takes, ``[along_j, dpsi_j, along v w, dpsi v w, moving, ...]``
+        (W, AT_WIDTH), at a (fractional) shift of the reference side (steps; linear between
+        whole steps, kept within :attr:`shifts`), the along-track ones turned by the heading
+        offset; and their second difference in the shift (the counting window's spread; zero
+        without a margin)."""
+        at, _, second = self.around(shift, heading_offset)
+        return at, second
+
+    def around(self, shift: float, heading_offset: float
+               ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """:meth:`at`'s moments, and their first and second derivative in the shift (per step,
+        per step squared): how they move with the reference side's lag, and a spread of the
+        wheels' timing. The derivatives are differences :data:`SPAN` steps either way (fewer
+        near the margin's end): a difference of neighbouring shifts is the reference's
+        position noise differenced twice, which would drown the signal."""
         moments = self.moments
         if moments.shape[1] < 3:
             m = _rotated(moments[:, 0], heading_offset)
-            return m, np.zeros_like(m)
+            return m, np.zeros_like(m), np.zeros_like(m)
         limit = self.shifts
         x = min(max(shift, -limit), limit) + self.margin
+        span = float(max(1, min(SPAN, math.floor(min(x, moments.shape[1] - 1 - x)))))
         at = _interpolate(moments, x)
-        second = _interpolate(moments, x + 1.0) + _interpolate(moments, x - 1.0) - 2.0 * at
-        return _rotated(at, heading_offset), _rotated(second, heading_offset)
+        ahead, behind = _interpolate(moments, x + span), _interpolate(moments, x - span)
+        return (_rotated(at, heading_offset),
+                _rotated(0.5 * (ahead - behind) / span, heading_offset),
+                _rotated((ahead + behind - 2.0 * at) / span ** 2, heading_offset))
 
     @staticmethod
     def concat(sets: Sequence[WindowSet]) -> WindowSet:
@@ -161,15 +194,19 @@ def _interpolate(moments: FloatArray, x: float) -> FloatArray:
 
 
 def _rotated(moments: FloatArray, offset: float) -> FloatArray:
-    """``[along_j, dpsi_j, along a_ref, dpsi a_ref, moving]`` from the stored columns (...,
-    COLUMNS): the step along the direction of travel when the reference heading is ``offset``
-    short of it (``ds cos + lat sin``: (1) projected on the turned heading, exactly)."""
+    """``[along_j, dpsi_j, along a_ref, dpsi a_ref, moving, beta dpsi, dpsi^2 / ds, a t_s,
+    v w t_s, across]`` from the stored columns (..., COLUMNS): the step along the direction of
+    travel when the reference heading is ``offset`` short of it (``ds cos + lat sin``: (1)
+    projected on the turned heading, exactly), and across it (``lat cos - ds sin``)."""
     ds, dpsi, lat = (moments[..., k * SERIES:(k + 1) * SERIES] for k in range(3))
     rds, rdpsi, rlat = (moments[..., 3 * SERIES + k, None] for k in range(3))
+    across = lat[..., :1]
     if offset != 0.0:
         c, s = math.cos(offset), math.sin(offset)
+        across = lat[..., :1] * c - ds[..., :1] * s
         ds, rds = ds * c + lat * s, rds * c + rlat * s
-    return np.concatenate([ds, dpsi, rds, rdpsi, moments[..., MOVING, None]], axis=-1)
+    return np.concatenate([ds, dpsi, rds, rdpsi, moments[..., MOVING:MOVING + 7], across],
+                          axis=-1)
 
 
 class WindowBuilder:
@@ -193,7 +230,7 @@ class WindowBuilder:
         self.straight = np.zeros(3)            # heading offset: sums lat, lon, samples
         self.distance_m = 0.0                   # reference distance of every step added
         self._left_m = 0.0                      # ... of the steps that have left the ring
-        self._ring = np.zeros((0, 10))          # steps of the current piece not yet windowed
+        self._ring = np.zeros((0, _STEP_COLUMNS))   # steps of the piece not yet windowed
         self._last: FloatArray | None = None    # the piece's last sample (t, n_rl, ..., psi)
         # dx, dy, dpsi, psi of the straight stretch under way
         self._stretch = np.zeros((0, 4))        # (not theta)
@@ -223,7 +260,7 @@ class WindowBuilder:
         """The piece ends: no step and no window across this point."""
         self._to_stretches(self._ring)
         self._left_m += float(np.hypot(self._ring[:, _DX], self._ring[:, _DY]).sum())
-        self._ring = np.zeros((0, 10))
+        self._ring = np.zeros((0, _STEP_COLUMNS))
         self._stretch = np.zeros((0, 4))        # (not theta)
         self._last = None
         self._follows = False
@@ -253,7 +290,7 @@ class WindowBuilder:
         cos, sin = np.cos(h), np.sin(h)
         steps = np.column_stack([t[:-1], n_rl[:-1] * self.t_s, n_rr[:-1] * self.t_s,
                                  dx * cos + dy * sin, dpsi, -dx * sin + dy * cos, a_y[:-1],
-                                 dx, dy, psi[:-1]])
+                                 dx, dy, psi[:-1], beta[:-1]])
         self.distance_m += float(np.hypot(dx, dy).sum())
         self._ring = np.vstack([self._ring, steps])
         self._close()
@@ -270,11 +307,19 @@ class WindowBuilder:
         a = ring[:, _A]
         power = a[:, None] ** np.arange(SERIES)[None, :]
         a_ref = (ring[:, _DS] * ring[:, _DPSI] / self.t_s**2)[:, None]      # v w
-        moving = np.where(np.abs(ring[:, _DS]) > MOVING_MPS * self.t_s,
-                          np.sign(ring[:, _DS]) * self.t_s, 0.0)[:, None]
-        columns = np.concatenate([ring[:, _DS, None] * power, ring[:, _DPSI, None] * power,
+        ds, dpsi = ring[:, _DS], ring[:, _DPSI]
+        fast = np.abs(ds) > MOVING_MPS * self.t_s
+        moving = np.where(fast, np.sign(ds) * self.t_s, 0.0)[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            kappa = np.where(fast, dpsi / ds, 0.0)
+        kappa = np.clip(kappa, -MAX_CURVATURE, MAX_CURVATURE)
+        chord = 2.0 * np.sin(0.5 * dpsi)
+        extra = np.column_stack([chord * np.sin(ring[:, _BETA]), kappa * kappa * np.abs(ds),
+                                 a * self.t_s, a_ref[:, 0] * self.t_s,
+                                 chord * np.cos(ring[:, _BETA]), dpsi * dpsi / self.t_s])
+        columns = np.concatenate([ds[:, None] * power, dpsi[:, None] * power,
                                   ring[:, _LAT, None] * power,
-                                  ring[:, [_DS, _DPSI, _LAT]] * a_ref, moving], axis=1)
+                                  ring[:, [_DS, _DPSI, _LAT]] * a_ref, moving, extra], axis=1)
         # each window's sums from its own steps (a running sum over the whole ring would leave
         # rounding of its size in every difference, and depend on how the samples came)
         span = length + 2 * margin
@@ -369,10 +414,12 @@ MIN_CLUSTER_WINDOWS = 2
 
 def cluster_steps_for(drives: Sequence[Drive], settings: Settings, *,
                       reach_s: float | None = None) -> int:
-    """Steps per cluster of windows: a segment's length (``[segments] length``), or less where
-    the drives are too short for :data:`MIN_CLUSTERS` of them, down to two windows. A 20 s
-    scene is then five clusters of 4 s, not one: its evidence is judged (with the few-clusters
-    widening) rather than refused as a single piece."""
+    """Steps per cluster of windows of a drive: a segment's length (``[segments] length``), or
+    less where the drive is too short for :data:`MIN_CLUSTERS` of them, down to two windows.
+    A 20 s scene is then five clusters of 4 s, not one: its evidence is judged (with the
+    few-clusters widening) rather than refused as a single piece. Each drive is clustered by
+    its own length (:func:`windows_from_drives` asks drive by drive), so that a drive added to
+    a calibration changes nothing of the others' clusters."""
     if not drives:
         return settings.segments.length
     margin = builder_for(settings, drives[0].t_s, reach_s=reach_s).margin   # lost at each end
@@ -389,9 +436,9 @@ def windows_from_drives(drives: Sequence[Drive], settings: Settings, *,
     fed each piece in chunks: memory stays bounded however long the drive); ``reach_s`` as
     :func:`builder_for` takes it."""
     sets, straight = [], np.zeros(3)
-    cluster_steps = cluster_steps_for(drives, settings, reach_s=reach_s)
     for k, d in enumerate(drives):
-        builder = builder_for(settings, d.t_s, drive=k, cluster_steps=cluster_steps,
+        builder = builder_for(settings, d.t_s, drive=k,
+                              cluster_steps=cluster_steps_for([d], settings, reach_s=reach_s),
                               reach_s=reach_s)
         for a, b in d.pieces:
             for lo in range(a, b, chunk):

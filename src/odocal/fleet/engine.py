@@ -290,6 +290,21 @@ def _remote_hash(url: str) -> str:
         return copy.sha256
 
 
+#: The one line that adds what the fleet runs on.
+FLEET_INSTALL_HINT = "pip install 'odocal[fleet]'"
+
+
+def require_dask() -> None:
+    """A one-line MissingDependencyError unless Dask's distributed scheduler is installed."""
+    try:
+        import distributed  # noqa: F401
+    except ImportError as err:
+        from odocal.errors import MissingDependencyError
+
+        raise MissingDependencyError("the fleet runs its drives on Dask (dask.distributed), "
+                                     f"which is not installed: {FLEET_INSTALL_HINT}") from err
+
+
 def calibrate_fleet(catalog: str | Path, store: str | Path, *,
                     settings: Settings | None = None, method: str | None = None,
                     scheduler: str | None = None, workers: int | None = None,
@@ -304,9 +319,10 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
     ``client``: an open Dask client to use instead of starting or joining a cluster.
     ``refuse(line)``: told of each catalog row left out (its log cannot be read, or it names a
     stored drive under another vehicle) as soon as that is known; the lines are also in
-    :attr:`FleetRun.refused`. The catalog may be a URL, and so may its rows (README, "Fleets
+    :attr:`FleetRun.refused`. The catalog may be a URL, and so may its rows (docs/remote.md, "Fleets
     where the data lives"); the store and ``out`` are local.
     """
+    require_dask()
     from odocal.fleet.cluster import refuse_unguarded_start
 
     refuse_unguarded_start()             # a worker process re-running an unguarded script

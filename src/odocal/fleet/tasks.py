@@ -230,8 +230,10 @@ def _parameter_columns(result: Any) -> dict[str, Any]:
 def _limit_threads() -> None:
     # one process per core: compiled kernels must not each start a thread per core (also on
     # workers started by hand, whose environment odocal does not set)
-    import numba
-
+    try:
+        import numba
+    except ImportError:                   # the base install: nothing is compiled
+        return
     numba.set_num_threads(1)
 
 

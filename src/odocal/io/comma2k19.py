@@ -110,7 +110,8 @@ def read_comma2k19(source: str | Path, *, circumference_m: float) -> RawLog:
     return RawLog(name=name or str(folder), streams=streams,
                   origin_lla=origin,
                   metadata={"source_format": "comma2k19", "segment": str(folder),
-                            "wheel_circumference_m": circumference_m})
+                            "wheel_circumference_m": circumference_m,
+                            "wheel_speed_unit": "m/s"})
 
 
 def read(sources: Sequence[str | Path], *, mapping: Mapping[str, Mapping[str, Any]],

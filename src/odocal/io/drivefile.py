@@ -1,4 +1,4 @@
-"""The drive format: one row per sample, CSV or Parquet (see README, "The drive format")."""
+"""The drive format: one row per sample, CSV or Parquet (docs/drive-format.md)."""
 
 from __future__ import annotations
 
@@ -76,8 +76,13 @@ def read_table(path: str | Path) -> Columns:
             return read_table(local)
     p = Path(path)
     if p.is_dir():
+        from odocal.io.registry import guess_format
+
+        kind = guess_format(p)
+        hint = (f": it looks like a {kind} log, read with --from {kind}" if kind else
+                ": raw logs are read with --from FORMAT (nuscenes, comma2k19, rosbag, table)")
         raise InputFileError(f"input '{shown(p)}' is a folder, not a drive file (.csv or "
-                             ".parquet)")
+                             f".parquet){hint}")
     input_file(p)
     table = _arrow_table(p, text=False)
     try:

@@ -43,3 +43,27 @@ READERS: MappingProxyType[str, str] = MappingProxyType({
     "table": "odocal.io.table",
 })
 FORMATS: tuple[str, ...] = tuple(READERS)
+
+
+def guess_format(path: str | Path) -> str | None:
+    """The raw-log format a folder or file looks like by its names alone (nothing is read), or
+    None: a nuScenes CAN bus folder, a comma2k19 route or segment folder, a ROS 2 bag folder or
+    a ROS bag file."""
+    p = Path(path)
+    if p.suffix in (".bag", ".mcap", ".db3"):
+        return "rosbag"
+    if not p.is_dir():
+        return None
+    try:
+        names = {c.name for c in p.iterdir()}
+        inner = {c.name for c in (p / "can_bus").iterdir()} if "can_bus" in names else names
+    except OSError:
+        return None
+    if any(n.startswith("scene-") and n.endswith(".json") for n in inner):
+        return "nuscenes"
+    if "processed_log" in names or next(p.glob("*/processed_log"), None) is not None \
+            or next(p.glob("*/*/processed_log"), None) is not None:
+        return "comma2k19"
+    if "metadata.yaml" in names:
+        return "rosbag"
+    return None

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from odocal.errors import ConfigError, DataError, InputFileError, MissingDependencyError
 from odocal.io.registry import ReadOptions
 from odocal.io.streams import RawLog, Stream
-from odocal.io.table import stream_from_columns
+from odocal.io.table import speed_metadata, stream_from_columns
 from odocal.io.units import quaternion_yaw
 
 FloatArray = NDArray[np.float64]
@@ -119,7 +119,8 @@ def read_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,
     return RawLog(name=path.stem if path.is_file() else path.name, streams=streams,
                   origin_lla=origin[0] if origin else None,
                   metadata={"source_format": "rosbag", "bag": str(path),
-                            "topics": {r: plan[r][0] for r in plan}})
+                            "topics": {r: plan[r][0] for r in plan},
+                            **speed_metadata({r: plan[r][1] for r in plan}, circumference_m)})
 
 
 def iter_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,

@@ -173,6 +173,21 @@ def stream_from_columns(role: str, table: Mapping[str, FloatArray], section: Map
     return Stream(name=name, role=role, t=t, values=values, units=units)
 
 
+def speed_metadata(mapping: Mapping[str, Mapping[str, Any]], circumference_m: float
+                   ) -> dict[str, Any]:
+    """What a log's metadata says of wheel speeds (m/s, km/h, mph) turned into rates: the
+    circumference used and the unit (the calibration is then a scale factor on the speed
+    signal); empty for wheel rates."""
+    from odocal.io.units import WHEEL_SPEED_UNITS
+
+    section = mapping.get("wheels", {})
+    unit = str(section.get("unit", "rev/s"))
+    if unit not in WHEEL_SPEED_UNITS:
+        return {}
+    return {"wheel_circumference_m": float(section.get("circumference_m", circumference_m)),
+            "wheel_speed_unit": unit}
+
+
 def read_table_log(sources: Sequence[str | Path], mapping: Mapping[str, Mapping[str, Any]], *,
                    circumference_m: float, name: str | None = None) -> RawLog:
     """Streams from CSV/Parquet files as the mapping describes them."""
@@ -197,7 +212,8 @@ def read_table_log(sources: Sequence[str | Path], mapping: Mapping[str, Mapping[
                                             origin=origin)
     label = name or (paths[0].stem if paths else "table")
     return RawLog(name=label, streams=streams, origin_lla=origin[0] if origin else None,
-                  metadata={"source_format": "table", "files": [str(p) for p in paths]})
+                  metadata={"source_format": "table", "files": [str(p) for p in paths],
+                            **speed_metadata(mapping, circumference_m)})
 
 
 def read(sources: Sequence[str | Path], *, mapping: Mapping[str, Mapping[str, Any]],

@@ -28,11 +28,32 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
-from numba import njit
-from numba.core.caching import FunctionCache
-from numba.core.dispatcher import Dispatcher
+try:
+    from numba import njit
+    from numba.core.caching import FunctionCache
+    from numba.core.dispatcher import Dispatcher
+except ImportError:          # the base install: numba comes with the compensated extra
+    njit = None  # type: ignore[assignment]
+    FunctionCache = object  # type: ignore[assignment,misc]
+    Dispatcher = type(None)  # type: ignore[assignment,misc]
 
 F = TypeVar("F", bound=Callable[..., Any])
+
+#: Whether numba is installed (``pip install 'odocal[compensated]'``). Without it the kernels
+#: run as the plain Python they are written in: the same numbers, slower (odocal's own GNSS/IMU
+#: fusion about ten times); the compensated method refuses to start (:func:`require`).
+AVAILABLE = njit is not None
+#: The one line that adds numba.
+INSTALL_HINT = "pip install 'odocal[compensated]'"
+
+
+def require(what: str) -> None:
+    """A one-line :class:`odocal.errors.MissingDependencyError` unless numba is installed."""
+    if not AVAILABLE:
+        from odocal.errors import MissingDependencyError
+
+        raise MissingDependencyError(f"{what} needs numba, which is not installed: "
+                                     f"{INSTALL_HINT}")
 log = logging.getLogger(__name__)
 
 #: The folder of the odocal package: the sources a kernel's key is made of lie under it.
@@ -133,6 +154,8 @@ def jit(func: F | None = None, *, inline: bool = False) -> Any:
     compiled into the kernels that call them."""
 
     def decorate(f: F) -> Any:
+        if njit is None:                     # plain Python (see AVAILABLE)
+            return f
         # nogil: a kernel lets other threads run (the CLI loads the report's plotting library
         # in the background while the model computes)
         options: dict[str, Any] = {"error_model": "numpy", "nogil": True}

@@ -110,6 +110,15 @@ class RearAxleModel:
             jac[:, w, i_l] = dseries_de * sign / (big * big)              # de/dd = s / C
         return out, jac
 
+    def along_gain(self, theta: FloatArray) -> FloatArray:
+        """Each wheel's revolutions per metre of the axle's own travel (2,): ``1 / C`` with
+        ``C = c_e +- c_d / 2`` (the first term of :meth:`predict`'s series). A departure that
+        moves the axle's distance (a reference point off the axle, wheels ahead of it) acts
+        through it."""
+        lay = self.layout
+        c_e, c_d = lay.value(theta, lay.scale), lay.value(theta, lay.difference)
+        return np.array([1.0 / (c_e + 0.5 * c_d), 1.0 / (c_e - 0.5 * c_d)])
+
     def load_transfer_column(self, theta: FloatArray, moments: FloatArray) -> FloatArray:
         """The windows' revolutions' derivative in the load transfer (N, 2) as if their lateral
         acceleration were the reference's own, ``v w`` (at d = 0: ``-s (A' - s t_r Q' / 2) /

@@ -43,17 +43,12 @@ from odocal.checks.departures import measure as measure_departures
 from odocal.checks.diagnosis import check_drives
 from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.checks.gate import gate
-from odocal.checks.residuals import (
-    front_wheels,
-    moving_offset,
-    moving_offset_prior_std,
-    offset_determined,
-)
 from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.estimators import core
+from odocal.estimators import departures as fitted
 from odocal.estimators.base import held_by_checks
-from odocal.estimators.error_model import CHANNELS, ErrorModel
+from odocal.estimators.error_model import ErrorModel
 from odocal.estimators.estimate import (
     CovarianceKind,
     Estimate,
@@ -62,8 +57,8 @@ from odocal.estimators.estimate import (
     Status,
     judge,
 )
+from odocal.estimators.inverse import fit_setup
 from odocal.estimators.windows import (
-    SERIES,
     WindowBuilder,
     WindowSet,
     builder_for,
@@ -88,7 +83,6 @@ from odocal.online.departures import (
     ReferenceAligner,
     recorrected,
     with_offset_prior,
-    with_offset_std,
 )
 from odocal.online.samples import SAMPLE, Regrid, step_s, time_unit
 from odocal.online.samples import rows as pushed_rows
@@ -181,8 +175,9 @@ class OnlineCalibrator:
             raise DataError(f"theta0 {start.tolist()} is not a usable starting estimate")
         self.datasheet = np.asarray(self.settings.identify.theta0, dtype=np.float64)
         self.theta = start.copy()
-        self._kappa = 0.0                         # the counting window's spread (core.KAPPA)
-        self._offset = 0.0                        # the wheel rates' offset (core.OFFSET)
+        # the departures fitted beside theta (p after theta: odocal.estimators.departures)
+        self._nuisance = np.zeros(core.P - MODEL.size)
+        self._entered: tuple[str, ...] = ()
         self._model = ErrorModel()
         self._lag = core.Lag()
         self._t_s: float | None = None
@@ -220,7 +215,6 @@ class OnlineCalibrator:
         self._recent_t = -math.inf                # the newest of them
         self._diagnosis = Diagnosis(())
         self._failure: Finding | None = None      # the numbers could not be fitted
-        self._moving: Finding | None = None       # a wheel-rate offset while moving, fitted
         self._halted = False
 
     # ---------------------------------------------------------------- input
@@ -403,7 +397,6 @@ class OnlineCalibrator:
         elif self._windows is not None:
             self._windows = recorrected(
                 self._windows,
-                lateral_mps2=new.lateral_offset_mps2 - old.lateral_offset_mps2,
                 wheels_revps=(new.wheel_offset_revps[0] - old.wheel_offset_revps[0],
                               new.wheel_offset_revps[1] - old.wheel_offset_revps[1]))
         if self._windows is not None and self._windows.size and self._updates:
@@ -515,9 +508,9 @@ class OnlineCalibrator:
         self._updates += 1
         coupling = self.settings.inverse.common_wheel_error == "estimate"
         self._model = core.refit_model(current, windows, self._folded, coupling=coupling)
-        if self._smooth and self._clusters_done % _LAG_EVERY == 0:
+        if self._smooth and "lag" in self._entered and self._clusters_done % _LAG_EVERY == 0:
             self._lag = core.choose_lag(core.scan_lag(windows, self.theta, offset,
-                                                      self._model, self._folded, self._offset))
+                                                      self._model, self._folded, self._p()))
 
     def _changed(self, suspect: Suspect, cluster: WindowSet) -> bool:
         """A suspected change: where it began and how large (an alarm), and the estimate
@@ -582,21 +575,35 @@ class OnlineCalibrator:
                 continue
             part = windows.take(group)
             empty = core.Folded(origin=self._folded.origin)
-            scan = (core.scan_lag(part, p[core.THETA], offset, self._model, empty,
-                                   float(p[core.OFFSET]))
+            scan = (core.scan_lag(part, p[core.THETA], offset, self._model, empty, p)
                     if windows.shifts > 0 else None)
             self._folded = core.fold(self._folded, part, p, self._lag.shift, offset,
                                      self._model, smooth=self._smooth, total_h=total,
-                                     scan=scan)
+                                     scan=scan, free=self._free_p(),
+                                     setup=self._setup(part))
         self._windows = windows.take(~mask)
 
     def _p(self) -> FloatArray:
-        """The running estimate as the core's p (theta, kappa, the wheel-rate offset)."""
-        return core.pack(self.theta, self._kappa, self._offset)
+        """The running estimate as the core's p (theta and the departures fitted)."""
+        return np.concatenate([self.theta, self._nuisance])
 
     def _take_p(self, p: FloatArray) -> None:
         self.theta = np.asarray(p[core.THETA], dtype=np.float64).copy()
-        self._kappa, self._offset = float(p[core.KAPPA]), float(p[core.OFFSET])
+        self._nuisance = np.asarray(p[MODEL.size:], dtype=np.float64).copy()
+
+    def _free_p(self) -> BoolArray:
+        """The elements of p the running fit takes: theta, the spread where the lag is fitted,
+        the offset where it has a prior, and the departures the core last took in."""
+        return core.free_of(np.ones(self.theta.size, dtype=bool), kappa=self._smooth,
+                            offset=self._folded.offset_free,
+                            entered=[n for n in self._entered if n != "lag"])
+
+    def _setup(self, windows: WindowSet) -> core.Setup:
+        """What the live fit may take beside theta (:func:`~odocal.estimators.inverse.
+        fit_setup`, the live departures: a change it detects itself, a drift it follows)."""
+        setup = fit_setup(windows, self.settings, held_by_checks(self._diagnosis),
+                          blocks=fitted.LIVE)
+        return dataclasses.replace(setup, kept=self._entered)
 
     def _kept(self, p: FloatArray | None = None) -> BoolArray:
         """Which windows in memory the fit takes: all but those a disturbance spoils (a wheel
@@ -628,9 +635,10 @@ class OnlineCalibrator:
         folded) stays near them in what the windows do not determine yet (t_r and d before
         the first bends), and the data decide the rest (the estimate published is the core's,
         from the datasheet values, without the prior)."""
-        view = core.View.of(windows, self._lag.shift, self.heading_offset())
-        free = core.free_of(np.ones(self.theta.size, dtype=bool), kappa=self._smooth,
-                            offset=self._folded.offset_free)
+        setup = self._setup(windows)
+        view = core.View.of(windows, self._lag.shift, self.heading_offset(),
+                            across=setup.across, lateral=setup.lateral)
+        free = self._free_p()
         with np.errstate(divide="ignore", over="ignore"):
             prior = 1.0 / np.square(np.asarray(self.settings.identify.prior_std, dtype=float))
         prior = np.where(np.isfinite(prior), prior, 0.0)
@@ -664,14 +672,17 @@ class OnlineCalibrator:
         with what the checks hold back, as batch); the running estimate, error model and lag
         follow it."""
         assert self._windows is not None
-        found = core.fit(self._fitted() if windows is None else windows, self._folded,
-                         self.settings,
+        fitting = self._fitted() if windows is None else windows
+        found = core.fit(fitting, self._folded, self.settings,
                          heading_offset=self.heading_offset(),
                          held=held_by_checks(self._diagnosis),
-                         distance_only=self._diagnosis.no_differential)
+                         distance_only=self._diagnosis.no_differential,
+                         setup=self._setup(fitting))
         if found.free.any():
-            self._take_p(found.fit.p)
-        self._model, self._lag = found.model, found.lag
+            p = found.fit.p.copy()
+            p[core.LAG] = 0.0                      # (the lag is the view's shift)
+            self._take_p(p)
+        self._model, self._lag, self._entered = found.model, found.lag, found.entered
         self._since_fit = 0
         return found
 
@@ -698,9 +709,6 @@ class OnlineCalibrator:
         windows = self._fitted()
         try:
             found = self._refit(windows)
-            if (self.settings.inverse.wheel_offset == "encoded" and windows.size
-                    and not self._folded.offset_free):
-                found = self._moving_offset(windows, found)
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
             self._failed(exc)
             return self._nothing(Reason.REJECTED, Status.REJECTED)
@@ -711,46 +719,21 @@ class OnlineCalibrator:
         status = Status.CONVERGED if free.any() else Status.NOTHING_IDENTIFIABLE
         refused = gate(theta, self.settings, error_m=None, datasheet_error_m=None,
                        segment_m=None)
-        if not self._diagnosis.no_differential and windows.size:
-            # wheels whose distance grows with the curvature squared are front wheels (batch
-            # refuses them from its fit's residuals the same way)
-            zero = windows.margin
-            front = front_wheels(windows.measured @ CHANNELS.T, found.fit.residual,
-                                 windows.moments[:, zero, 0], windows.moments[:, zero, SERIES],
-                                 self.settings)
-            refused = [*refused, *([front] if front is not None else [])]
         if refused:
             status = Status.REJECTED
+        total = found.fit.p.copy()
+        total[core.LAG] = found.lag.shift if "lag" in found.entered else 0.0
+        named = fitted.findings(total, found.nuisance_std, found.entered,
+                                t_s=self._t_s or 0.0,
+                                reference_shift_s=self._departures.reference_shift_s)
         return Estimate(method="online", theta=Parameters.from_array(theta),
                         datasheet=Parameters.from_array(self.datasheet),
                         covariance=found.covariance, covariance_kind=CovarianceKind.RECURSIVE,
                         free=tuple(bool(f) for f in free),
                         verdicts=judge(std, free, self.settings.identify, held=found.held),
-                        status=status, details=self._details(found.clusters, refused),
+                        status=status,
+                        details=self._details(found.clusters, [*named, *refused]),
                         widening=found.uncertainty.widening)
-
-    def _moving_offset(self, windows: WindowSet, found: core.CoreFit) -> core.CoreFit:
-        """A wheel-rate offset while moving, where the windows in memory show one and a fit
-        with it tells it from c_e (as batch: :func:`odocal.checks.residuals.moving_offset`):
-        from then on fitted, and named."""
-        moving = moving_offset(windows.measured @ CHANNELS.T, found.fit.residual,
-                               windows.cluster, self.settings.inverse.window_s, self.settings)
-        if moving is None:
-            return found
-        std = moving_offset_prior_std(moving, self.settings)
-        wider = with_offset_std(self._folded, std)
-        refit = core.fit(windows, wider, self.settings, heading_offset=self.heading_offset(),
-                         held=held_by_checks(self._diagnosis),
-                         distance_only=self._diagnosis.no_differential)
-        value, value_std = refit.offset
-        if not offset_determined(value, value_std, std, refit.theta, self.settings):
-            return found
-        self._folded, self._moving = wider, moving
-        if refit.free.any():
-            self._take_p(refit.fit.p)
-        self._model, self._lag = refit.model, refit.lag
-        self._changes.reset()          # a model fitted anew is not a change of the wheels
-        return refit
 
     @property
     def diagnosis(self) -> Diagnosis:
@@ -790,8 +773,7 @@ class OnlineCalibrator:
             alarms=tuple(self._alarms), forgetting_s=self.settings.online.forgetting_s,
             coupling=float(self._model.coupling),
             findings=(*self._diagnosis.findings,
-                      *((self._failure,) if self._failure is not None else ()),
-                      *((self._moving,) if self._moving is not None else ()), *more),
+                      *((self._failure,) if self._failure is not None else ()), *more),
             halted=self._halted,
             time_unit=self._unit or "s",
             sampling_s=self._t_s if self._t_s is not None else float("nan"))
@@ -828,3 +810,20 @@ class OnlineCalibrator:
         return 0.0 if self._builder is None else self._builder.distance_m / 1000.0
 
 
+
+    def __repr__(self) -> str:
+        """What it has taken in, and the running parameters beside the datasheet values (the
+        table a replay prints; :meth:`estimate` gives their uncertainty and verdicts)."""
+        from odocal.estimators.estimate import parameter_text
+
+        windows = 0 if self._windows is None else self._windows.size
+        state = ("halted: the data contradict the model (estimate().details.findings)"
+                 if self._halted else f"{len(self._alarms)} alarm(s)")
+        lines = [f"OnlineCalibrator({self._samples} samples, {self.distance_km:.2f} km, "
+                 f"{windows} windows in memory, {self._folded.clusters} clusters folded, "
+                 f"{state})",
+                 f"{'parameter':<10} {'datasheet':>16} {'running':>16}"]
+        for name, sheet, now in zip(PARAMETER_NAMES, self.datasheet, self.theta, strict=True):
+            lines.append(f"{name:<10} {parameter_text(name, float(sheet)):>16} "
+                         f"{parameter_text(name, float(now)):>16}")
+        return "\n".join(lines)

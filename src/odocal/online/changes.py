@@ -43,7 +43,7 @@ from odocal.estimators.error_model import (
     expected_revolutions,
     window_variance,
 )
-from odocal.estimators.windows import AT_MOVING, WindowSet
+from odocal.estimators.windows import WindowSet
 from odocal.model.vehicle import MODEL
 
 FloatArray = NDArray[np.float64]
@@ -144,12 +144,12 @@ class Steps:
 
 def _predicted(windows: WindowSet, p: FloatArray, shift: float,
                heading_offset: float) -> tuple[FloatArray, FloatArray]:
-    """Each window's revolutions (W, 2) at the core's ``p`` (theta and the wheel-rate offset;
-    the counting window's spread left out: it moves a window by a tiny share) and their
+    """Each window's revolutions (W, 2) at the core's ``p`` (theta and the departures fitted;
+    a spread of the wheels' timing left out: it moves a window by a tiny share) and their
     Jacobian in theta (W, 2, n)."""
-    at, _ = windows.at(shift, heading_offset)
-    pred, jac = MODEL.predict(p[core.THETA], at)
-    return pred + p[core.OFFSET] * at[:, AT_MOVING, None], jac
+    pred, jac = core.wheels(np.asarray(p, dtype=np.float64),
+                            core.View.of(windows, shift, heading_offset), smooth=False)
+    return pred, jac[..., core.THETA]
 
 
 def disturbed(windows: WindowSet, p: FloatArray, shift: float,

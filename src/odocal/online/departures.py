@@ -9,10 +9,9 @@ it before the fit. The online calibrator measures them on the latest ten minutes
   ``[inverse] max_delay_s``): the reference is shifted onto the wheels' clock as the samples
   arrive (:class:`ReferenceAligner`; an early wheel stream holds the samples back by as much),
   and the fit scans ``[inverse] lag_scan_s`` around it, as batch does;
-* **an offset of a_y** and **wheels that read an offset at standstill**: out of every sample
-  from then on, and out of the windows already in memory exactly (a window keeps the moments
-  ``sum ds a^j`` for ``j < 4``: those of ``a - delta`` are their binomial expansion; a wheel's
-  revolutions over a window less the offset times its time);
+* **wheels that read an offset at standstill**: out of every sample from then on, and out of
+  the windows already in memory exactly (a wheel's revolutions over a window less the offset
+  times its time);
 * **a heading error that varies with the heading**: out of every sample from then on (a
   window's moments cannot be turned by a heading error after the fact, nor shifted in time: the
   first minutes' windows are made again where the lag or the heading error is found after
@@ -42,7 +41,7 @@ from odocal.checks.departures import (
     heading_correction,
 )
 from odocal.estimators import core
-from odocal.estimators.windows import SERIES, WindowSet
+from odocal.estimators.windows import WindowSet
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
@@ -50,19 +49,18 @@ FloatArray = NDArray[np.float64]
 #: The heading error is measured on no less driving than this (s).
 HEADING_MIN_S = 300.0
 #: Columns of a sample (as :data:`odocal.online.samples.SAMPLE`).
-_NRL, _NRR, _AY, _PSI = 1, 2, 3, 7
+_NRL, _NRR, _PSI = 1, 2, 7
 
 
 @dataclass(frozen=True)
 class LiveDepartures:
-    """What the live path takes out of the samples: a_y's offset (m/s^2), each wheel's offset
-    (rev/s), the heading error's harmonics (rad), and whether the wheel rates are encoded on a
-    grid of ``wheel_step_revps`` (rev/s; 0: not)."""
+    """What the live path takes out of the samples: each wheel's offset at standstill (rev/s),
+    the heading error's harmonics (rad), and whether the wheel rates are encoded on a grid of
+    ``wheel_step_revps`` (rev/s; 0: not). (a_y's offset and scale are the fit's own:
+    :mod:`odocal.estimators.departures`.)"""
 
     reference_shift_s: float = 0.0
     """The wheel stream's lag behind the reference taken out by shifting the reference (s)."""
-    lateral_offset_mps2: float = 0.0
-    lateral_offset_std: float = math.nan
     wheel_offset_revps: tuple[float, float] = (0.0, 0.0)
     heading_harmonics: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)   # a1, b1, a2, b2 (not theta)
     heading_amplitude_rad: float = 0.0
@@ -71,9 +69,6 @@ class LiveDepartures:
     def as_measured(self) -> Departures:
         """The same as :class:`~odocal.checks.departures.Departures` (for its findings)."""
         return Departures(reference_shift_s=self.reference_shift_s,
-                          lateral_offset_mps2=self.lateral_offset_mps2,
-                          lateral_offset_std=self.lateral_offset_std,
-                          lateral_offset_applied=self.lateral_offset_mps2 != 0.0,
                           heading_harmonics=self.heading_harmonics,
                           heading_amplitude_rad=self.heading_amplitude_rad,
                           standstill_offset_revps=self.wheel_offset_revps,
@@ -83,9 +78,6 @@ class LiveDepartures:
         """These corrections updated by a new measurement (on ``driving_s`` of driving) where
         it determines them."""
         out = self
-        if found.lateral_offset_applied:
-            out = dataclasses.replace(out, lateral_offset_mps2=found.lateral_offset_mps2,
-                                      lateral_offset_std=found.lateral_offset_std)
         if any(found.standstill_offset_revps):
             out = dataclasses.replace(out, wheel_offset_revps=found.standstill_offset_revps)
         if driving_s >= HEADING_MIN_S and _apart(found.heading_harmonics,
@@ -99,11 +91,9 @@ class LiveDepartures:
 
     def correct(self, rows: FloatArray) -> FloatArray:
         """Samples (M, 8) with the corrections taken out."""
-        if not (self.lateral_offset_mps2 or any(self.wheel_offset_revps)
-                or self.heading_amplitude_rad):
+        if not (any(self.wheel_offset_revps) or self.heading_amplitude_rad):
             return rows
         out = rows.copy()
-        out[:, _AY] -= self.lateral_offset_mps2
         out[:, _NRL] -= self.wheel_offset_revps[0]
         out[:, _NRR] -= self.wheel_offset_revps[1]
         if self.heading_amplitude_rad:
@@ -116,27 +106,14 @@ def _apart(new: tuple[float, ...], old: tuple[float, ...], smallest_rad: float) 
     return float(np.max(np.abs(np.subtract(new, old)))) > 0.5 * smallest_rad
 
 
-def recorrected(windows: WindowSet, *, lateral_mps2: float,
-                wheels_revps: tuple[float, float]) -> WindowSet:
-    """Windows whose samples had a_y ``lateral_mps2`` and each wheel ``wheels_revps`` more
-    taken out: the moments ``sum x a^j`` become ``sum x (a - delta)^j`` (their binomial
-    expansion in the lower ones, exact), the revolutions less the offset times the window's
-    time."""
-    if not windows.size or not (lateral_mps2 or any(wheels_revps)):
+def recorrected(windows: WindowSet, *, wheels_revps: tuple[float, float]) -> WindowSet:
+    """Windows whose samples had each wheel ``wheels_revps`` more taken out: the revolutions
+    less the offset times the window's time."""
+    if not windows.size or not any(wheels_revps):
         return windows
-    moments, measured = windows.moments, windows.measured
-    if lateral_mps2:
-        # (a - delta)^j = sum_i C(j, i) a^i (-delta)^(j - i)
-        expand = np.array([[math.comb(j, i) * (-lateral_mps2) ** (j - i) if i <= j else 0.0
-                            for i in range(SERIES)] for j in range(SERIES)])
-        moments = moments.copy()
-        for block in range(3):                   # ds, dpsi, lat times a^j
-            cols = slice(block * SERIES, (block + 1) * SERIES)
-            moments[..., cols] = moments[..., cols] @ expand.T
-    if any(wheels_revps):
-        span = windows.length * windows.t_s
-        measured = measured - np.asarray(wheels_revps, dtype=np.float64)[None, :] * span
-    return dataclasses.replace(windows, moments=moments, measured=measured)
+    span = windows.length * windows.t_s
+    measured = windows.measured - np.asarray(wheels_revps, dtype=np.float64)[None, :] * span
+    return dataclasses.replace(windows, measured=measured)
 
 
 def with_offset_prior(folded: core.Folded, settings: Settings, step_revps: float) -> core.Folded:

@@ -73,43 +73,6 @@ RELEASES = {
     "yaml": "any ROS 2 node that declares these parameters (odocal's own schema)",
 }
 
-#: The names stacks give the datasheet values, and the odocal parameter each one states:
-#: ``wheel_radius`` (m; c_e = 2 pi r), ``wheel_separation`` (ros2_control) and
-#: ``wheel_tread`` (Autoware), both the track width t_r (m).
-STACK_NAMES = {"wheel_radius": "c_e", "wheel_separation": "t_r", "wheel_tread": "t_r"}
-
-
-def stack_names(pairs: Sequence[tuple[str, float]]) -> list[tuple[str, float]]:
-    """``(name, value)`` pairs with the stacks' names (:data:`STACK_NAMES`) turned into odocal's
-    (a radius into a circumference); other names as given."""
-    return [(STACK_NAMES.get(key, key), value * 2.0 * math.pi if key == "wheel_radius" else value)
-            for key, value in pairs]
-
-
-def parse_datasheet(text: str, *, what: str = "--datasheet") -> dict[str, float]:
-    """``c_e=1.84,t_r=1.52`` (or the stacks' names, ``wheel_radius=0.1,wheel_separation=0.4``)
-    as datasheet values by odocal's names, checked by :func:`odocal.settings.datasheet_values`
-    (each once, within a vehicle's range); a one-line ConfigError naming ``what`` otherwise."""
-    from odocal.settings import datasheet_values
-
-    pairs: list[tuple[str, float]] = []
-    for item in text.split(","):
-        key, sep, value = item.partition("=")
-        try:
-            pairs.append((key.strip(), float(value)))
-        except ValueError:
-            sep = ""
-        if not sep:
-            raise ConfigError(f"{what} {text!r}: write NAME=VALUE pairs separated by commas, "
-                              "e.g. c_e=1.84,t_r=1.52 or wheel_radius=0.1,wheel_separation=0.4 "
-                              "(metres)")
-    unknown = [k for k, _ in pairs if k not in PARAMETER_NAMES and k not in STACK_NAMES]
-    if unknown:
-        raise ConfigError(f"{what}: {unknown[0]!r} is not one of "
-                          f"{', '.join((*PARAMETER_NAMES, *STACK_NAMES))}")
-    return datasheet_values(stack_names(pairs), source=what)
-
-
 @dataclass(frozen=True)
 class OdometryNoise:
     """How far the calibrated wheel odometry is from the reference motion, averaged over
@@ -323,6 +286,17 @@ def parameters_yaml(c: Calibrated, path: Path) -> Path:
                                     zip(PARAMETER_NAMES, PARAMETER_UNITS, strict=True))
               + "; wheel_radius = c_e / (2 pi), m; c_d is left minus right.",
               "covariance: row-major 4x4 in the order of parameter_names, SI units"]
+    speed: dict[str, Any] = {}
+    if c.speed_circumference_m is not None:
+        # the wheels were speeds turned into rates with an assumed circumference: c_e is that
+        # assumption times the speed signal's scale factor, which is what a stack can use
+        header.append(f"The wheels were logged as speeds and turned into rates with "
+                      f"{c.speed_circumference_m:.9g} m: c_e is that circumference times "
+                      "speed_scale_factor (the true speed over the reported one), c_d "
+                      "relative to it alike.")
+        speed = {"speed_scale_factor": _float(th.c_e / c.speed_circumference_m),
+                 "speed_scale_factor_std": _float(c.std[0] / c.speed_circumference_m),
+                 "assumed_wheel_circumference": _float(c.speed_circumference_m)}
     params = {"effective_wheel_circumference": _float(th.c_e),
               "wheel_radius": _float(th.c_e / (2.0 * math.pi)),
               "circumference_difference": _float(th.c_d),
@@ -331,7 +305,7 @@ def parameters_yaml(c: Calibrated, path: Path) -> Path:
               "parameter_names": list(PARAMETER_NAMES),
               "identified": [bool(ok) for ok in c.identified],
               "std": [_float(s) for s in c.std],
-              "covariance": [_float(v) for v in cov.ravel()]}
+              "covariance": [_float(v) for v in cov.ravel()], **speed}
     write_text(path, parameter_file(header, "wheel_odometry", params))
     return path
 

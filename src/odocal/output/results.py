@@ -26,10 +26,45 @@ EXPORT_TARGETS = ("yaml", "json", "autoware", "ros2_control", "robot_localizatio
 @dataclass(frozen=True)
 class Written:
     """What :func:`write_results` wrote (paths relative to the folder) and what it left out,
-    in words."""
+    in words; ``folder`` is where they are once written (:func:`save_results`)."""
 
     paths: tuple[Path, ...]
     notes: tuple[str, ...] = ()
+    folder: Path | None = None
+
+    @property
+    def files(self) -> tuple[Path, ...]:
+        """The files written, where they are (``folder / path``)."""
+        base = self.folder if self.folder is not None else Path()
+        return tuple(base / p for p in self.paths)
+
+
+def source_files(result: CalibrationResult) -> list[str]:
+    """The files a calibration read that exist on this machine (its drives' sources)."""
+    sources = [str(d.metadata.get("source", "")) for d in result.drive_data]
+    return [s for s in sources if s and Path(s).exists()]
+
+
+def save_results(result: CalibrationResult, folder: str | Path, *,
+                 exports: Sequence[str] = (), report: bool = True, save_inputs: bool = False,
+                 wheel_joints: tuple[str, str] | None = None, inputs: Sequence[Any] = (),
+                 progress: Callable[[str, int, int], None] | None = None,
+                 renderer: Any = None) -> Written:
+    """The results folder of ``odocal calibrate --out``, with its rules: built beside
+    ``folder`` and swapped in whole when complete (a failure leaves an earlier folder as it
+    was); refused, before anything is written, where ``folder`` holds anything odocal did not
+    write, or where it is or holds one of the inputs (the result's own drive files and
+    ``inputs``). What goes in it: :func:`write_results`."""
+    from odocal.io.atomic import check_replaceable, refuse_inputs, results_folder
+
+    out = Path(folder)
+    refuse_inputs(out, [*source_files(result), *inputs], folder=True)
+    check_replaceable(out)
+    with results_folder(out) as tmp:
+        written = write_results(result, tmp, exports=exports, report=report,
+                                save_inputs=save_inputs, wheel_joints=wheel_joints,
+                                progress=progress, renderer=renderer)
+    return Written(paths=written.paths, notes=written.notes, folder=out)
 
 
 def write_results(result: CalibrationResult, out_dir: str | Path, *,
@@ -62,7 +97,8 @@ def write_results(result: CalibrationResult, out_dir: str | Path, *,
         from odocal.output.trajectories import write_trajectories
 
         written += write_trajectories(result.drive_data, result.estimate.theta,
-                                      result.estimate.datasheet, out)
+                                      result.estimate.datasheet, out,
+                                      arm=result.reference_arm)
         targets.remove("tum")
     if targets and not result.success:
         notes.append("parameters not exported: the calibration did not succeed")
@@ -106,6 +142,8 @@ def export_parameters(result: CalibrationResult, out_dir: str | Path, fmt: str) 
             "std": dict(zip(PARAMETER_NAMES, est.std.tolist(), strict=True)),
             "identified": dict(zip(PARAMETER_NAMES, est.identified, strict=True)),
             "units": dict(zip(PARAMETER_NAMES, PARAMETER_UNITS, strict=True)),
+            "speed_scale": (result.speed_scale.to_dict() if result.speed_scale is not None
+                            else None),
             "method": result.method, "odocal_version": __version__})
     if fmt != "yaml":
         raise OutputError(f"unknown export format {fmt!r}; use yaml or json")
@@ -127,12 +165,13 @@ def _calibrated(result: CalibrationResult, *,
                 wheel_joints: tuple[str, str] | None = None) -> Any:
     """What the exports need from a calibration (:class:`odocal.output.export.Calibrated`)."""
     from odocal.output.export import Calibrated, odometry_noise
+    from odocal.pipeline.result import speed_signal
 
     est = result.estimate
-    # logs whose wheels were speeds (m/s) were turned into rates with one circumference: the
-    # vehicle's reported speed relates to it (the speed scale factor is relative to it)
-    circumferences = {d.metadata.get("wheel_circumference_m") for d in result.drive_data}
-    circumference = circumferences.pop() if len(circumferences) == 1 else None
+    # logs whose wheels were speeds (m/s, km/h) were turned into rates with one circumference:
+    # the vehicle's reported speed relates to it (the speed scale factor is relative to it)
+    signal = speed_signal(result.drive_data)
+    circumference = signal[0] if signal is not None else None
     return Calibrated(theta=est.theta, datasheet=est.datasheet,
                       std=tuple(float(s) for s in est.std),
                       identified=est.identified, method=result.method,

@@ -56,6 +56,7 @@ from odocal.estimators.base import (
     prepare,
 )
 from odocal.estimators.covariance import BootstrapResult, bootstrap
+from odocal.estimators.departures import corrected as corrected_drives
 from odocal.estimators.estimate import (
     Estimate,
     Reason,
@@ -75,7 +76,7 @@ from odocal.io.drivefile import load_drive
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.model.vehicle import MODEL
 from odocal.pipeline.result import CalibrationResult, summarise
-from odocal.settings import Settings
+from odocal.settings import Settings, datasheet_theta
 
 if TYPE_CHECKING:
     from odocal.estimators.inverse import Screen
@@ -244,21 +245,6 @@ def with_stated_datasheet(drives: Sequence[Drive], settings: Settings) -> Settin
     return settings.replace(identify={"theta0": datasheet_theta(next(iter(stated.values())))})
 
 
-def datasheet_theta(values: Mapping[str, Any], base: Sequence[float] = ()) -> tuple[
-        float, ...]:
-    """theta0 from named datasheet values (c_e, c_d, t_r, d; missing ones from ``base`` or the
-    placeholder), or a one-line ConfigError."""
-    from odocal.settings import DATASHEET_THETA, datasheet_values, vehicle_problem
-
-    theta = list(base or DATASHEET_THETA)
-    for key, value in datasheet_values(values, source="datasheet").items():
-        theta[PARAMETER_NAMES.index(key)] = value
-    problem = vehicle_problem(theta)
-    if problem is not None:
-        raise ConfigError(f"datasheet: {problem}")
-    return tuple(theta)
-
-
 def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
               settings: Settings | None = None, method: str | None = None,
               progress: ProgressCallback | None = None) -> CalibrationResult:
@@ -284,10 +270,20 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     method = method or DEFAULT_METHOD
     if method not in METHODS:
         raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if method == "compensated":                  # its QP is compiled: before anything is read
+        from odocal.model._jit import require
+
+        require("the compensated method (--method compensated)")
     clock = Stopwatch(progress)
     with clock.stage("read"):
         drive_list = load_drives(drives, settings=settings)
     settings = with_stated_datasheet(drive_list, settings)
+    arm = settings.reference.offset_m
+    if arm is not None and method != "inverse":
+        # a segment method rolls the axle out: the reference moved to it first (the default
+        # method holds the stated lever arm in its fit)
+        drive_list = corrected_drives(drive_list, {"arm_x": arm[0], "arm_y": arm[1]},
+                                      np.asarray(settings.identify.theta0, dtype=np.float64))
     with clock.stage("checks"):
         diagnosis = check_drives(drive_list, settings)
         departures = None
@@ -342,16 +338,27 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         diagnosis = diagnosis.plus(fitted)
         if diagnosis.fatal:
             estimate = dataclasses.replace(estimate, status=Status.REJECTED)
-    warnings = [*prep.warnings, *outcome.warnings]
+    # the segment selection's words are the segment methods' (the default fits every window)
+    selection = prep.selection_warnings if method != "inverse" else ()
+    warnings = [*selection, *prep.warnings, *outcome.warnings]
     if boot is not None and not all(boot.agree):
         warnings.append(boot.message)
     val = datasheet = None
     with clock.stage("validation"):
         judged, val_segs, val_data = drive_list, prep.validation_segments, prep.validation
         changed = [f for f in fitted if f.check is Check.CHANGE_IN_LOG]
-        if changed:
-            # calibrated on the part after a change inside the log: judged there too
-            judged = _after_change(drive_list, changed[0])
+        fitted_departures = dict(getattr(estimate.details, "fitted_departures", {}) or {})
+        if settings.reference.offset_m is not None and method == "inverse":
+            # a lever arm stated: held in the fit, taken out of what is judged as fitted ones are
+            fitted_departures.update(arm_x=settings.reference.offset_m[0],
+                                     arm_y=settings.reference.offset_m[1])
+        if changed or fitted_departures:
+            # judged as it was fitted: the departures the fit found taken out, and on the part
+            # after a change inside the log where it calibrated that part
+            judged = corrected_drives(drive_list, fitted_departures,
+                                      estimate.theta.as_array())
+            if changed:
+                judged = _after_change(judged, changed[0])
             val_segs = validation_segments(judged, settings.segments)
             val_data = validation_data(judged, val_segs, settings) if len(val_segs) else None
         if val_data is not None:

@@ -7,8 +7,9 @@ them in :mod:`odocal.report` and :mod:`odocal.cli`, files in :mod:`odocal.output
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -29,6 +30,7 @@ from odocal.settings import Settings
 
 if TYPE_CHECKING:
     from odocal.estimators.compensated import ThreeStepOutcome
+    from odocal.output.results import Written
 
 BoolArray = NDArray[np.bool_]
 
@@ -53,6 +55,44 @@ def summarise(drives: Sequence[Drive]) -> tuple[DriveSummary, ...]:
     return tuple(DriveSummary(name=d.name, samples=d.n_samples, duration_s=d.duration_s,
                               distance_m=d.distance_m, pieces=len(d.pieces),
                               sha256=d.metadata.get("sha256")) for d in drives)
+
+
+@dataclass(frozen=True)
+class SpeedScale:
+    """The calibration of a speed signal: wheel speeds given in m/s or km/h (comma2k19's CAN, a
+    mapping's ``unit = "km/h"``) were turned into wheel rates with an assumed circumference,
+    so the wheels' own circumference is unknown and c_e is that assumption times the factor
+    the speed signal is off by (c_d relative to it alike; t_r is in metres).
+
+    factor : the true speed over the reported one (c_e over ``circumference_m``): Autoware's
+        ``speed_scale_factor``
+    std : its standard deviation
+    circumference_m : the circumference the speeds were turned into rates with
+    unit : the speeds' unit as logged
+    """
+
+    factor: float
+    std: float
+    circumference_m: float
+    unit: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"factor": self.factor, "std": self.std,
+                "circumference_m": self.circumference_m, "unit": self.unit}
+
+
+def speed_signal(drives: Sequence[Drive]) -> tuple[float, str] | None:
+    """The circumference and unit the drives' wheel speeds were turned into wheel rates with,
+    where every drive's wheels were speeds (m/s, km/h) turned with one circumference; else
+    None (the wheels' own rates, or drives that differ)."""
+    found = {(d.metadata.get("wheel_circumference_m"), d.metadata.get("wheel_speed_unit", "m/s"))
+             for d in drives}
+    if len(found) != 1:
+        return None
+    circumference, unit = found.pop()
+    if not isinstance(circumference, int | float) or circumference <= 0:
+        return None
+    return float(circumference), str(unit)
 
 
 #: Held-out E_p within this share of the best counts as equally good.
@@ -157,6 +197,90 @@ class CalibrationResult:
         return self.estimate.theta
 
     @property
+    def reference_arm(self) -> tuple[float, float]:
+        """Where the reference reports, forward and left of the rear axle (m): as stated
+        (``[reference] offset_m``) or as the default method's fit found it (0 where neither)."""
+        stated = self.settings.reference.offset_m
+        if stated is not None:
+            return float(stated[0]), float(stated[1])
+        fitted = dict(getattr(self.estimate.details, "fitted_departures", {}) or {})
+        return float(fitted.get("arm_x", 0.0)), float(fitted.get("arm_y", 0.0))
+
+    @property
+    def speed_scale(self) -> SpeedScale | None:
+        """Where the wheels were speeds turned into rates with an assumed circumference, the
+        factor the speed signal is off by (what c_e means then); None where the wheels' own
+        rates were logged, or c_e is not identified."""
+        signal = speed_signal(self.drive_data)
+        if signal is None or not self.estimate.identified[0]:
+            return None
+        circumference, unit = signal
+        return SpeedScale(factor=float(self.theta.c_e) / circumference,
+                          std=float(self.estimate.std[0]) / circumference,
+                          circumference_m=circumference, unit=unit)
+
+    def save(self, folder: str | Path, *, exports: Sequence[str] = (), report: bool = True,
+             save_inputs: bool = False, wheel_joints: tuple[str, str] | None = None,
+             inputs: Sequence[Any] = (),
+             progress: Callable[[str, int, int], None] | None = None,
+             renderer: Any = None) -> Written:
+        """Write the results folder, as ``odocal calibrate --out folder`` does:
+        calibration.json, report.html with its figures (``report``), the ``exports``
+        (``"autoware"``, ``"ros2_control"``, ``"robot_localization"``, ``"yaml"``, ``"json"``,
+        ``"tum"``).
+
+        The folder is built beside ``folder`` and swapped in whole when complete; a folder
+        that holds anything odocal did not write, or that is or holds one of the drive files
+        read (or ``inputs``), is refused before anything is written
+        (:class:`odocal.OutputError`). Returns what was written
+        (:class:`odocal.output.results.Written`: ``paths`` relative to the folder, ``files``
+        where they are).
+
+        (The output layer writes it: :func:`odocal.output.results.save_results`; the one call
+        from the pipeline's result type up to it, so that what a calibration returns can be
+        saved where it is held.)
+        """
+        from odocal.output.results import save_results
+
+        return save_results(self, folder, exports=exports, report=report,
+                            save_inputs=save_inputs, wheel_joints=wheel_joints, inputs=inputs,
+                            progress=progress, renderer=renderer)
+
+    def summary(self) -> list[str]:
+        """The lines ``odocal calibrate`` prints (:func:`odocal.report.summary.summary_lines`
+        has the same words with a simulated drive's truth)."""
+        lines = [self.read_text(), f"method: {self.method}, identified from {self.used_text()}",
+                 "", *self.estimate.table(speed_scale=self.speed_scale is not None)]
+        if self.validation is not None and self.datasheet_validation is not None:
+            lines += ["", f"validation error E_p over {self.validation_text()}: datasheet "
+                          f"{self.datasheet_validation.mean_error_m:.2f} m -> calibrated "
+                          f"{self.validation.mean_error_m:.2f} m"]
+        return lines
+
+    def __repr__(self) -> str:
+        head = (f"CalibrationResult(method={self.method!r}, "
+                f"status={self.estimate.status.name.lower()}, "
+                f"drives={len(self.drives)}, elapsed_s={self.elapsed_s:.2f})")
+        return "\n".join([head, *self.summary()])
+
+    def read_text(self) -> str:
+        """What was read, in a few words ("read 4 drives: 1.3 min, 0.67 km")."""
+        km = sum(d.distance_m for d in self.drives) / 1000
+        minutes = sum(d.duration_s for d in self.drives) / 60
+        n = len(self.drives)
+        return f"read {n} drive{'s' if n != 1 else ''}: {minutes:.1f} min, {km:.2f} km"
+
+    def validation_text(self) -> str:
+        """The validation segments in a few words ("2 segments (0.46 km, up to 300 m each)")."""
+        if self.validation is None:
+            return "no validation segment"
+        seg = self.validation.segments
+        n = len(seg)
+        return (f"{n} segment{'s' if n != 1 else ''} "
+                f"({float(seg.distance_m.sum()) / 1000:.2f} km, up to "
+                f"{self.settings.segments.validation_distance_m:.0f} m each)")
+
+    @property
     def method(self) -> str:
         return self.estimate.method
 
@@ -199,6 +323,8 @@ class CalibrationResult:
         out["unidentified_reasons"] = {n: est.verdict(n).reason.value  # type: ignore[union-attr]
                                        for n in est.unidentified}
         out["used"] = self.used_data
+        speed = self.speed_scale
+        out["speed_scale"] = speed.to_dict() if speed is not None else None
         out["segments_used"] = self.segments_used
         out["segments_total"] = len(self.segments)
         out["segments_selected"] = int(self.segments.selected.sum())

@@ -54,6 +54,11 @@ class ConversionReport:
 
 def _reference_mode(log: RawLog, requested: str) -> str:
     has_pose = "pose" in log.streams
+    if requested == "auto" and not has_pose and "gnss" not in log.streams:
+        raise DataError(f"'{log.name}' has no reference pose: neither a fused pose (a mapping's "
+                        "[pose] section: x, y, heading) nor GNSS positions for odocal's own "
+                        "fusion (a [gnss] section: latitude, longitude); found: "
+                        f"{', '.join(sorted(log.streams)) or 'nothing'}")
     if requested == "auto":
         return "fused" if has_pose else "gnss-imu"
     if requested == "fused" and not has_pose:

@@ -9,6 +9,7 @@ had to what would bring the standard deviation to the identifiability limit.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -129,9 +130,8 @@ def _not_identified(name: str, label: str, verdict: NotIdentified, cov: Coverage
     if reason is Reason.NEEDS_BENDS:
         return (f"{label} needs bends: its effect shows only when the vehicle turns, and this "
                 f"drive's yaw rate exceeds {threshold} rad/s for {cov.bend_s:.0f} s (the "
-                f"largest segment peak is {verdict.detail:.3f} rad/s). Drive through at least "
-                f"10 bends or junction turns (each in a {segment_s:.0f} s segment, as the "
-                "method's batches use) or a few roundabouts, then calibrate again.")
+                f"largest is {verdict.detail:.3f} rad/s). Drive through at least 10 bends or "
+                "junction turns, or a few roundabouts, then calibrate again.")
     if reason is Reason.WEAK:
         factor = (verdict.std / verdict.limit) ** 2 if verdict.limit > 0 else float("inf")
         return (f"{label} is determined only to +-{format_value(name, verdict.std)} by {have}, "
@@ -169,8 +169,8 @@ def reason_text(name: str, verdict: NotIdentified, *, threshold_radps: float) ->
     """Why a parameter is not identified, in one clause (for the CLI and warnings)."""
     reason = verdict.reason
     if reason is Reason.NEEDS_BENDS:
-        return (f"needs bends: no segment has a peak yaw rate above {threshold_radps} rad/s "
-                f"(the largest is {verdict.detail:.3f} rad/s); kept at the datasheet value")
+        return (f"needs bends: the yaw rate never exceeds {threshold_radps} rad/s (at most "
+                f"{verdict.detail:.3f} rad/s); kept at the datasheet value")
     if reason is Reason.WEAK:
         return (f"the data determine {name} only to +-{format_value(name, verdict.std)} (the "
                 f"limit is +-{format_value(name, verdict.limit)}); kept at the datasheet value")
@@ -299,7 +299,13 @@ def finding_text(finding: Finding, settings: Settings) -> str:
                     f"{v:+.3g} times the distance it travels): the wheel rates' sign is "
                     f"flipped{scale}; n_rl and n_rr count forward revolutions as positive "
                     "(negate both columns, or fix the mapping)")
-        factor, cause = min(_SCALE_HINTS, key=lambda h: abs(np.log(v / h[0])))
+        c_e = settings.identify.datasheet("c_e")
+        unit_hints = ((3.6 * c_e, 'wheel speeds in km/h given as rev/s: give the mapping\'s unit = '
+                              '"km/h"'),
+                  (c_e, 'wheel speeds in m/s given as rev/s: give the mapping\'s unit = "m/s"'),
+                  (3.6 * c_e / 1.609344, 'wheel speeds in mph given as rev/s: give the '
+                                         'mapping\'s unit = "mph"'))
+        factor, cause = min((*_SCALE_HINTS, *unit_hints), key=lambda h: abs(np.log(v / h[0])))
         hint = f" ({cause}?)" if abs(np.log(v / factor)) < 0.25 else ""
         from odocal.settings import datasheet_stated
 
@@ -334,6 +340,56 @@ def finding_text(finding: Finding, settings: Settings) -> str:
     return _reference_and_sensor_text(finding)
 
 
+def _departure_text(finding: Finding) -> str:
+    """A departure the one fit took in (:mod:`odocal.estimators.departures`), in plain words;
+    empty for any other finding."""
+    c, v, ref = finding.check, finding.value, finding.reference
+    fitted = "fitted with the parameters, its uncertainty in theirs"
+    if c is Check.REFERENCE_LAG:
+        way = "after" if v > 0 else "before"
+        return (f"the reference reports each pose {abs(v):.3f} s (+-{ref:.3f}) {way} the wheels "
+                f"turned for it (a localisation stack's latency, or two loggers' clocks): "
+                f"{fitted}")
+    if c is Check.WHEEL_SMOOTHING:
+        return (f"the wheel rates are smoothed over about {v:.2f} s (+-{ref:.2f}) more than the "
+                f"reference (a CAN gateway's filter, ticks counted over a window): {fitted}")
+    if c is Check.WHEEL_SKEW:
+        return (f"the {finding.name} wheel alone reads {v:+.4f} rev/s (+-{ref:.4f}) more than "
+                f"its motion gives, at every speed (its sensor's offset): {fitted}")
+    if c is Check.REFERENCE_ARM:
+        return (f"the reference point is {v:+.2f} m (+-{ref:.2f}) {finding.name} of the rear "
+                "axle's midpoint (a GNSS antenna, an INS, a camera): fitted, and taken out of "
+                "validation and the exported trajectories; state it with [reference] offset_m")
+    if c is Check.CURVE_EXCESS:
+        if v > 0:
+            return (f"the wheels travel more than the rear axle in bends, as steered wheels "
+                    f"{math.sqrt(2.0 * v):.1f} m ahead of it do (front wheels mapped as the "
+                    "rear ones? or a reference smoothed through bends): fitted, so the "
+                    "parameters are those of the wheels given; map the rear wheels for the "
+                    "rear axle's")
+        return (f"the wheels travel less than the reference in bends, as a reference "
+                f"{math.sqrt(-2.0 * v):.1f} m ahead of the axle whose heading is its course "
+                f"does (or tyres that slip in tight bends): {fitted}")
+    if c is Check.LATERAL_GAIN:
+        return (f"a_y reads {1.0 + v:.3f} (+-{ref:.3f}) times the reference's lateral "
+                "acceleration (a body that rolls in bends, or an accelerometer's scale): the "
+                "parameters are for a_y as logged, and d's uncertainty carries what it would "
+                "be were the scale the sensor's")
+    if c is Check.SIDESLIP:
+        return (f"the rear axle slides {np.degrees(v):+.2f} degrees (+-{np.degrees(ref):.2f}) "
+                f"sideways per m/s^2 of lateral acceleration: {fitted}")
+    if c is Check.DRIFT:
+        return (f"c_e grows by {v:+.2%} (+-{ref:.2%}) of itself per hour of the log (tyres "
+                f"warming?): {fitted}; c_e is reported at the end of each drive")
+    if c is Check.DRIVE_DEPARTS:
+        why = (f"its windows depart from the others' fit ({v:.1f} against a limit of "
+               f"{ref:.1f})" if ref > 0 else
+               "without it the others identify more than with it")
+        return (f"'{finding.name}' is left out: {why}; calibrate it on its own to see why "
+                "(another tyre, a crawl in a tight turn, a slip)")
+    return ""
+
+
 def _reference_and_sensor_text(finding: Finding) -> str:
     """The checks of the reference pose and of single sensors, in plain words."""
     c, v, ref = finding.check, finding.value, finding.reference
@@ -354,20 +410,20 @@ def _reference_and_sensor_text(finding: Finding) -> str:
     if c is Check.LATERAL_OFFSET:
         tilt = np.degrees(np.arcsin(np.clip(v / 9.81, -1.0, 1.0)))
         return (f"a_y reads {v:+.2f} m/s^2 (+-{ref:.2f}) more than the reference's turning "
-                f"gives, on every moving second (an IMU rolled by {abs(tilt):.1f} degrees?): "
-                "taken out before the fit")
+                f"gives (a road's crossfall, or an IMU rolled by {abs(tilt):.1f} degrees?): the "
+                "parameters are for a_y as logged, and c_d's uncertainty carries what it "
+                "would be were the offset the sensor's")
+    departure = _departure_text(finding)
+    if departure:
+        return departure
     if c is Check.CHANGE_IN_LOG:
         parameter, _, where = finding.name.partition("|")
         what = (f"c_e changed by {v:+.2%}" if parameter == "c_e" else
                 f"the wheels' circumference difference c_d changed by {v:+.2%} of c_e (one "
                 "tyre's pressure?)")
         return (f"{what} at t = {ref:.0f} s of {where}: the calibration is of the part after "
-                "the change (the vehicle as it is now); calibrate the part before on its own if "
-                "you need it")
-    if c is Check.FRONT_WHEELS:
-        return (f"the wheel speeds turn as wheels {v:.1f} m (+-{ref:.1f}) ahead of the rear "
-                "axle do in bends: front wheels mapped as the rear ones? odocal's model is the "
-                "rear axle's; map the rear wheels (nothing is calibrated from these)")
+                "the change (the vehicle as it is now; the part before still informs t_r and "
+                "d); calibrate the part before on its own if you need it")
     if c is Check.WHEEL_OFFSET:
         return (f"the wheels read {v:+.3f} and {ref:+.3f} rev/s (rear left, right) while the "
                 "reference stands still: an offset of the speed signal, taken out of every "

@@ -39,6 +39,8 @@ class MapSegment:
     reference: FloatArray
     datasheet: FloatArray
     calibrated: FloatArray
+    turn_rad: float = 0.0
+    """How far the reference's heading turns over the segment."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"drive": self.drive, "start_s": self.start_s, "distance_m": self.distance_m,
@@ -188,11 +190,14 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
         if after >= before:
             return (f"Do not use: the calibrated parameters validate no better than the datasheet "
                     f"values ({after:.2f} m against {before:.2f} m).", "bad")
+        worse = int(np.sum(np.asarray(result.validation.errors.mean_m)
+                           > np.asarray(result.datasheet_validation.errors.mean_m)))
+        n = len(result.validation.segments)
         base = (f"Calibrated: the validation error E_p falls from {before:.2f} m to {after:.2f} m "
-                f"(-{(1 - after / before) * 100:.0f}%) over {len(result.validation.segments)} "
-                f"segments of ~{result.settings.segments.validation_distance_m:.0f} m"
-                + (" after the change" if change is not None else ""))
-        level = "good"
+                f"(-{(1 - after / before) * 100:.0f}%) over {result.validation_text()}"
+                + (" after the change" if change is not None else "")
+                + (f", though {worse} of the {n} got worse" if worse and n > 1 else ""))
+        level = "good" if not worse else "partial"
     zero = consistent_with_zero(est)
     said_zero = (f" ({', '.join(zero)} consistent with zero: no measurable "
                  f"{' or '.join(ZERO_MEANS[n] for n in zero)})" if zero else "")
@@ -212,7 +217,7 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
     if km < MIN_DISTANCE_KM:
         # said first: the numbers after it look good and are not to be trusted yet
         base = (f"Drive too short to trust: {km:.2f} km of driving, less than the "
-                f"{MIN_DISTANCE_KM:g} km a calibration should rest on (README, 'Real logs'); "
+                f"{MIN_DISTANCE_KM:g} km a calibration should rest on (docs: real logs); "
                 f"check it on another drive. {base}")
         level = "partial" if level == "good" else level
     if result.bootstrap is not None and not all(result.bootstrap.agree):
@@ -231,15 +236,13 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
 
 
 #: The notes of departures measured and taken out before the fit (the checks' findings).
-TAKEN_OUT = (Check.LATERAL_DELAY, Check.LATERAL_OFFSET, Check.HEADING_ERROR, Check.WHEEL_OFFSET)
+TAKEN_OUT = (Check.LATERAL_DELAY, Check.HEADING_ERROR, Check.WHEEL_OFFSET)
 
 
 def _taken_out(f: Finding) -> str:
     """A departure taken out before the fit, in a few words (the verdict line)."""
     if f.check is Check.LATERAL_DELAY:
         return f"a_y's {'lag' if f.value > 0 else 'lead'} of {abs(f.value):.2f} s"
-    if f.check is Check.LATERAL_OFFSET:
-        return f"a_y's offset of {f.value:+.2f} m/s^2"
     if f.check is Check.HEADING_ERROR:
         return (f"a heading error varying with the heading (up to "
                 f"{np.degrees(f.value):.1f} degrees)")
@@ -247,7 +250,7 @@ def _taken_out(f: Finding) -> str:
 
 
 #: Less driving than this never gets the green verdict: its validation rests on a handful of
-#: segments, and a few bends decide t_r and d (README, "Real logs").
+#: segments, and a few bends decide t_r and d (docs/real-logs.md).
 MIN_DISTANCE_KM = 2.0
 
 
@@ -392,15 +395,6 @@ def corrections(result: CalibrationResult) -> tuple[Correction, ...]:
             "a_y's clock against the reference's (speed times yaw rate)",
             f"{abs(lag):.2f} s {'late' if lag > 0 else 'early'}" if lag else "in step",
             bool(lag), "a_y moved onto the reference's clock" if lag else "nothing to move"))
-        if np.isfinite(dep.lateral_offset_std):
-            tilt = np.degrees(np.arcsin(np.clip(dep.lateral_offset_mps2 / 9.81, -1.0, 1.0)))
-            out.append(Correction(
-                "a_y's constant offset (an IMU's roll tilt)",
-                f"{dep.lateral_offset_mps2:+.4f} +-{dep.lateral_offset_std:.4f} m/s^2"
-                f" ({abs(tilt):.1f} degrees)",
-                dep.lateral_offset_applied,
-                "subtracted from every sample" if dep.lateral_offset_applied
-                else "not taken out: within four standard deviations of zero"))
         out.append(Correction(
             "the reference heading's error varying with the heading (a compass)",
             f"up to {np.degrees(dep.heading_amplitude_rad):.1f} degrees"
@@ -435,11 +429,23 @@ def corrections(result: CalibrationResult) -> tuple[Correction, ...]:
                               bool(details.heading_offset_rad),
                               "taken out of the heading on every window"
                               if details.heading_offset_rad else "nothing taken out"))
-        if details.wheel_offset_std > 0 or details.wheel_offset_revps:
+        if details.wheel_offset_std > 0 and "offset" not in details.fitted_departures:
             out.append(Correction("the wheel rates' offset while moving (in the fit)",
                                   f"{details.wheel_offset_revps:+.4f} "
                                   f"+-{details.wheel_offset_std:.4f} rev/s", True,
-                                  "estimated with the parameters; its uncertainty is in c_e's"))
+                                  "the encoding's: estimated with the parameters, with half "
+                                  "a step as its prior; its uncertainty is in c_e's"))
+        from odocal.estimators.departures import NAMES, NUISANCES
+
+        for key, number, spread in details.departures:
+            if key == "lag":
+                continue                            # (the wheel stream's clock, above)
+            spec = NUISANCES[NAMES.index(key)]
+            unit = "" if spec.unit == "1" else f" {spec.unit}"
+            out.append(Correction(f"{spec.label} (in the fit)",
+                                  f"{number:+.4g} +-{spread:.2g}{unit}", True,
+                                  "it held out on both halves of the drive: estimated with "
+                                  "the parameters, its uncertainty in theirs"))
     return tuple(out)
 
 
@@ -462,6 +468,7 @@ def _maps(result: CalibrationResult, drives: Sequence[Drive], segs: Any) -> list
         began = first.get(d.name, float(d.t[0]))
         out.append(MapSegment(drive=d.name, start_s=float(d.t[s]) - began,
                               distance_m=float(segs.distance_m[i]), reference=ref,
+                              turn_rad=float(turn[i]),
                               datasheet=rollout(theta0, u, x0, d.t_s)[:, :2],
                               calibrated=rollout(theta, u, x0, d.t_s)[:, :2]))
     return out

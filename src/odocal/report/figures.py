@@ -245,7 +245,7 @@ def plot_error_ratio(ax: Axes, errors: dict[str, FloatArray]) -> list[Any]:
             ratio = np.where(base > 0, errors[k] / base, np.nan)
             shown.append(ratio)
             label = ("calibrated" if k == "calibrated" else "batch G-N, measured rates") + (
-                f" (median {ratio_label(float(np.nanmedian(ratio)))})"
+                f" (median {float(np.nanmedian(ratio)):.2f} of the datasheet's)"
                 if np.isfinite(ratio).any() else "")
             artists += _floored(ax, x + dx, ratio, colour=colour, marker=marker, label=label)
     ratio_axis(ax, np.concatenate(shown) if shown else np.ones(1))

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from odocal._version import __version__
+from odocal.estimators.estimate import Status
 from odocal.io.atomic import write_bytes, write_text
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_LABELS
 from odocal.pipeline.result import CalibrationResult
@@ -31,16 +32,30 @@ class Report:
 
 Spec = FigureSpec | None
 
+#: A map segment whose heading turns less than this is called straight.
+MAP_TURN_DEG = 15.0
+
+
+def _drive_label(name: str) -> str:
+    """A drive's name as a title says it: the file's name, or a segment's route and number
+    (comma2k19's ``ROUTE/40``)."""
+    path = Path(name)
+    return f"{path.parent.name}/{path.name}" if path.name.isdigit() else path.name
+
 
 def _map(result: CalibrationResult, data: ReportData) -> Spec:
     if not data.maps:
         return None
     calls = [Call("plot_map", (m.reference, m.datasheet, m.calibrated),
-                  {"title": f"{Path(m.drive).name} at {m.start_s:.0f} s, {m.distance_m:.0f} m"},
+                  {"title": f"{_drive_label(m.drive)}: {m.distance_m:.0f} m from "
+                            f"{m.start_s:.0f} s"},
                   col=i) for i, m in enumerate(data.maps)]
     calls.append(Call("legend", kwargs={"fontsize": 8, "loc": "best"}))
     n = len(data.maps)
-    which = "the validation segment" if n == 1 else f"the {n} validation segments that turn most"
+    turns = max(m.turn_rad for m in data.maps) >= np.deg2rad(MAP_TURN_DEG)
+    which = ("the validation segment" if n == 1 else
+             f"the {n} validation segments that turn most" if turns else
+             f"{n} of the validation segments (none turns more than {MAP_TURN_DEG:g} degrees)")
     return FigureSpec("map", f"The map: {which}, each started at the reference's pose (the dot) "
                       "and driven on the wheels alone. Black is where the vehicle went (the "
                       "reference), red dashed where the wheels put it with the datasheet values, "
@@ -411,8 +426,9 @@ def _coverage_text(result: CalibrationResult, data: ReportData) -> str:
                 f"{from_drives}: {rule}. They cover {f.fitted_s() / 60:.1f} min of the "
                 f"{logged}.")
     if f.after_change_s is not None:
-        text += (" The log changes inside (see the checks): only the part after the change "
-                 "was fitted and validated.")
+        text += (" The log changes inside (see the checks): the parameters are those after "
+                 "the change (the part before it has c_e and c_d of its own, and informs the "
+                 "rest), and only the part after it was validated.")
     return f"<p id='fitted-text'>{text} {bends}{short}</p>"
 
 
@@ -430,9 +446,42 @@ def _validation(result: CalibrationResult, data: ReportData) -> str:
     if "raw" in data.segment_errors:
         parts.append(f"batch G-N on measured rates {data.segment_errors['raw'].mean():.3f} m")
     parts.append(f"<b>calibrated {result.validation.mean_error_m:.3f} m</b>")
-    return (f"<p>Validation error E_p over {len(result.validation.segments)} segments "
-            f"({result.validation.segments.distance_m.sum() / 1000:.2f} km): "
+    return (f"<p>Validation error E_p over {html.escape(result.validation_text())}: "
             + " &rarr; ".join(parts) + "</p>")
+
+
+def _speed_scale(result: CalibrationResult) -> str:
+    """Where the wheels were speeds, what c_e means: the speed signal's scale factor."""
+    from odocal.report.summary import speed_note
+
+    speed = result.speed_scale
+    if speed is None:
+        return ""
+    text = speed_note(speed, float(result.theta.c_e)).removeprefix("note: ")
+    return f"<p id='speed-scale'>{html.escape(text[:1].upper() + text[1:])}.</p>"
+
+
+def _next_step(result: CalibrationResult, data: ReportData) -> str:
+    """What to do next, with the command that does it."""
+    e = html.escape
+    files = [str(d.metadata.get("source", "")) for d in result.drive_data]
+    sources = (" ".join(Path(f).name for f in files) if files and all(
+        f.endswith((".csv", ".parquet")) for f in files) else "LOG ...")
+    if result.estimate.status is Status.REJECTED:
+        text, command = ("Fix what the checks name above (the mapping's units, columns or "
+                         "signs), look at the streams again, then calibrate again:",
+                         "odocal inspect --from FORMAT LOG --mapping MAP.toml")
+    elif result.estimate.unidentified:
+        text, command = (f"{', '.join(result.estimate.unidentified)} need more or other "
+                         "driving (above): calibrate these logs together with one that has "
+                         "it (with this run's --from and --datasheet):",
+                         f"odocal calibrate {sources} OTHER_LOG --out results/")
+    else:
+        text, command = ("Check the calibration on a drive it was not fitted on, then hand it "
+                         "to your localisation stack (--export autoware, ros2_control, "
+                         "robot_localization, yaml):",
+                         "odocal validate OTHER_LOG --params calibration.json")
+    return f"<h2>Next step</h2><p>{e(text)}</p><pre id='next-step'>{e(command)}</pre>"
 
 
 def _page(result: CalibrationResult, data: ReportData,
@@ -478,6 +527,7 @@ def _page(result: CalibrationResult, data: ReportData,
 <p class="meta">Covariance: {e(result.estimate.covariance_kind.value)}.
 {e(boot.message[:1].upper() + boot.message[1:]) + '.' if boot is not None
  else 'No bootstrap.'}</p>
+{_speed_scale(result)}
 {val}
 {comparison}
 {"<h2>Map</h2>" + fig('map') if 'map' in figs else ""}
@@ -493,6 +543,7 @@ def _page(result: CalibrationResult, data: ReportData,
 {_checks(result)}
 {_corrections(data)}
 {"<h2>Warnings</h2><ul>" + warnings + "</ul>" if warnings else ""}
+{_next_step(result, data)}
 <p class="meta">Every number on this page is in calibration.json.</p>
 </main></body></html>
 """

@@ -8,31 +8,25 @@ not identified, with its reason. The command line only prints these lines.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 from odocal.checks.findings import Finding, Severity
-from odocal.estimators.estimate import Estimate, NotIdentified, Reason, Status
-from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES, PARAMETER_UNITS, Parameters
-from odocal.pipeline.result import CalibrationResult
+from odocal.estimators.estimate import (
+    Estimate,
+    NotIdentified,
+    Reason,
+    Status,
+    parameter_table,
+    parameter_text,
+    std_text,
+)
+from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
+from odocal.pipeline.result import CalibrationResult, SpeedScale
 from odocal.report.advice import consistent_with_zero, finding_text, reason_text, zero_text
 from odocal.settings import Settings, datasheet_stated
 
 #: The words before each finding by its severity.
 SEVERITY_WORDS = {0: "note", 1: "warning", 2: "error"}
-
-
-def parameter_text(name: str, value: float) -> str:
-    """A parameter's value in the unit it reads best in (c_d, d in mm), signed where a sign
-    means something."""
-    scale, unit = PARAMETER_DISPLAY[name]
-    return f"{value * scale:+.3f} {unit}" if scale != 1.0 else f"{value:.5f} {unit}"
-
-
-def std_text(name: str, std: float) -> str:
-    """A standard deviation in the parameter's display unit, as ``+-value``."""
-    scale, _ = PARAMETER_DISPLAY[name]
-    return f"+-{std * scale:.3f}" if scale != 1.0 else f"+-{std:.5f}"
 
 
 def datasheet_note(datasheet: Parameters) -> str | None:
@@ -48,53 +42,39 @@ def summary_lines(result: CalibrationResult, *, truth: Parameters | None = None,
                   truth_error_m: float | None = None,
                   best_std: Sequence[float] | None = None) -> list[str]:
     """The calibration as a small table and its notes; ``truth`` (a simulated drive's) adds the
-    true values and the errors, ``best_std`` (its Cramér-Rao bound) the least std possible."""
+    true values and the errors, ``best_std`` (its Cramér-Rao bound) the least std possible.
+
+    A refused calibration (the data contradict the model) publishes no parameters: it says
+    what was read and why it was refused, never a table of datasheet values as if fitted."""
     est = result.estimate
-    drives = result.drives
-    total_km = sum(d.distance_m for d in drives) / 1000
-    total_min = sum(d.duration_s for d in drives) / 60
     segs = result.settings.segments
-    lines = [f"read {len(drives)} drive(s): {total_min:.1f} min, {total_km:.2f} km; "
-             f"{len(result.segments)} segments of {segs.length} samples, "
-             f"{int(result.segments.selected.sum())} with bends "
-             f"(peak yaw rate > {segs.yaw_rate_threshold_radps} rad/s)",
-             f"method: {result.method}, identified from {result.used_text()} "
-             f"in {result.elapsed_s:.1f} s", ""]
-    header = f"{'parameter':<10} {'datasheet':>16} {'calibrated':>16} {'std':>10}"
-    if best_std is not None:
-        header += f" {'best std':>10}"
-    if truth is not None:
-        header += f" {'true':>16} {'error':>10}"
-    lines.append(header)
-    theta0, theta = est.datasheet.as_dict(), est.theta.as_dict()
-    true = truth.as_dict() if truth is not None else None
-    std = dict(zip(PARAMETER_NAMES, est.std, strict=True))
-    exact = est.status is Status.EXACT
-    for j, (name, ok) in enumerate(zip(PARAMETER_NAMES, est.identified, strict=True)):
-        if ok:
-            cal = parameter_text(name, theta[name])
-            sd = "exact" if exact else std_text(name, std[name])
-        else:
-            cal, sd = "not identified", ""
-        line = f"{name:<10} {parameter_text(name, theta0[name]):>16} {cal:>16} {sd:>10}"
-        if best_std is not None:
-            best = best_std[j]
-            line += f" {std_text(name, best) if math.isfinite(best) else '-':>10}"
-        if true is not None:
-            err = std_text(name, abs(theta[name] - true[name])).replace("+-", "") if ok else ""
-            line += f" {parameter_text(name, true[name]):>16} {err:>10}"
-        lines.append(line)
+    first = result.read_text()
+    if result.method != "inverse":           # the segment methods' words
+        first += (f"; {len(result.segments)} segments of {segs.length} samples, "
+                  f"{int(result.segments.selected.sum())} with bends "
+                  f"(peak yaw rate > {segs.yaw_rate_threshold_radps} rad/s)")
+    lines = [first]
+    findings = [f"{SEVERITY_WORDS[int(f.severity)]}: {finding_text(f, result.settings)}"
+                for f in result.diagnosis.findings]
+    if est.status is Status.REJECTED:
+        return [*lines, *findings, *[f"warning: {w}" for w in result.warnings],
+                f"calibration failed: {est.message}"]
+    speed = result.speed_scale
+    lines += [f"method: {result.method}, identified from {result.used_text()} "
+              f"in {result.elapsed_s:.1f} s", "",
+              *parameter_table(est, truth=truth, best_std=best_std,
+                               speed_scale=speed is not None)]
     if best_std is not None:
         lines.append("best std: the smallest std an unbiased calibration of this drive can "
                      "have (its wheel errors' Cramér-Rao bound, the reference taken as exact)")
     note = datasheet_note(est.datasheet) if truth is None else None
     if note:
         lines.append(note)
+    if speed is not None:
+        lines.append(speed_note(speed, float(est.theta.c_e)))
     lines.append("")
     if result.validation is not None and result.datasheet_validation is not None:
-        seg = result.validation.segments
-        line = (f"validation error E_p over {len(seg)} segments of "
-                f"~{segs.validation_distance_m:.0f} m: "
+        line = (f"validation error E_p over {result.validation_text()}: "
                 f"datasheet {result.datasheet_validation.mean_error_m:.2f} m -> calibrated "
                 f"{result.validation.mean_error_m:.2f} m")
         if truth_error_m is not None:
@@ -102,10 +82,9 @@ def summary_lines(result: CalibrationResult, *, truth: Parameters | None = None,
         lines.append(line)
     else:
         lines.append("validation error E_p: not available (no validation segment)")
-    if exact:
+    if est.status is Status.EXACT:
         lines.append(f"note: {est.message}")
-    lines += [f"{SEVERITY_WORDS[int(f.severity)]}: {finding_text(f, result.settings)}"
-              for f in result.diagnosis.findings]
+    lines += findings
     for j, (name, verdict) in enumerate(zip(PARAMETER_NAMES, est.verdicts, strict=True)):
         if isinstance(verdict, NotIdentified) and verdict.reason not in (
                 Reason.REJECTED, Reason.STANDSTILL, Reason.FAILED):
@@ -120,6 +99,18 @@ def summary_lines(result: CalibrationResult, *, truth: Parameters | None = None,
     return lines
 
 
+def speed_note(speed: SpeedScale, c_e: float) -> str:
+    """What c_e means where the wheels were speeds turned into rates with an assumed
+    circumference."""
+    return (f"note: the wheel speeds were logged in {speed.unit} and turned into wheel rates "
+            f"with an assumed circumference of {speed.circumference_m:g} m (--circumference, "
+            "else the datasheet c_e): the wheels' own circumference is not in the log, so the "
+            f"calibration is a scale factor on the speed signal, {speed.factor:.5f} "
+            f"+-{speed.std:.5f} (the true speed over the reported one: Autoware's "
+            f"speed_scale_factor); c_e = {c_e:.5f} m is that factor times the assumed "
+            "circumference, and c_d is relative to it alike")
+
+
 def rejection_line(estimate: Estimate, findings: Sequence[Finding],
                    settings: Settings) -> str | None:
     """One line that says why a calibration publishes no parameters (None: it does): the first
@@ -131,3 +122,7 @@ def rejection_line(estimate: Estimate, findings: Sequence[Finding],
         return f"calibration failed: {estimate.message}"
     more = f" (and {len(fatal) - 1} more: see the report)" if len(fatal) > 1 else ""
     return f"error: {finding_text(fatal[0], settings)}{more}"
+
+
+__all__ = ["SEVERITY_WORDS", "datasheet_note", "parameter_text", "rejection_line",
+           "speed_note", "std_text", "summary_lines"]

@@ -59,11 +59,9 @@ from odocal.output.export import (
     OdometryNoise,
     export,
     parameters_yaml,
-    parse_datasheet,
 )
-from odocal.pipeline.calibrate import datasheet_theta
 from odocal.report.advice import finding_text, reason_text
-from odocal.settings import Settings, load_settings
+from odocal.settings import Settings, datasheet_theta, load_settings, parse_datasheet
 
 try:
     import rclpy

@@ -128,6 +128,78 @@ def front_wheels(sim: SimulatedDrive, wheelbase_m: float = WHEELBASE_M,
     return _rebuilt(sim, cols, "front-wheels")
 
 
+def one_wheel_offset(sim: SimulatedDrive, offset_revps: float) -> SimulatedDrive:
+    """The rear-left wheel's rate reads ``offset_revps`` more, standing or moving (one wheel's
+    sensor biased)."""
+    cols = _columns(sim.drive)
+    cols["n_rl"] = cols["n_rl"] + offset_revps
+    return _rebuilt(sim, cols, f"left{offset_revps:+g}revps")
+
+
+def filtered_rates(sim: SimulatedDrive, tau_s: float) -> SimulatedDrive:
+    """Both wheel rates through a first-order low-pass of time constant ``tau_s`` (a CAN
+    gateway's filter): each sample moves ``t_s / tau`` of the way to the new value."""
+    cols = _columns(sim.drive)
+    alpha = min(sim.drive.t_s / tau_s, 1.0)
+    for key in ("n_rl", "n_rr"):
+        x = cols[key]
+        y = np.empty_like(x)
+        y[0] = x[0]
+        for k in range(1, x.size):
+            y[k] = y[k - 1] + alpha * (x[k] - y[k - 1])
+        cols[key] = y
+    return _rebuilt(sim, cols, f"lowpass{tau_s:g}s")
+
+
+def lateral_scale(sim: SimulatedDrive, scale: float) -> SimulatedDrive:
+    """The lateral acceleration read ``scale`` times too large (an accelerometer's scale
+    error, or a body that rolls in bends)."""
+    cols = _columns(sim.drive)
+    cols["a_y"] = cols["a_y"] * scale
+    return _rebuilt(sim, cols, f"a_y-x{scale:g}")
+
+
+def drift(sim: SimulatedDrive, fraction: float) -> SimulatedDrive:
+    """c_e grows by ``fraction`` of itself from the start of the drive to its end, evenly
+    (tyres warming): the wheels turn ``1 / (1 + fraction t / T)`` as often for the same
+    travel. The truth at the end is c_e times ``1 + fraction``."""
+    cols = _columns(sim.drive)
+    t = cols["t"]
+    grow = 1.0 + fraction * (t - t[0]) / (t[-1] - t[0])
+    cols["n_rl"] = cols["n_rl"] / grow
+    cols["n_rr"] = cols["n_rr"] / grow
+    return _rebuilt(sim, cols, f"drift{fraction:+g}")
+
+
+def lever_arm(sim: SimulatedDrive, forward_m: float, left_m: float) -> SimulatedDrive:
+    """The reference pose of a point ``forward_m`` ahead of and ``left_m`` left of the rear
+    axle's midpoint (a GNSS antenna on the roof, an INS at its IMU)."""
+    cols = _columns(sim.drive)
+    psi = cols["psi"]
+    cols["x"] = cols["x"] + forward_m * np.cos(psi) - left_m * np.sin(psi)
+    cols["y"] = cols["y"] + forward_m * np.sin(psi) + left_m * np.cos(psi)
+    return _rebuilt(sim, cols, f"arm{forward_m:+g},{left_m:+g}m")
+
+
+def parked(sim: SimulatedDrive, minutes: float, jitter_m: float = 0.02) -> SimulatedDrive:
+    """The drive, then ``minutes`` parked where it ended: the wheels at zero, the reference
+    pose jittering by ``jitter_m`` (a GNSS fix at rest)."""
+    cols = _columns(sim.drive)
+    t_s = sim.drive.t_s
+    count = round(minutes * 60.0 / t_s)
+    rng = np.random.default_rng(sim.seed + 7)
+    more = {"t": cols["t"][-1] + t_s * np.arange(1, count + 1)}
+    for key in cols:
+        if key == "t":
+            continue
+        more[key] = np.full(count, cols[key][-1] if key in ("x", "y", "psi") else 0.0)
+    more["x"] = more["x"] + rng.normal(0.0, jitter_m, count)
+    more["y"] = more["y"] + rng.normal(0.0, jitter_m, count)
+    more["psi"] = more["psi"] + rng.normal(0.0, 0.002, count)
+    joined = {k: np.concatenate([cols[k], more[k]]) for k in cols}
+    return _rebuilt(sim, joined, f"parked{minutes:g}min")
+
+
 @dataclass(frozen=True)
 class Departure:
     """A kind of departure and the values it is run at.
@@ -203,6 +275,26 @@ DEPARTURES: Mapping[str, Departure] = MappingProxyType({d.name: d for d in (
     Departure("front-wheels", "the front wheels' rates mapped as the rear ones "
               "(value: wheelbase, m)", (2.7, 2.5), "named",
               lambda seed, v, noise, dur: front_wheels(_plain(seed, dur, noise), v)),
+    Departure("one-wheel-offset", "the left wheel's rate offset, standing or moving (rev/s)",
+              (0.01, 0.03, 0.05), "modelled",
+              lambda seed, v, noise, dur: one_wheel_offset(_plain(seed, dur, noise), v)),
+    Departure("filtered-rates", "the wheel rates low-pass filtered (time constant, s)",
+              (0.3, 0.5), "modelled",
+              lambda seed, v, noise, dur: filtered_rates(_plain(seed, dur, noise), v)),
+    Departure("a_y-scale", "a_y read this many times too large", (1.3, 0.8), "modelled",
+              lambda seed, v, noise, dur: lateral_scale(_plain(seed, dur, noise), v)),
+    Departure("drift", "c_e grows by this fraction over the drive (tyres warming)",
+              (0.003, -0.003), "modelled",
+              lambda seed, v, noise, dur: drift(_plain(seed, dur, noise), v)),
+    Departure("arm-ahead", "the reference point this far ahead of the rear axle (m)",
+              (2.0, -0.8), "modelled",
+              lambda seed, v, noise, dur: lever_arm(_plain(seed, dur, noise), v, 0.0)),
+    Departure("arm-left", "the reference point this far left of the rear axle (m)",
+              (0.5, -2.0), "modelled",
+              lambda seed, v, noise, dur: lever_arm(_plain(seed, dur, noise), 0.0, v)),
+    Departure("parked", "the drive followed by this many minutes parked", (10.0,),
+              "uncertain",
+              lambda seed, v, noise, dur: parked(_plain(seed, dur, noise), v)),
 )})
 
 

@@ -108,7 +108,14 @@ def solve_osqp(p: CompensationProblem, *,
     ``attempts`` until polishing succeeds with a feasible answer (a polished point can still
     violate the model equalities slightly, and so undercut the true optimum).
     """
-    import osqp  # the reference solver: loaded where it runs
+    try:
+        import osqp  # the reference solver: loaded where it runs
+    except ImportError as err:
+        from odocal.errors import MissingDependencyError
+
+        raise MissingDependencyError("the reference QP solver ([compensate] solver = \"osqp\") "
+                                     "needs osqp, which is not installed: "
+                                     "pip install 'odocal[compensated]'") from err
 
     qp = sparse_qp(p)
     status, iterations, eps = "not run", 0, float("nan")
