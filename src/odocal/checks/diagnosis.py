@@ -133,7 +133,10 @@ def check_drives(drives: Sequence[Drive], settings: Settings) -> Diagnosis:
     wheel_m = float(np.abs(win.wheel_ds).sum())
     if wheel_m < lim.min_distance_m:
         reference_m = float(np.abs(win.ds).sum())
-        if reference_m >= 10.0 * lim.min_distance_m:   # the reference drives, the wheels not
+        extent_m = max((float(np.hypot(np.ptp(d.x), np.ptp(d.y))) for d in drives if d.x.size),
+                       default=0.0)
+        if extent_m >= 10.0 * lim.min_distance_m:     # the reference drives, the wheels not
+            # (judged by how far apart its positions lie: a parked pose's jitter adds up)
             findings.append(Finding(Check.SPEED_SCALE, Severity.FATAL,
                                     wheel_m / reference_m, reference_m))
         else:
