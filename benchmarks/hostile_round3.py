@@ -448,7 +448,7 @@ def _distinct(ctx: Ctx) -> Check:
     a = write(folder / "a.parquet", base(420.0, 31))
     b = write(folder / "b.parquet", base(420.0, 32))
     return succeeded(ctx.cli("calibrate", str(a), str(b), "--out", str(folder / "o"),
-                             "--no-report"), "2 drive(s)")
+                             "--no-report"), "read 2 drive")
 
 
 @case("duplicates", "one route driven twice (same motion, other noise) is not a copy")
@@ -457,7 +457,7 @@ def _same_route(ctx: Ctx) -> Check:
     a = write(folder / "a.parquet", base(420.0, 33, "realistic"))
     b = write(folder / "b.parquet", base(420.0, 33, "white"))
     return succeeded(ctx.cli("calibrate", str(a), str(b), "--out", str(folder / "o"),
-                             "--no-report"), "2 drive(s)")
+                             "--no-report"), "read 2 drive")
 
 
 for _cmd in ("validate", "minimum", "calibrate --compare"):
