@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal import cancel
 from odocal.data.drive import REQUIRED_COLUMNS
 from odocal.errors import ConfigError, DataError, InputFileError, input_file
 from odocal.estimators.estimate import Estimate
@@ -26,6 +27,7 @@ from odocal.io.streams import Stream
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.online.calibrator import OnlineCalibrator
 from odocal.online.changes import Alarm
+from odocal.online.samples import MAX_PUSHED_RATE_REVPS
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
@@ -72,22 +74,25 @@ class ReplayResult:
 def stream_drive_file(path: str | Path, *, rows: int) -> Iterator[Chunk]:
     """A drive-format file (Parquet or CSV; a path or a URL) in batches of about ``rows`` rows.
     An object is read range by range (a Parquet row group, a CSV block at a time), never whole."""
-    from odocal.io.remote import is_remote
+    from odocal.io.urls import is_remote
 
     if is_remote(path):
-        from odocal.io.remote import name_of, open_input, redact
+        from odocal.io.remote import open_input
+        from odocal.io.urls import name_of, redact
 
         with open_input(str(path), "input file") as handle:
             yield from _stream_drive(handle, redact(path), Path(name_of(str(path))).suffix,
                                      rows=rows)
         return
-    from odocal.io.remote import local_path
+    from odocal.io.urls import local_path
 
     p = input_file(local_path(path))
     if not p.is_file():
         raise InputFileError(f"input file '{p}' does not exist"
                              + (" (it is a folder)" if p.is_dir() else ""))
-    yield from _stream_drive(p, str(p), p.suffix, rows=rows)
+    from odocal.io.drivefile import suffix_of
+
+    yield from _stream_drive(p, str(p), suffix_of(p), rows=rows)
 
 
 def _stream_drive(source: Any, p: str, suffix: str, *, rows: int) -> Iterator[Chunk]:
@@ -100,7 +105,7 @@ def _stream_drive(source: Any, p: str, suffix: str, *, rows: int) -> Iterator[Ch
         if suffix in (".parquet", ".pq"):
             pfile = pq.ParquetFile(source)
             names = pfile.schema_arrow.names
-            wanted = [n for n in (*REQUIRED_COLUMNS, "beta") if n in names]
+            wanted = [n for n in (*REQUIRED_COLUMNS, "beta", "piece") if n in names]
             # one row group at a time (odocal writes groups of 65,536 rows): memory stays flat
             batches: Iterator[Any] = (
                 batch for group in range(pfile.num_row_groups)
@@ -119,7 +124,7 @@ def _stream_drive(source: Any, p: str, suffix: str, *, rows: int) -> Iterator[Ch
                             f"{', '.join(missing)}")
         for batch in batches:           # read in large batches, handed on in chunks of ``rows``
             cols = {name: _numbers(batch.column(name))
-                    for name in (*REQUIRED_COLUMNS, "beta") if name in names}
+                    for name in (*REQUIRED_COLUMNS, "beta", "piece") if name in names}
             for lo in range(0, batch.num_rows, rows):
                 yield {k: v[lo:lo + rows] for k, v in cols.items()}
     except (pa.ArrowInvalid, pa.ArrowTypeError, ValueError, TypeError) as exc:
@@ -267,6 +272,74 @@ def stream_source(source: str | Path, *, fmt: str | None, settings: Settings,
                 yield chunk
 
 
+def _one_piece(chunk: Chunk, piece: float | None, source: str | Path, read: int
+               ) -> float | None:
+    """The chunk's ``piece`` (a drive-format column that marks separate runs of one log), or a
+    DataError where a new piece starts: the live calibrator takes one run of samples, and
+    would see the step between two runs as a jump of the pose."""
+    values = chunk.get("piece")
+    if values is None or not np.asarray(values).size:
+        return piece
+    values = np.asarray(values, dtype=np.float64)
+    first = float(values[0]) if piece is None else piece
+    change = np.flatnonzero(values != first)
+    if change.size:
+        from odocal.io.urls import redact
+
+        i = int(change[0])
+        raise DataError(f"'{redact(source)}' starts a new piece at row {read + i + 1} "
+                        f"(t={chunk['t'][i]:.6g}; column piece {first:g} -> {values[i]:g}): "
+                        "replay streams one run of samples; replay each piece on its own, or "
+                        "calibrate the log (batch keeps its pieces apart)")
+    return first
+
+
+def located(exc: DataError, source: str | Path, chunk: Chunk, read: int,
+            previous_t: float | None) -> DataError:
+    """A push's DataError about a chunk of ``source`` (``read`` samples came before it, the last
+    at ``previous_t``), as batch says it: the log, the column, the first bad row (1 = the first
+    sample) and its time (as the log's t has it)."""
+    from odocal.io.urls import redact
+
+    name = redact(source)
+    t = np.asarray(chunk["t"], dtype=np.float64)
+
+    def at(i: int) -> str:
+        return f"row {read + i + 1}" + (f", t={t[i]:.6g}" if np.isfinite(t[i]) else "")
+
+    for key in ("t", "n_rl", "n_rr", "a_y", "beta", "x", "y", "psi"):
+        values = chunk.get(key)
+        if values is None:
+            continue
+        bad = ~np.isfinite(np.asarray(values, dtype=np.float64))
+        if bad.any():
+            i = int(np.argmax(bad))
+            return DataError(f"'{name}' column {key} holds {int(bad.sum())} NaN or infinite "
+                             f"values in rows {read + 1}-{read + t.size} (first at {at(i)})")
+    before = np.concatenate([[previous_t], t]) if previous_t is not None else t
+    back = np.flatnonzero(np.diff(before) <= 0)
+    if back.size:
+        from odocal.data.drive import check_time_precision
+
+        check_time_precision(name, before)        # (stamps that lost their precision)
+        j = int(back[0])                          # before[j + 1] does not follow before[j]
+        i = j if previous_t is not None else j + 1            # its index in this chunk
+        return DataError(f"'{name}' column t is not strictly increasing: t={before[j + 1]:.6g} "
+                         f"follows t={before[j]:.6g} at row {read + i + 1}; sort the log or "
+                         "drop duplicate stamps")
+    for key in ("n_rl", "n_rr"):
+        rates = np.abs(np.asarray(chunk[key], dtype=np.float64))
+        too_fast = rates > MAX_PUSHED_RATE_REVPS
+        if too_fast.any():
+            i = int(np.argmax(too_fast))
+            return DataError(f"'{name}' column {key} reaches {float(rates.max()):.4g} (first "
+                             f"beyond {MAX_PUSHED_RATE_REVPS:g} at {at(i)}): wheel rates must be "
+                             "in rev/s")
+    text = str(exc).replace("pushed samples' ", "").replace("pushed ", "")
+    return DataError(f"'{name}' rows {read + 1}-{read + t.size} (t={t[0]:.6g} to "
+                     f"{t[-1]:.6g}): {text}")
+
+
 def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | None = None,
            mapping: str | Path | Mapping[str, Mapping[str, Any]] | None = None,
            theta0: Parameters | None = None,
@@ -280,7 +353,9 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
     """
     started = time.perf_counter()
     settings = settings or Settings()
-    calibrator = OnlineCalibrator(settings, theta0)
+    from odocal.io.urls import redact
+
+    calibrator = OnlineCalibrator(settings, theta0, source=redact(source))
     trace: list[TraceRow] = []
     first_t: float | None = None
     last_t = 0.0
@@ -296,10 +371,20 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
         if on_update is not None:
             on_update(row, est)
 
+    read = 0                                      # samples read before this chunk
+    piece: float | None = None                    # the drive format's piece, if it has one
+    previous_t: float | None = None               # the last one's t, as the log has it
     for chunk in stream_source(source, fmt=fmt, settings=settings, mapping=mapping):
+        cancel.check()                            # a stop asked for (odocal.cancel)
         if chunk["t"].size == 0:
             continue
-        calibrator.push(chunk)
+        piece = _one_piece(chunk, piece, source, read)
+        try:
+            calibrator.push(chunk)
+        except DataError as exc:                  # named by the log, the row and the time
+            raise located(exc, source, chunk, read, previous_t) from exc
+        read += int(chunk["t"].size)
+        previous_t = float(chunk["t"][-1])
         span = calibrator.span_s                  # in seconds, whatever unit the log's t has
         if span is None:
             continue                              # (a lone first sample)
@@ -312,11 +397,11 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
             update(last_t)
             next_update = last_t + settings.online.update_s
     if first_t is None:
-        from odocal.io.remote import redact
+        from odocal.io.urls import redact
 
         raise DataError(f"'{redact(source)}' holds no samples (or a single one)")
     update(last_t)
-    from odocal.io.remote import redact
+    from odocal.io.urls import redact
 
     return ReplayResult(source=redact(source), estimate=calibrator.estimate(), trace=tuple(trace),
                         alarms=calibrator.alarms, samples=calibrator.details_samples(),

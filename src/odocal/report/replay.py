@@ -15,6 +15,7 @@ from odocal.io.atomic import write_bytes, write_text
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_LABELS, PARAMETER_NAMES
 from odocal.online.changes import Alarm
 from odocal.online.replay import ReplayResult
+from odocal.redaction import redact_text
 from odocal.report.render import Call, FigureSpec, Renderer
 
 #: Convergence thresholds the report quotes: c_e to 1 mm, t_r to 20 mm.
@@ -135,5 +136,5 @@ td:first-child,th:first-child{{text-align:left}} img{{max-width:100%}}
 </main></body></html>
 """
     path = out / "report.html"
-    write_text(path, page)
+    write_text(path, redact_text(page))            # no secret on the page
     return path
