@@ -249,7 +249,8 @@ class Rig:
 
 
 def start_rig(ros: Any, tmp_path: Path, nodes: list[Any], executor: Any, *,
-              pose_type: str = "odometry", discover: bool = True, **params: Any) -> Rig:
+              pose_type: str = "odometry", discover: bool = True, rosout: bool = False,
+              **params: Any) -> Rig:
     i = next(_counter)
     ns, node_ns = f"/t{i}", f"/t{i}/odocal"
     folder = tmp_path / f"exports{i}"
@@ -257,7 +258,7 @@ def start_rig(ros: Any, tmp_path: Path, nodes: list[Any], executor: Any, *,
                  "imu_topic": f"{ns}/imu", "pose_topic": f"{ns}/pose",
                  "export_dir": str(folder), "pose_type": pose_type, **params}
     node = CalibrationNode(context=ros, namespace=node_ns, node_name="odocal",
-                           enable_rosout=False,
+                           enable_rosout=rosout,
                            parameter_overrides=[Parameter(k, value=v)
                                                 for k, v in overrides.items()])
     player = Player(ros, ns, f"{node_ns}/odocal", pose_type=pose_type)

@@ -88,19 +88,23 @@ class Continuity:
     last_missing_t: float | None = None   # the stamp after the latest gap
     period_s: float | None = None
     _steps: list[float] = field(default_factory=list)
+    _refused: int = 0                 # refused since the last message taken (not missing)
 
     def check(self, t: float) -> bool:
         last = self.last_t
         if last is not None and not t > last:
             self.back += 1
             self.back_max_s = max(self.back_max_s, last - t)
+            self._refused += 1
             return False
         if last is not None:
             step = t - last
             period = self.period_s
             if period is not None and step > MISSING_AFTER * period:
-                self.missing += round(step / period) - 1
-                self.last_missing_t = t
+                missing = round(step / period) - 1 - self._refused
+                if missing > 0:
+                    self.missing += missing
+                    self.last_missing_t = t
             steps = self._steps
             steps.append(step)
             if len(steps) >= _PERIOD_STEPS:
@@ -110,6 +114,7 @@ class Continuity:
                 self.period_s = float(np.percentile(steps, 10))
         self.last_t = t
         self.received += 1
+        self._refused = 0
         return True
 
     def refuse_invalid(self) -> None:

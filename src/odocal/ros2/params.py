@@ -134,18 +134,25 @@ def _fits(spec: Spec, value: Any) -> bool:
     return isinstance(value, list | tuple) and all(isinstance(v, str) for v in value)
 
 
+def _wanted(spec: Spec) -> str:
+    """What type a parameter takes, in words (with an example where a type is easily
+    mistaken: 2.0 for 2)."""
+    if spec.any_type:
+        return "a list of strings or one string with commas"
+    if spec.kind == "double":
+        return f"a double (e.g. {float(spec.default)!r})"
+    if spec.kind == "double_array":
+        return (f"a list of {len(spec.default)} doubles (e.g. "
+                f"{[float(v) for v in spec.default]})")
+    return {"integer": "an integer", "bool": "a boolean (true or false)", "string": "a string",
+            "string_array": "a list of strings"}[spec.kind]
+
+
 def check_value(spec: Spec, value: Any) -> str | None:
     """What is wrong with ``value`` for ``spec`` (None: nothing), in words that name it."""
     head = f"parameter {spec.name}: {value!r}"
     if not _fits(spec, value):
-        wanted = {"double": f"a double (e.g. {float(spec.default)!r})",
-                  "integer": "an integer", "bool": "a boolean (true or false)",
-                  "string": "a string", "string_array": "a list of strings",
-                  "double_array": f"a list of {len(spec.default)} doubles (e.g. "
-                                  f"{[float(v) for v in spec.default]})"}[spec.kind]
-        if spec.any_type:
-            wanted = "a list of strings or one string with commas"
-        return f"{head} is {_type_of(value)}; it takes {wanted}"
+        return f"{head} is {_type_of(value)}; it takes {_wanted(spec)}"
     if spec.kind in ("integer", "double"):
         if (spec.low is not None and value < spec.low) or \
                 (spec.high is not None and value > spec.high):
