@@ -179,7 +179,8 @@ def play(executor: Any, player: Player, node: CalibrationNode, d: odocal.Drive,
          between: Callable[[int], None] | None = None) -> dict[str, int]:
     """Publish the drive (see the module); returns the messages sent per role."""
     script = script or Script()
-    sent = {"wheels": 0, "imu": 0, "pose": 0}
+    before = arrived(node)                  # (what the node took before: a drive goes on)
+    sent = dict(before)
     late_imu: list[Any] = []
     pubs = {"wheels": player.wheels, "pose": player.pose}
     for b, start in enumerate(range(0, d.n_samples, batch)):
@@ -207,7 +208,7 @@ def play(executor: Any, player: Player, node: CalibrationNode, d: odocal.Drive,
     # the clock goes on a little after the drive (a timer tick publishes the diagnostics)
     player.clock.publish(Clock(clock=stamp(script.start_s + float(d.t[-1]) + 0.5)))
     executor.spin_once(timeout_sec=0.05)
-    return sent
+    return {role: sent[role] - before[role] for role in sent}
 
 
 def arrived(node: CalibrationNode) -> dict[str, int]:

@@ -49,6 +49,7 @@ import json
 import math
 import re
 import signal
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -58,7 +59,7 @@ import numpy as np
 from odocal.errors import ConfigError, DataError, MissingDependencyError, OdocalError
 from odocal.estimators.estimate import Estimate, NotIdentified, Status
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
-from odocal.model.step import body
+from odocal.model.step import body, increment
 from odocal.online.calibrator import OnlineCalibrator
 from odocal.online.replay import GridResampler, publishable
 from odocal.output.export import (
@@ -108,6 +109,8 @@ NODE_NAME = "odocal_calibration"
 EXPORTS = params.EXPORTS
 #: A topic that lost messages is named on /diagnostics for this long (s of its stamps) after.
 LOSS_NAMED_S = 60.0
+#: The inputs' receipt times are the node's clock read at most this often (wall time, s).
+RECEIPT_EVERY_S = 0.005
 _LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                       reliability=ReliabilityPolicy.RELIABLE)
 _SUCCESS, _FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
@@ -189,6 +192,7 @@ class CalibrationNode(LifecycleNode):
             self._entities: list[Any] = []
             self._outputs: list[Any] = []
             self._configured = self._active = self._finished = False
+            self._receipt_wall, self._receipt = -math.inf, 0.0
             self._configure_error: str | None = None
             self._declare()
             if self._param("autostart"):
@@ -237,6 +241,14 @@ class CalibrationNode(LifecycleNode):
 
     def _now_s(self) -> float:
         return float(self.get_clock().now().nanoseconds) * 1e-9
+
+    def _receipt_s(self) -> float:
+        """The node's clock for the inputs' receipt times, read at most every
+        :data:`RECEIPT_EVERY_S` of wall time (reading it costs more than a message does)."""
+        wall = time.monotonic()
+        if wall - self._receipt_wall >= RECEIPT_EVERY_S:
+            self._receipt_wall, self._receipt = wall, self._now_s()
+        return self._receipt
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -344,6 +356,7 @@ class CalibrationNode(LifecycleNode):
         self._joints: tuple[str, str] | None = None
         self._reader = cdr.JointReader(self._pick_joints)
         self._rates = Rates(s.convert.max_gap_s)
+        self._max_gap_s = s.convert.max_gap_s
         self._config_error: str | None = None
         self._origin: tuple[int, int] | None = None
         self._first_t: float | None = None
@@ -483,7 +496,7 @@ class CalibrationNode(LifecycleNode):
     def _on_wheels(self, first: bytes) -> None:
         if not self._active:
             return
-        now = self._now_s()
+        now = self._receipt_s()
         for data in self._drain(self._wheel_sub, first):
             self._wheel_message(data, now)
         self._maybe_flush()
@@ -531,7 +544,7 @@ class CalibrationNode(LifecycleNode):
             return
         imu = self._imu
         assert imu is not None
-        now = self._now_s()
+        now = self._receipt_s()
         for data in self._drain(self._imu_sub, first):
             try:
                 sec, nsec, rate, accel = cdr.imu(data)
@@ -567,7 +580,7 @@ class CalibrationNode(LifecycleNode):
         if not self._active:
             return
         pose = self._pose
-        now = self._now_s()
+        now = self._receipt_s()
         for data in self._drain(self._pose_sub, first):
             try:
                 m = self._pose_reader(data)
@@ -815,17 +828,18 @@ class CalibrationNode(LifecycleNode):
     def _publish_odometry(self, sec: int, nsec: int, t: float, n_rl: float, n_rr: float) -> None:
         """(2a), (2b) with the published calibration, the pose by (1), and the twist's
         variances (:mod:`odocal.ros2.twist`)."""
-        v, w, _, _ = body(self._theta, n_rl, n_rr, self._a_y)
+        a_y = self._a_y
+        v, w, _, _ = body(self._theta, n_rl, n_rr, a_y)
         last = self._odom_t
-        if last is not None and 0.0 < t - last <= self.settings.convert.max_gap_s:
-            dt = t - last
-            heading = self._psi + 0.5 * w * dt
-            self._x += v * dt * math.cos(heading)
-            self._y += v * dt * math.sin(heading)
-            self._psi += w * dt
+        if last is not None and 0.0 < t - last <= self._max_gap_s:
+            dx, dy, dpsi, _, _ = increment(self._psi, v, w, 0.0, t - last)
+            self._x += float(dx)
+            self._y += float(dy)
+            self._psi += float(dpsi)
         self._odom_t = t
-        self.twist.readings.add(t, v, w)
-        var_v, var_w = self.twist.variances(v, n_rl, n_rr, self._a_y)
+        twist = self.twist
+        twist.readings.add(t, v, w)
+        var_v, var_w = twist.variances(v, n_rl, n_rr, a_y)
         half = 0.5 * self._psi
         self._odom_pub.publish(self._writer.message(
             sec, nsec, self._x, self._y, math.sin(half), math.cos(half), v, w, var_v, var_w))

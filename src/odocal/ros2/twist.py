@@ -35,6 +35,8 @@ UNKNOWN_VARIANCE = 1.0e6
 #: Steps between three messages that differ by more than this share are not a second
 #: difference at the readings' rate.
 _UNEVEN = 0.25
+#: The reading noise's fit is solved anew after this many more second differences.
+REFIT_EVERY = 64
 
 
 class ReadingNoise:
@@ -49,6 +51,8 @@ class ReadingNoise:
         # sums of 1, v^2, v^4 and of y, y v^2 per channel (y: the squared second difference / 6)
         self._s = [0.0, 0.0, 0.0]
         self._y = [[0.0, 0.0], [0.0, 0.0]]
+        self._fitted: tuple[tuple[float, float], tuple[float, float]] | None = None
+        self._fitted_at = 0.0
 
     def add(self, t: float, v: float, w: float) -> None:
         now = (t, v, w)
@@ -76,7 +80,12 @@ class ReadingNoise:
 
     def coefficients(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
         """((a, b) for the speed, (a, b) for the yaw rate), each part at least zero; None
-        before ten second differences."""
+        before ten second differences. Solved anew every :data:`REFIT_EVERY` differences."""
+        if self._fitted is None or self._s[0] - self._fitted_at >= REFIT_EVERY:
+            self._fitted, self._fitted_at = self._solve(), self._s[0]
+        return self._fitted
+
+    def _solve(self) -> tuple[tuple[float, float], tuple[float, float]] | None:
         n, s2, s4 = self._s
         if n < 10:
             return None
@@ -104,24 +113,24 @@ class TwistVariance:
         self.window_s = window_s
         self.readings = ReadingNoise(max_gap_s)
         self._fit: tuple[tuple[float, float], tuple[float, float]] | None = None
-        self._terms: tuple[tuple[int, int, float, float], ...] = ()
+        self._quadratic: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     def calibrate(self, est: Estimate | None) -> None:
         """Take the error model and covariance of ``est`` (None: nothing is known)."""
         if est is None or est.details is None:
-            self._fit, self._terms = None, ()
+            self._fit, self._quadratic = None, None
             return
         noise = np.asarray(getattr(est.details, "noise", np.full((2, 2), np.nan)), dtype=float)
         th = est.theta.as_array()
         if not np.all(np.isfinite(noise)):
-            self._fit, self._terms = None, ()
+            self._fit, self._quadratic = None, None
             return
         c_e, t_r, window = float(th[0]), float(th[2]), self.window_s
         # (window mean) speed: (c_e / W)^2 (s0^2 + (f rev)^2), rev = |v| W / c_e; yaw: / t_r^2
         self._fit = ((float((c_e * noise[0, 0] / window) ** 2), float(noise[0, 1] ** 2)),
                      (float((c_e * noise[1, 0] / (t_r * window)) ** 2),
                       float((noise[1, 1] / t_r) ** 2)))
-        self._terms = _parameter_terms(th, np.asarray(est.covariance, dtype=float))
+        self._quadratic = _parameter_terms(th, np.asarray(est.covariance, dtype=float))
 
     def variances(self, v: float, n_rl: float, n_rr: float, a_y: float) -> tuple[float, float]:
         """The speed's and the yaw rate's variance for a message (``v`` its speed, m/s)."""
@@ -131,25 +140,30 @@ class TwistVariance:
         v2 = v * v
         var_v = readings[0][0] + readings[0][1] * v2 + fit[0][0] + fit[0][1] * v2
         var_w = readings[1][0] + readings[1][1] * v2 + fit[1][0] + fit[1][1] * v2
-        if self._terms:
-            z = (n_rl, n_rr, a_y * n_rl, a_y * n_rr)
-            for i, j, cv, cw in self._terms:
-                zz = z[i] * z[j]
-                var_v += cv * zz
-                var_w += cw * zz
+        q = self._quadratic
+        if q is not None:
+            z0, z1, z2, z3 = n_rl, n_rr, a_y * n_rl, a_y * n_rr
+            for channel, c in enumerate(q):    # z' Q z, the upper triangle in row order
+                part = (z0 * (c[0] * z0 + c[1] * z1 + c[2] * z2 + c[3] * z3)
+                        + z1 * (c[4] * z1 + c[5] * z2 + c[6] * z3)
+                        + z2 * (c[7] * z2 + c[8] * z3) + c[9] * z3 * z3)
+                if channel == 0:
+                    var_v += part
+                else:
+                    var_w += part
         return var_v, var_w
 
 
 def _parameter_terms(th: np.ndarray, covariance: np.ndarray
-                     ) -> tuple[tuple[int, int, float, float], ...]:
+                     ) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
     """The calibration's share of the variances as quadratic forms in
     ``z = (n_rl, n_rr, a_y n_rl, a_y n_rr)``: (2a) and (2b) and their Jacobian in theta are
     linear in z, so ``J = G z`` with G found from the model's Jacobian at four points, and the
-    variance is ``z' G' Sigma G z``. Returned as (i, j, speed, yaw-rate coefficient) for
-    ``i <= j``."""
+    variance is ``z' G' Sigma G z``. Returned per channel (speed, yaw rate) as the coefficients
+    of ``z_i z_j`` for ``i <= j`` in row order (None: no covariance)."""
     sigma = np.where(np.isfinite(covariance), covariance, 0.0)
     if not sigma.any():
-        return ()
+        return None
     out = np.zeros((3, 6))
     columns = []
     for n_rl, n_rr, a_y in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (1.0, 0.0, 1.0),
@@ -160,15 +174,12 @@ def _parameter_terms(th: np.ndarray, covariance: np.ndarray
         columns.append(out[[0, 2], 2:].copy())       # d(v, w) / d theta at this point
     g = np.stack([columns[0], columns[1], columns[2] - columns[0], columns[3] - columns[1]],
                  axis=-1)                             # (2, theta, z)
-    terms = []
-    q = [g[c].T @ sigma @ g[c] for c in range(2)]
-    for i in range(4):
-        for j in range(i, 4):
-            factor = 1.0 if i == j else 2.0
-            cv, cw = factor * q[0][i, j], factor * q[1][i, j]
-            if cv or cw:
-                terms.append((i, j, float(cv), float(cw)))
-    return tuple(terms)
+    forms = []
+    for channel in range(2):
+        q = g[channel].T @ sigma @ g[channel]
+        forms.append(tuple(float(q[i, j] * (1.0 if i == j else 2.0))
+                           for i in range(4) for j in range(i, 4)))
+    return forms[0], forms[1]
 
 
 def standard_deviations(variance: tuple[float, float]) -> tuple[float, float]:
