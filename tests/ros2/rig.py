@@ -268,7 +268,9 @@ def start_rig(ros: Any, tmp_path: Path, nodes: list[Any], executor: Any, *,
     executor.add_node(player)
     if discover and node.get_parameter("autostart").value:
         spin_until(executor, lambda: player.wheels.get_subscription_count() > 0
-                   and player.pose.get_subscription_count() > 0, "discovery")
+                   and player.pose.get_subscription_count() > 0
+                   and (player.imu.get_subscription_count() > 0
+                        or not node.get_parameter("imu_topic").value), "discovery")
     return Rig(executor, player, node, folder)
 
 

@@ -294,21 +294,42 @@ def test_ctrl_c_or_sigterm_mid_drive_ends_cleanly(ros: Any, tmp_path: Path, sign
     try:
         spin_until(executor, lambda: player.wheels.get_subscription_count() > 0
                    and player.pose.get_subscription_count() > 0
+                   and player.imu.get_subscription_count() > 0
                    and all(sub.get_publisher_count() > 0 for sub in player.subscriptions
                            if sub.topic_name.startswith(f"/{name}/")),
                    "discovery", limit_s=90)
-        sent = 0
+        sent, answered = 0, 0
+        batch: list[Any] = []
         for k in range(d.n_samples):
             msgs = messages(d, k, script)
             if k % 40 == 0:
                 player.clock.publish(Clock(clock=stamp(START_S + float(d.t[k]))))
+                batch = []
             for role in ("wheels", "imu", "pose"):
                 getattr(player, role).publish(msgs[role])
-            if k < 100 * 40 and k % 40 == 39:     # the first 100 s at the node's pace
-                spin_until(executor, lambda k=k: len(player.odometry) > k - 40,
+                batch.append((role, msgs[role]))
+            if k == 39:
+                # what a reader gets before it has matched the writer is lost on the way: the
+                # first batch again until the node answers (what arrives twice is refused)
+                for _ in range(12):
+                    deadline = time.monotonic() + 5.0
+                    while not player.odometry and time.monotonic() < deadline:
+                        executor.spin_once(timeout_sec=0.01)
+                    if player.odometry:
+                        break
+                    for role, msg in batch:
+                        getattr(player, role).publish(msg)
+                spin_until(executor, lambda: bool(player.odometry), "the node's odometry")
+                spin_until(executor, lambda: len(player.odometry) == 40
+                           or player.odometry[-1].header.stamp.sec == int(START_S + d.t[39]),
+                           "the first batch's odometry")
+                answered = len(player.odometry)
+            elif k < 100 * 40 and k % 40 == 39:   # the first 100 s at the node's pace
+                answered += 40
+                spin_until(executor, lambda a=answered: len(player.odometry) >= a,
                            "the node's odometry", limit_s=90)
             if k == 100 * 40:                      # the node has published estimates
-                spin_until(executor, lambda: len(player.estimates) >= 2, "the node's estimates",
+                spin_until(executor, lambda: len(player.estimates) >= 1, "the node's estimates",
                            limit_s=90)
             if k > 100 * 40:
                 sent += 3

@@ -49,7 +49,6 @@ import json
 import math
 import re
 import signal
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -109,8 +108,6 @@ NODE_NAME = "odocal_calibration"
 EXPORTS = params.EXPORTS
 #: A topic that lost messages is named on /diagnostics for this long (s of its stamps) after.
 LOSS_NAMED_S = 60.0
-#: The inputs' receipt times are the node's clock read at most this often (wall time, s).
-RECEIPT_EVERY_S = 0.005
 _LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                       reliability=ReliabilityPolicy.RELIABLE)
 _SUCCESS, _FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
@@ -192,7 +189,6 @@ class CalibrationNode(LifecycleNode):
             self._entities: list[Any] = []
             self._outputs: list[Any] = []
             self._configured = self._active = self._finished = False
-            self._receipt_wall, self._receipt = -math.inf, 0.0
             self._configure_error: str | None = None
             self._declare()
             if self._param("autostart"):
@@ -242,13 +238,6 @@ class CalibrationNode(LifecycleNode):
     def _now_s(self) -> float:
         return float(self.get_clock().now().nanoseconds) * 1e-9
 
-    def _receipt_s(self) -> float:
-        """The node's clock for the inputs' receipt times, read at most every
-        :data:`RECEIPT_EVERY_S` of wall time (reading it costs more than a message does)."""
-        wall = time.monotonic()
-        if wall - self._receipt_wall >= RECEIPT_EVERY_S:
-            self._receipt_wall, self._receipt = wall, self._now_s()
-        return self._receipt
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -496,7 +485,7 @@ class CalibrationNode(LifecycleNode):
     def _on_wheels(self, first: bytes) -> None:
         if not self._active:
             return
-        now = self._receipt_s()
+        now = self._now_s()        # (once for every message waiting)
         for data in self._drain(self._wheel_sub, first):
             self._wheel_message(data, now)
         self._maybe_flush()
@@ -544,7 +533,7 @@ class CalibrationNode(LifecycleNode):
             return
         imu = self._imu
         assert imu is not None
-        now = self._receipt_s()
+        now = self._now_s()        # (once for every message waiting)
         for data in self._drain(self._imu_sub, first):
             try:
                 sec, nsec, rate, accel = cdr.imu(data)
@@ -580,7 +569,7 @@ class CalibrationNode(LifecycleNode):
         if not self._active:
             return
         pose = self._pose
-        now = self._receipt_s()
+        now = self._now_s()        # (once for every message waiting)
         for data in self._drain(self._pose_sub, first):
             try:
                 m = self._pose_reader(data)
