@@ -47,7 +47,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 NODE = "odocal_bench"
-WHEEL_HZ, POSE_EVERY = 100.0, 2               # wheels and IMU at 100 Hz, the pose at 50 Hz
+#: The wheels' and IMU's rate (Hz) and every how many of their samples a pose comes
+#: (--rate-hz, --pose-every: the defaults are a car's drivers, 100 Hz and 50 Hz).
+RATE = {"hz": 100.0, "pose_every": 2}
 START_S = 1000.0
 CHUNK = 100                                   # samples serialized at a time (1 s of driving)
 UPDATE_S = 30.0                               # [online] update_s (the default)
@@ -141,16 +143,21 @@ def _templates() -> dict[str, _Template]:
     }
 
 
+def _clock_every() -> int:
+    """Every how many samples /clock is published (a tenth of a second)."""
+    return max(round(0.1 * RATE["hz"]), 1)
+
+
 def _blocks(data: Any, tpl: dict[str, _Template], lo: int, hi: int) -> dict[str, list[bytes]]:
-    """The messages of samples lo..hi: wheels, imu, pose (every POSE_EVERY-th), clock (each
+    """The messages of samples lo..hi: wheels, imu, pose (every pose_every-th), clock (each
     tenth of a second)."""
     t = START_S + data["t"][lo:hi]
     sec = np.floor(t).astype(np.int64)
     nsec = np.round((t - sec) * 1e9).astype(np.int64)
     two_pi = 2 * np.pi
     ks = np.arange(lo, hi)
-    pose = ks % POSE_EVERY == 0
-    clock = ks % 10 == 0
+    pose = ks % RATE["pose_every"] == 0
+    clock = ks % _clock_every() == 0
     half = 0.5 * data["psi"][lo:hi]
     return {
         "wheels": tpl["wheels"].block(sec=sec, nsec=nsec, l=data["n_rl"][lo:hi] * two_pi,
@@ -193,6 +200,8 @@ def player(drive_path: str, factor: float, out: str) -> None:
     wheels, imu, pose, clock = (pubs["wheels"].publish, pubs["imu"].publish,
                                 pubs["pose"].publish, pubs["clock"].publish)
     block = _blocks(data, tpl, 0, min(CHUNK, n))
+    every = _clock_every()
+    Path(out + ".start").write_text("")                 # (the node's CPU is counted from here)
     wall0 = time.monotonic()
     monotonic, sleep = time.monotonic, time.sleep
     for lo in range(0, n, CHUNK):
@@ -206,11 +215,11 @@ def player(drive_path: str, factor: float, out: str) -> None:
                 while now < due:
                     sleep(min(due - now, 0.001))
                     now = monotonic()
-            if k % 10 == 0:
-                clock(c[j // 10])
+            if k % every == 0:
+                clock(c[j // every])
             imu(i[j])
-            if k % POSE_EVERY == 0:
-                pose(p[j // POSE_EVERY])
+            if k % RATE["pose_every"] == 0:
+                pose(p[j // RATE["pose_every"]])
             sent[k] = monotonic()
             wheels(w[j])
         if hi < n:                                      # the next second, serialized now
@@ -244,7 +253,7 @@ def listener(out: str, n: int) -> None:
 
     def on_odom(data: bytes) -> None:
         sec, nsec = stamp.unpack_from(data, 4)
-        k = round((sec - START_S + nsec * 1e-9) * WHEEL_HZ)
+        k = round((sec - START_S + nsec * 1e-9) * RATE["hz"])
         if 0 <= k < n:
             received[k] = monotonic()
 
@@ -307,12 +316,16 @@ def _drive(minutes: float, folder: Path) -> tuple[Path, int]:
     import odocal
 
     sim = odocal.simulate(duration_s=minutes * 60.0, seed=5, noise="realistic",
-                          t_s=1.0 / WHEEL_HZ)
+                          t_s=1.0 / RATE["hz"])
     d = sim.drive
     path = folder / f"drive_{minutes:g}.npz"
     np.savez(path, t=d.t, n_rl=d.n_rl, n_rr=d.n_rr, a_y=d.a_y, yaw_rate=d.yaw_rate, x=d.x,
              y=d.y, psi=d.psi)
     return path, d.n_samples
+
+
+def _rate_args() -> list[str]:
+    return ["--rate-hz", str(RATE["hz"]), "--pose-every", str(RATE["pose_every"])]
 
 
 def _cores() -> tuple[set[int], set[int]]:
@@ -330,13 +343,21 @@ def _wait_ready(path: str) -> None:
         time.sleep(0.05)
 
 
-def _play(drive: Path, factor: float, out: str, env: dict[str, str], cores: set[int]) -> float:
-    started = time.monotonic()
-    subprocess.run([sys.executable, __file__, "--role", "player", "--drive", str(drive),
-                    "--factor", str(factor), "--out", out], env=env, check=True,
-                   preexec_fn=lambda: os.sched_setaffinity(0, cores))
+def _play(drive: Path, factor: float, out: str, env: dict[str, str], cores: set[int],
+          node_pid: int | None = None) -> tuple[float, float]:
+    """Run the player; the time it took to publish the drive (s), and the node's CPU time
+    (s) when it began (0 without a node)."""
+    proc = subprocess.Popen([sys.executable, __file__, "--role", "player", "--drive",
+                             str(drive), "--factor", str(factor), "--out", out,
+                             *_rate_args()], env=env,
+                            preexec_fn=lambda: os.sched_setaffinity(0, cores))
+    while not Path(out + ".start").exists() and proc.poll() is None:
+        time.sleep(0.002)
+    cpu0 = _cpu_s(node_pid) if node_pid is not None else 0.0
+    if proc.wait() != 0:
+        raise SystemExit(f"the player failed (exit {proc.returncode})")
     sent = np.load(out)
-    return float(sent[-1] - sent[0]) if sent.size > 1 else time.monotonic() - started
+    return float(sent[-1] - sent[0]), cpu0
 
 
 def player_limit(drive: Path, n: int, folder: Path, domain: int) -> dict[str, Any]:
@@ -347,13 +368,13 @@ def player_limit(drive: Path, n: int, folder: Path, domain: int) -> dict[str, An
     sink_proc = _start([sys.executable, __file__, "--role", "sink", "--out", out], env,
                        node_core)
     _wait_ready(out)
-    played = _play(drive, 0.0, str(folder / "sent_limit.npy"), env, other)
+    played, _ = _play(drive, 0.0, str(folder / "sent_limit.npy"), env, other)
     time.sleep(1.0)
     sink_proc.send_signal(signal.SIGINT)
     sink_proc.wait(timeout=60)
     counts = json.loads(Path(out).read_text())
-    messages = n * 2 + (n + POSE_EVERY - 1) // POSE_EVERY
-    return {"sim_s": n / WHEEL_HZ, "played_s": played, "factor": n / WHEEL_HZ / played,
+    messages = n * 2 + (n + RATE["pose_every"] - 1) // RATE["pose_every"]
+    return {"sim_s": n / RATE["hz"], "played_s": played, "factor": n / RATE["hz"] / played,
             "messages_per_s": messages / played, "taken": sum(counts), "messages": messages}
 
 
@@ -371,12 +392,11 @@ def run(drive: Path, n: int, factor: float, folder: Path, domain: int, *,
     err = open(folder / f"node_{tag}.err", "w")
     node = _start(node_cmd, env, node_core, cwd=ROOT, stderr=err, stdout=subprocess.DEVNULL)
     out = str(folder / f"recv_{tag}.npy")
-    lst = _start([sys.executable, __file__, "--role", "listener", "--out", out, "--n", str(n)],
-                 env, other)
+    lst = _start([sys.executable, __file__, "--role", "listener", "--out", out, "--n", str(n),
+                  *_rate_args()], env, other)
     _wait_ready(out)
     sent_path = str(folder / f"sent_{tag}.npy")
-    cpu0 = _cpu_s(node.pid)
-    played = _play(drive, factor, sent_path, env, other)
+    played, cpu0 = _play(drive, factor, sent_path, env, other, node.pid)
     # the node takes what is still queued (idle: caught up), then memory, then Ctrl-C
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and node.poll() is None:
@@ -397,8 +417,8 @@ def run(drive: Path, n: int, factor: float, folder: Path, domain: int, *,
     meta = json.loads(Path(out + ".json").read_text())
     ok = np.isfinite(received)
     latency = (received[ok] - sent[ok]) * 1000.0
-    sim_s = n / WHEEL_HZ
-    messages = n * 2 + (n + POSE_EVERY - 1) // POSE_EVERY
+    sim_s = n / RATE["hz"]
+    messages = n * 2 + (n + RATE["pose_every"] - 1) // RATE["pose_every"]
     missing = sum(int(meta["last"].get(f"missing {t}", "-1")) for t in TOPICS)
     log = (folder / f"node_{tag}.err").read_text()
     result = {"factor": factor, "sim_s": sim_s, "played_s": played,
@@ -413,7 +433,7 @@ def run(drive: Path, n: int, factor: float, folder: Path, domain: int, *,
               "rss_end_mb": rss_end / 1024, "rss_peak_mb": rss_peak / 1024,
               "exit_code": node.returncode, "exit_s": exit_s,
               "traceback": "Traceback" in log or "FATAL" in log,
-              "lost_at_s": [round(float(k) / WHEEL_HZ, 1) for k in np.flatnonzero(~ok)[:3]]}
+              "lost_at_s": [round(float(k) / RATE["hz"], 1) for k in np.flatnonzero(~ok)[:3]]}
     if profile:
         import pstats
 
@@ -449,7 +469,12 @@ def main() -> None:
     ap.add_argument("--hour-factor", type=float, default=100.0)
     ap.add_argument("--hours", type=float, default=1.0)
     ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--rate-hz", type=float, default=100.0,
+                    help="the wheels' and the IMU's rate (Hz; default 100)")
+    ap.add_argument("--pose-every", type=int, default=2,
+                    help="a pose every this many of their samples (default 2: 50 Hz)")
     args = ap.parse_args()
+    RATE["hz"], RATE["pose_every"] = args.rate_hz, args.pose_every
     if args.role == "player":
         player(args.drive, args.factor, args.out)
         return
@@ -461,7 +486,10 @@ def main() -> None:
         return
     domain = random.SystemRandom().randint(1, 101)
     node_core, _ = _cores()
-    print(f"ROS 2 domain {domain} (localhost discovery); node pinned to core "
+    print(f"ROS 2 domain {domain} (localhost discovery); wheels and IMU at {RATE['hz']:g} Hz, "
+          f"the pose at {RATE['hz'] / RATE['pose_every']:g} Hz "
+          f"({RATE['hz'] * (2 + 1 / RATE['pose_every']):g} messages per second of driving); "
+          f"node pinned to core "
           f"{min(node_core)}; cores {os.cpu_count()}, load {os.getloadavg()[0]:.1f} "
           f"{os.getloadavg()[1]:.1f} {os.getloadavg()[2]:.1f} (1, 5, 15 min)")
     with tempfile.TemporaryDirectory() as tmp:

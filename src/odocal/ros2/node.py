@@ -108,6 +108,8 @@ NODE_NAME = "odocal_calibration"
 EXPORTS = params.EXPORTS
 #: A topic that lost messages is named on /diagnostics for this long (s of its stamps) after.
 LOSS_NAMED_S = 60.0
+#: At most this many messages of one input are taken in one callback.
+MAX_BATCH = 20000
 _LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                       reliability=ReliabilityPolicy.RELIABLE)
 _SUCCESS, _FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
@@ -143,15 +145,25 @@ class _Input:
         self.name, self.role = name, role
         self.buffer = Buffer(name, role, keys)
         self.stamps = Continuity()
+        # when it was last seen to speak, on the node's clock (checked when the status is made)
         self.first_receipt_s: float | None = None
         self.last_receipt_s: float | None = None
+        self.seen = 0                  # messages taken when it was last checked
         self.undecodable = 0
         self.note = ""                 # why messages were refused (the latest reason)
 
-    def heard(self, now_s: float) -> None:
-        if self.first_receipt_s is None:
-            self.first_receipt_s = now_s
-        self.last_receipt_s = now_s
+    def taken(self) -> int:
+        """Messages taken from the topic, used or refused."""
+        return self.stamps.received + self.stamps.back + self.undecodable
+
+    def check_heard(self, now_s: float) -> None:
+        """Note ``now_s`` as when it spoke, where messages came since the last check."""
+        count = self.taken()
+        if count != self.seen:
+            self.seen = count
+            if self.first_receipt_s is None:
+                self.first_receipt_s = now_s
+            self.last_receipt_s = now_s
 
     def problems(self) -> list[str]:
         """What is wrong with what arrived, in words (recent losses, refused messages)."""
@@ -315,6 +327,9 @@ class CalibrationNode(LifecycleNode):
         self._pose_name = names["pose_topic"]
         self._fresh()
         self._create_entities(names)
+        # the estimate imports scipy.special at its first call (0.9 s here): done now, not
+        # under the first estimate, when the inputs' queues would fill meanwhile
+        import scipy.special  # noqa: F401
 
     def _topic(self, key: str) -> str:
         """A topic parameter, resolved (a ConfigError naming it where it is no topic name)."""
@@ -376,16 +391,22 @@ class CalibrationNode(LifecycleNode):
         pose_type = Odometry if p("pose_type") == "odometry" else PoseWithCovarianceStamped
         add = self._entities.append
         pub = self._outputs.append
-        self._wheel_sub = self.create_subscription(JointState, names["wheel_topic"],
-                                                   self._on_wheels, qos, raw=True)
-        self._pose_sub = self.create_subscription(pose_type, names["pose_topic"],
-                                                  self._on_pose, qos, raw=True)
-        add(self._wheel_sub)
-        add(self._pose_sub)
+        # each input's callback takes every message waiting behind the one it was handed
+        # (one Python call for a backlog, not one per message)
+        self._wheel_sub = self.create_subscription(
+            JointState, names["wheel_topic"], self._taker("_wheel_sub", self._wheel_message),
+            qos, raw=True)
+        self._pose_sub = self.create_subscription(
+            pose_type, names["pose_topic"], self._taker("_pose_sub", self._pose_message), qos,
+            raw=True)
+        self._imu_sub: Any = None
         if names["imu_topic"]:
-            self._imu_sub = self.create_subscription(Imu, names["imu_topic"], self._on_imu,
-                                                     qos, raw=True)
-            add(self._imu_sub)
+            self._imu_sub = self.create_subscription(
+                Imu, names["imu_topic"], self._taker("_imu_sub", self._imu_message), qos,
+                raw=True)
+        for sub in (self._wheel_sub, self._imu_sub, self._pose_sub):
+            if sub is not None:
+                add(sub)
         self._odom_pub = self.create_lifecycle_publisher(Odometry, names["odometry_topic"],
                                                          QoSProfile(depth=min(depth, 1000)))
         self._diag_pub = self.create_lifecycle_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -468,29 +489,29 @@ class CalibrationNode(LifecycleNode):
         self._joints = (names[left], names[right])
         return left, right
 
-    @staticmethod
-    def _drain(sub: Any, first: bytes) -> list[bytes]:
-        """The message the executor handed in and every one waiting behind it (taken here in
-        one go: one callback for a backlog, not one each)."""
-        out = [first]
-        take, kind = sub.handle.take_message, sub.msg_type
-        with sub.handle:
-            while len(out) < 10000:
-                got = take(kind, True)
-                if got is None:
-                    break
-                out.append(got[0])
-        return out
+    def _taker(self, name: str, handle: Callable[[bytes], None]) -> Callable[[bytes], None]:
+        """The callback of the input subscription ``name``: the message handed in and every
+        one waiting behind it (at most :data:`MAX_BATCH`), each to ``handle``; then what a
+        second of data completes is pushed."""
+        def take(first: bytes) -> None:
+            if not self._active:
+                return                      # (inactive: what came is dropped, as it came)
+            sub = getattr(self, name)
+            batch = [first]
+            more, kind = sub.handle.take_message, sub.msg_type
+            with sub.handle:
+                while len(batch) < MAX_BATCH:
+                    got = more(kind, True)
+                    if got is None:
+                        break
+                    batch.append(got[0])
+            for data in batch:
+                handle(data)
+            self._maybe_flush()
 
-    def _on_wheels(self, first: bytes) -> None:
-        if not self._active:
-            return
-        now = self._now_s()        # (once for every message waiting)
-        for data in self._drain(self._wheel_sub, first):
-            self._wheel_message(data, now)
-        self._maybe_flush()
+        return take
 
-    def _wheel_message(self, data: bytes, now: float) -> None:
+    def _wheel_message(self, data: bytes) -> None:
         wheels = self._wheels
         try:
             sec, nsec, positions, velocities = self._reader.read(data)
@@ -508,7 +529,6 @@ class CalibrationNode(LifecycleNode):
         if not wheels.stamps.check(t):
             self._rates.reset()
             return
-        wheels.heard(now)
         if velocities is not None:
             t_rate, n_rl, n_rr = t, velocities[0] / TWO_PI, velocities[1] / TWO_PI
         elif positions is not None:
@@ -528,34 +548,28 @@ class CalibrationNode(LifecycleNode):
         wheels.buffer.add(t_rate, (n_rl, n_rr))
         self._publish_odometry(sec, nsec, t, n_rl, n_rr)
 
-    def _on_imu(self, first: bytes) -> None:
-        if not self._active:
-            return
+    def _imu_message(self, data: bytes) -> None:
         imu = self._imu
         assert imu is not None
-        now = self._now_s()        # (once for every message waiting)
-        for data in self._drain(self._imu_sub, first):
-            try:
-                sec, nsec, rate, accel = cdr.imu(data)
-            except cdr.CdrError as exc:
-                imu.undecodable += 1
-                imu.note = str(exc)
-                continue
-            t = self._time(sec, nsec)
-            if not imu.stamps.check(t):
-                self.gyro.reading_gap()
-                continue
-            imu.heard(now)
-            yaw_rate, a_y = self._imu_values(rate, accel)
-            if not (math.isfinite(yaw_rate) and math.isfinite(a_y)):
-                imu.stamps.refuse_invalid()
-                imu.note = "NaN or infinite IMU values"
-                self.gyro.reading_gap()
-                continue
-            self._a_y = a_y
-            self.gyro.add_reading(yaw_rate)
-            imu.buffer.add(t, (yaw_rate, a_y))
-        self._maybe_flush()
+        try:
+            sec, nsec, rate, accel = cdr.imu(data)
+        except cdr.CdrError as exc:
+            imu.undecodable += 1
+            imu.note = str(exc)
+            return
+        t = self._time(sec, nsec)
+        if not imu.stamps.check(t):
+            self.gyro.reading_gap()
+            return
+        yaw_rate, a_y = self._imu_values(rate, accel)
+        if not (math.isfinite(yaw_rate) and math.isfinite(a_y)):
+            imu.stamps.refuse_invalid()
+            imu.note = "NaN or infinite IMU values"
+            self.gyro.reading_gap()
+            return
+        self._a_y = a_y
+        self.gyro.add_reading(yaw_rate)
+        imu.buffer.add(t, (yaw_rate, a_y))
 
     def _imu_values(self, rate: Sequence[float], accel: Sequence[float]) -> tuple[float, float]:
         """The yaw rate and the lateral acceleration in the vehicle's axes."""
@@ -565,32 +579,27 @@ class CalibrationNode(LifecycleNode):
         return (r[2][0] * rate[0] + r[2][1] * rate[1] + r[2][2] * rate[2],
                 r[1][0] * accel[0] + r[1][1] * accel[1] + r[1][2] * accel[2])
 
-    def _on_pose(self, first: bytes) -> None:
-        if not self._active:
-            return
+    def _pose_message(self, data: bytes) -> None:
         pose = self._pose
-        now = self._now_s()        # (once for every message waiting)
-        for data in self._drain(self._pose_sub, first):
-            try:
-                m = self._pose_reader(data)
-            except cdr.CdrError as exc:
-                pose.undecodable += 1
-                pose.note = str(exc)
-                continue
-            t = self._time(m.sec, m.nanosec)
-            if not pose.stamps.check(t):
-                continue
-            pose.heard(now)
-            psi = yaw_of(m.orientation)
-            beta = _sideslip(m.velocity) if self._beta_wanted else 0.0
-            if not all(math.isfinite(v) for v in (m.x, m.y, psi, beta)):
-                pose.stamps.refuse_invalid()
-                pose.note = "NaN or infinite pose values"
-                continue
-            pose.buffer.add(t, (m.x, m.y, psi))
-            if self._beta_wanted:
-                self._beta.append((t, beta))
-        self._maybe_flush()
+        try:
+            m = self._pose_reader(data)
+        except cdr.CdrError as exc:
+            pose.undecodable += 1
+            pose.note = str(exc)
+            return
+        t = self._time(m.sec, m.nanosec)
+        if not pose.stamps.check(t):
+            return
+        psi = yaw_of(m.orientation)
+        beta = _sideslip(m.velocity) if self._beta_wanted else 0.0
+        if not (math.isfinite(m.x) and math.isfinite(m.y) and math.isfinite(psi)
+                and math.isfinite(beta)):
+            pose.stamps.refuse_invalid()
+            pose.note = "NaN or infinite pose values"
+            return
+        pose.buffer.add(t, (m.x, m.y, psi))
+        if self._beta_wanted:
+            self._beta.append((t, beta))
 
     @property
     def topics(self) -> list[_Input]:
@@ -606,8 +615,11 @@ class CalibrationNode(LifecycleNode):
 
     def silent(self) -> list[str]:
         """The input topics that stayed silent longer than ``silence_timeout_s`` (or were never
-        heard while another one was), each named with how long."""
+        heard while another one was), each named with how long (on the node's clock, as seen
+        each time the status is made: every ``diagnostics_period_s`` and at each estimate)."""
         now, timeout = self._now_s(), float(self._param("silence_timeout_s"))
+        for topic in self.topics:
+            topic.check_heard(now)
         heard = [t.first_receipt_s for t in self.topics if t.first_receipt_s is not None]
         if not heard:
             return []
@@ -623,14 +635,14 @@ class CalibrationNode(LifecycleNode):
         return out
 
     def _lagging(self) -> bool:
-        """Whether an input has not been heard yet, or not for ``silence_timeout_s`` while
-        another one was (at the end of a drive they all stop together: none lags)."""
-        receipts = [t.last_receipt_s for t in self.topics]
-        if any(r is None for r in receipts):
+        """Whether an input has sent nothing yet, or nothing for ``silence_timeout_s`` of the
+        others' stamps (at the end of a drive they all stop together: none lags)."""
+        latest = [t.stamps.last_t for t in self.topics]
+        if any(t is None for t in latest):
             return True
-        newest = max(r for r in receipts if r is not None)
+        newest = max(t for t in latest if t is not None)
         timeout = float(self._param("silence_timeout_s"))
-        return any(newest - r > timeout for r in receipts if r is not None)
+        return any(newest - t > timeout for t in latest if t is not None)
 
     # ------------------------------------------------------------------ calibrating
 
