@@ -49,7 +49,7 @@ def _replay(d: odocal.Drive, folder: Path, *extra: str) -> tuple[int, dict[str, 
     path = folder / "drive.parquet"
     odocal.save_drive(d, path)
     code = main(["replay", str(path), "--out", str(folder / "replay"), "--no-batch",
-                 "--no-report", "-q", *extra])
+                 *(extra or ("--no-report", "-q"))])
     return code, json.loads((folder / "replay" / "calibration.json").read_text())
 
 
@@ -61,7 +61,9 @@ def _theta_std(calibration: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
 
 # ---------------------------------------------------------------------------------------- 1
 
-def test_a_tyre_change_never_publishes_a_refused_estimate(rig: Any, tmp_path: Path) -> None:
+def test_a_tyre_change_never_publishes_a_refused_estimate(rig: Any, tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]
+                                                          ) -> None:
     """Wheels 2% larger after 300 s, and a plausible range for c_e ([gate] c_e_m) that the new
     wheels leave: every estimate after the change is refused by the gate (as the live checks
     refused them with a front-wheel finding in the issue), while the calibrator goes on. The
@@ -110,9 +112,19 @@ def test_a_tyre_change_never_publishes_a_refused_estimate(rig: Any, tmp_path: Pa
     assert values_of(named[-1])["latest_status"] == "REJECTED"
     # odocal replay on the same drive: the trace marks every refused estimate, and
     # calibration.json holds the last one that was not
+    capsys.readouterr()
     code, calibration = _replay(d, tmp_path, "--config", str(settings),
                                 "--datasheet", "c_e=2.06,t_r=1.45")
     assert code == EXIT_OK
+    printed = [line for line in capsys.readouterr().out.splitlines() if " km  c_e " in line]
+    assert "REJECTED (parameter-range" in printed[-1]
+    assert printed[-1].endswith("): not published")
+    assert not any("REJECTED" in line for line in printed[:3])
+    page = (tmp_path / "replay" / "report.html").read_text()
+    said = page.split("<p id='rejected'>")[1].split("</p>")[0]
+    assert "updates were rejected by the checks or the gate (" in said
+    assert "parameter-range" in said
+    assert "the table shows the last estimate that was not" in page
     rows = list(csv.DictReader((tmp_path / "replay" / "trace.csv").open()))
     marked = [row for row in rows if row["status"] == "REJECTED"]
     assert len(marked) >= 3 and all(row["rejected_by"] for row in marked)
@@ -482,6 +494,10 @@ def test_the_twist_covariance_is_each_messages_error(rig: Any, ros: Any) -> None
         var_w.append(msg.twist.covariance[35])
     ratio_v = np.mean(var_v) / np.mean(np.square(err_v))
     ratio_w = np.mean(var_w) / np.mean(np.square(err_w))
+    print(f"stated over the truth's mean squared error: speed {ratio_v:.3f} (std "
+          f"{np.sqrt(np.mean(var_v)):.4f} against {np.sqrt(np.mean(np.square(err_v))):.4f} m/s), "
+          f"yaw rate {ratio_w:.3f} (std {np.sqrt(np.mean(var_w)):.4f} against "
+          f"{np.sqrt(np.mean(np.square(err_w))):.4f} rad/s)")
     assert 0.7 < ratio_v < 1.4 and 0.7 < ratio_w < 1.4, (ratio_v, ratio_w)
     assert est.success
     diff = load_declared(r.folder / "ros2_control" / "diff_drive_controller.yaml",

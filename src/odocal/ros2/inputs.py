@@ -72,7 +72,7 @@ def wheel_joints(names: Sequence[str], left: str, right: str, topic: str) -> tup
     return found[0], found[1]
 
 
-@dataclass
+@dataclass(slots=True)
 class Continuity:
     """What one topic's stamps say: messages taken, missing between them, and refused.
 
