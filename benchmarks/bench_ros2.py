@@ -368,14 +368,17 @@ def player_limit(drive: Path, n: int, folder: Path, domain: int) -> dict[str, An
     sink_proc = _start([sys.executable, __file__, "--role", "sink", "--out", out], env,
                        node_core)
     _wait_ready(out)
-    played, _ = _play(drive, 0.0, str(folder / "sent_limit.npy"), env, other)
-    time.sleep(1.0)
+    played, cpu0 = _play(drive, 0.0, str(folder / "sent_limit.npy"), env, other,
+                         sink_proc.pid)
+    _caught_up(sink_proc)
+    cpu = _cpu_s(sink_proc.pid) - cpu0
     sink_proc.send_signal(signal.SIGINT)
     sink_proc.wait(timeout=60)
     counts = json.loads(Path(out).read_text())
     messages = n * 2 + (n + RATE["pose_every"] - 1) // RATE["pose_every"]
     return {"sim_s": n / RATE["hz"], "played_s": played, "factor": n / RATE["hz"] / played,
-            "messages_per_s": messages / played, "taken": sum(counts), "messages": messages}
+            "messages_per_s": messages / played, "taken": sum(counts), "messages": messages,
+            "sink_us": cpu / max(sum(counts), 1) * 1e6}
 
 
 def run(drive: Path, n: int, factor: float, folder: Path, domain: int, *,
@@ -397,13 +400,7 @@ def run(drive: Path, n: int, factor: float, folder: Path, domain: int, *,
     _wait_ready(out)
     sent_path = str(folder / f"sent_{tag}.npy")
     played, cpu0 = _play(drive, factor, sent_path, env, other, node.pid)
-    # the node takes what is still queued (idle: caught up), then memory, then Ctrl-C
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and node.poll() is None:
-        busy = _cpu_s(node.pid)
-        time.sleep(1.0)
-        if _cpu_s(node.pid) - busy < 0.05:
-            break
+    _caught_up(node)
     cpu = _cpu_s(node.pid) - cpu0
     rss_end, rss_peak = _status_kb(node.pid, "VmRSS"), _status_kb(node.pid, "VmHWM")
     signalled = time.monotonic()
@@ -437,9 +434,19 @@ def run(drive: Path, n: int, factor: float, folder: Path, domain: int, *,
     if profile:
         import pstats
 
-        stats = pstats.Stats(str(prof))
-        stats.sort_stats("tottime").print_stats(18)
+        pstats.Stats(str(prof)).sort_stats("tottime").print_stats(18)
     return result
+
+
+def _caught_up(node: Any) -> None:
+    """Wait until the node has taken what is still queued (idle for a second: less than 5%
+    of a core), two minutes at most."""
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and node.poll() is None:
+        busy = _cpu_s(node.pid)
+        time.sleep(1.0)
+        if _cpu_s(node.pid) - busy < 0.05:
+            break
 
 
 HEADER = (f"{'factor':>7} {'sim min':>7} {'achieved':>9} {'msgs/s':>9} "
@@ -500,7 +507,10 @@ def main() -> None:
               f"messages): {limit['factor']:.1f}x real time, {limit['messages_per_s']:.0f} "
               f"messages/s ({limit['sim_s'] / 60:.1f} min of driving in "
               f"{limit['played_s']:.1f} s; the sink took {limit['taken']} of "
-              f"{limit['messages']})", flush=True)
+              f"{limit['messages']}, at {limit['sink_us']:.1f} us of its core's time each: "
+              f"what taking a message costs before any work, "
+              f"{limit['sink_us'] * RATE['hz'] * (2 + 1 / RATE['pose_every']) / 1e4:.0f}% of a "
+              "core at 100x)", flush=True)
         print(HEADER)
         for i, factor in enumerate(float(f) for f in args.factors.split(",") if f):
             print(_row(run(drive, n, factor, folder, domain, profile=args.profile and i == 0)),

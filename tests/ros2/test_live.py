@@ -152,6 +152,8 @@ def test_wall_clock_stamps_and_the_references_sideslip_give_replays_estimate(
     _, calibration = _replay(d, tmp_path)
     theta, std = _theta_std(calibration)
     assert all(est.identified)
+    print("the node against replay, in replay's standard deviations:",
+          (est.theta.as_array() - theta) / std)
     assert np.all(np.abs(est.theta.as_array() - theta) <= 0.01 * std), \
         (est.theta.as_array() - theta) / std
     assert np.allclose(est.std, std, rtol=0.01)

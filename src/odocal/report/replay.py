@@ -96,6 +96,12 @@ def _rejected_text(result: ReplayResult) -> str:
     return f"<p id='rejected'>{html.escape(text)}</p>"
 
 
+def _convergence_text(result: ReplayResult) -> str:
+    return "; ".join(f"{n} to {CONVERGED_STD[n] * 1000:.0f} mm after "
+                     + (f"{km:.2f} km" if km is not None else "not within this log")
+                     for n, km in convergence_km(result).items())
+
+
 def write_replay_report(result: ReplayResult, out_dir: str | Path, *,
                         batch: Estimate | None = None,
                         renderer: Renderer | None = None) -> Path:
@@ -130,10 +136,7 @@ def write_replay_report(result: ReplayResult, out_dir: str | Path, *,
         f"<td>{e(alarm_words(a))}</td></tr>"
         for a in result.alarms)
     rejected = _rejected_text(result)
-    conv = convergence_km(result)
-    conv_text = "; ".join(f"{n} to {CONVERGED_STD[n] * 1000:.0f} mm after "
-                          + (f"{km:.2f} km" if km is not None else "not within this log")
-                          for n, km in conv.items())
+    conv_text = _convergence_text(result)
     uri = "data:image/png;base64," + base64.b64encode(png).decode("ascii")
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>odocal replay</title>

@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 import signal
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -66,13 +65,13 @@ from odocal.output.export import (
     Calibrated,
     OdometryNoise,
     export,
-    parameter_file,
     parameters_yaml,
     parse_datasheet,
 )
 from odocal.pipeline.calibrate import datasheet_theta
 from odocal.report.advice import finding_text, reason_text
 from odocal.ros2 import cdr, params
+from odocal.ros2.exports import imu_corrector, point_ekf_at
 from odocal.ros2.gyro import GyroBias
 from odocal.ros2.inputs import TWO_PI, Buffer, Continuity, Rates, wheel_joints
 from odocal.ros2.twist import UNKNOWN_VARIANCE, TwistVariance
@@ -88,17 +87,16 @@ try:
         IntegerRange,
         ParameterDescriptor,
         ParameterType,
-        ParameterValue,
         SetParametersResult,
     )
-    from rcl_interfaces.msg import Parameter as ParameterMsg
-    from rcl_interfaces.srv import GetParameters, SetParameters
     from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import Imu, JointState
     from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
     from std_srvs.srv import Trigger
+
+    from odocal.ros2.controller import ControllerPush
 except ImportError as err:
     raise MissingDependencyError(
         f"odocal ros2 needs ROS 2's Python packages ({err.name} is missing): "
@@ -296,6 +294,11 @@ class CalibrationNode(LifecycleNode):
         return _SUCCESS
 
     @property
+    def controller_note(self) -> str:
+        """What became of the multipliers pushed to ``controller_name`` (empty: nothing)."""
+        return self._controller.note if self._controller is not None else ""
+
+    @property
     def finalized(self) -> bool:
         """Whether the lifecycle has shut the node down (it takes nothing more)."""
         return bool(self._state_machine.current_state[1] == "finalized")
@@ -380,7 +383,6 @@ class CalibrationNode(LifecycleNode):
         self._a_y = 0.0
         self._odom_t: float | None = None
         self._x = self._y = self._psi = 0.0
-        self.controller_note = ""
 
     def _create_entities(self, names: dict[str, str]) -> None:
         p = self._param
@@ -427,14 +429,11 @@ class CalibrationNode(LifecycleNode):
         self._status_name = f"{self.get_name()}: wheel odometry calibration"
         self._timer: Any = None
         self._restart_timer()
-        self._controller = p("controller_name")
-        if self._controller:
-            self._get_client: Any = self.create_client(GetParameters,
-                                                       f"{self._controller}/get_parameters")
-            self._set_client: Any = self.create_client(SetParameters,
-                                                       f"{self._controller}/set_parameters")
-            add(self._get_client)
-            add(self._set_client)
+        self._controller: ControllerPush | None = None
+        if p("controller_name"):
+            self._controller = ControllerPush(self, p("controller_name"))
+            for client in self._controller.clients:
+                add(client)
 
     def _restart_timer(self) -> None:
         if self._timer is not None:
@@ -746,8 +745,8 @@ class CalibrationNode(LifecycleNode):
         self._theta = tuple(float(v) for v in est.theta.as_array())
         self.twist.calibrate(est)
         self._estimate_pub.publish(estimate_array(est))
-        if self._controller:
-            self._push_to_controller(est)
+        if self._controller is not None:
+            self._controller.push(est)
         if first or est.identified != self._identified:
             gained = [n for n, now, was in zip(PARAMETER_NAMES, est.identified,
                                                self._identified, strict=True) if now and not was]
@@ -927,8 +926,8 @@ class CalibrationNode(LifecycleNode):
             values += [("status", good.status.name), ("published_from_km", f"{self._good_km:.4f}")]
             if self.estimate is not None and self.estimate is not good:
                 values.append(("latest_status", self.estimate.status.name))
-        if self._controller and self.controller_note:
-            values.append(("controller", self.controller_note))
+        if self._controller is not None and self._controller.note:
+            values.append(("controller", self._controller.note))
         return values
 
     def _rejection(self, est: Estimate | None) -> str:
@@ -988,41 +987,16 @@ class CalibrationNode(LifecycleNode):
         folder.mkdir(parents=True, exist_ok=True)
         written = export(calibrated, folder, [t for t in targets if t in TARGETS])
         if "robot_localization" in targets:
-            _point_ekf_at(folder / "robot_localization" / "ekf_odometry.yaml",
-                          self._odom_pub.topic_name)
-        if "autoware" in targets:
-            imu = self._imu_corrector(folder / "autoware" / "imu_corrector.param.yaml")
-            written += [imu] if imu is not None else []
+            point_ekf_at(folder / "robot_localization" / "ekf_odometry.yaml",
+                         self._odom_pub.topic_name)
+        found = self.gyro.result()
+        if "autoware" in targets and found is not None and self._imu is not None:
+            written.append(imu_corrector(folder / "autoware" / "imu_corrector.param.yaml",
+                                         found, self._imu.name,
+                                         aligned=self._rotation is None))
         if "yaml" in targets:
             written.append(parameters_yaml(calibrated, folder / "odometry_parameters.yaml"))
         return written
-
-    def _imu_corrector(self, path: Path) -> Path | None:
-        """Autoware's imu_corrector parameters: the yaw-rate offset and noise measured here
-        (the roll and pitch rates are not seen: imu_corrector's defaults, said so)."""
-        found = self.gyro.result()
-        if found is None or self._imu is None:
-            return None
-        from odocal.io.atomic import write_text
-
-        noise = found.noise_radps if math.isfinite(found.noise_radps) else 0.03
-        aligned = self._rotation is None
-        header = [f"Autoware imu_corrector: the yaw-rate offset against the reference heading, "
-                  f"measured by odocal ros2 over {found.seconds:.0f} s on {self._imu.name}: "
-                  f"{found.offset_radps:.6g} +- {found.std_radps:.2g} rad/s "
-                  "(imu_corrector subtracts it)",
-                  "angular_velocity_stddev_zz: one message's yaw-rate noise, measured; x and y: "
-                  "not seen by a planar calibration (imu_corrector's defaults)"]
-        if not aligned:
-            header.append("FILL IN angular_velocity_offset_*: the offset is about the "
-                          "vehicle's z axis, and this IMU is mounted rotated "
-                          "(imu_rotation_deg); turn it into the IMU's axes")
-        values = {"angular_velocity_offset_x": 0.0, "angular_velocity_offset_y": 0.0,
-                  "angular_velocity_offset_z": float(found.offset_radps) if aligned else 0.0,
-                  "angular_velocity_stddev_xx": 0.03, "angular_velocity_stddev_yy": 0.03,
-                  "angular_velocity_stddev_zz": float(noise)}
-        write_text(path, parameter_file(header, "/**", values))
-        return path
 
     def _on_export(self, request: Any, response: Any) -> Any:
         folder = self._param("export_dir")
@@ -1037,62 +1011,6 @@ class CalibrationNode(LifecycleNode):
         response.success = True
         response.message = "wrote " + ", ".join(str(p) for p in written)
         return response
-
-    # ------------------------------------------------------------------ controller
-
-    def _push_to_controller(self, est: Estimate) -> None:
-        """Set the identified multipliers on the controller, relative to its own nominal
-        ``wheel_radius`` and ``wheel_separation`` (asked first)."""
-        if not self._get_client.service_is_ready():
-            self.controller_note = f"no parameter service {self._controller}/get_parameters"
-            return
-        request = GetParameters.Request(names=["wheel_radius", "wheel_separation"])
-        future = self._get_client.call_async(request)
-        future.add_done_callback(lambda f: self._set_multipliers(f, est))
-
-    def _set_multipliers(self, future: Any, est: Estimate) -> None:
-        try:
-            radius, separation = (v.double_value for v in future.result().values)
-        except Exception as exc:  # the service's own failure, as it said it
-            self.get_logger().debug(f"reading the controller's parameters: {exc!r}")
-            self.controller_note = f"cannot read the controller's nominal values: {exc}"
-            return
-        if not (radius > 0 and separation > 0):
-            self.controller_note = "the controller reports no wheel_radius / wheel_separation"
-            return
-        c_e, c_d, t_r, _ = est.theta.as_array()
-        nominal_c = TWO_PI * radius
-        wanted = {"left_wheel_radius_multiplier": (c_e + c_d / 2) / nominal_c,
-                  "right_wheel_radius_multiplier": (c_e - c_d / 2) / nominal_c,
-                  "wheel_separation_multiplier": t_r / separation}
-        ok = dict(zip(PARAMETER_NAMES, est.identified, strict=True))
-        if not ok["c_e"]:
-            wanted.pop("left_wheel_radius_multiplier")
-            wanted.pop("right_wheel_radius_multiplier")
-        if not ok["t_r"]:
-            wanted.pop("wheel_separation_multiplier")
-        if not wanted:
-            return
-        msgs = [ParameterMsg(name=k, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
-                                                          double_value=float(v)))
-                for k, v in wanted.items()]
-        done = self._set_client.call_async(SetParameters.Request(parameters=msgs))
-        done.add_done_callback(lambda f: self._controller_set(f, wanted))
-
-    def _controller_set(self, future: Any, wanted: dict[str, float]) -> None:
-        try:
-            results = future.result().results
-        except Exception as exc:  # the service's own failure, as it said it
-            self.get_logger().debug(f"setting the controller's multipliers: {exc!r}")
-            self.controller_note = f"setting the multipliers failed: {exc}"
-            return
-        refused = [f"{k}: {r.reason}" for k, r in zip(wanted, results, strict=False)
-                   if not r.successful]
-        self.controller_note = (
-            "refused: " + "; ".join(refused) if refused else
-            "set " + ", ".join(f"{k}={v:.6g}" for k, v in wanted.items())
-            + " (diff_drive_controller applies them at its next configure)")
-
 
 def _sideslip(velocity: tuple[float, float] | None) -> float:
     """The sideslip of a velocity (x, y) in the vehicle's frame: atan(vy / vx), 0 at rest
@@ -1135,22 +1053,6 @@ def estimate_array(est: Estimate) -> Any:
                                           size=len(ESTIMATE_COLUMNS),
                                           stride=len(ESTIMATE_COLUMNS))]
     return msg
-
-
-def _point_ekf_at(path: Path, topic: str) -> None:
-    """robot_localization's ``odom0`` (written as ``/odom``) set to the node's own calibrated
-    odometry, which states its covariance per message."""
-    if not path.is_file():
-        return
-    import yaml
-
-    from odocal.io.atomic import write_text
-
-    text = path.read_text()
-    scalar = yaml.safe_dump(topic, default_style=None).splitlines()[0]
-    text = re.sub(r"^(\s*odom0: ).*$", lambda m: m.group(1) + scalar, text, count=1,
-                  flags=re.MULTILINE)
-    write_text(path, text)
 
 
 def run(ros_args: Sequence[str], *, settings: Settings | None = None,
