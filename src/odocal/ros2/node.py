@@ -48,6 +48,7 @@ from __future__ import annotations
 import json
 import math
 import signal
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -1089,8 +1090,16 @@ def run(ros_args: Sequence[str], *, settings: Settings | None = None,
         if on_ready is not None:
             on_ready(node)
         try:
-            while not stop and rclpy.ok() and not node.finalized:
+            # (one event per spin_once: whether ROS 2 still runs is asked every tenth of a
+            # second, not at each message)
+            checked = 0.0
+            while not stop:
                 executor.spin_once(timeout_sec=0.1)
+                now = time.monotonic()
+                if now - checked >= 0.1:
+                    if not rclpy.ok() or node.finalized:
+                        break
+                    checked = now
         except ExternalShutdownException:
             pass
         if not node.finalized and rclpy.ok():
