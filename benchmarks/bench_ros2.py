@@ -509,8 +509,8 @@ def main() -> None:
               f"{limit['played_s']:.1f} s; the sink took {limit['taken']} of "
               f"{limit['messages']}, at {limit['sink_us']:.1f} us of its core's time each: "
               f"what taking a message costs before any work, "
-              f"{limit['sink_us'] * RATE['hz'] * (2 + 1 / RATE['pose_every']) / 1e4:.0f}% of a "
-              "core at 100x)", flush=True)
+              f"{limit['sink_us'] * RATE['hz'] * (2 + 1 / RATE['pose_every']) / 100:.0f}% of "
+              "a core at 100x)", flush=True)
         print(HEADER)
         for i, factor in enumerate(float(f) for f in args.factors.split(",") if f):
             print(_row(run(drive, n, factor, folder, domain, profile=args.profile and i == 0)),
