@@ -175,6 +175,17 @@ def test_a_lifecycle_manager_configures_activates_and_deactivates_it(
     assert len(r.player.odometry) == before
     assert call(r.executor, get, GetState.Request(), "get_state").current_state.label == \
         "inactive"
+    # cleaned up, configured and activated again: a new calibration from the next messages
+    for transition in (Transition.TRANSITION_CLEANUP, Transition.TRANSITION_CONFIGURE,
+                       Transition.TRANSITION_ACTIVATE):
+        answer = call(r.executor, change,
+                      ChangeState.Request(transition=Transition(id=transition)), "change_state")
+        assert answer.success
+    spin_until(r.executor, lambda: r.player.wheels.get_subscription_count() > 0
+               and r.player.pose.get_subscription_count() > 0, "discovery")
+    assert r.node.calibrator.details_samples() == 0
+    play(r.executor, r.player, r.node, short)
+    assert r.node.messages()["wheels"] == short.n_samples
 
 
 @pytest.mark.parametrize(("names", "found"), [
