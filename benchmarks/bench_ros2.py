@@ -1,7 +1,8 @@
 """``odocal ros2`` with DDS in the loop: message rate, losses, latency and memory (issues 29, 41).
 
-    python benchmarks/bench_ros2.py [--factors 50,100] [--sweep-minutes 10] [--hour-factor 100]
-                                    [--hours 1] [--profile]
+    python benchmarks/bench_ros2.py [--factors 25,50,100] [--sweep-minutes 10]
+                                    [--hour-factor 100] [--hours 1] [--rate-hz 100]
+                                    [--pose-every 2] [--profile]
 
 Processes on this machine's private ROS 2 domain (discovery on localhost only):
 
@@ -9,19 +10,21 @@ Processes on this machine's private ROS 2 domain (discovery on localhost only):
   default ``qos_depth``), pinned to one core;
 * a **player** on the other core publishing a simulated drive as a vehicle does: wheel joint
   velocities (``sensor_msgs/JointState``) and an IMU at 100 Hz, the reference pose
-  (``nav_msgs/Odometry``) at 50 Hz, and ``/clock``, paced at a real-time factor; its messages
-  are serialized before the clock starts (a second of driving at a time), so that publishing
-  is all it does on time;
+  (``nav_msgs/Odometry``) at 50 Hz (``--rate-hz``, ``--pose-every``: issue 41's user published
+  all three at 40 Hz), and ``/clock``, paced at a real-time factor; its messages are serialized
+  a second of driving ahead, so that publishing is all it does on time;
 * a **listener** on the player's core receiving the node's calibrated wheel odometry (one per
   wheel message; read from its bytes) and ``/diagnostics``.
 
 First the **player's own limit**: the player unpaced (as fast as it can publish) with no node,
 a sink on the node's core taking its messages and doing nothing else (so the writers have a
-reader, as they do with the node). Then, per real-time factor: the factor the player achieved,
-the messages per second, how many of the node's outputs arrived (one per wheel message), the
-messages the node itself found missing by their stamps (its ``/diagnostics``; a shortfall of
-either means it fell behind and DDS dropped input), the 50th/99th percentile and largest
-latency from a wheel message's publication to the arrival of the odometry computed from it,
+reader, as they do with the node), with the sink's CPU time per message: what taking a message
+costs in rclpy and Fast DDS before any work. Then, per real-time factor: the factor the player
+achieved, the messages per second, the messages the node took of those sent and those it found
+missing by their stamps (its ``/diagnostics``: a shortfall means it fell behind and DDS dropped
+input), how many of its outputs reached the listener (one per wheel message; reliable, on the
+player's core), the 50th/99th percentile and largest latency from a wheel message's
+publication to the arrival of the odometry computed from it,
 the calibration updates that reached ``/diagnostics`` (and how many the drive calls for), the
 node's CPU time per second of the run, and its resident memory (peak, at the end). Then an hour
 of driving at ``--hour-factor``. ``--profile`` runs the node under cProfile for the first
@@ -266,7 +269,7 @@ def listener(out: str, n: int) -> None:
                 last.update(values)
 
     node.create_subscription(Odometry, f"/{NODE}/odometry", on_odom,
-                             QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT),
+                             QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE),
                              raw=True)
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 100)
     executor = EventsExecutor()
@@ -417,11 +420,12 @@ def run(drive: Path, n: int, factor: float, folder: Path, domain: int, *,
     sim_s = n / RATE["hz"]
     messages = n * 2 + (n + RATE["pose_every"] - 1) // RATE["pose_every"]
     missing = sum(int(meta["last"].get(f"missing {t}", "-1")) for t in TOPICS)
+    taken = sum(int(meta["last"].get(f"messages {t}", "-1")) for t in TOPICS)
     log = (folder / f"node_{tag}.err").read_text()
     result = {"factor": factor, "sim_s": sim_s, "played_s": played,
               "achieved_factor": sim_s / played, "messages": messages,
               "messages_per_s": messages / played, "outputs": int(ok.sum()), "inputs": n,
-              "missing": missing,
+              "missing": missing, "taken": taken,
               "p50_ms": float(np.percentile(latency, 50)) if latency.size else np.nan,
               "p99_ms": float(np.percentile(latency, 99)) if latency.size else np.nan,
               "max_ms": float(latency.max()) if latency.size else np.nan,
@@ -450,7 +454,8 @@ def _caught_up(node: Any) -> None:
 
 
 HEADER = (f"{'factor':>7} {'sim min':>7} {'achieved':>9} {'msgs/s':>9} "
-          f"{'outputs/inputs':>17} {'missing':>7} {'p50 ms':>7} {'p99 ms':>8} {'max ms':>8} "
+          f"{'taken/sent':>15} {'missing':>7} {'outputs/inputs':>17} "
+          f"{'p50 ms':>7} {'p99 ms':>8} {'max ms':>8} "
           f"{'updates':>9} {'node CPU':>8} {'peak MB':>8} {'end MB':>7} {'exit':>10}")
 
 
@@ -458,8 +463,9 @@ def _row(r: dict[str, Any]) -> str:
     updates = f"{r['updates']}/{r['expected_updates']}"
     exit_text = f"{r['exit_code']} {r['exit_s']:.2f}s" + (" TB" if r["traceback"] else "")
     return (f"{r['factor']:>6g}x {r['sim_s'] / 60:>7.1f} {r['achieved_factor']:>8.1f}x "
-            f"{r['messages_per_s']:>9.0f} {r['outputs']:>8d}/{r['inputs']:<8d} "
-            f"{r['missing']:>7d} {r['p50_ms']:>7.2f} {r['p99_ms']:>8.2f} {r['max_ms']:>8.1f} "
+            f"{r['messages_per_s']:>9.0f} {r['taken']:>7d}/{r['messages']:<7d} "
+            f"{r['missing']:>7d} {r['outputs']:>8d}/{r['inputs']:<8d} "
+            f"{r['p50_ms']:>7.2f} {r['p99_ms']:>8.2f} {r['max_ms']:>8.1f} "
             f"{updates:>9} {r['cpu_share'] * 100:>7.0f}% {r['rss_peak_mb']:>8.0f} "
             f"{r['rss_end_mb']:>7.0f} {exit_text:>10}"
             + (f"  (first lost at {r['lost_at_s']} s of the drive)" if r["lost_at_s"] else ""))
@@ -471,7 +477,7 @@ def main() -> None:
                     default="bench")
     ap.add_argument("--drive"), ap.add_argument("--out"), ap.add_argument("--n", type=int)
     ap.add_argument("--factor", type=float)
-    ap.add_argument("--factors", default="50,100")
+    ap.add_argument("--factors", default="25,50,100")
     ap.add_argument("--sweep-minutes", type=float, default=10.0)
     ap.add_argument("--hour-factor", type=float, default=100.0)
     ap.add_argument("--hours", type=float, default=1.0)
