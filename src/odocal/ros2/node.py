@@ -107,8 +107,9 @@ NODE_NAME = "odocal_calibration"
 EXPORTS = params.EXPORTS
 #: A topic that lost messages is named on /diagnostics for this long (s of its stamps) after.
 LOSS_NAMED_S = 60.0
-#: At most this many messages of one input are taken in one callback.
-MAX_BATCH = 20000
+#: At most this many messages of one input are taken in one callback (the executor calls
+#: again for the rest: a backlog is not held in memory all at once).
+MAX_BATCH = 500
 _LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                       reliability=ReliabilityPolicy.RELIABLE)
 _SUCCESS, _FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
