@@ -468,7 +468,8 @@ class CalibrationNode(LifecycleNode):
                 f"(QoS {qos}, depth {self._param('qos_depth')}); publishing "
                 f"{self._odom_pub.topic_name}, {self._estimate_pub.topic_name}, "
                 f"{self._alarm_pub.topic_name}, /diagnostics; services "
-                f"{self.get_fully_qualified_name()}/export and /reset")
+                f"{self.get_fully_qualified_name()}/export, "
+                f"{self.get_fully_qualified_name()}/reset")
 
     # ------------------------------------------------------------------ inputs
 
