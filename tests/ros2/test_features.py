@@ -99,6 +99,46 @@ def test_reset_starts_the_calibration_over(rig: Any, drive: odocal.Drive) -> Non
                "the odometry of every wheel message, before and after the reset")
 
 
+def test_the_docs_reset_snippet_resets_a_node_of_the_default_name(ros: Any) -> None:
+    """docs/ros2.md's few lines of rclpy (a reset without a ROS install), as the page shows
+    them, in a process of their own against a node of the default name on this domain."""
+    import os
+    import re
+    import subprocess
+    import sys
+    import threading
+
+    from rclpy.executors import SingleThreadedExecutor
+
+    from tests.conftest import ROOT
+
+    snippets = re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "ros2.md").read_text(),
+                          flags=re.S)
+    assert len(snippets) == 1 and "/odocal_calibration/reset" in snippets[0]
+    node = CalibrationNode(context=ros, enable_rosout=False)
+    executor = SingleThreadedExecutor(context=ros)
+    executor.add_node(node)
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.05)
+
+    spinner = threading.Thread(target=spin, daemon=True)
+    spinner.start()
+    try:
+        done = subprocess.run([sys.executable, "-c", snippets[0]], env=os.environ.copy(),
+                              capture_output=True, text=True, timeout=90)
+    finally:
+        stop.set()
+        spinner.join(10)
+        executor.remove_node(node)
+        node.destroy_node()
+        executor.shutdown()
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert done.stdout.strip() == "calibrating anew from the datasheet values"
+
+
 def test_a_pose_with_covariance_reference_calibrates_as_an_odometry_one(
         rig: Any, drive: odocal.Drive) -> None:
     short = first_seconds(drive, 120.0)
