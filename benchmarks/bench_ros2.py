@@ -1,23 +1,35 @@
-"""``odocal ros2`` with DDS in the loop: message rate, latency and memory (issue 29).
+"""``odocal ros2`` with DDS in the loop: message rate, losses, latency and memory (issues 29, 41).
 
-    python benchmarks/bench_ros2.py [--factors 25,50,100] [--sweep-minutes 10] [--hour-factor 50]
-                                    [--profile]
+    python benchmarks/bench_ros2.py [--factors 25,50,100] [--sweep-minutes 10]
+                                    [--hour-factor 100] [--hours 1] [--rate-hz 100]
+                                    [--pose-every 2] [--profile]
 
-Three processes on this machine's private ROS 2 domain (discovery on localhost only):
+Processes on this machine's private ROS 2 domain (discovery on localhost only):
 
-* the **node**, ``odocal ros2`` as a user starts it (``use_sim_time``), pinned to one core;
+* the **node**, ``odocal ros2`` as a user starts it (``use_sim_time``, best-effort inputs, the
+  default ``qos_depth``), pinned to one core;
 * a **player** on the other core publishing a simulated drive as a vehicle does: wheel joint
   velocities (``sensor_msgs/JointState``) and an IMU at 100 Hz, the reference pose
-  (``nav_msgs/Odometry``) at 50 Hz, and ``/clock``, paced at a real-time factor;
-* a **listener** receiving the node's calibrated wheel odometry (one per wheel message).
+  (``nav_msgs/Odometry``) at 50 Hz (``--rate-hz``, ``--pose-every``: issue 41's user published
+  all three at 40 Hz), and ``/clock``, paced at a real-time factor; its messages are serialized
+  a second of driving ahead, so that publishing is all it does on time;
+* a **listener** on the player's core receiving the node's calibrated wheel odometry (one per
+  wheel message; read from its bytes) and ``/diagnostics``.
 
-Printed per real-time factor: the messages the node took per second, how many of its outputs
-arrived (a shortfall means it fell behind and DDS dropped input), the 50th/99th percentile and
-largest latency from a wheel message's publication to the arrival of the odometry computed from
-it (the published estimate), how many calibration updates reached ``/diagnostics``, and the
-node's resident memory (peak, and at the end). Then an hour of driving at ``--hour-factor``:
-the same, with the node's memory after the hour. ``--profile`` runs the node under cProfile for
-the first sweep factor and prints where its time goes.
+First the **player's own limit**: the player unpaced (as fast as it can publish) with no node,
+a sink on the node's core taking its messages and doing nothing else (so the writers have a
+reader, as they do with the node), with the sink's CPU time per message: what taking a message
+costs in rclpy and Fast DDS before any work. Then, per real-time factor: the factor the player
+achieved, the messages per second, the messages the node took of those sent and those it found
+missing by their stamps (its ``/diagnostics``: a shortfall means it fell behind and DDS dropped
+input), how many of its outputs reached the listener (one per wheel message; reliable, on the
+player's core), the 50th/99th percentile and largest latency from a wheel message's
+publication to the arrival of the odometry computed from it,
+the estimates the node took (its count in ``/diagnostics``: one every ``[online] update_s`` of
+data and the final one) and how many of them the listener heard, the
+node's CPU time per second of the run, and its resident memory (peak, at the end). Then an hour
+of driving at ``--hour-factor``. ``--profile`` runs the node under cProfile for the first
+sweep factor and prints where its time goes.
 """
 
 from __future__ import annotations
@@ -39,9 +51,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 NODE = "odocal_bench"
-WHEEL_HZ, POSE_EVERY = 100.0, 2               # wheels and IMU at 100 Hz, the pose at 50 Hz
+#: The wheels' and IMU's rate (Hz) and every how many of their samples a pose comes
+#: (--rate-hz, --pose-every: the defaults are a car's drivers, 100 Hz and 50 Hz).
+RATE = {"hz": 100.0, "pose_every": 2}
 START_S = 1000.0
-QOS_DEPTH = [1000]                            # the node's input queues (--qos-depth)
+CHUNK = 100                                   # samples serialized at a time (1 s of driving)
+TOPICS = ("/bench/joint_states", "/bench/imu", "/bench/pose")
 
 
 def _env(domain: int) -> dict[str, str]:
@@ -51,7 +66,7 @@ def _env(domain: int) -> dict[str, str]:
     return env
 
 
-def _rss_kb(pid: int, field: str) -> int:
+def _status_kb(pid: int, field: str) -> int:
     try:
         for line in Path(f"/proc/{pid}/status").read_text().splitlines():
             if line.startswith(field + ":"):
@@ -61,27 +76,40 @@ def _rss_kb(pid: int, field: str) -> int:
     return 0
 
 
+def _cpu_s(pid: int) -> float:
+    """User and system CPU time of a process (all its threads), s."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 # ----------------------------------------------------------------------------------- player
 
 class _Template:
-    """A message serialized once; stamps and values patched into its CDR bytes per message."""
+    """A message serialized once; stamps and values written into copies of its CDR bytes, a
+    block of messages at a time."""
 
     def __init__(self, msg: Any, fields: dict[str, Any]) -> None:
         from rclpy.serialization import serialize_message
 
-        self.data = bytearray(serialize_message(msg))
+        self.data = np.frombuffer(serialize_message(msg), dtype=np.uint8)
         self.offsets: dict[str, tuple[int, str]] = {}
+        raw = self.data.tobytes()
         for name, (marker, fmt) in fields.items():
             packed = struct.pack("<" + fmt, marker)
-            at = self.data.find(packed)
-            assert at >= 0 and self.data.find(packed, at + 1) < 0, name
-            self.offsets[name] = (at, "<" + fmt)
+            at = raw.find(packed)
+            assert at >= 0 and raw.find(packed, at + 1) < 0, name
+            self.offsets[name] = (at, "<" + {"i": "i4", "I": "u4", "d": "f8"}[fmt])
 
-    def make(self, **values: Any) -> bytes:
-        for name, value in values.items():
-            at, fmt = self.offsets[name]
-            struct.pack_into(fmt, self.data, at, value)
-        return bytes(self.data)
+    def block(self, **columns: np.ndarray) -> list[bytes]:
+        """One message per row of the columns (each an array of the block's length)."""
+        n = len(next(iter(columns.values())))
+        rows = np.tile(self.data, (n, 1))
+        width = self.data.size
+        for name, values in columns.items():
+            at, dtype = self.offsets[name]
+            view = np.ndarray((n,), dtype=dtype, buffer=rows, offset=at, strides=(width,))
+            view[:] = values
+        return [row.tobytes() for row in rows]
 
 
 def _templates() -> dict[str, _Template]:
@@ -94,10 +122,12 @@ def _templates() -> dict[str, _Template]:
                        velocity=[1.25e-300, 2.5e-300])
     joint.header.stamp.sec, joint.header.stamp.nanosec = sec[0], nsec[0]
     imu = Imu()
+    imu.header.frame_id = "base_link"
     imu.header.stamp.sec, imu.header.stamp.nanosec = sec[0], nsec[0]
     imu.angular_velocity.z, imu.linear_acceleration.y = 3.5e-300, 4.5e-300
     imu.linear_acceleration.z = 9.81
     pose = Odometry()
+    pose.header.frame_id, pose.child_frame_id = "map", "base_link"
     pose.header.stamp.sec, pose.header.stamp.nanosec = sec[0], nsec[0]
     p = pose.pose.pose
     p.position.x, p.position.y, p.orientation.z, p.orientation.w = 5.5e-300, 6.5e-300, \
@@ -116,9 +146,37 @@ def _templates() -> dict[str, _Template]:
     }
 
 
+def _clock_every() -> int:
+    """Every how many samples /clock is published (a tenth of a second)."""
+    return max(round(0.1 * RATE["hz"]), 1)
+
+
+def _blocks(data: Any, tpl: dict[str, _Template], lo: int, hi: int) -> dict[str, list[bytes]]:
+    """The messages of samples lo..hi: wheels, imu, pose (every pose_every-th), clock (each
+    tenth of a second)."""
+    t = START_S + data["t"][lo:hi]
+    sec = np.floor(t).astype(np.int64)
+    nsec = np.round((t - sec) * 1e9).astype(np.int64)
+    two_pi = 2 * np.pi
+    ks = np.arange(lo, hi)
+    pose = ks % RATE["pose_every"] == 0
+    clock = ks % _clock_every() == 0
+    half = 0.5 * data["psi"][lo:hi]
+    return {
+        "wheels": tpl["wheels"].block(sec=sec, nsec=nsec, l=data["n_rl"][lo:hi] * two_pi,
+                                      r=data["n_rr"][lo:hi] * two_pi),
+        "imu": tpl["imu"].block(sec=sec, nsec=nsec, w=data["yaw_rate"][lo:hi],
+                                a=data["a_y"][lo:hi]),
+        "pose": tpl["pose"].block(sec=sec[pose], nsec=nsec[pose], x=data["x"][lo:hi][pose],
+                                  y=data["y"][lo:hi][pose], qz=np.sin(half[pose]),
+                                  qw=np.cos(half[pose])),
+        "clock": tpl["clock"].block(sec=sec[clock], nsec=nsec[clock]),
+    }
+
+
 def player(drive_path: str, factor: float, out: str) -> None:
-    """Publish the drive paced at ``factor`` times real time; record each wheel message's
-    publication time (CLOCK_MONOTONIC, shared by the processes)."""
+    """Publish the drive paced at ``factor`` times real time (0: as fast as it can); record
+    each wheel message's publication time (CLOCK_MONOTONIC, shared by the processes)."""
     import rclpy
     from nav_msgs.msg import Odometry
     from rclpy.node import Node
@@ -126,59 +184,60 @@ def player(drive_path: str, factor: float, out: str) -> None:
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import Imu, JointState
 
-    data = np.load(drive_path)
-    t, n_rl, n_rr = data["t"], data["n_rl"], data["n_rr"]
-    a_y, yaw, x, y, psi = data["a_y"], data["yaw_rate"], data["x"], data["y"], data["psi"]
+    data = dict(np.load(drive_path))
+    n = data["t"].size
     rclpy.init(args=["--ros-args", "--disable-external-lib-logs"])
     node = Node("bench_player")
     qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-    pubs = {"wheels": node.create_publisher(JointState, "/bench/joint_states", qos),
-            "imu": node.create_publisher(Imu, "/bench/imu", qos),
-            "pose": node.create_publisher(Odometry, "/bench/pose", qos),
+    pubs = {"wheels": node.create_publisher(JointState, TOPICS[0], qos),
+            "imu": node.create_publisher(Imu, TOPICS[1], qos),
+            "pose": node.create_publisher(Odometry, TOPICS[2], qos),
             "clock": node.create_publisher(Clock, "/clock", 10)}
     deadline = time.monotonic() + 30
-    while pubs["wheels"].get_subscription_count() == 0 and time.monotonic() < deadline:
+    while min(p.get_subscription_count() for r, p in pubs.items() if r != "clock") == 0 \
+            and time.monotonic() < deadline:
         time.sleep(0.05)
-    time.sleep(1.0)                                     # every endpoint matched
+    time.sleep(1.0)                                     # every endpoint matched, both ways
     tpl = _templates()
-    sent = np.zeros(t.size)
-    two_pi = 2 * np.pi
+    sent = np.zeros(n)
+    wheels, imu, pose, clock = (pubs["wheels"].publish, pubs["imu"].publish,
+                                pubs["pose"].publish, pubs["clock"].publish)
+    block = _blocks(data, tpl, 0, min(CHUNK, n))
+    every = _clock_every()
+    Path(out + ".start").write_text("")                 # (the node's CPU is counted from here)
     wall0 = time.monotonic()
-    next_clock = 0.0
-    for k in range(t.size):
-        due = wall0 + t[k] / factor
-        while True:
-            now = time.monotonic()
-            if now >= due:
-                break
-            time.sleep(min(due - now, 0.001))
-        stamp = START_S + float(t[k])
-        sec = int(stamp)
-        nsec = round((stamp - sec) * 1e9)
-        if t[k] >= next_clock:
-            pubs["clock"].publish(tpl["clock"].make(sec=sec, nsec=nsec))
-            next_clock = t[k] + 0.1
-        pubs["imu"].publish(tpl["imu"].make(sec=sec, nsec=nsec, w=float(yaw[k]),
-                                            a=float(a_y[k])))
-        if k % POSE_EVERY == 0:
-            half = 0.5 * float(psi[k])
-            pubs["pose"].publish(tpl["pose"].make(sec=sec, nsec=nsec, x=float(x[k]),
-                                                  y=float(y[k]), qz=np.sin(half),
-                                                  qw=np.cos(half)))
-        sent[k] = time.monotonic()
-        pubs["wheels"].publish(tpl["wheels"].make(sec=sec, nsec=nsec,
-                                                  l=float(n_rl[k] * two_pi),
-                                                  r=float(n_rr[k] * two_pi)))
+    monotonic, sleep = time.monotonic, time.sleep
+    for lo in range(0, n, CHUNK):
+        hi = min(lo + CHUNK, n)
+        w, i, p, c = block["wheels"], block["imu"], block["pose"], block["clock"]
+        for j in range(hi - lo):
+            k = lo + j
+            if factor > 0:
+                due = wall0 + data["t"][k] / factor
+                now = monotonic()
+                while now < due:
+                    sleep(min(due - now, 0.001))
+                    now = monotonic()
+            if k % every == 0:
+                clock(c[j // every])
+            imu(i[j])
+            if k % RATE["pose_every"] == 0:
+                pose(p[j // RATE["pose_every"]])
+            sent[k] = monotonic()
+            wheels(w[j])
+        if hi < n:                                      # the next second, serialized now
+            block = _blocks(data, tpl, hi, min(hi + CHUNK, n))
     np.save(out, sent)
     time.sleep(0.5)
     node.destroy_node()
     rclpy.shutdown()
 
 
-# --------------------------------------------------------------------------------- listener
+# ------------------------------------------------------------------------ listener, sink
 
 def listener(out: str, n: int) -> None:
-    """Receive the node's odometry (and diagnostics) until told to stop (SIGINT)."""
+    """Receive the node's odometry (its stamps, from the bytes) and diagnostics until told to
+    stop (SIGINT)."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
@@ -186,36 +245,72 @@ def listener(out: str, n: int) -> None:
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    rclpy.init(args=["--ros-args", "--disable-external-lib-logs"])
+    rclpy.init(args=["--ros-args", "--disable-external-lib-logs"],
+               signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = Node("bench_listener")
     received = np.full(n, np.nan)
-    updates: list[str] = []
+    updates: set[str] = set()
+    last: dict[str, str] = {}
+    stamp = struct.Struct("<iI")
+    monotonic = time.monotonic
 
-    def on_odom(msg: Any) -> None:
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9 - START_S
-        k = round(stamp * WHEEL_HZ)
+    def on_odom(data: bytes) -> None:
+        sec, nsec = stamp.unpack_from(data, 4)
+        k = round((sec - START_S + nsec * 1e-9) * RATE["hz"])
         if 0 <= k < n:
-            received[k] = time.monotonic()
+            received[k] = monotonic()
 
     def on_diag(msg: Any) -> None:
         for s in msg.status:
             if s.name.startswith(NODE) and "calibration" in s.name:
-                updates.append(next((kv.value for kv in s.values if kv.key == "updates"), ""))
+                values = {kv.key: kv.value for kv in s.values}
+                updates.add(values.get("updates", ""))
+                last.clear()
+                last.update(values)
 
     node.create_subscription(Odometry, f"/{NODE}/odometry", on_odom,
-                             QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
+                             QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE),
+                             raw=True)
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 100)
     executor = EventsExecutor()
     executor.add_node(node)
+    stop: list[int] = []
+    signal.signal(signal.SIGINT, lambda s, f: stop.append(s))
+    signal.signal(signal.SIGTERM, lambda s, f: stop.append(s))
     Path(out + ".ready").write_text("")
-    try:
-        while True:
-            executor.spin_once(timeout_sec=0.1)
-    except KeyboardInterrupt:
-        pass
+    while not stop:
+        executor.spin_once(timeout_sec=0.1)
     np.save(out, received)
-    Path(out + ".json").write_text(json.dumps({"updates": sorted(set(updates) - {""},
-                                                                  key=int)}))
+    Path(out + ".json").write_text(json.dumps({"updates": sorted(updates - {""}, key=int),
+                                               "last": last}))
+
+
+def sink(out: str) -> None:
+    """Take the player's messages and count them (raw, best effort: what the node's readers
+    are), until told to stop."""
+    import rclpy
+    from nav_msgs.msg import Odometry
+    from rclpy.experimental import EventsExecutor
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Imu, JointState
+
+    rclpy.init(args=["--ros-args", "--disable-external-lib-logs"],
+               signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node = Node("bench_sink")
+    counts = [0, 0, 0]
+    qos = QoSProfile(depth=5000, reliability=ReliabilityPolicy.BEST_EFFORT)
+    for i, (kind, topic) in enumerate(zip((JointState, Imu, Odometry), TOPICS, strict=True)):
+        node.create_subscription(kind, topic, lambda m, i=i: counts.__setitem__(i, counts[i] + 1),
+                                 qos, raw=True)
+    executor = EventsExecutor()
+    executor.add_node(node)
+    stop: list[int] = []
+    signal.signal(signal.SIGINT, lambda s, f: stop.append(s))
+    Path(out + ".ready").write_text("")
+    while not stop:
+        executor.spin_once(timeout_sec=0.1)
+    Path(out).write_text(json.dumps(counts))
 
 
 # ------------------------------------------------------------------------------------- runs
@@ -224,7 +319,7 @@ def _drive(minutes: float, folder: Path) -> tuple[Path, int]:
     import odocal
 
     sim = odocal.simulate(duration_s=minutes * 60.0, seed=5, noise="realistic",
-                          t_s=1.0 / WHEEL_HZ)
+                          t_s=1.0 / RATE["hz"])
     d = sim.drive
     path = folder / f"drive_{minutes:g}.npz"
     np.savez(path, t=d.t, n_rl=d.n_rl, n_rr=d.n_rr, a_y=d.a_y, yaw_rate=d.yaw_rate, x=d.x,
@@ -232,123 +327,208 @@ def _drive(minutes: float, folder: Path) -> tuple[Path, int]:
     return path, d.n_samples
 
 
+def _rate_args() -> list[str]:
+    return ["--rate-hz", str(RATE["hz"]), "--pose-every", str(RATE["pose_every"])]
+
+
+def _cores() -> tuple[set[int], set[int]]:
+    cores = sorted(os.sched_getaffinity(0))
+    return {cores[-1]}, set(cores[:-1]) or {cores[0]}
+
+
+def _start(argv: list[str], env: dict[str, str], cores: set[int], **kw: Any) -> Any:
+    return subprocess.Popen(argv, env=env, preexec_fn=lambda: os.sched_setaffinity(0, cores),
+                            **kw)
+
+
+def _wait_ready(path: str) -> None:
+    while not Path(path + ".ready").exists():
+        time.sleep(0.05)
+
+
+def _play(drive: Path, factor: float, out: str, env: dict[str, str], cores: set[int],
+          node_pid: int | None = None) -> tuple[float, float]:
+    """Run the player; the time it took to publish the drive (s), and the node's CPU time
+    (s) when it began (0 without a node)."""
+    proc = subprocess.Popen([sys.executable, __file__, "--role", "player", "--drive",
+                             str(drive), "--factor", str(factor), "--out", out,
+                             *_rate_args()], env=env,
+                            preexec_fn=lambda: os.sched_setaffinity(0, cores))
+    while not Path(out + ".start").exists() and proc.poll() is None:
+        time.sleep(0.002)
+    cpu0 = _cpu_s(node_pid) if node_pid is not None else 0.0
+    if proc.wait() != 0:
+        raise SystemExit(f"the player failed (exit {proc.returncode})")
+    sent = np.load(out)
+    return float(sent[-1] - sent[0]), cpu0
+
+
+def player_limit(drive: Path, n: int, folder: Path, domain: int) -> dict[str, Any]:
+    """The player unpaced, its messages taken by a sink on the node's core."""
+    env = _env(domain)
+    node_core, other = _cores()
+    out = str(folder / "sink.json")
+    sink_proc = _start([sys.executable, __file__, "--role", "sink", "--out", out], env,
+                       node_core)
+    _wait_ready(out)
+    played, cpu0 = _play(drive, 0.0, str(folder / "sent_limit.npy"), env, other,
+                         sink_proc.pid)
+    _caught_up(sink_proc)
+    cpu = _cpu_s(sink_proc.pid) - cpu0
+    sink_proc.send_signal(signal.SIGINT)
+    sink_proc.wait(timeout=60)
+    counts = json.loads(Path(out).read_text())
+    messages = n * 2 + (n + RATE["pose_every"] - 1) // RATE["pose_every"]
+    return {"sim_s": n / RATE["hz"], "played_s": played, "factor": n / RATE["hz"] / played,
+            "messages_per_s": messages / played, "taken": sum(counts), "messages": messages,
+            "sink_us": cpu / max(sum(counts), 1) * 1e6}
+
+
 def run(drive: Path, n: int, factor: float, folder: Path, domain: int, *,
         profile: bool = False) -> dict[str, Any]:
     env = _env(domain)
-    cores = sorted(os.sched_getaffinity(0))
-    node_core, other = {cores[-1]}, set(cores[:-1]) or {cores[0]}
+    node_core, other = _cores()
     tag = f"{factor:g}_{n}"
     prof = folder / f"node_{tag}.prof"
     python = [sys.executable] + (["-m", "cProfile", "-o", str(prof)] if profile else [])
     node_cmd = [*python, "-m", "odocal", "ros2", "--ros-args", "-r", f"__node:={NODE}",
-                "-p", "use_sim_time:=true", "-p", "wheel_topic:=/bench/joint_states",
-                "-p", "imu_topic:=/bench/imu", "-p", "pose_topic:=/bench/pose",
-                "-p", f"qos_depth:={QOS_DEPTH[0]}", "--disable-external-lib-logs"]
+                "-p", "use_sim_time:=true", "-p", f"wheel_topic:={TOPICS[0]}",
+                "-p", f"imu_topic:={TOPICS[1]}", "-p", f"pose_topic:={TOPICS[2]}",
+                "--disable-external-lib-logs"]
     err = open(folder / f"node_{tag}.err", "w")
-    node = subprocess.Popen(node_cmd, env=env, cwd=ROOT, stderr=err, stdout=subprocess.DEVNULL,
-                            preexec_fn=lambda: os.sched_setaffinity(0, node_core))
+    node = _start(node_cmd, env, node_core, cwd=ROOT, stderr=err, stdout=subprocess.DEVNULL)
     out = str(folder / f"recv_{tag}.npy")
-    lst = subprocess.Popen([sys.executable, __file__, "--role", "listener", "--out", out,
-                            "--n", str(n)], env=env,
-                           preexec_fn=lambda: os.sched_setaffinity(0, other))
-    while not Path(out + ".ready").exists():
-        time.sleep(0.05)
+    lst = _start([sys.executable, __file__, "--role", "listener", "--out", out, "--n", str(n),
+                  *_rate_args()], env, other)
+    _wait_ready(out)
     sent_path = str(folder / f"sent_{tag}.npy")
-    started = time.monotonic()
-    subprocess.run([sys.executable, __file__, "--role", "player", "--drive", str(drive),
-                    "--factor", str(factor), "--out", sent_path], env=env, check=True,
-                   preexec_fn=lambda: os.sched_setaffinity(0, other))
-    played = time.monotonic() - started
-    # the node takes what is still queued, then: memory, then Ctrl-C (final estimate)
-    deadline = time.monotonic() + 120
-    received = None
-    while time.monotonic() < deadline:
-        time.sleep(1.0)
-        if node.poll() is not None:
-            break
-        cpu_now = Path(f"/proc/{node.pid}/stat").read_text().split()
-        busy = int(cpu_now[13]) + int(cpu_now[14])
-        time.sleep(1.0)
-        cpu_later = Path(f"/proc/{node.pid}/stat").read_text().split()
-        if int(cpu_later[13]) + int(cpu_later[14]) - busy < 5:      # idle: caught up
-            break
-    rss_end, rss_peak = _rss_kb(node.pid, "VmRSS"), _rss_kb(node.pid, "VmHWM")
+    played, cpu0 = _play(drive, factor, sent_path, env, other, node.pid)
+    _caught_up(node)
+    cpu = _cpu_s(node.pid) - cpu0
+    rss_end, rss_peak = _status_kb(node.pid, "VmRSS"), _status_kb(node.pid, "VmHWM")
+    signalled = time.monotonic()
     node.send_signal(signal.SIGINT)
     node.wait(timeout=120)
+    exit_s = time.monotonic() - signalled
     err.close()
     lst.send_signal(signal.SIGINT)
     lst.wait(timeout=60)
-    sent = np.load(sent_path)
-    received = np.load(out)
+    sent, received = np.load(sent_path), np.load(out)
     meta = json.loads(Path(out + ".json").read_text())
     ok = np.isfinite(received)
     latency = (received[ok] - sent[ok]) * 1000.0
-    sim_s = n / WHEEL_HZ
-    messages = n * 2 + (n + POSE_EVERY - 1) // POSE_EVERY
+    sim_s = n / RATE["hz"]
+    messages = n * 2 + (n + RATE["pose_every"] - 1) // RATE["pose_every"]
+    missing = sum(int(meta["last"].get(f"missing {t}", "-1")) for t in TOPICS)
+    taken = sum(int(meta["last"].get(f"messages {t}", "-1")) for t in TOPICS)
+    log = (folder / f"node_{tag}.err").read_text()
     result = {"factor": factor, "sim_s": sim_s, "played_s": played,
               "achieved_factor": sim_s / played, "messages": messages,
               "messages_per_s": messages / played, "outputs": int(ok.sum()), "inputs": n,
+              "missing": missing, "taken": taken,
               "p50_ms": float(np.percentile(latency, 50)) if latency.size else np.nan,
               "p99_ms": float(np.percentile(latency, 99)) if latency.size else np.nan,
               "max_ms": float(latency.max()) if latency.size else np.nan,
-              "updates": len(meta["updates"]), "rss_end_mb": rss_end / 1024,
-              "lost_at_s": [round(float(k) / WHEEL_HZ, 1) for k in np.flatnonzero(~ok)[:3]],
-              "rss_peak_mb": rss_peak / 1024}
+              "heard_updates": len(meta["updates"]),
+              "updates": max((int(u) for u in meta["updates"]), default=0),
+              "cpu_share": cpu / played if played > 0 else np.nan,
+              "rss_end_mb": rss_end / 1024, "rss_peak_mb": rss_peak / 1024,
+              "exit_code": node.returncode, "exit_s": exit_s,
+              "traceback": "Traceback" in log or "FATAL" in log,
+              "lost_at_s": [round(float(k) / RATE["hz"], 1) for k in np.flatnonzero(~ok)[:3]]}
     if profile:
         import pstats
 
-        stats = pstats.Stats(str(prof))
-        stats.sort_stats("tottime").print_stats(18)
+        pstats.Stats(str(prof)).sort_stats("tottime").print_stats(18)
     return result
 
 
+def _caught_up(node: Any) -> None:
+    """Wait until the node has taken what is still queued (idle for a second: less than 5%
+    of a core), two minutes at most."""
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and node.poll() is None:
+        busy = _cpu_s(node.pid)
+        time.sleep(1.0)
+        if _cpu_s(node.pid) - busy < 0.05:
+            break
+
+
+HEADER = (f"{'factor':>7} {'sim min':>7} {'achieved':>9} {'msgs/s':>9} "
+          f"{'taken/sent':>15} {'missing':>7} {'outputs/inputs':>17} "
+          f"{'p50 ms':>7} {'p99 ms':>8} {'max ms':>8} "
+          f"{'estimates':>9} {'node CPU':>8} {'peak MB':>8} {'end MB':>7} {'exit':>10}")
+
+
 def _row(r: dict[str, Any]) -> str:
+    updates = f"{r['updates']} ({r['heard_updates']})"
+    exit_text = f"{r['exit_code']} {r['exit_s']:.2f}s" + (" TB" if r["traceback"] else "")
     return (f"{r['factor']:>6g}x {r['sim_s'] / 60:>7.1f} {r['achieved_factor']:>8.1f}x "
-            f"{r['messages_per_s']:>9.0f} {r['outputs']:>8d}/{r['inputs']:<8d} "
-            f"{r['p50_ms']:>7.2f} {r['p99_ms']:>8.2f} {r['max_ms']:>8.1f} {r['updates']:>7d} "
-            f"{r['rss_peak_mb']:>8.0f} {r['rss_end_mb']:>8.0f}"
+            f"{r['messages_per_s']:>9.0f} {r['taken']:>7d}/{r['messages']:<7d} "
+            f"{r['missing']:>7d} {r['outputs']:>8d}/{r['inputs']:<8d} "
+            f"{r['p50_ms']:>7.2f} {r['p99_ms']:>8.2f} {r['max_ms']:>8.1f} "
+            f"{updates:>9} {r['cpu_share'] * 100:>7.0f}% {r['rss_peak_mb']:>8.0f} "
+            f"{r['rss_end_mb']:>7.0f} {exit_text:>10}"
             + (f"  (first lost at {r['lost_at_s']} s of the drive)" if r["lost_at_s"] else ""))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--role", choices=("bench", "player", "listener"), default="bench")
+    ap.add_argument("--role", choices=("bench", "player", "listener", "sink"),
+                    default="bench")
     ap.add_argument("--drive"), ap.add_argument("--out"), ap.add_argument("--n", type=int)
     ap.add_argument("--factor", type=float)
     ap.add_argument("--factors", default="25,50,100")
     ap.add_argument("--sweep-minutes", type=float, default=10.0)
-    ap.add_argument("--hour-factor", type=float, default=50.0)
+    ap.add_argument("--hour-factor", type=float, default=100.0)
     ap.add_argument("--hours", type=float, default=1.0)
     ap.add_argument("--profile", action="store_true")
-    ap.add_argument("--qos-depth", type=int, default=1000)
+    ap.add_argument("--rate-hz", type=float, default=100.0,
+                    help="the wheels' and the IMU's rate (Hz; default 100)")
+    ap.add_argument("--pose-every", type=int, default=2,
+                    help="a pose every this many of their samples (default 2: 50 Hz)")
     args = ap.parse_args()
-    QOS_DEPTH[0] = args.qos_depth
+    RATE["hz"], RATE["pose_every"] = args.rate_hz, args.pose_every
     if args.role == "player":
         player(args.drive, args.factor, args.out)
         return
     if args.role == "listener":
         listener(args.out, args.n)
         return
+    if args.role == "sink":
+        sink(args.out)
+        return
     domain = random.SystemRandom().randint(1, 101)
-    print(f"ROS 2 domain {domain} (localhost discovery); qos_depth {args.qos_depth}; node "
-          "pinned to core "
-          f"{sorted(os.sched_getaffinity(0))[-1]}; cores {os.cpu_count()}, load "
-          f"{os.getloadavg()[0]:.1f}")
-    header = (f"{'factor':>7} {'sim min':>7} {'achieved':>9} {'msgs/s':>9} "
-              f"{'outputs/inputs':>17} {'p50 ms':>7} {'p99 ms':>8} {'max ms':>8} "
-              f"{'updates':>7} {'peak MB':>8} {'end MB':>8}")
+    node_core, _ = _cores()
+    print(f"ROS 2 domain {domain} (localhost discovery); wheels and IMU at {RATE['hz']:g} Hz, "
+          f"the pose at {RATE['hz'] / RATE['pose_every']:g} Hz "
+          f"({RATE['hz'] * (2 + 1 / RATE['pose_every']):g} messages per second of driving); "
+          f"node pinned to core "
+          f"{min(node_core)}; cores {os.cpu_count()}, load {os.getloadavg()[0]:.1f} "
+          f"{os.getloadavg()[1]:.1f} {os.getloadavg()[2]:.1f} (1, 5, 15 min)")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         drive, n = _drive(args.sweep_minutes, folder)
-        print(header)
+        limit = player_limit(drive, n, folder, domain)
+        print(f"the player's own limit (unpaced, no node; a sink on the node's core takes its "
+              f"messages): {limit['factor']:.1f}x real time, {limit['messages_per_s']:.0f} "
+              f"messages/s ({limit['sim_s'] / 60:.1f} min of driving in "
+              f"{limit['played_s']:.1f} s; the sink took {limit['taken']} of "
+              f"{limit['messages']}, at {limit['sink_us']:.1f} us of its core's time each: "
+              f"what taking a message costs before any work, "
+              f"{limit['sink_us'] * RATE['hz'] * (2 + 1 / RATE['pose_every']) / 100:.0f}% of "
+              "a core at 100x)", flush=True)
+        print(HEADER)
         for i, factor in enumerate(float(f) for f in args.factors.split(",") if f):
             print(_row(run(drive, n, factor, folder, domain, profile=args.profile and i == 0)),
                   flush=True)
         if args.hours > 0:
             drive, n = _drive(args.hours * 60.0, folder)
             print(f"{args.hours:g} h of driving at {args.hour_factor:g}x:")
-            print(header)
+            print(HEADER)
             print(_row(run(drive, n, args.hour_factor, folder, domain)), flush=True)
+        print(f"load at the end {os.getloadavg()[0]:.1f} {os.getloadavg()[1]:.1f} "
+              f"{os.getloadavg()[2]:.1f}")
 
 
 if __name__ == "__main__":

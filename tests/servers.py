@@ -154,12 +154,21 @@ class RangeHandler(http.server.SimpleHTTPRequestHandler):
         self.wfile.write(data[lo:hi + 1])
 
 
+class PlainHandler(http.server.SimpleHTTPRequestHandler):
+    """A static file server that answers no byte ranges (the standard library's own: a Range
+    header is ignored, the whole file sent), and logs nothing."""
+
+    def log_message(self, format: str, *args: Any) -> None:
+        pass
+
+
 @contextlib.contextmanager
-def http_server(root: Path) -> Iterator[str]:
-    """Serve ``root`` on the loopback address; yields the base URL (no trailing slash)."""
+def http_server(root: Path, *, ranges: bool = True) -> Iterator[str]:
+    """Serve ``root`` on the loopback address; yields the base URL (no trailing slash).
+    ``ranges`` False: a server that answers no byte ranges."""
     pytest.importorskip("fsspec", reason="the remote extra (fsspec) is not installed")
     pytest.importorskip("aiohttp", reason="the remote extra (aiohttp) is not installed")
-    handler = functools.partial(RangeHandler, directory=str(root))
+    handler = functools.partial(RangeHandler if ranges else PlainHandler, directory=str(root))
     server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()

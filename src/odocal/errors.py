@@ -42,9 +42,12 @@ class MissingDependencyError(OdocalError, ImportError):
 
 
 def shown(path: object, limit: int = 120) -> str:
-    """A path or name from the user, safe to print on one line: control characters escaped,
-    and a long one shortened in the middle."""
-    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(path))
+    """A path, name or message, safe to print on one line: no secret (a URL's credentials and
+    query, a path's query-like tail, a credential variable's value: :mod:`odocal.redaction`),
+    control characters escaped, and a long one shortened in the middle."""
+    from odocal.redaction import redact_text
+
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in redact_text(path))
     if len(text) > limit:
         half = (limit - 3) // 2
         text = f"{text[:half]}...{text[-half:]}"

@@ -140,7 +140,8 @@ def test_short_drive_says_what_is_needed(tmp_path: Path,
     path = tmp_path / "short.csv"
     assert main(["simulate", "--out", str(path), "--duration", "10", "-q"]) == 0
     code, _, err = run(capsys, "calibrate", str(path), "--out", str(tmp_path / "o"))
-    assert code == EXIT_ERROR and "K = 650" in err
+    # (in the drive's own seconds and samples: "K = 650 steps" said nothing of them)
+    assert code == EXIT_ERROR and "holds 401 samples (10.0 s)" in err and "651 samples" in err
 
 
 def test_bad_params_file(drive_file: Path, tmp_path: Path,

@@ -176,6 +176,22 @@ def test_a_scheduler_that_never_answers_is_given_up_after_the_timeout(
     assert not (tmp_path / "s.db").exists()
 
 
+def test_a_closed_scheduler_port_is_refused_at_once(small_fleet: Any, tmp_path: Path) -> None:
+    """Nothing listens there: the host says so at once, and so does odocal, whatever the
+    timeout (on main it waited the whole --connect-timeout: here an hour)."""
+    closed = socket.socket()
+    closed.bind(("127.0.0.1", 0))
+    port = int(closed.getsockname()[1])
+    closed.close()                                   # bound, then freed: nothing listens
+    proc = subprocess.run([str(BIN / "odocal"), "fleet", "calibrate", str(small_fleet.catalog),
+                           "--store", str(tmp_path / "s.db"), "--scheduler",
+                           f"tcp://127.0.0.1:{port}", "--connect-timeout", "3600", "-q"],
+                          capture_output=True, text=True, timeout=120)   # a hang guard
+    assert proc.returncode == 1 and len(proc.stderr.splitlines()) == 1, proc.stderr
+    assert "connection refused" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "s.db").exists()
+
+
 def test_the_connect_timeout_defaults_to_10_s_and_is_checked(
         small_fleet: Any, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from odocal.cli.main import build_parser

@@ -377,3 +377,36 @@ def test_ctrl_c_stops_the_fleet_at_once_and_keeps_what_is_stored(fleet: Any,
     with sqlite3.connect(store) as db:
         assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
         assert db.execute("SELECT count(*) FROM drives").fetchone()[0] >= stored
+
+
+def test_the_same_samples_in_two_files_are_stored_once(fleet: Any, client: Any,
+                                                      tmp_path: Path) -> None:
+    """A catalog that lists a drive as Parquet, as CSV and with its clock shifted: one row
+    stored, the two others named by their row (on main: three drives of one recording in the
+    vehicle's history); a rerun that lists the CSV alone names it against the stored drive."""
+    from odocal.io import load_drive, save_drive
+
+    good = sorted((fleet.catalog.parent / "car000").glob("*.parquet"))[0]
+    drive = load_drive(good)
+    csv = tmp_path / "same.csv"
+    save_drive(drive, csv)
+    columns = dict(drive.columns())
+    columns["t"] = np.asarray(columns["t"]) + 5000.0
+    shifted = tmp_path / "shifted.parquet"
+    save_drive(type(drive).from_columns(columns, name="shifted"), shifted)
+    catalog = tmp_path / "c.csv"
+    catalog.write_text(f"vehicle,path,time\ncar000,{good},2026-01-01\n"
+                       f"car000,{csv},2026-01-02\ncar000,{shifted},2026-01-03\n")
+    run = calibrate_fleet(catalog, tmp_path / "s.db", client=client)
+    assert run.calibrated == 1 and len(run.refused) == 2, run.refused
+    assert all("holds the same samples as catalog row" in r for r in run.refused)
+    # (the one stored is the first whose result came back: the workers decide the order)
+    assert len({r.split(":")[0] for r in run.refused}) == 2
+    again = tmp_path / "again.csv"
+    stored = _rows(tmp_path / "s.db")
+    kept = next(iter(stored.values()))["source"]
+    other = next(p for p in (good, csv, shifted) if str(p) != kept)
+    again.write_text(f"vehicle,path,time\ncar000,{other},2026-01-02\n")
+    rerun = calibrate_fleet(again, tmp_path / "s.db", client=client)
+    assert rerun.calibrated == 0 and "the stored drive" in rerun.refused[0]
+    assert len(_rows(tmp_path / "s.db")) == 1

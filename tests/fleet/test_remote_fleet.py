@@ -140,3 +140,47 @@ def test_a_bucket_folder_laid_out_by_vehicle_is_a_catalog(fleet: Any) -> None:
     assert [(e.vehicle, e.time, Path(e.path).name) for e in on_disk] == \
         [(e.vehicle, e.time, str(e.path).rsplit("/", 1)[1]) for e in listed]
     assert all(str(e.path).startswith(f"s3://fleet/v1/{e.vehicle}/") for e in listed)
+
+
+# ---------------------------------------------------------------- issue 40
+
+def test_a_catalog_behind_http_with_pre_signed_and_file_rows(
+        fleet: Any, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A catalog served over HTTP whose rows are pre-signed relative entries (one object
+    there, one missing) and a ``file://`` row (a file that exists but is no drive): the good
+    rows are calibrated; each other one is named by its row; no signature or token appears on
+    stdout, stderr, in the store or the report (on main: the entry's query was read as part of
+    its path, printed in full, and the file:// row ended the run with nothing stored)."""
+    root = fleet.catalog.parent
+    drives = sorted((root / "car000").glob("*.parquet"))
+    junk = tmp_path / "notes.txt"
+    junk.write_text("not a drive\n")
+    signed = "?X-Amz-Signature=SIGabc123&X-Amz-Security-Token=TOKENxyz789"
+    served = tmp_path / "served"
+    served.mkdir()
+    (served / "car000").mkdir()
+    for d in drives[:2]:
+        (served / "car000" / d.name).write_bytes(d.read_bytes())
+    (served / "catalog.csv").write_text(
+        "vehicle,path,time\n"
+        f"car000,car000/{drives[0].name}{signed},2026-03-02T08:00:00Z\n"
+        f"car000,car000/missing.parquet{signed},2026-03-03T08:00:00Z\n"
+        f"car000,file://{junk},2026-03-04T08:00:00Z\n"
+        f"car000,car000/{drives[1].name}{signed},2026-03-05T08:00:00Z\n")
+    with http_server(served) as web:
+        code, out, err = run(capsys, "fleet", "calibrate", f"{web}/catalog.csv{signed}",
+                             "--store", str(tmp_path / "f.db"), "--out", str(tmp_path / "out"),
+                             "--workers", "2", "--no-drive-reports", "-v")
+    assert code == 1
+    lines = [line for line in err.splitlines() if "error: catalog row" in line]
+    assert len(lines) == 2, err
+    assert lines[0].endswith(f"catalog row 2 (car000): drive '{web}/car000/missing.parquet' "
+                             "does not exist")
+    assert "catalog row 3 (car000)" in lines[1] and str(junk) in lines[1]
+    stored = _by_drive(tmp_path / "f.db")
+    assert sorted(r["source"] for r in stored.values()) == [
+        f"{web}/car000/{d.name}" for d in drives[:2]]
+    outputs = [out, err, (tmp_path / "f.db").read_bytes().decode("latin-1")]
+    outputs += [p.read_bytes().decode("latin-1") for p in (tmp_path / "out").rglob("*")
+                if p.is_file()]
+    assert not any(s in text for text in outputs for s in ("SIGabc123", "TOKENxyz789"))

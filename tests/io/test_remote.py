@@ -224,3 +224,59 @@ def test_raw_logs_and_their_mapping_by_url(aws: S3Server, tmp_path: Path,
         assert code == 0, err
         answers.append(_estimate(tmp_path / f"o{i}"))
     assert answers[0] == answers[1]
+
+
+# ---------------------------------------------------------------- issue 40
+
+def test_a_server_without_byte_ranges_serves_replay_and_calibrate(
+        files: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A plain HTTP server that ignores Range (the whole file every time): replay copies the
+    object here first and gives the trace the file gives (on main: fsspec's "Open with
+    block_size=0"); calibrate reads a log longer than one 8 MiB request of it."""
+    big = tmp_path / "served"
+    big.mkdir()
+    odocal.save_drive(odocal.simulate(duration_s=1500.0, seed=6).drive, big / "long.csv")
+    assert (big / "long.csv").stat().st_size > remote.CHUNK_BYTES
+    (big / "drive.parquet").write_bytes((files / "drive.parquet").read_bytes())
+    with http_server(big, ranges=False) as plain:
+        code, _, err = run(capsys, "replay", f"{plain}/drive.parquet", "--out",
+                           str(tmp_path / "r"), "--no-batch", "--no-report", "-q")
+        assert code == 0, err
+        code, _, err = run(capsys, "calibrate", f"{plain}/long.csv", "--out",
+                           str(tmp_path / "c"), "--no-report", "-q")
+        assert code == 0, err
+    assert run(capsys, "replay", str(files / "drive.parquet"), "--out", str(tmp_path / "f"),
+               "--no-batch", "--no-report", "-q")[0] == 0
+    assert (tmp_path / "r" / "trace.csv").read_text() == \
+        (tmp_path / "f" / "trace.csv").read_text()
+    assert run(capsys, "calibrate", str(big / "long.csv"), "--out", str(tmp_path / "d"),
+               "--no-report", "-q")[0] == 0
+    assert _estimate(tmp_path / "c") == _estimate(tmp_path / "d")
+
+
+def test_a_relative_entry_keeps_its_query_and_never_shows_it() -> None:
+    """A pre-signed object named relative to a catalog's URL: its query is the URL's query
+    (used, never shown), not a part of its path (on main: '%3FX-Amz-Signature=...')."""
+    base = "https://h:8/fleet/catalog.csv?X-Amz-Signature=catalogsig"
+    entry = "car000/x.parquet?X-Amz-Signature=SIG&X-Amz-Security-Token=TOKEN"
+    url = remote.join(base, entry)
+    assert url == "https://h:8/fleet/car000/x.parquet?X-Amz-Signature=SIG&" \
+                  "X-Amz-Security-Token=TOKEN"
+    assert remote.redact(url) == "https://h:8/fleet/car000/x.parquet"
+    assert remote.join("s3://b/c.csv", "d e.parquet#frag") == "s3://b/d%20e.parquet"
+
+
+@pytest.mark.parametrize("text", [
+    "drive 'https://h/x.parquet?X-Amz-Signature=SIG&X-Amz-Security-Token=TOKEN' is missing",
+    "'https://h/car000/x.parquet%3FX-Amz-Signature%3DSIG%26X-Amz-Security-Token%3DTOKEN'",
+    "catalog row 3: '/data/x.parquet?sig=SIG&token=TOKEN' does not exist",
+    "https://TOKEN@h/x.parquet and gs://b/k?X-Goog-Signature=SIG",
+    "a path x.parquet?se=2026&sp=r&sig=SIG (Azure SAS)",
+    "az://c/b?sv=2020&sig=SIG#TOKEN",
+])
+def test_no_query_userinfo_or_token_survives_a_message(text: str) -> None:
+    from odocal.errors import shown
+
+    out = shown(text, 2000)
+    assert "SIG" not in out and "TOKEN" not in out
+    assert remote.clean(text) == " ".join(out.split())

@@ -119,3 +119,73 @@ def test_an_output_that_cannot_be_written_is_named_before_computing(
     code, out, err = run(capsys, "calibrate", str(drive_file), "--out", str(target))
     assert code == 1 and "cannot write" in err and len(err.strip().splitlines()) == 1
     assert "parameter" not in out
+
+
+# ---------------------------------------------------------------- issue 40: hashes, not names
+
+@pytest.mark.parametrize("edited", ["calibration.json", "figures/map.png",
+                                    "trajectories/reference.tum"])
+def test_a_results_file_the_user_edited_stops_the_run(
+        tmp_path: Path, drive_file: Path, capsys: pytest.CaptureFixture[str],
+        edited: str) -> None:
+    """The marker holds each file's SHA-256: a file edited by hand is the user's now, and the
+    folder is refused like a foreign one (on main the edit was replaced without a word)."""
+    out = tmp_path / "results"
+    assert run(capsys, "calibrate", str(drive_file), "--out", str(out), "--export",
+               "tum")[0] == 0
+    path = out / edited
+    path.write_bytes(path.read_bytes() + b"\n my note")
+    mine = path.read_bytes()
+    code, _, err = run(capsys, "calibrate", str(drive_file), "--out", str(out))
+    assert code == 1 and len(err.strip().splitlines()) == 1
+    assert f"holds '{edited}', changed since odocal wrote it" in err
+    assert path.read_bytes() == mine
+
+
+def test_the_marker_lists_every_file_with_its_sha256(tmp_path: Path, drive_file: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    import hashlib
+
+    out = tmp_path / "results"
+    assert run(capsys, "calibrate", str(drive_file), "--out", str(out), "--export",
+               "tum,yaml")[0] == 0
+    lines = (out / RESULTS_MARKER).read_text().splitlines()
+    listed = dict(reversed(line.split("  ", 1)) for line in lines[1:])
+    files = sorted(p.relative_to(out).as_posix() for p in out.rglob("*")
+                   if p.is_file() and p.name != RESULTS_MARKER)
+    assert sorted(listed) == files and len(files) >= 5
+    assert all(hashlib.sha256((out / f).read_bytes()).hexdigest() == listed[f] for f in files)
+    check_replaceable(out)
+
+
+def test_what_odocal_simulate_wrote_is_odocals(tmp_path: Path, drive_file: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """A folder holding a drive and truth odocal simulate wrote (its manifest says so, their
+    content unchanged) is odocal's: calibrate replaces it (on main: "which odocal did not
+    write"); once the drive is edited, it is the user's."""
+    folder = tmp_path / "sim"
+    assert run(capsys, "simulate", "--out", str(folder) + "/", "--duration", "120", "-q")[0] == 0
+    assert sorted(p.name for p in folder.iterdir()) == [".odocal-outputs", "drive.parquet",
+                                                        "drive.truth.json"]
+    check_replaceable(folder)
+    truth = folder / "drive.truth.json"
+    truth.write_text(truth.read_text() + " ")
+    with pytest.raises(OutputError, match=r"holds 'drive\.truth\.json', changed since odocal"):
+        check_replaceable(folder)
+    truth.write_text(truth.read_text()[:-1])
+    code, _, err = run(capsys, "calibrate", str(drive_file), "--out", str(folder), "-q")
+    assert code == 0, err
+    assert (folder / "calibration.json").is_file() and not (folder / "drive.parquet").exists()
+
+
+def test_an_older_marker_of_names_is_still_read(tmp_path: Path) -> None:
+    old = tmp_path / "old"
+    (old / "figures").mkdir(parents=True)
+    (old / "calibration.json").write_text("{}")
+    (old / "figures" / "map.png").write_bytes(b"png")
+    (old / RESULTS_MARKER).write_text("written by odocal as a whole; replaced as a whole. It "
+                                      "wrote:\n- calibration.json\n- figures\n- figures/map.png\n")
+    check_replaceable(old)
+    (old / "figures" / "mine.png").write_bytes(b"png")
+    with pytest.raises(OutputError, match=r"figures/mine\.png"):
+        check_replaceable(old)

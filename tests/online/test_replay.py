@@ -16,6 +16,7 @@ import pyarrow.parquet as pq
 import pytest
 
 import odocal
+from odocal import cancel
 from odocal.cli import interrupt
 from odocal.cli.main import EXIT_OK
 from odocal.online import replay as replay_module
@@ -34,7 +35,7 @@ def test_an_interrupt_a_library_swallows_still_stops_the_replay(
     next update, exit 130 and one line; nothing is written."""
     path = tmp_path / "d.parquet"
     odocal.save_drive(short_drive.drive, path)
-    monkeypatch.setattr(interrupt, "_seen", False)
+    monkeypatch.setattr(cancel, "_requested", [False])     # (the request it remembers)
     numbers = replay_module._numbers
     calls = []
 

@@ -327,7 +327,8 @@ def test_a_drive_file_carries_its_datasheet(tmp_path: Path, noisy_drive: Any) ->
     # the settings (a --datasheet or a config's theta0) win over the metadata
     own = Settings().replace(identify={"theta0": (1.96, 0.0, 1.52, 0.0)})
     assert odocal.calibrate(stated, settings=own).estimate.datasheet.c_e == pytest.approx(1.96)
-    other = dataclasses.replace(noisy_drive.drive, name="other",
+    # (another drive: the same samples twice would be refused as one drive given twice)
+    other = dataclasses.replace(odocal.simulate(duration_s=300.0, seed=91).drive, name="other",
                                 metadata={"datasheet": {"c_e": 1.80, "t_r": 1.55}})
     with pytest.raises(DataError, match="different datasheet values"):
         odocal.calibrate([stated, other])

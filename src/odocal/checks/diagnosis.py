@@ -41,7 +41,7 @@ from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.model.kinematics import body_rates, motion_increments
 from odocal.model.layout import REAR_AXLE as LAYOUT
-from odocal.settings import ChecksSettings, Settings
+from odocal.settings import ChecksSettings, GateSettings, Settings
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -132,8 +132,16 @@ def check_drives(drives: Sequence[Drive], settings: Settings) -> Diagnosis:
     findings = _repaired(drives)
     wheel_m = float(np.abs(win.wheel_ds).sum())
     if wheel_m < lim.min_distance_m:
-        findings.append(Finding(Check.STANDSTILL, Severity.FALLBACK, wheel_m,
-                                lim.min_distance_m))
+        reference_m = float(np.abs(win.ds).sum())
+        extent_m = max((float(np.hypot(np.ptp(d.x), np.ptp(d.y))) for d in drives if d.x.size),
+                       default=0.0)
+        if extent_m >= 10.0 * lim.min_distance_m:     # the reference drives, the wheels not
+            # (judged by how far apart its positions lie: a parked pose's jitter adds up)
+            findings.append(Finding(Check.SPEED_SCALE, Severity.FATAL,
+                                    wheel_m / reference_m, reference_m))
+        else:
+            findings.append(Finding(Check.STANDSTILL, Severity.FALLBACK, wheel_m,
+                                    lim.min_distance_m))
         return Diagnosis(tuple(findings))
     moving = np.abs(win.ds) > lim.min_speed_mps * 1.0        # windows of one second
     reference = _pose_jumps(drives, settings.checks)
@@ -151,7 +159,11 @@ def check_drives(drives: Sequence[Drive], settings: Settings) -> Diagnosis:
         findings.append(Finding(Check.WHEELS_IDENTICAL, Severity.FALLBACK, 0.0))
     elif bends.sum() >= lim.min_bend_windows:
         agree = _agreement(win.wheel_dpsi[bends], win.dpsi[bends])
-        if agree < -lim.min_yaw_correlation:
+        swapped = _swapped_drives(drives, win, bends, lim) if agree < lim.min_yaw_correlation \
+            else []
+        if swapped:              # one log's swapped wheels cancel another's in the pooled sum
+            findings += swapped
+        elif agree < -lim.min_yaw_correlation:
             findings.append(Finding(Check.WHEELS_SWAPPED, Severity.FATAL, agree, 1.0))
         elif agree < lim.min_yaw_correlation:
             findings.append(Finding(Check.NO_DIFFERENTIAL, Severity.FALLBACK, agree, 1.0))
@@ -160,6 +172,24 @@ def check_drives(drives: Sequence[Drive], settings: Settings) -> Diagnosis:
             findings += lateral or lateral_delay(drives, settings)
             findings += _clock(drives, theta, settings)
     return Diagnosis(tuple(findings))
+
+
+def _swapped_drives(drives: Sequence[Drive], win: _Windows, bends: BoolArray,
+                    lim: GateSettings) -> list[Finding]:
+    """Among several drives, each one whose own wheels turn against its reference in bends
+    (named): beside good logs, their pooled agreement only looked like no differential
+    information."""
+    if len(drives) < 2:
+        return []
+    out = []
+    for index, d in enumerate(drives):
+        mine = bends & (win.drive == index)
+        if mine.sum() < lim.min_bend_windows:
+            continue
+        agree = _agreement(win.wheel_dpsi[mine], win.dpsi[mine])
+        if agree < -lim.min_yaw_correlation:
+            out.append(Finding(Check.WHEELS_SWAPPED, Severity.FATAL, agree, 1.0, d.name))
+    return out
 
 
 def _repaired(drives: Sequence[Drive]) -> list[Finding]:

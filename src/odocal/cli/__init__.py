@@ -6,6 +6,27 @@ Every command calls a library function; nothing here computes. May import everyt
 from __future__ import annotations
 
 
+def _leave_ctrl_c_to_the_parent() -> None:
+    """In a process the ``odocal`` program starts with multiprocessing's ``spawn`` (a Dask
+    worker of ``odocal fleet``): ignore Ctrl-C from its first moment.
+
+    Ctrl-C from a terminal goes to the whole process group: a worker still importing its
+    libraries would die of it printing a traceback of its own (and the program stops its
+    workers itself). Such a process imports the program's main script, and so this package,
+    before anything heavy (multiprocessing's ``_inheriting`` says it is being set up); the
+    ignored signal stays ignored in it and in what it starts."""
+    import sys
+
+    process = sys.modules.get("multiprocessing.process")
+    if process is not None and getattr(process.current_process(), "_inheriting", False):
+        import signal
+
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+_leave_ctrl_c_to_the_parent()
+
+
 def run() -> None:
     """The ``odocal`` program (its console entry point and ``python -m odocal``).
 

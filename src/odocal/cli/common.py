@@ -38,8 +38,11 @@ class UsageError(OdocalError):
 
 
 def say(text: str = "") -> None:
-    """One line on stdout (what the command found and wrote)."""
-    sys.stdout.write(text + "\n")
+    """One line on stdout (what the command found and wrote), with no URL's query or secret in
+    it (:func:`odocal.redaction.redact_text`)."""
+    from odocal.redaction import redact_text
+
+    sys.stdout.write(redact_text(text) + "\n")
 
 
 def load_config(config: str | None) -> Settings:

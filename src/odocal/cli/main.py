@@ -44,6 +44,12 @@ def _configure_logging(verbose: int, quiet: bool) -> None:
                                          logging.INFO if verbose == 1 else logging.DEBUG)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s",
                         stream=sys.stderr)
+    from odocal.redaction import Redacting
+
+    for handler in logging.getLogger().handlers:       # no URL query or secret in any line
+        if type(handler) is logging.StreamHandler and not isinstance(handler.formatter,
+                                                                      Redacting):
+            handler.setFormatter(Redacting(handler.formatter))
     if verbose == 0:
         # warnings are printed in the summary; keep the log for -v
         logging.getLogger("odocal").setLevel(logging.ERROR)

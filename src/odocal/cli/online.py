@@ -51,7 +51,9 @@ def _replay(args: argparse.Namespace, drawer: Any) -> int:
         parts = [f"{n} {parameter_text(n, v)} {std_text(n, s)}" if ok else f"{n} -"
                  for n, v, s, ok in zip(PARAMETER_NAMES, row.theta, row.std, row.identified,
                                         strict=True)]
-        say(f"{row.t:9.1f} s {row.distance_km:8.2f} km  " + "  ".join(parts))
+        say(f"{row.t:9.1f} s {row.distance_km:8.2f} km  " + "  ".join(parts)
+            + (f"  REJECTED ({row.rejected_by or 'gate'}): not published" if row.rejected
+               else ""))
 
     result = replay(args.source, fmt=args.source_format, settings=settings,
                     mapping=args.mapping, on_update=show)

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from odocal.errors import DataError
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 
 #: Columns of the drive format that must be present.
 REQUIRED_COLUMNS: tuple[str, ...] = ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi")
@@ -143,10 +144,15 @@ class Drive:
 
     @property
     def distance_m(self) -> float:
-        """Travelled distance of the reference inside the pieces."""
+        """Travelled distance of the reference inside the pieces, over the steps in which the
+        wheels turn: a parked vehicle's pose jitters (2 cm of noise at 40 Hz adds 5 km an
+        hour), its wheels do not."""
         total = 0.0
         for start, stop in self.pieces:
-            total += float(np.hypot(np.diff(self.x[start:stop]), np.diff(self.y[start:stop])).sum())
+            step = np.hypot(np.diff(self.x[start:stop]), np.diff(self.y[start:stop]))
+            turning = 0.5 * np.abs(self.n_rl[start:stop - 1] + self.n_rr[start:stop - 1]) \
+                > RESTING_REVPS
+            total += float(step[turning].sum())
         return total
 
     def columns(self) -> dict[str, FloatArray]:
@@ -228,8 +234,9 @@ class Drive:
         dt = np.diff(t)
         if (dt <= 0).any():
             first = int(np.argmax(dt <= 0))
+            check_time_precision(name, t)
             raise DataError(f"'{name}' column t is not strictly increasing: t={t[first + 1]:.6g} "
-                            f"follows t={t[first]:.6g} at row {first + 1}; sort the log or drop "
+                            f"follows t={t[first]:.6g} at row {first + 2}; sort the log or drop "
                             "duplicate stamps")
         pieces = _pieces(name, t, arrays.get("piece"))
         t_s, jitter_s = _sampling_time(name, t, pieces)
@@ -253,13 +260,13 @@ class Drive:
                     repaired[key] = count
         _check_limits(name, arrays)
         n_rl, n_rr = arrays["n_rl"], arrays["n_rr"]
+        _check_wheel_bursts(name, arrays["t"], n_rl, n_rr, circumference_m=wheel_m)
+        _check_held_reference(name, arrays, pieces)
         _check_wheel_units(name, n_rl, n_rr, circumference_m=wheel_m, stated=stated)
         psi = _unwrap_pieces(arrays["psi"], pieces)
         yaw_from_psi = _derivative_pieces(psi, t_s, pieces)
         if np.percentile(np.abs(yaw_from_psi), 99) > _MAX_YAW_RATE_RADPS:
-            raise DataError(f"'{name}' column psi changes by up to "
-                            f"{np.percentile(np.abs(yaw_from_psi), 99) * t_s:.3g} per sample: "
-                            "psi must be in radians (is it in degrees?)")
+            _psi_too_fast(name, psi, yaw_from_psi, t_s)
         yaw_rate = arrays.get("yaw_rate", yaw_from_psi)
         if np.percentile(np.abs(yaw_rate), 99) > _MAX_YAW_RATE_RADPS:
             raise DataError(f"'{name}' column yaw_rate reaches {np.max(np.abs(yaw_rate)):.3g}: "
@@ -323,7 +330,7 @@ def _columns(columns: Mapping[str, Any], name: str) -> dict[str, FloatArray]:
         if bad.any():
             first = int(np.argmax(bad))
             where = f"t={t[first]:.3f} s" if key != "t" and np.isfinite(t[first]) \
-                else f"row {first}"
+                else f"row {first + 1}"
             raise DataError(f"'{name}' column {key} contains {int(bad.sum())} NaN or "
                             f"infinite values (first at {where})")
     return arrays
@@ -363,6 +370,7 @@ def _sampling_time(name: str, t: FloatArray, pieces: tuple[tuple[int, int], ...]
     offsets = np.concatenate([np.arange(a, b - 1) for a, b in pieces])
     broken = np.abs(inside - t_s) >= _JITTER_LIMIT * t_s
     if broken.any():
+        _check_rate_change(name, t, inside, offsets, t_s)
         # the time where the first step beyond jitter starts
         first = int(offsets[np.argmax(broken)])
         step = float(t[first + 1] - t[first])
@@ -377,6 +385,30 @@ def _sampling_time(name: str, t: FloatArray, pieces: tuple[tuple[int, int], ...]
                         f"{step:.4g} s within a piece: resample to a uniform grid, or mark the "
                         "separate runs with a 'piece' column")
     return step, jitter
+
+
+#: Consecutive steps of one other length that make a stretch logged at another rate.
+_RATE_RUN = 10
+
+
+def _check_rate_change(name: str, t: FloatArray, inside: FloatArray, offsets: IntArray,
+                       t_s: float) -> None:
+    """A DataError naming a stretch logged at another rate (a logger reconfigured: 10 Hz,
+    then 40 Hz), not its first step as a gap."""
+    off = np.abs(inside - t_s) >= _JITTER_LIMIT * t_s
+    first = int(np.argmax(off))
+    other = float(inside[first])
+    same = np.abs(inside - other) <= _UNIFORM_TOLERANCE * other
+    run = first
+    while run < inside.size and same[run]:
+        run += 1
+    if run - first < _RATE_RUN:
+        return
+    start, stop = int(offsets[first]), int(offsets[run - 1]) + 1
+    raise DataError(f"'{name}' column t steps {other:.4g} s ({1.0 / other:.3g} Hz) from "
+                    f"t={t[start]:.3f} s to t={t[stop]:.3f} s ({run - first} steps) and "
+                    f"{t_s:.4g} s ({1.0 / t_s:.3g} Hz) elsewhere: the log changes its rate; "
+                    "resample it to one rate")
 
 
 _TIME_UNITS = (("milliseconds", 1e-3, "1000"), ("microseconds", 1e-6, "1e6"),
@@ -492,6 +524,99 @@ def _repair_spikes(name: str, key: str, arr: FloatArray, scale: float,
     fixed = arr.copy()
     fixed[spike] = 0.5 * (prev[spike] + nxt[spike])
     return fixed, count
+
+
+#: A wheel turning slower than this (rev/s) is at rest (0.2 m/s on a car's 2 m wheel): its
+#: pose's steps are noise, not distance.
+RESTING_REVPS = 0.1
+
+
+def check_time_precision(name: str, t: FloatArray) -> None:
+    """A DataError where stamps repeat because they lost their precision: times of the epoch
+    (1.7e9 s) kept as 32-bit floats step by 128 s, so most stamps of a log share a value."""
+    finite = t[np.isfinite(t)]
+    if finite.size < 2:
+        return
+    peak = float(np.max(np.abs(finite)))
+    as32 = finite.astype(np.float32)
+    spacing = float(np.spacing(np.float32(peak)))
+    if np.array_equal(as32.astype(np.float64), finite) and spacing >= 1e-3:
+        distinct = int(np.unique(finite).size)
+        raise DataError(f"'{name}' column t holds times near {peak:.4g} with 32-bit precision, "
+                        f"which steps by {spacing:.4g} s there: {finite.size} stamps take only "
+                        f"{distinct} value{'s' if distinct != 1 else ''}. Store t as 64-bit "
+                        "floats (or as seconds from the log's start)")
+
+
+def _check_wheel_bursts(name: str, t: FloatArray, n_rl: FloatArray, n_rr: FloatArray, *,
+                        circumference_m: float) -> None:
+    """A DataError where a wheel rate, after isolated spikes were repaired, reaches beyond
+    2.5 times the fastest plausible (a stretch too short to move the percentiles the unit
+    check reads): no wheel turns that fast, whatever the unit of the rest."""
+    limit = 2.5 * _MAX_WHEEL_SPEED_MPS / circumference_m
+    for key, n in (("n_rl", n_rl), ("n_rr", n_rr)):
+        beyond = np.abs(n) > limit
+        if beyond.any():
+            k = int(np.argmax(beyond))
+            kmh = 2.5 * _MAX_WHEEL_SPEED_MPS * 3.6
+            raise DataError(f"'{name}' column {key} reaches {float(np.max(np.abs(n))):.4g} "
+                            f"rev/s (first at t={t[k]:.3f} s, row {k + 1}; {int(beyond.sum())} "
+                            f"samples beyond {limit:.3g} rev/s, {kmh:.0f} km/h on a "
+                            f"{circumference_m:g} m wheel): a corrupt stretch of the log, or "
+                            "wheel rates in another unit than rev/s")
+
+
+#: A reference whose position stays the same on this share of the steps in which the wheels
+#: turn is held between updates of a slower source.
+_HELD_SHARE = 0.5
+
+
+def _check_held_reference(name: str, arrays: Mapping[str, FloatArray],
+                          pieces: tuple[tuple[int, int], ...]) -> None:
+    """A DataError where the reference position repeats while the wheels turn: a slower
+    source (a 1 Hz GNSS) held between its updates, whose steps then look like jumps."""
+    x, y, t = arrays["x"], arrays["y"], arrays["t"]
+    turning = held = changed = 0
+    updates: list[float] = []
+    for a, b in pieces:
+        moving = 0.5 * np.abs(arrays["n_rl"][a:b - 1] + arrays["n_rr"][a:b - 1]) \
+            > 5 * RESTING_REVPS
+        same = (np.diff(x[a:b]) == 0.0) & (np.diff(y[a:b]) == 0.0)
+        turning += int(moving.sum())
+        held += int((same & moving).sum())
+        changes = np.flatnonzero(~same & moving)
+        changed += int(changes.size)
+        if changes.size > 1:
+            updates.append(float(np.median(np.diff(t[a:b][changes]))))
+    if turning < 100 or held < _HELD_SHARE * turning or changed < 10:
+        return                       # (a reference that never moves is not held: it is dead)
+    period = float(np.median(updates)) if updates else float("nan")
+    rate = f" (it changes every {period:.3g} s, {1.0 / period:.3g} Hz)" if period > 0 else ""
+    raise DataError(f"'{name}' columns x, y stay the same on {held / turning:.0%} of the steps "
+                    f"in which the wheels turn{rate}: the reference is held between the updates "
+                    "of a slower source, and its steps would look like jumps. Interpolate it "
+                    "between its updates (odocal convert does, from the raw streams)")
+
+
+def _psi_too_fast(name: str, psi: FloatArray, yaw: FloatArray, t_s: float) -> None:
+    """The DataError for a heading (unwrapped) that turns faster than any vehicle: degrees
+    where it also turns that fast over whole seconds (a scale), else a heading in radians that
+    is noisy or jumps (fast from sample to sample, not over a second)."""
+    per_sample = float(np.percentile(np.abs(yaw), 99)) * t_s
+    step = max(round(1.0 / t_s), 1)
+    if psi.size > 2 * step:
+        per_second = float(np.percentile(np.abs(psi[step:] - psi[:-step]), 99))
+    else:                                   # (under two seconds: end to end)
+        per_second = abs(float(psi[-1] - psi[0])) / max((psi.size - 1) * t_s, t_s)
+    if per_second > _MAX_YAW_RATE_RADPS:
+        raise DataError(f"'{name}' column psi changes by up to {per_sample:.3g} per sample and "
+                        f"{per_second:.3g} per second: psi must be in radians (is it in "
+                        "degrees?)")
+    raise DataError(f"'{name}' column psi changes by up to {per_sample:.3g} rad per sample "
+                    f"({per_sample / t_s:.3g} rad/s at the 99th percentile, though only "
+                    f"{per_second:.3g} rad over a second: radians, not degrees; no vehicle turns "
+                    f"faster than {_MAX_YAW_RATE_RADPS:g} rad/s): the heading is noisy or "
+                    "jumps; smooth it, or check which column it is")
 
 
 def _check_limits(name: str, arrays: Mapping[str, FloatArray]) -> None:

@@ -141,6 +141,7 @@ def select_identification(segments: SegmentSet, settings: Settings
 
 def prepare(drives: Sequence[Drive], settings: Settings) -> Prepared:
     """Cut the drives into identification and validation segments (METHOD 2)."""
+    _long_enough(drives, settings)
     id_segments = identification_segments(drives, settings.segments)
     used, held, selection_warnings = select_identification(id_segments, settings)
     warnings: tuple[str, ...] = ()
@@ -159,6 +160,24 @@ def prepare(drives: Sequence[Drive], settings: Settings) -> Prepared:
 
 
 
+
+
+def _long_enough(drives: Sequence[Drive], settings: Settings) -> None:
+    """A DataError, in seconds and samples of the drives themselves, where no stretch of them
+    holds one identification segment."""
+    seg = settings.segments
+    stretches = [(b - a, d) for d in drives for a, b in d.pieces]
+    if not stretches:
+        return
+    count, drive = max(stretches, key=lambda s: s[0])
+    if count >= seg.length + 1:
+        return
+    raise DataError(f"the logs are too short to calibrate from: the longest stretch without a "
+                    f"gap ('{drive.name}') holds {count} samples ({(count - 1) * drive.t_s:.1f} "
+                    f"s), and an identification segment takes {seg.length + 1} samples "
+                    f"({seg.length * drive.t_s:.1f} s at {1.0 / drive.t_s:.3g} Hz: [segments] "
+                    f"length = {seg.length} steps); give longer logs, or a shorter [segments] "
+                    "length")
 
 
 def held_by_checks(diagnosis: Diagnosis) -> dict[str, NotIdentified]:

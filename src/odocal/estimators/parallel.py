@@ -8,9 +8,12 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import TimeoutError as FuturesTimeout
 from typing import TypeVar
+
+from odocal import cancel
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -91,6 +94,21 @@ def resolve_workers(workers: int) -> int:
     return _cores()
 
 
+def _result(future: Future[R]) -> R:
+    """A worker's result, looking every :data:`POLL_S` seconds whether the run was asked to
+    stop (:mod:`odocal.cancel`: an interrupt some library swallowed)."""
+    while True:
+        cancel.check()
+        try:
+            return future.result(timeout=POLL_S)
+        except FuturesTimeout:
+            continue
+
+
+#: Seconds between two looks at a stop request while a worker computes.
+POLL_S = 0.2
+
+
 def map_chunks(func: Callable[[T], R], tasks: Sequence[T], *, workers: int = 1,
                weights: Sequence[int] | None = None,
                progress: Callable[[int, int], None] | None = None) -> list[R]:
@@ -113,33 +131,98 @@ def map_chunks(func: Callable[[T], R], tasks: Sequence[T], *, workers: int = 1,
     if n_workers <= 1:
         out: list[R] = []
         for task, w in zip(tasks, weights, strict=True):
+            cancel.check()
             out.append(func(task))
             done += w
             if progress:
                 progress(done, total)
         return out
-    with interrupts_held():             # the workers are forked while submitting
-        pool = ProcessPoolExecutor(max_workers=n_workers, initializer=_worker_start,
-                                   initargs=(os.getpid(),),
-                                   mp_context=multiprocessing.get_context("fork"))
-        try:
-            futures = [pool.submit(func, task) for task in tasks]
-        except BaseException:
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
+    pool = _start_pool(n_workers)
     try:
+        futures = [pool.submit(func, task) for task in tasks]
         results: list[R] = []
         for future, w in zip(futures, weights, strict=True):
-            results.append(future.result())
+            results.append(_result(future))
             done += w
             if progress:
                 progress(done, total)
     except BaseException:
-        # interrupted or failed: drop the queued work and stop the workers now, not after it
-        processes = list(getattr(pool, "_processes", {}).values())
-        pool.shutdown(wait=False, cancel_futures=True)
-        for process in processes:
-            process.terminate()
+        _stop_pool(pool)      # interrupted or failed: the workers stop now, not after the queue
         raise
     pool.shutdown()
     return results
+
+
+def _start_pool(n_workers: int) -> ProcessPoolExecutor:
+    """A pool of ``n_workers`` forked processes that leave Ctrl-C to this one and die with it.
+
+    A fork pool forks all its workers as the first task is submitted: that happens here, with
+    nothing to do, while Ctrl-C is held back (:func:`interrupts_held`)."""
+    with interrupts_held():
+        pool = ProcessPoolExecutor(max_workers=n_workers, initializer=_worker_start,
+                                   initargs=(os.getpid(),),
+                                   mp_context=multiprocessing.get_context("fork"))
+        try:
+            pool.submit(_nothing)
+        except BaseException:
+            _stop_pool(pool)
+            raise
+    return pool
+
+
+def _nothing() -> None:
+    """A task that makes a pool fork its worker."""
+
+
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Drop the queued work and end the workers at once (their work is lost anyway)."""
+    processes = list(getattr(pool, "_processes", {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        with contextlib.suppress(Exception):
+            process.kill()
+    for process in processes:
+        with contextlib.suppress(Exception):
+            process.join(5.0)
+
+
+def _evaluate(func: Callable[[T], R], chunk: Sequence[T]) -> list[R]:
+    return [func(x) for x in chunk]
+
+
+@contextlib.contextmanager
+def process_map(workers: int) -> Iterator[Callable[[Callable[[T], R], Iterable[T]], list[R]]]:
+    """A map-like callable, ``map(func, items) -> list``, over ``workers`` processes that live
+    for the block: for an optimiser that evaluates a population per iteration (scipy's
+    ``differential_evolution(workers=...)``), without the optimiser's own pool, whose workers
+    take Ctrl-C themselves (each prints a traceback, semaphores leak, and a worker may be left
+    running). These workers leave Ctrl-C to this process, die with it, and are stopped at once
+    when the block ends by an exception or an interrupt; the results keep the items' order.
+    One worker or no ``fork``: the items are evaluated here.
+    """
+    n_workers = resolve_workers(workers)
+    if n_workers <= 1 or "fork" not in multiprocessing.get_all_start_methods():
+        def serial(func: Callable[[T], R], items: Iterable[T]) -> list[R]:
+            out = []
+            for x in items:
+                cancel.check()
+                out.append(func(x))
+            return out
+
+        yield serial
+        return
+    pool = _start_pool(n_workers)
+
+    def parallel(func: Callable[[T], R], items: Iterable[T]) -> list[R]:
+        listed = list(items)
+        size = -(-len(listed) // n_workers) if listed else 1
+        futures = [pool.submit(_evaluate, func, listed[i:i + size])
+                   for i in range(0, len(listed), size)]
+        return [r for future in futures for r in _result(future)]
+
+    try:
+        yield parallel
+    except BaseException:
+        _stop_pool(pool)
+        raise
+    pool.shutdown()

@@ -17,8 +17,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal import cancel
 from odocal.data.drive import Drive
 from odocal.data.segments import RaggedSegments, SegmentSet, gather_ragged
+from odocal.estimators.parallel import process_map
 from odocal.estimators.windows import drives_heading_offset
 from odocal.model.kinematics import body_rates, rollout_ragged
 from odocal.model.parameters import Inputs, Parameters
@@ -209,6 +211,13 @@ class MinimumResult:
                 "bounds": np.asarray(self.bounds).tolist()}
 
 
+def _mean_error_or_stop(theta: FloatArray, data: RaggedSegments) -> float:
+    """:func:`mean_error`, after a look at whether the run was asked to stop (in this process;
+    a worker's flag is never set)."""
+    cancel.check()
+    return mean_error(theta, data)
+
+
 def reachable_minimum(data: RaggedSegments, start: FloatArray, *, settings: MinimumSettings,
                       seed: int = 0, workers: int = 1,
                       progress: Callable[[str, int, int], None] | None = None) -> MinimumResult:
@@ -229,6 +238,7 @@ def reachable_minimum(data: RaggedSegments, start: FloatArray, *, settings: Mini
     generations = [0]
 
     def generation(xk: FloatArray, convergence: float = 0.0) -> bool:
+        cancel.check()
         generations[0] += 1
         if progress:
             progress(stage, min(generations[0], settings.max_generations),
@@ -237,11 +247,17 @@ def reachable_minimum(data: RaggedSegments, start: FloatArray, *, settings: Mini
 
     if progress:
         progress(stage, 0, settings.max_generations)
-    result = differential_evolution(
-        mean_error, bounds=[tuple(b) for b in bounds], args=(data,), callback=generation,
-        seed=seed, maxiter=settings.max_generations, popsize=settings.population,
-        tol=settings.tolerance, polish=True, x0=np.clip(start, bounds[:, 0], bounds[:, 1]),
-        workers=workers, updating="deferred" if workers != 1 else "immediate")
+    # the population is evaluated by odocal's own workers (scipy's pool would let each worker
+    # take Ctrl-C: tracebacks, leaked semaphores, a worker left running); a stop asked for is
+    # looked at every generation and while the workers compute
+    with process_map(workers) as evaluate:
+        result = differential_evolution(
+            _mean_error_or_stop, bounds=[tuple(b) for b in bounds], args=(data,),
+            callback=generation, seed=seed, maxiter=settings.max_generations,
+            popsize=settings.population,
+            tol=settings.tolerance, polish=True, x0=np.clip(start, bounds[:, 0], bounds[:, 1]),
+            workers=evaluate if workers != 1 else 1,
+            updating="deferred" if workers != 1 else "immediate")
     if progress:                                  # converged before the last generation
         progress(stage, settings.max_generations, settings.max_generations)
     on_edge = np.isclose(result.x, bounds[:, 0]) | np.isclose(result.x, bounds[:, 1])

@@ -25,7 +25,7 @@ from typing import Any
 
 from odocal.errors import DataError, InputFileError, input_file, shown
 from odocal.io.registry import FORMATS
-from odocal.io.remote import check_url, is_remote, join, local_path, redact
+from odocal.io.urls import check_url, is_remote, join, local_path, redact
 
 #: A drive's or mapping's location: a local path, or the URL of an object.
 Location = Path | str
@@ -90,7 +90,7 @@ def read_catalog(source: str | Path) -> list[CatalogEntry]:
 
         if url.endswith("/") or stat(url, "catalog").folder:
             return _from_remote_folder(url)
-        return _read_table(url, redact(url), lambda text: join(url, text))
+        return _read_table(url, redact(url), lambda text: _beside_url(url, text), local=False)
     path = local
     if path.is_dir():
         return _from_folder(path)
@@ -98,8 +98,11 @@ def read_catalog(source: str | Path) -> list[CatalogEntry]:
     return _read_table(path, path, lambda text: _resolve(path.parent, text))
 
 
-def _read_table(path: Location, label: object,
-                resolve: Callable[[str], Location]) -> list[CatalogEntry]:
+def _read_table(path: Location, label: object, resolve: Callable[[str], Location], *,
+                local: bool = True) -> list[CatalogEntry]:
+    """The rows of a catalog table; ``local``: the catalog is a local file, whose local drive
+    files must exist now (a remote catalog's rows, ``file://`` ones included, are looked at
+    when the fleet is planned, and one that cannot be had is named by its row)."""
     from odocal.io.drivefile import read_text_table
 
     columns = read_text_table(path)
@@ -130,6 +133,8 @@ def _read_table(path: Location, label: object,
         drive = resolve(text)
         if isinstance(drive, str):
             check_url(drive, f"{where}: drive")
+        elif not local:
+            pass
         elif not drive.exists():
             raise InputFileError(f"{where}: '{shown(drive)}' does not exist")
         elif not drive.is_dir():
@@ -142,7 +147,7 @@ def _read_table(path: Location, label: object,
         mapping_at = resolve(mapping) if mapping else None
         if isinstance(mapping_at, str):
             check_url(mapping_at, f"{where}: mapping file")
-        elif mapping_at is not None:         # named now, not as a crash when it is hashed
+        elif mapping_at is not None and local:   # named now, not as a crash when it is hashed
             input_file(mapping_at, f"{where}: mapping file")
         odometer = (row["odometer_km"] or "").strip()
         try:
@@ -158,6 +163,14 @@ def _read_table(path: Location, label: object,
                                     mapping=mapping_at,
                                     event=event, row=i + 1))
     return sorted(entries, key=lambda e: (e.vehicle, e.time, e.row))
+
+
+def _beside_url(base: str, text: str) -> Location:
+    """A remote catalog's entry: resolved against the catalog's URL (a URL as it is, with its
+    query); a ``file://`` URL is the local path it names."""
+    resolved = join(base, text)
+    local = local_path(resolved)
+    return local if local is not None else resolved
 
 
 def _resolve(base: Path, text: str) -> Location:

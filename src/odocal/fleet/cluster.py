@@ -61,6 +61,8 @@ def probe_scheduler(address: str, timeout_s: float) -> dict[str, Any]:
         finally:
             comm.abort()
 
+    where = f"cannot reach the Dask scheduler at {address}"
+    _refused_now(address, timeout_s, where)
     answer: dict[str, Any] = {}
 
     def run() -> None:
@@ -74,7 +76,6 @@ def probe_scheduler(address: str, timeout_s: float) -> dict[str, Any]:
     thread = threading.Thread(target=run, name="odocal-scheduler-probe", daemon=True)
     thread.start()
     thread.join(timeout_s + 2.0)
-    where = f"cannot reach the Dask scheduler at {address}"
     if thread.is_alive() or isinstance(answer.get("error"), TimeoutError | asyncio.TimeoutError):
         raise ConfigError(f"{where}: no answer within {timeout_s:g} s (--connect-timeout)")
     if "error" in answer:
@@ -87,6 +88,30 @@ def probe_scheduler(address: str, timeout_s: float) -> dict[str, Any]:
         what = f"a Dask {kind}" if isinstance(kind, str) else "something else"
         raise ConfigError(f"{address} answered as {_shown(str(what))}, not as a Dask scheduler")
     return reply
+
+
+def _refused_now(address: str, timeout_s: float, where: str) -> None:
+    """A ConfigError at once where nothing listens at a ``tcp://`` address (the host answers
+    "connection refused", or is not known): Dask's own connect tries a refused port again and
+    again until its timeout runs out. A host that does not answer at all is left to the
+    timeout."""
+    import socket
+
+    protocol, _, rest = address.partition("://")
+    if protocol != "tcp":
+        return
+    host, _, port = rest.rstrip("/").rpartition(":")
+    host = host.strip("[]")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except ConnectionRefusedError:
+        raise ConfigError(f"{where}: nothing listens there (connection refused); is the "
+                          "scheduler running, and is the port right?") from None
+    except socket.gaierror as exc:
+        raise ConfigError(f"{where}: the host {_shown(host)!r} is not known "
+                          f"({_shown(str(exc.strerror or exc))})") from None
+    except (OSError, ValueError):               # a time-out, no route: Dask's connect says
+        return
 
 
 def refuse_unguarded_start() -> None:

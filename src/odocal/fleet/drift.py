@@ -273,8 +273,9 @@ def _alarm(vehicle: str, name: str, pts: list[Point], start: int, first: int, la
     amount = _amount(name, change, relative)
     verb = "fell" if change < 0 else "rose"
     if kind == "trend":
+        # (a share of c_e's own level; c_d's level is near zero, a share of it says nothing)
         rate = (f" ({abs(per_1000) * 100:.2f}% per 1000 km)" if per_1000 is not None
-                and name in ("c_e", "c_d") else "")
+                and name == "c_e" else "")
         message = (f"{name} {verb} {amount} since {since}, gradually{rate}: "
                    f"{'tread wear' if name == 'c_e' else 'a slow change'}; recalibrate")
     else:
@@ -350,8 +351,10 @@ def _level(name: str, value: float) -> str:
 
 
 def _amount(name: str, change: float, relative: float) -> str:
-    if name in ("c_e", "c_d"):
+    if name == "c_e":
         return f"{abs(relative) * 100:.2f}% ({abs(change) * 1000:.2f} mm)"
+    if name == "c_d":                        # a difference near zero: its share is of c_e
+        return f"{abs(change) * 1000:.2f} mm ({abs(relative) * 100:.2f}% of c_e)"
     if name == "t_r":
         return f"{abs(change) * 1000:.1f} mm"
     return f"{abs(change):.3g} {PARAMETER_UNITS[PARAMETER_NAMES.index(name)]}"

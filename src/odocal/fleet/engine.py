@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from odocal import cancel
 from odocal.errors import ConfigError, DataError, OdocalError, OutputError, shown
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
 from odocal.fleet.catalog import CatalogEntry, read_catalog
@@ -46,7 +47,7 @@ from odocal.fleet.tasks import (
     with_content,
 )
 from odocal.io.atomic import check_fleet_folder, refuse_inputs
-from odocal.io.remote import name_of
+from odocal.io.urls import name_of
 from odocal.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -159,6 +160,43 @@ def _unique(tasks: Sequence[DriveTask]) -> None:
         seen[t.key] = t
 
 
+class _SameSamples:
+    """The drives' samples (:func:`odocal.data.copies.samples_digest`, which a task returns
+    in its row's ``input_hashes``), stored before and stored now: a log of other bytes but the
+    same samples as another drive (another format, a shifted clock) is that drive again."""
+
+    def __init__(self, stored: Sequence[dict[str, Any]]) -> None:
+        self.known: dict[str, tuple[str | None, str]] = {}
+        for r in stored:
+            digest = _samples_of(r.get("input_hashes"))
+            if digest:
+                self.known[digest] = (r.get("content"), f"the stored drive '{r.get('source')}' "
+                                                        f"({shown(str(r.get('vehicle')), 40)})")
+
+    def of(self, row: dict[str, Any], where: str) -> str | None:
+        """What ``row``'s samples are a copy of (None: nothing), remembering them if new."""
+        digest = _samples_of(row.get("input_hashes"))
+        if not digest:
+            return None
+        other = self.known.get(digest)
+        if other is not None and other[0] != row.get("content"):
+            return other[1]
+        self.known[digest] = (row.get("content"), f"{where} ('{row.get('source')}')")
+        return None
+
+
+def _samples_of(hashes: Any) -> str | None:
+    if isinstance(hashes, str):
+        import json
+
+        try:
+            hashes = json.loads(hashes)
+        except ValueError:
+            return None
+    value = hashes.get("samples") if isinstance(hashes, dict) else None
+    return value if isinstance(value, str) else None
+
+
 def _row(entry: CatalogEntry) -> str:
     return f"catalog row {entry.row} ({shown(entry.vehicle, 40)})"
 
@@ -180,6 +218,7 @@ class _Planner:
 
         pin = fingerprint = content = mapping_hash = None
         try:
+            _check_local(e)
             if e.remote:
                 endpoint = _endpoint(str(e.path))
                 if endpoint in self.dead:
@@ -216,12 +255,27 @@ class _Planner:
         return True
 
 
+def _check_local(e: CatalogEntry) -> None:
+    """An InputFileError naming a local log or mapping file that is missing or not a file (a
+    local catalog's were checked when it was read; a remote catalog's ``file://`` rows are
+    checked here)."""
+    from odocal.errors import InputFileError, input_file
+
+    if isinstance(e.path, Path):
+        if not e.path.exists():
+            raise InputFileError(f"drive '{shown(e.path)}' does not exist")
+        if not e.path.is_dir():
+            input_file(e.path, "drive")
+    if isinstance(e.mapping, Path):
+        input_file(e.mapping, "mapping file")
+
+
 def _endpoint(url: str) -> str:
     """Where a URL's requests go: one S3 (GCS, Azure) endpoint per scheme, one HTTP server per
     host."""
     import urllib.parse
 
-    from odocal.io.remote import scheme_of
+    from odocal.io.urls import scheme_of
 
     scheme = scheme_of(url)
     return (f"{scheme}://{urllib.parse.urlsplit(url).netloc.rpartition('@')[2]}"
@@ -285,7 +339,7 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
         from odocal.fleet.cluster import probe_scheduler
 
         probe_scheduler(scheduler, connect_timeout_s)
-    from odocal.io.remote import is_url
+    from odocal.io.urls import is_url
 
     catalog_path: Path | str = catalog if isinstance(catalog, str) and is_url(catalog) \
         else Path(catalog)
@@ -314,6 +368,7 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
         db.update_catalog_fields([t for t in tasks if t.key and t.key in done])
         resolved: dict[int, DriveTask] = {t.entry.row: t for t in tasks if t.key}
         seen: dict[str, int] = {t.input_hashes["source"]: t.entry.row for t in tasks if t.key}
+        samples = _SameSamples(db.drives())
 
         def store_drive(row: dict[str, Any]) -> None:
             task = by_row[row["_row"]]
@@ -336,6 +391,12 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
                 if not planner.allowed(task, content):
                     return
                 seen[content] = task.entry.row
+            copied = samples.of(row, _row(task.entry))
+            if copied:
+                say(f"{_row(task.entry)}: drive '{task.entry.source}' holds the same samples as "
+                    f"{copied} (the same recording in another file: another format, or its "
+                    "clock shifted); not stored: give each drive once")
+                return
             resolved[task.entry.row] = task
             db.add_drive({k: v for k, v in row.items() if k != "_row"},
                          fingerprint=task.fingerprint)
@@ -347,9 +408,13 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
             _claim(out_path)             # marked before the workers write into it
         _remove_report_leftovers(report_root)          # of a run that was killed
         try:
+            if progress and client is None:
+                progress(_STARTING, 0, 1)
             with (contextlib.nullcontext(client) if client is not None
                   else dask_client(scheduler, workers,
                                    connect_timeout_s=connect_timeout_s)) as c:
+                if progress and client is None:
+                    progress(_STARTING, 1, 1)
                 dashboard = getattr(c, "dashboard_link", None)
                 if echo is not None and dashboard:
                     echo(f"Dask dashboard: {dashboard}")
@@ -380,6 +445,10 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
                     alarms=analysis.alarms, dashboard=dashboard,
                     elapsed_s=time.perf_counter() - started, written=written,
                     refused=tuple(refused), bytes_read=sum(received))
+
+
+#: The progress stage while the cluster starts (or a scheduler is joined): a few seconds.
+_STARTING = "starting the Dask workers"
 
 
 def _claim(out: Path) -> None:
@@ -425,6 +494,7 @@ def _run(client: Any, tasks: Sequence[DriveTask] | Sequence[PooledTask],
     if progress:
         progress(stage, 0, len(tasks))
     for n, future in enumerate(as_completed(futures), start=1):
+        cancel.check()                           # a stop asked for (odocal.cancel)
         task = futures[future]
         try:
             row = future.result()

@@ -22,6 +22,7 @@ from odocal.fleet.store import Store
 from odocal.io.atomic import FLEET_MARKER, file_name, write_bytes, write_text
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES, Parameters
 from odocal.output.export import Calibrated, OdometryNoise, export
+from odocal.redaction import redact_text
 from odocal.report.html import _CSS
 from odocal.report.render import Call, FigureSpec, Renderer
 
@@ -133,7 +134,7 @@ def write_fleet_outputs(store: Store, out: Path, *, datasheet: Parameters | None
     page = _page(out, drives, alarms, _pooled_by_vehicle(store),
                  {s.name: (s.caption, png) for s, png in zip(specs, pngs, strict=True)})
     report = out / "report.html"
-    write_text(report, page)
+    write_text(report, redact_text(page))          # no secret on the page
     return (report, *written, *exports)
 
 

@@ -89,11 +89,26 @@ def simulate_fleet(out: str | Path, *, vehicles: int = 4, drives: int = 12,
     checked_seed(seed)
     checked_share(size, name="pressure loss size")
     checked_share(wear, name="wear")
-    root = Path(out)
-    if root.exists() and (not root.is_dir() or any(root.iterdir())):
-        raise OutputError(f"'{root}' exists and is not an empty folder; simulate-fleet writes a "
+    target = Path(out)
+    if target.exists() and (not target.is_dir() or any(target.iterdir())):
+        raise OutputError(f"'{target}' exists and is not an empty folder; simulate-fleet writes a "
                           "new fleet into a new folder")
-    root.mkdir(parents=True, exist_ok=True)
+    from odocal.io.atomic import new_folder
+
+    # written beside it and moved into place when complete: an interrupted run leaves no
+    # half a fleet
+    with new_folder(target) as root:
+        events = _write_fleet(root, vehicles=vehicles, drives=drives, duration_s=duration_s,
+                              seed=seed, noise=noise, plan=plan, size=size, wear=wear,
+                              progress=progress)
+    return SimulatedFleet(catalog=target / "catalog.csv", truth=target / "truth.json",
+                          drives=vehicles * drives, events=tuple(events))
+
+
+def _write_fleet(root: Path, *, vehicles: int, drives: int, duration_s: float, seed: int,
+                 noise: str, plan: str, size: float, wear: float,
+                 progress: Callable[[str, int, int], None] | None) -> list[FleetEvent]:
+    """The fleet's drives, catalog and truth, written into ``root``; its events."""
     rows: list[dict[str, Any]] = []
     truth: dict[str, Any] = {"plan": plan, "size": size, "wear": wear, "noise": noise,
                              "duration_s": duration_s, "seed": seed, "vehicles": {}}
@@ -158,4 +173,4 @@ def simulate_fleet(out: str | Path, *, vehicles: int = 4, drives: int = 12,
     write_text(catalog, "\n".join(lines) + "\n")
     truth_path = root / "truth.json"
     write_text(truth_path, json.dumps(truth, indent=1) + "\n")
-    return SimulatedFleet(catalog=catalog, truth=truth_path, drives=total, events=tuple(events))
+    return events

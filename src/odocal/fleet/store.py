@@ -57,6 +57,7 @@ from typing import Any
 
 from odocal.errors import DataError, OutputError, input_file, shown
 from odocal.model.parameters import PARAMETER_NAMES
+from odocal.redaction import redact_text
 
 SCHEMA_VERSION = 3
 
@@ -177,7 +178,7 @@ class Store:
         """Store one drive's result (in its own transaction): it replaces the row of the same
         drive (vehicle and content), and a row of the same vehicle and source whose content
         was another (the file changed)."""
-        row = dict(row)
+        row = {k: _free_text(k, v) for k, v in row.items()}
         content = row.get("content")
         row.setdefault("drive_id", drive_id(row["vehicle"], content or row["task_key"]))
         if row.get("time"):
@@ -193,6 +194,7 @@ class Store:
                            (fingerprint, content, _now()))
 
     def add_pooled(self, row: Mapping[str, Any]) -> None:
+        row = {k: _free_text(k, v) for k, v in row.items()}
         values = [_sql(row.get(c)) for c in POOLED_COLUMNS]
         with self.transaction() as db:
             db.execute(f"INSERT OR REPLACE INTO pooled ({', '.join(POOLED_COLUMNS)}, stored_at) "
@@ -243,6 +245,25 @@ class Store:
 
     def pooled(self, vehicle: str | None = None) -> list[dict[str, Any]]:
         return self._select("pooled", vehicle, "vehicle, time")
+
+
+#: Columns that name a drive or a result (never rewritten); every other text of a row is
+#: stored as it may be shown (:func:`odocal.redaction.redact_text`: no URL's credentials or
+#: query, no credential variable's value).
+_IDENTITY = frozenset({"drive_id", "content", "task_key", "vehicle", "time", "settings_hash",
+                       "input_hashes", "drives", "odocal_version"})
+
+
+def _free_text(column: str, value: Any) -> Any:
+    if column in _IDENTITY:
+        return value
+    if isinstance(value, str):
+        return redact_text(value)
+    if isinstance(value, list | tuple):
+        return [_free_text(column, v) for v in value]
+    if isinstance(value, dict):
+        return {k: _free_text(column, v) for k, v in value.items()}
+    return value
 
 
 def _sql(value: Any) -> Any:

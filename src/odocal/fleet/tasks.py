@@ -262,6 +262,11 @@ def run_drive_task(task: DriveTask) -> dict[str, Any]:
         task = with_content(task, content)
         row.update(task_key=task.key, input_hashes=task.input_hashes)
     row["content"] = task.input_hashes.get("source")
+    from odocal.data.copies import samples_digest
+
+    # what the log holds, whatever its format and clock (the same recording twice is one drive)
+    row["input_hashes"] = {**row["input_hashes"],
+                           "samples": ",".join(samples_digest(d) for d in drives)}
     try:
         from odocal.pipeline.calibrate import calibrate
 
@@ -290,7 +295,7 @@ def run_drive_task(task: DriveTask) -> dict[str, Any]:
 def _reason(exc: BaseException) -> str:
     """A read failure in one line, without secrets."""
     from odocal.errors import OdocalError
-    from odocal.io.remote import clean
+    from odocal.io.urls import clean
 
     return clean(str(exc) if isinstance(exc, OdocalError) and str(exc) else _one_line(exc))
 

@@ -8,11 +8,32 @@ import hashlib
 import os
 import re
 import shutil
+import signal
+import string
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
+from odocal import cancel
 from odocal.errors import OutputError, shown
+
+
+@contextlib.contextmanager
+def _committing() -> Iterator[None]:
+    """The moment a finished output replaces an earlier one: a run asked to stop (Ctrl-C, even
+    one some library swallowed: :mod:`odocal.cancel`) stops here, before anything is replaced,
+    and Ctrl-C is held back while the rename (or the two renames of a folder) happen, so that
+    an interrupt never lands between them (the earlier folder moved aside, the new one not yet
+    in its place)."""
+    held = threading.current_thread() is threading.main_thread()
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if held else None
+    try:
+        cancel.check()
+        yield
+    finally:
+        if previous is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -55,17 +76,25 @@ RESULTS_NAMES = frozenset({
     "robot_localization", "trace.csv", "alarms.json", "trajectories"})
 
 
-def _written_by_odocal(target: Path, names: set[str]) -> set[str]:
-    """The names in ``target`` odocal wrote: those its marker lists (a folder from before the
-    marker listed them: the names odocal writes)."""
-    if RESULTS_MARKER not in names:
-        return set(RESULTS_NAMES)
+#: The marker's first line; each later line is ``sha256sum``'s: the SHA-256 of a file odocal
+#: wrote, two spaces, its path in the folder (``sha256sum -c .odocal-results`` checks them).
+MARKER_HEAD = ("# written by odocal as a whole, replaced as a whole; it wrote these files "
+               "(SHA-256, path):\n")
+
+
+def _marker(target: Path) -> dict[str, str | None] | None:
+    """What the marker in ``target`` says odocal wrote there: path -> SHA-256, or path -> None
+    where an older odocal's marker listed names alone (``- NAME``); None where it cannot be
+    read (then nothing in the folder is odocal's for sure)."""
     try:
-        lines = (target / RESULTS_MARKER).read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError):
-        return {RESULTS_MARKER}
-    listed = {line[2:] for line in lines if line.startswith("- ")}
-    return (listed or set(RESULTS_NAMES)) | {RESULTS_MARKER}
+        text = (target / RESULTS_MARKER).read_text(encoding="utf-8", errors="surrogateescape")
+    except OSError:
+        return None
+    listed: dict[str, str | None] = dict(_parse_manifest(text))
+    old = {line[2:]: None for line in text.splitlines() if line.startswith("- ")}
+    if not listed and not old:
+        return dict.fromkeys(RESULTS_NAMES)        # the oldest marker: no list at all
+    return {**old, **listed}
 
 
 def _entries(folder: Path) -> list[str]:
@@ -157,22 +186,61 @@ def check_writable(target: str | Path) -> None:
 
 
 def check_replaceable(target: Path) -> None:
-    """OutputError unless ``target`` is absent, empty, or a results folder odocal wrote."""
+    """OutputError unless ``target`` is absent, empty, or a results folder odocal wrote whose
+    files nobody changed since (their SHA-256 in its marker); single files odocal wrote into it
+    (listed with their SHA-256 in :data:`OUTPUTS_MANIFEST`: a simulated drive) are odocal's
+    too."""
     if not target.exists():
         return
     if not target.is_dir():
         raise OutputError(f"output '{target}' exists and is not a folder")
+    foreign, changed = _not_odocals(target)
+    for found, why in ((foreign, "which odocal did not write"),
+                       (changed, "changed since odocal wrote it")):
+        if found:
+            more = f" (and {len(found) - 1} more)" if len(found) > 1 else ""
+            raise OutputError(f"output folder '{shown(target)}' holds '{shown(found[0])}'{more}, "
+                              f"{why}: odocal replaces the folder whole, so move it out or "
+                              "choose another folder")
+
+
+def _not_odocals(target: Path) -> tuple[list[str], list[str]]:
+    """The paths in ``target`` odocal did not write, and those it wrote that changed since."""
     names = {p.name for p in target.iterdir()}
-    written = _written_by_odocal(target, names)
-    if RESULTS_MARKER in names:      # every file and folder, at any depth, must be odocal's
-        foreign = [e for e in _entries(target) if e not in written]
-    else:
-        foreign = sorted(names - written)
-    if foreign:
-        more = f" (and {len(foreign) - 1} more)" if len(foreign) > 1 else ""
-        raise OutputError(f"output folder '{shown(target)}' holds '{shown(foreign[0])}'{more}, "
-                          "which odocal did not write: odocal replaces the folder whole, so "
-                          "move it out or choose another folder")
+    manifest = _read_manifest(target) if OUTPUTS_MANIFEST in names else {}
+    ours = {RESULTS_MARKER, OUTPUTS_MANIFEST}
+    foreign: list[str] = []
+    changed: list[str] = []
+
+    def judge(rel: str, digest: str | None) -> None:
+        try:
+            if digest is not None and _sha256(target / rel) != digest:
+                changed.append(rel)
+        except OSError:
+            foreign.append(rel)
+
+    if RESULTS_MARKER not in names:
+        # a folder from before the marker: odocal's names at its top (or its single files)
+        for name in sorted(names - ours):
+            if name in manifest:
+                judge(name, manifest[name])
+            elif name not in RESULTS_NAMES:
+                foreign.append(name)
+        return foreign, changed
+    marker = _marker(target)
+    if marker is None:
+        return sorted(names - {RESULTS_MARKER}) or [RESULTS_MARKER], changed
+    for rel in _entries(target):                 # every file, at any depth, must be odocal's
+        path = target / rel
+        if rel in ours or (path.is_dir() and not path.is_symlink()):
+            continue                             # (a folder: its files decide)
+        if rel in marker and not (path.is_symlink() and marker[rel] is not None):
+            judge(rel, marker[rel])
+        elif "/" not in rel and rel in manifest and not path.is_symlink():
+            judge(rel, manifest[rel])
+        else:
+            foreign.append(rel)
+    return foreign, changed
 
 
 @contextlib.contextmanager
@@ -197,27 +265,57 @@ def results_folder(target: str | Path) -> Iterator[Path]:
     old = tmp.with_suffix(".old")
     try:
         yield tmp
-        written = _entries(tmp)
+        files = [rel for rel in _entries(tmp) if (tmp / rel).is_file()]
         (tmp / RESULTS_MARKER).write_text(
-            "written by odocal as a whole; replaced as a whole. It wrote:\n"
-            + "".join(f"- {name}\n" for name in written), encoding="utf-8")
+            MARKER_HEAD + "".join(_manifest_line(_sha256(tmp / rel), rel) for rel in files),
+            encoding="utf-8", errors="surrogateescape")
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o777 & ~umask)
-        moved = target.exists()
-        if moved:
-            os.replace(target, old)
-        try:
-            os.replace(tmp, target)
-        except OSError:
-            if moved:                    # put the earlier results back
-                os.replace(old, target)
-            raise
+        with _committing():
+            moved = target.exists()
+            if moved:
+                os.replace(target, old)
+            try:
+                os.replace(tmp, target)
+            except OSError:
+                if moved:                    # put the earlier results back
+                    os.replace(old, target)
+                raise
     except OSError as exc:
         raise OutputError(f"cannot write '{target}': {exc.strerror or exc}") from exc
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
         shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def new_folder(target: str | Path) -> Iterator[Path]:
+    """Yield a temporary folder beside ``target`` (which must be absent or an empty folder);
+    on success it becomes ``target``. A failed or interrupted run leaves no half-written
+    folder (and ``target`` as it was)."""
+    target = Path(target)
+    parent = target.parent if str(target.parent) else Path(".")
+    remove_leftovers(target)
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=_temporary(target), suffix=".part", dir=parent))
+    except OSError as exc:
+        raise OutputError(f"cannot create the folder '{shown(target)}': "
+                          f"{exc.strerror or exc}") from exc
+    try:
+        yield tmp
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)
+        with _committing():
+            if target.is_dir() and not any(target.iterdir()):
+                target.rmdir()
+            os.rename(tmp, target)
+    except OSError as exc:
+        raise OutputError(f"cannot write '{shown(target)}': {exc.strerror or exc}") from exc
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 #: Lists the single files odocal wrote in a folder, in ``sha256sum``'s format (the SHA-256 of
@@ -247,11 +345,16 @@ def _read_manifest(folder: Path) -> dict[str, str]:
         text = (folder / OUTPUTS_MANIFEST).read_text(encoding="utf-8", errors="surrogateescape")
     except OSError:
         return {}
+    return _parse_manifest(text)
+
+
+def _parse_manifest(text: str) -> dict[str, str]:
+    """``sha256sum``'s lines (other lines ignored) as name -> SHA-256."""
     out: dict[str, str] = {}
     for line in text.split("\n"):
         escaped = line.startswith("\\")
         digest, sep, name = line[1 if escaped else 0:].partition("  ")
-        if not sep or len(digest) != 64:
+        if not sep or len(digest) != 64 or not all(c in string.hexdigits for c in digest):
             continue
         if escaped:
             name = re.sub(r"\\(.)", lambda m: "\n" if m.group(1) == "n" else m.group(1), name)
@@ -349,9 +452,10 @@ def atomic_path(target: str | Path, *, owned: bool = False) -> Iterator[Path]:
     try:
         yield tmp_path
         digest = _sha256(tmp_path) if owned else ""
-        os.replace(tmp_path, target)
-        if owned:
-            _record(target, digest)
+        with _committing():
+            os.replace(tmp_path, target)
+            if owned:
+                _record(target, digest)
     except OSError as exc:
         raise OutputError(f"cannot write '{target}': {exc.strerror or exc}") from exc
     finally:

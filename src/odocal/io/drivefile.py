@@ -15,15 +15,24 @@ import pyarrow.parquet as pq
 from odocal.data.drive import Drive
 from odocal.errors import DataError, InputFileError, input_file, shown
 from odocal.io.atomic import atomic_path
-from odocal.io.remote import is_url
+from odocal.io.urls import is_url
 
 _FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}
 
 
+def suffix_of(path: str | Path) -> str:
+    """A drive file's type by its name's suffix, a query-like tail that a download left in the
+    name (``d.parquet?X-Amz-Signature=...``) aside."""
+    from odocal.redaction import redact_url
+
+    return Path(redact_url(Path(path).name)).suffix
+
+
 def _format_of(path: Path) -> str:
-    fmt = _FORMATS.get(path.suffix.lower())
+    suffix = suffix_of(path)
+    fmt = _FORMATS.get(suffix.lower())
     if fmt is None:
-        raise DataError(f"'{path}': unknown file type {path.suffix!r}; the drive format is "
+        raise DataError(f"'{path}': unknown file type {suffix!r}; the drive format is "
                         "stored as .csv or .parquet")
     return fmt
 
@@ -171,7 +180,8 @@ def load_drive(path: str | Path, *, metadata: Mapping[str, Any] | None = None,
     :meth:`Drive.from_columns`; ``pin``: the remote object's version it must still be,
     :meth:`odocal.io.remote.ObjectInfo.pin`)."""
     if is_url(path):
-        from odocal.io.remote import readable, redact
+        from odocal.io.remote import readable
+        from odocal.io.urls import redact
 
         with readable(str(path), "drive file", pin=pin) as (local, digest):
             label = redact(path) if digest is not None else str(local)

@@ -9,9 +9,8 @@ Credentials and endpoints come only from each store's usual environment and prof
 ``AWS_ACCESS_KEY_ID``, ``AWS_SECRET_ACCESS_KEY``, ``AWS_SESSION_TOKEN``, ``AWS_ENDPOINT_URL``,
 ``AWS_PROFILE``; for HTTP: ``~/.netrc`` and the proxy variables). A URL that carries a password
 (``https://user:secret@host/...``) is refused; a URL's query string (a pre-signed URL's
-signature) is accepted but never shown: :func:`redact` strips user names, passwords, queries and
-fragments from every URL odocal prints or stores, and :func:`clean` removes the values of the
-credential variables from any text that came from a store's client library.
+signature) is accepted but never shown: URLs as text (parsing, resolving a catalog's entries,
+redaction for display) are :mod:`odocal.io.urls`'s; this module moves the bytes.
 
 An object is read in one pass, in chunks (:data:`CHUNK_BYTES`), into a temporary file on the
 reading machine (:func:`local_copy`), hashed on the way (SHA-256: the drive's identity, the same
@@ -31,7 +30,6 @@ import hashlib
 import logging
 import os
 import posixpath
-import re
 import shutil
 import tempfile
 import time
@@ -44,20 +42,27 @@ from typing import Any
 
 from odocal.errors import (
     ConfigError,
-    DataError,
     InputFileError,
     MissingDependencyError,
     OdocalError,
     OutputError,
     shown,
 )
+from odocal.io.urls import (  # noqa: F401 - the URL helpers, also named from here
+    SCHEMES,
+    SECRET_VARIABLES,
+    check_url,
+    clean,
+    is_remote,
+    is_url,
+    join,
+    local_path,
+    name_of,
+    redact,
+    scheme_of,
+)
 
 log = logging.getLogger(__name__)
-
-#: URL scheme -> the package that opens it (None: built into fsspec)
-SCHEMES: Mapping[str, str | None] = {
-    "s3": "s3fs", "s3a": "s3fs", "gs": "gcsfs", "gcs": "gcsfs", "az": "adlfs", "abfs": "adlfs",
-    "abfss": "adlfs", "http": "aiohttp", "https": "aiohttp", "file": None}
 
 #: Bytes read per request while copying an object.
 CHUNK_BYTES = 8 << 20
@@ -74,107 +79,6 @@ _RECEIVED = [0]
 def bytes_read() -> int:
     """Bytes of objects this process has read from stores so far."""
     return _RECEIVED[0]
-
-
-#: Environment variables whose values are secrets: never in a message, a log line or a store.
-SECRET_VARIABLES = ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_SESSION_TOKEN",
-                    "AWS_SECURITY_TOKEN", "AZURE_STORAGE_KEY", "AZURE_STORAGE_ACCOUNT_KEY",
-                    "AZURE_STORAGE_SAS_TOKEN", "AZURE_STORAGE_CONNECTION_STRING",
-                    "AZURE_CLIENT_SECRET", "GOOGLE_OAUTH_ACCESS_TOKEN")
-
-_URL = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]+)://")
-_URL_IN_TEXT = re.compile(r"\b([A-Za-z][A-Za-z0-9+.-]+)://[^\s'\"<>]+")
-
-
-def is_url(source: object) -> bool:
-    """True for ``scheme://...`` (two or more letters: ``C:\\`` stays a path)."""
-    return isinstance(source, str) and _URL.match(source) is not None
-
-
-def scheme_of(url: str) -> str:
-    match = _URL.match(url)
-    return match.group(1).lower() if match else ""
-
-
-def redact(source: object) -> str:
-    """``source`` as it may be shown or stored: a URL without user, password, query and
-    fragment; a path as given."""
-    text = str(source)
-    if not is_url(text):
-        return text
-    parts = urllib.parse.urlsplit(text)
-    host = parts.netloc.rpartition("@")[2]
-    return urllib.parse.urlunsplit((parts.scheme, host, parts.path, "", ""))
-
-
-def clean(text: object) -> str:
-    """Text from a store's client library, safe to show: URLs redacted, credential values
-    (:data:`SECRET_VARIABLES`) replaced by ``***``, one line."""
-    out = _URL_IN_TEXT.sub(lambda m: redact(m.group(0)), str(text))
-    for name in SECRET_VARIABLES:
-        value = os.environ.get(name)
-        if value and len(value) >= 4:
-            out = out.replace(value, "***")
-    return " ".join(out.split())
-
-
-def check_url(url: str, what: str = "input") -> None:
-    """ConfigError for a scheme odocal does not read or a URL that carries a password."""
-    scheme = scheme_of(url)
-    if scheme not in SCHEMES:
-        raise ConfigError(f"{what} '{shown(redact(url))}': odocal reads "
-                          f"{', '.join(s + '://' for s in SCHEMES)} URLs, not {scheme}://")
-    netloc = urllib.parse.urlsplit(url).netloc
-    if "@" in netloc and ":" in netloc.rpartition("@")[0]:
-        raise ConfigError(f"{what} '{shown(redact(url))}' carries a password: give credentials "
-                          "through the store's environment or profile (for HTTP: ~/.netrc), "
-                          "never in the URL")
-    if scheme != "file" and not urllib.parse.urlsplit(url).netloc:
-        raise ConfigError(f"{what} '{shown(redact(url))}' names no bucket or host")
-
-
-def local_path(source: str | Path) -> Path | None:
-    """The local path of a path or a ``file://`` URL; None for a remote URL."""
-    if isinstance(source, Path) or not is_url(source):
-        return Path(source)
-    if scheme_of(source) == "file":
-        return Path(urllib.parse.unquote(urllib.parse.urlsplit(source).path))
-    return None
-
-
-def is_remote(source: object) -> bool:
-    return isinstance(source, str) and is_url(source) and scheme_of(source) != "file"
-
-
-def join(base: str, relative: str) -> str:
-    """``relative`` (a catalog's or mapping's entry) resolved against the URL ``base`` (the
-    catalog's own URL): beside it, like a relative path beside a file. A URL stays as it is.
-    The base's query (a pre-signed catalog's signature) is not carried over."""
-    if is_url(relative):
-        return relative
-    parts = urllib.parse.urlsplit(base)
-    rel = relative.replace("\\", "/")
-    path = rel if rel.startswith("/") else posixpath.join(posixpath.dirname(parts.path), rel)
-    parts_out: list[str] = []
-    for part in path.split("/"):
-        if part == "..":
-            if not parts_out:
-                raise DataError(f"'{shown(relative)}' climbs above the root of "
-                                f"'{shown(redact(base))}'")
-            parts_out.pop()
-        elif part not in ("", "."):
-            parts_out.append(part)
-    norm = "/" + "/".join(parts_out)
-    return urllib.parse.urlunsplit((parts.scheme, parts.netloc, urllib.parse.quote(
-        urllib.parse.unquote(norm), safe="/~!$&'()*+,;=:@%"), "", ""))
-
-
-def name_of(source: str | Path) -> str:
-    """The last part of a path or URL (``drive.parquet``)."""
-    if isinstance(source, str) and is_url(source):
-        return posixpath.basename(urllib.parse.unquote(
-            urllib.parse.urlsplit(source).path).rstrip("/"))
-    return Path(source).name
 
 
 # ----------------------------------------------------------------------- file systems
@@ -422,20 +326,24 @@ def _changed(url: str, what: str, pin: Mapping[str, Any] | None, now: ObjectInfo
 
 
 def _copy_file(url: str, dest: Path, what: str, pin: Mapping[str, Any] | None,
-               digest: Any, before: ObjectInfo | None = None) -> int:
+               before: ObjectInfo | None = None) -> tuple[int, str]:
     """Copy one object into ``dest`` in chunks; resumed where it stopped on a transient
-    error; the bytes go through ``digest``. Returns the bytes copied. ``before``: what the
-    store said of it just now."""
+    error. Returns the bytes copied and their SHA-256. ``before``: what the store said of it
+    just now. An HTTP server that answers no byte ranges is read in one stream from the start
+    (a failure then starts the copy again)."""
     fs, path = filesystem(url)
     before = before or stat(url, what)
     _changed(url, what, pin, before)
     expected = before.size
     done = 0
+    digest = hashlib.sha256()
+    streamed = False
     with open(dest, "wb") as out:
         attempt = 0
         while True:
             try:
-                with fs.open(path, "rb", block_size=CHUNK_BYTES, cache_type="none") as src:
+                with (fs.open(path, "rb", block_size=0) if streamed else
+                      fs.open(path, "rb", block_size=CHUNK_BYTES, cache_type="none")) as src:
                     if done:
                         src.seek(done)
                     while True:
@@ -455,26 +363,44 @@ def _copy_file(url: str, dest: Path, what: str, pin: Mapping[str, Any] | None,
                 break
             except OdocalError:
                 raise
-            except OSError as exc:
-                if isinstance(exc, FileNotFoundError | PermissionError) or _is_changed(exc):
-                    raise explain(exc, url, what) from exc
-                attempt += 1
-                if attempt >= ATTEMPTS or not (_is_transient(exc) or _unreachable(exc)):
-                    raise explain(exc, url, what) from exc
             except Exception as exc:
-                if _is_changed(exc):
-                    raise explain(exc, url, what) from exc
-                attempt += 1
-                if attempt >= ATTEMPTS or not _is_transient(exc):
-                    raise explain(exc, url, what) from exc
-            log.info("%s: read stopped at byte %d; going on", redact(url), done)
-            time.sleep(0.2 * 4 ** (attempt - 1))
+                if not streamed and _no_ranges(exc):
+                    streamed, done, digest = True, 0, hashlib.sha256()
+                    out.seek(0)
+                    out.truncate()
+                    log.info("%s: the server answers no byte ranges; read as one stream",
+                             redact(url))
+                    continue
+                if streamed:                          # (no resuming a stream: from the start)
+                    done, digest = 0, hashlib.sha256()
+                    out.seek(0)
+                    out.truncate()
+                _give_up_or_wait(exc, url, what, attempt := attempt + 1)
+                continue
+            break
     after = stat(url, what)
     _changed(url, what, before.pin(), after)
     if done != expected:
         raise RemoteError(f"{what} '{shown(redact(url))}' is cut short: {done} of its "
                           f"{expected} bytes arrived")
-    return done
+    return done, digest.hexdigest()
+
+
+def _give_up_or_wait(exc: Exception, url: str, what: str, attempt: int) -> None:
+    """After a failed read (try number ``attempt``): the RemoteError that explains it when it
+    is not transient or the tries are spent, else a pause before the next try."""
+    if isinstance(exc, FileNotFoundError | PermissionError) or _is_changed(exc):
+        raise explain(exc, url, what) from exc
+    passing = _is_transient(exc) or (isinstance(exc, OSError) and _unreachable(exc))
+    if attempt >= ATTEMPTS or not passing:
+        raise explain(exc, url, what) from exc
+    log.info("%s: read stopped; going on", redact(url))
+    time.sleep(0.2 * 4 ** (attempt - 1))
+
+
+def _no_ranges(exc: BaseException) -> bool:
+    """fsspec's word for an HTTP server that answered a byte range with the whole file."""
+    return any(isinstance(e, ValueError) and "range requests" in str(e) for e in _chain(exc))
 
 
 def _is_changed(exc: BaseException) -> bool:
@@ -526,13 +452,12 @@ def local_copy(url: str, what: str = "input", *, pin: Mapping[str, Any] | None =
                 target = dest / rel
                 target.parent.mkdir(parents=True, exist_ok=True)
                 sub = url.rstrip("/") + "/" + urllib.parse.quote(rel)
-                total += _copy_file(sub, target, what, None, hashlib.sha256())
+                total += _copy_file(sub, target, what, None)[0]
             assert info.listing is not None
             yield LocalCopy(dest, info.listing, total)
             return
-        digest = hashlib.sha256()
-        size = _copy_file(url, dest, what, pin, digest, info)
-        yield LocalCopy(dest, digest.hexdigest(), size)
+        size, digest = _copy_file(url, dest, what, pin, info)
+        yield LocalCopy(dest, digest, size)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
 
@@ -545,16 +470,38 @@ def open_input(url: str, what: str = "input") -> Iterator[Any]:
     info = stat(url, what)
     if info.folder:
         raise RemoteError(f"{what} '{shown(redact(url))}' is a folder, not a file")
-    try:
-        handle = _retry(lambda: fs.open(path, "rb", block_size=CHUNK_BYTES), url, what)
-    except RemoteError:
-        raise
+    handle = _retry(lambda: fs.open(path, "rb", block_size=CHUNK_BYTES), url, what)
+    if not _serves_ranges(handle, info, url, what):
+        # an HTTP server that answers no byte ranges: the object is copied here in one
+        # stream (to disk, not to memory) and read from the copy
+        with contextlib.suppress(Exception):
+            handle.close()
+        log.info("%s: the server answers no byte ranges; copied here first", redact(url))
+        with local_copy(url, what, pin=info.pin()) as copy, open(copy.path, "rb") as local:
+            yield local
+        return
     try:
         yield _Guarded(handle, url, what)
     finally:
         with contextlib.suppress(Exception):
             handle.close()
     _changed(url, what, info.pin(), stat(url, what))
+
+
+def _serves_ranges(handle: Any, info: ObjectInfo, url: str, what: str) -> bool:
+    """Whether a range read of ``handle`` works: asked of an HTTP(S) object's last byte (an
+    object store always answers ranges)."""
+    if scheme_of(url) not in ("http", "https") or info.size < 2:
+        return True
+    try:
+        handle.seek(info.size - 1)
+        _retry(lambda: handle.read(1), url, what)
+        handle.seek(0)
+    except RemoteError as exc:
+        if _no_ranges(exc):
+            return False
+        raise
+    return True
 
 
 class _Guarded:

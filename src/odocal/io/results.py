@@ -12,11 +12,14 @@ import numpy as np
 from odocal.errors import DataError, input_file, shown
 from odocal.io.atomic import write_text
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.redaction import redact_text
 from odocal.settings import vehicle_problem
 
 
 def _plain(obj: Any) -> Any:
     """JSON-safe copy: numpy scalars and arrays to Python, NaN and inf to null."""
+    if isinstance(obj, str):
+        return redact_text(obj)        # a URL's credentials and query are never written
     if isinstance(obj, dict):
         return {str(k): _plain(v) for k, v in obj.items()}
     if isinstance(obj, list | tuple):

@@ -161,8 +161,11 @@ class OnlineCalibrator:
     """
 
     def __init__(self, settings: Settings | None = None,
-                 theta0: Parameters | FloatArray | None = None) -> None:
+                 theta0: Parameters | FloatArray | None = None, *,
+                 source: str = "live samples") -> None:
         self.settings = settings or Settings()
+        #: What the samples are called in the checks' words (``replay``: the log's name).
+        self.source = source
         start = (np.asarray(self.settings.identify.theta0, dtype=np.float64) if theta0 is None
                  else (theta0.as_array() if isinstance(theta0, Parameters)
                        else np.asarray(theta0, dtype=np.float64)))
@@ -329,8 +332,10 @@ class OnlineCalibrator:
         step = self._t_s or float(np.median(np.diff(samples[:, 0])))
         piece = np.cumsum(np.concatenate([[0], np.diff(samples[:, 0]) > 1.5 * step]))
         columns = {k: samples[:, i] for i, k in enumerate(SAMPLE)} | {"piece": piece}
+        # named by the source and the stretch (s) the checks judged
+        name = f"{self.source}, t={samples[0, 0]:.6g} to {samples[-1, 0]:.6g} s"
         try:
-            drive = Drive.from_columns(columns, name="live samples")
+            drive = Drive.from_columns(columns, name=name)
         except DataError as exc:
             diagnosis = Diagnosis((Finding(Check.INVALID_INPUT, Severity.FATAL,
                                            name=str(exc)),))

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,13 +19,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal import cancel
+from odocal.checks.findings import Severity
 from odocal.data.drive import REQUIRED_COLUMNS
 from odocal.errors import ConfigError, DataError, InputFileError, input_file
-from odocal.estimators.estimate import Estimate
+from odocal.estimators.estimate import Estimate, Status
 from odocal.io.streams import Stream
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.online.calibrator import OnlineCalibrator
 from odocal.online.changes import Alarm
+from odocal.online.samples import MAX_PUSHED_RATE_REVPS
 from odocal.settings import Settings
 
 FloatArray = NDArray[np.float64]
@@ -38,26 +41,68 @@ REPLAY_FORMATS = ("drive", "rosbag")
 
 @dataclass(frozen=True)
 class TraceRow:
-    """The estimate at one moment of the replay."""
+    """The estimate at one moment of the replay.
+
+    ``status`` is the estimate's (:class:`~odocal.estimators.estimate.Status` by name): a
+    ``REJECTED`` row holds numbers the checks or the gate refused, never published (the checks
+    that refused it in ``rejected_by``, by their codes).
+    """
 
     t: float
     distance_km: float
     theta: tuple[float, ...]
     std: tuple[float, ...]
     identified: tuple[bool, ...]
+    status: str = Status.CONVERGED.name
+    rejected_by: str = ""
 
     @staticmethod
     def header() -> list[str]:
         return ["t", "distance_km", *PARAMETER_NAMES, *(f"{n}_std" for n in PARAMETER_NAMES),
-                *(f"{n}_identified" for n in PARAMETER_NAMES)]
+                *(f"{n}_identified" for n in PARAMETER_NAMES), "status", "rejected_by"]
 
-    def values(self) -> list[float | bool]:
-        return [self.t, self.distance_km, *self.theta, *self.std, *self.identified]
+    def values(self) -> list[float | bool | str]:
+        return [self.t, self.distance_km, *self.theta, *self.std, *self.identified,
+                self.status, self.rejected_by]
+
+    @property
+    def rejected(self) -> bool:
+        return self.status == Status.REJECTED.name
+
+    @staticmethod
+    def of(t: float, distance_km: float, est: Estimate) -> TraceRow:
+        """The row of ``est`` taken at ``t`` after ``distance_km``."""
+        return TraceRow(t=t, distance_km=distance_km,
+                        theta=tuple(est.theta.as_array().tolist()), std=tuple(est.std.tolist()),
+                        identified=est.identified, status=est.status.name,
+                        rejected_by=",".join(rejected_by(est)))
+
+
+def rejected_by(est: Estimate) -> tuple[str, ...]:
+    """The codes of the checks that refused ``est`` (none unless it is ``REJECTED``)."""
+    if est.status is not Status.REJECTED or est.details is None:
+        return ()
+    fatal = [f.check.value for f in getattr(est.details, "findings", ())
+             if f.severity is Severity.FATAL]
+    return tuple(dict.fromkeys(fatal))
+
+
+def publishable(est: Estimate) -> bool:
+    """Whether an estimate may replace the last one published: converged (or exact), with
+    something identified, and not refused by the checks or the gate."""
+    return est.status in (Status.CONVERGED, Status.EXACT) and any(est.identified)
 
 
 @dataclass(frozen=True)
 class ReplayResult:
-    """The final estimate, its history and the alarms."""
+    """The estimate published at the end, its history and the alarms.
+
+    ``estimate`` is what the replay publishes: the final estimate, except where that one was
+    rejected by the checks or the gate while the calibrator went on (a front-wheel finding
+    after a tyre change, say): then the last estimate that was not (``final`` keeps the
+    rejected one; the trace marks every rejected row). Where the data contradicted the model
+    and the calibrator halted, it is the rejection itself.
+    """
 
     source: str
     estimate: Estimate
@@ -67,27 +112,34 @@ class ReplayResult:
     duration_s: float
     distance_km: float
     elapsed_s: float
+    final: Estimate | None = None
+    """The final estimate as taken (``estimate`` where that one was published)."""
+    published_km: float | None = None
+    """The distance driven when ``estimate`` was taken (None: it is the final one)."""
 
 
 def stream_drive_file(path: str | Path, *, rows: int) -> Iterator[Chunk]:
     """A drive-format file (Parquet or CSV; a path or a URL) in batches of about ``rows`` rows.
     An object is read range by range (a Parquet row group, a CSV block at a time), never whole."""
-    from odocal.io.remote import is_remote
+    from odocal.io.urls import is_remote
 
     if is_remote(path):
-        from odocal.io.remote import name_of, open_input, redact
+        from odocal.io.remote import open_input
+        from odocal.io.urls import name_of, redact
 
         with open_input(str(path), "input file") as handle:
             yield from _stream_drive(handle, redact(path), Path(name_of(str(path))).suffix,
                                      rows=rows)
         return
-    from odocal.io.remote import local_path
+    from odocal.io.urls import local_path
 
     p = input_file(local_path(path))
     if not p.is_file():
         raise InputFileError(f"input file '{p}' does not exist"
                              + (" (it is a folder)" if p.is_dir() else ""))
-    yield from _stream_drive(p, str(p), p.suffix, rows=rows)
+    from odocal.io.drivefile import suffix_of
+
+    yield from _stream_drive(p, str(p), suffix_of(p), rows=rows)
 
 
 def _stream_drive(source: Any, p: str, suffix: str, *, rows: int) -> Iterator[Chunk]:
@@ -100,7 +152,7 @@ def _stream_drive(source: Any, p: str, suffix: str, *, rows: int) -> Iterator[Ch
         if suffix in (".parquet", ".pq"):
             pfile = pq.ParquetFile(source)
             names = pfile.schema_arrow.names
-            wanted = [n for n in (*REQUIRED_COLUMNS, "beta") if n in names]
+            wanted = [n for n in (*REQUIRED_COLUMNS, "beta", "piece") if n in names]
             # one row group at a time (odocal writes groups of 65,536 rows): memory stays flat
             batches: Iterator[Any] = (
                 batch for group in range(pfile.num_row_groups)
@@ -119,7 +171,7 @@ def _stream_drive(source: Any, p: str, suffix: str, *, rows: int) -> Iterator[Ch
                             f"{', '.join(missing)}")
         for batch in batches:           # read in large batches, handed on in chunks of ``rows``
             cols = {name: _numbers(batch.column(name))
-                    for name in (*REQUIRED_COLUMNS, "beta") if name in names}
+                    for name in (*REQUIRED_COLUMNS, "beta", "piece") if name in names}
             for lo in range(0, batch.num_rows, rows):
                 yield {k: v[lo:lo + rows] for k, v in cols.items()}
     except (pa.ArrowInvalid, pa.ArrowTypeError, ValueError, TypeError) as exc:
@@ -175,7 +227,11 @@ def _validity(column: Any) -> BoolArray:
 class GridResampler:
     """Raw streams (wheels, imu, pose) onto the drive's uniform grid, as they arrive.
 
-    A grid time is emitted once every stream has samples on both sides of it; where a stream
+    The grid runs from the wheel stream's first sample in steps of ``t_s`` (grid time ``k``
+    is ``origin + k t_s``, never a sum of steps): wheel rates logged on a steady clock pass
+    onto it unresampled, whatever the clock's epoch, as a drive file's rows do in
+    ``odocal replay``. A grid time is emitted once every stream has samples on both sides of
+    it (at the end of a log, ``final``: up to the last sample every stream has); where a stream
     has a gap longer than ``max_gap_s`` the grid skips (the calibrator starts a new piece).
     """
 
@@ -183,10 +239,11 @@ class GridResampler:
         self.t_s = t_s
         self.max_gap_s = max_gap_s
         self.buffers: dict[str, dict[str, FloatArray]] = {}
-        self.next_t: float | None = None
+        self.origin: float | None = None          # the wheel stream's first sample, s
+        self.next_k: int | None = None            # the next grid time's index
         self.last_psi: float | None = None
 
-    def add(self, streams: Mapping[str, Stream]) -> Chunk | None:
+    def add(self, streams: Mapping[str, Stream], *, final: bool = False) -> Chunk | None:
         for role, stream in streams.items():
             order = np.argsort(stream.t, kind="stable")
             new = {"t": stream.t[order], **{k: v[order] for k, v in stream.values.items()}}
@@ -195,17 +252,33 @@ class GridResampler:
                 new = {k: np.concatenate([old[k], new[k]]) for k in new if k in old}
             keep = np.concatenate([[True], np.diff(new["t"]) > 0])
             self.buffers[role] = {k: v[keep] for k, v in new.items()}
-        if not {"wheels", "pose"} <= set(self.buffers):
+            if role == "wheels" and self.origin is None and self.buffers[role]["t"].size:
+                self.origin = float(self.buffers[role]["t"][0])
+        if not {"wheels", "pose"} <= set(self.buffers) or self.origin is None:
             return None
         roles = [r for r in ("wheels", "pose", "imu") if r in self.buffers]
-        if self.next_t is None:
-            start = max(float(self.buffers[r]["t"][0]) for r in roles)
-            self.next_t = math.ceil(start / self.t_s) * self.t_s
-        horizon = min(float(self.buffers[r]["t"][-1]) for r in roles)
-        grid = np.arange(self.next_t, horizon, self.t_s)
-        if grid.size == 0:
+        grid = self._grid(roles, final)
+        if grid is None:
             return None
-        self.next_t = float(grid[-1] + self.t_s)
+        return self._sample(grid, roles)
+
+    def _grid(self, roles: Sequence[str], final: bool) -> FloatArray | None:
+        """The grid times every stream now covers (and the next index moved past them)."""
+        assert self.origin is not None
+        origin, t_s = self.origin, self.t_s
+        if self.next_k is None:
+            start = max(float(self.buffers[r]["t"][0]) for r in roles)
+            self.next_k = max(math.ceil((start - origin) / t_s - 1e-9), 0)
+        horizon = min(float(self.buffers[r]["t"][-1]) for r in roles)
+        end = (math.floor((horizon - origin) / t_s + 1e-9) + 1 if final    # up to it
+               else math.ceil((horizon - origin) / t_s - 1e-9))            # before it
+        if end <= self.next_k:
+            return None
+        grid = origin + t_s * np.arange(self.next_k, end, dtype=np.float64)
+        self.next_k = end
+        return grid
+
+    def _sample(self, grid: FloatArray, roles: Sequence[str]) -> Chunk | None:
         valid = np.ones(grid.size, dtype=bool)
         out: Chunk = {"t": grid}
         for role in roles:
@@ -231,7 +304,7 @@ class GridResampler:
         if "a_y" not in out:
             out["a_y"] = np.zeros(grid.size)
         chunk = {k: v[valid] for k, v in out.items()
-                 if k in ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi")}
+                 if k in ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi", "yaw_rate")}
         return chunk if chunk["t"].size else None
 
 
@@ -265,6 +338,77 @@ def stream_source(source: str | Path, *, fmt: str | None, settings: Settings,
             chunk = grid.add(streams)
             if chunk is not None:
                 yield chunk
+        last = grid.add({}, final=True)            # the end: up to the last sample
+        if last is not None:
+            yield last
+
+
+def _one_piece(chunk: Chunk, piece: float | None, source: str | Path, read: int
+               ) -> float | None:
+    """The chunk's ``piece`` (a drive-format column that marks separate runs of one log), or a
+    DataError where a new piece starts: the live calibrator takes one run of samples, and
+    would see the step between two runs as a jump of the pose."""
+    values = chunk.get("piece")
+    if values is None or not np.asarray(values).size:
+        return piece
+    values = np.asarray(values, dtype=np.float64)
+    first = float(values[0]) if piece is None else piece
+    change = np.flatnonzero(values != first)
+    if change.size:
+        from odocal.io.urls import redact
+
+        i = int(change[0])
+        raise DataError(f"'{redact(source)}' starts a new piece at row {read + i + 1} "
+                        f"(t={chunk['t'][i]:.6g}; column piece {first:g} -> {values[i]:g}): "
+                        "replay streams one run of samples; replay each piece on its own, or "
+                        "calibrate the log (batch keeps its pieces apart)")
+    return first
+
+
+def located(exc: DataError, source: str | Path, chunk: Chunk, read: int,
+            previous_t: float | None) -> DataError:
+    """A push's DataError about a chunk of ``source`` (``read`` samples came before it, the last
+    at ``previous_t``), as batch says it: the log, the column, the first bad row (1 = the first
+    sample) and its time (as the log's t has it)."""
+    from odocal.io.urls import redact
+
+    name = redact(source)
+    t = np.asarray(chunk["t"], dtype=np.float64)
+
+    def at(i: int) -> str:
+        return f"row {read + i + 1}" + (f", t={t[i]:.6g}" if np.isfinite(t[i]) else "")
+
+    for key in ("t", "n_rl", "n_rr", "a_y", "beta", "x", "y", "psi"):
+        values = chunk.get(key)
+        if values is None:
+            continue
+        bad = ~np.isfinite(np.asarray(values, dtype=np.float64))
+        if bad.any():
+            i = int(np.argmax(bad))
+            return DataError(f"'{name}' column {key} holds {int(bad.sum())} NaN or infinite "
+                             f"values in rows {read + 1}-{read + t.size} (first at {at(i)})")
+    before = np.concatenate([[previous_t], t]) if previous_t is not None else t
+    back = np.flatnonzero(np.diff(before) <= 0)
+    if back.size:
+        from odocal.data.drive import check_time_precision
+
+        check_time_precision(name, before)        # (stamps that lost their precision)
+        j = int(back[0])                          # before[j + 1] does not follow before[j]
+        i = j if previous_t is not None else j + 1            # its index in this chunk
+        return DataError(f"'{name}' column t is not strictly increasing: t={before[j + 1]:.6g} "
+                         f"follows t={before[j]:.6g} at row {read + i + 1}; sort the log or "
+                         "drop duplicate stamps")
+    for key in ("n_rl", "n_rr"):
+        rates = np.abs(np.asarray(chunk[key], dtype=np.float64))
+        too_fast = rates > MAX_PUSHED_RATE_REVPS
+        if too_fast.any():
+            i = int(np.argmax(too_fast))
+            return DataError(f"'{name}' column {key} reaches {float(rates.max()):.4g} (first "
+                             f"beyond {MAX_PUSHED_RATE_REVPS:g} at {at(i)}): wheel rates must be "
+                             "in rev/s")
+    text = str(exc).replace("pushed samples' ", "").replace("pushed ", "")
+    return DataError(f"'{name}' rows {read + 1}-{read + t.size} (t={t[0]:.6g} to "
+                     f"{t[-1]:.6g}): {text}")
 
 
 def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | None = None,
@@ -280,26 +424,39 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
     """
     started = time.perf_counter()
     settings = settings or Settings()
-    calibrator = OnlineCalibrator(settings, theta0)
+    from odocal.io.urls import redact
+
+    calibrator = OnlineCalibrator(settings, theta0, source=redact(source))
     trace: list[TraceRow] = []
     first_t: float | None = None
     last_t = 0.0
     next_update: float | None = None
+    good: list[tuple[Estimate, float]] = []       # the latest publishable estimate, and where
 
-    def update(t: float) -> None:
+    def update(t: float) -> Estimate:
         est = calibrator.estimate()
-        row = TraceRow(t=t, distance_km=calibrator.distance_km,
-                       theta=tuple(est.theta.as_array().tolist()),
-                       std=tuple(est.std.tolist()),
-                       identified=est.identified)
+        row = TraceRow.of(t, calibrator.distance_km, est)
         trace.append(row)
+        if publishable(est):
+            good[:] = [(est, calibrator.distance_km)]
         if on_update is not None:
             on_update(row, est)
+        return est
 
+    read = 0                                      # samples read before this chunk
+    piece: float | None = None                    # the drive format's piece, if it has one
+    previous_t: float | None = None               # the last one's t, as the log has it
     for chunk in stream_source(source, fmt=fmt, settings=settings, mapping=mapping):
+        cancel.check()                            # a stop asked for (odocal.cancel)
         if chunk["t"].size == 0:
             continue
-        calibrator.push(chunk)
+        piece = _one_piece(chunk, piece, source, read)
+        try:
+            calibrator.push(chunk)
+        except DataError as exc:                  # named by the log, the row and the time
+            raise located(exc, source, chunk, read, previous_t) from exc
+        read += int(chunk["t"].size)
+        previous_t = float(chunk["t"][-1])
         span = calibrator.span_s                  # in seconds, whatever unit the log's t has
         if span is None:
             continue                              # (a lone first sample)
@@ -312,13 +469,17 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
             update(last_t)
             next_update = last_t + settings.online.update_s
     if first_t is None:
-        from odocal.io.remote import redact
+        from odocal.io.urls import redact
 
         raise DataError(f"'{redact(source)}' holds no samples (or a single one)")
-    update(last_t)
-    from odocal.io.remote import redact
+    final = update(last_t)
+    published, published_km = final, None
+    if final.status is Status.REJECTED and not calibrator.halted and good:
+        published, published_km = good[0]
+    from odocal.io.urls import redact
 
-    return ReplayResult(source=redact(source), estimate=calibrator.estimate(), trace=tuple(trace),
+    return ReplayResult(source=redact(source), estimate=published, trace=tuple(trace),
                         alarms=calibrator.alarms, samples=calibrator.details_samples(),
                         duration_s=last_t - first_t, distance_km=calibrator.distance_km,
-                        elapsed_s=time.perf_counter() - started)
+                        elapsed_s=time.perf_counter() - started, final=final,
+                        published_km=published_km)

@@ -55,6 +55,7 @@ from odocal.errors import ConfigError
 from odocal.io.atomic import write_text
 from odocal.model.kinematics import inverse_revolutions, motion_increments
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS, PARAMETERS, Parameters
+from odocal.redaction import redact_text
 from odocal.settings import datasheet_stated
 
 TARGETS = ("autoware", "ros2_control", "robot_localization")
@@ -168,7 +169,7 @@ def _header(c: Calibrated, what: str, release: str) -> list[str]:
     lines = [f"{what}, calibrated by odocal {__version__} (method {c.method})",
              f"for: {RELEASES[release]}"]
     if c.source:
-        lines.append(f"from: {c.source}")
+        lines.append(f"from: {redact_text(c.source)}")
     missing = [n for n, ok in zip(PARAMETER_NAMES, c.identified, strict=True) if not ok]
     if missing:
         lines.append(f"not identified by the data (datasheet values kept): {', '.join(missing)}")

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal import cancel
 from odocal.checks.departures import corrected
 from odocal.checks.departures import findings as departure_findings
 from odocal.checks.departures import measure as measure_departures
@@ -125,16 +126,44 @@ def load_drives(sources: Drive | str | Path | Sequence[Drive | str | Path], *,
     if not drives:
         raise DataError("no drives were given")
     common_sampling_time(drives)
-    seen: dict[str, str] = {}
-    for d in drives:                 # the same bytes twice (a copy, a link) would count twice
-        digest = d.metadata.get("sha256")
-        if digest is None:
-            continue
-        if digest in seen:
-            raise DataError(f"the logs '{seen[digest]}' and '{d.name}' are the same drive "
-                            "(identical content); give each drive once")
-        seen[digest] = d.name
+    _refuse_copies(drives)
     return drives
+
+
+def _refuse_copies(drives: Sequence[Drive]) -> None:
+    """A DataError naming two logs of one recording (:mod:`odocal.data.copies`): the same bytes
+    (a copy, a link), the same samples (another format, a shifted clock), or one holding a
+    stretch of the other's samples: each would count its evidence twice."""
+    from odocal.data.copies import piece_digests, samples_digest, shared_stretch
+
+    if len(drives) < 2 and len(drives[0].pieces) < 2:
+        return                               # (one run of samples: nothing to be a copy of)
+    seen: dict[str, str] = {}
+    for d in drives:
+        for digest in {d.metadata.get("sha256"), samples_digest(d)} - {None}:
+            if digest in seen:
+                raise DataError(f"the logs '{seen[digest]}' and '{d.name}' are the same drive "
+                                "(the same samples); give each drive once")
+            seen[str(digest)] = d.name
+    pieces: dict[str, tuple[str, int]] = {}
+    for d in drives:
+        for k, digest in (piece_digests(d) if len(d.pieces) > 1 else {}).items():
+            if digest in pieces:
+                name, other = pieces[digest]
+                where = (f"'{d.name}' holds one run of samples twice (its pieces {other + 1} "
+                         f"and {k + 1})" if name == d.name else
+                         f"piece {k + 1} of '{d.name}' is piece {other + 1} of '{name}'")
+                raise DataError(f"{where}: one recording counted twice; cut one of them out")
+            pieces[digest] = (d.name, k)
+    copy = shared_stretch(drives)
+    if copy is not None:
+        a, b = drives[copy.first], drives[copy.second]
+        raise DataError(
+            f"the log '{b.name}' is a copy of a stretch of '{a.name}': from "
+            f"{copy.start_second_s:.1f} s of it and {copy.start_first_s:.1f} s of '{a.name}', "
+            f"{copy.shared_s:.0f} s of driving agree within {copy.difference_revps:.2g} rev/s, "
+            f"less than the wheels' own noise ({copy.noise_revps:.2g} rev/s): one recording "
+            "counted twice; give each drive once (cut the shared stretch out of one)")
 
 
 def stated_circumference(settings: Settings | None) -> float | None:
@@ -431,7 +460,8 @@ class Stopwatch:
     """A progress callback that also times each stage (and passes progress on).
 
     A stage starts when it first reports ``done == 0`` (or enters :meth:`stage`) and its time
-    accumulates until it reports ``done >= total``.
+    accumulates until it reports ``done >= total``. Every report is also a point where a run
+    asked to stop stops (:func:`odocal.cancel.check`).
     """
 
     def __init__(self, progress: ProgressCallback | None = None) -> None:
@@ -440,6 +470,7 @@ class Stopwatch:
         self._open: dict[str, float] = {}
 
     def __call__(self, stage: str, done: int, total: int) -> None:
+        cancel.check()
         now = time.perf_counter()
         if stage not in self._open and done < total:
             self._open[stage] = now
@@ -450,6 +481,7 @@ class Stopwatch:
 
     @contextlib.contextmanager
     def stage(self, name: str) -> Iterator[None]:
+        cancel.check()
         begun = time.perf_counter()
         if self.progress:
             self.progress(name, 0, 1)

@@ -268,7 +268,8 @@ def finding_text(finding: Finding, settings: Settings) -> str:
         return (f"the vehicle does not move (the wheels turn {v:.1f} m in all): there is "
                 "nothing to calibrate")
     if c is Check.WHEELS_SWAPPED:
-        return (f"the yaw rate the wheels imply turns against the reference's in bends "
+        where = f" of '{finding.name}'" if finding.name else ""
+        return (f"the yaw rate the wheels{where} imply turns against the reference's in bends "
                 f"(correlation {v:+.2f}): the left and right wheel columns are swapped, or the "
                 "heading is mirrored; fix the mapping and calibrate again")
     if c is Check.WHEELS_IDENTICAL:
@@ -286,6 +287,18 @@ def finding_text(finding: Finding, settings: Settings) -> str:
             return (f"with the datasheet c_e ({c_e:g} m) the wheels imply {v:.3f} times the "
                     "distance the reference travels: is [identify] theta0 set for this "
                     f"vehicle?{speeds}")
+        if not v > 0:                         # (a log of it would be NaN, and a warning)
+            if not v < 0:
+                travelled = f" ({ref / 1000:.2f} km)" if ref > 1.0 else ""
+                return (f"the wheels read no motion while the reference travels{travelled}: "
+                        "the wheel columns are empty, unmapped or dead (or the vehicle was "
+                        "carried); fix the mapping")
+            scale = (f"; and by {abs(v):.3g} times its distance, also a wrong unit or scale"
+                     if abs(np.log(abs(v))) > 0.25 else "")
+            return (f"the wheels turn backwards while the reference moves forwards (they imply "
+                    f"{v:+.3g} times the distance it travels): the wheel rates' sign is "
+                    f"flipped{scale}; n_rl and n_rr count forward revolutions as positive "
+                    "(negate both columns, or fix the mapping)")
         c_e = settings.identify.datasheet("c_e")
         unit_hints = ((3.6 * c_e, 'wheel speeds in km/h given as rev/s: give the mapping\'s unit = '
                               '"km/h"'),

@@ -15,6 +15,7 @@ from odocal.estimators.estimate import Status
 from odocal.io.atomic import write_bytes, write_text
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_LABELS
 from odocal.pipeline.result import CalibrationResult
+from odocal.redaction import redact_text
 from odocal.report.data import ReportData, build, parameter_rows
 from odocal.report.render import Call, FigureSpec, Renderer
 from odocal.report.style import CALIBRATED, RAW
@@ -571,7 +572,7 @@ def write_report(result: CalibrationResult, out_dir: str | Path, *,
     uris = {name: (caption, "data:image/png;base64," + base64.b64encode(png).decode("ascii"))
             for name, (caption, png) in pngs.items()}
     html_path = out / "report.html"
-    write_text(html_path, _page(result, data, uris))
+    write_text(html_path, redact_text(_page(result, data, uris)))  # no secret on the page
     if progress:
         progress("report", 1, 1)
     return Report(html_path=html_path, figure_paths=tuple(paths), data=data)

@@ -87,15 +87,18 @@ def _warm_up() -> None:
         Call("legend", kwargs={"fontsize": 8}))))
 
 
-def _host(connection: Any, callers: Any, workers: int) -> None:
+def _host(connection: Any, callers: Any, workers: int, caller_pid: int | None = None) -> None:
     """The helper process: loads matplotlib once, then draws each list of specs it receives,
     with ``workers - 1`` processes forked from itself for the time (they start with the library
     loaded and warm), and sends back the PNGs, or the exception. ``None`` or the caller's end
-    ends it; SIGTERM ends it at once."""
-    from odocal.estimators.parallel import ignore_interrupts
+    ends it; SIGTERM ends it at once, and so does the end of the caller (``caller_pid``), however
+    it ends (Ctrl-C leaves at once: no helper is left drawing)."""
+    from odocal.estimators.parallel import die_with_parent, ignore_interrupts
 
     callers.close()        # our copy of the caller's end: its EOF must reach us when it goes
     ignore_interrupts()
+    if caller_pid is not None:
+        die_with_parent(caller_pid)
     # the caller's computation goes first while we prepare (its stages took 0.1 s longer)
     os.nice(5)
     import matplotlib.backends.backend_agg
@@ -127,10 +130,14 @@ def _draw_forked(specs: Sequence[FigureSpec], workers: int) -> list[bytes]:
     os.write(tasks_out, bytes(range(len(specs))))
     os.close(tasks_out)
     children = []
+    host = os.getpid()
     for _ in range(helpers):
         results_in, results_out = os.pipe()
         pid = os.fork()
         if pid == 0:                                       # a drawing process
+            from odocal.estimators.parallel import die_with_parent
+
+            die_with_parent(host)
             os.close(results_in)
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
             code = 0
@@ -204,7 +211,8 @@ class Renderer:
             context = multiprocessing.get_context("fork")
             self._connection, theirs = context.Pipe()
             self._process = context.Process(target=_host, daemon=True,
-                                            args=(theirs, self._connection, workers))
+                                            args=(theirs, self._connection, workers,
+                                                  os.getpid()))
             self._process.start()
             theirs.close()
             # stopped with this object, or at exit if nobody closed it

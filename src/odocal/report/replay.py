@@ -15,6 +15,7 @@ from odocal.io.atomic import write_bytes, write_text
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_LABELS, PARAMETER_NAMES
 from odocal.online.changes import Alarm
 from odocal.online.replay import ReplayResult
+from odocal.redaction import redact_text
 from odocal.report.render import Call, FigureSpec, Renderer
 
 #: Convergence thresholds the report quotes: c_e to 1 mm, t_r to 20 mm.
@@ -26,7 +27,8 @@ def convergence_km(result: ReplayResult) -> dict[str, float | None]:
     out: dict[str, float | None] = {}
     for name, limit in CONVERGED_STD.items():
         j = PARAMETER_NAMES.index(name)
-        hit = [r.distance_km for r in result.trace if r.identified[j] and r.std[j] <= limit]
+        hit = [r.distance_km for r in result.trace
+               if r.identified[j] and r.std[j] <= limit and not r.rejected]
         out[name] = hit[0] if hit else None
     return out
 
@@ -51,9 +53,11 @@ def _spec(result: ReplayResult, batch: Estimate | None) -> FigureSpec:
     distance = np.array([r.distance_km for r in rows])
     calls = []
     for j, name in enumerate(PARAMETER_NAMES):
+        # a rejected estimate was never published: a gap in its line (trace.csv has it)
         calls.append(Call("plot_trace", (distance, np.array([r.theta[j] for r in rows]),
                                          np.array([r.std[j] for r in rows]),
-                                         np.array([r.identified[j] for r in rows])),
+                                         np.array([r.identified[j] and not r.rejected
+                                                   for r in rows])),
                           {"name": name,
                            "batch": float(batch.theta.as_array()[j])
                            if batch is not None and batch.identified[j] else None,
@@ -62,7 +66,8 @@ def _spec(result: ReplayResult, batch: Estimate | None) -> FigureSpec:
                           row=j // 2, col=j % 2))
     calls.append(Call("legend", kwargs={"fontsize": 7, "loc": "best"}))
     return FigureSpec("trace", "The online estimate of each parameter against the distance "
-                      "driven, with its one-standard-deviation band; the batch calibration of "
+                      "driven, with its one-standard-deviation band (gaps where the estimate "
+                      "was rejected by the checks or the gate); the batch calibration of "
                       "the whole log for comparison; red lines where a change was detected.",
                       10.0, 6.0, tuple(calls), rows=2, cols=2)
 
@@ -70,6 +75,32 @@ def _spec(result: ReplayResult, batch: Estimate | None) -> FigureSpec:
 def _fmt(name: str, value: float) -> str:
     scale, unit = PARAMETER_DISPLAY[name]
     return f"{value * scale:.{3 if name in ('c_d', 'd') else 5}f} {unit}"
+
+
+def rejected_updates(result: ReplayResult) -> list[tuple[float, str]]:
+    """Where (km) estimates were rejected, and by which checks (codes), in trace order."""
+    return [(r.distance_km, r.rejected_by) for r in result.trace if r.rejected]
+
+
+def _rejected_text(result: ReplayResult) -> str:
+    """The report's paragraph on the updates whose estimate was rejected (none: nothing)."""
+    rows = rejected_updates(result)
+    if not rows:
+        return ""
+    checks = sorted({c for _, by in rows for c in by.split(",") if c})
+    text = (f"{len(rows)} of {len(result.trace)} updates were rejected by the checks or the "
+            f"gate ({', '.join(checks) or 'the gate'}), between {rows[0][0]:.2f} and "
+            f"{rows[-1][0]:.2f} km: never published (status REJECTED in trace.csv).")
+    if result.published_km is not None:
+        text += (" The final estimate was among them: the table shows the last estimate that "
+                 f"was not, from {result.published_km:.2f} km.")
+    return f"<p id='rejected'>{html.escape(text)}</p>"
+
+
+def _convergence_text(result: ReplayResult) -> str:
+    return "; ".join(f"{n} to {CONVERGED_STD[n] * 1000:.0f} mm after "
+                     + (f"{km:.2f} km" if km is not None else "not within this log")
+                     for n, km in convergence_km(result).items())
 
 
 def write_replay_report(result: ReplayResult, out_dir: str | Path, *,
@@ -105,10 +136,8 @@ def write_replay_report(result: ReplayResult, out_dir: str | Path, *,
         f"<td>{a.detected_distance_km:.2f} km</td><td>{a.relative_change * 100:+.3f}%</td>"
         f"<td>{e(alarm_words(a))}</td></tr>"
         for a in result.alarms)
-    conv = convergence_km(result)
-    conv_text = "; ".join(f"{n} to {CONVERGED_STD[n] * 1000:.0f} mm after "
-                          + (f"{km:.2f} km" if km is not None else "not within this log")
-                          for n, km in conv.items())
+    rejected = _rejected_text(result)
+    conv_text = _convergence_text(result)
     uri = "data:image/png;base64," + base64.b64encode(png).decode("ascii")
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>odocal replay</title>
@@ -122,6 +151,7 @@ td:first-child,th:first-child{{text-align:left}} img{{max-width:100%}}
 {result.distance_km:.2f} km &middot; {result.samples} samples in {result.elapsed_s:.1f} s
 &middot; odocal {__version__}</p>
 <p id="convergence">Converged: {e(conv_text)}.</p>
+{rejected}
 <table id="parameters"><tr><th>parameter</th><th>online (end of log)</th>
 <th>batch (whole log)</th></tr>{''.join(rows)}</table>
 <h2>Estimate against distance</h2>
@@ -135,5 +165,5 @@ td:first-child,th:first-child{{text-align:left}} img{{max-width:100%}}
 </main></body></html>
 """
     path = out / "report.html"
-    write_text(path, page)
+    write_text(path, redact_text(page))            # no secret on the page
     return path

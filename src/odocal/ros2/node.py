@@ -1,58 +1,66 @@
-"""``odocal ros2``: the online calibrator as a ROS 2 node.
+"""``odocal ros2``: the online calibrator as a ROS 2 (lifecycle) node.
 
-Inputs (topic names and wheel joint names are parameters; time is each message's header stamp,
-never its arrival; ``use_sim_time`` is honoured):
+Inputs (topic names, message types and wheel joint names are parameters, :mod:`odocal.ros2.params`;
+time is each message's header stamp, never its arrival; ``use_sim_time`` is honoured):
 
-* the rear wheels' joint velocities (rad/s) from ``sensor_msgs/JointState``;
-* the lateral acceleration (and yaw rate) from ``sensor_msgs/Imu``;
-* the reference pose from ``nav_msgs/Odometry`` (what a localisation stack publishes).
+* the wheel joints' velocities (rad/s) or, where the driver sends none, positions (rad) from
+  ``sensor_msgs/JointState``;
+* the lateral acceleration and yaw rate from ``sensor_msgs/Imu`` (in the vehicle's axes after
+  ``imu_rotation_deg``);
+* the reference pose from ``nav_msgs/Odometry`` or ``geometry_msgs/PoseWithCovarianceStamped``
+  (and, with ``sideslip_from_reference``, the sideslip from the Odometry's twist).
 
-The messages are put onto the drive's uniform grid as they arrive, in any interleaving and a
-little late (:class:`odocal.online.replay.GridResampler`: a grid time is used once every stream
-has samples on both sides of it, as ``odocal replay`` does with a bag), and pushed into an
-:class:`~odocal.OnlineCalibrator` every ``[online] chunk_s`` of data. Every ``[online] update_s``
-of data the estimate is taken, as ``odocal replay`` takes it, and published.
+Each input is read from the bytes DDS carried (``raw=True``, :mod:`odocal.ros2.cdr`): no message
+objects are built. A topic's stamps are checked as they come (:class:`odocal.ros2.inputs.
+Continuity`): what their continuity says did not arrive, stamps that went back, NaN values: each
+counted, refused and named on ``/diagnostics``, never a stop. Times are seconds from the first
+message's stamp (exact for a day of driving whatever the clock's epoch); the messages are put onto
+the drive's grid (:class:`odocal.online.replay.GridResampler`, aligned to the wheels' first
+stamp) and pushed into an :class:`~odocal.OnlineCalibrator` in the blocks of rows ``odocal
+replay`` pushes a drive file in; every ``[online] update_s`` of data the estimate is taken, as
+replay takes it.
 
 Outputs:
 
 * ``~/odometry`` (``nav_msgs/Odometry``), one per wheel message: the wheel odometry with the
-  current calibration (equations (2)-(3) of :mod:`odocal.model.step`; the dead-reckoned pose),
-  its twist covariance from the calibration's measured noise (the error model of the default
-  method, for the current speed, over ``[inverse] window_s``);
-* ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``): OK when every parameter is identified
-  and the estimate passed the gate, WARN while something is not yet identified (named, with why)
-  or an input topic is silent (named), ERROR where the data contradict the model (the checks'
-  finding, and never parameters); the parameters, their standard deviations and the distance
-  driven as key/values;
-* ``~/alarms`` (``std_msgs/String``, latched): each change alarm as JSON as soon as it is raised
-  (and a WARN status on ``/diagnostics``);
+  published calibration (equations (2)-(3) of :mod:`odocal.model.step`; the dead-reckoned
+  pose) and the covariance of that message's speed and yaw rate (:mod:`odocal.ros2.twist`);
+* ``~/estimate`` (``std_msgs/Float64MultiArray``, latched): the published calibration as data,
+  4 rows (c_e, c_d, t_r, d) of value, std, identified (1/0) and the covariance row;
+* ``/diagnostics``: OK when every parameter is identified, WARN while something is not (named,
+  with why), an input is silent, loses messages or sends what cannot be used, or the latest
+  estimate was refused while an earlier one stands; ERROR where the data contradict the model
+  (the calibrator halted) or nothing was ever publishable but a refusal;
+* ``~/alarms`` (``std_msgs/String``, latched): each change alarm as JSON;
 * the parameter files of :mod:`odocal.output.export` into ``export_dir``, on request
-  (``~/export``, ``std_srvs/Trigger``) and at shutdown;
-* optionally (``controller_name`` set), the identified multipliers set on a running
-  ``diff_drive_controller`` through its parameter service, relative to the nominal
-  ``wheel_radius`` and ``wheel_separation`` it reports.
+  (``~/export``) and at shutdown; ``~/reset`` (``std_srvs/Trigger``) starts the calibration
+  over (after a tyre change);
+* optionally (``controller_name``), the identified multipliers set on a running
+  ``diff_drive_controller`` through its parameter service.
+
+A rejected estimate (the checks' or the gate's) never replaces the last publishable one in
+anything the node publishes; where the calibrator halts (the data contradict the model) the
+odometry falls back to the datasheet values and nothing is exported.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import re
 import signal
+import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from odocal.errors import ConfigError, MissingDependencyError, OdocalError
+from odocal.errors import ConfigError, DataError, MissingDependencyError, OdocalError
 from odocal.estimators.estimate import Estimate, NotIdentified, Status
-from odocal.io.streams import Stream
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
-from odocal.model.step import body
+from odocal.model.step import body, increment
 from odocal.online.calibrator import OnlineCalibrator
-from odocal.online.replay import GridResampler
+from odocal.online.replay import GridResampler, publishable
 from odocal.output.export import (
     TARGETS,
     Calibrated,
@@ -61,209 +69,178 @@ from odocal.output.export import (
     parameters_yaml,
 )
 from odocal.report.advice import finding_text, reason_text
+from odocal.ros2 import cdr, params
+from odocal.ros2.exports import imu_corrector, point_ekf_at
+from odocal.ros2.gyro import GyroBias
+from odocal.ros2.inputs import TWO_PI, Buffer, Continuity, Rates, wheel_joints
+from odocal.ros2.twist import UNKNOWN_VARIANCE, TwistVariance
 from odocal.settings import Settings, datasheet_theta, load_settings, parse_datasheet
 
 try:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+    from geometry_msgs.msg import PoseWithCovarianceStamped
     from nav_msgs.msg import Odometry
-    from rcl_interfaces.msg import Parameter as ParameterMsg
-    from rcl_interfaces.msg import ParameterType, ParameterValue
-    from rcl_interfaces.srv import GetParameters, SetParameters
-    from rclpy.node import Node
+    from rcl_interfaces.msg import (
+        FloatingPointRange,
+        IntegerRange,
+        ParameterDescriptor,
+        ParameterType,
+        SetParametersResult,
+    )
+    from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.serialization import serialize_message
     from sensor_msgs.msg import Imu, JointState
-    from std_msgs.msg import String
+    from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
     from std_srvs.srv import Trigger
+
+    from odocal.ros2.controller import ControllerPush
 except ImportError as err:
     raise MissingDependencyError(
         f"odocal ros2 needs ROS 2's Python packages ({err.name} is missing): "
-        "pip install 'odocal[ros2]'") from err
+        "pip install 'odocal[ros2]' (from a checkout: pip install '.[ros2]')") from err
 
 NODE_NAME = "odocal_calibration"
-#: The export targets ``export_targets`` may name (``yaml``: odometry_parameters.yaml).
-EXPORTS = (*TARGETS, "yaml")
-_TWO_PI = 2.0 * math.pi
-#: Twist and pose variances for what the wheels do not measure (y, z, roll, pitch; the pose).
-_UNKNOWN_VARIANCE = 1.0e6
-_REAR = {"left": re.compile(r"(rear|back).*left|left.*(rear|back)|^rl(_|$)", re.IGNORECASE),
-         "right": re.compile(r"(rear|back).*right|right.*(rear|back)|^rr(_|$)", re.IGNORECASE)}
+EXPORTS = params.EXPORTS
+#: A topic that lost messages is named on /diagnostics for this long (s of its stamps) after.
+LOSS_NAMED_S = 60.0
+#: At most this many messages of one input are taken in one callback (the executor calls
+#: again for the rest: a backlog is not held in memory all at once).
+MAX_BATCH = 500
+_LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                      reliability=ReliabilityPolicy.RELIABLE)
+_SUCCESS, _FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
+_KINDS = {"bool": ParameterType.PARAMETER_BOOL, "integer": ParameterType.PARAMETER_INTEGER,
+          "double": ParameterType.PARAMETER_DOUBLE, "string": ParameterType.PARAMETER_STRING,
+          "string_array": ParameterType.PARAMETER_STRING_ARRAY,
+          "double_array": ParameterType.PARAMETER_DOUBLE_ARRAY}
 
 
-def stamp_s(msg: Any) -> float:
-    """A message's header stamp in seconds."""
-    stamp = msg.header.stamp
-    return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
+def yaw_of(q: Sequence[float]) -> float:
+    """The yaw (rad, counter-clockwise about z) of a quaternion (x, y, z, w)."""
+    x, y, z, w = q
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
-def yaw_of(q: Any) -> float:
-    """The yaw (rad, counter-clockwise about z) of a ``geometry_msgs/Quaternion``."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+def rotation(rpy_deg: Sequence[float]) -> tuple[tuple[float, ...], ...] | None:
+    """The rotation taking the IMU's vectors into the vehicle's axes (roll, pitch, yaw in
+    degrees, applied about the vehicle's x, y, z: R = Rz Ry Rx); None for none."""
+    if not any(rpy_deg):
+        return None
+    r, p, y = (math.radians(a) for a in rpy_deg)
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), \
+        math.cos(y), math.sin(y)
+    return ((cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
+            (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
+            (-sp, cp * sr, cp * cr))
 
 
-def wheel_joints(names: Sequence[str], left: str, right: str, topic: str) -> tuple[int, int]:
-    """The indices of the left and right rear wheel joints in a JointState's names: those named
-    (``left_wheel_joint``, ``right_wheel_joint``), else the one joint whose name says rear (or
-    back) and left, and right; a ConfigError naming the joints otherwise."""
-    found: list[int] = []
-    for side, wanted in (("left", left), ("right", right)):
-        if wanted:
-            if wanted not in names:
-                raise ConfigError(f"{topic}: no joint named {wanted!r} ({side}_wheel_joint); "
-                                  f"joints: {', '.join(names) or 'none'}")
-            found.append(list(names).index(wanted))
-            continue
-        matches = [i for i, n in enumerate(names) if _REAR[side].search(n)]
-        if len(matches) != 1:
-            raise ConfigError(f"{topic}: cannot tell which joint is the rear {side} wheel among "
-                              f"{', '.join(names) or 'none'}; set {side}_wheel_joint")
-        found.append(matches[0])
-    return found[0], found[1]
+class _Input:
+    """One input topic: its name, role, what its stamps say and what waits for the grid."""
+
+    def __init__(self, name: str, role: str, keys: tuple[str, ...]) -> None:
+        self.name, self.role = name, role
+        self.buffer = Buffer(name, role, keys)
+        self.stamps = Continuity()
+        # when it was last seen to speak, on the node's clock (checked when the status is made)
+        self.first_receipt_s: float | None = None
+        self.last_receipt_s: float | None = None
+        self.seen = 0                  # messages taken when it was last checked
+        self.undecodable = 0
+        self.note = ""                 # why messages were refused (the latest reason)
+
+    def taken(self) -> int:
+        """Messages taken from the topic, used or refused."""
+        return self.stamps.received + self.stamps.back + self.undecodable
+
+    def check_heard(self, now_s: float) -> None:
+        """Note ``now_s`` as when it spoke, where messages came since the last check."""
+        count = self.taken()
+        if count != self.seen:
+            self.seen = count
+            if self.first_receipt_s is None:
+                self.first_receipt_s = now_s
+            self.last_receipt_s = now_s
+
+    def problems(self) -> list[str]:
+        """What is wrong with what arrived, in words (recent losses, refused messages)."""
+        s, out = self.stamps, []
+        if s.missing and s.last_t is not None and s.last_missing_t is not None \
+                and s.last_t - s.last_missing_t <= LOSS_NAMED_S:
+            out.append(f"{self.name}: {s.missing_share * 100:.1f}% of the messages missing by "
+                       f"their stamps ({s.missing} of {s.received + s.missing})")
+        if s.back:
+            out.append(f"{self.name}: {s.back} messages refused, their stamps went back (up to "
+                       f"{s.back_max_s:.3g} s)")
+        if s.invalid:
+            why = self.note or "NaN or infinite values"
+            out.append(f"{self.name}: {s.invalid} messages refused, {why}")
+        if self.undecodable:
+            out.append(f"{self.name}: {self.undecodable} messages that are not "
+                       f"{self.role} messages ({self.note})")
+        return out
 
 
-@dataclass
-class _Topic:
-    """One input: its name, what has been buffered since the last push, and when it spoke."""
-
-    name: str
-    role: str
-    keys: tuple[str, ...]
-    columns: dict[str, list[float]] = field(default_factory=dict)
-    messages: int = 0
-    first_receipt_s: float | None = None         # node clock (sim time where used)
-    last_receipt_s: float | None = None
-
-    def __post_init__(self) -> None:
-        self.columns = {k: [] for k in ("t", *self.keys)}
-
-    def add(self, t: float, values: Sequence[float], now_s: float) -> None:
-        self.columns["t"].append(t)
-        for key, value in zip(self.keys, values, strict=True):
-            self.columns[key].append(value)
-        self.messages += 1
-        if self.first_receipt_s is None:
-            self.first_receipt_s = now_s
-        self.last_receipt_s = now_s
-
-    def take(self) -> Stream | None:
-        if not self.columns["t"]:
-            return None
-        arrays = {k: np.asarray(v, dtype=np.float64) for k, v in self.columns.items()}
-        self.columns = {k: [] for k in self.columns}
-        return Stream(name=self.name, role=self.role, t=arrays.pop("t"), values=arrays)
-
-    def trim(self, keep_after_t: float) -> None:
-        t = self.columns["t"]
-        cut = next((i for i, v in enumerate(t) if v > keep_after_t), len(t))
-        if cut:
-            self.columns = {k: v[cut:] for k, v in self.columns.items()}
-
-    def silent_for(self, now_s: float) -> float | None:
-        """Seconds since its last message (None: never heard)."""
-        return None if self.last_receipt_s is None else now_s - self.last_receipt_s
-
-
-class CalibrationNode(Node):
+class CalibrationNode(LifecycleNode):
     """The online calibrator on live topics (see the module's description).
 
     ``settings`` are the defaults (``odocal ros2 --config --datasheet``); the node's parameters
-    ``settings_file`` and ``datasheet`` override them. Other keyword arguments go to
-    :class:`rclpy.node.Node` (``context``, ``cli_args``, ``parameter_overrides``, ...).
+    ``settings_file`` and ``datasheet`` override them. With ``autostart`` (the default) the node
+    configures and activates itself and raises a ConfigError (one line) where it cannot. Other
+    keyword arguments go to :class:`rclpy.node.Node` (``context``, ``parameter_overrides``, ...).
     """
 
     def __init__(self, *, settings: Settings | None = None, node_name: str = NODE_NAME,
                  **node_kwargs: Any) -> None:
         super().__init__(node_name, **node_kwargs)
         try:
-            self._setup(settings)
+            self._defaults = settings or Settings()
+            self._entities: list[Any] = []
+            self._outputs: list[Any] = []
+            self._configured = self._active = self._finished = False
+            self._configure_error: str | None = None
+            self._declare()
+            if self._param("autostart"):
+                self.start()
         except Exception:
             self.destroy_node()
             raise
 
-    def _setup(self, settings: Settings | None) -> None:
-        self._declare()
-        p = self._param
-        settings = settings or Settings()
-        if p("settings_file"):
-            settings = load_settings(p("settings_file"))
-        if p("datasheet"):
-            settings = settings.replace(identify={"theta0": datasheet_theta(
-                parse_datasheet(p("datasheet"), what="parameter datasheet"),
-                settings.identify.theta0)})
-        targets = [t for t in p("export_targets") if t]
-        unknown = [t for t in targets if t not in EXPORTS]
-        if unknown:
-            raise ConfigError(f"parameter export_targets: unknown target {unknown[0]!r}; "
-                              f"choose from {', '.join(EXPORTS)}")
-        self.settings = settings
-        self.calibrator = OnlineCalibrator(settings)
-        self.datasheet = Parameters.from_array(np.asarray(settings.identify.theta0))
-        self._targets = targets
-        self._grid = GridResampler(t_s=1.0 / settings.convert.rate_hz,
-                                   max_gap_s=settings.convert.max_gap_s)
-        self._wheels = _Topic(p("wheel_topic"), "wheels", ("n_rl", "n_rr"))
-        self._pose = _Topic(p("pose_topic"), "pose", ("x", "y", "psi"))
-        self._imu = _Topic(p("imu_topic"), "imu", ("yaw_rate", "a_y")) if p("imu_topic") \
-            else None
-        self._joints: tuple[int, int] | None = None
-        self._joint_names: tuple[str, str] | None = None
-        self._config_error: str | None = None
-        # what has been pushed, when the estimate is next taken (as odocal replay takes it)
-        self._first_t: float | None = None
-        self._last_t: float | None = None
-        self._next_update: float | None = None
-        self._flushed_t: float | None = None
-        self.estimate: Estimate | None = None
-        self._good: Estimate | None = None        # the latest estimate that may be published
-        self._alarms_seen = 0
-        self.updates = 0
-        # the odometry published per wheel message
-        self._theta = self.datasheet.as_array()
-        self._a_y = 0.0
-        self._odom_t: float | None = None
-        self._x = self._y = self._psi = 0.0
-        self._noise = np.full((2, 2), np.nan)     # no measured noise before an estimate
-
-        depth = int(p("qos_depth"))
-        reliability = (ReliabilityPolicy.RELIABLE if p("qos_reliable")
-                       else ReliabilityPolicy.BEST_EFFORT)   # best effort hears both kinds
-        qos = QoSProfile(depth=depth, reliability=reliability)
-        self.create_subscription(JointState, self._wheels.name, self._on_wheels, qos)
-        self.create_subscription(Odometry, self._pose.name, self._on_pose, qos)
-        if self._imu is not None:
-            self.create_subscription(Imu, self._imu.name, self._on_imu, qos)
-        self._odom_pub = self.create_publisher(Odometry, p("odometry_topic"), depth)
-        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        latched = QoSProfile(depth=50, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                             reliability=ReliabilityPolicy.RELIABLE)
-        self._alarm_pub = self.create_publisher(String, "~/alarms", latched)
-        self.create_service(Trigger, "~/export", self._on_export)
-        self._odom = Odometry()
-        self._odom.header.frame_id = p("frame_id")
-        self._odom.child_frame_id = p("child_frame_id")
-        self._status_name = f"{self.get_name()}: wheel odometry calibration"
-        self.create_timer(float(p("diagnostics_period_s")), self.publish_diagnostics)
-        self._controller = p("controller_name")
-        if self._controller:
-            self._get_client: Any = self.create_client(GetParameters,
-                                                  f"{self._controller}/get_parameters")
-            self._set_client: Any = self.create_client(SetParameters,
-                                                  f"{self._controller}/set_parameters")
-        self.controller_note = ""
-
     # ------------------------------------------------------------------ parameters
 
     def _declare(self) -> None:
-        defaults: dict[str, Any] = {
-            "wheel_topic": "/joint_states", "imu_topic": "/imu/data",
-            "pose_topic": "/odometry/filtered", "left_wheel_joint": "", "right_wheel_joint": "",
-            "odometry_topic": "~/odometry", "frame_id": "odom", "child_frame_id": "base_link",
-            "settings_file": "", "datasheet": "", "export_dir": "",
-            "export_targets": list(EXPORTS), "silence_timeout_s": 2.0,
-            "diagnostics_period_s": 1.0, "qos_depth": 1000, "qos_reliable": False,
-            "controller_name": ""}
-        for name, value in defaults.items():
-            self.declare_parameter(name, value)
+        """Every parameter with its descriptor, after the values given are checked."""
+        given = getattr(self, "_parameter_overrides", {})
+        params.check_given({name: p.value for name, p in given.items()})
+        for spec in params.SPECS:
+            descriptor = ParameterDescriptor(
+                name=spec.name, type=_KINDS[spec.kind], description=spec.description,
+                read_only=not spec.writable, dynamic_typing=spec.any_type)
+            if spec.kind == "double" and spec.low is not None and spec.high is not None:
+                descriptor.floating_point_range = [FloatingPointRange(
+                    from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
+            if spec.kind == "integer" and spec.low is not None and spec.high is not None:
+                descriptor.integer_range = [IntegerRange(
+                    from_value=int(spec.low), to_value=int(spec.high), step=0)]
+            self.declare_parameter(spec.name, spec.default, descriptor)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._on_parameters_set)
+
+    def _on_set_parameters(self, changed: Sequence[Any]) -> Any:
+        """A change at run time: refused with the reason where the value cannot be used."""
+        for p in changed:
+            spec = params.BY_NAME.get(p.name)
+            problem = params.check_value(spec, p.value) if spec is not None else None
+            if problem is not None:
+                return SetParametersResult(successful=False, reason=problem)
+        return SetParametersResult(successful=True)
+
+    def _on_parameters_set(self, changed: Sequence[Any]) -> None:
+        """A change taken: the diagnostics timer follows its period (others are read where
+        used)."""
+        if self._configured and any(p.name == "diagnostics_period_s" for p in changed):
+            self._restart_timer()
 
     def _param(self, name: str) -> Any:
         return self.get_parameter(name).value
@@ -271,104 +248,472 @@ class CalibrationNode(Node):
     def _now_s(self) -> float:
         return float(self.get_clock().now().nanoseconds) * 1e-9
 
-    # ------------------------------------------------------------------ inputs
 
-    def _on_wheels(self, msg: Any) -> None:
-        if self._joints is None:
-            try:
-                self._joints = wheel_joints(list(msg.name), self._param("left_wheel_joint"),
-                                            self._param("right_wheel_joint"), self._wheels.name)
-            except ConfigError as exc:
-                if self._config_error is None:
-                    self._config_error = str(exc)
-                    self.get_logger().error(self._config_error)
-                    self.publish_diagnostics()
-                return
-            self._joint_names = (msg.name[self._joints[0]], msg.name[self._joints[1]])
-        left, right = self._joints
+    # ------------------------------------------------------------------ lifecycle
+
+    def start(self) -> None:
+        """Configure and activate (a ConfigError, one line, where configuring fails)."""
+        if self.trigger_configure() != _SUCCESS:
+            raise ConfigError(self._configure_error or "the node could not be configured")
+        self.trigger_activate()
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
-            n_rl = float(msg.velocity[left]) / _TWO_PI
-            n_rr = float(msg.velocity[right]) / _TWO_PI
-        except IndexError:
-            return                               # a message without velocities for them
-        t = stamp_s(msg)
-        if not (math.isfinite(n_rl) and math.isfinite(n_rr)):
-            return
-        self._wheels.add(t, (n_rl, n_rr), self._now_s())
-        self._publish_odometry(msg, t, n_rl, n_rr)
-        if self._flushed_t is None:
-            self._flushed_t = t
-        elif t - self._flushed_t >= self.settings.online.chunk_s:
-            self._flushed_t = t
-            self.flush()
+            self._configure()
+        except OdocalError as exc:
+            self._configure_error = str(exc)
+            self.get_logger().error(self._configure_error)
+            self._teardown()
+            return _FAILURE
+        self._configured = True
+        return super().on_configure(state)
 
-    def _on_imu(self, msg: Any) -> None:
-        assert self._imu is not None
-        a_y = float(msg.linear_acceleration.y)
-        self._a_y = a_y
-        self._imu.add(stamp_s(msg), (float(msg.angular_velocity.z), a_y), self._now_s())
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        result = super().on_activate(state)
+        self._active = True
+        self.get_logger().info(self._start_line())
+        self.publish_diagnostics()
+        return result
 
-    def _on_pose(self, msg: Any) -> None:
-        pose = msg.pose.pose
-        self._pose.add(stamp_s(msg), (float(pose.position.x), float(pose.position.y),
-                                      yaw_of(pose.orientation)), self._now_s())
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._active = False
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._teardown()
+        return super().on_cleanup(state)
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if self._configured:
+            self.finish()
+        self._teardown()
+        return super().on_shutdown(state)
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._teardown()
+        return _SUCCESS
 
     @property
-    def topics(self) -> list[_Topic]:
+    def controller_note(self) -> str:
+        """What became of the multipliers pushed to ``controller_name`` (empty: nothing)."""
+        return self._controller.note if self._controller is not None else ""
+
+    @property
+    def finalized(self) -> bool:
+        """Whether the lifecycle has shut the node down (it takes nothing more)."""
+        return bool(self._state_machine.current_state[1] == "finalized")
+
+    # ------------------------------------------------------------------ configure
+
+    def _configure(self) -> None:
+        settings = self._defaults
+        p = self._param
+        if p("settings_file"):
+            settings = load_settings(p("settings_file"))
+        if p("datasheet"):
+            settings = settings.replace(identify={"theta0": datasheet_theta(
+                parse_datasheet(p("datasheet"), what="parameter datasheet"),
+                settings.identify.theta0)})
+        self.settings = settings
+        self.datasheet = Parameters.from_array(np.asarray(settings.identify.theta0))
+        names = {key: self._topic(key) for key in ("wheel_topic", "pose_topic", "imu_topic",
+                                                   "odometry_topic")}
+        self._rotation = rotation(p("imu_rotation_deg"))
+        self._pose_reader = (cdr.odometry if p("pose_type") == "odometry"
+                             else cdr.pose_with_covariance)
+        self._beta_wanted = bool(p("sideslip_from_reference"))
+        if self._beta_wanted and p("pose_type") != "odometry":
+            raise ConfigError("parameter sideslip_from_reference: true needs pose_type "
+                              "odometry (a PoseWithCovarianceStamped carries no twist)")
+        self._wheel_names = names["wheel_topic"]
+        self._imu_name = names["imu_topic"]
+        self._pose_name = names["pose_topic"]
+        self._fresh()
+        self._create_entities(names)
+        # the estimate imports scipy.special at its first call (0.9 s here): done now, not
+        # under the first estimate, when the inputs' queues would fill meanwhile
+        import scipy.special  # noqa: F401
+
+    def _topic(self, key: str) -> str:
+        """A topic parameter, resolved (a ConfigError naming it where it is no topic name)."""
+        value = self._param(key)
+        if not value:
+            if key == "imu_topic":
+                return ""
+            raise ConfigError(f"parameter {key}: empty; it takes a topic name")
+        try:
+            return str(self.resolve_topic_name(value))
+        except Exception as exc:   # rclpy's name validation, as it words it
+            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise ConfigError(f"parameter {key}: {value!r} is not a valid topic name "
+                              f"({first})") from exc
+
+    def _fresh(self) -> None:
+        """Everything calibrated so far forgotten: a new calibrator, grid and inputs."""
+        s = self.settings
+        self.calibrator = OnlineCalibrator(s)
+        self._grid = GridResampler(t_s=1.0 / s.convert.rate_hz, max_gap_s=s.convert.max_gap_s)
+        self._rows_per_push = max(int(s.online.chunk_s * s.convert.rate_hz), 1)
+        self._pending: list[dict[str, np.ndarray]] = []
+        self._beta: list[tuple[float, float]] = []
+        self._wheels = _Input(self._wheel_names, "wheels", ("n_rl", "n_rr"))
+        self._pose = _Input(self._pose_name, "pose", ("x", "y", "psi"))
+        self._imu = _Input(self._imu_name, "imu", ("yaw_rate", "a_y")) if self._imu_name \
+            else None
+        self._joints: tuple[str, str] | None = None
+        self._reader = cdr.JointReader(self._pick_joints)
+        self._rates = Rates(s.convert.max_gap_s)
+        self._max_gap_s = s.convert.max_gap_s
+        self._config_error: str | None = None
+        self._origin: tuple[int, int] | None = None
+        self._first_t: float | None = None
+        self._last_t: float | None = None
+        self._next_update: float | None = None
+        self._flushed_t: float | None = None
+        self.estimate: Estimate | None = None
+        self._good: Estimate | None = None        # the latest estimate that may be published
+        self._good_km = 0.0
+        self._identified: tuple[bool, ...] = (False,) * len(PARAMETER_NAMES)
+        self._alarms_seen = 0
+        self._push_error = ""
+        self.updates = 0
+        self.twist = TwistVariance(window_s=s.inverse.window_s, max_gap_s=s.convert.max_gap_s)
+        self.gyro = GyroBias(s.convert.max_gap_s)
+        self._theta = tuple(float(v) for v in self.datasheet.as_array())
+        self._a_y = 0.0
+        self._odom_t: float | None = None
+        self._x = self._y = self._psi = 0.0
+
+    def _create_entities(self, names: dict[str, str]) -> None:
+        p = self._param
+        depth = int(p("qos_depth"))
+        reliability = (ReliabilityPolicy.RELIABLE if p("qos_reliable")
+                       else ReliabilityPolicy.BEST_EFFORT)   # best effort hears both kinds
+        qos = QoSProfile(depth=depth, reliability=reliability)
+        pose_type = Odometry if p("pose_type") == "odometry" else PoseWithCovarianceStamped
+        add = self._entities.append
+        pub = self._outputs.append
+        # each input's callback takes every message waiting behind the one it was handed
+        # (one Python call for a backlog, not one per message)
+        self._wheel_sub = self.create_subscription(
+            JointState, names["wheel_topic"], self._taker("_wheel_sub", self._wheel_message),
+            qos, raw=True)
+        self._pose_sub = self.create_subscription(
+            pose_type, names["pose_topic"], self._taker("_pose_sub", self._pose_message), qos,
+            raw=True)
+        self._imu_sub: Any = None
+        if names["imu_topic"]:
+            self._imu_sub = self.create_subscription(
+                Imu, names["imu_topic"], self._taker("_imu_sub", self._imu_message), qos,
+                raw=True)
+        for sub in (self._wheel_sub, self._imu_sub, self._pose_sub):
+            if sub is not None:
+                add(sub)
+        self._odom_pub = self.create_lifecycle_publisher(Odometry, names["odometry_topic"],
+                                                         QoSProfile(depth=min(depth, 1000)))
+        self._diag_pub = self.create_lifecycle_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._alarm_pub = self.create_lifecycle_publisher(
+            String, "~/alarms", QoSProfile(depth=50, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                                           reliability=ReliabilityPolicy.RELIABLE))
+        self._estimate_pub = self.create_lifecycle_publisher(Float64MultiArray, "~/estimate",
+                                                             _LATCHED)
+        for publisher in (self._odom_pub, self._diag_pub, self._alarm_pub, self._estimate_pub):
+            pub(publisher)
+        add(self.create_service(Trigger, "~/export", self._on_export))
+        add(self.create_service(Trigger, "~/reset", self._on_reset))
+        template = Odometry()
+        template.header.frame_id = p("frame_id")
+        template.child_frame_id = p("child_frame_id")
+        self._writer = cdr.OdometryWriter(serialize_message(template))
+        self._writer.covariances(_unknown_covariance(), _unknown_covariance())
+        self._status_name = f"{self.get_name()}: wheel odometry calibration"
+        self._timer: Any = None
+        self._restart_timer()
+        self._controller: ControllerPush | None = None
+        if p("controller_name"):
+            self._controller = ControllerPush(self, p("controller_name"))
+            for client in self._controller.clients:
+                add(client)
+
+    def _restart_timer(self) -> None:
+        if self._timer is not None:
+            self.destroy_timer(self._timer)
+        self._timer = self.create_timer(float(self._param("diagnostics_period_s")),
+                                        self.publish_diagnostics)
+
+    def _teardown(self) -> None:
+        """Every subscription, publisher, service, client and the timer gone."""
+        self._active = self._configured = False
+        for entity in self._entities:
+            (self.destroy_subscription(entity) or self.destroy_service(entity)
+             or self.destroy_client(entity))
+        for publisher in self._outputs:
+            self.destroy_lifecycle_publisher(publisher)
+        self._entities, self._outputs = [], []
+        timer = getattr(self, "_timer", None)
+        if timer is not None:
+            self.destroy_timer(timer)
+            self._timer = None
+
+    def _start_line(self) -> str:
+        qos = "reliable" if self._param("qos_reliable") else "best effort"
+        inputs = [f"{self._wheel_names} (JointState)", f"{self._pose_name} ("
+                  + ("Odometry" if self._param("pose_type") == "odometry"
+                     else "PoseWithCovarianceStamped") + ")"]
+        if self._imu_name:
+            inputs.append(f"{self._imu_name} (Imu)")
+        return (f"{self.get_fully_qualified_name()}: calibrating from {', '.join(inputs)} "
+                f"(QoS {qos}, depth {self._param('qos_depth')}); publishing "
+                f"{self._odom_pub.topic_name}, {self._estimate_pub.topic_name}, "
+                f"{self._alarm_pub.topic_name}, /diagnostics; services "
+                f"{self.get_fully_qualified_name()}/export, "
+                f"{self.get_fully_qualified_name()}/reset")
+
+    # ------------------------------------------------------------------ inputs
+
+    def _time(self, sec: int, nanosec: int) -> float:
+        """A stamp as seconds from the first message's (exact whatever the clock's epoch)."""
+        if self._origin is None:
+            self._origin = (sec, nanosec)
+        return float(sec - self._origin[0]) + 1e-9 * float(nanosec - self._origin[1])
+
+    def stamp_of(self, t: float) -> float:
+        """A time of the node's (seconds from its origin) on the messages' clock."""
+        if self._origin is None:
+            return t
+        return t + self._origin[0] + 1e-9 * self._origin[1]
+
+    def _pick_joints(self, names: tuple[str, ...]) -> tuple[int, int]:
+        left, right = wheel_joints(names, self._param("left_wheel_joint"),
+                                   self._param("right_wheel_joint"), self._wheels.name)
+        self._joints = (names[left], names[right])
+        return left, right
+
+    def _taker(self, name: str, handle: Callable[[bytes], None]) -> Callable[[bytes], None]:
+        """The callback of the input subscription ``name``: the message handed in and every
+        one waiting behind it (at most :data:`MAX_BATCH`), each to ``handle``; then what a
+        second of data completes is pushed."""
+        def take(first: bytes) -> None:
+            if not self._active:
+                return                      # (inactive: what came is dropped, as it came)
+            sub = getattr(self, name)
+            batch = [first]
+            more, kind = sub.handle.take_message, sub.msg_type
+            with sub.handle:
+                while len(batch) < MAX_BATCH:
+                    got = more(kind, True)
+                    if got is None:
+                        break
+                    batch.append(got[0])
+            for data in batch:
+                handle(data)
+            self._maybe_flush()
+
+        return take
+
+    def _wheel_message(self, data: bytes) -> None:
+        wheels = self._wheels
+        try:
+            sec, nsec, positions, velocities = self._reader.read(data)
+        except cdr.CdrError as exc:
+            wheels.undecodable += 1
+            wheels.note = str(exc)
+            return
+        except ConfigError as exc:
+            if self._joints is None and self._config_error is None:
+                self._config_error = str(exc)
+                self.get_logger().error(self._config_error)
+                self.publish_diagnostics()
+            return
+        t = self._time(sec, nsec)
+        if not wheels.stamps.check(t):
+            self._rates.reset()
+            return
+        if velocities is not None:
+            t_rate, n_rl, n_rr = t, velocities[0] / TWO_PI, velocities[1] / TWO_PI
+        elif positions is not None:
+            rates = self._rates.add(t, positions[0], positions[1])
+            if rates is None:
+                return                               # the first of a piece: no rate yet
+            t_rate, n_rl, n_rr = rates
+        else:
+            wheels.stamps.refuse_invalid()
+            wheels.note = "neither velocities nor positions for the wheel joints"
+            return
+        if not (math.isfinite(n_rl) and math.isfinite(n_rr)):
+            wheels.stamps.refuse_invalid()
+            wheels.note = "NaN or infinite wheel values"
+            self._rates.reset()
+            return
+        wheels.buffer.add(t_rate, (n_rl, n_rr))
+        self._publish_odometry(sec, nsec, t, n_rl, n_rr)
+
+    def _imu_message(self, data: bytes) -> None:
+        imu = self._imu
+        assert imu is not None
+        try:
+            sec, nsec, rate, accel = cdr.imu(data)
+        except cdr.CdrError as exc:
+            imu.undecodable += 1
+            imu.note = str(exc)
+            return
+        t = self._time(sec, nsec)
+        if not imu.stamps.check(t):
+            self.gyro.reading_gap()
+            return
+        yaw_rate, a_y = self._imu_values(rate, accel)
+        if not (math.isfinite(yaw_rate) and math.isfinite(a_y)):
+            imu.stamps.refuse_invalid()
+            imu.note = "NaN or infinite IMU values"
+            self.gyro.reading_gap()
+            return
+        self._a_y = a_y
+        self.gyro.add_reading(yaw_rate)
+        imu.buffer.add(t, (yaw_rate, a_y))
+
+    def _imu_values(self, rate: Sequence[float], accel: Sequence[float]) -> tuple[float, float]:
+        """The yaw rate and the lateral acceleration in the vehicle's axes."""
+        r = self._rotation
+        if r is None:
+            return rate[2], accel[1]
+        return (r[2][0] * rate[0] + r[2][1] * rate[1] + r[2][2] * rate[2],
+                r[1][0] * accel[0] + r[1][1] * accel[1] + r[1][2] * accel[2])
+
+    def _pose_message(self, data: bytes) -> None:
+        pose = self._pose
+        try:
+            m = self._pose_reader(data)
+        except cdr.CdrError as exc:
+            pose.undecodable += 1
+            pose.note = str(exc)
+            return
+        t = self._time(m.sec, m.nanosec)
+        if not pose.stamps.check(t):
+            return
+        psi = yaw_of(m.orientation)
+        beta = _sideslip(m.velocity) if self._beta_wanted else 0.0
+        if not (math.isfinite(m.x) and math.isfinite(m.y) and math.isfinite(psi)
+                and math.isfinite(beta)):
+            pose.stamps.refuse_invalid()
+            pose.note = "NaN or infinite pose values"
+            return
+        pose.buffer.add(t, (m.x, m.y, psi))
+        if self._beta_wanted:
+            self._beta.append((t, beta))
+
+    @property
+    def topics(self) -> list[_Input]:
         return [t for t in (self._wheels, self._imu, self._pose) if t is not None]
+
+    def messages(self) -> dict[str, int]:
+        """Messages used per input role (refused ones not counted)."""
+        return {t.role: t.stamps.received - t.stamps.invalid for t in self.topics}
+
+    def arrived(self) -> dict[str, int]:
+        """Messages taken from each input role's topic, used or refused."""
+        return {t.role: t.stamps.received + t.stamps.back + t.undecodable for t in self.topics}
 
     def silent(self) -> list[str]:
         """The input topics that stayed silent longer than ``silence_timeout_s`` (or were never
-        heard while another one was), each named with how long."""
+        heard while another one was), each named with how long (on the node's clock, as seen
+        each time the status is made: every ``diagnostics_period_s`` and at each estimate)."""
         now, timeout = self._now_s(), float(self._param("silence_timeout_s"))
+        for topic in self.topics:
+            topic.check_heard(now)
         heard = [t.first_receipt_s for t in self.topics if t.first_receipt_s is not None]
         if not heard:
             return []
         first = min(heard)
         out = []
         for topic in self.topics:
-            quiet = topic.silent_for(now)
-            if quiet is None:
+            if topic.last_receipt_s is None:
                 if now - first > timeout:
                     out.append(f"no message on {topic.name} ({topic.role}) yet")
-            elif quiet > timeout:
-                out.append(f"no message on {topic.name} ({topic.role}) for {quiet:.1f} s")
+            elif now - topic.last_receipt_s > timeout:
+                out.append(f"no message on {topic.name} ({topic.role}) for "
+                           f"{now - topic.last_receipt_s:.1f} s")
         return out
 
     def _lagging(self) -> bool:
-        """Whether an input has not been heard yet, or not for ``silence_timeout_s`` while
-        another one was (at the end of a drive they all stop together: none lags)."""
-        receipts = [t.last_receipt_s for t in self.topics]
-        if any(r is None for r in receipts):
+        """Whether an input has sent nothing yet, or nothing for ``silence_timeout_s`` of the
+        others' stamps (at the end of a drive they all stop together: none lags)."""
+        latest = [t.stamps.last_t for t in self.topics]
+        if any(t is None for t in latest):
             return True
-        newest = max(r for r in receipts if r is not None)
+        newest = max(t for t in latest if t is not None)
         timeout = float(self._param("silence_timeout_s"))
-        return any(newest - r > timeout for r in receipts if r is not None)
+        return any(newest - t > timeout for t in latest if t is not None)
 
-    def flush(self) -> None:
-        """Push what has arrived into the calibrator (on the drive's grid); take the estimate
-        every ``[online] update_s`` of data, publish an alarm as soon as it is raised."""
-        if self._lagging():
+    # ------------------------------------------------------------------ calibrating
+
+    def _maybe_flush(self) -> None:
+        newest = self._wheels.buffer.newest()
+        if newest is None:
+            return
+        if self._flushed_t is None:
+            self._flushed_t = newest
+        elif newest - self._flushed_t >= self.settings.online.chunk_s:
+            self._flushed_t = newest
+            self.flush()
+
+    def flush(self, *, final: bool = False) -> None:
+        """Put what has arrived onto the grid and push it into the calibrator in replay's
+        blocks (``final``: the end of the drive, every row); take the estimate every
+        ``[online] update_s`` of data; publish an alarm as soon as it is raised."""
+        if self._lagging() and not final:
             # an input is missing (not heard yet, or silent): nothing is calibrated from the
             # others alone; what arrived within the silence timeout is kept for when it comes
-            newest = max((c.columns["t"][-1] for c in self.topics if c.columns["t"]),
+            newest = max((b for t in self.topics if (b := t.buffer.newest()) is not None),
                          default=None)
             if newest is not None:
                 for topic in self.topics:
-                    topic.trim(newest - float(self._param("silence_timeout_s")))
+                    topic.buffer.trim(newest - float(self._param("silence_timeout_s")))
             return
-        streams = {t.role: s for t in self.topics if (s := t.take()) is not None}
-        if not streams:
+        streams = {t.role: s for t in self.topics if (s := t.buffer.take()) is not None}
+        chunk = self._grid.add(streams, final=final) if streams or final else None
+        if chunk is not None:
+            if self._beta_wanted:
+                chunk["beta"] = self._sideslip_at(chunk["t"])
+            if "yaw_rate" in chunk:
+                self.gyro.add(chunk["t"], chunk["yaw_rate"], chunk["psi"])
+            self._pending.append(chunk)
+        self._push_pending(final)
+
+    def _sideslip_at(self, t: np.ndarray) -> np.ndarray:
+        """The reference's sideslip at grid times ``t`` (kept from the pose messages)."""
+        if not self._beta:
+            return np.zeros(t.size)
+        bt = np.array(self._beta)
+        out = np.interp(t, bt[:, 0], bt[:, 1])
+        keep = max(int(np.searchsorted(bt[:, 0], t[-1])) - 1, 0)
+        self._beta = self._beta[keep:]
+        return np.asarray(out, dtype=np.float64)
+
+    def _push_pending(self, final: bool) -> None:
+        """The grid's rows into the calibrator, ``rows_per_push`` at a time (the last, shorter
+        block only at the end), as odocal replay pushes a drive file."""
+        if not self._pending:
             return
-        chunk = self._grid.add(streams)
-        if chunk is None or chunk["t"].size == 0:
-            return
+        rows = {k: np.concatenate([c[k] for c in self._pending]) for k in self._pending[0]}
+        n, step = rows["t"].size, self._rows_per_push
+        cut = n if final else (n // step) * step
+        for lo in range(0, cut, step):
+            self._push({k: v[lo:min(lo + step, cut)] for k, v in rows.items()})
+        self._pending = [{k: v[cut:] for k, v in rows.items()}] if cut < n else []
+
+    def _push(self, block: dict[str, np.ndarray]) -> None:
         if self.calibrator.halted:
             return
-        self.calibrator.push(chunk)
-        self._last_t = float(chunk["t"][-1])
+        try:
+            self.calibrator.push(block)
+        except DataError as exc:          # a block it cannot use: said, and left out
+            self._push_error = str(exc)
+            self.get_logger().warning(f"samples at {self.stamp_of(float(block['t'][0])):.3f} s "
+                                      f"left out: {exc}")
+            return
+        self._last_t = float(block["t"][-1])
         if self._first_t is None:
-            self._first_t = float(chunk["t"][0])
+            self._first_t = float(block["t"][0])
             self._next_update = self._first_t + self.settings.online.update_s
         if self.calibrator.halted:
             self.update()
@@ -381,138 +726,146 @@ class CalibrationNode(Node):
             self._next_update = self._last_t + self.settings.online.update_s
 
     def update(self) -> Estimate:
-        """Take the estimate now and publish it on ``/diagnostics``."""
+        """Take the estimate now; publish it where it may be (never a rejected one over the
+        last publishable one)."""
         est = self.calibrator.estimate()
         self.estimate = est
         self.updates += 1
         if publishable(est):
-            self._good = est
-            self._theta = est.theta.as_array()
-            self._noise = np.asarray(est.details.noise if est.details is not None
-                                     else np.full((2, 2), np.nan), dtype=np.float64)
-            if self._controller:
-                self._push_to_controller(est)
+            self._publish_estimate(est)
         elif est.status is Status.REJECTED:
-            self._good = None
-            self._theta = self.datasheet.as_array()    # never a contradicted estimate
-            self._noise = np.full((2, 2), np.nan)
+            self._refused(est)
         if len(self.calibrator.alarms) > self._alarms_seen:
             self._publish_alarms()
         self.publish_diagnostics()
         return est
 
+    def _publish_estimate(self, est: Estimate) -> None:
+        first = self._good is None
+        self._good, self._good_km = est, self.calibrator.distance_km
+        self._theta = tuple(float(v) for v in est.theta.as_array())
+        self.twist.calibrate(est)
+        self._estimate_pub.publish(estimate_array(est))
+        if self._controller is not None:
+            self._controller.push(est)
+        if first or est.identified != self._identified:
+            gained = [n for n, now, was in zip(PARAMETER_NAMES, est.identified,
+                                               self._identified, strict=True) if now and not was]
+            lost = [n for n, now, was in zip(PARAMETER_NAMES, est.identified, self._identified,
+                                             strict=True) if was and not now]
+            self.get_logger().info(
+                f"at {self._good_km:.2f} km: "
+                + (f"identified {', '.join(gained)}; " if gained else "")
+                + (f"no longer identified: {', '.join(lost)}; " if lost else "")
+                + parameters_text(est))
+            self._identified = est.identified
+
+    def _refused(self, est: Estimate) -> None:
+        """A rejected estimate: where the calibrator halted (the data contradict the model)
+        the odometry goes back to the datasheet; otherwise the last publishable one stays."""
+        if self.calibrator.halted:
+            if self._good is not None or self.updates == 1:
+                self.get_logger().error(self._rejection(est))
+            self._good = None
+            self._theta = tuple(float(v) for v in self.datasheet.as_array())
+            self.twist.calibrate(None)
+            return
+        where = (f"keeping the calibration from {self._good_km:.2f} km"
+                 if self._good is not None else "nothing is published yet")
+        self.get_logger().warning(f"estimate at {self.calibrator.distance_km:.2f} km refused: "
+                                  f"{self._rejection(est)}; {where}")
+
     def finish(self) -> Estimate:
-        """The end of the drive (shutdown, or a test's end): push what the grid can still use,
-        take the final estimate, publish it and write the export files (``export_dir``)."""
-        self.flush()
+        """The end of the drive (shutdown, or a test's end): push every row the grid can still
+        make, take the final estimate, publish it, write the export files (``export_dir``) and
+        say what was done. Once: later calls return the same estimate."""
+        if self._finished and self.estimate is not None:
+            return self.estimate
+        self._finished = True
+        self.flush(final=True)
         est = self.update()
+        log = self.get_logger()
+        if self._good is not None:
+            note = ("" if est is self._good else
+                    f" (the final estimate was refused: {self._rejection(est)}; this is the one "
+                    f"from {self._good_km:.2f} km)")
+            log.info(f"final calibration after {self.calibrator.distance_km:.2f} km: "
+                     f"{parameters_text(self._good)}{note}")
+        else:
+            log.warning(f"no calibration after {self.calibrator.distance_km:.2f} km: "
+                        + (self._rejection(est) if est.status is Status.REJECTED
+                           else est.message))
         if self._param("export_dir"):
             try:
-                self.write_exports(Path(self._param("export_dir")))
+                written = self.write_exports(Path(self._param("export_dir")))
+                log.info("wrote " + ", ".join(str(p) for p in written))
             except OdocalError as exc:
-                self.get_logger().warning(f"no export at shutdown: {exc}")
+                log.warning(f"no export at shutdown: {exc}")
+            except OSError as exc:
+                log.error(f"no export at shutdown: cannot write {exc.filename}: "
+                          f"{exc.strerror or exc}")
         return est
+
+    def reset(self) -> None:
+        """Start the calibration over from the datasheet values (the inputs' counts stay)."""
+        kept = (self._wheels, self._imu, self._pose, self._origin, self._odom_t, self._x,
+                self._y, self._psi, self._a_y)
+        self._fresh()
+        (self._wheels, self._imu, self._pose, self._origin, self._odom_t, self._x, self._y,
+         self._psi, self._a_y) = kept
+        for topic in self.topics:
+            topic.buffer = Buffer(topic.name, topic.role, topic.buffer.keys)
+        self._writer.covariances(_unknown_covariance(), _unknown_covariance())
+        self.get_logger().info("reset: calibrating anew from the datasheet values")
+        self.publish_diagnostics()
+
+    def _on_reset(self, request: Any, response: Any) -> Any:
+        self.reset()
+        response.success, response.message = True, "calibrating anew from the datasheet values"
+        return response
 
     # ------------------------------------------------------------------ outputs
 
-    def _publish_odometry(self, msg: Any, t: float, n_rl: float, n_rr: float) -> None:
-        """(2a), (2b) with the current calibration, the pose by (1), and the twist variance from
-        the error model: ``s0^2 + (f rev)^2`` per channel over ``[inverse] window_s``."""
-        th = self._theta
-        v, w, _, _ = body(th, n_rl, n_rr, self._a_y)
-        if self._odom_t is not None and 0.0 < t - self._odom_t <= self.settings.convert.max_gap_s:
-            dt = t - self._odom_t
-            heading = self._psi + 0.5 * w * dt
-            self._x += v * dt * math.cos(heading)
-            self._y += v * dt * math.sin(heading)
-            self._psi += w * dt
+    def _publish_odometry(self, sec: int, nsec: int, t: float, n_rl: float, n_rr: float) -> None:
+        """(2a), (2b) with the published calibration, the pose by (1), and the twist's
+        variances (:mod:`odocal.ros2.twist`)."""
+        a_y = self._a_y
+        v, w, _, _ = body(self._theta, n_rl, n_rr, a_y)
+        last = self._odom_t
+        if last is not None and 0.0 < t - last <= self._max_gap_s:
+            dx, dy, dpsi, _, _ = increment(self._psi, v, w, 0.0, t - last)
+            self._x += float(dx)
+            self._y += float(dy)
+            self._psi += float(dpsi)
         self._odom_t = t
-        odom = self._odom
-        odom.header.stamp = msg.header.stamp
-        pose = odom.pose.pose
-        pose.position.x, pose.position.y = self._x, self._y
-        pose.orientation.z, pose.orientation.w = math.sin(0.5 * self._psi), \
-            math.cos(0.5 * self._psi)
-        odom.twist.twist.linear.x, odom.twist.twist.angular.z = float(v), float(w)
-        var_v, var_w = self._twist_variances(abs(float(v)))
-        cov = [0.0] * 36
-        for i in (0, 7, 14, 21, 28, 35):
-            cov[i] = _UNKNOWN_VARIANCE
-        odom.pose.covariance = cov
-        twist = list(cov)
-        twist[0], twist[35] = var_v, var_w
-        odom.twist.covariance = twist
-        self._odom_pub.publish(odom)
-
-    def _twist_variances(self, speed_mps: float) -> tuple[float, float]:
-        """Speed and yaw-rate variances over ``[inverse] window_s`` from the error model of
-        the latest estimate (unknown, a large variance, before one)."""
-        noise = self._noise
-        if not np.all(np.isfinite(noise)):
-            return _UNKNOWN_VARIANCE, _UNKNOWN_VARIANCE
-        c_e, t_r = float(self._theta[0]), float(self._theta[2])
-        window = self.settings.inverse.window_s
-        rev = speed_mps * window / c_e
-        var = noise[:, 0] ** 2 + (noise[:, 1] * rev) ** 2         # revolutions^2 per window
-        return (float(var[0] * (c_e / window) ** 2),
-                float(var[1] * (c_e / (t_r * window)) ** 2))
+        twist = self.twist
+        twist.readings.add(t, v, w)
+        var_v, var_w = twist.variances(v, n_rl, n_rr, a_y)
+        half = 0.5 * self._psi
+        self._odom_pub.publish(self._writer.message(
+            sec, nsec, self._x, self._y, math.sin(half), math.cos(half), v, w, var_v, var_w))
 
     def _publish_alarms(self) -> None:
         for alarm in self.calibrator.alarms[self._alarms_seen:]:
-            self._alarm_pub.publish(String(data=json.dumps(alarm.to_dict())))
+            data = alarm.to_dict()
+            data["t"], data["detected_t"] = self.stamp_of(alarm.t), self.stamp_of(alarm.detected_t)
+            self._alarm_pub.publish(String(data=json.dumps(data)))
             self.get_logger().warning(f"change: {alarm.parameter} moved "
                                       f"{alarm.relative_change * 100:+.3f}% at "
-                                      f"{alarm.distance_km:.2f} km")
+                                      f"{alarm.distance_km:.2f} km (detected at "
+                                      f"{alarm.detected_distance_km:.2f} km)")
         self._alarms_seen = len(self.calibrator.alarms)
         self.publish_diagnostics()
 
     def status(self) -> list[Any]:
         """The node's statuses for ``/diagnostics``: the calibration, and its change alarms."""
         main = DiagnosticStatus(name=self._status_name, hardware_id=self._wheels.name)
-        values: list[tuple[str, str]] = []
-        est = self.estimate
-        calibrator = self.calibrator
-        values += [("distance_km", f"{calibrator.distance_km:.4f}"),
-                   ("samples", str(calibrator.details_samples())),
-                   ("updates", str(self.updates))]
-        values += [(f"messages {t.name}", str(t.messages)) for t in self.topics]
-        silent = self.silent()
-        rejected = calibrator.halted or (est is not None and est.status is Status.REJECTED)
-        if self._config_error is not None:
-            main.level, main.message = DiagnosticStatus.ERROR, self._config_error
-        elif rejected:
-            main.level = DiagnosticStatus.ERROR
-            main.message = self._rejection(est)
-        elif silent:
-            main.level, main.message = DiagnosticStatus.WARN, "; ".join(silent)
-        elif self._good is None:
-            main.level = DiagnosticStatus.WARN
-            main.message = ("not yet identified: " + ", ".join(PARAMETER_NAMES)
-                            + f" ({calibrator.distance_km:.2f} km driven; "
-                            + ("no estimate yet)" if est is None else f"{est.message})"))
-        else:
-            missing = [(n, v) for n, v in zip(PARAMETER_NAMES, self._good.verdicts, strict=True)
-                       if isinstance(v, NotIdentified)]
-            if missing:
-                threshold = self.settings.segments.yaw_rate_threshold_radps
-                main.level = DiagnosticStatus.WARN
-                main.message = "not yet identified: " + "; ".join(
-                    f"{n} ({reason_text(n, v, threshold_radps=threshold)})" for n, v in missing)
-            else:
-                main.level = DiagnosticStatus.OK
-                main.message = ("identified and within the gate: " + ", ".join(
-                    f"{n} {v:.6g}" for n, v in self._good.theta.as_dict().items()))
-        if self._good is not None and not rejected and self._config_error is None:
-            good = self._good
-            for n, v, s, ok in zip(PARAMETER_NAMES, good.theta.as_array(), good.std,
-                                   good.identified, strict=True):
-                values += [(n, repr(float(v))), (f"{n}_std", repr(float(s))),
-                           (f"{n}_identified", "true" if ok else "false")]
-            values.append(("status", good.status.name))
-        if self._controller and self.controller_note:
-            values.append(("controller", self.controller_note))
+        level, message = self._level()
+        main.level, main.message = level, message
+        values = self._values(level)
         main.values = [KeyValue(key=k, value=v) for k, v in values]
         statuses = [main]
+        calibrator = self.calibrator
         if calibrator.alarms:
             last = calibrator.alarms[-1]
             statuses.append(DiagnosticStatus(
@@ -525,6 +878,59 @@ class CalibrationNode(Node):
                 + [KeyValue(key="alarms", value=str(len(calibrator.alarms)))]))
         return statuses
 
+    def _level(self) -> tuple[bytes, str]:
+        """The calibration status's level and message: the gravest first."""
+        est, good = self.estimate, self._good
+        rejected = est is not None and est.status is Status.REJECTED
+        if self._config_error is not None:
+            return DiagnosticStatus.ERROR, self._config_error
+        if self.calibrator.halted or (rejected and good is None):
+            return DiagnosticStatus.ERROR, self._rejection(est)
+        warnings = [*self.silent(), *(p for t in self.topics for p in t.problems())]
+        if self._push_error:
+            warnings.append(f"samples left out: {self._push_error}")
+        if rejected:
+            warnings.append(f"the latest estimate was refused ({self._rejection(est)}): "
+                            f"publishing the calibration from {self._good_km:.2f} km")
+        if good is None:
+            calibrator = self.calibrator
+            warnings.append("not yet identified: " + ", ".join(PARAMETER_NAMES)
+                            + f" ({calibrator.distance_km:.2f} km driven; "
+                            + ("no estimate yet)" if est is None else f"{est.message})"))
+        else:
+            missing = [(n, v) for n, v in zip(PARAMETER_NAMES, good.verdicts, strict=True)
+                       if isinstance(v, NotIdentified)]
+            if missing:
+                threshold = self.settings.segments.yaw_rate_threshold_radps
+                warnings.append("not yet identified: " + "; ".join(
+                    f"{n} ({reason_text(n, v, threshold_radps=threshold)})" for n, v in missing))
+        if warnings:
+            return DiagnosticStatus.WARN, "; ".join(warnings)
+        assert good is not None
+        return DiagnosticStatus.OK, "identified and within the gate: " + parameters_text(good)
+
+    def _values(self, level: bytes) -> list[tuple[str, str]]:
+        calibrator = self.calibrator
+        values = [("distance_km", f"{calibrator.distance_km:.4f}"),
+                  ("samples", str(calibrator.details_samples())), ("updates", str(self.updates))]
+        for t in self.topics:
+            s = t.stamps
+            values += [(f"messages {t.name}", str(s.received - s.invalid)),
+                       (f"missing {t.name}", str(s.missing)),
+                       (f"refused {t.name}", str(s.back + s.invalid + t.undecodable))]
+        good = self._good
+        if good is not None and level != DiagnosticStatus.ERROR:
+            for n, v, s_, ok in zip(PARAMETER_NAMES, good.theta.as_array(), good.std,
+                                    good.identified, strict=True):
+                values += [(n, repr(float(v))), (f"{n}_std", repr(float(s_))),
+                           (f"{n}_identified", "true" if ok else "false")]
+            values += [("status", good.status.name), ("published_from_km", f"{self._good_km:.4f}")]
+            if self.estimate is not None and self.estimate is not good:
+                values.append(("latest_status", self.estimate.status.name))
+        if self._controller is not None and self._controller.note:
+            values.append(("controller", self._controller.note))
+        return values
+
     def _rejection(self, est: Estimate | None) -> str:
         findings = (est.details.findings if est is not None and est.details is not None
                     else self.calibrator.diagnosis.findings)
@@ -534,6 +940,8 @@ class CalibrationNode(Node):
         return "calibration rejected: " + (est.message if est is not None else "by the checks")
 
     def publish_diagnostics(self) -> None:
+        if not self._configured:
+            return
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = self.status()
@@ -542,40 +950,52 @@ class CalibrationNode(Node):
     # ------------------------------------------------------------------ exports
 
     def calibrated(self) -> Calibrated:
-        """The latest publishable estimate as the exports take it (a ConfigError if none)."""
+        """The published calibration as the exports take it (a ConfigError if none)."""
         est = self._good
         if est is None or self.calibrator.halted:
             why = (self._rejection(self.estimate) if self.calibrator.halted
+                   or (self.estimate is not None and self.estimate.status is Status.REJECTED)
                    else "nothing is identified yet")
             raise ConfigError(f"no calibration to export: {why}")
-        details = est.details
-        noise = None
-        if details is not None:
-            windows = max(details.windows, 1)
-            c_e = est.theta.c_e
-            mean_rev = details.distance_km * 1000.0 / windows / c_e
-            window = self.settings.inverse.window_s
-            n = np.asarray(details.noise)
-            var = n[:, 0] ** 2 + (n[:, 1] * mean_rev) ** 2
-            noise = OdometryNoise(speed_std_mps=float(math.sqrt(var[0]) * c_e / window),
-                                  yaw_rate_std_radps=float(math.sqrt(var[1]) * c_e
-                                                           / (est.theta.t_r * window)),
-                                  windows=int(details.windows), window_s=window)
         topics = ", ".join(t.name for t in self.topics)
         return Calibrated(theta=est.theta, datasheet=est.datasheet,
                           std=tuple(float(s) for s in est.std),
                           identified=est.identified, method="online (odocal ros2)",
-                          noise=noise, source=f"ROS 2 topics {topics}",
-                          wheel_joints=self._joint_names,
+                          noise=self._message_noise(), source=f"ROS 2 topics {topics}",
+                          wheel_joints=self._joints,
                           covariance=tuple(tuple(float(v) for v in row)
                                            for row in est.covariance))
 
+    def _message_noise(self) -> OdometryNoise | None:
+        """The standard deviations one odometry message states at the drive's mean speed (what
+        the exports' twist covariance and velocity standard deviations take)."""
+        period = self._wheels.stamps.period_s
+        span = self.calibrator.span_s
+        if period is None or span is None or span[1] <= span[0]:
+            return None
+        speed = self.calibrator.distance_km * 1000.0 / (span[1] - span[0])
+        n = speed / self._theta[0]
+        var_v, var_w = self.twist.variances(speed, n, n, 0.0)
+        if var_v >= UNKNOWN_VARIANCE:
+            return None
+        return OdometryNoise(speed_std_mps=math.sqrt(var_v), yaw_rate_std_radps=math.sqrt(var_w),
+                             windows=self.twist.readings.count, window_s=period)
+
     def write_exports(self, folder: Path) -> list[Path]:
-        """The export files of the latest publishable estimate into ``folder``."""
+        """The export files of the published calibration into ``folder``."""
         calibrated = self.calibrated()
+        targets = params.targets(self._param("export_targets"))
         folder.mkdir(parents=True, exist_ok=True)
-        written = export(calibrated, folder, [t for t in self._targets if t in TARGETS])
-        if "yaml" in self._targets:
+        written = export(calibrated, folder, [t for t in targets if t in TARGETS])
+        if "robot_localization" in targets:
+            point_ekf_at(folder / "robot_localization" / "ekf_odometry.yaml",
+                         self._odom_pub.topic_name)
+        found = self.gyro.result()
+        if "autoware" in targets and found is not None and self._imu is not None:
+            written.append(imu_corrector(folder / "autoware" / "imu_corrector.param.yaml",
+                                         found, self._imu.name,
+                                         aligned=self._rotation is None))
+        if "yaml" in targets:
             written.append(parameters_yaml(calibrated, folder / "odometry_parameters.yaml"))
         return written
 
@@ -593,72 +1013,53 @@ class CalibrationNode(Node):
         response.message = "wrote " + ", ".join(str(p) for p in written)
         return response
 
-    # ------------------------------------------------------------------ controller
-
-    def _push_to_controller(self, est: Estimate) -> None:
-        """Set the identified multipliers on the controller, relative to its own nominal
-        ``wheel_radius`` and ``wheel_separation`` (asked first)."""
-        if not self._get_client.service_is_ready():
-            self.controller_note = f"no parameter service {self._controller}/get_parameters"
-            return
-        request = GetParameters.Request(names=["wheel_radius", "wheel_separation"])
-        future = self._get_client.call_async(request)
-        future.add_done_callback(lambda f: self._set_multipliers(f, est))
-
-    def _set_multipliers(self, future: Any, est: Estimate) -> None:
-        try:
-            radius, separation = (v.double_value for v in future.result().values)
-        except Exception as exc:  # the service's own failure, as it said it
-            self.get_logger().debug(f"reading the controller's parameters: {exc!r}")
-            self.controller_note = f"cannot read the controller's nominal values: {exc}"
-            return
-        if not (radius > 0 and separation > 0):
-            self.controller_note = "the controller reports no wheel_radius / wheel_separation"
-            return
-        th = est.theta
-        c_e, c_d, t_r, _ = th.as_array()
-        nominal_c = _TWO_PI * radius
-        wanted = {"left_wheel_radius_multiplier": (c_e + c_d / 2) / nominal_c,
-                  "right_wheel_radius_multiplier": (c_e - c_d / 2) / nominal_c,
-                  "wheel_separation_multiplier": t_r / separation}
-        ok = dict(zip(PARAMETER_NAMES, est.identified, strict=True))
-        if not ok["c_e"]:
-            wanted.pop("left_wheel_radius_multiplier")
-            wanted.pop("right_wheel_radius_multiplier")
-        if not ok["t_r"]:
-            wanted.pop("wheel_separation_multiplier")
-        if not wanted:
-            return
-        params = [ParameterMsg(name=k, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
-                                                            double_value=float(v)))
-                  for k, v in wanted.items()]
-        done = self._set_client.call_async(SetParameters.Request(parameters=params))
-        done.add_done_callback(lambda f: self._controller_set(f, wanted))
-
-    def _controller_set(self, future: Any, wanted: dict[str, float]) -> None:
-        try:
-            results = future.result().results
-        except Exception as exc:  # the service's own failure, as it said it
-            self.get_logger().debug(f"setting the controller's multipliers: {exc!r}")
-            self.controller_note = f"setting the multipliers failed: {exc}"
-            return
-        refused = [f"{k}: {r.reason}" for k, r in zip(wanted, results, strict=False)
-                   if not r.successful]
-        self.controller_note = ("refused: " + "; ".join(refused) if refused else
-                                "set " + ", ".join(f"{k}={v:.6g}" for k, v in wanted.items()))
+def _sideslip(velocity: tuple[float, float] | None) -> float:
+    """The sideslip of a velocity (x, y) in the vehicle's frame: atan(vy / vx), 0 at rest
+    (forwards and backwards alike: the direction of travel against the heading's axis)."""
+    if velocity is None or velocity[0] == 0.0:
+        return 0.0
+    return math.atan(velocity[1] / velocity[0])
 
 
-def publishable(est: Estimate) -> bool:
-    """Whether an estimate may be published: converged (or exact), identified something and
-    not refused by the checks or the gate."""
-    return est.status in (Status.CONVERGED, Status.EXACT) and any(est.identified)
+def _unknown_covariance() -> list[float]:
+    """A 6x6 covariance with the unknown variance on its diagonal (what wheels do not see)."""
+    cov = [0.0] * 36
+    for i in range(0, 36, 7):
+        cov[i] = UNKNOWN_VARIANCE
+    return cov
+
+
+def parameters_text(est: Estimate) -> str:
+    """The parameters of an estimate in one line: ``c_e 1.95214 +- 0.00031 m, ...``."""
+    return ", ".join(f"{n} {v:.6g}" + (f" +- {s:.2g}" if ok else " (datasheet)")
+                     for n, v, s, ok in zip(PARAMETER_NAMES, est.theta.as_array(), est.std,
+                                            est.identified, strict=True))
+
+
+#: The ``~/estimate`` array's columns (after the rows' parameter).
+ESTIMATE_COLUMNS = ("value", "std", "identified", *(f"cov_{n}" for n in PARAMETER_NAMES))
+
+
+def estimate_array(est: Estimate) -> Any:
+    """``est`` as a ``std_msgs/Float64MultiArray``: rows c_e, c_d, t_r, d; columns value, std,
+    identified (1.0 or 0.0) and the covariance's row (SI units), labels in the layout."""
+    rows = len(PARAMETER_NAMES)
+    cov = np.where(np.isfinite(est.covariance), est.covariance, 0.0)
+    data = np.column_stack([est.theta.as_array(), est.std,
+                            np.asarray(est.identified, dtype=float), cov])
+    msg = Float64MultiArray(data=[float(v) for v in data.ravel()])
+    msg.layout.dim = [MultiArrayDimension(label="parameter: " + " ".join(PARAMETER_NAMES),
+                                          size=rows, stride=rows * len(ESTIMATE_COLUMNS)),
+                      MultiArrayDimension(label="column: " + " ".join(ESTIMATE_COLUMNS),
+                                          size=len(ESTIMATE_COLUMNS),
+                                          stride=len(ESTIMATE_COLUMNS))]
+    return msg
 
 
 def run(ros_args: Sequence[str], *, settings: Settings | None = None,
         on_ready: Callable[[CalibrationNode], None] | None = None) -> int:
     """Start the node with ``ros_args`` (``--ros-args ...``) and spin until Ctrl-C or SIGTERM;
-    then the final estimate is published and the export files written. Returns an exit code."""
-    # the events executor takes 5x the messages per second of the SingleThreadedExecutor
+    then the final estimate is published and the export files written. Returns 0."""
     from rclpy.executors import ExternalShutdownException
     from rclpy.experimental import EventsExecutor
     from rclpy.signals import SignalHandlerOptions
@@ -669,30 +1070,48 @@ def run(ros_args: Sequence[str], *, settings: Settings | None = None,
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise ConfigError(f"ROS 2 arguments {' '.join(ros_args)!r}: {first}") from exc
     node: CalibrationNode | None = None
-    previous = signal.getsignal(signal.SIGTERM)
+    stop: list[int] = []
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
 
-    def stop(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
+    def on_signal(signum: int, frame: Any) -> None:
+        stop.append(signum)            # no exception: the loop below ends between messages
 
-    signal.signal(signal.SIGTERM, stop)
+    executor: Any = None
     try:
+        for sig in previous:
+            signal.signal(sig, on_signal)
         node = CalibrationNode(settings=settings)
+        # the events executor's own signal set replaces Python's handlers: ours go back after
+        # it (a signal it took would shut the context down under the final estimate)
+        executor = EventsExecutor()
+        for sig in previous:
+            signal.signal(sig, on_signal)
+        executor.add_node(node)
         if on_ready is not None:
             on_ready(node)
-        executor = EventsExecutor()
-        executor.add_node(node)
         try:
-            # spin_once in a Python loop: Ctrl-C and SIGTERM reach Python between calls (the
-            # events executor's own spin() does not return to Python for a signal)
-            while rclpy.ok():
+            # (one event per spin_once: whether ROS 2 still runs is asked every tenth of a
+            # second, not at each message)
+            checked = 0.0
+            while not stop:
                 executor.spin_once(timeout_sec=0.1)
-        except (KeyboardInterrupt, ExternalShutdownException):
+                now = time.monotonic()
+                if now - checked >= 0.1:
+                    if not rclpy.ok() or node.finalized:
+                        break
+                    checked = now
+        except ExternalShutdownException:
             pass
-        node.finish()
+        if not node.finalized and rclpy.ok():
+            node.finish()
         return 0
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        if executor is not None:
+            executor.shutdown()
+            executor = None                     # (its signal set restores no handler of ours)
         if node is not None:
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

@@ -1,0 +1,299 @@
+"""The few fields the node needs, read from a message's serialized bytes (no message objects).
+
+The node subscribes with ``raw=True``: rclpy hands it each message as the bytes DDS carried,
+and building the Python message objects (a Header, a Time, Vector3s, Quaternions, lists of
+doubles) was most of the node's time per message. The readers here take only what the node
+uses (the stamp, two joints' rates or positions, the IMU's rate and acceleration, the
+reference's position, yaw and twist) straight from the bytes with :mod:`struct`; the writer
+patches a serialized ``nav_msgs/Odometry`` template in place.
+
+The encoding is OMG CDR as ROS 2's middlewares write it: a 4-byte encapsulation header (plain
+CDR, XCDR1, big or little endian), then the fields in order, each primitive aligned to its size
+counted from the end of that header;
+strings as a uint32 length (with the terminating NUL) and the characters; sequences as a uint32
+count and the elements. Bytes that are neither raise :class:`CdrError`.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+#: Encapsulation identifiers (the header's second byte) -> (byte order, largest alignment):
+#: plain CDR (XCDR1), big and little endian, as ROS 2's middlewares write ROS messages.
+_ENCAPSULATIONS = {0x00: (">", 8), 0x01: ("<", 8)}
+_HEADER = 4
+#: Doubles in geometry_msgs/PoseWithCovariance: position (3), orientation (4), covariance (36).
+_POSE_WITH_COVARIANCE = 7 + 36
+
+
+class CdrError(ValueError):
+    """Bytes that are not the message the topic should carry."""
+
+
+class _Cursor:
+    """A read position in one message's bytes (alignment counted from the header's end)."""
+
+    __slots__ = ("align", "data", "order", "pos")
+
+    def __init__(self, data: bytes) -> None:
+        if len(data) < 16 or data[0] != 0:
+            raise CdrError("not CDR: too short or an unknown encapsulation")
+        kind = _ENCAPSULATIONS.get(data[1])
+        if kind is None:
+            raise CdrError(f"encapsulation 0x{data[1]:02x} is not plain CDR (XCDR1)")
+        self.data = data
+        self.order, self.align = kind
+        self.pos = _HEADER
+
+    def _at(self, size: int) -> int:
+        a = min(size, self.align)
+        self.pos += (-(self.pos - _HEADER)) % a
+        at = self.pos
+        self.pos += size
+        if self.pos > len(self.data):
+            raise CdrError("the message ends early")
+        return at
+
+    def u32(self) -> int:
+        at = self._at(4)
+        return int(struct.unpack_from(self.order + "I", self.data, at)[0])
+
+    def stamp(self) -> tuple[int, int]:
+        """A builtin_interfaces/Time: (sec, nanosec)."""
+        at = self._at(4)
+        self.pos += 4
+        sec, nsec = struct.unpack_from(self.order + "iI", self.data, at)
+        return int(sec), int(nsec)
+
+    def string(self) -> bytes:
+        """A string's characters (without the terminating NUL)."""
+        n = self.u32()
+        start = self.pos
+        self.pos += n
+        if self.pos > len(self.data):
+            raise CdrError("a string runs past the message's end")
+        return bytes(self.data[start:start + max(n - 1, 0)])
+
+    def doubles_at(self, count: int) -> int:
+        """The offset of ``count`` doubles in a row (aligned), the cursor moved past them."""
+        at = self._at(8)
+        self.pos += 8 * (count - 1)
+        if self.pos > len(self.data):
+            raise CdrError("the message ends early")
+        return at
+
+    def double_sequence(self) -> tuple[int, int]:
+        """A sequence of doubles: (offset of the first, count)."""
+        n = self.u32()
+        return (self.doubles_at(n) if n else self.pos), n
+
+
+@dataclass(frozen=True)
+class Joints:
+    """What a ``sensor_msgs/JointState`` says: stamp, joint names, positions and velocities."""
+
+    sec: int
+    nanosec: int
+    names: tuple[bytes, ...]
+    positions: tuple[float, ...]
+    velocities: tuple[float, ...]
+
+
+def joint_state(data: bytes) -> Joints:
+    """A ``sensor_msgs/JointState``'s stamp, names, positions and velocities (every field the
+    node reads, parsed in full: :class:`JointReader` reads the same per message, faster)."""
+    c = _Cursor(data)
+    sec, nsec = c.stamp()
+    c.string()                                   # header.frame_id
+    names = tuple(c.string() for _ in range(c.u32()))
+    fmt = c.order + "{}d"
+    at, n = c.double_sequence()
+    positions = struct.unpack_from(fmt.format(n), data, at) if n else ()
+    at, n = c.double_sequence()
+    velocities = struct.unpack_from(fmt.format(n), data, at) if n else ()
+    return Joints(sec, nsec, names, positions, velocities)
+
+
+@dataclass(frozen=True)
+class _JointLayout:
+    """Where two joints' values lie in JointState messages of one layout."""
+
+    order: str
+    length: int
+    fields: struct.Struct            # every length and count field, from offset 12
+    values: tuple[int, ...]          # ... as they read in this layout
+    names: tuple[tuple[int, bytes], ...]   # the two joints' names: (offset, characters)
+    positions: tuple[int, int]       # the two joints' offsets (-1: none in these messages)
+    velocities: tuple[int, int]
+
+
+class JointReader:
+    """Two joints' positions and velocities from JointState bytes, by index into the names.
+
+    ``pick(names)`` says which two joints (their indices; names as text), or raises; it is
+    asked once per layout of the messages (joint names, their lengths, how many positions and
+    velocities). A message of the layout seen last is read with one check of its length and
+    count fields and of the two names' characters; any other is parsed in full.
+    """
+
+    def __init__(self, pick: Callable[[tuple[str, ...]], tuple[int, int]]) -> None:
+        self._pick = pick
+        self._layout: _JointLayout | None = None
+
+    def read(self, data: bytes) -> tuple[int, int, tuple[float, float] | None,
+                                         tuple[float, float] | None]:
+        """(sec, nanosec, (left, right) positions or None, (left, right) velocities or
+        None)."""
+        lay = self._layout
+        if lay is None or len(data) != lay.length or data[1] != (lay.order == "<") \
+                or lay.fields.unpack_from(data, 12) != lay.values \
+                or any(data[at:at + len(name)] != name for at, name in lay.names):
+            lay = self._layout = self._learn(data)
+        sec, nsec = struct.unpack_from(lay.order + "iI", data, 4)
+        d = lay.order + "d"
+        pos, vel = lay.positions, lay.velocities
+        return (sec, nsec,
+                (struct.unpack_from(d, data, pos[0])[0], struct.unpack_from(d, data, pos[1])[0])
+                if pos[0] >= 0 else None,
+                (struct.unpack_from(d, data, vel[0])[0], struct.unpack_from(d, data, vel[1])[0])
+                if vel[0] >= 0 else None)
+
+    def _learn(self, data: bytes) -> _JointLayout:
+        c = _Cursor(data)
+        c.stamp()
+        fields: list[tuple[int, int]] = []           # (offset, value) of each u32 field
+
+        def u32() -> int:
+            value = c.u32()
+            fields.append((c.pos - 4, value))
+            return value
+
+        def string() -> tuple[int, bytes]:
+            n = u32()
+            at = c.pos
+            c.pos += n
+            if c.pos > len(data):
+                raise CdrError("a string runs past the message's end")
+            return at, bytes(data[at:at + max(n - 1, 0)])
+
+        string()                                          # header.frame_id
+        names = [string() for _ in range(u32())]
+        left, right = self._pick(tuple(n.decode("utf-8", "replace") for _, n in names))
+        offsets = []
+        for _ in range(2):                                # positions, velocities
+            n = u32()
+            at = c.doubles_at(n) if n else c.pos
+            offsets.append((at + 8 * left, at + 8 * right)
+                           if n > max(left, right) else (-1, -1))
+        n = u32()                                         # efforts (their count fixes the length)
+        if n:
+            c.doubles_at(n)
+        fmt, pos = c.order, 12
+        for at, _ in fields:
+            fmt += f"{at - pos}xI"
+            pos = at + 4
+        return _JointLayout(order=c.order, length=len(data), fields=struct.Struct(fmt),
+                            values=tuple(v for _, v in fields),
+                            names=(names[left], names[right]),
+                            positions=offsets[0], velocities=offsets[1])
+
+
+def _fields_at(data: bytes, strings: int, doubles: int) -> tuple[str, int]:
+    """The byte order and the offset of the first double after the stamp and ``strings``
+    strings, checked to hold ``doubles`` doubles."""
+    if len(data) < 16 or data[0] != 0 or data[1] not in _ENCAPSULATIONS:
+        raise CdrError("not CDR: too short or an unknown encapsulation")
+    order, align = _ENCAPSULATIONS[data[1]]
+    at = 12
+    for _ in range(strings):
+        at += (-(at - _HEADER)) % 4
+        if at + 4 > len(data):
+            raise CdrError("the message ends early")
+        at += 4 + struct.unpack_from(order + "I", data, at)[0]
+    at += (-(at - _HEADER)) % min(8, align)
+    if at + 8 * doubles > len(data):
+        raise CdrError("the message ends early")
+    return order, at
+
+
+def imu(data: bytes) -> tuple[int, int, tuple[float, float, float],
+                              tuple[float, float, float]]:
+    """A ``sensor_msgs/Imu``'s stamp, angular velocity (x, y, z) and linear acceleration."""
+    order, at = _fields_at(data, 1, 4 + 9 + 3 + 9 + 3 + 9)   # orientation, its covariance, ...
+    sec, nsec = struct.unpack_from(order + "iI", data, 4)
+    fmt = order + "3d"
+    return (sec, nsec, struct.unpack_from(fmt, data, at + 8 * 13),
+            struct.unpack_from(fmt, data, at + 8 * 25))
+
+
+class Pose(NamedTuple):
+    """A reference pose: stamp, position (x, y), orientation (x, y, z, w) and, where the
+    message has one, the twist's linear velocity (x, y) in the child frame."""
+
+    sec: int
+    nanosec: int
+    x: float
+    y: float
+    orientation: tuple[float, float, float, float]
+    velocity: tuple[float, float] | None = None
+
+
+def odometry(data: bytes) -> Pose:
+    """A ``nav_msgs/Odometry``'s stamp, pose and the twist's linear velocity."""
+    order, at = _fields_at(data, 2, _POSE_WITH_COVARIANCE + 6 + 36)   # the pose, the twist
+    sec, nsec = struct.unpack_from(order + "iI", data, 4)
+    x, y, _, qx, qy, qz, qw = struct.unpack_from(order + "7d", data, at)
+    vx, vy = struct.unpack_from(order + "2d", data, at + 8 * _POSE_WITH_COVARIANCE)
+    return Pose(sec, nsec, x, y, (qx, qy, qz, qw), (vx, vy))
+
+
+def pose_with_covariance(data: bytes) -> Pose:
+    """A ``geometry_msgs/PoseWithCovarianceStamped``'s stamp and pose."""
+    order, at = _fields_at(data, 1, _POSE_WITH_COVARIANCE)
+    sec, nsec = struct.unpack_from(order + "iI", data, 4)
+    x, y, _, qx, qy, qz, qw = struct.unpack_from(order + "7d", data, at)
+    return Pose(sec, nsec, x, y, (qx, qy, qz, qw))
+
+
+class OdometryWriter:
+    """A serialized ``nav_msgs/Odometry`` (its frame names fixed) to fill per message.
+
+    ``template`` is one such message as rclpy serializes it on this machine; the fields the
+    node sets (the stamp, the pose, the twist, the two covariances) are found in it by the
+    layout above and written in place.
+    """
+
+    def __init__(self, template: bytes) -> None:
+        c = _Cursor(template)
+        if c.order != "<" or c.align != 8:
+            raise CdrError("the odometry template is not little-endian XCDR1")
+        c.stamp()
+        c.string()
+        c.string()
+        self._pose = c.doubles_at(_POSE_WITH_COVARIANCE + 6 + 36)
+        self._pose_cov = self._pose + 8 * 7
+        self._twist = self._pose + 8 * _POSE_WITH_COVARIANCE
+        self._twist_cov = self._twist + 8 * 6
+        self.buffer = bytearray(template)
+
+    def covariances(self, pose: Sequence[float], twist: Sequence[float]) -> None:
+        """The 6x6 row-major pose and twist covariances (each 36 values)."""
+        struct.pack_into("<36d", self.buffer, self._pose_cov, *pose)
+        struct.pack_into("<36d", self.buffer, self._twist_cov, *twist)
+
+    def message(self, sec: int, nanosec: int, x: float, y: float, qz: float, qw: float,
+                v: float, w: float, var_v: float, var_w: float) -> bytes:
+        """The message for one stamp: pose (x, y, yaw as qz, qw), speed, yaw rate and their
+        variances (the twist covariance's (0, 0) and (5, 5))."""
+        buf = self.buffer
+        struct.pack_into("<iI", buf, 4, sec, nanosec)
+        struct.pack_into("<2d", buf, self._pose, x, y)
+        struct.pack_into("<2d", buf, self._pose + 40, qz, qw)
+        struct.pack_into("<d", buf, self._twist, v)
+        struct.pack_into("<d", buf, self._twist + 40, w)
+        struct.pack_into("<d", buf, self._twist_cov, var_v)
+        struct.pack_into("<d", buf, self._twist_cov + 8 * 35, var_w)
+        return bytes(buf)

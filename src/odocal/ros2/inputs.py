@@ -1,0 +1,184 @@
+"""The node's inputs as they arrive: which joints are the wheels, what each topic's stamps say.
+
+Nothing here knows ROS 2: the node hands in stamps (seconds from its time origin) and values
+as it reads them from the messages (:mod:`odocal.ros2.cdr`).
+
+* :func:`wheel_joints`: which two joints of a ``JointState`` are the wheels the model's
+  ``n_rl`` and ``n_rr`` are (named by the parameters, or found by their names).
+* :class:`Continuity`: what a topic's stamps say about what did not arrive: a message whose
+  stamp is not after the last one's (a clock that jumped back) is refused and counted; a step
+  between stamps of more than one and a half of the topic's own period counts the messages that
+  should have come in between (lost on the way, or never sent).
+* :class:`Buffer`: one input's values since the last push, as a
+  :class:`~odocal.io.streams.Stream` for the grid.
+* :class:`Rates`: wheel rates from joint positions, for drivers that publish no velocities.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from odocal.errors import ConfigError
+from odocal.io.streams import Stream
+
+TWO_PI = 2.0 * math.pi
+#: A step between stamps longer than this many periods means messages are missing.
+MISSING_AFTER = 1.5
+#: A topic's period is the 10th percentile of this many recent steps between its stamps (a
+#: low quantile: it stays the period while up to nine in ten messages are lost).
+_PERIOD_STEPS = 64
+_REAR = {"left": re.compile(r"(rear|back).*left|left.*(rear|back)|^rl(_|$)", re.IGNORECASE),
+         "right": re.compile(r"(rear|back).*right|right.*(rear|back)|^rr(_|$)", re.IGNORECASE)}
+# a robot's two drive wheels (diff_drive_controller's names: left_wheel_joint,
+# wheel_left_joint, ...): a wheel joint of that side that is not a front or steering one
+_SIDE = {"left": re.compile(r"left|(^|_)l(_|$)", re.IGNORECASE),
+         "right": re.compile(r"right|(^|_)r(_|$)", re.IGNORECASE)}
+_NOT_DRIVEN = re.compile(r"front|steer|caster|castor", re.IGNORECASE)
+_WHEEL = re.compile(r"wheel", re.IGNORECASE)
+
+
+def wheel_joints(names: Sequence[str], left: str, right: str, topic: str) -> tuple[int, int]:
+    """The indices of the left and right wheel joints in a JointState's names.
+
+    Those named (``left_wheel_joint``, ``right_wheel_joint``); else the one joint whose name
+    says rear (or back) and the side; else (a robot with two drive wheels) the one wheel joint
+    of that side that is not a front, steering or caster wheel. A ConfigError naming the joints
+    where none of these finds exactly one.
+    """
+    found: list[int] = []
+    for side, wanted in (("left", left), ("right", right)):
+        if wanted:
+            if wanted not in names:
+                raise ConfigError(f"{topic}: no joint named {wanted!r} ({side}_wheel_joint); "
+                                  f"joints: {', '.join(names) or 'none'}")
+            found.append(list(names).index(wanted))
+            continue
+        rear = [i for i, n in enumerate(names) if _REAR[side].search(n)]
+        driven = [i for i, n in enumerate(names) if _SIDE[side].search(n)
+                  and _WHEEL.search(n) and not _NOT_DRIVEN.search(n)]
+        matches = rear if rear else driven
+        if len(matches) != 1:
+            raise ConfigError(f"{topic}: cannot tell which joint is the {side} wheel among "
+                              f"{', '.join(names) or 'none'}; set {side}_wheel_joint")
+        found.append(matches[0])
+    if found[0] == found[1]:
+        raise ConfigError(f"{topic}: the left and the right wheel are the same joint "
+                          f"{names[found[0]]!r}; set left_wheel_joint and right_wheel_joint")
+    return found[0], found[1]
+
+
+@dataclass(slots=True)
+class Continuity:
+    """What one topic's stamps say: messages taken, missing between them, and refused.
+
+    ``check(t)`` is asked per message with its stamp (s); True: take it.
+    """
+
+    received: int = 0
+    missing: int = 0
+    back: int = 0                     # refused: the stamp is not after the last one's
+    back_max_s: float = 0.0           # ... by at most this much
+    invalid: int = 0                  # refused: a value is NaN or infinite
+    last_t: float | None = None
+    last_missing_t: float | None = None   # the stamp after the latest gap
+    period_s: float | None = None
+    _steps: list[float] = field(default_factory=list)
+    _refused: int = 0                 # refused since the last message taken (not missing)
+
+    def check(self, t: float) -> bool:
+        last = self.last_t
+        if last is not None and not t > last:
+            self.back += 1
+            self.back_max_s = max(self.back_max_s, last - t)
+            self._refused += 1
+            return False
+        if last is not None:
+            step = t - last
+            period = self.period_s
+            if period is not None and step > MISSING_AFTER * period:
+                missing = round(step / period) - 1 - self._refused
+                if missing > 0:
+                    self.missing += missing
+                    self.last_missing_t = t
+            steps = self._steps
+            steps.append(step)
+            if len(steps) >= _PERIOD_STEPS:
+                self.period_s = float(np.percentile(steps, 10))
+                steps.clear()
+            elif period is None and len(steps) >= 8:
+                self.period_s = float(np.percentile(steps, 10))
+        self.last_t = t
+        self.received += 1
+        self._refused = 0
+        return True
+
+    def refuse_invalid(self) -> None:
+        """A message with a NaN or infinite value (its stamp was taken)."""
+        self.invalid += 1
+
+    @property
+    def missing_share(self) -> float:
+        """The share of the messages the stamps call for that did not arrive."""
+        total = self.received + self.missing
+        return self.missing / total if total else 0.0
+
+
+@dataclass
+class Buffer:
+    """One input's samples since the last push: its stream name and role for the grid."""
+
+    name: str
+    role: str
+    keys: tuple[str, ...]
+    columns: dict[str, list[float]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.columns = {k: [] for k in ("t", *self.keys)}
+
+    def add(self, t: float, values: Sequence[float]) -> None:
+        self.columns["t"].append(t)
+        for key, value in zip(self.keys, values, strict=True):
+            self.columns[key].append(value)
+
+    def newest(self) -> float | None:
+        t = self.columns["t"]
+        return t[-1] if t else None
+
+    def take(self) -> Stream | None:
+        if not self.columns["t"]:
+            return None
+        arrays = {k: np.asarray(v, dtype=np.float64) for k, v in self.columns.items()}
+        self.columns = {k: [] for k in self.columns}
+        return Stream(name=self.name, role=self.role, t=arrays.pop("t"), values=arrays)
+
+    def trim(self, keep_after_t: float) -> None:
+        t = self.columns["t"]
+        cut = next((i for i, v in enumerate(t) if v > keep_after_t), len(t))
+        if cut:
+            self.columns = {k: v[cut:] for k, v in self.columns.items()}
+
+
+class Rates:
+    """Wheel rates (rev/s) from wheel joint positions (rad): the change over the step between
+    two messages, at the step's middle. A step longer than ``max_gap_s`` starts over."""
+
+    def __init__(self, max_gap_s: float) -> None:
+        self.max_gap_s = max_gap_s
+        self._last: tuple[float, float, float] | None = None
+
+    def add(self, t: float, left_rad: float, right_rad: float) -> tuple[float, float, float] | None:
+        """(t of the middle of the step, n_rl, n_rr), or None for the first of a piece."""
+        last, self._last = self._last, (t, left_rad, right_rad)
+        if last is None or not 0.0 < t - last[0] <= self.max_gap_s:
+            return None
+        dt = t - last[0]
+        return (0.5 * (t + last[0]), (left_rad - last[1]) / (TWO_PI * dt),
+                (right_rad - last[2]) / (TWO_PI * dt))
+
+    def reset(self) -> None:
+        self._last = None
