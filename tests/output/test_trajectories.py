@@ -97,7 +97,10 @@ def test_one_folder_per_log_and_a_restart_at_every_gap(tmp_path: Path,
     np.testing.assert_allclose(poses[second], [gapped.x[second], gapped.y[second],
                                                gapped.psi[second]])
     paths = []
-    for i, drive in enumerate((gapped, odocal.Drive.from_columns(cols, name="car_1"))):
+    # another drive (the same samples twice are one drive, refused since issue 40)
+    other = odocal.simulate(duration_s=float(d.t[-1] - d.t[0]), seed=77, noise="realistic")
+    for i, drive in enumerate((gapped, odocal.Drive.from_columns(other.drive.columns(),
+                                                                   name="car_1"))):
         paths.append(tmp_path / f"d{i}.parquet")
         odocal.save_drive(drive, paths[-1])
     out = tmp_path / "res"

@@ -237,7 +237,7 @@ class Pose(NamedTuple):
     nanosec: int
     x: float
     y: float
-    orientation: tuple[float, float, float, float]
+    orientation: tuple[float, float, float, float]   # a quaternion (not theta)
     velocity: tuple[float, float] | None = None
 
 

@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from odocal.estimators.estimate import Estimate
+from odocal.model.layout import REAR_AXLE as LAYOUT
 from odocal.model.step import body, increment_derivatives
 
 #: The variance stated for what is not measured (before an estimate; what wheels do not see).
@@ -125,7 +126,8 @@ class TwistVariance:
         if not np.all(np.isfinite(noise)):
             self._fit, self._quadratic = None, None
             return
-        c_e, t_r, window = float(th[0]), float(th[2]), self.window_s
+        c_e, t_r = LAYOUT.value(th, LAYOUT.scale), LAYOUT.value(th, LAYOUT.track)
+        window = self.window_s
         # (window mean) speed: (c_e / W)^2 (s0^2 + (f rev)^2), rev = |v| W / c_e; yaw: / t_r^2
         self._fit = ((float((c_e * noise[0, 0] / window) ** 2), float(noise[0, 1] ** 2)),
                      (float((c_e * noise[1, 0] / (t_r * window)) ** 2),
@@ -177,8 +179,9 @@ def _parameter_terms(th: np.ndarray, covariance: np.ndarray
     forms = []
     for channel in range(2):
         q = g[channel].T @ sigma @ g[channel]
+        n = q.shape[0]
         forms.append(tuple(float(q[i, j] * (1.0 if i == j else 2.0))
-                           for i in range(4) for j in range(i, 4)))
+                           for i in range(n) for j in range(i, n)))
     return forms[0], forms[1]
 
 
