@@ -480,12 +480,6 @@ def held_as_weak(std: FloatArray, mask: BoolArray,
             for j in np.flatnonzero(mask)}
 
 
-def failed_estimate(method: str, settings: IdentifySettings, status: Status, *,
-                    details: Any = None) -> Estimate:
-    """The datasheet values with no uncertainty and nothing identified: a failed estimation."""
-    return refused_estimate(method, settings, status, Reason.FAILED, details=details)
-
-
 def refused_estimate(method: str, settings: IdentifySettings, status: Status, reason: Reason,
                      *, details: Any = None) -> Estimate:
     """The datasheet values, nothing estimated, every parameter not identified for ``reason``."""

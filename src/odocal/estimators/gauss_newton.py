@@ -121,12 +121,6 @@ def linearise(batch: SegmentBatch, theta: FloatArray, weights: FloatArray) -> Li
                          lag1=lagged / cost if cost > 0 else 0.0)
 
 
-def segment_information(batch: SegmentBatch, theta: FloatArray,
-                        weights: FloatArray) -> FloatArray:
-    """Per-segment ``J_s^T W J_s`` at ``theta``, shape (N, n, n) (for bootstrap and diagnostics)."""
-    return linearise(batch, theta, weights).information
-
-
 @dataclass(frozen=True)
 class _Iteration:
     theta: FloatArray
