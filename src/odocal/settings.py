@@ -32,22 +32,18 @@ from odocal.model.layout import REAR_AXLE
 DATASHEET_THETA: tuple[float, ...] = REAR_AXLE.placeholder
 #: The names of theta's entries, in its order (``odocal.model.layout`` holds their units).
 DATASHEET_NAMES: tuple[str, ...] = REAR_AXLE.names
-#: What a wheeled vehicle's parameters can be (generous: odocal's robots and trucks alike), by
-#: name (the layout's ``vehicle_range``; c_d also less than c_e in size). A datasheet, a
-#: settings file's theta0 or a parameter file beyond them is a mistake (a unit, a typo), and
-#: no computation starts from it.
-VEHICLE_LIMITS: dict[str, tuple[float, float]] = {p.name: p.vehicle_range
-                                                  for p in REAR_AXLE.parameters}
 #: The largest datasheet uncertainty ``[identify] prior_std`` may state (the width of the
-#: vehicle ranges above): beyond them it is no uncertainty of a vehicle, and its square is
-#: no number a fit can carry.
+#: vehicle ranges, each parameter's ``vehicle_range`` in the model's layout): beyond them it
+#: is no uncertainty of a vehicle, and its square is no number a fit can carry.
 PRIOR_STD_MAX: tuple[float, ...] = tuple(p.prior_std_max for p in REAR_AXLE.parameters)
 PRIOR_STD_MIN = 1e-9
 
 
 def vehicle_problem(theta: Any) -> str | None:
     """None if a wheeled vehicle could have ``theta`` (the model's parameters, in its order),
-    else what is wrong, in words."""
+    else what is wrong, in words. The ranges are generous (odocal's robots and trucks alike;
+    c_d also less than c_e in size): a datasheet, a settings file's theta0 or a parameter file
+    beyond them is a mistake (a unit, a typo), and no computation starts from it."""
     values = [float(v) for v in theta]
     if len(values) != REAR_AXLE.size:
         return f"{len(values)} values where the model has {REAR_AXLE.size}"
@@ -76,9 +72,9 @@ def _out_of_range(name: str, value: float) -> str | None:
 
 def datasheet_values(pairs: Any, *, source: str = "--datasheet") -> dict[str, float]:
     """Named datasheet values (``(name, value)`` pairs, as given, or a mapping), checked: names
-    among the model's parameters, each given once, finite numbers within
-    :data:`VEHICLE_LIMITS`. A one-line ConfigError names ``source``, the value and the valid
-    range."""
+    among the model's parameters, each given once, finite numbers within the vehicle ranges
+    (:func:`vehicle_problem`). A one-line ConfigError names ``source``, the value and the
+    valid range."""
     items = list(pairs.items()) if isinstance(pairs, dict) else list(pairs)
     values: dict[str, float] = {}
     for key, value in items:

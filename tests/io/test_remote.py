@@ -143,6 +143,22 @@ def test_an_object_that_changed_since_it_was_planned_is_not_read(
         load_drive(url, pin=info.pin())
 
 
+def test_an_object_overwritten_in_the_same_second_with_as_many_bytes_is_another_version(
+        aws: S3Server) -> None:
+    """The fingerprint a fleet's store keys what it has read on: the size and the modification
+    time (to the second) cannot tell these two versions apart; the ETag does."""
+    for _ in range(5):                          # (again where the two writes straddle a second)
+        url = aws.upload("logs", "runs/same.csv", b"t,n_rl\n0,1.0\n")
+        before = remote.stat(url)
+        aws.upload("logs", "runs/same.csv", b"t,n_rl\n0,2.0\n")
+        after = remote.stat(url)
+        if before.modified == after.modified:
+            break
+    assert before.modified == after.modified and before.size == after.size
+    assert before.etag != after.etag
+    assert before.fingerprint() != after.fingerprint()
+
+
 def test_an_object_that_changes_under_replay_is_named(aws: S3Server, files: Path) -> None:
     from odocal.online.replay import stream_drive_file
 

@@ -144,7 +144,8 @@ def test_the_report_reads_on_a_phone(tmp_path: Path, capsys: pytest.CaptureFixtu
 
 
 def test_the_replay_report_times_alarms_from_the_start_of_the_log(tmp_path: Path) -> None:
-    """A log on the epoch clock: the change is shown at 600 s, not at 1700000600 s."""
+    """A log on the epoch clock: the change is shown at 600 s, not at 1700000600 s; the log's
+    name escaped."""
     from odocal.online.changes import Alarm
     from odocal.online.replay import ReplayResult, TraceRow
     from odocal.report.replay import write_replay_report
@@ -155,8 +156,27 @@ def test_the_replay_report_times_alarms_from_the_start_of_the_log(tmp_path: Path
                           std=(1e-3,) * 4, identified=(True,) * 4) for t in (60.0, 1200.0))
     alarm = Alarm(parameter="c_e", t=start + 600.0, detected_t=start + 700.0, distance_km=6.0,
                   detected_distance_km=7.0, relative_change=0.01, sigmas=5.0)
-    result = ReplayResult(source="log.parquet", estimate=estimate, trace=rows, alarms=(alarm,),
+    result = ReplayResult(source="a<b>&.csv", estimate=estimate, trace=rows, alarms=(alarm,),
                           samples=1000, duration_s=1200.0, distance_km=12.0, elapsed_s=1.0)
     page = write_replay_report(result, tmp_path).read_text()
     table = page.split("<table id='alarms'>")[1].split("</table>")[0]
     assert "<td>600 s</td>" in table and "1700000" not in table, table
+    assert "a&lt;b&gt;&amp;.csv" in page and "a<b>" not in page     # the name is text
+
+
+def test_a_drive_files_name_is_shown_escaped(tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """A file name is text, never markup: ``a<b>&.csv`` in the heading's line and in the next
+    step's command (a straight drive leaves t_r and d to another log: the command names it)."""
+    from tests.conftest import straight_drive
+
+    path = tmp_path / "a<b>&.csv"
+    odocal.save_drive(straight_drive(), path)
+    code, _, err = run(capsys, "calibrate", str(path), "--out", str(tmp_path / "r"))
+    assert code in (0, 3), err
+    page = (tmp_path / "r" / "report.html").read_text()
+    assert "a<b>" not in page and "<b>&" not in page
+    meta = page.split('<div class="meta">')[1].split("</div>")[0]
+    assert meta.startswith("a&lt;b&gt;&amp;.csv &middot;"), meta
+    command = page.split("<pre id='next-step'>")[1].split("</pre>")[0]
+    assert command == "odocal calibrate a&lt;b&gt;&amp;.csv OTHER_LOG --out results/", command

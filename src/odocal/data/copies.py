@@ -91,8 +91,6 @@ class SharedStretch:
     shared_s: float
     difference_revps: float
     noise_revps: float
-    first_piece: int = 0
-    second_piece: int = 0
 
 
 @dataclass(frozen=True)
@@ -100,7 +98,6 @@ class _Run:
     """One piece of one drive (a stretch without a gap), as the search compares them."""
 
     drive: int
-    piece: int
     start: int                 # its first sample's index in the drive
     n_rl: FloatArray
     n_rr: FloatArray
@@ -214,8 +211,8 @@ def shared_stretch(drives: Sequence[Drive]) -> SharedStretch | None:
         return None
     t_s = drives[0].t_s
     least = round(MIN_SHARED_S / t_s)
-    runs = [_Run(i, k, a, d.n_rl[a:b], d.n_rr[a:b], d.t_s)
-            for i, d in enumerate(drives) for k, (a, b) in enumerate(d.pieces)
+    runs = [_Run(i, a, d.n_rl[a:b], d.n_rr[a:b], d.t_s)
+            for i, d in enumerate(drives) for a, b in d.pieces
             if b - a >= least]
     if len(runs) < 2:
         return None
@@ -233,7 +230,7 @@ def shared_stretch(drives: Sequence[Drive]) -> SharedStretch | None:
                 a, b = runs[i], runs[j]
                 t_a, t_b = drives[a.drive].t, drives[b.drive].t
                 return SharedStretch(
-                    first=a.drive, second=b.drive, first_piece=a.piece, second_piece=b.piece,
+                    first=a.drive, second=b.drive,
                     start_first_s=float(t_a[a.start + start_a] - t_a[0]),
                     start_second_s=float(t_b[b.start + start_a - shift] - t_b[0]),
                     shared_s=count * t_s, difference_revps=rms,

@@ -29,12 +29,6 @@ IntArray = NDArray[np.int64]
 REQUIRED_COLUMNS: tuple[str, ...] = ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi")
 #: Columns of the drive format that may be present.
 OPTIONAL_COLUMNS: tuple[str, ...] = ("beta", "yaw_rate", "piece", "x_std", "y_std", "psi_std")
-#: Units of the drive format's columns, for messages and documentation.
-COLUMN_UNITS: Mapping[str, str] = MappingProxyType({
-    "t": "s", "n_rl": "rev/s", "n_rr": "rev/s", "a_y": "m/s^2", "beta": "rad", "x": "m",
-    "y": "m", "psi": "rad", "yaw_rate": "rad/s", "piece": "integer", "x_std": "m",
-    "y_std": "m", "psi_std": "rad",
-})
 
 # Plausibility limits used to catch wrong units (not physics limits of any car).
 _MAX_WHEEL_SPEED_MPS = 80.0   # 288 km/h: 40 rev/s of a car's 2 m wheel

@@ -331,7 +331,6 @@ class RaggedSegments:
     reference : ndarray, shape (L, 3)
         Measured poses after each step (the rows ``rollout_ragged`` predicts).
     steps : ndarray of int, shape (S,)
-    segment : ndarray of int, shape (L,), the segment of each sample
     t_s : float
     """
 
@@ -339,7 +338,6 @@ class RaggedSegments:
     initial: FloatArray
     reference: FloatArray
     steps: IntArray
-    segment: IntArray
     t_s: float
 
     def __len__(self) -> int:
@@ -371,5 +369,4 @@ def gather_ragged(drives: Sequence[Drive], segments: SegmentSet) -> RaggedSegmen
     inputs = Inputs(**{key: np.concatenate(v) for key, v in parts.items()})
     steps = segments.steps.copy()
     return RaggedSegments(inputs=inputs, initial=np.array(initial),
-                          reference=np.concatenate(ref_parts), steps=steps,
-                          segment=np.repeat(np.arange(steps.shape[0]), steps), t_s=t_s)
+                          reference=np.concatenate(ref_parts), steps=steps, t_s=t_s)

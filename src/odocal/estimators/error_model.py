@@ -300,12 +300,6 @@ def _arma_ma(rho1: float, phi: float) -> float:
     return 0.5 * (lo + hi)
 
 
-def fit_noise(measured: FloatArray, residual: FloatArray,
-               gain: FloatArray | None = None) -> FloatArray:
-    """The noise model ``s0, f`` of each channel (rows), fitted to the squared residuals."""
-    return noise_from_sums(noise_sums(measured, residual, gain))
-
-
 def noise_sums(measured: FloatArray, residual: FloatArray,
                gain: FloatArray | None = None) -> FloatArray:
     """Sums that fit ``r^2 ~ s0^2 + f^2 rev^2`` (:func:`noise_from_sums`); they add up over parts.

@@ -223,7 +223,6 @@ class GaussNewtonDetails:
     clusters : number of independent clusters of overlapping segments
     residual_rms : RMS of the p_x, p_y (m) and psi (rad) residuals at the final theta
     covariance_naive : ``sigma^2 (J^T W J)^-1`` inflated for the residuals' autocorrelation
-    segment_scores : per-segment ``J^T W R`` at the final theta, shape (N, n)
     """
 
     iterations: int
@@ -232,7 +231,6 @@ class GaussNewtonDetails:
     clusters: int
     residual_rms: tuple[float, float, float]
     covariance_naive: FloatArray = field(repr=False)
-    segment_scores: FloatArray = field(repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {"iterations": self.iterations, "cost_history": list(self.cost_history),
@@ -478,12 +476,6 @@ def held_as_weak(std: FloatArray, mask: BoolArray,
     limits = identifiability_limits(settings)
     return {PARAMETER_NAMES[j]: NotIdentified(Reason.WEAK, float(std[j]), float(limits[j]))
             for j in np.flatnonzero(mask)}
-
-
-def failed_estimate(method: str, settings: IdentifySettings, status: Status, *,
-                    details: Any = None) -> Estimate:
-    """The datasheet values with no uncertainty and nothing identified: a failed estimation."""
-    return refused_estimate(method, settings, status, Reason.FAILED, details=details)
 
 
 def refused_estimate(method: str, settings: IdentifySettings, status: Status, reason: Reason,

@@ -121,12 +121,6 @@ def linearise(batch: SegmentBatch, theta: FloatArray, weights: FloatArray) -> Li
                          lag1=lagged / cost if cost > 0 else 0.0)
 
 
-def segment_information(batch: SegmentBatch, theta: FloatArray,
-                        weights: FloatArray) -> FloatArray:
-    """Per-segment ``J_s^T W J_s`` at ``theta``, shape (N, n, n) (for bootstrap and diagnostics)."""
-    return linearise(batch, theta, weights).information
-
-
 @dataclass(frozen=True)
 class _Iteration:
     theta: FloatArray
@@ -212,7 +206,7 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
     details = GaussNewtonDetails(
         iterations=it.iterations, cost_history=tuple(it.history), segments=len(batch),
         clusters=n_clusters, residual_rms=(float(rms[0]), float(rms[1]), float(rms[2])),
-        covariance_naive=cov_naive, segment_scores=lin.scores)
+        covariance_naive=cov_naive)
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     return Estimate(
         method=method, theta=Parameters.from_array(it.theta),

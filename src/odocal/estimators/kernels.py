@@ -44,11 +44,6 @@ def uncached_kernels(methods: Sequence[str] = tuple(METHOD_KERNELS)) -> list[str
     return uncached([_kernel(module, name) for module, name in wanted])
 
 
-def kernels_cached(methods: Sequence[str] = tuple(METHOD_KERNELS)) -> bool:
-    """Whether the kernels ``methods`` need are in numba's disk cache."""
-    return uncached_kernels(methods) == []
-
-
 def compile_note(methods: Sequence[str]) -> str | None:
     """The line to print before the silent wait of a first compilation, or None if there is
     none (the kernels are cached, or ``methods`` need none)."""

@@ -38,8 +38,6 @@ class SegmentErrors:
         Mean position error over each segment's samples, m.
     final_m : ndarray, shape (S,)
         Position error at each segment's last sample, m.
-    final_heading_rad : ndarray, shape (S,)
-        Absolute heading error at each segment's last sample, rad.
     distance_m : ndarray, shape (S,)
         Absolute error of the distance travelled along the segment (the wheels' against the
         reference's), m: the error that remains when the heading comes from elsewhere.
@@ -47,7 +45,6 @@ class SegmentErrors:
 
     mean_m: FloatArray
     final_m: FloatArray
-    final_heading_rad: FloatArray
     distance_m: FloatArray
 
 
@@ -72,7 +69,7 @@ def _blocks(data: RaggedSegments) -> list[RaggedSegments]:
             inputs=Inputs(n_rl=u.n_rl[first:last], n_rr=u.n_rr[first:last],
                           beta=u.beta[first:last], a_y=u.a_y[first:last]),
             initial=data.initial[a:b], reference=data.reference[first:last],
-            steps=data.steps[a:b], segment=data.segment[first:last] - a, t_s=data.t_s))
+            steps=data.steps[a:b], t_s=data.t_s))
         a = b
     return out
 
@@ -86,13 +83,10 @@ def segment_errors(theta: FloatArray, data: RaggedSegments) -> SegmentErrors:
 
 def _segment_errors(theta: FloatArray, data: RaggedSegments) -> SegmentErrors:
     theta = np.asarray(theta, dtype=np.float64)
-    poses = rollout_ragged(theta, data.inputs, data.initial, data.steps, data.t_s,
-                           segment=data.segment)
+    poses = rollout_ragged(theta, data.inputs, data.initial, data.steps, data.t_s)
     err = np.hypot(poses[:, 0] - data.reference[:, 0], poses[:, 1] - data.reference[:, 1])
     first = data.first
     last = first + data.steps - 1
-    dpsi = np.abs(np.remainder(poses[last, 2] - data.reference[last, 2] + np.pi, 2 * np.pi)
-                  - np.pi)
     # distance along track: the wheels' (2a) against the reference's ((1) inverted)
     before = np.empty_like(data.reference)
     before[1:] = data.reference[:-1]
@@ -105,7 +99,7 @@ def _segment_errors(theta: FloatArray, data: RaggedSegments) -> SegmentErrors:
           + (data.reference[:, 1] - before[:, 1]) * np.sin(heading))
     distance = np.abs(np.add.reduceat(v * data.t_s - ds, first))
     return SegmentErrors(mean_m=np.add.reduceat(err, first) / data.steps, final_m=err[last],
-                         final_heading_rad=dpsi, distance_m=distance)
+                         distance_m=distance)
 
 
 def mean_error(theta: FloatArray, data: RaggedSegments) -> float:

@@ -23,8 +23,8 @@ from odocal.io.atomic import FLEET_MARKER, file_name, write_bytes, write_text
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES, Parameters
 from odocal.output.export import Calibrated, OdometryNoise, export
 from odocal.redaction import redact_text
-from odocal.report.html import _CSS
 from odocal.report.render import Call, FigureSpec, Renderer
+from odocal.report.style import CSS
 
 
 def _history_spec(vehicle: str, rows: Sequence[Mapping[str, Any]],
@@ -182,7 +182,7 @@ def _page(out: Path, drives: Sequence[Mapping[str, Any]], alarms: Sequence[Mappi
         for v in recal)
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width">
-<title>odocal fleet report</title><style>{_CSS} td.text {{ text-align: left; }}</style></head>
+<title>odocal fleet report</title><style>{CSS} td.text {{ text-align: left; }}</style></head>
 <body><main>
 <h1>Fleet calibration report</h1>
 <p class="meta">odocal {__version__} &middot; {len(vehicles)} vehicles &middot; {len(drives)} drives

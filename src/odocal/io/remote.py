@@ -140,10 +140,6 @@ class RemoteError(InputFileError):
     """An object that cannot be read: missing, denied, unreachable, changed or cut short."""
 
 
-class _Transient(Exception):
-    """A failure worth one more try."""
-
-
 def _status(exc: BaseException) -> int | None:
     for attr in ("status", "status_code", "code"):
         value = getattr(exc, attr, None)

@@ -162,16 +162,8 @@ def wrap_angle(angle: FloatArray) -> FloatArray:
     return np.where(wrapped == -np.pi, np.pi, wrapped)
 
 
-def pose_residuals(reference: FloatArray, predicted: FloatArray) -> FloatArray:
-    """``reference - predicted`` with the heading residual wrapped to (-pi, pi]."""
-    r = reference - predicted
-    r[..., 2] = wrap_angle(r[..., 2])
-    return r
-
-
 def rollout_ragged(theta: FloatArray | Parameters, u: Inputs, x0: FloatArray,
-                   steps: NDArray[np.int64], t_s: float, *,
-                   segment: NDArray[np.int64] | None = None) -> FloatArray:
+                   steps: NDArray[np.int64], t_s: float) -> FloatArray:
     """Roll out many segments of different lengths stored one after another.
 
     Parameters
@@ -180,14 +172,12 @@ def rollout_ragged(theta: FloatArray | Parameters, u: Inputs, x0: FloatArray,
     u : Inputs with arrays of shape (L,), ``L = steps.sum()``; segment after segment.
     x0 : ndarray, shape (S, 3), the initial pose of each segment
     steps : ndarray of int, shape (S,)
-    segment : unused; kept for callers that pass the sample-to-segment map
 
     Returns
     -------
     poses : ndarray, shape (L, 3), or (P, L, 3)
         The pose after each step: row j is the pose that input sample j leads to.
     """
-    del segment
     steps = np.ascontiguousarray(steps, dtype=np.int64)
     size = int(steps.sum())
     first = np.concatenate([[0], np.cumsum(steps)[:-1]]).astype(np.int64)

@@ -112,10 +112,9 @@ def _finite(value: float) -> float | None:
 
 @dataclass
 class Cusum:
-    """Two-sided CUSUM on standardised steps (k: allowance, h: threshold)."""
+    """Two-sided CUSUM on standardised steps (k: allowance; the threshold is the detector's)."""
 
     k: float
-    h: float
     upper: float = 0.0
     lower: float = 0.0
 
@@ -233,7 +232,7 @@ class ChangeDetector:
     recent: list[_Record] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        self.cusum = (Cusum(self.k, self.h), Cusum(self.k, self.h))
+        self.cusum = (Cusum(self.k), Cusum(self.k))
 
     def reset(self) -> None:
         """After a change: quiet, with no reference (the next running estimate becomes it)."""

@@ -23,8 +23,6 @@ Before an estimate (no measured noise) a message states an unknown variance (1e6
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from odocal.estimators.estimate import Estimate
@@ -183,8 +181,3 @@ def _parameter_terms(th: np.ndarray, covariance: np.ndarray
         forms.append(tuple(float(q[i, j] * (1.0 if i == j else 2.0))
                            for i in range(n) for j in range(i, n)))
     return forms[0], forms[1]
-
-
-def standard_deviations(variance: tuple[float, float]) -> tuple[float, float]:
-    """The standard deviations of a (speed, yaw rate) variance pair."""
-    return math.sqrt(variance[0]), math.sqrt(variance[1])
