@@ -169,6 +169,21 @@ class WindowSet:
                 _rotated(0.5 * (ahead - behind) / span, heading_offset),
                 _rotated(second, heading_offset))
 
+    def third(self, shift: float, heading_offset: float) -> FloatArray:
+        """The moments' third derivative in the shift (per step cubed), from the moments at
+        half the span and the span either way (:meth:`around`'s):
+        ``(m(+s) - 2 m(+s/2) + 2 m(-s/2) - m(-s)) / (s^3 / 4)``; zero where the margin is too
+        narrow for it."""
+        moments = self.moments
+        limit = self.shifts
+        x = min(max(shift, -limit), limit) + self.margin
+        span = float(min(SPAN, math.floor(min(x, moments.shape[1] - 1 - x))))
+        if moments.shape[1] < 3 or span < 4.0:
+            return np.zeros_like(_rotated(moments[:, 0], heading_offset))
+        outer = _interpolate(moments, x + span) - _interpolate(moments, x - span)
+        inner = _interpolate(moments, x + span / 2) - _interpolate(moments, x - span / 2)
+        return _rotated((outer - 2.0 * inner) / (0.25 * span ** 3), heading_offset)
+
     @staticmethod
     def concat(sets: Sequence[WindowSet]) -> WindowSet:
         """Windows of several sets, in order (each window's ``follows`` as its set says: a
