@@ -13,8 +13,8 @@ standard type is used with these defaults:
                                  ``pose.pose.orientation``
 ``geometry_msgs/msg/PoseStamped`` pose: ``pose.position.x/y``, ``pose.orientation``
 ``sensor_msgs/msg/JointState``   wheels: ``velocity`` (rad/s) of the joints named by
-                                 ``rear_left``/``rear_right``, else of joints whose names say
-                                 rear (or back) left/right
+                                 ``rear_left``/``rear_right``, else found by their names
+                                 (:mod:`odocal.io.joints`, the live node's rule)
 ================================ =========================================================
 
 Time stamps are the messages' ``header.stamp`` (``time = "header"``, the default when there is a
@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.errors import ConfigError, DataError, InputFileError, MissingDependencyError
+from odocal.io.joints import wheel_joints
 from odocal.io.registry import ReadOptions
 from odocal.io.streams import RawLog, Stream
 from odocal.io.table import speed_metadata, stream_from_columns
@@ -51,8 +52,6 @@ TYPE_DEFAULTS: Mapping[str, Mapping[str, Mapping[str, str]]] = {
                                                "quaternion": "pose.orientation"}},
     "wheels": {"sensor_msgs/msg/JointState": {}},
 }
-_REAR = {"rear_left": re.compile(r"(rear|back|^r).*left|left.*(rear|back)|^rl\b|^rl_", re.I),
-         "rear_right": re.compile(r"(rear|back|^r).*right|right.*(rear|back)|^rr\b|^rr_", re.I)}
 _FIELD = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(?:\[(\d+)\])?$")
 
 
@@ -295,21 +294,12 @@ def _extract(role: str, section: Mapping[str, Any], msg: Any,
 
 
 def _joints(names: Sequence[str], section: Mapping[str, Any], topic: str) -> tuple[int, int]:
-    found: list[int] = []
-    for side in ("rear_left", "rear_right"):
-        wanted = section.get(side)
-        if isinstance(wanted, str):
-            if wanted not in names:
-                raise DataError(f"topic {topic}: no joint named {wanted!r}; joints: "
-                                f"{', '.join(names)}")
-            found.append(names.index(wanted))
-            continue
-        matches = [i for i, n in enumerate(names) if _REAR[side].search(n)]
-        if len(matches) != 1:
-            raise DataError(f"topic {topic}: cannot tell which joint is the {side} wheel among "
-                            f"{', '.join(names)}; name it in the mapping ([wheels] {side})")
-        found.append(matches[0])
-    return found[0], found[1]
+    """The rear wheels' joints by :mod:`odocal.io.joints`' rule (the live node's)."""
+    named = tuple(v if isinstance(v := section.get(f"rear_{side}"), str) else ""
+                  for side in ("left", "right"))
+    return wheel_joints(names, (named[0], named[1]), where=f"topic {topic}",
+                        setting=lambda side: f"the mapping's [wheels] rear_{side}",
+                        error=DataError)
 
 
 def read(sources: Sequence[str | Path], *, mapping: Mapping[str, Mapping[str, Any]],

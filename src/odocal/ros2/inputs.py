@@ -17,13 +17,13 @@ as it reads them from the messages (:mod:`odocal.ros2.cdr`).
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from odocal.errors import ConfigError
+from odocal.io import joints
 from odocal.io.streams import Stream
 
 TWO_PI = 2.0 * math.pi
@@ -32,44 +32,15 @@ MISSING_AFTER = 1.5
 #: A topic's period is the 10th percentile of this many recent steps between its stamps (a
 #: low quantile: it stays the period while up to nine in ten messages are lost).
 _PERIOD_STEPS = 64
-_REAR = {"left": re.compile(r"(rear|back).*left|left.*(rear|back)|^rl(_|$)", re.IGNORECASE),
-         "right": re.compile(r"(rear|back).*right|right.*(rear|back)|^rr(_|$)", re.IGNORECASE)}
-# a robot's two drive wheels (diff_drive_controller's names: left_wheel_joint,
-# wheel_left_joint, ...): a wheel joint of that side that is not a front or steering one
-_SIDE = {"left": re.compile(r"left|(^|_)l(_|$)", re.IGNORECASE),
-         "right": re.compile(r"right|(^|_)r(_|$)", re.IGNORECASE)}
-_NOT_DRIVEN = re.compile(r"front|steer|caster|castor", re.IGNORECASE)
-_WHEEL = re.compile(r"wheel", re.IGNORECASE)
 
 
 def wheel_joints(names: Sequence[str], left: str, right: str, topic: str) -> tuple[int, int]:
-    """The indices of the left and right wheel joints in a JointState's names.
-
-    Those named (``left_wheel_joint``, ``right_wheel_joint``); else the one joint whose name
-    says rear (or back) and the side; else (a robot with two drive wheels) the one wheel joint
-    of that side that is not a front, steering or caster wheel. A ConfigError naming the joints
-    where none of these finds exactly one.
-    """
-    found: list[int] = []
-    for side, wanted in (("left", left), ("right", right)):
-        if wanted:
-            if wanted not in names:
-                raise ConfigError(f"{topic}: no joint named {wanted!r} ({side}_wheel_joint); "
-                                  f"joints: {', '.join(names) or 'none'}")
-            found.append(list(names).index(wanted))
-            continue
-        rear = [i for i, n in enumerate(names) if _REAR[side].search(n)]
-        driven = [i for i, n in enumerate(names) if _SIDE[side].search(n)
-                  and _WHEEL.search(n) and not _NOT_DRIVEN.search(n)]
-        matches = rear if rear else driven
-        if len(matches) != 1:
-            raise ConfigError(f"{topic}: cannot tell which joint is the {side} wheel among "
-                              f"{', '.join(names) or 'none'}; set {side}_wheel_joint")
-        found.append(matches[0])
-    if found[0] == found[1]:
-        raise ConfigError(f"{topic}: the left and the right wheel are the same joint "
-                          f"{names[found[0]]!r}; set left_wheel_joint and right_wheel_joint")
-    return found[0], found[1]
+    """The indices of the left and right wheel joints in a JointState's names, by the rule of
+    :mod:`odocal.io.joints` (the bag reader's): those named (``left_wheel_joint``,
+    ``right_wheel_joint``), else found by their names; a ConfigError naming the joints and the
+    parameter to set where that finds none or several."""
+    return joints.wheel_joints(names, (left, right), where=topic,
+                               setting=lambda side: f"{side}_wheel_joint", error=ConfigError)
 
 
 @dataclass(slots=True)

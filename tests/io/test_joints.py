@@ -1,0 +1,56 @@
+"""One rule for which joints are the wheels, for the bag reader and the live node (issue 38: the
+bag took ``robot_front_left_wheel_joint`` as a rear wheel and read names the node refused)."""
+
+from __future__ import annotations
+
+import pytest
+
+from odocal.errors import ConfigError, DataError
+from odocal.io.rosbag import _joints
+from odocal.ros2.inputs import wheel_joints
+
+FOUND = [
+    (["front_left_wheel", "front_right_wheel", "rear_left_wheel", "rear_right_wheel"], (2, 3)),
+    (["left_wheel_joint", "right_wheel_joint"], (0, 1)),
+    (["wheel_left_joint", "wheel_right_joint", "caster_back_joint"], (0, 1)),
+    (["front_left_steer", "front_right_steer", "left_wheel", "right_wheel"], (2, 3)),
+    (["rl", "rr"], (0, 1)),
+    (["rl.wheel", "rr.wheel"], (0, 1)),
+    (["rl-wheel", "rr-wheel"], (0, 1)),
+    (["r_left_wheel_joint", "r_right_wheel_joint"], (0, 1)),
+    (["wheel_back_right", "wheel_back_left"], (1, 0)),
+    # a robot's front wheels beside its rear ones: the front ones are never taken
+    (["robot_front_left_wheel_joint", "robot_front_right_wheel_joint",
+      "robot_rear_left_wheel_joint", "robot_rear_right_wheel_joint"], (2, 3)),
+]
+
+
+@pytest.mark.parametrize(("names", "found"), FOUND)
+def test_the_bag_and_the_node_find_the_same_wheels(names: list[str],
+                                                   found: tuple[int, int]) -> None:
+    assert wheel_joints(names, "", "", "/joint_states") == found
+    assert _joints(names, {}, "/joint_states") == found
+
+
+@pytest.mark.parametrize("names", [
+    ["robot_front_left_wheel_joint", "robot_front_right_wheel_joint"],   # front wheels only
+    ["left_wheel", "right_wheel", "left_wheel_2"],
+    ["arm_joint", "gripper_joint"],
+])
+def test_joints_the_rule_cannot_tell_are_refused_by_both_naming_the_setting(
+        names: list[str]) -> None:
+    with pytest.raises(ConfigError, match=r"cannot tell which joint is the left wheel among "
+                                          r".*; set left_wheel_joint"):
+        wheel_joints(names, "", "", "/joint_states")
+    with pytest.raises(DataError, match=r"cannot tell which joint is the left wheel among "
+                                        r".*; set the mapping's \[wheels\] rear_left"):
+        _joints(names, {}, "/joint_states")
+
+
+def test_named_joints_win_and_a_missing_name_is_refused() -> None:
+    names = ["a", "b", "rear_left_wheel", "rear_right_wheel"]
+    assert wheel_joints(names, "b", "a", "/j") == (1, 0)
+    assert _joints(names, {"rear_left": "b", "rear_right": "a"}, "/j") == (1, 0)
+    with pytest.raises(DataError, match=r"no joint named 'c' \(the mapping's \[wheels\] "
+                                        r"rear_left\); joints: a, b"):
+        _joints(names, {"rear_left": "c"}, "/j")
