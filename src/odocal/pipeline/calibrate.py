@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal import cancel
-from odocal.checks.departures import corrected
+from odocal.checks.departures import Departures, corrected
 from odocal.checks.departures import findings as departure_findings
 from odocal.checks.departures import measure as measure_departures
 from odocal.checks.diagnosis import check_drives
@@ -268,102 +268,29 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     started = time.perf_counter()
     settings = settings or Settings()
     method = method or DEFAULT_METHOD
-    if method not in METHODS:
-        raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
-    if method == "compensated":                  # its QP is compiled: before anything is read
-        from odocal.model._jit import require
-
-        require("the compensated method (--method compensated)")
+    _check_method(method)
     clock = Stopwatch(progress)
     with clock.stage("read"):
         drive_list = load_drives(drives, settings=settings)
     settings = with_stated_datasheet(drive_list, settings)
-    arm = settings.reference.offset_m
-    if arm is not None and method != "inverse":
-        # a segment method rolls the axle out: the reference moved to it first (the default
-        # method holds the stated lever arm in its fit)
-        drive_list = corrected_drives(drive_list, {"arm_x": arm[0], "arm_y": arm[1]},
-                                      np.asarray(settings.identify.theta0, dtype=np.float64))
+    drive_list = _arm_taken_out(drive_list, settings, method)
     with clock.stage("checks"):
-        diagnosis = check_drives(drive_list, settings)
-        departures = None
-        if not (diagnosis.fatal or diagnosis.standstill):
-            # a_y's clock and offset and a heading error varying with the heading, measured
-            # against the reference and taken out before any method fits (and validates)
-            departures = measure_departures(drive_list, settings,
-                                            lateral=not diagnosis.lateral_missing)
-            drive_list = corrected(drive_list, departures)
-            diagnosis = diagnosis.plus(departure_findings(departures, settings))
-        screened = None
-        if method != "inverse" and not (diagnosis.fatal or diagnosis.standstill
-                                        or diagnosis.no_differential):
-            # front wheels and a change inside the log show in the default method's residuals
-            # only: a segment method is refused, or fits the part after the change, as it is;
-            # the default's uncertainty is what a segment method's may not undercut
-            from odocal.estimators.inverse import screen
-
-            screened = screen(drive_list, settings)
-            found = screened.findings if screened is not None else ()
-            diagnosis = diagnosis.plus(found)
-            changed = [f for f in found if f.check is Check.CHANGE_IN_LOG]
-            if changed and not diagnosis.fatal:
-                drive_list = _after_change(drive_list, changed[0])
-                screened = screen(drive_list, settings)
+        drive_list, diagnosis, departures, screened = _checked(drive_list, settings, method)
     with clock.stage("segments"):
         prep = prepare(drive_list, settings)
         prep = dataclasses.replace(prep, held={**prep.held, **held_by_checks(diagnosis)})
-    boot = None
-    if diagnosis.fatal or diagnosis.standstill:
-        # the data contradict the model (or say nothing): no fit, and no time spent on one
-        reason = Reason.STANDSTILL if diagnosis.standstill else Reason.REJECTED
-        status = Status.NOTHING_IDENTIFIABLE if diagnosis.standstill else Status.REJECTED
-        outcome = MethodOutcome(estimate=refused_estimate(method, settings.identify, status,
-                                                          reason))
-        estimate = outcome.estimate
-    elif diagnosis.no_differential:
-        from odocal.estimators.inverse import run_distance_only
-
-        outcome = run_distance_only(prep, settings, clock)
-        estimate = outcome.estimate
-    else:
-        outcome, estimate, boot = _checked_by_bootstrap(method, prep, settings, clock,
-                                                        screened)
-        step = departures.wheel_step_revps if departures is not None else 0.0
-        if step and method != "inverse" and estimate.success:
-            estimate, said = _encoding_widened(estimate, drive_list, step)
-            outcome = dataclasses.replace(outcome, warnings=(*outcome.warnings, said))
+    outcome, estimate, boot = _fitted(method, prep, settings, clock, diagnosis=diagnosis,
+                                      departures=departures, screened=screened,
+                                      drives=drive_list)
     fitted = tuple(getattr(estimate.details, "findings", ()))
     if fitted:
         # what the fit's residuals showed: front wheels (refused), a change inside the log
         diagnosis = diagnosis.plus(fitted)
         if diagnosis.fatal:
             estimate = dataclasses.replace(estimate, status=Status.REJECTED)
-    # the segment selection's words are the segment methods' (the default fits every window)
-    selection = prep.selection_warnings if method != "inverse" else ()
-    warnings = [*selection, *prep.warnings, *outcome.warnings]
-    if boot is not None and not all(boot.agree):
-        warnings.append(boot.message)
-    val = datasheet = None
+    warnings = _warnings(method, prep, outcome, boot)
     with clock.stage("validation"):
-        judged, val_segs, val_data = drive_list, prep.validation_segments, prep.validation
-        changed = [f for f in fitted if f.check is Check.CHANGE_IN_LOG]
-        fitted_departures = dict(getattr(estimate.details, "fitted_departures", {}) or {})
-        if settings.reference.offset_m is not None and method == "inverse":
-            # a lever arm stated: held in the fit, taken out of what is judged as fitted ones are
-            fitted_departures.update(arm_x=settings.reference.offset_m[0],
-                                     arm_y=settings.reference.offset_m[1])
-        if changed or fitted_departures:
-            # judged as it was fitted: the departures the fit found taken out, and on the part
-            # after a change inside the log where it calibrated that part
-            judged = corrected_drives(drive_list, fitted_departures,
-                                      estimate.theta.as_array())
-            if changed:
-                judged = _after_change(judged, changed[0])
-            val_segs = validation_segments(judged, settings.segments)
-            val_data = validation_data(judged, val_segs, settings) if len(val_segs) else None
-        if val_data is not None:
-            val = validation(estimate.theta, val_data, val_segs, judged)
-            datasheet = validation(estimate.datasheet, val_data, val_segs, judged)
+        val, datasheet = _validated(estimate, fitted, drive_list, prep, settings, method)
     if estimate.success:
         diagnosis, estimate = _gated(diagnosis, estimate, settings, val, datasheet)
     for w in warnings:
@@ -375,6 +302,134 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         three_step=outcome.three_step, batch=prep.__dict__.get("batch"),
         drive_data=tuple(drive_list),
         timings_s=dict(clock.seconds), diagnosis=diagnosis, departures=departures)
+
+
+def _check_method(method: str) -> None:
+    """A ConfigError for a method :data:`METHODS` does not hold; for the compensated method,
+    the compiled kernels its QP needs, required before anything is read."""
+    if method not in METHODS:
+        raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if method == "compensated":                  # its QP is compiled: before anything is read
+        from odocal.model._jit import require
+
+        require("the compensated method (--method compensated)")
+
+
+def _arm_taken_out(drives: list[Drive], settings: Settings, method: str) -> list[Drive]:
+    """The drives with the reference moved to the axle by the stated lever arm
+    (``[reference] offset_m``) for a segment method; as given for the default method, or
+    where no arm is stated."""
+    arm = settings.reference.offset_m
+    if arm is None or method == "inverse":
+        return drives
+    # a segment method rolls the axle out: the reference moved to it first (the default
+    # method holds the stated lever arm in its fit)
+    return corrected_drives(drives, {"arm_x": arm[0], "arm_y": arm[1]},
+                            np.asarray(settings.identify.theta0, dtype=np.float64))
+
+
+def _checked(drives: list[Drive], settings: Settings, method: str
+             ) -> tuple[list[Drive], Diagnosis, Departures | None, Screen | None]:
+    """The checks before any fit: the drives' diagnosis, the departures measured against the
+    reference and taken out of the drives, and for a segment method the default method's
+    screen (its findings added, the drives cut after a change inside the log it names).
+
+    Returns the drives to fit, the diagnosis, the departures (None where the checks refuse
+    the drives) and the screen (None for the default method or where no fit will run).
+    """
+    diagnosis = check_drives(drives, settings)
+    departures = None
+    if not (diagnosis.fatal or diagnosis.standstill):
+        # a_y's clock and offset and a heading error varying with the heading, measured
+        # against the reference and taken out before any method fits (and validates)
+        departures = measure_departures(drives, settings,
+                                        lateral=not diagnosis.lateral_missing)
+        drives = corrected(drives, departures)
+        diagnosis = diagnosis.plus(departure_findings(departures, settings))
+    screened = None
+    if method != "inverse" and not (diagnosis.fatal or diagnosis.standstill
+                                    or diagnosis.no_differential):
+        # front wheels and a change inside the log show in the default method's residuals
+        # only: a segment method is refused, or fits the part after the change, as it is;
+        # the default's uncertainty is what a segment method's may not undercut
+        from odocal.estimators.inverse import screen
+
+        screened = screen(drives, settings)
+        found = screened.findings if screened is not None else ()
+        diagnosis = diagnosis.plus(found)
+        changed = [f for f in found if f.check is Check.CHANGE_IN_LOG]
+        if changed and not diagnosis.fatal:
+            drives = _after_change(drives, changed[0])
+            screened = screen(drives, settings)
+    return drives, diagnosis, departures, screened
+
+
+def _fitted(method: str, prep: Prepared, settings: Settings, clock: Stopwatch, *,
+            diagnosis: Diagnosis, departures: Departures | None, screened: Screen | None,
+            drives: Sequence[Drive]) -> tuple[MethodOutcome, Estimate, BootstrapResult | None]:
+    """The fit the diagnosis allows: none where the data contradict the model or say nothing
+    (a refused estimate), the distance scale alone where the wheels give no heading, else the
+    method checked by the bootstrap, its scale widened for wheel rates on an encoding's grid
+    (:func:`_encoding_widened`) for a segment method."""
+    if diagnosis.fatal or diagnosis.standstill:
+        # the data contradict the model (or say nothing): no fit, and no time spent on one
+        reason = Reason.STANDSTILL if diagnosis.standstill else Reason.REJECTED
+        status = Status.NOTHING_IDENTIFIABLE if diagnosis.standstill else Status.REJECTED
+        outcome = MethodOutcome(estimate=refused_estimate(method, settings.identify, status,
+                                                          reason))
+        return outcome, outcome.estimate, None
+    if diagnosis.no_differential:
+        from odocal.estimators.inverse import run_distance_only
+
+        outcome = run_distance_only(prep, settings, clock)
+        return outcome, outcome.estimate, None
+    outcome, estimate, boot = _checked_by_bootstrap(method, prep, settings, clock, screened)
+    step = departures.wheel_step_revps if departures is not None else 0.0
+    if step and method != "inverse" and estimate.success:
+        estimate, said = _encoding_widened(estimate, drives, step)
+        outcome = dataclasses.replace(outcome, warnings=(*outcome.warnings, said))
+    return outcome, estimate, boot
+
+
+def _warnings(method: str, prep: Prepared, outcome: MethodOutcome,
+              boot: BootstrapResult | None) -> list[str]:
+    """The run's warnings: the segment selection's (a segment method's only: the default fits
+    every window), the preparation's, the method's, and the bootstrap's where it disagrees."""
+    selection = prep.selection_warnings if method != "inverse" else ()
+    warnings = [*selection, *prep.warnings, *outcome.warnings]
+    if boot is not None and not all(boot.agree):
+        warnings.append(boot.message)
+    return warnings
+
+
+def _validated(estimate: Estimate, fitted: Sequence[Finding], drives: Sequence[Drive],
+               prep: Prepared, settings: Settings, method: str
+               ) -> tuple[ValidationResult | None, ValidationResult | None]:
+    """E_p of the estimate and of the datasheet values, judged as the estimate was fitted: on
+    the drives with the departures the fit found (and a stated lever arm, for the default
+    method) taken out, and after a change inside the log where it calibrated that part.
+
+    Returns ``(estimate's, datasheet's)``, both None where no validation segment remains.
+    """
+    judged, val_segs, val_data = drives, prep.validation_segments, prep.validation
+    changed = [f for f in fitted if f.check is Check.CHANGE_IN_LOG]
+    fitted_departures = dict(getattr(estimate.details, "fitted_departures", {}) or {})
+    if settings.reference.offset_m is not None and method == "inverse":
+        # a lever arm stated: held in the fit, taken out of what is judged as fitted ones are
+        fitted_departures.update(arm_x=settings.reference.offset_m[0],
+                                 arm_y=settings.reference.offset_m[1])
+    if changed or fitted_departures:
+        # judged as it was fitted: the departures the fit found taken out, and on the part
+        # after a change inside the log where it calibrated that part
+        judged = corrected_drives(drives, fitted_departures, estimate.theta.as_array())
+        if changed:
+            judged = _after_change(judged, changed[0])
+        val_segs = validation_segments(judged, settings.segments)
+        val_data = validation_data(judged, val_segs, settings) if len(val_segs) else None
+    if val_data is None:
+        return None, None
+    return (validation(estimate.theta, val_data, val_segs, judged),
+            validation(estimate.datasheet, val_data, val_segs, judged))
 
 
 def _against_the_default(estimate: Estimate, screened: Screen,
