@@ -35,7 +35,7 @@ from odocal import cancel
 from odocal.errors import ConfigError, DataError, OdocalError, OutputError, shown
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
 from odocal.fleet.catalog import CatalogEntry, read_catalog
-from odocal.fleet.drift import Alarm, analyse, last_change, parse_stamp
+from odocal.fleet.drift import Alarm, Analysis, analyse, last_change, parse_stamp
 from odocal.fleet.store import Store, open_store
 from odocal.fleet.tasks import (
     DriveTask,
@@ -329,22 +329,8 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
     started = time.perf_counter()
     settings = settings or Settings()
     method = method or DEFAULT_METHOD
-    if method not in METHOD_NAMES:
-        raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHOD_NAMES)}")
-    if scheduler:
-        check_scheduler_address(scheduler)
-    if not 0 < connect_timeout_s <= 3600:
-        raise ConfigError(f"connect timeout {connect_timeout_s!r} s: give 0 < seconds <= 3600")
-    if scheduler and client is None:     # before the store is touched: it answers, in time
-        from odocal.fleet.cluster import probe_scheduler
-
-        probe_scheduler(scheduler, connect_timeout_s)
-    from odocal.io.urls import is_url
-
-    catalog_path: Path | str = catalog if isinstance(catalog, str) and is_url(catalog) \
-        else Path(catalog)
-    store_path = Path(store)
-    out_path = Path(out) if out is not None else None
+    _check_run(method, scheduler, client, connect_timeout_s)
+    catalog_path, store_path, out_path = _paths(catalog, store, out)
     entries = read_catalog(catalog_path)
     _check_paths(store_path, out_path, catalog_path, entries)
     report_root = out_path / "drives" if out_path is not None and drive_reports else None
@@ -357,94 +343,184 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
 
     with open_store(store_path) as db:
         planner = _Planner(db, settings, method, report_root, say)
-        planned = [planner.task(e) for e in entries]
-        tasks = [t for t in planned if t is not None]
-        tasks_planned = list(tasks)
-        stored_now: list[int] = []
-        received: list[int] = []
-        _unique(tasks)
-        done = db.done_keys()
-        todo = [t for t in tasks if not t.key or t.key not in done]
-        db.update_catalog_fields([t for t in tasks if t.key and t.key in done])
-        resolved: dict[int, DriveTask] = {t.entry.row: t for t in tasks if t.key}
-        seen: dict[str, int] = {t.input_hashes["source"]: t.entry.row for t in tasks if t.key}
-        samples = _SameSamples(db.drives())
-
-        def store_drive(row: dict[str, Any]) -> None:
-            task = by_row[row["_row"]]
-            if "unwritable" in row:
-                raise OutputError(f"cannot write the report of {_row(task.entry)}: "
-                                  f"{row['unwritable']} (what was stored before stays)")
-            if "unreadable" in row:
-                say(f"{_row(task.entry)}: {row['unreadable']}")
-                return
-            if not row.get("task_key"):         # lost before its log's content was known
-                say(f"{_row(task.entry)}: {row.get('message')}: {row.get('error')}")
-                return
-            content = row.get("content")
-            if content and not task.key:      # a remote log read for the first time
-                task = with_content(task, content)
-                if seen.get(content, task.entry.row) != task.entry.row:
-                    say(f"{_row(task.entry)}: drive '{task.entry.source}' is the same drive "
-                        f"as catalog row {seen[content]} (the same content)")
-                    return
-                if not planner.allowed(task, content):
-                    return
-                seen[content] = task.entry.row
-            copied = samples.of(row, _row(task.entry))
-            if copied:
-                say(f"{_row(task.entry)}: drive '{task.entry.source}' holds the same samples as "
-                    f"{copied} (the same recording in another file: another format, or its "
-                    "clock shifted); not stored: give each drive once")
-                return
-            resolved[task.entry.row] = task
-            db.add_drive({k: v for k, v in row.items() if k != "_row"},
-                         fingerprint=task.fingerprint)
-            stored_now.append(task.entry.row)
-            received.append(int(row.get("bytes_read") or 0))
-
-        by_row = {t.entry.row: t for t in todo}
-        if report_root is not None and out_path is not None:
-            _claim(out_path)             # marked before the workers write into it
-        _remove_report_leftovers(report_root)          # of a run that was killed
+        tasks, todo = _planned(db, planner, entries)
+        stored_before = len(tasks) - len(todo)
+        arrivals = _Arrivals(db, planner, tasks, todo, say)
+        _ready_report_folder(out_path, report_root)
         try:
-            if progress and client is None:
-                progress(_STARTING, 0, 1)
-            with (contextlib.nullcontext(client) if client is not None
-                  else dask_client(scheduler, workers,
-                                   connect_timeout_s=connect_timeout_s)) as c:
-                if progress and client is None:
-                    progress(_STARTING, 1, 1)
-                dashboard = getattr(c, "dashboard_link", None)
-                if echo is not None and dashboard:
-                    echo(f"Dask dashboard: {dashboard}")
-                _run(c, todo, run_drive_task, store_drive, "drives", progress)
-                tasks = [resolved[e.row] for e in entries if e.row in resolved]
-                rows = db.drives()
-                analysis = analyse(rows, settings.fleet)
-                db.replace_analysis([b.to_row() for b in analysis.baselines],
-                                    [a.to_row() for a in analysis.alarms])
-                pooled = [p for p in _pooled_tasks(tasks, rows, analysis.alarms, settings,
-                                                   method)
-                          if p.key not in db.pooled_keys()]
-                _run(c, pooled, run_pooled_task, db.add_pooled, "pooled", progress)
+            with _cluster(client, scheduler, workers, connect_timeout_s=connect_timeout_s,
+                          progress=progress, echo=echo) as (c, dashboard):
+                _run(c, todo, run_drive_task, arrivals.store, "drives", progress)
+                tasks = [arrivals.resolved[e.row] for e in entries if e.row in arrivals.resolved]
+                analysis, pooled = _analysed_and_pooled(c, db, tasks, settings, method, progress)
         finally:
             # workers stopped mid-report (Ctrl-C, an error) leave their temporary folders
             _remove_report_leftovers(report_root)
         keys = {t.key for t in tasks}
         failed = sum(1 for r in db.drives() if r["task_key"] in keys and not r["success"])
-        written: tuple[Path, ...] = ()
-        if out_path is not None:
-            from odocal.fleet.report import write_fleet_outputs
-            from odocal.model.parameters import Parameters
-
-            written = write_fleet_outputs(db, out_path,
-                                          datasheet=Parameters(*settings.identify.theta0))
-    return FleetRun(drives=len(entries), stored_before=len(tasks_planned) - len(todo),
-                    calibrated=len(stored_now), failed=failed, pooled=len(pooled),
+        written = _write_outputs(db, out_path, settings)
+    return FleetRun(drives=len(entries), stored_before=stored_before,
+                    calibrated=len(arrivals.stored), failed=failed, pooled=len(pooled),
                     alarms=analysis.alarms, dashboard=dashboard,
                     elapsed_s=time.perf_counter() - started, written=written,
-                    refused=tuple(refused), bytes_read=sum(received))
+                    refused=tuple(refused), bytes_read=sum(arrivals.bytes_read))
+
+
+def _check_run(method: str, scheduler: str | None, client: Any,
+               connect_timeout_s: float) -> None:
+    """A ConfigError for an unknown method, a scheduler address that is not one or a connect
+    timeout out of range; a scheduler given by address (and no client) must answer in time,
+    before the store is touched."""
+    if method not in METHOD_NAMES:
+        raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHOD_NAMES)}")
+    if scheduler:
+        check_scheduler_address(scheduler)
+    if not 0 < connect_timeout_s <= 3600:
+        raise ConfigError(f"connect timeout {connect_timeout_s!r} s: give 0 < seconds <= 3600")
+    if scheduler and client is None:     # before the store is touched: it answers, in time
+        from odocal.fleet.cluster import probe_scheduler
+
+        probe_scheduler(scheduler, connect_timeout_s)
+
+
+def _paths(catalog: str | Path, store: str | Path, out: str | Path | None
+           ) -> tuple[Path | str, Path, Path | None]:
+    """The catalog's path (a URL stays text), the store's and the output folder's."""
+    from odocal.io.urls import is_url
+
+    catalog_path: Path | str = catalog if isinstance(catalog, str) and is_url(catalog) \
+        else Path(catalog)
+    return catalog_path, Path(store), Path(out) if out is not None else None
+
+
+def _planned(db: Store, planner: _Planner, entries: Sequence[CatalogEntry]
+             ) -> tuple[list[DriveTask], list[DriveTask]]:
+    """The catalog's tasks (rows refused by the planner left out; two rows of one drive
+    refused) and of those the ones to run: the store does not hold them yet. The catalog's
+    fields of the drives stored before are updated in the store.
+
+    Returns ``(tasks, todo)``.
+    """
+    planned = [planner.task(e) for e in entries]
+    tasks = [t for t in planned if t is not None]
+    _unique(tasks)
+    done = db.done_keys()
+    todo = [t for t in tasks if not t.key or t.key not in done]
+    db.update_catalog_fields([t for t in tasks if t.key and t.key in done])
+    return tasks, todo
+
+
+def _ready_report_folder(out: Path | None, report_root: Path | None) -> None:
+    """The fleet folder claimed (with its marker) before the workers write the drives' reports
+    into it, and what a killed run's report writers left there removed."""
+    if report_root is not None and out is not None:
+        _claim(out)                  # marked before the workers write into it
+    _remove_report_leftovers(report_root)          # of a run that was killed
+
+
+def _write_outputs(db: Store, out: Path | None, settings: Settings) -> tuple[Path, ...]:
+    """The fleet report written into ``out`` from the store (nothing without ``out``), the
+    datasheet values those of ``settings``; the files written."""
+    if out is None:
+        return ()
+    from odocal.fleet.report import write_fleet_outputs
+    from odocal.model.parameters import Parameters
+
+    return write_fleet_outputs(db, out, datasheet=Parameters(*settings.identify.theta0))
+
+
+class _Arrivals:
+    """Each drive's result as it arrives from a worker: stored in its own transaction, or its
+    catalog row named (``say``) where its log could not be read, its task was lost before its
+    log's content was known, or it turns out a drive already seen (the same content, the same
+    samples) or one stored under another vehicle.
+
+    ``resolved`` (catalog row: task) holds the drives known by their content, stored before or
+    now; ``stored`` the rows stored now and ``bytes_read`` what each of them read.
+    """
+
+    def __init__(self, db: Store, planner: _Planner, tasks: Sequence[DriveTask],
+                 todo: Sequence[DriveTask], say: Callable[[str], None]) -> None:
+        self.db, self.planner, self.say = db, planner, say
+        self.resolved: dict[int, DriveTask] = {t.entry.row: t for t in tasks if t.key}
+        self.seen: dict[str, int] = {t.input_hashes["source"]: t.entry.row
+                                     for t in tasks if t.key}
+        self.samples = _SameSamples(db.drives())
+        self.by_row = {t.entry.row: t for t in todo}
+        self.stored: list[int] = []
+        self.bytes_read: list[int] = []
+
+    def store(self, row: dict[str, Any]) -> None:
+        """Store one task's ``row`` (its catalog row in ``row["_row"]``), or name why not."""
+        say = self.say
+        task = self.by_row[row["_row"]]
+        if "unwritable" in row:
+            raise OutputError(f"cannot write the report of {_row(task.entry)}: "
+                              f"{row['unwritable']} (what was stored before stays)")
+        if "unreadable" in row:
+            say(f"{_row(task.entry)}: {row['unreadable']}")
+            return
+        if not row.get("task_key"):         # lost before its log's content was known
+            say(f"{_row(task.entry)}: {row.get('message')}: {row.get('error')}")
+            return
+        content = row.get("content")
+        if content and not task.key:      # a remote log read for the first time
+            task = with_content(task, content)
+            if self.seen.get(content, task.entry.row) != task.entry.row:
+                say(f"{_row(task.entry)}: drive '{task.entry.source}' is the same drive "
+                    f"as catalog row {self.seen[content]} (the same content)")
+                return
+            if not self.planner.allowed(task, content):
+                return
+            self.seen[content] = task.entry.row
+        copied = self.samples.of(row, _row(task.entry))
+        if copied:
+            say(f"{_row(task.entry)}: drive '{task.entry.source}' holds the same samples as "
+                f"{copied} (the same recording in another file: another format, or its "
+                "clock shifted); not stored: give each drive once")
+            return
+        self.resolved[task.entry.row] = task
+        self.db.add_drive({k: v for k, v in row.items() if k != "_row"},
+                          fingerprint=task.fingerprint)
+        self.stored.append(task.entry.row)
+        self.bytes_read.append(int(row.get("bytes_read") or 0))
+
+
+@contextlib.contextmanager
+def _cluster(client: Any, scheduler: str | None, workers: int | None, *,
+             connect_timeout_s: float, progress: Progress | None,
+             echo: Callable[[str], None] | None) -> Iterator[tuple[Any, str | None]]:
+    """The Dask client to run on and its dashboard's link: ``client`` as given, else an
+    embedded cluster started (or ``scheduler`` joined) for the run, its start reported as the
+    :data:`_STARTING` stage; the dashboard's link is echoed."""
+    if progress and client is None:
+        progress(_STARTING, 0, 1)
+    with (contextlib.nullcontext(client) if client is not None
+          else dask_client(scheduler, workers, connect_timeout_s=connect_timeout_s)) as c:
+        if progress and client is None:
+            progress(_STARTING, 1, 1)
+        dashboard = getattr(c, "dashboard_link", None)
+        if echo is not None and dashboard:
+            echo(f"Dask dashboard: {dashboard}")
+        yield c, dashboard
+
+
+def _analysed_and_pooled(client: Any, db: Store, tasks: Sequence[DriveTask],
+                         settings: Settings, method: str, progress: Progress | None
+                         ) -> tuple[Analysis, list[PooledTask]]:
+    """Baselines and alarms recomputed from the store's whole history (and stored), then the
+    pooled calibrations the store does not hold yet run and stored.
+
+    Returns the analysis and the pooled tasks run now.
+    """
+    rows = db.drives()
+    analysis = analyse(rows, settings.fleet)
+    db.replace_analysis([b.to_row() for b in analysis.baselines],
+                        [a.to_row() for a in analysis.alarms])
+    pooled = [p for p in _pooled_tasks(tasks, rows, analysis.alarms, settings, method)
+              if p.key not in db.pooled_keys()]
+    _run(client, pooled, run_pooled_task, db.add_pooled, "pooled", progress)
+    return analysis, pooled
 
 
 #: The progress stage while the cluster starts (or a scheduler is joined): a few seconds.
