@@ -113,6 +113,43 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
         stops) or ``slalom`` (a sine of curvature at one speed): on the last two the lateral
         acceleration is the speed times the yaw rate at one speed, so t_r and d act alike
     """
+    profile, duration_s, seed, noise_seed = _checked(
+        noise=noise, route=route, t_s=t_s, duration_s=duration_s, seed=seed,
+        noise_seed=noise_seed, theta=theta, change=change)
+    true_theta = (theta or TRUE_PARAMETERS).as_array()
+    rng = np.random.default_rng(seed)
+    m = round(duration_s / t_s) + 1
+    v, w, a_y, beta, n_rl, n_rr = _true_signals(rng, true_theta, duration_s=duration_s,
+                                                route=route, m=m, t_s=t_s, change=change)
+    poses = _true_poses(rng, true_theta, v, w, a_y, beta, t_s)
+
+    if noise_seed is not None:
+        rng = np.random.default_rng([seed, noise_seed])
+    meas_rl, meas_rr, meas_ay, meas_beta, ref = _corrupt(rng, profile, v, n_rl, n_rr, a_y,
+                                                         beta, poses, t_s)
+    t = np.arange(m) * t_s
+    drive = Drive.from_columns(
+        {"t": t, "n_rl": meas_rl, "n_rr": meas_rr, "a_y": meas_ay, "beta": meas_beta,
+         "x": ref[:, 0], "y": ref[:, 1], "psi": ref[:, 2]},
+        name=name or (f"simulated-{profile.name}-seed{seed}"
+                      + ("" if noise_seed is None else f"-noise{noise_seed}")),
+        metadata={"source": "odocal.sim.simulate", "seed": seed, "noise_profile": profile.name,
+                  **({} if noise_seed is None else {"noise_seed": noise_seed}),
+                  "true_theta": (theta or TRUE_PARAMETERS).as_dict()},
+        circumference_m=float(true_theta[0]))
+    return SimulatedDrive(drive=drive, true_parameters=Parameters.from_array(true_theta),
+                          true_n_rl=n_rl, true_n_rr=n_rr, true_poses=poses, profile=profile,
+                          seed=seed, changed=change is not None)
+
+
+def _checked(*, noise: str | NoiseProfile, route: str, t_s: float, duration_s: float,
+             seed: int, noise_seed: int | None, theta: Parameters | None,
+             change: tuple[float, Parameters] | None
+             ) -> tuple[NoiseProfile, float, int, int | None]:
+    """:func:`simulate`'s arguments checked once (a ConfigError names the bad one).
+
+    Returns the noise profile, the duration (s), the seed and the noise seed.
+    """
     if isinstance(noise, str):
         if noise not in NOISE_PROFILES:
             raise ConfigError(f"unknown noise profile {noise!r}; choose one of "
@@ -133,10 +170,19 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
         problem = vehicle_problem(given.as_array()) if given is not None else None
         if problem is not None:
             raise ConfigError(f"simulate: {label}: {problem}")
-    true_theta = (theta or TRUE_PARAMETERS).as_array()
-    rng = np.random.default_rng(seed)
-    m = round(duration_s / t_s) + 1
+    return profile, duration_s, seed, noise_seed
 
+
+def _true_signals(rng: np.random.Generator, true_theta: FloatArray, *, duration_s: float,
+                  route: str, m: int, t_s: float, change: tuple[float, Parameters] | None
+                  ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
+                             FloatArray]:
+    """The true motion along a drawn route and the wheel rates it takes (METHOD 1), the
+    rates after ``change``'s time those of its parameters.
+
+    Returns ``(v, w, a_y, beta, n_rl, n_rr)``, each shape (m,): speed (m/s), yaw rate
+    (rad/s), lateral acceleration (m/s^2), sideslip (rad) and the wheel rates (rev/s).
+    """
     kappa_s, vmax_s, stops = _route(rng, duration_s, route)
     v, kappa = _drive_along(kappa_s, vmax_s, stops, m, t_s)
     w = v * kappa                                      # yaw rate, rad/s
@@ -149,30 +195,18 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
         after = np.arange(m) * t_s >= change[0]
         later_rl, later_rr = wheel_rates_for(change[1].as_array(), v, w, a_y)
         n_rl, n_rr = np.where(after, later_rl, n_rl), np.where(after, later_rr, n_rr)
+    return v, w, a_y, beta, n_rl, n_rr
 
+
+def _true_poses(rng: np.random.Generator, true_theta: FloatArray, v: FloatArray,
+                w: FloatArray, a_y: FloatArray, beta: FloatArray, t_s: float) -> FloatArray:
+    """The true poses, shape (m, 3), from a drawn heading at the origin: the true motion
+    (v, w) whatever the wheels, rolled out with the rates of the first theta."""
     x0 = np.array([0.0, 0.0, rng.uniform(-np.pi, np.pi)])
     # the true motion (v, w) whatever the wheels: rolled out with the rates of the first theta
     first_rl, first_rr = wheel_rates_for(true_theta, v, w, a_y)
-    poses = rollout(true_theta, Inputs(first_rl[:-1], first_rr[:-1], beta[:-1], a_y[:-1]), x0,
-                    t_s)
-
-    if noise_seed is not None:
-        rng = np.random.default_rng([seed, noise_seed])
-    meas_rl, meas_rr, meas_ay, meas_beta, ref = _corrupt(rng, profile, v, n_rl, n_rr, a_y,
-                                                         beta, poses, t_s)
-    t = np.arange(m) * t_s
-    drive = Drive.from_columns(
-        {"t": t, "n_rl": meas_rl, "n_rr": meas_rr, "a_y": meas_ay, "beta": meas_beta,
-         "x": ref[:, 0], "y": ref[:, 1], "psi": ref[:, 2]},
-        name=name or (f"simulated-{profile.name}-seed{seed}"
-                      + ("" if noise_seed is None else f"-noise{noise_seed}")),
-        metadata={"source": "odocal.sim.simulate", "seed": seed, "noise_profile": profile.name,
-                  **({} if noise_seed is None else {"noise_seed": noise_seed}),
-                  "true_theta": (theta or TRUE_PARAMETERS).as_dict()},
-        circumference_m=float(true_theta[0]))
-    return SimulatedDrive(drive=drive, true_parameters=Parameters.from_array(true_theta),
-                          true_n_rl=n_rl, true_n_rr=n_rr, true_poses=poses, profile=profile,
-                          seed=seed, changed=change is not None)
+    return rollout(true_theta, Inputs(first_rl[:-1], first_rr[:-1], beta[:-1], a_y[:-1]), x0,
+                   t_s)
 
 
 #: The routes :func:`simulate` drives.
