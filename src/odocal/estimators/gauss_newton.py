@@ -158,13 +158,35 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
     datasheet = np.asarray(settings.theta0, dtype=np.float64)
     theta_init = datasheet.copy() if start is None else np.array(start, dtype=np.float64)
     weights = np.asarray(settings.weights, dtype=np.float64)
-    prior = np.asarray(settings.prior_std, dtype=np.float64)
     held = dict(held or {})
     free = np.array([name not in held for name in PARAMETER_NAMES])
     if clusters is None:
         clusters = np.arange(len(batch), dtype=np.int64)
     n_clusters = int(np.unique(clusters).shape[0])
 
+    theta_init, lin0, free, held = _informed_start(batch, theta_init, datasheet, weights,
+                                                   free=free, held=held, settings=settings)
+    it, free, held, covariance = _fit_holding_unidentified(
+        batch, theta_init, lin0, datasheet, weights, free=free, held=held, settings=settings,
+        clusters=clusters, n_clusters=n_clusters)
+    if keep is not None:
+        keep.append(it.lin)
+    return _estimate(it, covariance, datasheet, free=free, held=held, settings=settings,
+                     method=method, segments=len(batch), n_clusters=n_clusters)
+
+
+def _informed_start(batch: SegmentBatch, theta_init: FloatArray, datasheet: FloatArray,
+                    weights: FloatArray, *, free: BoolArray, held: Mapping[str, NotIdentified],
+                    settings: IdentifySettings
+                    ) -> tuple[FloatArray, Linearisation, BoolArray, dict[str, NotIdentified]]:
+    """The start with every parameter not free at its datasheet value, and its linearisation;
+    a free parameter the data carry no numerical information on (:func:`_numerically_free`)
+    is held too (:attr:`Reason.NO_INFORMATION`) and the start linearised again without it.
+
+    Returns ``(theta, linearisation, free, held)``.
+    """
+    theta_init, held = theta_init.copy(), dict(held)
+    prior = np.asarray(settings.prior_std, dtype=np.float64)
     theta_init[~free] = datasheet[~free]
     lin0 = linearise(batch, theta_init, weights)
     numeric_free = _numerically_free(lin0.r_factor, prior, settings.rcond, free)
@@ -174,7 +196,23 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
         free = numeric_free
         theta_init[~free] = datasheet[~free]
         lin0 = linearise(batch, theta_init, weights)
+    return theta_init, lin0, free, held
 
+
+def _fit_holding_unidentified(
+        batch: SegmentBatch, theta_init: FloatArray, lin0: Linearisation,
+        datasheet: FloatArray, weights: FloatArray, *, free: BoolArray,
+        held: Mapping[str, NotIdentified], settings: IdentifySettings, clusters: IntArray,
+        n_clusters: int,
+) -> tuple[_Iteration, BoolArray, dict[str, NotIdentified],
+           tuple[FloatArray, FloatArray, CovarianceKind]]:
+    """The iteration from the start, refitted with the datasheet values of the parameters the
+    identifiability verdict holds (:func:`hold_unidentified`) until none more is held.
+
+    Returns the last fit, the free parameters and the held ones, and the last fit's
+    covariance, the residual formula's and which it is (zeros and
+    :attr:`CovarianceKind.NONE` where nothing is free).
+    """
     fits = [_iterate(batch, theta_init, lin0, free, weights, settings)]
     kinds: list[tuple[FloatArray, FloatArray, CovarianceKind]] = []
 
@@ -194,17 +232,23 @@ def gauss_newton(batch: SegmentBatch, *, settings: IdentifySettings,
 
     free, held = hold_unidentified(free, held, settings, covariance_of=covariance_of,
                                    refit=refit)
-    it = fits[-1]
-    if keep is not None:
-        keep.append(it.lin)
     none = np.zeros((PARAMETERS, PARAMETERS))
-    cov, cov_naive, kind = kinds[-1] if free.any() else (none, none, CovarianceKind.NONE)
+    return fits[-1], free, held, kinds[-1] if free.any() else (none, none, CovarianceKind.NONE)
+
+
+def _estimate(it: _Iteration, covariance: tuple[FloatArray, FloatArray, CovarianceKind],
+              datasheet: FloatArray, *, free: BoolArray, held: Mapping[str, NotIdentified],
+              settings: IdentifySettings, method: str, segments: int,
+              n_clusters: int) -> Estimate:
+    """The :class:`Estimate` of the fit ``it``, with its :class:`GaussNewtonDetails` and the
+    identifiability verdicts (a fit that did not succeed is logged)."""
+    cov, cov_naive, kind = covariance
     lin = it.lin
     rms = np.sqrt(lin.residual_ss / max(lin.samples, 1))
     if not it.status.success:
         log.warning("identification: %s", it.status.name)
     details = GaussNewtonDetails(
-        iterations=it.iterations, cost_history=tuple(it.history), segments=len(batch),
+        iterations=it.iterations, cost_history=tuple(it.history), segments=segments,
         clusters=n_clusters, residual_rms=(float(rms[0]), float(rms[1]), float(rms[2])),
         covariance_naive=cov_naive)
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
