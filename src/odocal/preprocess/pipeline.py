@@ -76,13 +76,7 @@ def build_drive(log: RawLog, settings: Settings, *,
     mode = _reference_mode(log, cs.reference)
     log, reports = clean_log(log, offsets)
     notes: list[str] = []
-    wheels = log.require("wheels", "rear wheel rotation rates")
-    imu = log.streams.get("imu")
-    if mode == "gnss-imu":
-        log.require("gnss", "GNSS positions, for --reference gnss-imu")
-        if imu is None or "yaw_rate" not in imu.values:
-            raise DataError(f"'{log.name}' has no IMU yaw rate, which --reference gnss-imu needs")
-    reference_stream = log.streams["pose"] if mode == "fused" else log.streams["gnss"]
+    wheels, imu, reference_stream = _streams(log, mode)
 
     offset_estimate = None
     if imu is not None and "yaw_rate" in imu.values and not (offsets and "wheels" in offsets) \
@@ -96,32 +90,17 @@ def build_drive(log: RawLog, settings: Settings, *,
     grid = common_grid(required, rate_hz=cs.rate_hz, max_gap_s=cs.max_gap_s,
                        max_gnss_gap_s=cs.max_gnss_gap_s, min_piece_s=cs.min_piece_s,
                        name=log.name)
-    valid = grid.valid
-    t = grid.t[valid]
+    t = grid.t[grid.valid]
     dropped = float((grid.t.size - t.size) / cs.rate_hz)
-    piece_col = np.concatenate([np.full(b - a, i, dtype=np.float64)
-                                for i, (a, b) in enumerate(grid.pieces)])
-    bounds = np.concatenate([[0], np.cumsum([b - a for a, b in grid.pieces])])
-    piece_ranges = [(int(bounds[i]), int(bounds[i + 1])) for i in range(len(grid.pieces))]
+    piece_col, piece_ranges = _pieces(grid.pieces)
 
     w = resample(wheels, t)
     columns: dict[str, FloatArray] = {"t": t, "n_rl": w["n_rl"], "n_rr": w["n_rr"],
                                       "piece": piece_col}
     imu_values = resample(imu, t) if imu is not None else {}
-    fusion_summaries: list[dict[str, Any]] = []
-    course: FloatArray | None = None
-    speed: FloatArray | None = None
-    if mode == "fused":
-        pose = resample(reference_stream, t)
-        columns.update(x=pose["x"], y=pose["y"], psi=pose["psi"])
-        if "vx" in pose and "vy" in pose:
-            course = np.arctan2(pose["vy"], pose["vx"])
-            speed = np.hypot(pose["vx"], pose["vy"])
-        yaw_rate = imu_values.get("yaw_rate")
-    else:
-        fused_columns, yaw_rate, speed, course, fusion_summaries = _gnss_imu_reference(
-            log, reference_stream, t, piece_ranges, imu_values, settings)
-        columns.update(fused_columns)
+    reference, yaw_rate, speed, course, fusion_summaries = _reference_columns(
+        log, mode, reference_stream, t, piece_ranges, imu_values, settings)
+    columns.update(reference)
 
     if "a_y" in imu_values:
         columns["a_y"] = imu_values["a_y"]
@@ -139,12 +118,65 @@ def build_drive(log: RawLog, settings: Settings, *,
         log=log.name, streams=reports, reference=mode, wheel_offset=offset_estimate,
         pieces=[(float(t[a]), float(t[b - 1])) for a, b in piece_ranges], dropped_s=dropped,
         sideslip=slip_note, fusion=fusion_summaries, notes=notes)
+    stated = settings.identify.datasheet("c_e") if datasheet_stated(settings.identify.theta0) \
+        else None
+    return Drive.from_columns(columns, name=log.name, metadata=_metadata(log, report),
+                              circumference_m=stated)
+
+
+def _streams(log: RawLog, mode: str) -> tuple[Stream, Stream | None, Stream]:
+    """The wheel stream, the IMU's (None where the log has none) and the reference's (the
+    pose stream for ``fused``, GNSS for ``gnss-imu``, which also needs the IMU's yaw rate)."""
+    wheels = log.require("wheels", "rear wheel rotation rates")
+    imu = log.streams.get("imu")
+    if mode == "gnss-imu":
+        log.require("gnss", "GNSS positions, for --reference gnss-imu")
+        if imu is None or "yaw_rate" not in imu.values:
+            raise DataError(f"'{log.name}' has no IMU yaw rate, which --reference gnss-imu needs")
+    reference_stream = log.streams["pose"] if mode == "fused" else log.streams["gnss"]
+    return wheels, imu, reference_stream
+
+
+def _pieces(pieces: tuple[tuple[int, int], ...]
+            ) -> tuple[FloatArray, list[tuple[int, int]]]:
+    """The grid's pieces on the valid points alone: the ``piece`` column (each point's piece
+    number) and each piece's index range [start, stop)."""
+    piece_col = np.concatenate([np.full(b - a, i, dtype=np.float64)
+                                for i, (a, b) in enumerate(pieces)])
+    bounds = np.concatenate([[0], np.cumsum([b - a for a, b in pieces])])
+    return piece_col, [(int(bounds[i]), int(bounds[i + 1])) for i in range(len(pieces))]
+
+
+def _reference_columns(log: RawLog, mode: str, reference_stream: Stream, t: FloatArray,
+                       piece_ranges: list[tuple[int, int]], imu_values: dict[str, FloatArray],
+                       settings: Settings
+                       ) -> tuple[dict[str, FloatArray], FloatArray | None, FloatArray | None,
+                                  FloatArray | None, list[dict[str, Any]]]:
+    """The reference on the grid ``t``: a given pose (``fused``) resampled, its course and
+    speed from its velocity where it has one, or odocal's own from GNSS and the IMU
+    (:func:`_gnss_imu_reference`).
+
+    Returns the pose columns, the yaw rate, the speed, the course over ground (each None
+    where not known) and each piece's fusion summary (none for a given pose).
+    """
+    if mode != "fused":
+        return _gnss_imu_reference(log, reference_stream, t, piece_ranges, imu_values, settings)
+    course: FloatArray | None = None
+    speed: FloatArray | None = None
+    pose = resample(reference_stream, t)
+    columns = {"x": pose["x"], "y": pose["y"], "psi": pose["psi"]}
+    if "vx" in pose and "vy" in pose:
+        course = np.arctan2(pose["vy"], pose["vx"])
+        speed = np.hypot(pose["vx"], pose["vy"])
+    return columns, imu_values.get("yaw_rate"), speed, course, []
+
+
+def _metadata(log: RawLog, report: ConversionReport) -> dict[str, Any]:
+    """The drive's metadata: the log's, with the conversion report and the ENU origin."""
     metadata = {**dict(log.metadata), "conversion": report.to_dict()}
     if log.origin_lla is not None:
         metadata["origin_lla"] = list(log.origin_lla)
-    stated = settings.identify.datasheet("c_e") if datasheet_stated(settings.identify.theta0) \
-        else None
-    return Drive.from_columns(columns, name=log.name, metadata=metadata, circumference_m=stated)
+    return metadata
 
 
 def _wheel_clock(wheels: Stream, imu: Stream, settings: Settings
