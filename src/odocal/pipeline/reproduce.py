@@ -28,14 +28,15 @@ from numpy.typing import NDArray
 
 from odocal.data.drive import Drive
 from odocal.data.segments import (
+    RaggedSegments,
     SegmentBatch,
     gather,
     gather_ragged,
     identification_segments,
     validation_segments,
 )
-from odocal.estimators.compensated import step1, three_step
-from odocal.estimators.compensation import compensate_batch
+from odocal.estimators.compensated import Step1Result, step1, three_step
+from odocal.estimators.compensation import BatchCompensation, compensate_batch
 from odocal.estimators.estimate import Estimate, GaussNewtonDetails
 from odocal.estimators.gauss_newton import gauss_newton
 from odocal.estimators.parallel import resolve_workers
@@ -155,36 +156,18 @@ def reproduce(*, seed: int = 0, noise: str = "realistic", distance_km: float = 2
         val = gather_ragged(drives, validation_segments(drives, settings.segments))
 
     def estimate(label: str, result: Estimate | FloatArray) -> Reproduced:
-        if isinstance(result, Estimate):
-            theta, msg = result.theta.as_array(), result.message
-            its = result.details.iterations if isinstance(result.details,
-                                                           GaussNewtonDetails) else 0
-        else:
-            theta, its, msg = np.asarray(result), 0, ""
-        return Reproduced(label=label, theta=theta, validation_m=mean_error(theta, val),
-                          error=theta - truth, iterations=its, message=msg)
+        return _reproduced(label, result, validation=val, truth=truth)
 
     s1 = step1(batch, val, settings, progress=stage("Fig. 4: step-1 batches"))
-    examined = int(s1.order[-1])
-    examined_idx = s1.batches[examined]
-    exam = batch.take(examined_idx)
-    sets = s1.thetas[s1.picked]
-    comp = compensate_batch(exam, sets, settings.compensate, workers=workers,
-                            progress=stage("Table 1: compensating the examined batch"))
-    exam_comp = exam.with_wheel_rates(comp.n_rl, comp.n_rr)
+    examined, exam, comp, exam_comp = _compensated_examined(
+        batch, s1, settings, workers=workers,
+        progress=stage("Table 1: compensating the examined batch"))
 
     table1, per_raw, per_comp, step3 = _examined(exam, exam_comp, s1.results[examined],
                                                  settings, estimate,
                                                  stage("Table 1, Fig. 7: G-N fits on the "
                                                        "examined batch"))
-
-    with step("whole drive: batch G-N on measured rates"):
-        whole_raw = estimate("all selected segments, measured rates",
-                             gauss_newton(batch, settings=settings.identify))
-    outcome = three_step(batch, val, settings=settings,
-                         progress=(lambda name, d, t: progress(f"whole drive, {name}", d, t))
-                         if progress else None)
-    whole_comp = estimate("all selected segments, three-step", outcome.final)
+    whole_raw, whole_comp = _whole_drive(batch, val, settings, estimate, progress)
 
     best = None
     if minimum:
@@ -200,11 +183,61 @@ def reproduce(*, seed: int = 0, noise: str = "realistic", distance_km: float = 2
         step1_sorted_m=s1.validation_m[s1.order], examined_batch=examined,
         table1=table1, per_segment_raw=per_raw, per_segment_compensated=per_comp,
         step3_batches=step3, whole_raw=whole_raw, whole_compensated=whole_comp, minimum=best,
-        mean_relative_change=float(np.mean(np.abs(np.stack([comp.n_rl, comp.n_rr])
-                                                  - np.stack([exam.inputs.n_rl,
-                                                              exam.inputs.n_rr]))
-                                           / np.maximum(np.abs(np.stack(
-                                               [exam.inputs.n_rl, exam.inputs.n_rr])), 0.5))))
+        mean_relative_change=_mean_relative_change(exam, comp))
+
+
+def _reproduced(label: str, result: Estimate | FloatArray, *, validation: RaggedSegments,
+                truth: FloatArray) -> Reproduced:
+    """One row of the experiment: the theta of ``result`` (an estimate's, or values given),
+    its validation error E_p, its distance from the true parameters, and the estimate's
+    iterations and message (0 and empty for values given)."""
+    if isinstance(result, Estimate):
+        theta, msg = result.theta.as_array(), result.message
+        its = result.details.iterations if isinstance(result.details,
+                                                       GaussNewtonDetails) else 0
+    else:
+        theta, its, msg = np.asarray(result), 0, ""
+    return Reproduced(label=label, theta=theta, validation_m=mean_error(theta, validation),
+                      error=theta - truth, iterations=its, message=msg)
+
+
+def _compensated_examined(batch: SegmentBatch, s1: Step1Result, settings: Settings, *,
+                          workers: int, progress: Callable[[int, int], None] | None
+                          ) -> tuple[int, SegmentBatch, BatchCompensation, SegmentBatch]:
+    """The examined batch (the step-1 batch of the largest validation error, the paper's
+    batch 34) compensated with the five step-1 parameter sets (step 2).
+
+    Returns the examined batch's number, its segments, the compensation, and its segments with
+    the compensated wheel rates.
+    """
+    examined = int(s1.order[-1])
+    exam = batch.take(s1.batches[examined])
+    sets = s1.thetas[s1.picked]
+    comp = compensate_batch(exam, sets, settings.compensate, workers=workers, progress=progress)
+    return examined, exam, comp, exam.with_wheel_rates(comp.n_rl, comp.n_rr)
+
+
+def _whole_drive(batch: SegmentBatch, val: RaggedSegments, settings: Settings,
+                 estimate: Callable[[str, Estimate], Reproduced],
+                 progress: Callable[[str, int, int], None] | None
+                 ) -> tuple[Reproduced, Reproduced]:
+    """The calibration a user gets from the whole drive (all selected segments): batch G-N on
+    the measured rates, and the three-step method."""
+    with _Step(progress, "whole drive: batch G-N on measured rates"):
+        whole_raw = estimate("all selected segments, measured rates",
+                             gauss_newton(batch, settings=settings.identify))
+    outcome = three_step(batch, val, settings=settings,
+                         progress=(lambda name, d, t: progress(f"whole drive, {name}", d, t))
+                         if progress else None)
+    return whole_raw, estimate("all selected segments, three-step", outcome.final)
+
+
+def _mean_relative_change(exam: SegmentBatch, comp: BatchCompensation) -> float:
+    """The compensation's mean change of the examined batch's wheel rates, relative to the
+    measured rates (floored at 0.5 rev/s)."""
+    measured = np.stack([exam.inputs.n_rl, exam.inputs.n_rr])
+    return float(np.mean(np.abs(np.stack([comp.n_rl, comp.n_rr]) - measured)
+                         / np.maximum(np.abs(measured), 0.5)))
 
 
 class _Step:
