@@ -224,20 +224,8 @@ class Drive:
         else a car's 2 m), which the wheel rates' plausibility is judged with.
         """
         arrays = _columns(columns, name)
-        t = arrays["t"]
-        dt = np.diff(t)
-        if (dt <= 0).any():
-            first = int(np.argmax(dt <= 0))
-            check_time_precision(name, t)
-            raise DataError(f"'{name}' column t is not strictly increasing: t={t[first + 1]:.6g} "
-                            f"follows t={t[first]:.6g} at row {first + 2}; sort the log or drop "
-                            "duplicate stamps")
-        pieces = _pieces(name, t, arrays.get("piece"))
-        t_s, jitter_s = _sampling_time(name, t, pieces)
-        resampled: dict[str, float] = {}
-        if jitter_s is not None:
-            arrays, pieces = _resampled(arrays, pieces, t_s)
-            resampled = {"step_s": t_s, "max_jitter_s": jitter_s}
+        _check_increasing(name, arrays["t"])
+        arrays, pieces, t_s, resampled = _on_uniform_steps(name, arrays)
         m = arrays["t"].shape[0]
         t = arrays["t"]
         wheel_m, stated = _circumference(circumference_m, metadata)
@@ -246,37 +234,16 @@ class Drive:
         # judged on most of the samples, so that a few broken ones do not look like a unit
         _check_wheel_units(name, arrays["n_rl"], arrays["n_rr"], circumference_m=wheel_m,
                            stated=stated, percentile=90.0)
-        repaired: dict[str, int] = {}
-        for key, scale in _SPIKE_SCALE.items():
-            if key in arrays:
-                arrays[key], count = _repair_spikes(name, key, arrays[key], scale, pieces)
-                if count:
-                    repaired[key] = count
+        arrays, repaired = _without_spikes(name, arrays, pieces)
         _check_limits(name, arrays)
         n_rl, n_rr = arrays["n_rl"], arrays["n_rr"]
         _check_wheel_bursts(name, arrays["t"], n_rl, n_rr, circumference_m=wheel_m)
         _check_held_reference(name, arrays, pieces)
         _check_wheel_units(name, n_rl, n_rr, circumference_m=wheel_m, stated=stated)
-        psi = _unwrap_pieces(arrays["psi"], pieces)
-        yaw_from_psi = _derivative_pieces(psi, t_s, pieces)
-        if np.percentile(np.abs(yaw_from_psi), 99) > _MAX_YAW_RATE_RADPS:
-            _psi_too_fast(name, psi, yaw_from_psi, t_s)
-        yaw_rate = arrays.get("yaw_rate", yaw_from_psi)
-        if np.percentile(np.abs(yaw_rate), 99) > _MAX_YAW_RATE_RADPS:
-            raise DataError(f"'{name}' column yaw_rate reaches {np.max(np.abs(yaw_rate)):.3g}: "
-                            "yaw_rate must be in rad/s (is it in deg/s?)")
+        psi, yaw_rate = _heading_and_yaw_rate(name, arrays, t_s, pieces)
         x, y = arrays["x"], arrays["y"]
         _check_position_units(name, x, y, n_rl, n_rr, t_s, pieces, circumference_m=wheel_m)
-
-        pose_std = None
-        std_cols = [c for c in ("x_std", "y_std", "psi_std") if c in arrays]
-        if std_cols:
-            if len(std_cols) != 3:
-                raise DataError(f"'{name}' has {', '.join(std_cols)} but not all of x_std, y_std, "
-                                "psi_std")
-            pose_std = np.column_stack([arrays["x_std"], arrays["y_std"], arrays["psi_std"]])
-            if (pose_std < 0).any():
-                raise DataError(f"'{name}' has negative pose standard deviations")
+        pose_std = _pose_std(name, arrays)
         return cls(t=t, n_rl=n_rl, n_rr=n_rr, a_y=arrays["a_y"],
                    beta=arrays.get("beta", np.zeros(m)), x=x, y=y, psi=psi,
                    yaw_rate=_as_float_array(yaw_rate), t_s=t_s, pieces=pieces, name=name,
@@ -285,6 +252,82 @@ class Drive:
                                               **({"repaired": repaired} if repaired else {}),
                                               **({"resampled": resampled} if resampled
                                                  else {})}))
+
+
+def _check_increasing(name: str, t: FloatArray) -> None:
+    """A DataError where ``t`` does not strictly increase (naming stamps that repeat because
+    they lost their precision first: :func:`check_time_precision`)."""
+    dt = np.diff(t)
+    if (dt <= 0).any():
+        first = int(np.argmax(dt <= 0))
+        check_time_precision(name, t)
+        raise DataError(f"'{name}' column t is not strictly increasing: t={t[first + 1]:.6g} "
+                        f"follows t={t[first]:.6g} at row {first + 2}; sort the log or drop "
+                        "duplicate stamps")
+
+
+def _on_uniform_steps(name: str, arrays: dict[str, FloatArray]
+                      ) -> tuple[dict[str, FloatArray], tuple[tuple[int, int], ...], float,
+                                 dict[str, float]]:
+    """The columns on a uniform step within each piece: as given where the stamps are
+    uniform, else resampled onto the step their jitter lies about (:func:`_resampled`).
+
+    Returns the columns, the pieces, the step (s) and what the resampling did (``step_s``,
+    ``max_jitter_s``; empty where nothing was resampled).
+    """
+    pieces = _pieces(name, arrays["t"], arrays.get("piece"))
+    t_s, jitter_s = _sampling_time(name, arrays["t"], pieces)
+    resampled: dict[str, float] = {}
+    if jitter_s is not None:
+        arrays, pieces = _resampled(arrays, pieces, t_s)
+        resampled = {"step_s": t_s, "max_jitter_s": jitter_s}
+    return arrays, pieces, t_s, resampled
+
+
+def _without_spikes(name: str, arrays: Mapping[str, FloatArray],
+                    pieces: tuple[tuple[int, int], ...]
+                    ) -> tuple[dict[str, FloatArray], dict[str, int]]:
+    """The columns with isolated spikes repaired (:func:`_repair_spikes`, the columns of
+    :data:`_SPIKE_SCALE`), and how many were repaired in each column that had any."""
+    arrays = dict(arrays)
+    repaired: dict[str, int] = {}
+    for key, scale in _SPIKE_SCALE.items():
+        if key in arrays:
+            arrays[key], count = _repair_spikes(name, key, arrays[key], scale, pieces)
+            if count:
+                repaired[key] = count
+    return arrays, repaired
+
+
+def _heading_and_yaw_rate(name: str, arrays: Mapping[str, FloatArray], t_s: float,
+                          pieces: tuple[tuple[int, int], ...]) -> tuple[FloatArray, FloatArray]:
+    """The heading unwrapped within each piece, and the yaw rate (the column, else the
+    heading's derivative); a DataError where either turns faster than any vehicle (degrees,
+    deg/s, or a heading that is noisy or jumps)."""
+    psi = _unwrap_pieces(arrays["psi"], pieces)
+    yaw_from_psi = _derivative_pieces(psi, t_s, pieces)
+    if np.percentile(np.abs(yaw_from_psi), 99) > _MAX_YAW_RATE_RADPS:
+        _psi_too_fast(name, psi, yaw_from_psi, t_s)
+    yaw_rate = arrays.get("yaw_rate", yaw_from_psi)
+    if np.percentile(np.abs(yaw_rate), 99) > _MAX_YAW_RATE_RADPS:
+        raise DataError(f"'{name}' column yaw_rate reaches {np.max(np.abs(yaw_rate)):.3g}: "
+                        "yaw_rate must be in rad/s (is it in deg/s?)")
+    return psi, yaw_rate
+
+
+def _pose_std(name: str, arrays: Mapping[str, FloatArray]) -> FloatArray | None:
+    """The reference pose's standard deviations, shape (M, 3) (x_std, y_std, psi_std), or None
+    where the drive has none; a DataError for some of them only, or a negative one."""
+    std_cols = [c for c in ("x_std", "y_std", "psi_std") if c in arrays]
+    if not std_cols:
+        return None
+    if len(std_cols) != 3:
+        raise DataError(f"'{name}' has {', '.join(std_cols)} but not all of x_std, y_std, "
+                        "psi_std")
+    pose_std = np.column_stack([arrays["x_std"], arrays["y_std"], arrays["psi_std"]])
+    if (pose_std < 0).any():
+        raise DataError(f"'{name}' has negative pose standard deviations")
+    return pose_std
 
 
 def _columns(columns: Mapping[str, Any], name: str) -> dict[str, FloatArray]:
