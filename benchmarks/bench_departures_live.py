@@ -133,19 +133,11 @@ def run(d: dep.Departed, *, chunk: int = 40) -> dict[str, object]:
 
 
 def _issue_truths(name: str, sim: Any, value: float) -> list[np.ndarray]:
-    """The true theta before (and, for a change, after) the change (as bench_departures.py)."""
-    first = sim.true_parameters.as_array()
-    if name == "c_e-change":
-        after = first.copy()
-        after[0] *= 1.0 + value
-        return [first, after]
-    if name == "pressure-change":
-        left = first[0] + 0.5 * first[1]
-        after = first.copy()
-        after[0] -= 0.5 * value * left
-        after[1] -= value * left
-        return [first, after]
-    return [first]
+    """The true theta before (and, for a change, after) the change; a drift's at the end of
+    the drive (bench_departures.py's, imported from beside this script)."""
+    from bench_departures import _truths
+
+    return _truths(name, sim, value)
 
 
 def issue_table(seeds: int, duration: float, only: list[str]) -> None:

@@ -602,9 +602,13 @@ class OnlineCalibrator:
 
     def _setup(self, windows: WindowSet) -> core.Setup:
         """What the live fit may take beside theta (:func:`~odocal.estimators.inverse.
-        fit_setup`, the live departures: a change it detects itself, a drift it follows)."""
+        fit_setup`, the live departures: a change it detects itself). A drift of c_e is fitted
+        as batch fits it while every window is in memory (the estimate is c_e now); once
+        windows are folded their sums hold no drift, and a drift is what the change detector
+        and forgetting follow."""
+        blocks = fitted.LIVE if self._folded.clusters else fitted.LIVE + (("drift",),)
         setup = fit_setup(windows, self.settings, held_by_checks(self._diagnosis),
-                          blocks=fitted.LIVE)
+                          blocks=blocks)
         return dataclasses.replace(setup, kept=self._entered,
                                    coupled=bool(self._model.coupling))
 
@@ -640,7 +644,7 @@ class OnlineCalibrator:
         from the datasheet values, without the prior)."""
         setup = self._setup(windows)
         view = core.View.of(windows, self._lag.shift, self.heading_offset(),
-                            across=setup.across, lateral=setup.lateral)
+                            tau_h=setup.tau_h, across=setup.across, lateral=setup.lateral)
         free = self._free_p()
         with np.errstate(divide="ignore", over="ignore"):
             prior = 1.0 / np.square(np.asarray(self.settings.identify.prior_std, dtype=float))
