@@ -606,7 +606,7 @@ class OnlineCalibrator:
         as batch fits it while every window is in memory (the estimate is c_e now); once
         windows are folded their sums hold no drift, and a drift is what the change detector
         and forgetting follow."""
-        blocks = fitted.LIVE if self._folded.clusters else fitted.LIVE + (("drift",),)
+        blocks = fitted.LIVE if self._folded.clusters else (*fitted.LIVE, ("drift",))
         setup = fit_setup(windows, self.settings, held_by_checks(self._diagnosis),
                           blocks=blocks)
         return dataclasses.replace(setup, kept=self._entered,
