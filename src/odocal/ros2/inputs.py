@@ -92,12 +92,12 @@ class Continuity:
 
     def check(self, t: float) -> bool:
         last = self.last_t
-        if last is not None and not t > last:
-            self.back += 1
-            self.back_max_s = max(self.back_max_s, last - t)
-            self._refused += 1
-            return False
         if last is not None:
+            if not t > last:
+                self.back += 1
+                self.back_max_s = max(self.back_max_s, last - t)
+                self._refused += 1
+                return False
             step = t - last
             period = self.period_s
             if period is not None and step > MISSING_AFTER * period:
