@@ -13,7 +13,7 @@ import pytest
 from hypothesis import example, given
 from hypothesis import strategies as st
 
-from odocal.ros2.inputs import Continuity, Rates
+from odocal.ros2.inputs import Continuity, Rates, tenth_percentile
 from odocal.ros2.twist import ReadingNoise
 from tests.ros2.rosenv import require_rclpy
 
@@ -176,6 +176,12 @@ def test_continuity_counts_what_the_stamps_call_for() -> None:
     # the next one a step later than the one in between: that one came, its stamp gone back
     assert stamps.check(1.99 + 0.02) and stamps.missing == 4
     assert stamps.check(2.05) and stamps.missing == 7          # 2.02, 2.03, 2.04
+
+
+@given(st.lists(st.floats(min_value=0.0, max_value=2.0), min_size=1, max_size=70))
+@example([0.01] * 64)
+def test_the_period_is_numpys_tenth_percentile(steps: list[float]) -> None:
+    assert tenth_percentile(steps) == float(np.percentile(steps, 10))
 
 
 def test_rates_from_positions_are_the_step_over_its_time_at_its_middle() -> None:
