@@ -410,27 +410,34 @@ class OdometryWriter:
         self.buffer[first_end:pad] = bytes(pad - first_end)
         self.buffer[second_end:self._pose] = bytes(self._pose - second_end)
         # what the node never sets (z, the orientation's x and y; the twist's other four
-        # components) is written as the zeros it is in the template: one pack per stretch
+        # components) is written as the zeros it is in the template: the message is one pack,
+        # the constant stretches between the fields it sets given as strings
         if any(template[self._pose + 16:self._pose + 40]) \
                 or any(template[self._twist + 8:self._twist + 40]):
             raise CdrError("the odometry template has values where the node writes none")
-        self._pack_stamp = struct.Struct("<iI").pack_into
-        self._pack_pose = struct.Struct("<2d24x2d").pack_into
-        self._pack_twist = struct.Struct("<d32x2d").pack_into
-        self._pack_double = struct.Struct("<d").pack_into
+        tail = len(template) - (self._twist_cov + 8 * 36)
+        self._pack = struct.Struct(
+            f"<4siI{self._pose - 12}s2d24x2d288sd32x2d272sd{tail}s").pack
+        self._constants: tuple[bytes, ...] = ()
+        self._keep()
 
     def covariances(self, pose: Sequence[float], twist: Sequence[float]) -> None:
         """The 6x6 row-major pose and twist covariances (each 36 values)."""
         struct.pack_into("<36d", self.buffer, self._pose_cov, *pose)
         struct.pack_into("<36d", self.buffer, self._twist_cov, *twist)
+        self._keep()
+
+    def _keep(self) -> None:
+        """The stretches of the buffer between the fields a message sets."""
+        buf = bytes(self.buffer)
+        cov = self._twist_cov
+        self._constants = (buf[:4], buf[12:self._pose], buf[self._pose_cov:self._twist],
+                           buf[cov + 8:cov + 8 * 35], buf[cov + 8 * 36:])
 
     def message(self, sec: int, nanosec: int, x: float, y: float, qz: float, qw: float,
                 v: float, w: float, var_v: float, var_w: float) -> bytes:
         """The message for one stamp: pose (x, y, yaw as qz, qw), speed, yaw rate and their
         variances (the twist covariance's (0, 0) and (5, 5))."""
-        buf = self.buffer
-        self._pack_stamp(buf, 4, sec, nanosec)
-        self._pack_pose(buf, self._pose, x, y, qz, qw)
-        self._pack_twist(buf, self._twist, v, w, var_v)      # (var_v: the covariance's first)
-        self._pack_double(buf, self._twist_cov + 8 * 35, var_w)
-        return bytes(buf)
+        head, frames, pose_cov, twist_cov, tail = self._constants
+        return self._pack(head, sec, nanosec, frames, x, y, qz, qw, pose_cov, v, w, var_v,
+                          twist_cov, var_w, tail)
