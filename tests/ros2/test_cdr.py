@@ -13,7 +13,7 @@ import pytest
 from hypothesis import example, given
 from hypothesis import strategies as st
 
-from odocal.ros2.inputs import Continuity, Rates
+from odocal.ros2.inputs import Continuity, Rates, tenth_percentile
 from odocal.ros2.twist import ReadingNoise
 from tests.ros2.rosenv import require_rclpy
 
@@ -60,6 +60,9 @@ def test_a_joint_state_reads_as_rclpy_serialized_it(frame: str, names: list[str]
         assert (got_sec, got_nsec) == (sec, nsec)
         assert pos == ((msg.position[i], msg.position[j]) if positions else None)
         assert vel == ((msg.velocity[i], msg.velocity[j]) if velocities else None)
+        # the node's loop: the stamp and the velocities by the layout, None without velocities
+        assert reader.velocities(data) == ((sec, nsec, msg.velocity[i], msg.velocity[j])
+                                           if velocities else None)
     full = cdr.joint_state(data)
     assert full.names == tuple(j.encode() for j in joints)
 
@@ -69,7 +72,10 @@ def test_a_joint_state_of_another_layout_is_learned_anew() -> None:
     a = JointState(name=["L", "R"], velocity=[1.0, 2.0])
     b = JointState(name=["x", "R", "L"], velocity=[7.0, 8.0, 9.0])   # (same length, swapped)
     assert reader.read(serialize_message(a))[3] == (1.0, 2.0)
+    assert reader.velocities(serialize_message(b)) is None           # (not the layout seen)
     assert reader.read(serialize_message(b))[3] == (9.0, 8.0)
+    assert reader.velocities(serialize_message(b))[2:] == (9.0, 8.0)  # type: ignore[index]
+    assert reader.velocities(serialize_message(a)) is None
     assert reader.read(serialize_message(a))[3] == (1.0, 2.0)
 
 
@@ -82,6 +88,10 @@ def test_imu_odometry_and_pose_read_as_serialized(frame: str, child: str,
     (imu.angular_velocity.x, imu.angular_velocity.y, imu.angular_velocity.z,
      imu.linear_acceleration.x, imu.linear_acceleration.y, imu.linear_acceleration.z) = values[:6]
     assert cdr.imu(serialize_message(imu)) == (12, 34, tuple(values[:3]), tuple(values[3:6]))
+    quick = cdr.imu_reader()
+    assert quick.read(serialize_message(imu)) == (12, 34, *values[:6])
+    imu.header.frame_id = frame + "_x"                  # another layout: learned anew
+    assert quick.read(serialize_message(imu)) == (12, 34, *values[:6])
     odom = Odometry()
     odom.header.frame_id, odom.child_frame_id = frame, child
     odom.header.stamp.sec = 5
@@ -91,6 +101,7 @@ def test_imu_odometry_and_pose_read_as_serialized(frame: str, child: str,
     odom.twist.twist.linear.x, odom.twist.twist.linear.y = values[6], values[7]
     got = cdr.odometry(serialize_message(odom))
     assert got == (5, 0, values[0], values[1], tuple(values[2:6]), (values[6], values[7]))
+    assert cdr.odometry_reader().read(serialize_message(odom)) == (5, 0, *values[:8])
     pose = PoseWithCovarianceStamped()
     pose.header.frame_id = child
     pose.pose.pose.position.x = values[8]
@@ -98,6 +109,8 @@ def test_imu_odometry_and_pose_read_as_serialized(frame: str, child: str,
     got = cdr.pose_with_covariance(serialize_message(pose))
     assert got.x == values[8] and got.orientation == (0.0, 0.0, 0.0, values[9])
     assert got.velocity is None
+    assert cdr.pose_reader().read(serialize_message(pose)) == (
+        0, 0, values[8], 0.0, 0.0, 0.0, 0.0, values[9])
 
 
 def test_big_endian_messages_read_as_little_endian_ones() -> None:
@@ -126,6 +139,9 @@ def test_bytes_that_are_not_the_message_are_a_cdr_error(data: bytes) -> None:
         cdr.JointReader(_pick).read(data)
     with pytest.raises(cdr.CdrError):
         cdr.imu(data)
+    assert cdr.imu_reader().read(data) is None
+    assert cdr.odometry_reader().read(data) is None
+    assert cdr.JointReader(_pick).velocities(data) is None
 
 
 def test_the_odometry_writer_fills_what_rclpy_reads_back() -> None:
@@ -160,6 +176,12 @@ def test_continuity_counts_what_the_stamps_call_for() -> None:
     # the next one a step later than the one in between: that one came, its stamp gone back
     assert stamps.check(1.99 + 0.02) and stamps.missing == 4
     assert stamps.check(2.05) and stamps.missing == 7          # 2.02, 2.03, 2.04
+
+
+@given(st.lists(st.floats(min_value=0.0, max_value=2.0), min_size=1, max_size=70))
+@example([0.01] * 64)
+def test_the_period_is_numpys_tenth_percentile(steps: list[float]) -> None:
+    assert tenth_percentile(steps) == float(np.percentile(steps, 10))
 
 
 def test_rates_from_positions_are_the_step_over_its_time_at_its_middle() -> None:

@@ -25,6 +25,7 @@ from tests.ros2.rig import (
     Script,
     call,
     first_seconds,
+    messages,
     play,
     settle,
     spin_until,
@@ -285,3 +286,72 @@ def test_odocal_ros2_starts_the_node_and_stops_on_ctrl_c(ros: Any, tmp_path: Pat
     assert proc.returncode == 0, err
     assert "no calibration to export" in err
     assert "Traceback" not in err
+
+
+class _Captured:
+    """A lifecycle publisher whose serialized messages are kept (both ways the node hands
+    them over: ``publish`` and the handle's ``publish_raw``)."""
+
+    def __init__(self, publisher: Any, out: list[bytes]) -> None:
+        self._publisher, self._out = publisher, out
+        self.is_activated = publisher.is_activated
+        self.topic_name = publisher.topic_name
+        self.handle = self
+
+    def __enter__(self) -> _Captured:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def publish(self, data: bytes) -> None:
+        assert isinstance(data, bytes)
+        self._out.append(data)
+
+    publish_raw = publish
+
+
+def test_a_callbacks_batch_is_taken_as_its_messages_one_by_one(rig: Any,
+                                                              drive: odocal.Drive) -> None:
+    """The inputs' batch handlers (a driver's messages read and published in one loop, as the
+    node takes them) against the same messages handed in one at a time: the same odometry,
+    byte for byte, the same counts and the same calibration; with messages that leave the
+    loop's path among them (a NaN wheel rate, stamps that go back, another IMU frame name, a
+    wheel message with positions only)."""
+    from rclpy.serialization import serialize_message
+
+    d = first_seconds(drive, 100.0)
+    script = Script()
+    batches: list[list[tuple[str, bytes]]] = []
+    for start in range(0, d.n_samples, 25):
+        batch = []
+        for k in range(start, min(start + 25, d.n_samples)):
+            msgs = messages(d, k, script)
+            if k == 700:
+                msgs["wheels"].velocity[-1] = float("nan")
+            if k == 900:
+                msgs["imu"].header.frame_id = "imu_link"
+            if k == 1100:
+                msgs["wheels"].velocity = []
+            if k in (1300, 1301):                  # a second back, then on again
+                for m in msgs.values():
+                    m.header.stamp = stamp(START_S + float(d.t[k]) - 1.0)
+            batch += [(role, serialize_message(msgs[role])) for role in ("imu", "pose", "wheels")]
+        batches.append(batch)
+    nodes = [rig(discover=False).node for _ in range(2)]
+    outputs: list[list[bytes]] = [[], []]
+    for node, out in zip(nodes, outputs, strict=True):
+        node._odom_pub = _Captured(node._odom_pub, out)
+    for batch in batches:
+        for role, name in (("imu", "imu"), ("pose", "pose"), ("wheels", "wheel")):
+            group = [data for r, data in batch if r == role]
+            getattr(nodes[0], f"_{name}_batch")(group)
+            for data in group:
+                getattr(nodes[1], f"_{name}_message")(data)
+            for node in nodes:
+                node._maybe_flush()
+    ests = [node.finish() for node in nodes]
+    assert len(outputs[0]) > 0.9 * d.n_samples and outputs[0] == outputs[1]
+    assert nodes[0].arrived() == nodes[1].arrived() and nodes[0].updates == nodes[1].updates > 2
+    assert [t.stamps for t in nodes[0].topics] == [t.stamps for t in nodes[1].topics]
+    assert np.array_equal(ests[0].theta.as_array(), ests[1].theta.as_array())

@@ -19,7 +19,8 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from operator import itemgetter
+from typing import Any, NamedTuple
 
 #: Encapsulation identifiers (the header's second byte) -> (byte order, largest alignment):
 #: plain CDR (XCDR1), big and little endian, as ROS 2's middlewares write ROS messages.
@@ -27,6 +28,8 @@ _ENCAPSULATIONS = {0x00: (">", 8), 0x01: ("<", 8)}
 _HEADER = 4
 #: Doubles in geometry_msgs/PoseWithCovariance: position (3), orientation (4), covariance (36).
 _POSE_WITH_COVARIANCE = 7 + 36
+#: A builtin_interfaces/Time right after the encapsulation header: sec, nanosec.
+_STAMP = [(4, "i"), (8, "I")]
 
 
 class CdrError(ValueError):
@@ -91,6 +94,41 @@ class _Cursor:
         return (self.doubles_at(n) if n else self.pos), n
 
 
+class Fixed:
+    """One layout of a message type, learned from one message: where the values wanted lie,
+    read with one unpack. A message is of the layout where its length, its byte order and
+    every field that fixes the layout (``checks``: offset, struct code, value: a string's
+    length, a sequence's count, a joint's name) are those learned; ``read`` gives the values
+    ``reads`` asks for (offset, struct code), or None for any other message."""
+
+    __slots__ = ("_checked", "_enc", "_length", "_picked", "_unpack", "_values")
+
+    def __init__(self, data: bytes, order: str, checks: Sequence[tuple[int, str, Any]],
+                 reads: Sequence[tuple[int, str]]) -> None:
+        items = sorted([(at, code, -1 - i) for i, (at, code, _) in enumerate(checks)]
+                       + [(at, code, i) for i, (at, code) in enumerate(reads)])
+        fmt, pos = order, 0
+        for at, code, _ in items:
+            fmt += (f"{at - pos}x" if at > pos else "") + code
+            pos = at + struct.calcsize("<" + code)
+        where = {key: j for j, (_, _, key) in enumerate(items)}
+        self._length, self._enc = len(data), data[1]
+        self._unpack = struct.Struct(fmt).unpack_from
+        # (a tuple of at least two: itemgetter of one index gives the item, not a tuple)
+        checked = [where[-1 - i] for i in range(len(checks))]
+        self._checked: Any = itemgetter(*checked, *checked) if checks else None
+        self._values = tuple(v for _, _, v in checks) * 2
+        self._picked = itemgetter(*(where[i] for i in range(len(reads))))
+
+    def read(self, data: bytes) -> Any:
+        if len(data) != self._length or data[1] != self._enc:
+            return None
+        got = self._unpack(data)
+        if self._checked is not None and self._checked(got) != self._values:
+            return None
+        return self._picked(got)
+
+
 @dataclass(frozen=True)
 class Joints:
     """What a ``sensor_msgs/JointState`` says: stamp, joint names, positions and velocities."""
@@ -128,6 +166,7 @@ class _JointLayout:
     names: tuple[tuple[int, bytes], ...]   # the two joints' names: (offset, characters)
     positions: tuple[int, int]       # the two joints' offsets (-1: none in these messages)
     velocities: tuple[int, int]
+    quick: Fixed | None              # the stamp and the two velocities (where there are)
 
 
 class JointReader:
@@ -160,6 +199,14 @@ class JointReader:
                 if pos[0] >= 0 else None,
                 (struct.unpack_from(d, data, vel[0])[0], struct.unpack_from(d, data, vel[1])[0])
                 if vel[0] >= 0 else None)
+
+    def velocities(self, data: bytes) -> tuple[int, int, float, float] | None:
+        """(sec, nanosec, left, right velocity) of a message of the layout seen last, where
+        it has velocities; None for any other message (:meth:`read` it)."""
+        lay = self._layout
+        if lay is None or lay.quick is None:
+            return None
+        return lay.quick.read(data)
 
     def _learn(self, data: bytes) -> _JointLayout:
         c = _Cursor(data)
@@ -195,28 +242,105 @@ class JointReader:
         for at, _ in fields:
             fmt += f"{at - pos}xI"
             pos = at + 4
+        velocities = offsets[1]
+        checks = [(at, "I", v) for at, v in fields] + [
+            (at, f"{len(name)}s", name) for at, name in (names[left], names[right]) if name]
+        quick = (Fixed(data, c.order, checks,
+                       [*_STAMP, (velocities[0], "d"), (velocities[1], "d")])
+                 if velocities[0] >= 0 else None)
         return _JointLayout(order=c.order, length=len(data), fields=struct.Struct(fmt),
                             values=tuple(v for _, v in fields),
                             names=(names[left], names[right]),
-                            positions=offsets[0], velocities=offsets[1])
+                            positions=offsets[0], velocities=velocities, quick=quick)
 
 
 def _fields_at(data: bytes, strings: int, doubles: int) -> tuple[str, int]:
     """The byte order and the offset of the first double after the stamp and ``strings``
     strings, checked to hold ``doubles`` doubles."""
+    order, at, _ = _layout(data, strings, doubles)
+    return order, at
+
+
+def _layout(data: bytes, strings: int, doubles: int
+            ) -> tuple[str, int, list[tuple[int, str, int]]]:
+    """:func:`_fields_at`, and the strings' length fields (offset, value)."""
     if len(data) < 16 or data[0] != 0 or data[1] not in _ENCAPSULATIONS:
         raise CdrError("not CDR: too short or an unknown encapsulation")
     order, align = _ENCAPSULATIONS[data[1]]
     at = 12
+    lengths = []
     for _ in range(strings):
         at += (-(at - _HEADER)) % 4
         if at + 4 > len(data):
             raise CdrError("the message ends early")
-        at += 4 + struct.unpack_from(order + "I", data, at)[0]
+        n = struct.unpack_from(order + "I", data, at)[0]
+        lengths.append((at, "I", n))
+        at += 4 + n
     at += (-(at - _HEADER)) % min(8, align)
     if at + 8 * doubles > len(data):
         raise CdrError("the message ends early")
-    return order, at
+    return order, at, lengths
+
+
+class Quick:
+    """What a reader of one message type takes from a message, read by the layout of the
+    last message it learned one from (:class:`Fixed`); ``read`` gives None for bytes that are
+    not such a message (the full reader says why)."""
+
+    __slots__ = ("_fixed", "_learn")
+
+    def __init__(self, learn: Callable[[bytes], Fixed]) -> None:
+        self._learn = learn
+        self._fixed: Fixed | None = None
+
+    def read(self, data: bytes) -> Any:
+        fixed = self._fixed
+        got = fixed.read(data) if fixed is not None else None
+        if got is None:
+            try:
+                fixed = self._fixed = self._learn(data)
+            except CdrError:
+                return None
+            got = fixed.read(data)
+        return got
+
+
+def _imu_layout(data: bytes) -> Fixed:
+    """Where :func:`imu` reads: (sec, nanosec, the angular velocity's x, y, z, the linear
+    acceleration's x, y, z)."""
+    order, at, lengths = _layout(data, 1, 4 + 9 + 3 + 9 + 3 + 9)
+    return Fixed(data, order, lengths,
+                 [*_STAMP, *((at + 8 * i, "d") for i in (13, 14, 15, 25, 26, 27))])
+
+
+def _odometry_layout(data: bytes) -> Fixed:
+    """Where :func:`odometry` reads: (sec, nanosec, x, y, qx, qy, qz, qw, vx, vy)."""
+    order, at, lengths = _layout(data, 2, _POSE_WITH_COVARIANCE + 6 + 36)
+    twist = _POSE_WITH_COVARIANCE
+    return Fixed(data, order, lengths,
+                 [*_STAMP, *((at + 8 * i, "d") for i in (0, 1, 3, 4, 5, 6, twist, twist + 1))])
+
+
+def _pose_layout(data: bytes) -> Fixed:
+    """Where :func:`pose_with_covariance` reads: (sec, nanosec, x, y, qx, qy, qz, qw)."""
+    order, at, lengths = _layout(data, 1, _POSE_WITH_COVARIANCE)
+    return Fixed(data, order, lengths,
+                 [*_STAMP, *((at + 8 * i, "d") for i in (0, 1, 3, 4, 5, 6))])
+
+
+def imu_reader() -> Quick:
+    """:func:`imu`'s values as one flat tuple, by layout."""
+    return Quick(_imu_layout)
+
+
+def odometry_reader() -> Quick:
+    """:func:`odometry`'s values as one flat tuple, by layout."""
+    return Quick(_odometry_layout)
+
+
+def pose_reader() -> Quick:
+    """:func:`pose_with_covariance`'s values as one flat tuple, by layout."""
+    return Quick(_pose_layout)
 
 
 def imu(data: bytes) -> tuple[int, int, tuple[float, float, float],
@@ -272,28 +396,48 @@ class OdometryWriter:
             raise CdrError("the odometry template is not little-endian XCDR1")
         c.stamp()
         c.string()
+        first_end = c.pos
         c.string()
+        second_end = c.pos
         self._pose = c.doubles_at(_POSE_WITH_COVARIANCE + 6 + 36)
         self._pose_cov = self._pose + 8 * 7
         self._twist = self._pose + 8 * _POSE_WITH_COVARIANCE
         self._twist_cov = self._twist + 8 * 6
         self.buffer = bytearray(template)
+        # the alignment after each frame name zeroed (a serializer may leave whatever its
+        # buffer held there): the same message is the same bytes, whoever made the template
+        pad = first_end + (-(first_end - _HEADER)) % 4
+        self.buffer[first_end:pad] = bytes(pad - first_end)
+        self.buffer[second_end:self._pose] = bytes(self._pose - second_end)
+        # what the node never sets (z, the orientation's x and y; the twist's other four
+        # components) is written as the zeros it is in the template: the message is one pack,
+        # the constant stretches between the fields it sets given as strings
+        if any(template[self._pose + 16:self._pose + 40]) \
+                or any(template[self._twist + 8:self._twist + 40]):
+            raise CdrError("the odometry template has values where the node writes none")
+        tail = len(template) - (self._twist_cov + 8 * 36)
+        self._pack = struct.Struct(
+            f"<4siI{self._pose - 12}s2d24x2d288sd32x2d272sd{tail}s").pack
+        self._constants: tuple[bytes, ...] = ()
+        self._keep()
 
     def covariances(self, pose: Sequence[float], twist: Sequence[float]) -> None:
         """The 6x6 row-major pose and twist covariances (each 36 values)."""
         struct.pack_into("<36d", self.buffer, self._pose_cov, *pose)
         struct.pack_into("<36d", self.buffer, self._twist_cov, *twist)
+        self._keep()
+
+    def _keep(self) -> None:
+        """The stretches of the buffer between the fields a message sets."""
+        buf = bytes(self.buffer)
+        cov = self._twist_cov
+        self._constants = (buf[:4], buf[12:self._pose], buf[self._pose_cov:self._twist],
+                           buf[cov + 8:cov + 8 * 35], buf[cov + 8 * 36:])
 
     def message(self, sec: int, nanosec: int, x: float, y: float, qz: float, qw: float,
                 v: float, w: float, var_v: float, var_w: float) -> bytes:
         """The message for one stamp: pose (x, y, yaw as qz, qw), speed, yaw rate and their
         variances (the twist covariance's (0, 0) and (5, 5))."""
-        buf = self.buffer
-        struct.pack_into("<iI", buf, 4, sec, nanosec)
-        struct.pack_into("<2d", buf, self._pose, x, y)
-        struct.pack_into("<2d", buf, self._pose + 40, qz, qw)
-        struct.pack_into("<d", buf, self._twist, v)
-        struct.pack_into("<d", buf, self._twist + 40, w)
-        struct.pack_into("<d", buf, self._twist_cov, var_v)
-        struct.pack_into("<d", buf, self._twist_cov + 8 * 35, var_w)
-        return bytes(buf)
+        head, frames, pose_cov, twist_cov, tail = self._constants
+        return self._pack(head, sec, nanosec, frames, x, y, qz, qw, pose_cov, v, w, var_v,
+                          twist_cov, var_w, tail)

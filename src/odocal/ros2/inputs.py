@@ -43,6 +43,20 @@ def wheel_joints(names: Sequence[str], left: str, right: str, topic: str) -> tup
                                setting=lambda side: f"{side}_wheel_joint", error=ConfigError)
 
 
+def tenth_percentile(values: Sequence[float]) -> float:
+    """``np.percentile(values, 10)`` (its default, linear method, in its arithmetic), without
+    numpy's overhead on a few dozen values (70 us against 2 us)."""
+    ordered = sorted(values)
+    virtual = (len(ordered) - 1) * 0.1
+    below = math.floor(virtual)
+    if below >= len(ordered) - 1:
+        return float(ordered[-1])
+    gamma = virtual - below
+    a, b = ordered[below], ordered[below + 1]
+    diff = b - a
+    return float(b - diff * (1.0 - gamma) if gamma >= 0.5 else a + diff * gamma)
+
+
 @dataclass(slots=True)
 class Continuity:
     """What one topic's stamps say: messages taken, missing between them, and refused.
@@ -63,12 +77,12 @@ class Continuity:
 
     def check(self, t: float) -> bool:
         last = self.last_t
-        if last is not None and not t > last:
-            self.back += 1
-            self.back_max_s = max(self.back_max_s, last - t)
-            self._refused += 1
-            return False
         if last is not None:
+            if not t > last:
+                self.back += 1
+                self.back_max_s = max(self.back_max_s, last - t)
+                self._refused += 1
+                return False
             step = t - last
             period = self.period_s
             if period is not None and step > MISSING_AFTER * period:
@@ -79,10 +93,10 @@ class Continuity:
             steps = self._steps
             steps.append(step)
             if len(steps) >= _PERIOD_STEPS:
-                self.period_s = float(np.percentile(steps, 10))
+                self.period_s = tenth_percentile(steps)
                 steps.clear()
             elif period is None and len(steps) >= 8:
-                self.period_s = float(np.percentile(steps, 10))
+                self.period_s = tenth_percentile(steps)
         self.last_t = t
         self.received += 1
         self._refused = 0

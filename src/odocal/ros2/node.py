@@ -58,7 +58,6 @@ import numpy as np
 from odocal.errors import ConfigError, DataError, MissingDependencyError, OdocalError
 from odocal.estimators.estimate import Estimate, NotIdentified, Status
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
-from odocal.model.step import body, increment
 from odocal.online.calibrator import OnlineCalibrator
 from odocal.online.replay import GridResampler, publishable
 from odocal.output.export import (
@@ -321,6 +320,9 @@ class CalibrationNode(LifecycleNode):
         self._rotation = rotation(p("imu_rotation_deg"))
         self._pose_reader = (cdr.odometry if p("pose_type") == "odometry"
                              else cdr.pose_with_covariance)
+        self._pose_quick = (cdr.odometry_reader() if p("pose_type") == "odometry"
+                            else cdr.pose_reader())
+        self._imu_quick = cdr.imu_reader()
         self._beta_wanted = bool(p("sideslip_from_reference"))
         if self._beta_wanted and p("pose_type") != "odometry":
             raise ConfigError("parameter sideslip_from_reference: true needs pose_type "
@@ -396,15 +398,15 @@ class CalibrationNode(LifecycleNode):
         # each input's callback takes every message waiting behind the one it was handed
         # (one Python call for a backlog, not one per message)
         self._wheel_sub = self.create_subscription(
-            JointState, names["wheel_topic"], self._taker("_wheel_sub", self._wheel_message),
+            JointState, names["wheel_topic"], self._taker("_wheel_sub", self._wheel_batch),
             qos, raw=True)
         self._pose_sub = self.create_subscription(
-            pose_type, names["pose_topic"], self._taker("_pose_sub", self._pose_message), qos,
+            pose_type, names["pose_topic"], self._taker("_pose_sub", self._pose_batch), qos,
             raw=True)
         self._imu_sub: Any = None
         if names["imu_topic"]:
             self._imu_sub = self.create_subscription(
-                Imu, names["imu_topic"], self._taker("_imu_sub", self._imu_message), qos,
+                Imu, names["imu_topic"], self._taker("_imu_sub", self._imu_batch), qos,
                 raw=True)
         for sub in (self._wheel_sub, self._imu_sub, self._pose_sub):
             if sub is not None:
@@ -489,9 +491,10 @@ class CalibrationNode(LifecycleNode):
         self._joints = (names[left], names[right])
         return left, right
 
-    def _taker(self, name: str, handle: Callable[[bytes], None]) -> Callable[[bytes], None]:
+    def _taker(self, name: str, handle: Callable[[list[bytes]], None]
+               ) -> Callable[[bytes], None]:
         """The callback of the input subscription ``name``: the message handed in and every
-        one waiting behind it (at most :data:`MAX_BATCH`), each to ``handle``; then what a
+        one waiting behind it (at most :data:`MAX_BATCH`), all to ``handle``; then what a
         second of data completes is pushed."""
         def take(first: bytes) -> None:
             if not self._active:
@@ -505,11 +508,77 @@ class CalibrationNode(LifecycleNode):
                     if got is None:
                         break
                     batch.append(got[0])
-            for data in batch:
-                handle(data)
+            handle(batch)
             self._maybe_flush()
 
         return take
+
+    def _wheel_batch(self, batch: list[bytes]) -> None:
+        """The wheel messages of one callback in turn, each as :meth:`_wheel_message` takes
+        it. A driver's every message (velocities, of the layout seen last, a stamp after the
+        last one, finite values) is read, buffered and its odometry published here with the
+        state in local variables (one Python call per message costs as much as its work);
+        any other goes through :meth:`_wheel_message`."""
+        pub = self._odom_pub
+        handle = pub.handle
+        quick = self._reader.velocities
+        wheels = self._wheels
+        check = wheels.stamps.check
+        columns = wheels.buffer.columns
+        add_t, add_l, add_r = (columns["t"].append, columns["n_rl"].append,
+                               columns["n_rr"].append)
+        readings, variances = self.twist.readings.add, self.twist.variances
+        message = self._writer.message
+        # (2a), (2b) as odocal.model.step.body computes them: the theta and a_y of the batch
+        th, a_y = self._theta, self._a_y
+        c_rl, c_rr, t_r = th[0] + 0.5 * th[1] + th[3] * a_y, th[0] - 0.5 * th[1] - th[3] * a_y, \
+            th[2]
+        max_gap = self._max_gap_s
+        isfinite, cos, sin = math.isfinite, math.cos, math.sin
+        origin = self._origin
+        x, y, psi, last = self._x, self._y, self._psi, self._odom_t
+        with handle:
+            publish = handle.publish_raw if pub.is_activated else None
+            for data in batch:
+                if origin is None or (got := quick(data)) is None:
+                    self._x, self._y, self._psi, self._odom_t = x, y, psi, last
+                    self._wheel_message(data)
+                    x, y, psi, last = self._x, self._y, self._psi, self._odom_t
+                    origin = self._origin
+                    continue
+                sec, nsec, left, right = got
+                t = float(sec - origin[0]) + 1e-9 * float(nsec - origin[1])
+                if not check(t):
+                    self._rates.reset()
+                    continue
+                n_rl, n_rr = left / TWO_PI, right / TWO_PI
+                if not (isfinite(n_rl) and isfinite(n_rr)):
+                    self._refuse_wheels()
+                    continue
+                add_t(t)
+                add_l(n_rl)
+                add_r(n_rr)
+                s_rl, s_rr = n_rl * c_rl, n_rr * c_rr
+                v, w = 0.5 * (s_rl + s_rr), (s_rr - s_rl) / t_r
+                if last is not None and 0.0 < t - last <= max_gap:
+                    dt = t - last                       # (1) as odocal.model.step.increment
+                    h = psi + 0.5 * w * dt
+                    x += v * (dt * cos(h))
+                    y += v * (dt * sin(h))
+                    psi += w * dt
+                last = t
+                readings(t, v, w)
+                var_v, var_w = variances(v, n_rl, n_rr, a_y)
+                if publish is not None:
+                    half = 0.5 * psi
+                    publish(message(sec, nsec, x, y, sin(half), cos(half), v, w, var_v, var_w))
+        self._x, self._y, self._psi, self._odom_t = x, y, psi, last
+
+    def _refuse_wheels(self) -> None:
+        wheels = self._wheels
+        wheels.stamps.refuse_invalid()
+        wheels.note = "NaN or infinite wheel values"
+        self._rates.reset()
 
     def _wheel_message(self, data: bytes) -> None:
         wheels = self._wheels
@@ -541,12 +610,55 @@ class CalibrationNode(LifecycleNode):
             wheels.note = "neither velocities nor positions for the wheel joints"
             return
         if not (math.isfinite(n_rl) and math.isfinite(n_rr)):
-            wheels.stamps.refuse_invalid()
-            wheels.note = "NaN or infinite wheel values"
-            self._rates.reset()
+            self._refuse_wheels()
             return
         wheels.buffer.add(t_rate, (n_rl, n_rr))
         self._publish_odometry(sec, nsec, t, n_rl, n_rr)
+
+    def _imu_batch(self, batch: list[bytes]) -> None:
+        """The IMU messages of one callback in turn, each as :meth:`_imu_message` takes it
+        (those of the layout seen last read here, any other there)."""
+        imu = self._imu
+        assert imu is not None
+        quick = self._imu_quick.read
+        check = imu.stamps.check
+        columns = imu.buffer.columns
+        add_t, add_w, add_a = (columns["t"].append, columns["yaw_rate"].append,
+                               columns["a_y"].append)
+        gyro = self.gyro
+        isfinite = math.isfinite
+        r = self._rotation
+        origin = self._origin
+        for data in batch:
+            if origin is None or (got := quick(data)) is None:
+                self._imu_message(data)
+                origin = self._origin
+                continue
+            sec, nsec, rx, ry, rz, ax, ay, az = got
+            t = float(sec - origin[0]) + 1e-9 * float(nsec - origin[1])
+            if not check(t):
+                gyro.reading_gap()
+                continue
+            if r is None:
+                yaw_rate, a_y = rz, ay
+            else:
+                yaw_rate, a_y = (r[2][0] * rx + r[2][1] * ry + r[2][2] * rz,
+                                 r[1][0] * ax + r[1][1] * ay + r[1][2] * az)
+            if not (isfinite(yaw_rate) and isfinite(a_y)):
+                self._refuse_imu()
+                continue
+            self._a_y = a_y
+            gyro.add_reading(yaw_rate)
+            add_t(t)
+            add_w(yaw_rate)
+            add_a(a_y)
+
+    def _refuse_imu(self) -> None:
+        imu = self._imu
+        assert imu is not None
+        imu.stamps.refuse_invalid()
+        imu.note = "NaN or infinite IMU values"
+        self.gyro.reading_gap()
 
     def _imu_message(self, data: bytes) -> None:
         imu = self._imu
@@ -563,9 +675,7 @@ class CalibrationNode(LifecycleNode):
             return
         yaw_rate, a_y = self._imu_values(rate, accel)
         if not (math.isfinite(yaw_rate) and math.isfinite(a_y)):
-            imu.stamps.refuse_invalid()
-            imu.note = "NaN or infinite IMU values"
-            self.gyro.reading_gap()
+            self._refuse_imu()
             return
         self._a_y = a_y
         self.gyro.add_reading(yaw_rate)
@@ -578,6 +688,44 @@ class CalibrationNode(LifecycleNode):
             return rate[2], accel[1]
         return (r[2][0] * rate[0] + r[2][1] * rate[1] + r[2][2] * rate[2],
                 r[1][0] * accel[0] + r[1][1] * accel[1] + r[1][2] * accel[2])
+
+    def _pose_batch(self, batch: list[bytes]) -> None:
+        """The reference messages of one callback in turn, each as :meth:`_pose_message`
+        takes it (those of the layout seen last read here, any other there)."""
+        pose = self._pose
+        quick = self._pose_quick.read
+        check = pose.stamps.check
+        columns = pose.buffer.columns
+        add_t, add_x, add_y, add_psi = (columns["t"].append, columns["x"].append,
+                                        columns["y"].append, columns["psi"].append)
+        beta_wanted = self._beta_wanted
+        isfinite, atan2 = math.isfinite, math.atan2
+        origin = self._origin
+        for data in batch:
+            if origin is None or (got := quick(data)) is None:
+                self._pose_message(data)
+                origin = self._origin
+                continue
+            sec, nsec, x, y, qx, qy, qz, qw = got[:8]
+            t = float(sec - origin[0]) + 1e-9 * float(nsec - origin[1])
+            if not check(t):
+                continue
+            psi = atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))   # yaw_of
+            beta = _sideslip(got[8:10]) if beta_wanted else 0.0
+            if not (isfinite(x) and isfinite(y) and isfinite(psi) and isfinite(beta)):
+                self._refuse_pose()
+                continue
+            add_t(t)
+            add_x(x)
+            add_y(y)
+            add_psi(psi)
+            if beta_wanted:
+                self._beta.append((t, beta))
+
+    def _refuse_pose(self) -> None:
+        pose = self._pose
+        pose.stamps.refuse_invalid()
+        pose.note = "NaN or infinite pose values"
 
     def _pose_message(self, data: bytes) -> None:
         pose = self._pose
@@ -594,8 +742,7 @@ class CalibrationNode(LifecycleNode):
         beta = _sideslip(m.velocity) if self._beta_wanted else 0.0
         if not (math.isfinite(m.x) and math.isfinite(m.y) and math.isfinite(psi)
                 and math.isfinite(beta)):
-            pose.stamps.refuse_invalid()
-            pose.note = "NaN or infinite pose values"
+            self._refuse_pose()
             return
         pose.buffer.add(t, (m.x, m.y, psi))
         if self._beta_wanted:
@@ -828,15 +975,19 @@ class CalibrationNode(LifecycleNode):
 
     def _publish_odometry(self, sec: int, nsec: int, t: float, n_rl: float, n_rr: float) -> None:
         """(2a), (2b) with the published calibration, the pose by (1), and the twist's
-        variances (:mod:`odocal.ros2.twist`)."""
-        a_y = self._a_y
-        v, w, _, _ = body(self._theta, n_rl, n_rr, a_y)
+        variances (:mod:`odocal.ros2.twist`); as :meth:`_wheel_batch` computes them, in plain
+        float arithmetic (odocal.model.step's expressions, in their order)."""
+        a_y, th = self._a_y, self._theta
+        s_rl = n_rl * (th[0] + 0.5 * th[1] + th[3] * a_y)
+        s_rr = n_rr * (th[0] - 0.5 * th[1] - th[3] * a_y)
+        v, w = 0.5 * (s_rl + s_rr), (s_rr - s_rl) / th[2]
         last = self._odom_t
         if last is not None and 0.0 < t - last <= self._max_gap_s:
-            dx, dy, dpsi, _, _ = increment(self._psi, v, w, 0.0, t - last)
-            self._x += float(dx)
-            self._y += float(dy)
-            self._psi += float(dpsi)
+            dt = t - last
+            h = self._psi + 0.5 * w * dt
+            self._x += v * (dt * math.cos(h))
+            self._y += v * (dt * math.sin(h))
+            self._psi += w * dt
         self._odom_t = t
         twist = self.twist
         twist.readings.add(t, v, w)

@@ -54,24 +54,27 @@ class ReadingNoise:
         self._fitted_at = 0.0
 
     def add(self, t: float, v: float, w: float) -> None:
-        now = (t, v, w)
         p1, p2 = self._prev, self._prev2
-        self._prev2, self._prev = p1, now
+        self._prev2, self._prev = p1, (t, v, w)
         if p1 is None or p2 is None:
             return
-        step1, step2 = p1[0] - p2[0], t - p1[0]
-        if not (0.0 < step1 <= self.max_gap_s and 0.0 < step2 <= self.max_gap_s) \
-                or abs(step2 - step1) > _UNEVEN * step1:
+        t1, v1, w1 = p1
+        t2, v2, w2 = p2
+        step1, step2 = t1 - t2, t - t1
+        gap = self.max_gap_s
+        if not (0.0 < step1 <= gap and 0.0 < step2 <= gap) or abs(step2 - step1) > _UNEVEN * step1:
             return
-        v2 = p1[1] * p1[1]
+        vv = v1 * v1
         s = self._s
         s[0] += 1.0
-        s[1] += v2
-        s[2] += v2 * v2
-        for channel, y in enumerate(((v - 2.0 * p1[1] + p2[1]) ** 2 / 6.0,
-                                     (w - 2.0 * p1[2] + p2[2]) ** 2 / 6.0)):
-            self._y[channel][0] += y
-            self._y[channel][1] += y * v2
+        s[1] += vv
+        s[2] += vv * vv
+        y_v, y_w = (v - 2.0 * v1 + v2) ** 2 / 6.0, (w - 2.0 * w1 + w2) ** 2 / 6.0
+        speed, yaw = self._y
+        speed[0] += y_v
+        speed[1] += y_v * vv
+        yaw[0] += y_w
+        yaw[1] += y_w * vv
 
     @property
     def count(self) -> int:
