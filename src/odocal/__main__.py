@@ -2,4 +2,5 @@
 
 from odocal.cli import run
 
-run()
+if __name__ == "__main__":      # (not when a spawned helper imports this module as its main)
+    run()

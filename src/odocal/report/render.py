@@ -19,6 +19,7 @@ import multiprocessing
 import os
 import pickle
 import signal
+import sys
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -207,8 +208,12 @@ class Renderer:
     def __init__(self, workers: int = 0) -> None:
         self._process: Any = None
         self._connection: Any = None
-        if workers > 0 and "fork" in multiprocessing.get_all_start_methods():
-            context = multiprocessing.get_context("fork")
+        # the helper is forked; from a process that runs ROS 2 it is spawned instead (the
+        # middleware's threads do not survive a fork: a forked helper crashed collecting
+        # garbage), and forks its drawing processes from itself as ever
+        method = "spawn" if "rclpy" in sys.modules else "fork"
+        if workers > 0 and method in multiprocessing.get_all_start_methods():
+            context: Any = multiprocessing.get_context(method)
             self._connection, theirs = context.Pipe()
             self._process = context.Process(target=_host, daemon=True,
                                             args=(theirs, self._connection, workers,

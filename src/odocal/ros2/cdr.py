@@ -431,7 +431,9 @@ class OdometryWriter:
         """The stretches of the buffer between the fields a message sets."""
         buf = bytes(self.buffer)
         cov = self._twist_cov
-        self._constants = (buf[:4], buf[12:self._pose], buf[self._pose_cov:self._twist],
+        header = buf[:4]                # the CDR header's bytes (not theta)
+        # the header, then the parts no message changes
+        self._constants = (header, buf[12:self._pose], buf[self._pose_cov:self._twist],
                            buf[cov + 8:cov + 8 * 35], buf[cov + 8 * 36:])
 
     def message(self, sec: int, nanosec: int, x: float, y: float, qz: float, qw: float,

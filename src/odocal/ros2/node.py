@@ -57,6 +57,7 @@ import numpy as np
 
 from odocal.errors import ConfigError, DataError, MissingDependencyError, OdocalError
 from odocal.estimators.estimate import Estimate, NotIdentified, Status
+from odocal.model.layout import REAR_AXLE as LAYOUT
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.online.calibrator import OnlineCalibrator
 from odocal.online.replay import GridResampler, publishable
@@ -74,6 +75,10 @@ from odocal.ros2.gyro import GyroBias
 from odocal.ros2.inputs import TWO_PI, Buffer, Continuity, Rates, wheel_joints
 from odocal.ros2.twist import UNKNOWN_VARIANCE, TwistVariance
 from odocal.settings import Settings, datasheet_theta, load_settings, parse_datasheet
+
+#: Where theta holds c_e, c_d, t_r and d (the layout's roles), for the per-message odometry.
+_E, _D, _T, _L = (LAYOUT.index(n) for n in (LAYOUT.scale, LAYOUT.difference, LAYOUT.track,
+                                              LAYOUT.load))
 
 try:
     import rclpy
@@ -531,8 +536,8 @@ class CalibrationNode(LifecycleNode):
         message = self._writer.message
         # (2a), (2b) as odocal.model.step.body computes them: the theta and a_y of the batch
         th, a_y = self._theta, self._a_y
-        c_rl, c_rr, t_r = th[0] + 0.5 * th[1] + th[3] * a_y, th[0] - 0.5 * th[1] - th[3] * a_y, \
-            th[2]
+        c_rl, c_rr, t_r = (th[_E] + 0.5 * th[_D] + th[_L] * a_y,
+                           th[_E] - 0.5 * th[_D] - th[_L] * a_y, th[_T])
         max_gap = self._max_gap_s
         isfinite, cos, sin = math.isfinite, math.cos, math.sin
         origin = self._origin
@@ -978,9 +983,9 @@ class CalibrationNode(LifecycleNode):
         variances (:mod:`odocal.ros2.twist`); as :meth:`_wheel_batch` computes them, in plain
         float arithmetic (odocal.model.step's expressions, in their order)."""
         a_y, th = self._a_y, self._theta
-        s_rl = n_rl * (th[0] + 0.5 * th[1] + th[3] * a_y)
-        s_rr = n_rr * (th[0] - 0.5 * th[1] - th[3] * a_y)
-        v, w = 0.5 * (s_rl + s_rr), (s_rr - s_rl) / th[2]
+        s_rl = n_rl * (th[_E] + 0.5 * th[_D] + th[_L] * a_y)
+        s_rr = n_rr * (th[_E] - 0.5 * th[_D] - th[_L] * a_y)
+        v, w = 0.5 * (s_rl + s_rr), (s_rr - s_rl) / th[_T]
         last = self._odom_t
         if last is not None and 0.0 < t - last <= self._max_gap_s:
             dt = t - last
