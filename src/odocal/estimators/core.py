@@ -834,14 +834,7 @@ def _lateral_doubt(found: Uncertainty, p: FloatArray, free: BoolArray) -> Uncert
     extra[i_d] = 2.0 * d * offset / (1.0 + scale)
     extra[i_l] = d * scale / (1.0 + scale)
     extra[~np.asarray(free, dtype=bool)] = 0.0
-    cov = found.covariance + np.diag(extra ** 2)
-    before = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))
-    after = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        widening = found.widening * np.where(before > 0, after / before, 1.0)
-    p_std = found.p_std.copy()
-    p_std[THETA] = after
-    return dataclasses.replace(found, covariance=cov, widening=widening, p_std=p_std)
+    return _doubted(found, extra)
 
 
 def _skew_doubt(found: Uncertainty, state: _State, ctx: _Context,
@@ -866,7 +859,13 @@ def _skew_doubt(found: Uncertainty, state: _State, ctx: _Context,
     moved = ctx.solve(p, skewed, state.model, free_p)
     delta = moved.p[THETA] - plain.p[THETA]
     delta[~free_p[THETA] | ~np.isfinite(delta)] = 0.0
-    cov = found.covariance + np.diag(delta ** 2)
+    return _doubted(found, delta)
+
+
+def _doubted(found: Uncertainty, shift: FloatArray) -> Uncertainty:
+    """``found`` with ``shift`` (n,), what a cause the data cannot tell would move theta by,
+    squared into theta's variance (its widening and p's standard deviations with it)."""
+    cov = found.covariance + np.diag(shift ** 2)
     before = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))
     after = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     with np.errstate(divide="ignore", invalid="ignore"):
