@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from odocal.errors import ConfigError, input_file, shown
+from odocal.model import registry
 from odocal.model.layout import REAR_AXLE
 
 #: Datasheet parameters of the paper, ``[c_e, c_d, t_r, d]`` (m, m, m, m per m/s^2).
@@ -851,9 +852,23 @@ class SideslipSettings:
 
 
 @dataclass(frozen=True)
+class VehicleSettings:
+    """The vehicle model (:mod:`odocal.model.registry`): its equations and its parameters,
+    which every per-parameter setting (``[identify] theta0``, ``prior_std``, ``[minimum]
+    half_width``, ``[fleet] excess_floor``) lists in the model's order."""
+
+    model: str = registry.DEFAULT
+    """The model's name: ``rear_axle`` (two rear wheel rates, METHOD 1)."""
+
+    def __post_init__(self) -> None:
+        registry.entry(self.model)          # a one-line error naming the known models
+
+
+@dataclass(frozen=True)
 class Settings:
     """Every setting of odocal. ``Settings()`` holds the paper's defaults."""
 
+    vehicle: VehicleSettings = field(default_factory=VehicleSettings)
     segments: SegmentSettings = field(default_factory=SegmentSettings)
     identify: IdentifySettings = field(default_factory=IdentifySettings)
     compensate: CompensateSettings = field(default_factory=CompensateSettings)
@@ -881,6 +896,19 @@ class Settings:
                     if isinstance(v, float) and not math.isfinite(v):
                         raise ConfigError(f"setting [{name}] {f.name} = {value!r} is invalid: "
                                           "expected finite numbers")
+        # the per-parameter settings list the chosen model's parameters
+        lay = registry.layout(self.vehicle.model)
+        for name, key in PER_PARAMETER:
+            value = getattr(getattr(self, name), key)
+            if len(value) != lay.size:
+                raise ConfigError(
+                    f"setting [{name}] {key} = {list(value)!r} is invalid: the {self.vehicle.model}"
+                    f" model has {lay.size} parameters ({', '.join(lay.names)}), one value each")
+
+    @property
+    def layout(self) -> Any:
+        """The chosen model's parameter layout (:class:`odocal.model.layout.Layout`)."""
+        return registry.layout(self.vehicle.model)
 
     def replace(self, **sections: Any) -> Settings:
         """A copy with whole sections or single keys replaced.
@@ -909,6 +937,11 @@ def _to_plain(obj: Any) -> Any:
         return [_to_plain(v) for v in obj]
     return obj
 
+
+#: The settings that hold one value per parameter of the model, by section and key.
+PER_PARAMETER: tuple[tuple[str, str], ...] = (("identify", "theta0"), ("identify", "prior_std"),
+                                               ("minimum", "half_width"),
+                                               ("fleet", "excess_floor"))
 
 _SECTIONS: dict[str, type] = {f.name: typing.get_type_hints(Settings)[f.name]
                               for f in dataclasses.fields(Settings)}

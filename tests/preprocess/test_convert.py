@@ -166,12 +166,12 @@ def test_wheel_clock_offset_is_estimated() -> None:
     drive = odocal.simulate(duration_s=120, seed=2, noise="none").drive
     log = stream_log(drive, wheel_shift_s=0.060)        # wheel stamps 60 ms late
     estimate = estimate_wheel_offset(log.streams["wheels"], log.streams["imu"],
-                                     circumference_m=2.0, track_m=1.6, max_offset_s=0.5)
+                                     theta=(2.0, 0.0, 1.6, 0.0), max_offset_s=0.5)
     # unshifted, the estimate is half a sample: the wheel rate n_k acts over [t_k, t_k+1],
     # while this IMU's yaw rate (a central difference of the heading) is centred on t_k
     base = estimate_wheel_offset(*(s for s in stream_log(drive).streams.values()
                                    if s.role in ("wheels", "imu")),
-                                 circumference_m=2.0, track_m=1.6, max_offset_s=0.5)
+                                 theta=(2.0, 0.0, 1.6, 0.0), max_offset_s=0.5)
     assert base.offset_s == pytest.approx(drive.t_s / 2, abs=0.002)
     assert estimate.estimated
     assert estimate.offset_s - base.offset_s == pytest.approx(-0.060, abs=0.002)

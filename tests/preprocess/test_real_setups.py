@@ -246,13 +246,13 @@ def test_no_wheel_clock_offset_from_yaw_rates_that_do_not_agree(
         rl, rr = other.n_rl, other.n_rr
     wheels = Stream("wheels", "wheels", d.t.copy(), {"n_rl": rl, "n_rr": rr})
     imu = Stream("imu", "imu", d.t.copy(), {"yaw_rate": d.yaw_rate, "a_y": d.a_y})
-    found = estimate_wheel_offset(wheels, imu, circumference_m=2.0, track_m=1.6,
+    found = estimate_wheel_offset(wheels, imu, theta=(2.0, 0.0, 1.6, 0.0),
                                   max_offset_s=0.5)
     assert not found.estimated and found.offset_s == 0.0
     assert found.correlation < 0.3 and "no offset applied" in found.message
     # the clean wheels give their offset (half a sample: rates act over the step)
     clean = Stream("wheels", "wheels", d.t.copy(), {"n_rl": d.n_rl, "n_rr": d.n_rr})
-    good = estimate_wheel_offset(clean, imu, circumference_m=2.0, track_m=1.6,
+    good = estimate_wheel_offset(clean, imu, theta=(2.0, 0.0, 1.6, 0.0),
                                  max_offset_s=0.5)
     assert good.estimated and good.correlation > 0.9
     assert good.offset_s == pytest.approx(d.t_s / 2, abs=0.005)

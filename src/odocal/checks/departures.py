@@ -43,7 +43,7 @@ from numpy.typing import NDArray
 
 from odocal.checks.findings import Check, Finding, Severity
 from odocal.data.drive import Drive
-from odocal.model.kinematics import body_rates, motion_increments
+from odocal.model.kinematics import body_rates, midpoint_heading, motion_increments
 from odocal.settings import ChecksSettings, Settings
 
 FloatArray = NDArray[np.float64]
@@ -165,7 +165,7 @@ def _seconds(drives: Sequence[Drive]) -> tuple[FloatArray, FloatArray, FloatArra
             dx = d.x[starts + size] - d.x[starts]
             dy = d.y[starts + size] - d.y[starts]
             turn = d.psi[starts + size] - d.psi[starts]
-            heading = d.psi[starts] + 0.5 * turn + d.beta[starts]
+            heading = midpoint_heading(d.psi[starts], turn, d.beta[starts])
             gap = np.remainder(np.arctan2(dy, dx) - heading + np.pi, 2 * np.pi) - np.pi
             out[0].append(ds[:n * size].reshape(n, size).sum(axis=1))
             out[1].append(turn)

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from odocal.checks.departures import lateral_delay, wheel_lag_s
 from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.data.drive import Drive
-from odocal.model.kinematics import body_rates, motion_increments
+from odocal.model.kinematics import body_rates, midpoint_heading, motion_increments
 from odocal.model.layout import REAR_AXLE as LAYOUT
 from odocal.settings import ChecksSettings, GateSettings, Settings
 
@@ -87,7 +87,7 @@ def _windows(drives: Sequence[Drive], theta: FloatArray) -> _Windows:
             dx = d.x[starts + length] - d.x[starts]
             dy = d.y[starts + length] - d.y[starts]
             turn = d.psi[starts + length] - d.psi[starts]
-            heading = d.psi[starts] + 0.5 * turn + wsum(d.beta[a:b - 1]) / length
+            heading = midpoint_heading(d.psi[starts], turn, wsum(d.beta[a:b - 1]) / length)
             gap = np.remainder(np.arctan2(dy, dx) - heading + np.pi, 2 * np.pi) - np.pi
             parts["t"].append(d.t[starts])
             parts["ds"].append(wsum(ds))

@@ -30,7 +30,7 @@ def _parameters(params: str | None, settings: Settings) -> Parameters:
     from odocal.model.parameters import Parameters
 
     if params:
-        return read_parameters(params)
+        return read_parameters(params, settings.vehicle.model)
     return Parameters.from_array(settings.identify.theta0)
 
 

@@ -302,8 +302,7 @@ class Fit:
 def _channels(per_wheel: FloatArray) -> FloatArray:
     """(W, 2, ...) per wheel -> per channel: the wheels' mean (distance) and their difference
     (yaw), as :data:`~odocal.estimators.error_model.CHANNELS` says."""
-    left, right = per_wheel[:, 0], per_wheel[:, 1]
-    return np.stack([0.5 * (left + right), right - left], axis=1)
+    return np.moveaxis(np.tensordot(MODEL.channel_map, per_wheel, axes=([1], [1])), 0, 1)
 
 
 def wheels(p: FloatArray, view: View, *, smooth: bool, unseen_d: bool = False,

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES, PARAMETERS, Parameters
+from odocal.model.vehicle import MODEL
 from odocal.settings import IdentifySettings
 
 FloatArray = NDArray[np.float64]
@@ -257,6 +258,7 @@ class Estimate:
     widening : ndarray, shape (n,), the factor by which each standard deviation was widened
         beyond the covariance formula (to the bootstrap spread, or for the sensitivity to the
         noise model); 1 where not widened. ``covariance`` already includes it.
+    model : the vehicle model theta belongs to (:mod:`odocal.model.registry`'s name)
     """
 
     method: str
@@ -269,6 +271,7 @@ class Estimate:
     status: Status
     details: Any = field(default=None, repr=False)
     widening: FloatArray = field(default_factory=lambda: np.ones(PARAMETERS))
+    model: str = MODEL.name
 
     @property
     def success(self) -> bool:
@@ -325,6 +328,7 @@ class Estimate:
         """The estimate as plain data (the top of calibration.json)."""
         return {
             "method": self.method,
+            "model": self.model,
             "theta": self.theta.as_dict(),
             "std": dict(zip(PARAMETER_NAMES, self.std.tolist(), strict=True)),
             "covariance": self.covariance.tolist(),

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from odocal.data.drive import Drive
+from odocal.model.kinematics import midpoint_heading
 from odocal.model.vehicle import SERIES
 from odocal.settings import Settings
 
@@ -310,7 +311,7 @@ class WindowBuilder:
         """The steps between consecutive samples of a run: revolutions and reference motion."""
         t, n_rl, n_rr, a_y, beta, x, y, psi = run.T
         dpsi = np.remainder(np.diff(psi) + np.pi, 2.0 * np.pi) - np.pi
-        h = psi[:-1] + 0.5 * dpsi + beta[:-1]               # (1): the midpoint heading
+        h = midpoint_heading(psi[:-1], dpsi, beta[:-1])
         dx, dy = np.diff(x), np.diff(y)
         cos, sin = np.cos(h), np.sin(h)
         steps = np.column_stack([t[:-1], n_rl[:-1] * self.t_s, n_rr[:-1] * self.t_s,
@@ -398,7 +399,7 @@ def straight_sums(steps: FloatArray, size: int, t_s: float) -> FloatArray:
     parts = steps.reshape(-1, size, 4)
     dx, dy, turn = parts[:, :, 0].sum(axis=1), parts[:, :, 1].sum(axis=1), parts[:, :, 2].sum(1)
     dt = size * t_s
-    psi = parts[:, 0, 3] + 0.5 * turn
+    psi = midpoint_heading(parts[:, 0, 3], turn)
     ok = (np.hypot(dx, dy) / dt > STRAIGHT_SPEED_MPS) & (np.abs(turn) / dt < STRAIGHT_YAW_RADPS)
     return np.array([float(np.sum((-dx * np.sin(psi) + dy * np.cos(psi))[ok])),
                      float(np.sum((dx * np.cos(psi) + dy * np.sin(psi))[ok])),

@@ -341,7 +341,7 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
         if refuse is not None:
             refuse(line)
 
-    with open_store(store_path) as db:
+    with open_store(store_path, model=settings.vehicle.model) as db:
         planner = _Planner(db, settings, method, report_root, say)
         tasks, todo = _planned(db, planner, entries)
         stored_before = len(tasks) - len(todo)

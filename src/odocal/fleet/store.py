@@ -41,7 +41,8 @@ files in place):
     the change), ``detected_time``, ``change``, ``relative_change``, ``confidence``,
     ``drives_to_detect``, ``km_to_detect``, ``message``
 ``meta``
-    ``schema_version``, ``created_at``
+    ``schema_version``, ``created_at``, ``model`` (the vehicle model whose parameters the
+    columns hold; a store without it is the rear axle's)
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ from pathlib import Path
 from typing import Any
 
 from odocal.errors import DataError, OutputError, input_file, shown
+from odocal.model import registry
 from odocal.model.parameters import PARAMETER_NAMES
 from odocal.redaction import redact_text
 
@@ -276,11 +278,14 @@ def _sql(value: Any) -> Any:
     return value
 
 
-def open_store(path: str | Path, *, create: bool = True, read_only: bool = False) -> Store:
+def open_store(path: str | Path, *, create: bool = True, read_only: bool = False,
+               model: str | None = None) -> Store:
     """Open (or create) a fleet database, migrating an older schema in place.
 
     ``read_only``: open the file read-only (SQLite's ``mode=ro``): no journal-mode switch, no
     schema, no migration; a file that is not an odocal store of this version is refused.
+    ``model``: the vehicle model the run calibrates; a store of another model's parameters is
+    refused (one store holds one model's columns), a new one is marked with it.
     """
     p = Path(path)
     if not p.exists():
@@ -340,6 +345,16 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
             tx.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)",
                        (str(SCHEMA_VERSION),))
             tx.execute("INSERT OR IGNORE INTO meta VALUES ('created_at', ?)", (_now(),))
+    row = db.execute("SELECT value FROM meta WHERE key = 'model'").fetchone()
+    if model is not None:
+        try:
+            registry.check_stated(row[0] if row else None, model, f"fleet store '{shown(p)}'")
+        except DataError:
+            db.close()
+            raise
+        if row is None and not read_only:
+            with store.transaction() as tx:
+                tx.execute("INSERT OR IGNORE INTO meta VALUES ('model', ?)", (model,))
     return store
 
 

@@ -11,6 +11,7 @@ import numpy as np
 
 from odocal.errors import DataError, input_file, shown
 from odocal.io.atomic import write_text
+from odocal.model import registry
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.redaction import redact_text
 from odocal.settings import vehicle_problem
@@ -57,9 +58,12 @@ def read_json(path: str | Path) -> dict[str, Any]:
     return data
 
 
-def read_parameters(path: str | Path) -> Parameters:
-    """theta from a calibration.json (or any JSON with a ``theta`` object of the four names)."""
+def read_parameters(path: str | Path, model: str = registry.DEFAULT) -> Parameters:
+    """theta from a calibration.json (or any JSON with a ``theta`` object of the four names)
+    of the vehicle model ``model`` (one that names another model is refused; one that names
+    none is the rear axle's, as every calibration.json before models were named)."""
     data = read_json(path)
+    registry.check_stated(data.get("model"), model, f"'{shown(Path(path))}'")
     theta = data.get("theta")
     if not isinstance(theta, dict):
         raise DataError(f"'{path}' has no \"theta\" object with {', '.join(PARAMETER_NAMES)}")

@@ -110,6 +110,13 @@ def rollout(theta: FloatArray | Parameters, u: Inputs, x0: FloatArray, t_s: floa
     return poses.reshape(*lead, k + 1, 3)
 
 
+def midpoint_heading(psi: FloatArray, dpsi: FloatArray,
+                     beta: FloatArray | float = 0.0) -> FloatArray:
+    """(1): the direction a step (or a stretch) of turn ``dpsi`` from heading ``psi`` moves
+    along, ``h = psi + dpsi / 2 + beta``."""
+    return np.asarray(psi) + 0.5 * np.asarray(dpsi) + beta
+
+
 def motion_increments(x: FloatArray, y: FloatArray, psi: FloatArray,
                       beta: FloatArray) -> tuple[FloatArray, FloatArray]:
     """(1) inverted: what each step of a pose sequence moved, along track and in heading.
@@ -128,7 +135,7 @@ def motion_increments(x: FloatArray, y: FloatArray, psi: FloatArray,
         The heading increment (``w t_s``).
     """
     dpsi = np.diff(psi)
-    h = psi[:-1] + 0.5 * dpsi + beta[:-1]
+    h = midpoint_heading(psi[:-1], dpsi, beta[:-1])
     return np.diff(x) * np.cos(h) + np.diff(y) * np.sin(h), dpsi
 
 

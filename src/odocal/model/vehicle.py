@@ -38,19 +38,24 @@ SERIES = 4
 
 
 class RearAxleModel:
-    """The rear axle of METHOD 1, equations (1)-(3).
+    """The rear axle of METHOD 1, equations (1)-(3): :class:`~odocal.model.protocol.VehicleModel`
+    for two rear wheel rates.
 
+    name : as ``[vehicle] model`` names it (:mod:`odocal.model.registry`)
     layout : the parameters (:data:`~odocal.model.layout.REAR_AXLE`)
     step : the model step, its derivatives and the step run backwards, written once for numpy
         arrays and numba alike (:mod:`odocal.model.step`)
     states, wheels : sizes of the pose ``[p_x, p_y, psi]`` and of the measured inputs
-        ``[n_rl, n_rr]``
+    wheel_inputs : the drive's columns of the wheel rates, in the order of :meth:`body_map`'s
+        columns (left first)
     """
 
+    name: str = "rear_axle"
     layout: Layout = REAR_AXLE
     step: types.ModuleType = step
     states: int = 3
     wheels: int = 2
+    wheel_inputs: tuple[str, ...] = ("n_rl", "n_rr")
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -62,6 +67,90 @@ class RearAxleModel:
 
     def index(self, name: str) -> int:
         return self.layout.index(name)
+
+    def circumferences(self, theta: FloatArray, a_y: FloatArray | float = 0.0) -> FloatArray:
+        """Each wheel's rolling circumference (..., 2), m, (3a)-(3b): ``c_e +- c_d / 2 +- d a_y``
+        (at ``a_y = 0``: the tyres' own)."""
+        c_rl, c_rr = self.step.circumferences(np.asarray(theta, dtype=np.float64),
+                                              np.asarray(a_y, dtype=np.float64))
+        return np.stack(np.broadcast_arrays(c_rl, c_rr), axis=-1)
+
+    def body_map(self, theta: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """(2a)-(2b) as a linear map: ``[v, w] = (M0 + a_y M1) @ rates`` for the wheel rates
+        (rev/s, :attr:`wheel_inputs`' order), the two (2, 2) matrices. For a loop that takes one
+        message at a time (the ROS 2 node) without writing the equations out."""
+        lay = self.layout
+        th = np.asarray(theta, dtype=np.float64)
+        c_l, c_r = self.circumferences(th)
+        t_r, d = lay.value(th, lay.track), lay.value(th, lay.load)
+        m0 = np.array([[0.5 * c_l, 0.5 * c_r], [-c_l / t_r, c_r / t_r]])
+        m1 = np.array([[0.5 * d, -0.5 * d], [-d / t_r, -d / t_r]])
+        return m0, m1
+
+    def body_rates(self, theta: FloatArray, rates: FloatArray,
+                   a_y: FloatArray | float) -> tuple[FloatArray, FloatArray]:
+        """(2a), (2b): the speed v (m/s) and yaw rate w (rad/s) of the wheel rates ``rates``
+        (..., 2) in rev/s."""
+        r = np.asarray(rates, dtype=np.float64)
+        shape = np.broadcast_shapes(r.shape[:-1], np.shape(a_y))
+        v, w, _, _ = self.step.body(np.asarray(theta, dtype=np.float64),
+                                    *(np.ascontiguousarray(np.broadcast_to(x, shape))
+                                      for x in (r[..., 0], r[..., 1],
+                                                np.asarray(a_y, dtype=np.float64))))
+        return np.asarray(v), np.asarray(w)
+
+    def wheel_rates(self, theta: FloatArray, v: FloatArray, w: FloatArray,
+                    a_y: FloatArray | float) -> FloatArray:
+        """:meth:`body_rates` inverted: the wheel rates (..., 2), rev/s, of speed ``v`` and yaw
+        rate ``w``."""
+        th = np.asarray(theta, dtype=np.float64)
+        shape = np.broadcast_shapes(np.shape(v), np.shape(w), np.shape(a_y))
+        c = self.circumferences(th, np.broadcast_to(np.asarray(a_y, dtype=np.float64), shape))
+        half = 0.5 * self.layout.value(th, self.layout.track) * np.asarray(w)
+        return np.stack([(np.asarray(v) - half) / c[..., 0], (np.asarray(v) + half) / c[..., 1]],
+                        axis=-1)
+
+    @property
+    def channel_map(self) -> FloatArray:
+        """The error model's channels of the wheels' revolutions (2, 2): their mean (the
+        distance) and their difference right minus left (the yaw); ``channels = map @ wheels``."""
+        return np.array([[0.5, 0.5], [-1.0, 1.0]])
+
+    def channel_gains(self, theta: FloatArray) -> FloatArray:
+        """Metres of travel per revolution of the mean channel and radians of yaw per
+        revolution of the difference channel (2,), at a_y = 0: ``[c_e, c_e / t_r]``."""
+        m0, _ = self.body_map(theta)
+        return np.array([m0[0].sum(), 0.5 * (m0[1, 1] - m0[1, 0])])
+
+    def wheel_changes(self, change: FloatArray) -> FloatArray:
+        """Each wheel's circumference change (2,), m, of a change ``change`` of theta (the
+        tyres' own, at a_y = 0): which wheels a change of parameters moved."""
+        lay = self.layout
+        d_e, d_d = lay.value(change, lay.scale), lay.value(change, lay.difference)
+        return np.array([d_e + 0.5 * d_d, d_e - 0.5 * d_d])
+
+    def with_wheel_scaled(self, theta: FloatArray, wheel: int, factor: float) -> FloatArray:
+        """theta with wheel ``wheel``'s circumference (0 left, 1 right) times ``factor``, the
+        other's unchanged (a pressure loss, a new tyre on one side)."""
+        lay = self.layout
+        out = np.array(theta, dtype=np.float64)
+        c = self.circumferences(out)
+        c[wheel] *= factor
+        out[lay.index(lay.scale)] = 0.5 * (c[0] + c[1])
+        out[lay.index(lay.difference)] = c[0] - c[1]
+        return out
+
+    def geometry(self, theta: FloatArray) -> dict[str, float]:
+        """What a differential-drive exporter needs, from theta: ``wheel_radius`` (the mean
+        wheel's, m), ``wheel_separation`` (m), ``left_wheel_radius``, ``right_wheel_radius``
+        (each tyre's own, at a_y = 0)."""
+        lay = self.layout
+        th = np.asarray(theta, dtype=np.float64)
+        c_l, c_r = self.circumferences(th)
+        two_pi = 2.0 * np.pi
+        return {"wheel_radius": lay.value(th, lay.scale) / two_pi,
+                "wheel_separation": lay.value(th, lay.track),
+                "left_wheel_radius": float(c_l) / two_pi, "right_wheel_radius": float(c_r) / two_pi}
 
     def inverse_step(self, theta: FloatArray, ds: FloatArray, dpsi: FloatArray,
                      a_y: FloatArray) -> tuple[FloatArray, FloatArray]:

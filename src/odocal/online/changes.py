@@ -388,7 +388,9 @@ def describe(change: Change, suspect: Suspect, *, detected_t: float,
     """The alarm for a change: which wheels (c_e: both alike; c_d: one, or the two unlike)."""
     c_e = _LAYOUT.value(change.before, _LAYOUT.scale)
     d_e, d_d = (float(v) for v in change.step)
-    left, right = d_e + d_d / 2.0, d_e - d_d / 2.0           # C_l = c_e + c_d / 2, C_r = ...
+    whole = np.zeros(_LAYOUT.size)
+    whole[list(WHEELS)] = change.step
+    left, right = (float(v) for v in MODEL.wheel_changes(whole))    # each tyre's own change
     if abs(left) < abs(right) / 3.0:
         wheel = "right"
     elif abs(right) < abs(left) / 3.0:

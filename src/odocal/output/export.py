@@ -55,6 +55,7 @@ from odocal.errors import ConfigError
 from odocal.io.atomic import write_text
 from odocal.model.kinematics import inverse_revolutions, motion_increments
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS, PARAMETERS, Parameters
+from odocal.model.vehicle import MODEL
 from odocal.redaction import redact_text
 from odocal.settings import datasheet_stated
 
@@ -116,7 +117,7 @@ def odometry_noise(drives: Sequence[Drive], theta: Parameters,
     speed_err: list[np.ndarray] = []
     yaw_err: list[np.ndarray] = []
     th = theta.as_array()
-    c_l, c_r = theta.c_e + theta.c_d / 2.0, theta.c_e - theta.c_d / 2.0
+    to_body, _ = MODEL.body_map(th)            # a window's revolutions to its speed, yaw
     for d in drives:
         k = max(1, round(window_s / d.t_s))
         for start, stop in d.pieces:
@@ -125,12 +126,13 @@ def odometry_noise(drives: Sequence[Drive], theta: Parameters,
             sl = slice(start, stop)
             ds, dpsi = motion_increments(d.x[sl], d.y[sl], d.psi[sl], d.beta[sl])
             revs, _ = inverse_revolutions(th, ds, dpsi, d.a_y[start:stop - 1])
-            measured = np.column_stack([d.n_rl[start:stop - 1], d.n_rr[start:stop - 1]]) * d.t_s
+            measured = np.column_stack([getattr(d, c)[start:stop - 1]
+                                        for c in MODEL.wheel_inputs]) * d.t_s
             err = measured - revs
             n = (len(err) // k) * k
-            w = err[:n].reshape(-1, k, 2).sum(axis=1)
-            speed_err.append(0.5 * (c_l * w[:, 0] + c_r * w[:, 1]) / (k * d.t_s))
-            yaw_err.append((c_r * w[:, 1] - c_l * w[:, 0]) / theta.t_r / (k * d.t_s))
+            body = err[:n].reshape(-1, k, MODEL.wheels).sum(axis=1) @ to_body.T / (k * d.t_s)
+            speed_err.append(body[:, 0])
+            yaw_err.append(body[:, 1])
     if not speed_err:
         return None
     sv, sy = np.concatenate(speed_err), np.concatenate(yaw_err)
@@ -221,11 +223,23 @@ def autoware(c: Calibrated, out: Path) -> list[Path]:
     return [a, b]
 
 
+def multipliers(geometry: Mapping[str, float],
+                nominal: Mapping[str, float]) -> dict[str, float]:
+    """diff_drive_controller's multipliers (effective = nominal x multiplier) of a model's
+    ``geometry`` against the ``nominal`` one (:meth:`odocal.model.protocol.VehicleModel.geometry`):
+    the separation's, and each wheel's radius over the nominal mean wheel's."""
+    radius = nominal["wheel_radius"]
+    return {"wheel_separation_multiplier":
+            geometry["wheel_separation"] / nominal["wheel_separation"],
+            "left_wheel_radius_multiplier": geometry["left_wheel_radius"] / radius,
+            "right_wheel_radius_multiplier": geometry["right_wheel_radius"] / radius}
+
+
 def ros2_control(c: Calibrated, out: Path) -> list[Path]:
     th = c.theta
     # without the user's datasheet the calibrated values are the nominal ones
     ds = c.datasheet if c.datasheet_stated else th
-    c_l, c_r = th.c_e + th.c_d / 2.0, th.c_e - th.c_d / 2.0
+    now, nominal_geometry = MODEL.geometry(th.as_array()), MODEL.geometry(ds.as_array())
     v_std, w_std, note = _noise(c)
     nominal = ("the datasheet values" if c.datasheet_stated
                else "the calibrated values (no datasheet given)")
@@ -243,11 +257,9 @@ def ros2_control(c: Calibrated, out: Path) -> list[Path]:
     params = {
         "type": "diff_drive_controller/DiffDriveController",
         "left_wheel_names": [str(left)], "right_wheel_names": [str(right)],
-        "wheel_separation": _float(ds.t_r),
-        "wheel_radius": _float(ds.c_e / (2.0 * math.pi)),
-        "wheel_separation_multiplier": _float(th.t_r / ds.t_r),
-        "left_wheel_radius_multiplier": _float(c_l / ds.c_e),
-        "right_wheel_radius_multiplier": _float(c_r / ds.c_e),
+        "wheel_separation": _float(nominal_geometry["wheel_separation"]),
+        "wheel_radius": _float(nominal_geometry["wheel_radius"]),
+        **{key: _float(value) for key, value in multipliers(now, nominal_geometry).items()},
         "odom_frame_id": "odom", "base_frame_id": "base_link",
         "pose_covariance_diagonal": [0.001, 0.001, 1.0e6, 1.0e6, 1.0e6, 1000.0],
         "twist_covariance_diagonal": [_float(v_std**2), 0.001, 1.0e6, 1.0e6, 1.0e6,

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from odocal.errors import DataError
 from odocal.io.streams import ANGLES, RawLog, Stream
+from odocal.model.vehicle import MODEL
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -110,10 +111,11 @@ class OffsetEstimate:
 MIN_OFFSET_CORRELATION = 0.3
 
 
-def estimate_wheel_offset(wheels: Stream, imu: Stream, *, circumference_m: float,
-                          track_m: float, max_offset_s: float,
+def estimate_wheel_offset(wheels: Stream, imu: Stream, *, theta: Sequence[float],
+                          max_offset_s: float,
                           rate_hz: float = 200.0) -> OffsetEstimate:
-    """Cross-correlate the wheels' yaw rate ``(n_rr - n_rl) c / t_r`` with the IMU's.
+    """Cross-correlate the wheels' yaw rate (the model's, with the datasheet ``theta``; for
+    the rear axle ``(n_rr - n_rl) c / t_r``) with the IMU's.
 
     Both are resampled to ``rate_hz`` over their common span; the lag with the highest
     correlation, refined by a parabola through its neighbours, is the offset to add to the wheel
@@ -132,7 +134,8 @@ def estimate_wheel_offset(wheels: Stream, imu: Stream, *, circumference_m: float
         return OffsetEstimate(0.0, float("nan"), False,
                               "too little turning to estimate the wheel clock offset; none "
                               "applied")
-    yaw_wheels_t = (wheels.values["n_rr"] - wheels.values["n_rl"]) * circumference_m / track_m
+    rates = np.column_stack([wheels.values[c] for c in MODEL.wheel_inputs])
+    _, yaw_wheels_t = MODEL.body_rates(np.asarray(theta, dtype=float), rates, 0.0)
     reach = int(max_offset_s * rate_hz)
     lags = np.arange(-reach, reach + 1)
     wide = np.interp(grid[0] + np.arange(-reach, grid.size + reach) / rate_hz, tw, yaw_wheels_t)

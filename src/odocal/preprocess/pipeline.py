@@ -183,8 +183,7 @@ def _wheel_clock(wheels: Stream, imu: Stream, settings: Settings
                  ) -> tuple[Stream, OffsetEstimate]:
     """The wheel stream shifted by its clock offset against the IMU yaw rate (estimated)."""
     ident = settings.identify
-    estimate = estimate_wheel_offset(wheels, imu, circumference_m=ident.datasheet("c_e"),
-                                     track_m=ident.datasheet("t_r"),
+    estimate = estimate_wheel_offset(wheels, imu, theta=ident.theta0,
                                      max_offset_s=settings.convert.max_wheel_offset_s)
     return with_offset(wheels, estimate.offset_s), estimate
 

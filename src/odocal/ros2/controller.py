@@ -10,7 +10,6 @@ Rolling declares them read-only and refuses them. What happened is in :attr:`Con
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 from rcl_interfaces.msg import Parameter as ParameterMsg
@@ -19,6 +18,7 @@ from rcl_interfaces.srv import GetParameters, SetParameters
 
 from odocal.estimators.estimate import Estimate
 from odocal.model.parameters import PARAMETER_NAMES
+from odocal.model.vehicle import MODEL
 
 
 class ControllerPush:
@@ -82,13 +82,15 @@ def multipliers(est: Estimate, radius_m: float, separation_m: float) -> dict[str
     """diff_drive_controller's multipliers for ``est`` against its nominal wheel radius and
     separation: each wheel's circumference over the nominal one (where c_e is identified), t_r
     over the nominal separation (where t_r is)."""
-    c_e, c_d, t_r, _ = est.theta.as_array()
-    nominal_c = 2.0 * math.pi * radius_m
+    geometry = MODEL.geometry(est.theta.as_array())
+    nominal = {"wheel_radius": radius_m, "wheel_separation": separation_m}
     ok = dict(zip(PARAMETER_NAMES, est.identified, strict=True))
     wanted: dict[str, float] = {}
-    if ok["c_e"]:
-        wanted["left_wheel_radius_multiplier"] = float((c_e + c_d / 2) / nominal_c)
-        wanted["right_wheel_radius_multiplier"] = float((c_e - c_d / 2) / nominal_c)
-    if ok["t_r"]:
-        wanted["wheel_separation_multiplier"] = float(t_r / separation_m)
+    if ok[MODEL.layout.scale]:
+        for side in ("left", "right"):
+            wanted[f"{side}_wheel_radius_multiplier"] = float(
+                geometry[f"{side}_wheel_radius"] / nominal["wheel_radius"])
+    if ok[MODEL.layout.track]:
+        wanted["wheel_separation_multiplier"] = float(
+            geometry["wheel_separation"] / nominal["wheel_separation"])
     return wanted

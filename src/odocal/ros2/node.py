@@ -57,8 +57,8 @@ import numpy as np
 
 from odocal.errors import ConfigError, DataError, MissingDependencyError, OdocalError
 from odocal.estimators.estimate import Estimate, NotIdentified, Status
-from odocal.model.layout import REAR_AXLE as LAYOUT
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.model.vehicle import MODEL
 from odocal.online.calibrator import OnlineCalibrator
 from odocal.online.replay import GridResampler, publishable
 from odocal.output.export import (
@@ -75,10 +75,6 @@ from odocal.ros2.gyro import GyroBias
 from odocal.ros2.inputs import TWO_PI, Buffer, Continuity, Rates, wheel_joints
 from odocal.ros2.twist import UNKNOWN_VARIANCE, TwistVariance
 from odocal.settings import Settings, datasheet_theta, load_settings, parse_datasheet
-
-#: Where theta holds c_e, c_d, t_r and d (the layout's roles), for the per-message odometry.
-_E, _D, _T, _L = (LAYOUT.index(n) for n in (LAYOUT.scale, LAYOUT.difference, LAYOUT.track,
-                                              LAYOUT.load))
 
 try:
     import rclpy
@@ -386,7 +382,7 @@ class CalibrationNode(LifecycleNode):
         self.updates = 0
         self.twist = TwistVariance(window_s=s.inverse.window_s, max_gap_s=s.convert.max_gap_s)
         self.gyro = GyroBias(s.convert.max_gap_s)
-        self._theta = tuple(float(v) for v in self.datasheet.as_array())
+        self._use_theta(self.datasheet.as_array())
         self._a_y = 0.0
         self._odom_t: float | None = None
         self._x = self._y = self._psi = 0.0
@@ -534,10 +530,9 @@ class CalibrationNode(LifecycleNode):
                                columns["n_rr"].append)
         readings, variances = self.twist.readings.add, self.twist.variances
         message = self._writer.message
-        # (2a), (2b) as odocal.model.step.body computes them: the theta and a_y of the batch
-        th, a_y = self._theta, self._a_y
-        c_rl, c_rr, t_r = (th[_E] + 0.5 * th[_D] + th[_L] * a_y,
-                           th[_E] - 0.5 * th[_D] - th[_L] * a_y, th[_T])
+        # (2a), (2b): the model's body map at the batch's theta and a_y
+        a_y = self._a_y
+        (v_l, v_r), (w_l, w_r) = self._body_at(a_y)
         max_gap = self._max_gap_s
         isfinite, cos, sin = math.isfinite, math.cos, math.sin
         origin = self._origin
@@ -563,8 +558,7 @@ class CalibrationNode(LifecycleNode):
                 add_t(t)
                 add_l(n_rl)
                 add_r(n_rr)
-                s_rl, s_rr = n_rl * c_rl, n_rr * c_rr
-                v, w = 0.5 * (s_rl + s_rr), (s_rr - s_rl) / t_r
+                v, w = v_l * n_rl + v_r * n_rr, w_l * n_rl + w_r * n_rr
                 if last is not None and 0.0 < t - last <= max_gap:
                     dt = t - last                       # (1) as odocal.model.step.increment
                     h = psi + 0.5 * w * dt
@@ -895,7 +889,7 @@ class CalibrationNode(LifecycleNode):
     def _publish_estimate(self, est: Estimate) -> None:
         first = self._good is None
         self._good, self._good_km = est, self.calibrator.distance_km
-        self._theta = tuple(float(v) for v in est.theta.as_array())
+        self._use_theta(est.theta.as_array())
         self.twist.calibrate(est)
         self._estimate_pub.publish(estimate_array(est))
         if self._controller is not None:
@@ -919,7 +913,7 @@ class CalibrationNode(LifecycleNode):
             if self._good is not None or self.updates == 1:
                 self.get_logger().error(self._rejection(est))
             self._good = None
-            self._theta = tuple(float(v) for v in self.datasheet.as_array())
+            self._use_theta(self.datasheet.as_array())
             self.twist.calibrate(None)
             return
         where = (f"keeping the calibration from {self._good_km:.2f} km"
@@ -978,14 +972,27 @@ class CalibrationNode(LifecycleNode):
 
     # ------------------------------------------------------------------ outputs
 
+    def _use_theta(self, theta: Any) -> None:
+        """Publish odometry with ``theta`` from now on: the model's body map as plain floats
+        (a message's speed and yaw rate are four products, :meth:`_body_at`)."""
+        self._theta = np.array(theta, dtype=float)
+        m0, m1 = MODEL.body_map(self._theta)
+        self._body = (tuple(tuple(float(v) for v in row) for row in m0),
+                      tuple(tuple(float(v) for v in row) for row in m1))
+
+    def _body_at(self, a_y: float) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The wheel rates' (rev/s) weights in the speed and the yaw rate at ``a_y``."""
+        (a, b), (c, e) = self._body[0]
+        (f, g), (h, k) = self._body[1]
+        return (a + a_y * f, b + a_y * g), (c + a_y * h, e + a_y * k)
+
     def _publish_odometry(self, sec: int, nsec: int, t: float, n_rl: float, n_rr: float) -> None:
         """(2a), (2b) with the published calibration, the pose by (1), and the twist's
         variances (:mod:`odocal.ros2.twist`); as :meth:`_wheel_batch` computes them, in plain
-        float arithmetic (odocal.model.step's expressions, in their order)."""
-        a_y, th = self._a_y, self._theta
-        s_rl = n_rl * (th[_E] + 0.5 * th[_D] + th[_L] * a_y)
-        s_rr = n_rr * (th[_E] - 0.5 * th[_D] - th[_L] * a_y)
-        v, w = 0.5 * (s_rl + s_rr), (s_rr - s_rl) / th[_T]
+        float arithmetic (the model's body map)."""
+        a_y = self._a_y
+        (v_l, v_r), (w_l, w_r) = self._body_at(a_y)
+        v, w = v_l * n_rl + v_r * n_rr, w_l * n_rl + w_r * n_rr
         last = self._odom_t
         if last is not None and 0.0 < t - last <= self._max_gap_s:
             dt = t - last
@@ -1130,7 +1137,7 @@ class CalibrationNode(LifecycleNode):
         if period is None or span is None or span[1] <= span[0]:
             return None
         speed = self.calibrator.distance_km * 1000.0 / (span[1] - span[0])
-        n = speed / self._theta[0]
+        n = float(MODEL.wheel_rates(self._theta, speed, 0.0, 0.0).mean())
         var_v, var_w = self.twist.variances(speed, n, n, 0.0)
         if var_v >= UNKNOWN_VARIANCE:
             return None

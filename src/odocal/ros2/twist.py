@@ -26,8 +26,8 @@ from __future__ import annotations
 import numpy as np
 
 from odocal.estimators.estimate import Estimate
-from odocal.model.layout import REAR_AXLE as LAYOUT
 from odocal.model.step import body, increment_derivatives
+from odocal.model.vehicle import MODEL
 
 #: The variance stated for what is not measured (before an estimate; what wheels do not see).
 UNKNOWN_VARIANCE = 1.0e6
@@ -127,12 +127,12 @@ class TwistVariance:
         if not np.all(np.isfinite(noise)):
             self._fit, self._quadratic = None, None
             return
-        c_e, t_r = LAYOUT.value(th, LAYOUT.scale), LAYOUT.value(th, LAYOUT.track)
+        gain_v, gain_w = MODEL.channel_gains(th)     # [c_e, c_e / t_r] for the rear axle
         window = self.window_s
-        # (window mean) speed: (c_e / W)^2 (s0^2 + (f rev)^2), rev = |v| W / c_e; yaw: / t_r^2
-        self._fit = ((float((c_e * noise[0, 0] / window) ** 2), float(noise[0, 1] ** 2)),
-                     (float((c_e * noise[1, 0] / (t_r * window)) ** 2),
-                      float((noise[1, 1] / t_r) ** 2)))
+        # (window mean) speed: (g_v / W)^2 (s0^2 + (f rev)^2), rev = |v| W / g_v; yaw: g_w's
+        self._fit = ((float((gain_v * noise[0, 0] / window) ** 2), float(noise[0, 1] ** 2)),
+                     (float((gain_w * noise[1, 0] / window) ** 2),
+                      float((gain_w / gain_v * noise[1, 1]) ** 2)))
         self._quadratic = _parameter_terms(th, np.asarray(est.covariance, dtype=float))
 
     def variances(self, v: float, n_rl: float, n_rr: float, a_y: float) -> tuple[float, float]:

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from odocal.data.drive import Drive
 from odocal.errors import ConfigError
 from odocal.model.parameters import Parameters
+from odocal.model.vehicle import MODEL
 from odocal.sim.simulate import TRUE_PARAMETERS, SimulatedDrive, simulate
 
 FloatArray = NDArray[np.float64]
@@ -119,7 +120,7 @@ def front_wheels(sim: SimulatedDrive, wheelbase_m: float = WHEELBASE_M,
     v = np.hypot(step[:, 0], step[:, 1]) / t_s
     w = np.diff(poses[:, 2]) / t_s
     v, w = np.append(v, v[-1]), np.append(w, w[-1])
-    c_l, c_r = theta.c_e + 0.5 * theta.c_d, theta.c_e - 0.5 * theta.c_d
+    c_l, c_r = MODEL.circumferences(theta.as_array())
     cols["n_rl"] = np.hypot(v - 0.5 * track_m * w, wheelbase_m * w) / c_l
     cols["n_rr"] = np.hypot(v + 0.5 * track_m * w, wheelbase_m * w) / c_r
     # the measured rates' own noise, as the profile made it on the rear wheels
@@ -228,10 +229,8 @@ def _change(seed: int, value: float, noise: str, duration_s: float) -> Simulated
 
 def _pressure(seed: int, value: float, noise: str, duration_s: float) -> SimulatedDrive:
     """One rear wheel's circumference ``value`` smaller from half-way (a pressure loss)."""
-    th = TRUE_PARAMETERS
-    left = th.c_e + 0.5 * th.c_d
-    new = Parameters(c_e=th.c_e - 0.5 * value * left, c_d=th.c_d - value * left, t_r=th.t_r,
-                     d=th.d)
+    new = Parameters.from_array(MODEL.with_wheel_scaled(TRUE_PARAMETERS.as_array(), 0,
+                                                        1.0 - value))
     return simulate(duration_s=duration_s, seed=seed, noise=noise,
                     change=(0.5 * duration_s, new))
 

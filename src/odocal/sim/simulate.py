@@ -33,6 +33,7 @@ from odocal.errors import ConfigError
 from odocal.model._jit import jit
 from odocal.model.kinematics import rollout, wheel_rates_for
 from odocal.model.parameters import Inputs, Parameters
+from odocal.model.vehicle import MODEL
 from odocal.settings import vehicle_problem
 from odocal.sim.limits import checked_duration, checked_seed
 from odocal.sim.noise import NOISE_PROFILES, NoiseProfile
@@ -136,7 +137,7 @@ def simulate(*, duration_s: float = 1800.0, seed: int = 0, noise: str | NoisePro
         metadata={"source": "odocal.sim.simulate", "seed": seed, "noise_profile": profile.name,
                   **({} if noise_seed is None else {"noise_seed": noise_seed}),
                   "true_theta": (theta or TRUE_PARAMETERS).as_dict()},
-        circumference_m=float(true_theta[0]))
+        circumference_m=MODEL.layout.value(true_theta, MODEL.layout.scale))
     return SimulatedDrive(drive=drive, true_parameters=Parameters.from_array(true_theta),
                           true_n_rl=n_rl, true_n_rr=n_rr, true_poses=poses, profile=profile,
                           seed=seed, changed=change is not None)

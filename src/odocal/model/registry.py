@@ -1,0 +1,102 @@
+"""The vehicle models odocal knows, by name, as :mod:`odocal.io.registry` is for readers.
+
+Pure Python: the settings check ``[vehicle] model`` against :func:`names` and size their
+per-parameter tuples by :func:`layout` without loading numpy; :func:`model` loads the model
+itself. A model is registered with its layout and its wheel inputs (the drive's columns), and
+:func:`for_inputs` finds it from the columns a log carries where that is unambiguous.
+"""
+
+from __future__ import annotations
+
+import difflib
+import importlib
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from odocal.errors import ConfigError, DataError
+from odocal.model.layout import REAR_AXLE, Layout
+
+if TYPE_CHECKING:
+    from odocal.model.protocol import VehicleModel
+
+#: The model a setting, a calibration.json or a fleet store that names none means (all of
+#: odocal's results before models were named are the rear axle's).
+DEFAULT = "rear_axle"
+
+
+@dataclass(frozen=True)
+class Entry:
+    """A registered model: its name, what it is in words, its layout, its wheel inputs, and
+    where its model object lives (``module:attribute``, imported on first use)."""
+
+    name: str
+    summary: str
+    layout: Layout
+    wheel_inputs: tuple[str, ...]
+    where: str
+
+
+_ENTRIES: dict[str, Entry] = {e.name: e for e in (
+    Entry("rear_axle", "two rear wheel rates (METHOD 1: c_e, c_d, t_r, d)", REAR_AXLE,
+          ("n_rl", "n_rr"), "odocal.model.vehicle:MODEL"),
+)}
+
+
+def names() -> tuple[str, ...]:
+    """The registered models' names."""
+    return tuple(_ENTRIES)
+
+
+def entry(name: str) -> Entry:
+    """The registered model ``name``, or a one-line ConfigError naming the known ones."""
+    try:
+        return _ENTRIES[name]
+    except (KeyError, TypeError):
+        close = difflib.get_close_matches(str(name), _ENTRIES, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ConfigError(f"unknown vehicle model {name!r}{hint}; known: "
+                          f"{', '.join(_ENTRIES)}") from None
+
+
+def layout(name: str) -> Layout:
+    """The parameter layout of model ``name``."""
+    return entry(name).layout
+
+
+def model(name: str = DEFAULT) -> VehicleModel:
+    """The model object ``name`` (its equations: loads numpy)."""
+    module, attribute = entry(name).where.split(":")
+    found: VehicleModel = getattr(importlib.import_module(module), attribute)
+    return found
+
+
+def for_inputs(columns: Iterable[str]) -> str:
+    """The model whose wheel inputs ``columns`` carry: the one that uses the most of them (a
+    log with four wheels is not a rear axle's because it also holds the rear two). A
+    DataError where none fits, or two fit alike."""
+    have = set(columns)
+    fits = [e for e in _ENTRIES.values() if set(e.wheel_inputs) <= have]
+    if not fits:
+        wanted = " or ".join(", ".join(e.wheel_inputs) for e in _ENTRIES.values())
+        raise DataError(f"no vehicle model takes these wheel columns ({', '.join(sorted(have))}"
+                        f"): a model needs {wanted}")
+    most = max(len(e.wheel_inputs) for e in fits)
+    best = [e.name for e in fits if len(e.wheel_inputs) == most]
+    if len(best) > 1:
+        raise DataError(f"the wheel columns fit the models {', '.join(best)} alike: name one "
+                        "with [vehicle] model")
+    return best[0]
+
+
+def check_stated(stated: object, expected: str, what: str) -> str:
+    """The model a file states (``stated``: its ``"model"`` value, None where it names none:
+    the rear axle), if it is ``expected``; else a one-line DataError naming ``what``."""
+    name = DEFAULT if stated is None else stated
+    if not isinstance(name, str) or name not in _ENTRIES:
+        raise DataError(f"{what} names the vehicle model {stated!r}, which this odocal does "
+                        f"not know (known: {', '.join(_ENTRIES)})")
+    if name != expected:
+        raise DataError(f"{what} is a calibration of the {name} model, not of the {expected} "
+                        "model this run uses ([vehicle] model)")
+    return name
