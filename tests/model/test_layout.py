@@ -22,7 +22,7 @@ SRC = Path(odocal.__file__).parent
 #: What the four-parameter layout looks like written out: a size, an index of theta, a slice.
 LITERAL_LAYOUT = [
     r"reshape\(4\)", r"\(4, ?4\)", r"\b(np\.)?(zeros|ones|empty|eye|full)\(\(?4[,)]",
-    r"\b(th|theta|theta0|p)\[[0-3]\]", r"\[:4\]", r"\brange\(4\)", r"\bP = 5\b",
+    r"(\b|_|\.)(th|theta|theta0|p)\[[0-3]\]", r"\[:4\]", r"\brange\(4\)", r"\bP = 5\b",
     r"tuple\[(float|bool|str), (float|bool|str), (float|bool|str), (float|bool|str)\]",
     r"\(False, False, False, False\)", r"\[0 if name", r"\bn_theta = 4\b",
     r"\b(shape|of shape) \((\.\.\., )?[A-Z]?,? ?4\)", r", 4\)\)",
@@ -41,6 +41,60 @@ def test_no_module_outside_model_writes_the_layout_out() -> None:
                 if re.search(pattern, line):
                     found.append(f"{path.relative_to(SRC)}:{number}: {line.strip()}")
     assert found == []
+
+
+#: The rear axle's equations written out (issue 37): each wheel's circumference from c_e and
+#: c_d, the yaw from the wheels' difference over the track, the midpoint heading of (1).
+VEHICLE_EQUATIONS = [
+    r"c_d ?/ ?2", r"0\.5 ?\* ?\w*\.?c_d\b", r"\bn_rr\w*(\[[^]]*\])? ?- ?\w*\.?n_rl",
+    r"/ ?\w*\.?t_r\b", r"\+ ?0\.5 ?\* ?(turn|dpsi)\b", r"0\.5 ?\* ?dpsi ?\+",
+    r"\(s_rr ?- ?s_rl\)",
+]
+
+
+def _code_lines(path: Path) -> dict[int, str]:
+    """The code of each line of ``path``, without its comments and strings."""
+    import tokenize
+
+    lines: dict[int, list[str]] = {}
+    with path.open("rb") as f:
+        for tok in tokenize.tokenize(f.readline):
+            if tok.type in (tokenize.COMMENT, tokenize.STRING, tokenize.ENCODING, tokenize.NL,
+                            tokenize.NEWLINE, tokenize.INDENT, tokenize.DEDENT):
+                continue
+            lines.setdefault(tok.start[0], []).append(tok.string)
+    return {n: " ".join(parts) for n, parts in lines.items()}
+
+
+def test_no_module_outside_model_writes_a_vehicle_equation() -> None:
+    """The equations of a vehicle live in its model's module; everywhere else takes them from
+    the model (body_map, geometry, channel_gains, wheel_changes, midpoint_heading ...)."""
+    found = []
+    for path in sorted(SRC.rglob("*.py")):
+        if path.relative_to(SRC).parts[0] == "model":
+            continue
+        for number, code in _code_lines(path).items():
+            squeezed = code.replace(" . ", ".").replace(" [ ", "[").replace(" ]", "]")
+            for pattern in VEHICLE_EQUATIONS:
+                if re.search(pattern, squeezed):
+                    found.append(f"{path.relative_to(SRC)}:{number}: {squeezed}")
+    assert found == []
+
+
+def test_the_patterns_find_what_they_are_for(tmp_path: Path) -> None:
+    """The two scans above catch the forms they forbid (a scan that finds nothing proves
+    nothing)."""
+    sample = tmp_path / "sample.py"
+    sample.write_text("a = self._theta[0]\nleft = th.c_e + th.c_d / 2.0\n"
+                      "w = (d.n_rr[a:b] - d.n_rl[a:b]) * c / t_r  # a comment: c_d / 2\n"
+                      "h = psi + 0.5 * turn\ns = 'c_d / 2 in a string'\n")
+    code = _code_lines(sample)
+    squeezed = {n: c.replace(" . ", ".").replace(" [ ", "[").replace(" ]", "]")
+                for n, c in code.items()}
+    hits = {n for n, c in squeezed.items()
+            for pattern in VEHICLE_EQUATIONS if re.search(pattern, c)}
+    assert hits == {2, 3, 4}
+    assert any(re.search(p, "a = self._theta[0]") for p in LITERAL_LAYOUT)
 
 
 def test_the_layout_names_and_orders_every_parameter() -> None:

@@ -41,6 +41,7 @@ from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.model.kinematics import body_rates, midpoint_heading, motion_increments
 from odocal.model.layout import REAR_AXLE as LAYOUT
+from odocal.model.vehicle import MODEL
 from odocal.settings import ChecksSettings, GateSettings, Settings
 
 FloatArray = NDArray[np.float64]
@@ -95,7 +96,8 @@ def _windows(drives: Sequence[Drive], theta: FloatArray) -> _Windows:
             parts["gap"].append(gap)
             parts["wds"].append(wsum(v * d.t_s))
             parts["wdpsi"].append(wsum(w * d.t_s))
-            parts["diff"].append(wsum((d.n_rr[a:b - 1] - d.n_rl[a:b - 1]) * d.t_s))
+            revs = np.column_stack([d.n_rl[a:b - 1], d.n_rr[a:b - 1]]) * d.t_s
+            parts["diff"].append(wsum(revs @ MODEL.channel_map[1]))    # the yaw channel
             parts["left"].append(wsum(d.n_rl[a:b - 1] * d.t_s))
             parts["right"].append(wsum(d.n_rr[a:b - 1] * d.t_s))
             parts["ay"].append(wsum(d.a_y[a:b - 1]) / length)

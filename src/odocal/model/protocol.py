@@ -10,7 +10,7 @@ them from the model it is given, and writes no equation of a vehicle itself.
 from __future__ import annotations
 
 import types
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,6 +20,7 @@ from odocal.model.layout import Layout
 FloatArray = NDArray[np.float64]
 
 
+@runtime_checkable
 class VehicleModel(Protocol):
     """A vehicle model (the rear axle of METHOD 1 is :class:`odocal.model.vehicle.RearAxleModel`).
 

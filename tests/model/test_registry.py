@@ -1,0 +1,145 @@
+"""The vehicle model as a value (issue 37, first part): the registry, the protocol, the
+setting that chooses it, and the files that carry its name."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import odocal
+from odocal.errors import ConfigError, DataError
+from odocal.fleet.store import open_store
+from odocal.io.results import read_parameters
+from odocal.model import registry
+from odocal.model.kinematics import body_rates, wheel_rates_for
+from odocal.model.protocol import VehicleModel
+from odocal.model.vehicle import MODEL
+from odocal.settings import PER_PARAMETER, Settings, settings_from_dict
+
+THETA = np.array([2.031, -0.0042, 1.512, 0.0011])
+
+
+def test_the_registry_names_each_model_and_loads_it() -> None:
+    assert registry.names() == ("rear_axle",)
+    assert registry.model("rear_axle") is MODEL
+    assert isinstance(MODEL, VehicleModel)
+    assert registry.layout("rear_axle") is MODEL.layout
+    assert registry.entry("rear_axle").wheel_inputs == MODEL.wheel_inputs
+    with pytest.raises(ConfigError, match=r"unknown vehicle model 'rear_axel' \(did you mean "
+                                          r"'rear_axle'\?\); known: rear_axle"):
+        registry.model("rear_axel")
+
+
+def test_the_model_is_found_from_the_wheel_columns_where_that_is_unambiguous() -> None:
+    assert registry.for_inputs(["t", "n_rl", "n_rr", "a_y"]) == "rear_axle"
+    with pytest.raises(DataError, match="no vehicle model takes these wheel columns"):
+        registry.for_inputs(["t", "n_rl", "speed"])
+
+
+def test_the_body_map_is_the_body_rates_and_the_wheel_rates_invert_them() -> None:
+    """body_map's two matrices give (2a)-(2b) at any a_y; wheel_rates inverts body_rates;
+    both agree with the kinematics' functions they stand for."""
+    rng = np.random.default_rng(3)
+    rates = rng.uniform(-5.0, 15.0, size=(200, 2))
+    a_y = rng.uniform(-6.0, 6.0, size=200)
+    v, w = MODEL.body_rates(THETA, rates, a_y)
+    v_k, w_k = body_rates(THETA, rates[:, 0], rates[:, 1], a_y)
+    np.testing.assert_allclose(v, v_k, rtol=1e-14)
+    np.testing.assert_allclose(w, w_k, rtol=1e-14)
+    m0, m1 = MODEL.body_map(THETA)
+    mapped = np.einsum("kij,kj->ki", m0[None] + a_y[:, None, None] * m1[None], rates)
+    np.testing.assert_allclose(mapped[:, 0], v, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(mapped[:, 1], w, rtol=1e-12, atol=1e-12)
+    back = MODEL.wheel_rates(THETA, v, w, a_y)
+    np.testing.assert_allclose(back, rates, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(back, np.column_stack(wheel_rates_for(THETA, v, w, a_y)),
+                               rtol=1e-14)
+
+
+def test_the_geometry_gains_and_wheel_changes_are_the_rear_axle_s() -> None:
+    c_e, c_d, t_r, _ = THETA
+    np.testing.assert_allclose(MODEL.circumferences(THETA), [c_e + c_d / 2, c_e - c_d / 2])
+    geometry = MODEL.geometry(THETA)
+    assert geometry["wheel_radius"] == pytest.approx(c_e / (2 * np.pi), rel=1e-15)
+    assert geometry["wheel_separation"] == t_r
+    assert geometry["left_wheel_radius"] == pytest.approx((c_e + c_d / 2) / (2 * np.pi))
+    assert geometry["right_wheel_radius"] == pytest.approx((c_e - c_d / 2) / (2 * np.pi))
+    np.testing.assert_allclose(MODEL.channel_gains(THETA), [c_e, c_e / t_r], rtol=1e-14)
+    # the channels of equal wheels: their mean and a zero difference
+    np.testing.assert_allclose(MODEL.channel_map @ np.array([3.0, 3.0]), [3.0, 0.0])
+    # one tyre 1% smaller: only its circumference moves, and wheel_changes names it
+    smaller = MODEL.with_wheel_scaled(THETA, 1, 0.99)
+    before, after = MODEL.circumferences(THETA), MODEL.circumferences(smaller)
+    assert after[0] == pytest.approx(before[0], rel=1e-15)
+    assert after[1] == pytest.approx(0.99 * before[1], rel=1e-15)
+    np.testing.assert_allclose(MODEL.wheel_changes(smaller - THETA), after - before,
+                               rtol=1e-12, atol=1e-15)
+    assert smaller[2] == t_r and smaller[3] == THETA[3]
+
+
+def test_the_setting_chooses_the_model_and_sizes_every_per_parameter_setting() -> None:
+    assert Settings().vehicle.model == "rear_axle"
+    assert Settings().layout is MODEL.layout
+    with pytest.raises(ConfigError, match="unknown vehicle model 'four'"):
+        settings_from_dict({"vehicle": {"model": "four"}})
+    for section, key in PER_PARAMETER:
+        value = getattr(getattr(Settings(), section), key)
+        assert len(value) == MODEL.size, (section, key)
+    with pytest.raises(ConfigError,
+                       match=r"unknown setting \[vehicle\] 'modle'; known keys: model"):
+        settings_from_dict({"vehicle": {"modle": "rear_axle"}})
+
+
+def test_a_settings_file_naming_an_unknown_model_is_one_line_and_exit_1(tmp_path: Path) -> None:
+    config = tmp_path / "odocal.toml"
+    config.write_text('[vehicle]\nmodel = "skid_steer"\n')
+    done = subprocess.run([sys.executable, "-m", "odocal", "demo", "--duration", "60",
+                           "--config", str(config)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.strip().count("\n") == 0 and "unknown vehicle model 'skid_steer'" \
+        in done.stderr and "Traceback" not in done.stderr
+
+
+def test_calibration_json_names_its_model_and_another_model_s_is_refused(tmp_path: Path) -> None:
+    result = odocal.calibrate(odocal.simulate(duration_s=300, seed=2, noise="white").drive)
+    assert result.estimate.model == "rear_axle"
+    result.save(tmp_path / "out", report=False)
+    path = tmp_path / "out" / "calibration.json"
+    data = json.loads(path.read_text())
+    assert data["model"] == "rear_axle"
+    assert read_parameters(path).as_dict() == pytest.approx(data["theta"], rel=1e-15)
+    # a calibration.json from before models were named is the rear axle's
+    del data["model"]
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(data))
+    assert read_parameters(old).as_dict() == pytest.approx(data["theta"], rel=1e-15)
+    # another model's, or one this odocal does not know, is refused by name
+    other = tmp_path / "other.json"
+    with pytest.raises(DataError, match="not of the four_wheel model"):
+        registry.check_stated("rear_axle", "four_wheel", "'x.json'")
+    other.write_text(json.dumps({**data, "model": "skid_steer"}))
+    with pytest.raises(DataError, match="names the vehicle model 'skid_steer', which this "
+                                        "odocal does not know"):
+        read_parameters(other)
+
+
+def test_a_fleet_store_holds_one_model_s_parameters(tmp_path: Path) -> None:
+    path = tmp_path / "fleet.db"
+    with open_store(path, model="rear_axle") as db:
+        stored = db.db.execute("SELECT value FROM meta WHERE key = 'model'").fetchone()
+    assert stored == ("rear_axle",)
+    with open_store(path, model="rear_axle"):
+        pass
+    import sqlite3
+
+    raw = sqlite3.connect(path)
+    raw.execute("UPDATE meta SET value = 'four_wheel' WHERE key = 'model'")
+    raw.commit()
+    raw.close()
+    with pytest.raises(DataError, match="names the vehicle model 'four_wheel'"):
+        open_store(path, model="rear_axle")
