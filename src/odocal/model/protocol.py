@@ -49,7 +49,7 @@ class VehicleModel(Protocol):
                    a_y: FloatArray | float) -> tuple[FloatArray, FloatArray]:
         """The body's speed (m/s) and yaw rate (rad/s) from the wheel rates (..., wheels)."""
 
-    def wheel_rates(self, theta: FloatArray, v: FloatArray, w: FloatArray,
+    def wheel_rates(self, theta: FloatArray, v: FloatArray | float, w: FloatArray | float,
                     a_y: FloatArray | float) -> FloatArray:
         """The wheel rates (..., wheels), rev/s, of a speed and a yaw rate."""
 

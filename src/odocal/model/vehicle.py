@@ -99,7 +99,7 @@ class RearAxleModel:
                                                 np.asarray(a_y, dtype=np.float64))))
         return np.asarray(v), np.asarray(w)
 
-    def wheel_rates(self, theta: FloatArray, v: FloatArray, w: FloatArray,
+    def wheel_rates(self, theta: FloatArray, v: FloatArray | float, w: FloatArray | float,
                     a_y: FloatArray | float) -> FloatArray:
         """:meth:`body_rates` inverted: the wheel rates (..., 2), rev/s, of speed ``v`` and yaw
         rate ``w``."""
