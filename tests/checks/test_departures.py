@@ -4,7 +4,6 @@ uncertainty; a calibration is never confidently wrong. Values other than the ben
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -215,7 +214,7 @@ def test_a_segment_method_is_no_surer_than_the_default(seed: int, make: object,
 @pytest.mark.parametrize(("seed", "size", "at"), [(41, 0.012, 0.4), (42, -0.015, 0.65)])
 def test_a_change_of_c_e_inside_a_log_is_named_and_the_part_after_calibrated(
         seed: int, size: float, at: float) -> None:
-    after = dataclasses.replace(TRUE_PARAMETERS, c_e=TRUE_PARAMETERS.c_e * (1 + size))
+    after = TRUE_PARAMETERS.replace(c_e=TRUE_PARAMETERS.c_e * (1 + size))
     drive = sim(seed, duration_s=1200.0, change=(1200.0 * at, after))
     result = odocal.calibrate(drive.drive)
     (finding,) = [f for f in result.diagnosis.findings if f.check is Check.CHANGE_IN_LOG]
@@ -232,7 +231,7 @@ def test_a_segment_method_calibrates_the_part_after_a_change(seed: int, size: fl
     """The segment methods see no change in their own residuals (they were 30-70 standard
     deviations off both levels): the default method's residuals name it, and they fit the
     part after it."""
-    after = dataclasses.replace(TRUE_PARAMETERS, c_e=TRUE_PARAMETERS.c_e * (1 + size))
+    after = TRUE_PARAMETERS.replace(c_e=TRUE_PARAMETERS.c_e * (1 + size))
     drive = sim(seed, duration_s=1200.0, change=(600.0, after))
     result = odocal.calibrate(drive.drive, method=method)
     (finding,) = [f for f in result.diagnosis.findings if f.check is Check.CHANGE_IN_LOG]
@@ -433,7 +432,7 @@ def test_two_logs_whose_tyres_differ_are_never_averaged_confidently() -> None:
     """Two logs of one car whose tyres differ by 0.3% (a change between them): the part the
     calibration is of is named, or its uncertainty covers either log."""
     first = sim(76, duration_s=900.0)
-    wider = dataclasses.replace(TRUE_PARAMETERS, c_e=TRUE_PARAMETERS.c_e * 1.003)
+    wider = TRUE_PARAMETERS.replace(c_e=TRUE_PARAMETERS.c_e * 1.003)
     second = odocal.simulate(duration_s=900.0, seed=77, noise="realistic", theta=wider)
     result = odocal.calibrate([first.drive, second.drive])
     est = result.estimate

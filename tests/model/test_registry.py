@@ -143,3 +143,38 @@ def test_a_fleet_store_holds_one_model_s_parameters(tmp_path: Path) -> None:
     raw.close()
     with pytest.raises(DataError, match="names the vehicle model 'four_wheel'"):
         open_store(path, model="rear_axle")
+
+
+def test_parameters_are_the_model_s_by_name_whatever_its_layout() -> None:
+    """Parameters carry their layout: the rear axle's by default, another model's by its own
+    names (a made-up skid-steer layout here), immutable, picklable for Dask's workers."""
+    import pickle
+
+    from odocal.model.layout import Layout, ParameterSpec
+    from odocal.model.parameters import Parameters
+
+    rear = Parameters(2.0, -0.001, 1.5, d=0.0005)
+    assert rear == Parameters(c_e=2.0, c_d=-0.001, t_r=1.5, d=0.0005)
+    assert rear.layout is MODEL.layout and rear.t_r == 1.5
+    assert rear.replace(t_r=1.6).as_dict() == {"c_e": 2.0, "c_d": -0.001, "t_r": 1.6,
+                                               "d": 0.0005}
+    assert pickle.loads(pickle.dumps(rear)) == rear and hash(rear) == hash(rear.replace())
+    skid = Layout(parameters=(ParameterSpec("c", "m", "circumference", 1.0, "m", 0.6, 0.01),
+                              ParameterSpec("b", "m", "effective track", 1.0, "m", 0.5, 0.05)),
+                  scale="c", track="b", difference="c", load="c", differential=("b",),
+                  bends=("b",), lengths=("c", "b"))
+    robot = Parameters.from_array([0.61, 0.52], layout=skid)
+    assert robot.b == 0.52 and robot.as_dict() == {"c": 0.61, "b": 0.52}
+    assert robot != Parameters(0.61, 0.52, 0.0, 0.0)
+    assert pickle.loads(pickle.dumps(robot)).layout == skid
+    for bad, message in ((lambda: Parameters(1.0, 2.0, 3.0), "missing d"),
+                         (lambda: Parameters(1.0, 2.0, 3.0, 4.0, 5.0), "5 values where"),
+                         (lambda: Parameters(1.0, 2.0, 3.0, 4.0, c_e=1.0), "'c_e' given twice"),
+                         (lambda: Parameters(0.6, 0.5, layout=skid, t_r=1.0),
+                          "'t_r' is not a parameter")):
+        with pytest.raises(TypeError, match=message):
+            bad()
+    with pytest.raises(AttributeError, match="immutable"):
+        rear.c_e = 3.0  # type: ignore[misc]
+    with pytest.raises(AttributeError, match="no attribute 'wheelbase'"):
+        _ = rear.wheelbase

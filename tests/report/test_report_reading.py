@@ -171,7 +171,7 @@ def changed() -> CalibrationResult:
     """A 15-minute drive whose c_e grows 1.2% at 400 s, logged with an IMU rolled 2.9 degrees,
     wheels reading 0.03 rev/s at standstill, a compass heading (4 degrees) and a reference
     0.4 s late: the part after the change is calibrated, the departures taken out."""
-    after = dataclasses.replace(TRUE_PARAMETERS, c_e=TRUE_PARAMETERS.c_e * 1.012)
+    after = TRUE_PARAMETERS.replace(c_e=TRUE_PARAMETERS.c_e * 1.012)
     sim = odocal.simulate(duration_s=900.0, seed=41, noise="realistic", change=(400.0, after))
     sim = dep.wheel_offset(sim, 0.03)
     sim = dep.lateral_offset(sim, 0.5)

@@ -131,7 +131,7 @@ def test_a_drive_without_bends_bounds_only_what_it_carries() -> None:
 
 
 def test_a_drive_with_a_change_has_no_bound() -> None:
-    after = dataclasses.replace(TRUE_PARAMETERS, c_e=TRUE_PARAMETERS.c_e * 0.99)
+    after = TRUE_PARAMETERS.replace(c_e=TRUE_PARAMETERS.c_e * 0.99)
     sim = odocal.simulate(duration_s=60.0, seed=0, noise="white", change=(30.0, after))
     with pytest.raises(odocal.ConfigError, match="change"):
         sim.cramer_rao_bound()

@@ -306,11 +306,16 @@ class Estimate:
         return "\n".join([head, *self.table()])
 
     @property
+    def names(self) -> tuple[str, ...]:
+        """The model's parameter names, in theta's order."""
+        return self.theta.layout.names
+
+    @property
     def unidentified(self) -> tuple[str, ...]:
-        return tuple(n for n, ok in zip(PARAMETER_NAMES, self.identified, strict=True) if not ok)
+        return tuple(n for n, ok in zip(self.names, self.identified, strict=True) if not ok)
 
     def verdict(self, name: str) -> Verdict:
-        return self.verdicts[PARAMETER_NAMES.index(name)]
+        return self.verdicts[self.names.index(name)]
 
     def with_covariance(self, covariance: FloatArray, kind: CovarianceKind, *,
                         widening: FloatArray | None = None) -> Estimate:
@@ -326,18 +331,19 @@ class Estimate:
 
     def to_dict(self) -> dict[str, Any]:
         """The estimate as plain data (the top of calibration.json)."""
+        names = self.names
         return {
             "method": self.method,
             "model": self.model,
             "theta": self.theta.as_dict(),
-            "std": dict(zip(PARAMETER_NAMES, self.std.tolist(), strict=True)),
+            "std": dict(zip(names, self.std.tolist(), strict=True)),
             "covariance": self.covariance.tolist(),
             "covariance_kind": self.covariance_kind.value,
-            "std_widening": dict(zip(PARAMETER_NAMES, np.asarray(self.widening).tolist(),
+            "std_widening": dict(zip(names, np.asarray(self.widening).tolist(),
                                      strict=True)),
-            "free": dict(zip(PARAMETER_NAMES, self.free, strict=True)),
-            "identified": dict(zip(PARAMETER_NAMES, self.identified, strict=True)),
-            "verdicts": {n: verdict_dict(v) for n, v in zip(PARAMETER_NAMES, self.verdicts,
+            "free": dict(zip(names, self.free, strict=True)),
+            "identified": dict(zip(names, self.identified, strict=True)),
+            "verdicts": {n: verdict_dict(v) for n, v in zip(names, self.verdicts,
                                                             strict=True)},
             "status": {"code": int(self.status), "name": self.status.name.lower(),
                        "success": self.success, "message": self.message},

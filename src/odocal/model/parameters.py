@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.model.layout import REAR_AXLE
+from odocal.model.layout import REAR_AXLE, Layout
 
 FloatArray = NDArray[np.float64]
 
@@ -24,31 +24,94 @@ PARAMETER_DISPLAY: dict[str, tuple[float, str]] = REAR_AXLE.display
 STATES, WHEELS, PARAMETERS = 3, 2, REAR_AXLE.size
 
 
-@dataclass(frozen=True)
 class Parameters:
-    """The odometry parameters ``theta = [c_e, c_d, t_r, d]``.
+    """A vehicle model's parameters, by name and in its layout's order (immutable).
+
+    For the rear axle (the default layout) ``theta = [c_e, c_d, t_r, d]``:
 
     c_e : effective wheel circumference, m
     c_d : left-right circumference difference (left minus right), m
     t_r : rear track width, m
     d   : load-transfer coefficient, m per m/s^2 of lateral acceleration
+
+    ``Parameters(1.95, 0.0, 1.5, 0.0)`` and ``Parameters(c_e=1.95, c_d=0.0, t_r=1.5, d=0.0)``
+    are alike; another model's are built with ``layout=`` and read by its names
+    (``theta.c_e``, ``theta.as_dict()``).
     """
 
-    c_e: float
-    c_d: float
-    t_r: float
-    d: float
+    __slots__ = ("_layout", "_values")
+    _layout: Layout
+    _values: tuple[float, ...]
+
+    def __init__(self, *values: float, layout: Layout = REAR_AXLE, **named: float) -> None:
+        names = layout.names
+        if len(values) > len(names):
+            raise TypeError(f"{len(values)} values where the model has {len(names)} "
+                            f"({', '.join(names)})")
+        given = dict(zip(names, values, strict=False))
+        for name, value in named.items():
+            if name not in names:
+                raise TypeError(f"{name!r} is not a parameter of this model ({', '.join(names)})")
+            if name in given:
+                raise TypeError(f"{name!r} given twice")
+            given[name] = value
+        missing = [n for n in names if n not in given]
+        if missing:
+            raise TypeError(f"missing {', '.join(missing)} (the model has {', '.join(names)})")
+        object.__setattr__(self, "_layout", layout)
+        object.__setattr__(self, "_values", tuple(float(given[n]) for n in names))
+
+    @property
+    def layout(self) -> Layout:
+        """The model's parameter layout these values are in."""
+        return self._layout
+
+    def __getattr__(self, name: str) -> float:
+        if not name.startswith("_"):
+            layout = object.__getattribute__(self, "_layout")
+            if name in layout.names:
+                values: tuple[float, ...] = object.__getattribute__(self, "_values")
+                return values[layout.names.index(name)]
+        raise AttributeError(f"{type(self).__name__!r} has no attribute {name!r}")
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError(f"Parameters are immutable: cannot set {name!r}")
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Parameters):
+            return NotImplemented
+        return self._layout == other._layout and self._values == other._values
+
+    def __hash__(self) -> int:
+        return hash((self._layout.names, self._values))
+
+    def __repr__(self) -> str:
+        named = ", ".join(f"{n}={v!r}" for n, v in zip(self._layout.names, self._values,
+                                                        strict=True))
+        return f"Parameters({named})"
+
+    def __reduce__(self) -> tuple[object, ...]:
+        return (_rebuild, (self._values, self._layout))
 
     def as_array(self) -> FloatArray:
-        return np.array([getattr(self, n) for n in REAR_AXLE.names], dtype=np.float64)
+        return np.array(self._values, dtype=np.float64)
 
     @classmethod
-    def from_array(cls, theta: FloatArray | tuple[float, ...] | list[float]) -> Parameters:
-        values = np.asarray(theta, dtype=np.float64).reshape(REAR_AXLE.size)
-        return cls(**REAR_AXLE.named(values.tolist()))
+    def from_array(cls, theta: FloatArray | tuple[float, ...] | list[float], *,
+                   layout: Layout = REAR_AXLE) -> Parameters:
+        values = np.asarray(theta, dtype=np.float64).reshape(layout.size)
+        return cls(*values.tolist(), layout=layout)
 
     def as_dict(self) -> dict[str, float]:
-        return dict(zip(PARAMETER_NAMES, self.as_array().tolist(), strict=True))
+        return dict(zip(self._layout.names, self._values, strict=True))
+
+    def replace(self, **named: float) -> Parameters:
+        """A copy with the ``named`` values changed."""
+        return Parameters(layout=self._layout, **{**self.as_dict(), **named})
+
+
+def _rebuild(values: tuple[float, ...], layout: Layout) -> Parameters:
+    return Parameters(*values, layout=layout)
 
 
 @dataclass(frozen=True)

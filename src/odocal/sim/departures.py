@@ -222,7 +222,7 @@ def _plain(seed: int, duration_s: float, noise: str) -> SimulatedDrive:
 
 
 def _change(seed: int, value: float, noise: str, duration_s: float) -> SimulatedDrive:
-    new = dataclasses.replace(TRUE_PARAMETERS, c_e=TRUE_PARAMETERS.c_e * (1.0 + value))
+    new = TRUE_PARAMETERS.replace(c_e=TRUE_PARAMETERS.c_e * (1.0 + value))
     return simulate(duration_s=duration_s, seed=seed, noise=noise,
                     change=(0.5 * duration_s, new))
 
