@@ -1,0 +1,244 @@
+"""The four-wheel model's equations on the real logs (issue 37): what the front wheels and the
+steering identify, against the cars' datasheets.
+
+Every shared log carries four wheel speeds and a steering-wheel angle that odocal's readers
+do not take yet: nuScenes' ``zoe_veh_info`` (FL, FR in rpm, ``steer_corrected`` in degrees;
+a Renault Zoe, wheelbase 2.588 m) and comma2k19's ``CAN/wheel_speed`` (FL, FR in m/s) and
+``CAN/steering_angle`` (degrees; a Toyota RAV4 of the XA40 generation, 2.660 m). This script
+reads them beside the drive odocal converts (its reference motion at the rear axle), and fits
+the front axle's and the steering's parameters of :mod:`odocal.model.four_wheel`
+(``c_f, c_fd, t_f, L, ratio, s_0``) by Gauss-Newton on one-second windows: each window's
+front wheels' mean and difference revolutions (:func:`~odocal.model.four_wheel.inverse_step`
+summed: odocal's channels) and its mean
+steering-wheel angle (:func:`~odocal.model.four_wheel.steering`, moving steps). Each channel
+is weighted by its own robust residual scale, refitted; the covariance is the sandwich over
+clusters of five consecutive windows (errors that last a few seconds stay inside one).
+
+It is a plain fit, not odocal's default estimator (no lag, no error model with the speed, no
+departures): the figures say whether the drives carry the information, not what odocal's
+calibration of a four-wheel car will state.
+
+Run: ``python benchmarks/bench_four_wheel.py [--data ../shared/data]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from odocal.data.drive import Drive
+from odocal.model.four_wheel import FOUR_WHEEL, inverse_step, steering
+from odocal.model.kinematics import motion_increments
+from odocal.preprocess.convert import convert
+from odocal.settings import Settings
+
+#: The parameters fitted here (the front axle's and the steering's), by position in theta.
+FITTED = FOUR_WHEEL.indices(("c_f", "c_fd", "t_f", "L", "ratio", "s_0"))
+WINDOW_S, CLUSTER, MIN_MOVE_M = 1.0, 5, 2.0
+
+
+def _windows(drive: Drive, fl: np.ndarray, fr: np.ndarray, steer_rad: np.ndarray) -> dict:
+    """One-second windows of a drive's steps: the reference motion per step and the measured
+    front revolutions and mean steering angle per window."""
+    k = max(1, round(WINDOW_S / drive.t_s))
+    out: dict[str, list[np.ndarray]] = {n: [] for n in ("ds", "dpsi", "a_y", "revs", "steer")}
+    for a, b in drive.pieces:
+        n = (b - a - 1) // k
+        if n < 1:
+            continue
+        ds, dpsi = motion_increments(drive.x[a:b], drive.y[a:b], drive.psi[a:b], drive.beta[a:b])
+        cut = n * k
+        out["ds"].append(ds[:cut].reshape(n, k))
+        out["dpsi"].append(dpsi[:cut].reshape(n, k))
+        out["a_y"].append(drive.a_y[a:b - 1][:cut].reshape(n, k))
+        revs = np.column_stack([fl[a:b - 1], fr[a:b - 1]])[:cut] * drive.t_s
+        out["revs"].append(revs.reshape(n, k, 2).sum(axis=1))
+        out["steer"].append(steer_rad[a:b - 1][:cut].reshape(n, k))
+    w = {name: np.concatenate(parts) for name, parts in out.items()}
+    moving = w["ds"].sum(axis=1) > MIN_MOVE_M
+    return {name: value[moving] for name, value in w.items()}
+
+
+def _predict(theta: np.ndarray, w: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Each window's [fl, fr, steering] (N, 3) and the Jacobian in the fitted parameters."""
+    revs, jac = inverse_step(theta, w["ds"], w["dpsi"], w["a_y"])
+    angle, jac_s = steering(theta, w["ds"], w["dpsi"])
+    moving = w["ds"] > 0.02                          # the angle of a step that barely moves
+    count = np.maximum(moving.sum(axis=1), 1)        # is mostly its reference noise
+    mean_angle = np.where(moving, angle, 0.0).sum(axis=1) / count
+    mean_jac = np.where(moving[..., None], jac_s, 0.0).sum(axis=1) / count[:, None]
+    fl, fr = revs[:, :, 0].sum(axis=1), revs[:, :, 1].sum(axis=1)
+    j_fl, j_fr = jac[:, :, 0].sum(axis=1), jac[:, :, 1].sum(axis=1)
+    # the axle's channels, as odocal's error model has them: the wheels' mean and difference
+    pred = np.column_stack([0.5 * (fl + fr), fr - fl, mean_angle])
+    j = np.stack([0.5 * (j_fl + j_fr), j_fr - j_fl, mean_jac], axis=1)
+    return pred, j[:, :, FITTED]
+
+
+def _std(information: np.ndarray) -> np.ndarray:
+    """Each parameter's standard deviation from an information matrix, infinite for those a
+    direction the data do not see moves (a pseudo-inverse would call them exact)."""
+    diag = np.sqrt(np.clip(np.diag(information), 0.0, None))
+    out = np.full(diag.size, np.inf)
+    seen = diag > 0
+    if not seen.any():
+        return out
+    normed = information[np.ix_(seen, seen)] / np.outer(diag[seen], diag[seen])
+    values, vectors = np.linalg.eigh(0.5 * (normed + normed.T))
+    blind = values <= 1e-10 * values.max()
+    var = (vectors[:, ~blind] ** 2 / values[~blind]).sum(axis=1)
+    var[(vectors[:, blind] ** 2 > 1e-12).any(axis=1)] = np.inf
+    out[seen] = np.sqrt(var) / diag[seen]
+    return out
+
+
+def fit(windows: list[dict], theta0: np.ndarray, *, steering_tells_l: bool = False,
+        limit_scale: float = 1.0) -> tuple[np.ndarray, ...]:
+    """Gauss-Newton over every log's windows from the datasheet ``theta0``: theta, the fitted
+    parameters' covariance (the cluster sandwich), their standard deviations from the
+    information alone, the channels' robust scales, and which parameters the drives identify
+    (odocal's rule, judged on the information: a standard deviation below half the datasheet's
+    uncertainty, the layout's ``prior_std``; the others keep their datasheet value).
+
+    ``steering_tells_l`` False: the steering's equations estimate the ratio and the offset
+    only, and L is the front wheels' (an M-estimator whose estimating equations leave out the
+    steering's derivative in L; the sandwich carries L's uncertainty into the ratio). At
+    small angles the steering says ``ratio L`` alone, and the little it says of L by itself
+    (the arctangent's bend) is what an unmodelled steering (understeer, a ratio that varies
+    with the angle, a lag) moves first."""
+    told = np.ones((3, len(FITTED)))
+    if not steering_tells_l:
+        told[2, FITTED.index(FOUR_WHEEL.index("L"))] = 0.0
+    limit = 0.5 * limit_scale * np.array(FOUR_WHEEL.prior_std)[list(FITTED)]
+    measured = np.concatenate([np.column_stack([w["revs"].mean(axis=1),
+                                                w["revs"][:, 1] - w["revs"][:, 0],
+                                                w["steer"].mean(axis=1)]) for w in windows])
+    theta = np.array(theta0, dtype=float)
+    free = np.ones(len(FITTED), dtype=bool)
+    scale = np.array([np.std(measured[:, c]) + 1e-9 for c in range(3)])
+
+    def normal(theta: np.ndarray) -> tuple[np.ndarray, ...]:
+        parts = [_predict(theta, w) for w in windows]
+        pred = np.concatenate([q for q, _ in parts])
+        jac = np.concatenate([j for _, j in parts]) / scale[None, :, None]
+        r = (measured - pred) / scale
+        return (np.einsum("ncp,ncq->pq", told * jac, jac), np.einsum("ncp,nc->p", told * jac, r),
+                np.einsum("ncp,nc->np", told * jac, r), pred,
+                np.einsum("ncp,ncq->pq", told * jac, told * jac))
+
+    for _ in range(4):                   # judge, fit the identified, refit the channels' scales
+        *_, told_info = normal(theta)    # what the equations that estimate each one say
+        free = np.ones(len(FITTED), dtype=bool)
+        while free.any():                # hold the weakest, judge the rest again (as odocal)
+            std = np.full(len(FITTED), np.inf)
+            std[free] = _std(told_info[np.ix_(free, free)])
+            worst = int(np.argmax(np.where(free, std / limit, -np.inf)))
+            if std[worst] < limit[worst]:
+                break
+            free[worst] = False
+        theta = np.array(theta0, dtype=float)
+        index = np.array(FITTED)[free]
+        for _ in range(50):
+            a, g, _, pred, _ = normal(theta)
+            step = np.linalg.solve(a[np.ix_(free, free)], g[free])
+            theta[index] += step
+            if np.all(np.abs(step) < 1e-10 * np.maximum(1.0, np.abs(theta[index]))):
+                break
+        residual = measured - pred
+        scale = 1.4826 * np.median(np.abs(residual - np.median(residual, axis=0)), axis=0)
+    a, _, scores, _, told_info = normal(theta)
+    bread = np.zeros_like(a)
+    bread[np.ix_(free, free)] = np.linalg.inv(a[np.ix_(free, free)])
+    # clusters of CLUSTER consecutive windows within each log
+    labels = np.concatenate([np.arange(len(w["ds"])) // CLUSTER + 10_000 * i
+                             for i, w in enumerate(windows)])
+    sums = np.array([scores[labels == c].sum(axis=0) for c in np.unique(labels)])
+    g = len(sums)
+    meat = sums.T @ sums * g / max(g - 1, 1)
+    informed = np.sqrt(np.abs(np.diag(bread @ told_info @ bread.T)))
+    return theta, bread @ meat @ bread.T, informed, scale, free
+
+
+def _nuscenes(data: Path) -> list[dict]:
+    folder = data / "nuscenes-can-bus-mini" / "can_bus"
+    out = []
+    for drive in convert("nuscenes", [data / "nuscenes-can-bus-mini"]):
+        veh = json.loads((folder / f"{drive.name}_zoe_veh_info.json").read_text())
+        t = np.array([r["utime"] for r in veh]) * 1e-6
+        fl, fr = (np.array([r[f"{s}_wheel_speed"] for r in veh]) / 60.0 for s in ("FL", "FR"))
+        steer = np.deg2rad(np.array([r["steer_corrected"] for r in veh]))
+        at = drive.t
+        out.append(_windows(drive, np.interp(at, t, fl), np.interp(at, t, fr),
+                            np.interp(at, t, steer)))
+    return out
+
+
+def _comma(data: Path) -> list[dict]:
+    seg = data / "comma2k19-example" / "2018-08-02--08-34-47" / "40"
+    drive = convert("comma2k19", [seg], settings=Settings().replace(
+        convert={"wheel_circumference_m": 1.0}))[0]
+    can = seg / "processed_log" / "CAN"
+    tw, ws = np.load(can / "wheel_speed" / "t"), np.load(can / "wheel_speed" / "value")
+    ts, sa = np.load(can / "steering_angle" / "t"), np.load(can / "steering_angle" / "value")
+    # m/s as the rates of a 1 m wheel: c_f comes out as the speed signal's scale
+    return [_windows(drive, np.interp(drive.t, tw, ws[:, 0]), np.interp(drive.t, tw, ws[:, 1]),
+                     np.interp(drive.t, ts, np.deg2rad(sa)))]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=Path(os.environ.get(
+        "ODOCAL_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")))
+    args = parser.parse_args()
+    datasheet = np.array(FOUR_WHEEL.placeholder)
+    speeds = datasheet.copy()
+    speeds[FOUR_WHEEL.index("c_f")] = 1.0             # comma's m/s: a 1 m wheel's rates
+    cars = (("nuScenes Renault Zoe (Singapore, Boston scenes)", _nuscenes(args.data), 2.588,
+             datasheet),
+            ("comma2k19 Toyota RAV4 (one 60 s segment)", _comma(args.data), 2.660, speeds))
+    for (name, windows, wheelbase, theta0), tells in itertools.product(cars, (False, True)):
+        theta, cov, informed, scale, free = fit(windows, theta0, steering_tells_l=tells)
+        std = np.sqrt(np.diag(cov))
+        n = sum(len(w["ds"]) for w in windows)
+        how = ("the steering's arctangent also tells L" if tells
+               else "L from the front wheels only")
+        print(f"\n{name}, {how}: {n} moving one-second windows; channel scales: front "
+              f"wheels' mean {scale[0]:.4f} rev, their difference {scale[1]:.4f} rev, steering "
+              f"{np.rad2deg(scale[2]):.3f} deg")
+        for j, index in enumerate(FITTED):
+            spec = FOUR_WHEEL.parameters[index]
+            if not free[j]:
+                print(f"  {spec.name:<6} not identified (datasheet {theta[index]:g} kept)")
+                continue
+            line = (f"  {spec.name:<6} {theta[index] * spec.display_scale:12.5f} "
+                    f"+- {informed[j] * spec.display_scale:9.5f} (sandwich "
+                    f"{std[j] * spec.display_scale:9.5f}) {spec.display_unit}")
+            if spec.name == "L":
+                line += (f"   datasheet {wheelbase:.3f} m, z = "
+                         f"{(theta[index] - wheelbase) / informed[j]:+.2f}")
+            print(line)
+        i_l, i_r = FITTED.index(FOUR_WHEEL.index("L")), FITTED.index(FOUR_WHEEL.index("ratio"))
+        if not free[i_l] and free[i_r]:  # the steering says ratio x L alone
+            held = theta[FOUR_WHEEL.index("L")]
+            print(f"  (with L held, the steering says ratio x L = "
+                  f"{theta[FOUR_WHEEL.index('ratio')] * held:.3f} +- {informed[i_r] * held:.3f} "
+                  f"m; the ratio above is for L = {held:g} m, the car's datasheet L divides it)")
+        if not free[i_l]:                # what L would be, judged against the prior itself
+            loose, _, loose_std, _, loose_free = fit(windows, theta0, steering_tells_l=tells,
+                                                     limit_scale=2.0)
+            if loose_free[i_l]:
+                value, sd = loose[FOUR_WHEEL.index("L")], loose_std[i_l]
+                print(f"  (L fitted anyway, identified to within the datasheet's 0.2 m: "
+                      f"{value:.4f} +- {sd:.4f} m, z = {(value - wheelbase) / sd:+.2f}; ratio "
+                      f"{loose[FOUR_WHEEL.index('ratio')]:.3f} +- {loose_std[i_r]:.3f})")
+        if free[i_l] and free[i_r]:
+            print(f"  correlation of L and ratio: {cov[i_l, i_r] / (std[i_l] * std[i_r]):+.3f}")
+
+
+if __name__ == "__main__":
+    main()

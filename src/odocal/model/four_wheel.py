@@ -1,0 +1,133 @@
+"""The four-wheel car with a steering angle (issue 37): its parameters and its equations run
+backwards, the wheel revolutions and the steering-wheel angle a step's motion implies.
+
+Geometry (the rear axle's midpoint is the origin, x forward): the rear wheels at
+``(0, +-t_r / 2)``, the front wheels a wheelbase ``L`` ahead at ``(L, +-t_f / 2)``. Over a step
+of ``ds`` along track and ``dpsi`` of heading (the body's motion at the rear axle, as (1) of
+the rear axle inverts it), a wheel's contact point moves by the body's motion plus the turn
+about its place; a rear wheel rolls along the body, a steered front wheel along its own
+heading, so its revolutions are the contact point's path over its circumference::
+
+    n_rl t_s = (ds - t_r dpsi / 2) / c_rl                       (as the rear axle's (2)-(3))
+    n_fl t_s = hypot(ds - t_f dpsi / 2, L dpsi) / c_fl,         n_fr: t_f -> -t_f
+
+with ``c_rl = c_e + c_d / 2 + d a_y`` (``c_rr = c_e - c_d / 2 - d a_y``) and ``c_fl = c_f +
+c_fd / 2 + d a_y`` (``c_fr = c_f - c_fd / 2 - d a_y``): per axle a mean circumference and a
+left-minus-right difference. That choice, not four circumferences, because a drive's distance
+fixes each axle's mean and its bends the difference, so the two come out nearly uncorrelated
+(four circumferences would share the distance scale's whole uncertainty). The load transfer
+``d`` acts alike on both axles.
+
+The steering-wheel angle (rad) follows from the road-wheel angle of the front axle's midpoint,
+``delta = atan(L dpsi / ds)`` (the kinematic bicycle), through a ratio and an offset::
+
+    s = ratio delta + s_0
+
+At small angles only ``ratio L`` shows in ``s`` (``ratio`` and ``L`` are told apart by the
+front wheels' ``hypot``, which needs bends: ``L dpsi`` against ``ds``). An estimator should
+take L from the wheels alone and the ratio and offset from the steering: the little the
+steering says of L by itself (the arctangent's bend) is what an unmodelled steering
+(understeer, a ratio that varies with the angle) moves first. On the shared nuScenes scenes
+``benchmarks/bench_four_wheel.py`` finds L = 2.509 +- 0.187 m from the front wheels (the Zoe's
+datasheet: 2.588 m) and 3.063 +- 0.131 m (z = +3.6) where the steering also tells L.
+
+This module holds the equations and their Jacobians; the model is not yet registered
+(:mod:`odocal.model.registry`) because no estimator, reader or exporter takes four wheels yet.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from odocal.model.layout import REAR_AXLE, Layout, ParameterSpec
+
+FloatArray = NDArray[np.float64]
+
+_REAR = REAR_AXLE.parameters
+
+#: ``theta = [c_e, c_d, t_r, d, c_f, c_fd, t_f, L, ratio, s_0]``: the rear axle's four, then
+#: the front axle's mean circumference, difference and track, the wheelbase, and the steering's
+#: ratio and offset.
+FOUR_WHEEL = Layout(
+    parameters=(
+        *_REAR,
+        ParameterSpec("c_f", "m", "front effective wheel circumference", 1.0, "m", 2.0, 0.05,
+                      (0.05, 50.0), 50.0),
+        ParameterSpec("c_fd", "m", "front left-right circumference difference", 1e3, "mm",
+                      0.0, 0.01, (-50.0, 50.0), 50.0),
+        ParameterSpec("t_f", "m", "front track width", 1.0, "m", 1.6, 0.10, (0.05, 30.0),
+                      30.0),
+        ParameterSpec("L", "m", "wheelbase", 1.0, "m", 2.7, 0.2, (0.1, 30.0), 30.0),
+        ParameterSpec("ratio", "1", "steering ratio (steering-wheel over road-wheel angle)",
+                      1.0, "", 15.0, 3.0, (1.0, 40.0), 40.0),
+        ParameterSpec("s_0", "rad", "steering-wheel angle offset", 57.29577951308232, "deg",
+                      0.0, 0.05, (-1.0, 1.0), 1.0),
+    ),
+    scale="c_e", track="t_r", difference="c_d", load="d",
+    differential=("c_d", "t_r", "d", "c_fd", "t_f"), bends=("t_r", "d", "t_f", "L"),
+    lengths=("c_e", "t_r", "c_f", "t_f", "L"))
+
+#: The wheels in the order of :func:`inverse_step`'s columns, as a drive's columns name them.
+WHEEL_INPUTS = ("n_fl", "n_fr", "n_rl", "n_rr")
+#: Where theta holds each parameter.
+_E, _D, _T, _A, _F, _FD, _TF, _L, _RATIO, _S0 = range(FOUR_WHEEL.size)
+
+
+def inverse_step(theta: FloatArray, ds: FloatArray, dpsi: FloatArray,
+                 a_y: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The revolutions each wheel turns over each step (M, 4: fl, fr, rl, rr) and their
+    Jacobian in theta (M, 4, n)."""
+    th = np.asarray(theta, dtype=np.float64)
+    ds, dpsi, a_y = (np.asarray(x, dtype=np.float64) for x in np.broadcast_arrays(ds, dpsi, a_y))
+    revs = np.empty((*ds.shape, 4))
+    jac = np.zeros((*ds.shape, 4, FOUR_WHEEL.size))
+    load = th[_A] * a_y
+    for column, sign in ((2, 1.0), (3, -1.0)):                   # rl (+), rr (-)
+        c = th[_E] + sign * (0.5 * th[_D] + load)
+        path = ds - sign * 0.5 * th[_T] * dpsi
+        u = path / c
+        revs[..., column] = u
+        dc = -u / c
+        jac[..., column, _E] = dc
+        jac[..., column, _D] = sign * 0.5 * dc
+        jac[..., column, _A] = sign * a_y * dc
+        jac[..., column, _T] = -sign * 0.5 * dpsi / c
+    for column, sign in ((0, 1.0), (1, -1.0)):                   # fl (+), fr (-)
+        c = th[_F] + sign * (0.5 * th[_FD] + load)
+        along = ds - sign * 0.5 * th[_TF] * dpsi
+        across = th[_L] * dpsi
+        path = np.hypot(along, across)
+        u = path / c
+        revs[..., column] = u
+        dc = -u / c
+        jac[..., column, _F] = dc
+        jac[..., column, _FD] = sign * 0.5 * dc
+        jac[..., column, _A] = sign * a_y * dc
+        safe = np.where(path > 0.0, path, 1.0)
+        jac[..., column, _TF] = np.where(path > 0.0, -sign * 0.5 * dpsi * along / safe, 0.0) / c
+        jac[..., column, _L] = np.where(path > 0.0, dpsi * across / safe, 0.0) / c
+    return revs, jac
+
+
+def steering(theta: FloatArray, ds: FloatArray, dpsi: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The steering-wheel angle (rad) a step's motion implies (M,) and its Jacobian in theta
+    (M, n): ``ratio atan(L dpsi / ds) + s_0``. Where the step does not move (``ds`` = 0) the
+    angle is not defined: NaN, with a zero Jacobian."""
+    th = np.asarray(theta, dtype=np.float64)
+    ds, dpsi = (np.asarray(x, dtype=np.float64) for x in np.broadcast_arrays(ds, dpsi))
+    moving = ds != 0.0
+    curvature = np.where(moving, dpsi / np.where(moving, ds, 1.0), 0.0)
+    delta = np.arctan(th[_L] * curvature)
+    angle = np.where(moving, th[_RATIO] * delta + th[_S0], np.nan)
+    jac = np.zeros((*ds.shape, FOUR_WHEEL.size))
+    jac[..., _RATIO] = np.where(moving, delta, 0.0)
+    jac[..., _S0] = np.where(moving, 1.0, 0.0)
+    jac[..., _L] = np.where(moving, th[_RATIO] * curvature / (1.0 + (th[_L] * curvature) ** 2),
+                            0.0)
+    return angle, jac
+
+
+def rear_axle(theta: FloatArray) -> FloatArray:
+    """The rear axle's parameters of a four-wheel theta (the rear-axle model's theta)."""
+    return np.asarray(theta, dtype=np.float64)[[_E, _D, _T, _A]]
