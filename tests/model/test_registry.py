@@ -35,12 +35,6 @@ def test_the_registry_names_each_model_and_loads_it() -> None:
         registry.model("rear_axel")
 
 
-def test_the_model_is_found_from_the_wheel_columns_where_that_is_unambiguous() -> None:
-    assert registry.for_inputs(["t", "n_rl", "n_rr", "a_y"]) == "rear_axle"
-    with pytest.raises(DataError, match="no vehicle model takes these wheel columns"):
-        registry.for_inputs(["t", "n_rl", "speed"])
-
-
 def test_the_body_map_is_the_body_rates_and_the_wheel_rates_invert_them() -> None:
     """body_map's two matrices give (2a)-(2b) at any a_y; wheel_rates inverts body_rates;
     both agree with the kinematics' functions they stand for."""

@@ -2,15 +2,13 @@
 
 Pure Python: the settings check ``[vehicle] model`` against :func:`names` and size their
 per-parameter tuples by :func:`layout` without loading numpy; :func:`model` loads the model
-itself. A model is registered with its layout and its wheel inputs (the drive's columns), and
-:func:`for_inputs` finds it from the columns a log carries where that is unambiguous.
+itself. A model is registered with its layout and its wheel inputs (the drive's columns).
 """
 
 from __future__ import annotations
 
 import difflib
 import importlib
-from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -69,24 +67,6 @@ def model(name: str = DEFAULT) -> VehicleModel:
     module, attribute = entry(name).where.split(":")
     found: VehicleModel = getattr(importlib.import_module(module), attribute)
     return found
-
-
-def for_inputs(columns: Iterable[str]) -> str:
-    """The model whose wheel inputs ``columns`` carry: the one that uses the most of them (a
-    log with four wheels is not a rear axle's because it also holds the rear two). A
-    DataError where none fits, or two fit alike."""
-    have = set(columns)
-    fits = [e for e in _ENTRIES.values() if set(e.wheel_inputs) <= have]
-    if not fits:
-        wanted = " or ".join(", ".join(e.wheel_inputs) for e in _ENTRIES.values())
-        raise DataError(f"no vehicle model takes these wheel columns ({', '.join(sorted(have))}"
-                        f"): a model needs {wanted}")
-    most = max(len(e.wheel_inputs) for e in fits)
-    best = [e.name for e in fits if len(e.wheel_inputs) == most]
-    if len(best) > 1:
-        raise DataError(f"the wheel columns fit the models {', '.join(best)} alike: name one "
-                        "with [vehicle] model")
-    return best[0]
 
 
 def check_stated(stated: object, expected: str, what: str) -> str:
