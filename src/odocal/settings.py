@@ -27,42 +27,41 @@ from typing import Any, Literal
 
 from odocal.errors import ConfigError, input_file, shown
 from odocal.model import registry
-from odocal.model.layout import REAR_AXLE
+from odocal.model.layout import REAR_AXLE, Layout
 
 #: Datasheet parameters of the paper, ``[c_e, c_d, t_r, d]`` (m, m, m, m per m/s^2).
 DATASHEET_THETA: tuple[float, ...] = REAR_AXLE.placeholder
 #: The names of theta's entries, in its order (``odocal.model.layout`` holds their units).
 DATASHEET_NAMES: tuple[str, ...] = REAR_AXLE.names
-#: The largest datasheet uncertainty ``[identify] prior_std`` may state (the width of the
-#: vehicle ranges, each parameter's ``vehicle_range`` in the model's layout): beyond them it
-#: is no uncertainty of a vehicle, and its square is no number a fit can carry.
-PRIOR_STD_MAX: tuple[float, ...] = tuple(p.prior_std_max for p in REAR_AXLE.parameters)
+#: The smallest datasheet uncertainty ``[identify] prior_std`` may state; the largest is each
+#: parameter's ``prior_std_max`` in the model's layout (the width of its vehicle range: beyond
+#: it no uncertainty of a vehicle, and its square is no number a fit can carry).
 PRIOR_STD_MIN = 1e-9
 
 
-def vehicle_problem(theta: Any) -> str | None:
+def vehicle_problem(theta: Any, layout: Layout = REAR_AXLE) -> str | None:
     """None if a wheeled vehicle could have ``theta`` (the model's parameters, in its order),
     else what is wrong, in words. The ranges are generous (odocal's robots and trucks alike;
     c_d also less than c_e in size): a datasheet, a settings file's theta0 or a parameter file
     beyond them is a mistake (a unit, a typo), and no computation starts from it."""
     values = [float(v) for v in theta]
-    if len(values) != REAR_AXLE.size:
-        return f"{len(values)} values where the model has {REAR_AXLE.size}"
-    for name, value in zip(DATASHEET_NAMES, values, strict=True):
-        problem = _out_of_range(name, value)
+    if len(values) != layout.size:
+        return f"{len(values)} values where the model has {layout.size}"
+    for name, value in zip(layout.names, values, strict=True):
+        problem = _out_of_range(name, value, layout)
         if problem is not None:
             return problem
-    difference = REAR_AXLE.value(values, REAR_AXLE.difference)
-    scale = REAR_AXLE.value(values, REAR_AXLE.scale)
+    difference = layout.value(values, layout.difference)
+    scale = layout.value(values, layout.scale)
     if abs(difference) >= scale:
-        return (f"{REAR_AXLE.difference} = {difference:.6g} m is not smaller than "
-                f"{REAR_AXLE.scale} = {scale:.6g} m: a circumference difference beyond the "
+        return (f"{layout.difference} = {difference:.6g} m is not smaller than "
+                f"{layout.scale} = {scale:.6g} m: a circumference difference beyond the "
                 "circumference itself")
     return None
 
 
-def _out_of_range(name: str, value: float) -> str | None:
-    spec = REAR_AXLE.parameters[REAR_AXLE.index(name)]
+def _out_of_range(name: str, value: float, layout: Layout = REAR_AXLE) -> str | None:
+    spec = layout.parameters[layout.index(name)]
     lo, hi = spec.vehicle_range
     if math.isfinite(value) and lo <= value <= hi:
         return None
@@ -226,21 +225,12 @@ class IdentifySettings:
         return REAR_AXLE.value(self.theta0, name)
 
     def __post_init__(self) -> None:
-        s = "identify"
-        problem = vehicle_problem(self.theta0)
-        _check(problem is None, s, "theta0", self.theta0, f"a wheeled vehicle's values ({problem})")
+        s = "identify"                   # theta0 and prior_std: by the model (Settings)
         _check(all(w >= 0 for w in self.weights) and any(w > 0 for w in self.weights), s,
                "weights", self.weights, "non-negative weights, not all zero")
         _check(self.max_iterations >= 1, s, "max_iterations", self.max_iterations,
                "an integer >= 1")
         _check(self.step_tolerance >= 0, s, "step_tolerance", self.step_tolerance, "a number >= 0")
-        limits = zip(DATASHEET_NAMES, PRIOR_STD_MAX, strict=True)
-        _check(len(self.prior_std) == REAR_AXLE.size
-               and all(PRIOR_STD_MIN <= p <= hi for p, hi in zip(self.prior_std, PRIOR_STD_MAX,
-                                                                 strict=True)),
-               s, "prior_std", self.prior_std,
-               f"{REAR_AXLE.size} standard deviations from {PRIOR_STD_MIN:g} up to "
-               + ", ".join(f"{n} {hi:g}" for n, hi in limits))
         _check(0 < self.identifiable_ratio <= 1, s, "identifiable_ratio",
                self.identifiable_ratio, "a fraction in (0, 1]")
         _check(0 < self.rcond < 1, s, "rcond", self.rcond, "a number in (0, 1)")
@@ -324,8 +314,8 @@ class MinimumSettings:
 
     def __post_init__(self) -> None:
         s = "minimum"
-        _check(len(self.half_width) == REAR_AXLE.size and all(h > 0 for h in self.half_width),
-               s, "half_width", self.half_width, f"{REAR_AXLE.size} positive half-widths")
+        _check(all(h > 0 for h in self.half_width), s, "half_width", self.half_width,
+               "positive half-widths, one per parameter")
         _check(self.max_generations >= 1, s, "max_generations", self.max_generations,
                "an integer >= 1")
         _check(4 <= self.population <= 1000, s, "population", self.population,
@@ -476,9 +466,8 @@ class FleetSettings:
         for key in ("cusum_k", "cusum_h"):
             _check(0 < getattr(self, key) < float("inf"), s, key, getattr(self, key),
                    "a positive finite number")
-        _check(len(self.excess_floor) == REAR_AXLE.size
-               and all(0 <= v < 1 for v in self.excess_floor), s,
-               "excess_floor", self.excess_floor, f"{REAR_AXLE.size} numbers in [0, 1)")
+        _check(all(0 <= v < 1 for v in self.excess_floor), s, "excess_floor",
+               self.excess_floor, "numbers in [0, 1), one per parameter")
 
 
 @dataclass(frozen=True)
@@ -861,7 +850,11 @@ class VehicleSettings:
     """The model's name: ``rear_axle`` (two rear wheel rates, METHOD 1)."""
 
     def __post_init__(self) -> None:
-        registry.entry(self.model)          # a one-line error naming the known models
+        try:
+            registry.entry(self.model)
+        except ConfigError as err:
+            raise ConfigError(f"setting [vehicle] model = {self.model!r} is invalid: "
+                              f"{err}") from None
 
 
 @dataclass(frozen=True)
@@ -896,14 +889,26 @@ class Settings:
                     if isinstance(v, float) and not math.isfinite(v):
                         raise ConfigError(f"setting [{name}] {f.name} = {value!r} is invalid: "
                                           "expected finite numbers")
-        # the per-parameter settings list the chosen model's parameters
-        lay = registry.layout(self.vehicle.model)
+        self._check_per_parameter(registry.layout(self.vehicle.model))
+
+    def _check_per_parameter(self, lay: Layout) -> None:
+        """The per-parameter settings list the chosen model's parameters, each in its range."""
+        theta0, prior_std = self.identify.theta0, self.identify.prior_std
+        problem = vehicle_problem(theta0, lay)
+        _check(problem is None, "identify", "theta0", theta0,
+               f"a wheeled vehicle's values ({problem})")
+        highest = [p.prior_std_max for p in lay.parameters]
+        _check(len(prior_std) == lay.size
+               and all(PRIOR_STD_MIN <= p <= hi for p, hi in zip(prior_std, highest,
+                                                                 strict=True)),
+               "identify", "prior_std", prior_std,
+               f"{lay.size} standard deviations from {PRIOR_STD_MIN:g} up to "
+               + ", ".join(f"{n} {hi:g}" for n, hi in zip(lay.names, highest, strict=True)))
         for name, key in PER_PARAMETER:
             value = getattr(getattr(self, name), key)
-            if len(value) != lay.size:
-                raise ConfigError(
-                    f"setting [{name}] {key} = {list(value)!r} is invalid: the {self.vehicle.model}"
-                    f" model has {lay.size} parameters ({', '.join(lay.names)}), one value each")
+            _check(len(value) == lay.size, name, key, value,
+                   f"{lay.size} values, one per parameter of the {self.vehicle.model} model "
+                   f"({', '.join(lay.names)})")
 
     @property
     def layout(self) -> Any:

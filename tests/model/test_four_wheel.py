@@ -90,3 +90,24 @@ def test_the_jacobians_are_the_derivatives() -> None:
         numeric_s = (steering(up, ds, dpsi)[0] - steering(down, ds, dpsi)[0]) / (2 * h)
         np.testing.assert_allclose(jac_s[:, j], numeric_s, rtol=1e-6, atol=1e-9,
                                    err_msg=FOUR_WHEEL.names[j])
+
+
+def test_backwards_every_wheel_turns_back_the_same_path() -> None:
+    """Reversing along a circle turns each wheel back by what it turned forwards (a signed
+    encoder's rate is negative)."""
+    ds, dpsi = np.array([2.0, -2.0]), np.array([0.15, -0.15])
+    revs, _ = inverse_step(THETA, ds, dpsi, np.zeros(2))
+    np.testing.assert_allclose(revs[1], -revs[0], rtol=1e-14)
+    assert np.all(revs[0] > 0)
+
+
+def test_the_load_transfer_acts_alike_on_both_axles() -> None:
+    """With lateral acceleration the left wheels roll d a_y larger, the right ones d a_y
+    smaller, on the front axle as on the rear."""
+    a_y, ds = 3.0, 1.0
+    revs, _ = inverse_step(THETA, np.array([ds]), np.array([0.0]), np.array([a_y]))
+    c_e, c_d, _, d, c_f, c_fd = THETA[:6]
+    np.testing.assert_allclose(revs[0], [ds / (c_f + c_fd / 2 + d * a_y),
+                                         ds / (c_f - c_fd / 2 - d * a_y),
+                                         ds / (c_e + c_d / 2 + d * a_y),
+                                         ds / (c_e - c_d / 2 - d * a_y)], rtol=1e-14)

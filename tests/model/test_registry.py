@@ -172,3 +172,49 @@ def test_parameters_are_the_model_s_by_name_whatever_its_layout() -> None:
         rear.c_e = 3.0  # type: ignore[misc]
     with pytest.raises(AttributeError, match="no attribute 'wheelbase'"):
         _ = rear.wheelbase
+
+
+def test_another_model_s_layout_sizes_the_per_parameter_settings(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The settings check theta0, prior_std, half_width and excess_floor against the chosen
+    model's layout (a two-parameter model registered for the test), not the rear axle's."""
+    from odocal.model.layout import Layout, ParameterSpec
+
+    two = Layout(parameters=(ParameterSpec("c", "m", "circumference", 1.0, "m", 0.6, 0.01,
+                                           (0.05, 50.0), 50.0),
+                             ParameterSpec("b", "m", "effective track", 1.0, "m", 0.5, 0.05,
+                                           (0.05, 30.0), 30.0)),
+                 scale="c", track="b", difference="b", load="b", differential=("b",),
+                 bends=("b",), lengths=("c", "b"))
+    monkeypatch.setitem(registry._ENTRIES, "skid_steer",
+                        registry.Entry("skid_steer", "a test's robot", two, ("n_l", "n_r"),
+                                       "odocal.model.vehicle:MODEL"))
+    per_model = {"identify": {"theta0": [0.61, 0.52], "prior_std": [0.01, 0.05]},
+                 "minimum": {"half_width": [0.05, 0.1]}, "fleet": {"excess_floor": [0.0, 0.0]}}
+    settings = settings_from_dict({"vehicle": {"model": "skid_steer"}, **per_model})
+    assert settings.layout is two and settings.identify.theta0 == (0.61, 0.52)
+    with pytest.raises(ConfigError, match=r"\[minimum\] half_width = \(0\.1, 0\.02, 0\.3, "
+                                          r"0\.01\) is invalid: expected 2 values, one per "
+                                          r"parameter of the skid_steer model \(c, b\)"):
+        settings_from_dict({"vehicle": {"model": "skid_steer"},
+                            "identify": per_model["identify"], "fleet": per_model["fleet"]})
+    with pytest.raises(ConfigError, match=r"theta0 = \(0\.61, 70\.0\) is invalid: expected a "
+                                          r"wheeled vehicle's values \(b = 70 is not"):
+        settings_from_dict({"vehicle": {"model": "skid_steer"}, **per_model,
+                            "identify": {"theta0": [0.61, 70.0], "prior_std": [0.01, 0.05]}})
+    with pytest.raises(ConfigError, match=r"^setting \[vehicle\] model = 'rear_axel' is "
+                                          r"invalid: unknown vehicle model"):
+        settings_from_dict({"vehicle": {"model": "rear_axel"}})
+
+
+def test_the_default_model_leaves_a_fleet_s_settings_hash_as_it_was() -> None:
+    """A store made before models were named keeps its drives: the default model does not
+    enter the settings hash its task keys carry (f542e10c... at 8b9832e, before [vehicle])."""
+    import hashlib
+
+    from odocal.fleet.tasks import settings_hash
+
+    plain = {k: v for k, v in Settings().to_dict().items() if k not in ("fleet", "vehicle")}
+    before = hashlib.sha256(json.dumps(plain, sort_keys=True, default=str).encode()).hexdigest()
+    assert settings_hash(Settings()) == before
+    assert settings_hash(Settings().replace(calibrate={"seed": 3})) != before

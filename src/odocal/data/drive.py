@@ -27,8 +27,13 @@ IntArray = NDArray[np.int64]
 
 #: Columns of the drive format that must be present.
 REQUIRED_COLUMNS: tuple[str, ...] = ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi")
+#: The further inputs a drive may carry for a vehicle model beyond the rear axle: the front
+#: wheels' rates (rev/s) and the steering-wheel angle (rad). Every current log carries them
+#: (nuScenes, comma2k19); :mod:`odocal.model.four_wheel` takes them.
+MODEL_INPUTS: tuple[str, ...] = ("n_fl", "n_fr", "steer")
 #: Columns of the drive format that may be present.
-OPTIONAL_COLUMNS: tuple[str, ...] = ("beta", "yaw_rate", "piece", "x_std", "y_std", "psi_std")
+OPTIONAL_COLUMNS: tuple[str, ...] = ("beta", "yaw_rate", "piece", "x_std", "y_std", "psi_std",
+                                     *MODEL_INPUTS)
 
 # Plausibility limits used to catch wrong units (not physics limits of any car).
 _MAX_WHEEL_SPEED_MPS = 80.0   # 288 km/h: 40 rev/s of a car's 2 m wheel
@@ -76,6 +81,9 @@ class Drive:
         Where the drive came from (a file name), used in messages.
     pose_std : ndarray, shape (M, 3), or None
         Standard deviation of the reference pose (m, m, rad) where known (from a fusion).
+    inputs : mapping of name to ndarray, shape (M,)
+        The further inputs the log carries (:data:`MODEL_INPUTS`: the front wheels' rates
+        ``n_fl``, ``n_fr`` in rev/s, the steering-wheel angle ``steer`` in rad).
     metadata : mapping
         Free-form provenance (source format, conversion settings, time offsets found, ...).
     """
@@ -94,9 +102,19 @@ class Drive:
     name: str = "drive"
     pose_std: FloatArray | None = None
     metadata: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+    inputs: Mapping[str, FloatArray] = field(default_factory=lambda: MappingProxyType({}))
 
     def __post_init__(self) -> None:
         m = self.t.shape[0]
+        inputs = {k: _as_float_array(v) for k, v in self.inputs.items()}
+        for key, arr in inputs.items():
+            if key not in MODEL_INPUTS:
+                raise DataError(f"{self.name}: {key!r} is not an input odocal knows "
+                                f"({', '.join(MODEL_INPUTS)})")
+            if arr.shape != (m,) or not np.all(np.isfinite(arr)):
+                raise DataError(f"{self.name}: column {key} must hold {m} finite values")
+            arr.flags.writeable = False
+        object.__setattr__(self, "inputs", MappingProxyType(inputs))
         for key in ("n_rl", "n_rr", "a_y", "beta", "x", "y", "psi", "yaw_rate"):
             arr = getattr(self, key)
             if arr.shape != (m,):
@@ -165,6 +183,7 @@ class Drive:
             cols["x_std"], cols["y_std"], cols["psi_std"] = (self.pose_std[:, 0],
                                                             self.pose_std[:, 1],
                                                             self.pose_std[:, 2])
+        cols.update(self.inputs)
         return cols
 
     def with_wheel_rates(self, n_rl: FloatArray, n_rr: FloatArray) -> Drive:
@@ -172,7 +191,7 @@ class Drive:
         return Drive(t=self.t, n_rl=_as_float_array(n_rl), n_rr=_as_float_array(n_rr),
                      a_y=self.a_y, beta=self.beta, x=self.x, y=self.y, psi=self.psi,
                      yaw_rate=self.yaw_rate, t_s=self.t_s, pieces=self.pieces, name=self.name,
-                     pose_std=self.pose_std, metadata=self.metadata)
+                     pose_std=self.pose_std, metadata=self.metadata, inputs=self.inputs)
 
     def select(self, keep: NDArray[np.bool_], **columns: FloatArray) -> Drive:
         """The samples where ``keep`` (pieces split where a run of kept samples breaks), with
@@ -191,7 +210,8 @@ class Drive:
         edges = [0, *breaks.tolist(), index.size]
         pose_std = None if self.pose_std is None else self.pose_std[keep]
         return Drive(t_s=self.t_s, pieces=tuple(itertools.pairwise(edges)),
-                     name=self.name, pose_std=pose_std, metadata=self.metadata, **values)
+                     name=self.name, pose_std=pose_std, metadata=self.metadata,
+                     inputs={k: v[keep] for k, v in self.inputs.items()}, **values)
 
     def since(self, t0: float) -> Drive:
         """The samples from time ``t0`` on (pieces cut there); the drive itself where it starts
@@ -208,7 +228,7 @@ class Drive:
                      psi=self.psi[cut], yaw_rate=self.yaw_rate[cut], t_s=self.t_s,
                      pieces=pieces, name=self.name,
                      pose_std=None if self.pose_std is None else self.pose_std[cut],
-                     metadata=self.metadata)
+                     metadata=self.metadata, inputs={k: v[cut] for k, v in self.inputs.items()})
 
     @classmethod
     def from_columns(cls, columns: Mapping[str, Any], *, name: str = "drive",
@@ -239,7 +259,8 @@ class Drive:
         n_rl, n_rr = arrays["n_rl"], arrays["n_rr"]
         _check_wheel_bursts(name, arrays["t"], n_rl, n_rr, circumference_m=wheel_m)
         _check_held_reference(name, arrays, pieces)
-        _check_wheel_units(name, n_rl, n_rr, circumference_m=wheel_m, stated=stated)
+        _check_wheel_units(name, n_rl, n_rr, circumference_m=wheel_m, stated=stated,
+                           more={k: arrays[k] for k in ("n_fl", "n_fr") if k in arrays})
         psi, yaw_rate = _heading_and_yaw_rate(name, arrays, t_s, pieces)
         x, y = arrays["x"], arrays["y"]
         _check_position_units(name, x, y, n_rl, n_rr, t_s, pieces, circumference_m=wheel_m)
@@ -247,7 +268,7 @@ class Drive:
         return cls(t=t, n_rl=n_rl, n_rr=n_rr, a_y=arrays["a_y"],
                    beta=arrays.get("beta", np.zeros(m)), x=x, y=y, psi=psi,
                    yaw_rate=_as_float_array(yaw_rate), t_s=t_s, pieces=pieces, name=name,
-                   pose_std=pose_std,
+                   pose_std=pose_std, inputs={k: arrays[k] for k in MODEL_INPUTS if k in arrays},
                    metadata=MappingProxyType({**dict(metadata or {}),
                                               **({"repaired": repaired} if repaired else {}),
                                               **({"resampled": resampled} if resampled
@@ -540,7 +561,8 @@ _SPIKE_SCALE = {"n_rl": 5.0, "n_rr": 5.0, "a_y": 20.0}
 #: Share of a column's samples that may be repaired; beyond it the column is broken.
 _MAX_REPAIRED = 0.01
 #: Largest magnitudes a car's log can hold (docs/command-line.md, "Input limits").
-LIMITS = {"a_y": (30.0, "m/s^2"), "beta": (0.8, "rad"), "x": (1e7, "m"), "y": (1e7, "m")}
+LIMITS = {"a_y": (30.0, "m/s^2"), "beta": (0.8, "rad"), "x": (1e7, "m"), "y": (1e7, "m"),
+          "steer": (15.0, "rad")}    # lock to lock is under 3 turns (in degrees: 860)
 
 
 def _repair_spikes(name: str, key: str, arr: FloatArray, scale: float,
@@ -668,10 +690,12 @@ def _check_limits(name: str, arrays: Mapping[str, FloatArray]) -> None:
 
 def _check_wheel_units(name: str, n_rl: FloatArray, n_rr: FloatArray, *,
                        circumference_m: float = _CAR_CIRCUMFERENCE_M, stated: bool = False,
-                       percentile: float = 99.0) -> None:
-    """Wheel rates no wheel of ``circumference_m`` reaches below 288 km/h are another unit."""
+                       percentile: float = 99.0,
+                       more: Mapping[str, FloatArray] | None = None) -> None:
+    """Wheel rates no wheel of ``circumference_m`` reaches below 288 km/h are another unit
+    (the rear wheels', and ``more``'s: the front wheels' where the log has them)."""
     limit = _MAX_WHEEL_SPEED_MPS / circumference_m
-    for key, n in (("n_rl", n_rl), ("n_rr", n_rr)):
+    for key, n in (("n_rl", n_rl), ("n_rr", n_rr), *(more or {}).items()):
         finite = np.abs(n[np.isfinite(n)])
         if finite.size == 0:
             continue

@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from odocal.model.vehicle import MODEL
+
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
@@ -43,8 +45,8 @@ COUPLING_KEEP_WALD = 6.63
 _RHO_MAX = 0.5            # windows with a larger wheel difference over mean (reversing, spikes)
 
 
-#: The sum (distance) and difference (yaw) channels of the two wheels.
-CHANNELS = np.array([[0.5, 0.5], [-1.0, 1.0]])   # sum (distance) and difference (yaw) channels
+#: The model's channels of its wheels: the sum (distance) and the difference (yaw).
+CHANNELS = MODEL.channel_map
 _TO_WHEELS = np.linalg.inv(CHANNELS)
 
 

@@ -331,6 +331,13 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
         db.close()
         raise DataError(f"fleet store '{p}' has schema version {version}, newer than this "
                         f"odocal's ({SCHEMA_VERSION}); upgrade odocal")
+    if model is not None and "meta" in tables:       # another model's store: refused as it is
+        row = db.execute("SELECT value FROM meta WHERE key = 'model'").fetchone()
+        try:
+            registry.check_stated(row[0] if row else None, model, f"fleet store '{shown(p)}'")
+        except DataError:
+            db.close()
+            raise
     store = Store(db, p)
     if version < SCHEMA_VERSION:
         # SQLite's DDL is transactional: the migration and the new tables land together or not
@@ -345,16 +352,13 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
             tx.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)",
                        (str(SCHEMA_VERSION),))
             tx.execute("INSERT OR IGNORE INTO meta VALUES ('created_at', ?)", (_now(),))
-    row = db.execute("SELECT value FROM meta WHERE key = 'model'").fetchone()
-    if model is not None:
+    if model is not None and not read_only:
         try:
-            registry.check_stated(row[0] if row else None, model, f"fleet store '{shown(p)}'")
-        except DataError:
-            db.close()
-            raise
-        if row is None and not read_only:
             with store.transaction() as tx:
                 tx.execute("INSERT OR IGNORE INTO meta VALUES ('model', ?)", (model,))
+        except BaseException:
+            db.close()
+            raise
     return store
 
 

@@ -32,14 +32,18 @@ import numpy as np
 from odocal._version import __version__
 from odocal.fleet.catalog import CatalogEntry
 from odocal.model.parameters import PARAMETER_NAMES
+from odocal.model.registry import DEFAULT as DEFAULT_MODEL
 from odocal.settings import Settings, settings_from_dict
 
 log = logging.getLogger(__name__)
 
 
 def settings_hash(settings: Settings) -> str:
-    """The hash of the settings a calibration depends on (all but the fleet's own section)."""
-    plain = {k: v for k, v in settings.to_dict().items() if k != "fleet"}
+    """The hash of the settings a calibration depends on (all but the fleet's own section; the
+    vehicle model where it is the default rear axle, as every store before models were named:
+    their drives are not calibrated again for a setting that did not change them)."""
+    plain = {k: v for k, v in settings.to_dict().items()
+             if k != "fleet" and not (k == "vehicle" and v == {"model": DEFAULT_MODEL})}
     text = json.dumps(plain, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()
 

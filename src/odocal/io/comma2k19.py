@@ -1,7 +1,8 @@
 """A comma2k19 segment folder: ``processed_log/`` and ``global_pose/`` (NumPy arrays).
 
 * ``processed_log/CAN/wheel_speed`` (N, 4) [FL, FR, RL, RR] m/s (the car's own conversion with its
-  nominal circumference): turned into rotation rates with a nominal circumference
+  nominal circumference): turned into rotation rates with a nominal circumference; the front
+  two and ``CAN/steering_angle`` (degrees) are the four-wheel model's further inputs
 * ``processed_log/IMU/gyro``, ``accelerometer`` in the phone frame [forward, right, down]: the
   left-positive yaw rate is ``-gyro[:, 2]``, the left-positive lateral acceleration
   ``-accelerometer[:, 1]``
@@ -69,14 +70,18 @@ def read_comma2k19(source: str | Path, *, circumference_m: float) -> RawLog:
         raise DataError(f"comma2k19 segment '{folder}': GNSS/live_gnss_ublox must be (N, 6)")
     check_lla(ublox[:, 0], ublox[:, 1], stream="live_gnss_ublox")
 
+    rates = {name: wheel_rate_revps(ws[:, column], "m/s", stream="wheel_speed",
+                                    circumference_m=circumference_m)
+             for name, column in (("n_fl", 0), ("n_fr", 1), ("n_rl", 2), ("n_rr", 3))}
+    units = {name: f"m/s (circumference {circumference_m} m)" for name in rates}
+    if (log_dir / "CAN" / "steering_angle").is_dir():     # degrees, at the wheels' clock
+        ts, angle = _series(log_dir, "CAN/steering_angle")
+        if angle.ndim == 1 and ts.size > 1 and np.all(np.diff(ts) > 0):
+            rates["steer"] = np.deg2rad(np.interp(tw, ts, angle))
+            units["steer"] = "deg"
     streams: dict[str, Stream] = {
-        "wheels": Stream(name="CAN/wheel_speed", role="wheels", t=tw,
-                         values={"n_rl": wheel_rate_revps(ws[:, 2], "m/s", stream="wheel_speed",
-                                                          circumference_m=circumference_m),
-                                 "n_rr": wheel_rate_revps(ws[:, 3], "m/s", stream="wheel_speed",
-                                                          circumference_m=circumference_m)},
-                         units={"n_rl": f"m/s (circumference {circumference_m} m)",
-                                "n_rr": f"m/s (circumference {circumference_m} m)"}),
+        "wheels": Stream(name="CAN/wheel_speed", role="wheels", t=tw, values=rates,
+                         units=units),
         "imu": Stream(name="IMU/gyro+accelerometer", role="imu", t=tg,
                       values={"yaw_rate": -gyro[:, 2], "a_y": -acc[:, 1]},
                       units={"yaw_rate": "rad/s (phone frame, -z)",

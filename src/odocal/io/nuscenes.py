@@ -3,7 +3,9 @@
 Each message file is a JSON list of records ordered by ``utime`` (microseconds, Unix epoch, the
 time the message was received). Used here:
 
-* ``zoe_veh_info``: ``RL_wheel_speed``, ``RR_wheel_speed`` in rpm (rear wheels, ~100 Hz)
+* ``zoe_veh_info``: ``RL_wheel_speed``, ``RR_wheel_speed`` in rpm (rear wheels, ~100 Hz); where
+  every record has them, also ``FL_wheel_speed``, ``FR_wheel_speed`` (rpm) and
+  ``steer_corrected`` (the steering-wheel angle, degrees), the four-wheel model's inputs
 * ``ms_imu``: ``rotation_rate`` [x, y, z] rad/s and ``linear_accel`` [x, y, z] m/s^2 in the ego
   frame (x forward, y left, z up), ~100 Hz
 * ``pose``: ``pos`` [x, y, z] m in the map frame and ``orientation`` [w, x, y, z] ego to map,
@@ -95,14 +97,21 @@ def read_scene(scene: str, files: dict[str, Path]) -> RawLog:
     if rot.ndim != 2 or acc.ndim != 2 or pos.ndim != 2 or q.shape[1:] != (4,):
         raise DataError(f"{scene}: unexpected shapes in ms_imu or pose records")
     rpm_to_revps = 1.0 / 60.0
+    more = {}
+    if all(k in r for r in veh for k in ("FL_wheel_speed", "FR_wheel_speed")):
+        more = {"n_fl": _field(veh, "FL_wheel_speed", scene, "zoe_veh_info") * rpm_to_revps,
+                "n_fr": _field(veh, "FR_wheel_speed", scene, "zoe_veh_info") * rpm_to_revps}
+    if all("steer_corrected" in r for r in veh):
+        more["steer"] = np.deg2rad(_field(veh, "steer_corrected", scene, "zoe_veh_info"))
     streams = {
         "wheels": Stream(name=f"{scene} zoe_veh_info", role="wheels",
                          t=_field(veh, "utime", scene, "zoe_veh_info") * 1e-6,
                          values={"n_rl": _field(veh, "RL_wheel_speed", scene, "zoe_veh_info")
                                  * rpm_to_revps,
                                  "n_rr": _field(veh, "RR_wheel_speed", scene, "zoe_veh_info")
-                                 * rpm_to_revps},
-                         units={"n_rl": "rpm", "n_rr": "rpm"}),
+                                 * rpm_to_revps, **more},
+                         units={"n_rl": "rpm", "n_rr": "rpm",
+                                **{k: "deg" if k == "steer" else "rpm" for k in more}}),
         "imu": Stream(name=f"{scene} ms_imu", role="imu",
                       t=_field(imu, "utime", scene, "ms_imu") * 1e-6,
                       values={"yaw_rate": rot[:, 2], "a_y": acc[:, 1]},

@@ -32,7 +32,7 @@ FloatArray = NDArray[np.float64]
 
 ROLES: tuple[str, ...] = ("wheels", "imu", "pose", "gnss", "heading")
 QUANTITIES: Mapping[str, tuple[str, ...]] = {
-    "wheels": ("n_rl", "n_rr"),
+    "wheels": ("n_rl", "n_rr", "n_fl", "n_fr", "steer"),   # the last three: more models
     "imu": ("yaw_rate", "a_y"),
     "pose": ("x", "y", "psi", "vx", "vy"),
     "gnss": ("east", "north", "speed", "course", "std"),

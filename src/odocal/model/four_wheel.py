@@ -6,7 +6,8 @@ Geometry (the rear axle's midpoint is the origin, x forward): the rear wheels at
 of ``ds`` along track and ``dpsi`` of heading (the body's motion at the rear axle, as (1) of
 the rear axle inverts it), a wheel's contact point moves by the body's motion plus the turn
 about its place; a rear wheel rolls along the body, a steered front wheel along its own
-heading, so its revolutions are the contact point's path over its circumference::
+heading, so its revolutions are the contact point's path over its circumference (negative
+where the wheel rolls backwards)::
 
     n_rl t_s = (ds - t_r dpsi / 2) / c_rl                       (as the rear axle's (2)-(3))
     n_fl t_s = hypot(ds - t_f dpsi / 2, L dpsi) / c_fl,         n_fr: t_f -> -t_f
@@ -28,8 +29,10 @@ front wheels' ``hypot``, which needs bends: ``L dpsi`` against ``ds``). An estim
 take L from the wheels alone and the ratio and offset from the steering: the little the
 steering says of L by itself (the arctangent's bend) is what an unmodelled steering
 (understeer, a ratio that varies with the angle) moves first. On the shared nuScenes scenes
-``benchmarks/bench_four_wheel.py`` finds L = 2.509 +- 0.187 m from the front wheels (the Zoe's
-datasheet: 2.588 m) and 3.063 +- 0.131 m (z = +3.6) where the steering also tells L.
+(113 moving seconds) ``benchmarks/bench_four_wheel.py`` fits L = 2.509 +- 0.187 m from the
+front wheels (the Zoe's datasheet: 2.588 m) and 3.063 +- 0.131 m (z = +3.6) where the
+steering also tells L; by odocal's rule (a std below half the datasheet's 0.2 m) these
+seconds do not identify L, and the fit keeps the datasheet's.
 
 This module holds the equations and their Jacobians; the model is not yet registered
 (:mod:`odocal.model.registry`) because no estimator, reader or exporter takes four wheels yet.
@@ -65,7 +68,7 @@ FOUR_WHEEL = Layout(
                       0.0, 0.05, (-1.0, 1.0), 1.0),
     ),
     scale="c_e", track="t_r", difference="c_d", load="d",
-    differential=("c_d", "t_r", "d", "c_fd", "t_f"), bends=("t_r", "d", "t_f", "L"),
+    differential=("c_d", "t_r", "d", "c_fd", "t_f"), bends=("t_r", "d", "t_f", "L", "ratio"),
     lengths=("c_e", "t_r", "c_f", "t_f", "L"))
 
 #: The wheels in the order of :func:`inverse_step`'s columns, as a drive's columns name them.
@@ -97,23 +100,26 @@ def inverse_step(theta: FloatArray, ds: FloatArray, dpsi: FloatArray,
         c = th[_F] + sign * (0.5 * th[_FD] + load)
         along = ds - sign * 0.5 * th[_TF] * dpsi
         across = th[_L] * dpsi
-        path = np.hypot(along, across)
+        rolls = np.where(along < 0.0, -1.0, 1.0)          # backwards where the axle reverses
+        path = rolls * np.hypot(along, across)
         u = path / c
         revs[..., column] = u
         dc = -u / c
         jac[..., column, _F] = dc
         jac[..., column, _FD] = sign * 0.5 * dc
         jac[..., column, _A] = sign * a_y * dc
-        safe = np.where(path > 0.0, path, 1.0)
-        jac[..., column, _TF] = np.where(path > 0.0, -sign * 0.5 * dpsi * along / safe, 0.0) / c
-        jac[..., column, _L] = np.where(path > 0.0, dpsi * across / safe, 0.0) / c
+        moved = path != 0.0
+        safe = np.where(moved, path, 1.0)                  # d|p| / dx = x / |p|, signed alike
+        jac[..., column, _TF] = np.where(moved, -sign * 0.5 * dpsi * along / safe, 0.0) / c
+        jac[..., column, _L] = np.where(moved, dpsi * across / safe, 0.0) / c
     return revs, jac
 
 
 def steering(theta: FloatArray, ds: FloatArray, dpsi: FloatArray) -> tuple[FloatArray, FloatArray]:
     """The steering-wheel angle (rad) a step's motion implies (M,) and its Jacobian in theta
     (M, n): ``ratio atan(L dpsi / ds) + s_0``. Where the step does not move (``ds`` = 0) the
-    angle is not defined: NaN, with a zero Jacobian."""
+    angle is not defined: NaN, with a zero Jacobian; where it barely moves, the curvature is
+    the reference's noise over a small ds, and an estimator leaves such steps out."""
     th = np.asarray(theta, dtype=np.float64)
     ds, dpsi = (np.asarray(x, dtype=np.float64) for x in np.broadcast_arrays(ds, dpsi))
     moving = ds != 0.0

@@ -53,6 +53,13 @@ class VehicleModel(Protocol):
                     a_y: FloatArray | float) -> FloatArray:
         """The wheel rates (..., wheels), rev/s, of a speed and a yaw rate."""
 
+    @property
+    def channel_map(self) -> FloatArray:
+        """The error model's channels of the wheels' revolutions (channels, wheels)."""
+
+    def channel_gains(self, theta: FloatArray) -> FloatArray:
+        """The body's travel (m) and yaw (rad) per revolution of each channel (channels,)."""
+
     def wheel_changes(self, change: FloatArray) -> FloatArray:
         """Each wheel's circumference change (wheels,) of a change of theta."""
 

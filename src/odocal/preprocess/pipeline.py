@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from odocal.data.drive import Drive
+from odocal.data.drive import MODEL_INPUTS, Drive
 from odocal.errors import DataError
 from odocal.io.streams import RawLog, Stream
 from odocal.preprocess.align import (
@@ -96,7 +96,8 @@ def build_drive(log: RawLog, settings: Settings, *,
 
     w = resample(wheels, t)
     columns: dict[str, FloatArray] = {"t": t, "n_rl": w["n_rl"], "n_rr": w["n_rr"],
-                                      "piece": piece_col}
+                                      "piece": piece_col,
+                                      **{k: w[k] for k in MODEL_INPUTS if k in w}}
     imu_values = resample(imu, t) if imu is not None else {}
     reference, yaw_rate, speed, course, fusion_summaries = _reference_columns(
         log, mode, reference_stream, t, piece_ranges, imu_values, settings)

@@ -1137,8 +1137,8 @@ class CalibrationNode(LifecycleNode):
         if period is None or span is None or span[1] <= span[0]:
             return None
         speed = self.calibrator.distance_km * 1000.0 / (span[1] - span[0])
-        n = float(MODEL.wheel_rates(self._theta, speed, 0.0, 0.0).mean())
-        var_v, var_w = self.twist.variances(speed, n, n, 0.0)
+        n_rl, n_rr = (float(n) for n in MODEL.wheel_rates(self._theta, speed, 0.0, 0.0))
+        var_v, var_w = self.twist.variances(speed, n_rl, n_rr, 0.0)
         if var_v >= UNKNOWN_VARIANCE:
             return None
         return OdometryNoise(speed_std_mps=math.sqrt(var_v), yaw_rate_std_radps=math.sqrt(var_w),
