@@ -1,11 +1,11 @@
 """The four-wheel model's equations on the real logs (issue 37): what the front wheels and the
 steering identify, against the cars' datasheets.
 
-Every shared log carries four wheel speeds and a steering-wheel angle that odocal's readers
-do not take yet: nuScenes' ``zoe_veh_info`` (FL, FR in rpm, ``steer_corrected`` in degrees;
-a Renault Zoe, wheelbase 2.588 m) and comma2k19's ``CAN/wheel_speed`` (FL, FR in m/s) and
-``CAN/steering_angle`` (degrees; a Toyota RAV4 of the XA40 generation, 2.660 m). This script
-reads them beside the drive odocal converts (its reference motion at the rear axle), and fits
+Every shared log carries four wheel speeds and a steering-wheel angle, which odocal's readers
+take into the drive's further inputs (``Drive.inputs``: ``n_fl``, ``n_fr``, ``steer``):
+nuScenes' ``zoe_veh_info`` (a Renault Zoe, wheelbase 2.588 m) and comma2k19's
+``CAN/wheel_speed`` and ``CAN/steering_angle`` (a Toyota RAV4 of the XA40 generation, 2.660
+m). With the drive's reference motion at the rear axle, this script fits
 the front axle's and the steering's parameters of :mod:`odocal.model.four_wheel`
 (``c_f, c_fd, t_f, L, ratio, s_0``) by Gauss-Newton on one-second windows: each window's
 front wheels' mean and difference revolutions (:func:`~odocal.model.four_wheel.inverse_step`
@@ -25,17 +25,19 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import os
 from pathlib import Path
 
 import numpy as np
 
+import odocal
 from odocal.data.drive import Drive
 from odocal.model.four_wheel import FOUR_WHEEL, inverse_step, steering
 from odocal.model.kinematics import motion_increments
+from odocal.model.vehicle import MODEL
 from odocal.preprocess.convert import convert
 from odocal.settings import Settings
+from odocal.sim.four_wheel import with_front_axle
 
 #: The parameters fitted here (the front axle's and the steering's), by position in theta.
 FITTED = FOUR_WHEEL.indices(("c_f", "c_fd", "t_f", "L", "ratio", "s_0"))
@@ -164,37 +166,56 @@ def fit(windows: list[dict], theta0: np.ndarray, *, steering_tells_l: bool = Fal
     return theta, bread @ meat @ bread.T, informed, scale, free
 
 
+def _inputs(drive: Drive) -> dict:
+    return _windows(drive, drive.inputs["n_fl"], drive.inputs["n_fr"], drive.inputs["steer"])
+
+
 def _nuscenes(data: Path) -> list[dict]:
-    folder = data / "nuscenes-can-bus-mini" / "can_bus"
-    out = []
-    for drive in convert("nuscenes", [data / "nuscenes-can-bus-mini"]):
-        veh = json.loads((folder / f"{drive.name}_zoe_veh_info.json").read_text())
-        t = np.array([r["utime"] for r in veh]) * 1e-6
-        fl, fr = (np.array([r[f"{s}_wheel_speed"] for r in veh]) / 60.0 for s in ("FL", "FR"))
-        steer = np.deg2rad(np.array([r["steer_corrected"] for r in veh]))
-        at = drive.t
-        out.append(_windows(drive, np.interp(at, t, fl), np.interp(at, t, fr),
-                            np.interp(at, t, steer)))
-    return out
+    return [_inputs(d) for d in convert("nuscenes", [data / "nuscenes-can-bus-mini"])]
 
 
 def _comma(data: Path) -> list[dict]:
     seg = data / "comma2k19-example" / "2018-08-02--08-34-47" / "40"
-    drive = convert("comma2k19", [seg], settings=Settings().replace(
-        convert={"wheel_circumference_m": 1.0}))[0]
-    can = seg / "processed_log" / "CAN"
-    tw, ws = np.load(can / "wheel_speed" / "t"), np.load(can / "wheel_speed" / "value")
-    ts, sa = np.load(can / "steering_angle" / "t"), np.load(can / "steering_angle" / "value")
     # m/s as the rates of a 1 m wheel: c_f comes out as the speed signal's scale
-    return [_windows(drive, np.interp(drive.t, tw, ws[:, 0]), np.interp(drive.t, tw, ws[:, 1]),
-                     np.interp(drive.t, ts, np.deg2rad(sa)))]
+    return [_inputs(d) for d in convert("comma2k19", [seg], settings=Settings().replace(
+        convert={"wheel_circumference_m": 1.0}))]
+
+
+def simulated(seeds: range, duration_s: float, noise: str) -> None:
+    """The plain fit on simulated four-wheel drives (:mod:`odocal.sim.four_wheel`): each
+    identified parameter's error over its standard deviation."""
+    z: dict[str, list[float]] = {FOUR_WHEEL.names[i]: [] for i in FITTED}
+    held: dict[str, int] = dict.fromkeys(z, 0)
+    for seed in seeds:
+        sim, truth = with_front_axle(odocal.simulate(duration_s=duration_s, seed=seed,
+                                                     noise=noise))
+        theta0 = np.array(FOUR_WHEEL.placeholder)
+        theta0[:MODEL.size] = truth.as_array()[:MODEL.size]
+        theta, _, informed, _, free = fit([_inputs(sim.drive)], theta0)
+        for j, index in enumerate(FITTED):
+            name = FOUR_WHEEL.names[index]
+            if free[j]:
+                z[name].append(float((theta[index] - truth.as_array()[index]) / informed[j]))
+            else:
+                held[name] += 1
+    print(f"\nsimulated four-wheel drives, {len(seeds)} seeds x {duration_s:g} s, noise "
+          f"{noise!r}: the error over the std of each identified parameter")
+    for name, values in z.items():
+        v = np.array(values)
+        line = (f"  {name:<6} RMS z {np.sqrt(np.mean(v ** 2)):5.2f}, max |z| "
+                f"{np.max(np.abs(v)):5.2f} over {v.size}" if v.size else f"  {name:<6} -")
+        print(line + (f"; not identified in {held[name]}" if held[name] else ""))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=Path(os.environ.get(
         "ODOCAL_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")))
+    parser.add_argument("--seeds", type=int, default=20)
+    parser.add_argument("--duration", type=float, default=1200.0)
     args = parser.parse_args()
+    for noise in ("white", "realistic"):
+        simulated(range(1, args.seeds + 1), args.duration, noise)
     datasheet = np.array(FOUR_WHEEL.placeholder)
     speeds = datasheet.copy()
     speeds[FOUR_WHEEL.index("c_f")] = 1.0             # comma's m/s: a 1 m wheel's rates

@@ -29,8 +29,8 @@ front wheels' ``hypot``, which needs bends: ``L dpsi`` against ``ds``). An estim
 take L from the wheels alone and the ratio and offset from the steering: the little the
 steering says of L by itself (the arctangent's bend) is what an unmodelled steering
 (understeer, a ratio that varies with the angle) moves first. On the shared nuScenes scenes
-(113 moving seconds) ``benchmarks/bench_four_wheel.py`` fits L = 2.509 +- 0.187 m from the
-front wheels (the Zoe's datasheet: 2.588 m) and 3.063 +- 0.131 m (z = +3.6) where the
+(113 moving seconds) ``benchmarks/bench_four_wheel.py`` fits L = 2.507 +- 0.186 m from the
+front wheels (the Zoe's datasheet: 2.588 m) and 3.046 +- 0.138 m (z = +3.3) where the
 steering also tells L; by odocal's rule (a std below half the datasheet's 0.2 m) these
 seconds do not identify L, and the fit keeps the datasheet's.
 
