@@ -360,6 +360,14 @@ def test_ctrl_c_or_sigterm_mid_drive_ends_cleanly(ros: Any, tmp_path: Path, sign
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             pytest.fail(f"{signum} did not stop odocal ros2")
+    except pytest.fail.Exception:
+        # what the node said, for a handshake that never answered
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        said = proc.communicate(timeout=30)[1] if proc.stderr is not None else ""
+        print(f"odocal ros2 said:\n{said[-6000:]}")
+        print(f"player: odometry {len(player.odometry)}, estimates {len(player.estimates)}")
+        raise
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
