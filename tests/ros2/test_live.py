@@ -317,15 +317,17 @@ def test_ctrl_c_or_sigterm_mid_drive_ends_cleanly(ros: Any, tmp_path: Path, sign
         for k in range(d.n_samples):
             msgs = messages(d, k, script)
             if k % 40 == 0:
-                player.clock.publish(Clock(clock=stamp(START_S + float(d.t[k]))))
-                batch = []
+                clock = Clock(clock=stamp(START_S + float(d.t[k])))
+                player.clock.publish(clock)
+                batch = [("clock", clock)]
             for role in ("wheels", "imu", "pose"):
                 getattr(player, role).publish(msgs[role])
                 batch.append((role, msgs[role]))
             if k == 39:
                 # what a reader gets before it has matched the writer is lost on the way: the
-                # first batch again until the node answers (what arrives twice is refused)
-                for _ in range(12):
+                # first batch (and its clock) again until the node answers, for as long as a
+                # loaded machine may take to match them (what arrives twice is refused)
+                for _ in range(60):
                     deadline = time.monotonic() + 5.0
                     while not player.odometry and time.monotonic() < deadline:
                         executor.spin_once(timeout_sec=0.01)
