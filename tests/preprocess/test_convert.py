@@ -407,3 +407,37 @@ def test_nuscenes_broken_inputs(tmp_path: Path) -> None:
     empty.mkdir()
     with pytest.raises(DataError, match="no nuScenes CAN bus files"):
         convert("nuscenes", [empty])
+
+
+def test_table_format_takes_the_front_wheels_and_the_steering(short_drive: SimulatedDrive,
+                                                             tmp_path: Path) -> None:
+    """A mapping that names front_left, front_right and steering (degrees) gives the drive's
+    further inputs (the four-wheel model's), as the simulated car logged them; naming one
+    front wheel alone, or another steering unit, is a one-line error."""
+    from odocal.sim.four_wheel import with_front_axle
+
+    four, _ = with_front_axle(short_drive)
+    drive = four.drive
+    write_tables(drive, tmp_path)
+    t_ms = drive.t * 1000.0
+    pacsv.write_csv(pa.table({"stamp": t_ms, "rl": drive.n_rl * 60, "rr": drive.n_rr * 60,
+                              "fl": drive.inputs["n_fl"] * 60, "fr": drive.inputs["n_fr"] * 60,
+                              "sw": np.degrees(drive.inputs["steer"])}),
+                    tmp_path / "wheels.csv")
+    mapping = tmp_path / "map.toml"
+    wheels = 'rear_right = "rr"\nfront_left = "fl"\nfront_right = "fr"\nsteering = "sw"\n' \
+             'steering_unit = "deg"\n'
+    mapping.write_text(MAPPING.replace('rear_right = "rr"\n', wheels))
+    sources = [tmp_path / f for f in ("wheels.csv", "imu.csv", "pose.csv")]
+    back = convert("table", sources, mapping=mapping, settings=NO_OFFSET)[0]
+    n = back.n_samples
+    for key in ("n_fl", "n_fr", "steer"):
+        np.testing.assert_allclose(back.inputs[key], drive.inputs[key][:n], atol=1e-9,
+                                   err_msg=key)
+    mapping.write_text(MAPPING.replace('rear_right = "rr"\n', 'rear_right = "rr"\n'
+                                       'front_left = "fl"\n'))
+    with pytest.raises(ConfigError, match="names front_left without the other front wheel"):
+        convert("table", sources, mapping=mapping, settings=NO_OFFSET)
+    mapping.write_text(MAPPING.replace('rear_right = "rr"\n', wheels.replace('"deg"', '"grad"')))
+    with pytest.raises(ConfigError, match="steering_unit = 'grad': 'rad' or 'deg'"):
+        convert("table", sources, mapping=mapping, settings=NO_OFFSET)

@@ -18,6 +18,10 @@ file) and columns; for ``rosbag`` a ``topic`` and field paths (``angular_velocit
     # ticks_per_rev = 96     # for ticks (cumulative counts)
     # counter_bits = 16      # a tick counter that wraps (8, 12, 16, 24 and 32 bits, unsigned
     #                        # or signed, are recognised without it)
+    # front_left = "fl_rpm"  # optional, both or neither: the front wheels (the same unit)
+    # front_right = "fr_rpm"
+    # steering = "steer_deg" # optional: the steering-wheel angle
+    # steering_unit = "deg"  # rad or deg
 
     [imu]
     file = "imu.csv"
@@ -62,7 +66,8 @@ from odocal.settings import read_toml
 _COMMON = {"offset_s", "file", "topic", "time", "time_unit", "type"}
 KEYS: Mapping[str, set[str]] = {
     "wheels": _COMMON | {"rear_left", "rear_right", "unit", "circumference_m", "ticks_per_rev",
-                         "counter_bits"},
+                         "counter_bits", "front_left", "front_right", "steering",
+                         "steering_unit"},
     "imu": _COMMON | {"yaw_rate", "yaw_rate_unit", "lateral_accel", "lateral_accel_unit", "frame"},
     "pose": _COMMON | {"x", "y", "heading", "heading_unit", "heading_convention", "vx", "vy",
                        "quaternion"},

@@ -120,19 +120,36 @@ def _stream_time(role: str, table: Mapping[str, FloatArray], section: Mapping[st
 def _wheel_values(col: _Columns, section: Mapping[str, Any], *, name: str, t: FloatArray,
                   circumference_m: float) -> tuple[_Values, _Units]:
     """The rear wheels' rates ``n_rl``, ``n_rr`` in rev/s from the mapping's unit (rates,
-    speeds or encoder ticks, a wrapping counter undone), with the units as logged."""
+    speeds or encoder ticks, a wrapping counter undone), with the units as logged; where the
+    mapping names them, the front wheels' (``front_left``, ``front_right``: ``n_fl``,
+    ``n_fr``, in the same unit) and the steering-wheel angle (``steering``, in
+    ``steering_unit``: ``steer`` in rad), the four-wheel model's further inputs."""
     values: _Values = {}
     units: _Units = {}
     unit = str(section.get("unit", "rev/s"))
     bits = section.get("counter_bits")
-    for side, key in (("n_rl", "rear_left"), ("n_rr", "rear_right")):
-        raw = col(key)
-        assert raw is not None
+    if ("front_left" in section) != ("front_right" in section):
+        named = "front_left" if "front_left" in section else "front_right"
+        raise ConfigError(f"mapping [wheels] names {named} without the other front wheel: "
+                          "name both, or neither")
+    for side, key in (("n_rl", "rear_left"), ("n_rr", "rear_right"), ("n_fl", "front_left"),
+                      ("n_fr", "front_right")):
+        raw = col(key, required=side in ("n_rl", "n_rr"))
+        if raw is None:
+            continue
         values[side] = wheel_rate_revps(
             raw, unit, stream=name, t=t,
             circumference_m=float(section.get("circumference_m", circumference_m)),
             ticks_per_rev=section.get("ticks_per_rev"), counter_bits=bits)
         units[side] = _counter_note(raw, t, bits) if unit == "ticks" else unit
+    steering = col("steering", required=False)
+    if steering is not None:
+        steering_unit = str(section.get("steering_unit", "rad"))
+        if steering_unit not in ("rad", "deg"):
+            raise ConfigError(f"mapping [wheels] steering_unit = {steering_unit!r}: 'rad' or "
+                              "'deg' (of the steering wheel)")
+        values["steer"] = np.deg2rad(steering) if steering_unit == "deg" else steering
+        units["steer"] = steering_unit
     return values, units
 
 
