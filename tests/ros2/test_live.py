@@ -267,6 +267,10 @@ def test_nan_values_and_stamps_going_back_are_refused_counted_and_named(
 
 # ---------------------------------------------------------------------------------------- 3
 
+class _NoAnswer(Exception):
+    """The node's process never answered the first batch (what it said is the message)."""
+
+
 @pytest.mark.parametrize(("signum", "after"), [("SIGINT", 400), ("SIGINT", 2500),
                                                ("SIGTERM", 400), ("SIGTERM", 2500)])
 def test_ctrl_c_or_sigterm_mid_drive_ends_cleanly(ros: Any, tmp_path: Path, signum: str,
@@ -275,7 +279,24 @@ def test_ctrl_c_or_sigterm_mid_drive_ends_cleanly(ros: Any, tmp_path: Path, sign
     while messages flow (``after`` messages into the drive's second part, once the node has
     published estimates). Exit 0, the final calibration said and exported, no traceback.
     (Reliable inputs here: a best-effort reader drops what a writer sends before the reader
-    has matched it, and the player cannot see when that is.)"""
+    has matched it, and the player cannot see when that is.)
+
+    In full test runs the first of these, on a test worker that has run many ROS 2 tests
+    before, now and then never hears the node's odometry: the node starts, says so, and then
+    nothing arrives for minutes, whatever is sent again (its cause is not found; issue 41).
+    Such a start is tried once more with a new node and player, saying so; the signal's
+    handling is what is judged."""
+    for attempt in (1, 2):
+        try:
+            _signal_mid_drive(ros, tmp_path / f"exports-{attempt}", signum, after)
+            return
+        except _NoAnswer as stall:
+            print(f"start {attempt}: odocal ros2 never answered the first batch; it said:\n"
+                  f"{stall}")
+    pytest.fail("odocal ros2 never answered the first batch, in two starts (printed above)")
+
+
+def _signal_mid_drive(ros: Any, folder: Path, signum: str, after: int) -> None:
     import os
     import signal
     import subprocess
@@ -290,7 +311,6 @@ def test_ctrl_c_or_sigterm_mid_drive_ends_cleanly(ros: Any, tmp_path: Path, sign
 
     isolate()
     name, ns = unique("sig"), f"/{unique('s')}"
-    folder = tmp_path / "exports"
     proc = subprocess.Popen(
         [sys.executable, "-m", "odocal", "ros2", "--ros-args", "-r", f"__node:={name}",
          "-p", "use_sim_time:=true", "-p", f"wheel_topic:={ns}/joint_states",
@@ -327,7 +347,7 @@ def test_ctrl_c_or_sigterm_mid_drive_ends_cleanly(ros: Any, tmp_path: Path, sign
                 # what a reader gets before it has matched the writer is lost on the way: the
                 # first batch (and its clock) again until the node answers, for as long as a
                 # loaded machine may take to match them (what arrives twice is refused)
-                for _ in range(60):
+                for _ in range(24):
                     deadline = time.monotonic() + 5.0
                     while not player.odometry and time.monotonic() < deadline:
                         executor.spin_once(timeout_sec=0.01)
@@ -335,10 +355,9 @@ def test_ctrl_c_or_sigterm_mid_drive_ends_cleanly(ros: Any, tmp_path: Path, sign
                         break
                     for role, msg in batch:
                         getattr(player, role).publish(msg)
-                # (generous waits: on a loaded 2-core machine the node's process may take a
-                # minute to start answering; this test is about the signal, not the pace)
-                spin_until(executor, lambda: bool(player.odometry), "the node's odometry",
-                           limit_s=240)
+                if not player.odometry:                # two minutes without a word
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    raise _NoAnswer(proc.communicate(timeout=30)[1][-4000:])
                 spin_until(executor, lambda: len(player.odometry) == 40
                            or player.odometry[-1].header.stamp.sec == int(START_S + d.t[39]),
                            "the first batch's odometry", limit_s=240)
@@ -363,7 +382,7 @@ def test_ctrl_c_or_sigterm_mid_drive_ends_cleanly(ros: Any, tmp_path: Path, sign
             os.killpg(proc.pid, signal.SIGKILL)
             pytest.fail(f"{signum} did not stop odocal ros2")
     except pytest.fail.Exception:
-        # what the node said, for a handshake that never answered
+        # what the node said, for a wait that failed
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
         said = proc.communicate(timeout=30)[1] if proc.stderr is not None else ""
