@@ -86,28 +86,30 @@ def inverse_step(theta: FloatArray, ds: FloatArray, dpsi: FloatArray,
     revs = np.empty((*ds.shape, 4))
     jac = np.zeros((*ds.shape, 4, FOUR_WHEEL.size))
     load = th[_A] * a_y
-    for column, sign in ((2, 1.0), (3, -1.0)):                   # rl (+), rr (-)
-        c = th[_E] + sign * (0.5 * th[_D] + load)
-        path = ds - sign * 0.5 * th[_T] * dpsi
+
+    def rolling(column: int, sign: float, mean: int, difference: int,
+                path: FloatArray) -> FloatArray:
+        """Wheel ``column``'s revolutions, ``path`` over its circumference (an axle's mean
+        ``mean`` +- half its difference ``difference`` and the load transfer), with their
+        derivatives in those three; returns the circumference."""
+        c = th[mean] + sign * (0.5 * th[difference] + load)
         u = path / c
         revs[..., column] = u
         dc = -u / c
-        jac[..., column, _E] = dc
-        jac[..., column, _D] = sign * 0.5 * dc
+        jac[..., column, mean] = dc
+        jac[..., column, difference] = sign * 0.5 * dc
         jac[..., column, _A] = sign * a_y * dc
+        return c
+
+    for column, sign in ((2, 1.0), (3, -1.0)):                   # rl (+), rr (-)
+        c = rolling(column, sign, _E, _D, ds - sign * 0.5 * th[_T] * dpsi)
         jac[..., column, _T] = -sign * 0.5 * dpsi / c
     for column, sign in ((0, 1.0), (1, -1.0)):                   # fl (+), fr (-)
-        c = th[_F] + sign * (0.5 * th[_FD] + load)
         along = ds - sign * 0.5 * th[_TF] * dpsi
         across = th[_L] * dpsi
         rolls = np.where(along < 0.0, -1.0, 1.0)          # backwards where the axle reverses
         path = rolls * np.hypot(along, across)
-        u = path / c
-        revs[..., column] = u
-        dc = -u / c
-        jac[..., column, _F] = dc
-        jac[..., column, _FD] = sign * 0.5 * dc
-        jac[..., column, _A] = sign * a_y * dc
+        c = rolling(column, sign, _F, _FD, path)
         moved = path != 0.0
         safe = np.where(moved, path, 1.0)                  # d|p| / dx = x / |p|, signed alike
         jac[..., column, _TF] = np.where(moved, -sign * 0.5 * dpsi * along / safe, 0.0) / c
