@@ -218,3 +218,22 @@ def test_the_default_model_leaves_a_fleet_s_settings_hash_as_it_was() -> None:
     before = hashlib.sha256(json.dumps(plain, sort_keys=True, default=str).encode()).hexdigest()
     assert settings_hash(Settings()) == before
     assert settings_hash(Settings().replace(calibrate={"seed": 3})) != before
+
+
+def test_validate_refuses_another_model_s_calibration_in_one_line(tmp_path: Path) -> None:
+    """``odocal validate --params`` with a calibration.json of a model this run does not use:
+    one line, exit 1, no traceback."""
+    drive = tmp_path / "d.parquet"
+    made = subprocess.run([sys.executable, "-m", "odocal", "simulate", "--out", str(drive),
+                           "--duration", "120", "-q"], capture_output=True, text=True,
+                          timeout=300)
+    assert made.returncode == 0, made.stderr
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"model": "skid_steer", "theta": {
+        "c_e": 2.0, "c_d": 0.0, "t_r": 1.5, "d": 0.0}}))
+    done = subprocess.run([sys.executable, "-m", "odocal", "validate", str(drive), "--params",
+                           str(other)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.strip().count("\n") == 0 and "Traceback" not in done.stderr
+    assert "names the vehicle model 'skid_steer', which this odocal does not know" \
+        in done.stderr

@@ -300,24 +300,7 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
         input_file(p, "fleet store")
         if read_only and p.stat().st_size == 0:
             raise DataError(f"'{shown(p)}' is empty, not an odocal fleet store")
-    try:
-        if read_only:
-            db = sqlite3.connect(f"{p.resolve().as_uri()}?mode=ro", uri=True,
-                                 isolation_level=None, timeout=30.0)
-        else:
-            db = sqlite3.connect(p, isolation_level=None, timeout=30.0)
-        tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
-        if tables and "meta" not in tables:
-            db.close()
-            raise DataError(f"'{shown(p)}' is an SQLite database, but not an odocal fleet store")
-        if not read_only:
-            db.execute("PRAGMA journal_mode=WAL")
-    except sqlite3.OperationalError as exc:
-        if not read_only and _disk_said_no(exc):
-            raise store_error(p, exc) from exc
-        raise DataError(f"'{shown(p)}' is not an odocal fleet store (SQLite: {exc})") from exc
-    except sqlite3.DatabaseError as exc:
-        raise DataError(f"'{shown(p)}' is not an odocal fleet store (SQLite: {exc})") from exc
+    db, tables = _connect(p, read_only)
     version = 0
     if "meta" in tables:
         row = db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
@@ -332,12 +315,7 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
         raise DataError(f"fleet store '{p}' has schema version {version}, newer than this "
                         f"odocal's ({SCHEMA_VERSION}); upgrade odocal")
     if model is not None and "meta" in tables:       # another model's store: refused as it is
-        row = db.execute("SELECT value FROM meta WHERE key = 'model'").fetchone()
-        try:
-            registry.check_stated(row[0] if row else None, model, f"fleet store '{shown(p)}'")
-        except DataError:
-            db.close()
-            raise
+        _check_model(db, model, p)
     store = Store(db, p)
     if version < SCHEMA_VERSION:
         # SQLite's DDL is transactional: the migration and the new tables land together or not
@@ -360,6 +338,41 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
             db.close()
             raise
     return store
+
+
+def _connect(p: Path, read_only: bool) -> tuple[sqlite3.Connection, set[str]]:
+    """The database at ``p`` (read-only: SQLite's ``mode=ro``; else in WAL mode) and its
+    tables; a one-line error for a file that is not an SQLite database of a fleet store."""
+    try:
+        if read_only:
+            db = sqlite3.connect(f"{p.resolve().as_uri()}?mode=ro", uri=True,
+                                 isolation_level=None, timeout=30.0)
+        else:
+            db = sqlite3.connect(p, isolation_level=None, timeout=30.0)
+        tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        if tables and "meta" not in tables:
+            db.close()
+            raise DataError(f"'{shown(p)}' is an SQLite database, but not an odocal fleet store")
+        if not read_only:
+            db.execute("PRAGMA journal_mode=WAL")
+    except sqlite3.OperationalError as exc:
+        if not read_only and _disk_said_no(exc):
+            raise store_error(p, exc) from exc
+        raise DataError(f"'{shown(p)}' is not an odocal fleet store (SQLite: {exc})") from exc
+    except sqlite3.DatabaseError as exc:
+        raise DataError(f"'{shown(p)}' is not an odocal fleet store (SQLite: {exc})") from exc
+    return db, tables
+
+
+def _check_model(db: sqlite3.Connection, model: str, p: Path) -> None:
+    """The store's model (its ``meta``; none: the rear axle's) is ``model``, else the
+    database is closed and a one-line DataError names both."""
+    row = db.execute("SELECT value FROM meta WHERE key = 'model'").fetchone()
+    try:
+        registry.check_stated(row[0] if row else None, model, f"fleet store '{shown(p)}'")
+    except DataError:
+        db.close()
+        raise
 
 
 def _disk_said_no(exc: BaseException) -> bool:

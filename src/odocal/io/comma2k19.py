@@ -53,6 +53,21 @@ def _series(folder: Path, name: str) -> tuple[FloatArray, FloatArray]:
     return t, v
 
 
+def _wheels(log_dir: Path, tw: FloatArray, ws: FloatArray, circumference_m: float) -> Stream:
+    """The four wheels' speeds as rates of a ``circumference_m`` wheel, and the steering-wheel
+    angle (degrees, taken at the wheels' clock) where the segment has it."""
+    rates = {name: wheel_rate_revps(ws[:, column], "m/s", stream="wheel_speed",
+                                    circumference_m=circumference_m)
+             for name, column in (("n_fl", 0), ("n_fr", 1), ("n_rl", 2), ("n_rr", 3))}
+    units = {name: f"m/s (circumference {circumference_m} m)" for name in rates}
+    if (log_dir / "CAN" / "steering_angle").is_dir():
+        ts, angle = _series(log_dir, "CAN/steering_angle")
+        if angle.ndim == 1 and ts.size > 1 and np.all(np.diff(ts) > 0):
+            rates["steer"] = np.deg2rad(np.interp(tw, ts, angle))
+            units["steer"] = "deg"
+    return Stream(name="CAN/wheel_speed", role="wheels", t=tw, values=rates, units=units)
+
+
 def read_comma2k19(source: str | Path, *, circumference_m: float) -> RawLog:
     folder = Path(source)
     if not folder.is_dir():
@@ -70,18 +85,8 @@ def read_comma2k19(source: str | Path, *, circumference_m: float) -> RawLog:
         raise DataError(f"comma2k19 segment '{folder}': GNSS/live_gnss_ublox must be (N, 6)")
     check_lla(ublox[:, 0], ublox[:, 1], stream="live_gnss_ublox")
 
-    rates = {name: wheel_rate_revps(ws[:, column], "m/s", stream="wheel_speed",
-                                    circumference_m=circumference_m)
-             for name, column in (("n_fl", 0), ("n_fr", 1), ("n_rl", 2), ("n_rr", 3))}
-    units = {name: f"m/s (circumference {circumference_m} m)" for name in rates}
-    if (log_dir / "CAN" / "steering_angle").is_dir():     # degrees, at the wheels' clock
-        ts, angle = _series(log_dir, "CAN/steering_angle")
-        if angle.ndim == 1 and ts.size > 1 and np.all(np.diff(ts) > 0):
-            rates["steer"] = np.deg2rad(np.interp(tw, ts, angle))
-            units["steer"] = "deg"
     streams: dict[str, Stream] = {
-        "wheels": Stream(name="CAN/wheel_speed", role="wheels", t=tw, values=rates,
-                         units=units),
+        "wheels": _wheels(log_dir, tw, ws, circumference_m),
         "imu": Stream(name="IMU/gyro+accelerometer", role="imu", t=tg,
                       values={"yaw_rate": -gyro[:, 2], "a_y": -acc[:, 1]},
                       units={"yaw_rate": "rad/s (phone frame, -z)",
