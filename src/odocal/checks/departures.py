@@ -39,14 +39,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.checks.findings import Check, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.model.kinematics import body_rates, midpoint_heading, motion_increments
 from odocal.settings import ChecksSettings, Settings
 
-FloatArray = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class Departures:

@@ -34,8 +34,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray
 from odocal.checks.departures import lateral_delay, wheel_lag_s
 from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.data.drive import Drive
@@ -44,8 +44,6 @@ from odocal.model.layout import REAR_AXLE as LAYOUT
 from odocal.model.vehicle import MODEL
 from odocal.settings import ChecksSettings, GateSettings, Settings
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 @dataclass(frozen=True)
 class _Windows:

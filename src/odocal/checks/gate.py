@@ -3,14 +3,10 @@
 
 from __future__ import annotations
 
-import numpy as np
-from numpy.typing import NDArray
-
+from odocal.arrays import FloatArray
 from odocal.checks.findings import Check, Finding, Severity
 from odocal.model.layout import REAR_AXLE as LAYOUT
 from odocal.settings import Settings
-
-FloatArray = NDArray[np.float64]
 
 
 def plausible_range(settings: Settings, name: str) -> tuple[float, float]:

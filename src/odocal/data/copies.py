@@ -23,11 +23,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.data.drive import Drive
-
-FloatArray = NDArray[np.float64]
 
 #: Seconds of driving two logs must share, sample for sample, to be named as copies.
 MIN_SHARED_S = 30.0

@@ -18,12 +18,9 @@ from types import MappingProxyType
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.errors import DataError
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Columns of the drive format that must be present.
 REQUIRED_COLUMNS: tuple[str, ...] = ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi")
@@ -193,7 +190,7 @@ class Drive:
                      yaw_rate=self.yaw_rate, t_s=self.t_s, pieces=self.pieces, name=self.name,
                      pose_std=self.pose_std, metadata=self.metadata, inputs=self.inputs)
 
-    def select(self, keep: NDArray[np.bool_], **columns: FloatArray) -> Drive:
+    def select(self, keep: BoolArray, **columns: FloatArray) -> Drive:
         """The samples where ``keep`` (pieces split where a run of kept samples breaks), with
         ``columns`` (full length, by field name) replacing the drive's own first."""
         keep = np.asarray(keep, dtype=bool)

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.checks.findings import Diagnosis
 from odocal.data.drive import Drive
 from odocal.data.segments import (
@@ -31,9 +31,6 @@ from odocal.errors import DataError
 from odocal.estimators.estimate import Estimate, NotIdentified, Reason
 from odocal.estimators.validation import validation_data
 from odocal.settings import Settings
-
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 #: ``progress(stage, done, total)``: called as long steps advance (the CLI draws bars from it).
 ProgressCallback = Callable[[str, int, int], None]
@@ -87,11 +84,11 @@ class BootstrapTerms:
     step1_thetas, step1_sets : the three-step method's step-1 sets (redrawn too)
     """
 
-    information: NDArray[np.float64]
-    scores: NDArray[np.float64]
+    information: FloatArray
+    scores: FloatArray
     clusters: IntArray
-    refit: Callable[[IntArray], NDArray[np.float64]] | None = None
-    step1_thetas: NDArray[np.float64] | None = None
+    refit: Callable[[IntArray], FloatArray] | None = None
+    step1_thetas: FloatArray | None = None
     step1_sets: int = 0
 
 

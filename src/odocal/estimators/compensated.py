@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.data.segments import RaggedSegments, SegmentBatch
 from odocal.estimators.base import MethodOutcome, Prepared, ProgressCallback
 from odocal.estimators.compensation import BatchCompensation, compensate_batch
@@ -32,8 +32,6 @@ from odocal.estimators.validation import mean_errors
 from odocal.model.parameters import PARAMETER_NAMES
 from odocal.settings import IdentifySettings, Settings
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 log = logging.getLogger(__name__)
 
 
@@ -52,7 +50,7 @@ class Step1Result:
 
     batches: IntArray
     thetas: FloatArray
-    success: NDArray[np.bool_]
+    success: BoolArray
     validation_m: FloatArray
     order: IntArray
     picked: IntArray

@@ -40,8 +40,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.estimators import departures as dep
 from odocal.estimators.covariance import (
     NEWEY_WEST,
@@ -87,9 +87,6 @@ from odocal.estimators.windows import (
 from odocal.model.vehicle import MODEL
 from odocal.settings import Settings
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 log = logging.getLogger(__name__)
 
 #: The layout of p: theta, then the nuisance parameters of :mod:`.departures`.

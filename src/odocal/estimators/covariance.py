@@ -17,16 +17,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.estimators.estimate import Estimate
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS
 from odocal.settings import UncertaintySettings
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
-
 
 #: Cross-product weights of clusters one, two and three apart: Newey and West's (Bartlett)
 #: weights over three clusters, used by the default method. Where errors telescope (rounded

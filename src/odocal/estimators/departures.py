@@ -63,14 +63,11 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray
 from odocal.checks.findings import Check, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.model.vehicle import MODEL
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 
 @dataclass(frozen=True)

@@ -26,12 +26,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray
 from odocal.model.vehicle import MODEL
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 #: Residuals beyond this many standard deviations are down-weighted (Huber).
 HUBER = 4.0

@@ -22,14 +22,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES, PARAMETERS, Parameters
 from odocal.model.vehicle import MODEL
 from odocal.settings import IdentifySettings
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 
 class Status(enum.IntEnum):

@@ -26,9 +26,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.linalg import lapack, qr
 
+from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.data.segments import SegmentBatch
 from odocal.estimators.base import BootstrapTerms
 from odocal.estimators.covariance import robust_covariance
@@ -47,9 +47,6 @@ from odocal.model.jacobians import CHUNK_STEPS, segment_r_factors
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
 from odocal.settings import IdentifySettings, Settings
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 log = logging.getLogger(__name__)
 
 _MIN_CLUSTERS_FOR_ROBUST = 10

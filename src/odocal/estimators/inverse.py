@@ -36,8 +36,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.checks.departures import wheel_lag_s, wheel_step
 from odocal.checks.findings import Check, Finding, Severity
 from odocal.data.drive import Drive
@@ -68,9 +68,6 @@ from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
 from odocal.model.vehicle import MODEL
 from odocal.settings import Settings
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 log = logging.getLogger(__name__)
 
 #: Fewer moving windows than this: nothing to fit.

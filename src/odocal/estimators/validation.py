@@ -15,9 +15,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from odocal import cancel
+from odocal.arrays import FloatArray
 from odocal.data.drive import Drive
 from odocal.data.segments import RaggedSegments, SegmentSet, gather_ragged
 from odocal.estimators.parallel import process_map
@@ -26,7 +26,6 @@ from odocal.model.kinematics import body_rates, rollout_ragged
 from odocal.model.parameters import Inputs, Parameters
 from odocal.settings import MinimumSettings, Settings
 
-FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
 
 

@@ -22,16 +22,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.data.drive import Drive
 from odocal.model.kinematics import midpoint_heading
 from odocal.model.vehicle import SERIES
 from odocal.settings import Settings
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 #: Moment columns: ``ds a^j``, ``dpsi a^j``, ``lat a^j`` for j < SERIES, then the same three
 #: times the reference's own lateral acceleration ``v w`` (where a_y is missing, the load

@@ -22,16 +22,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from odocal.arrays import FloatArray
 from odocal.errors import DataError, InputFileError, shown
 from odocal.io.geodesy import check_lla, ecef_origin, ecef_to_enu, ecef_vectors_to_enu, lla_to_enu
 from odocal.io.registry import ReadOptions
 from odocal.io.streams import RawLog, Stream
 from odocal.io.units import wheel_rate_revps
-
-FloatArray = NDArray[np.float64]
 
 
 def _load(folder: Path, rel: str) -> FloatArray:

@@ -4,11 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pymap3d
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.errors import DataError
-
-FloatArray = NDArray[np.float64]
 
 
 def check_lla(lat: FloatArray, lon: FloatArray, *, stream: str) -> None:

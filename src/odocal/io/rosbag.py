@@ -29,16 +29,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.errors import ConfigError, DataError, InputFileError, MissingDependencyError
 from odocal.io.joints import wheel_joints
 from odocal.io.registry import ReadOptions
 from odocal.io.streams import RawLog, Stream
 from odocal.io.table import speed_metadata, stream_from_columns
 from odocal.io.units import quaternion_yaw
-
-FloatArray = NDArray[np.float64]
 
 TYPE_DEFAULTS: Mapping[str, Mapping[str, Mapping[str, str]]] = {
     "imu": {"sensor_msgs/msg/Imu": {"yaw_rate": "angular_velocity.z",

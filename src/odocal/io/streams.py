@@ -24,11 +24,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.errors import DataError
-
-FloatArray = NDArray[np.float64]
 
 ROLES: tuple[str, ...] = ("wheels", "imu", "pose", "gnss", "heading")
 QUANTITIES: Mapping[str, tuple[str, ...]] = {

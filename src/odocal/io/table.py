@@ -7,8 +7,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.errors import ConfigError, DataError, InputFileError, input_file
 from odocal.io.drivefile import read_table
 from odocal.io.geodesy import check_lla, lla_to_enu
@@ -23,8 +23,6 @@ from odocal.io.units import (
     time_seconds,
     wheel_rate_revps,
 )
-
-FloatArray = NDArray[np.float64]
 
 
 def _resolve(section: Mapping[str, Any], role: str, sources: Sequence[Path]) -> Path:

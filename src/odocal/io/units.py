@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.errors import DataError
-
-FloatArray = NDArray[np.float64]
 
 #: ``datetime``: a date-time column (ISO 8601 text, Parquet timestamps), read as seconds.
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9, "datetime": 1.0}

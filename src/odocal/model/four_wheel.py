@@ -41,11 +41,9 @@ This module holds the equations and their Jacobians; the model is not yet regist
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.model.layout import REAR_AXLE, Layout, ParameterSpec
-
-FloatArray = NDArray[np.float64]
 
 _REAR = REAR_AXLE.parameters
 

@@ -18,13 +18,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.model import step
 from odocal.model.kinematics import _as_batch, _flat, _theta, wrap_angle
 from odocal.model.parameters import PARAMETERS, STATES, WHEELS, Inputs, Parameters
-
-FloatArray = NDArray[np.float64]
 
 #: Segment steps handled per pass (a chunk of segments of about this many steps in all).
 CHUNK_STEPS = 1 << 15

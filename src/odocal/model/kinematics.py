@@ -24,14 +24,11 @@ covariance.
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray, IntArray
 from odocal.model import step
 from odocal.model.layout import REAR_AXLE
 from odocal.model.parameters import Inputs, Parameters
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 def _flat(values: FloatArray | float, shape: tuple[int, ...]) -> FloatArray:
@@ -170,7 +167,7 @@ def wrap_angle(angle: FloatArray) -> FloatArray:
 
 
 def rollout_ragged(theta: FloatArray | Parameters, u: Inputs, x0: FloatArray,
-                   steps: NDArray[np.int64], t_s: float) -> FloatArray:
+                   steps: IntArray, t_s: float) -> FloatArray:
     """Roll out many segments of different lengths stored one after another.
 
     Parameters

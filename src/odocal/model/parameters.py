@@ -9,11 +9,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.model.layout import REAR_AXLE, Layout
-
-FloatArray = NDArray[np.float64]
 
 #: Names, units and labels of theta, in order, and how each is best displayed (scale and
 #: unit: c_d and d read best in mm): the rear-axle model's layout (:mod:`.layout`).

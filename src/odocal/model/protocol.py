@@ -12,12 +12,8 @@ from __future__ import annotations
 import types
 from typing import Protocol, runtime_checkable
 
-import numpy as np
-from numpy.typing import NDArray
-
+from odocal.arrays import FloatArray
 from odocal.model.layout import Layout
-
-FloatArray = NDArray[np.float64]
 
 
 @runtime_checkable

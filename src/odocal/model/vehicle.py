@@ -26,12 +26,10 @@ from __future__ import annotations
 import types
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.model import step
 from odocal.model.layout import REAR_AXLE, Layout
-
-FloatArray = NDArray[np.float64]
 
 #: Powers of the lateral acceleration the window prediction keeps (the series' terms).
 SERIES = 4

@@ -35,8 +35,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray
 from odocal.checks.departures import Departures, wheel_lag_s
 from odocal.checks.departures import findings as departure_findings
 from odocal.checks.departures import measure as measure_departures
@@ -87,9 +87,6 @@ from odocal.online.departures import (
 from odocal.online.samples import SAMPLE, Regrid, step_s, time_unit
 from odocal.online.samples import rows as pushed_rows
 from odocal.settings import Settings
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 #: The checks look at this much of the latest driving (s) ...
 CHECK_WINDOW_S = 600.0

@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray
 from odocal.estimators import core
 from odocal.estimators.error_model import (
     CHANNELS,
@@ -45,9 +45,6 @@ from odocal.estimators.error_model import (
 )
 from odocal.estimators.windows import WindowSet
 from odocal.model.vehicle import MODEL
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 #: Standardised cluster estimates kept for their robust spread.
 _SCALE_MEMORY = 200

@@ -34,8 +34,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.checks.departures import (
     Departures,
     heading_correction,
@@ -43,8 +43,6 @@ from odocal.checks.departures import (
 from odocal.estimators import core
 from odocal.estimators.windows import WindowSet
 from odocal.settings import Settings
-
-FloatArray = NDArray[np.float64]
 
 #: The heading error is measured on no less driving than this (s).
 HEADING_MIN_S = 300.0

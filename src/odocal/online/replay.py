@@ -17,9 +17,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from odocal import cancel
+from odocal.arrays import BoolArray, FloatArray
 from odocal.checks.findings import Severity
 from odocal.data.drive import REQUIRED_COLUMNS
 from odocal.errors import ConfigError, DataError, InputFileError, input_file
@@ -31,8 +31,6 @@ from odocal.online.changes import Alarm
 from odocal.online.samples import MAX_PUSHED_RATE_REVPS
 from odocal.settings import Settings
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 Chunk = dict[str, FloatArray]
 
 #: Formats replay streams: the drive format (by file suffix) and bags.

@@ -20,11 +20,9 @@ import math
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.errors import DataError
-
-FloatArray = NDArray[np.float64]
 
 #: Drive-format columns a chunk must hold (``beta`` is optional: 0 where absent).
 REQUIRED = ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi")

@@ -25,14 +25,12 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.data.drive import Drive
 from odocal.io.atomic import file_name, write_text
 from odocal.model.kinematics import rollout
 from odocal.model.parameters import Inputs, Parameters
-
-FloatArray = NDArray[np.float64]
 
 FOLDER = "trajectories"
 FILES = ("reference.tum", "odometry.tum", "odometry_datasheet.tum")

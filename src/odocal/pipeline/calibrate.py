@@ -30,9 +30,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from odocal import cancel
+from odocal.arrays import FloatArray
 from odocal.checks.departures import Departures, corrected
 from odocal.checks.departures import findings as departure_findings
 from odocal.checks.departures import measure as measure_departures
@@ -82,9 +82,6 @@ if TYPE_CHECKING:
     from odocal.estimators.inverse import Screen
 
 log = logging.getLogger(__name__)
-IntArray = NDArray[np.int64]
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 LAYOUT = MODEL.layout
 Runner = Callable[[Prepared, Settings, ProgressCallback | None], MethodOutcome]
 
@@ -177,7 +174,7 @@ def stated_circumference(settings: Settings | None) -> float | None:
 
 
 def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
-                   theta: Parameters | NDArray[np.float64], *,
+                   theta: Parameters | FloatArray, *,
                    settings: Settings | None = None) -> ValidationResult:
     """E_p of ``theta`` on the validation segments of ``drives`` (METHOD 6)."""
     from odocal.io.results import plausible
@@ -212,7 +209,7 @@ def minimum(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
                              progress=progress)
 
 
-def validation(theta: Parameters | NDArray[np.float64], data: RaggedSegments, segs: SegmentSet,
+def validation(theta: Parameters | FloatArray, data: RaggedSegments, segs: SegmentSet,
                drives: Sequence[Drive]) -> ValidationResult:
     """E_p of ``theta`` on already gathered validation segments."""
     params = theta if isinstance(theta, Parameters) else Parameters.from_array(theta)

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.data.drive import Drive
 from odocal.data.segments import (
     RaggedSegments,
@@ -45,7 +45,6 @@ from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES
 from odocal.settings import Settings
 from odocal.sim.simulate import SimulatedDrive, simulate
 
-FloatArray = NDArray[np.float64]
 log = logging.getLogger(__name__)
 
 #: The paper's segment 7 of the examined batch (1-based in the paper).

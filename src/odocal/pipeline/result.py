@@ -12,10 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-from numpy.typing import NDArray
-
 from odocal._version import __version__
+from odocal.arrays import BoolArray
 from odocal.checks.departures import Departures
 from odocal.checks.findings import Diagnosis
 from odocal.data.drive import Drive
@@ -32,7 +30,6 @@ if TYPE_CHECKING:
     from odocal.estimators.compensated import ThreeStepOutcome
     from odocal.output.results import Written
 
-BoolArray = NDArray[np.bool_]
 
 
 @dataclass(frozen=True)

@@ -25,13 +25,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray, IntArray
 from odocal.errors import DataError
 from odocal.model._jit import jit
 from odocal.settings import FusionSettings
-
-FloatArray = NDArray[np.float64]
 
 
 @jit
@@ -68,7 +66,7 @@ def _ekf_rts(omega: FloatArray, dt: float, pos: FloatArray, pos_std: FloatArray,
              speed: FloatArray, course: FloatArray, heading: FloatArray, x0: FloatArray,
              P0: FloatArray, q: FloatArray, r_speed: float, r_course: float, r_heading: float,
              min_course_speed: float,
-             chi2: float) -> tuple[FloatArray, FloatArray, NDArray[np.int64],
+             chi2: float) -> tuple[FloatArray, FloatArray, IntArray,
                                    FloatArray]:  # pragma: no cover - compiled
     n = omega.shape[0]
     xp = np.zeros((n, _N))
@@ -183,7 +181,7 @@ class FusedReference:
                                "psi_rad": float(np.median(self.std[:, 2]))}}
 
 
-def on_grid(t_grid: FloatArray, t_meas: FloatArray, values: FloatArray) -> NDArray[np.int64]:
+def on_grid(t_grid: FloatArray, t_meas: FloatArray, values: FloatArray) -> IntArray:
     """Index of the grid point nearest to each measurement (-1 outside the grid)."""
     step = t_grid[1] - t_grid[0]
     idx = np.rint((t_meas - t_grid[0]) / step).astype(np.int64)

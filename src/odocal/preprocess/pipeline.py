@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray
 from odocal.data.drive import MODEL_INPUTS, Drive
 from odocal.errors import DataError
 from odocal.io.streams import RawLog, Stream
@@ -25,8 +25,6 @@ from odocal.preprocess.align import (
 from odocal.preprocess.fusion import fuse
 from odocal.preprocess.sideslip import estimate_sideslip
 from odocal.settings import Settings, datasheet_stated
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -252,7 +250,7 @@ def _sideslip(name: str, columns: dict[str, FloatArray], course: FloatArray | No
     return beta, note
 
 
-def _opt(stream: Stream, key: str, mask: NDArray[np.bool_]) -> FloatArray | None:
+def _opt(stream: Stream, key: str, mask: BoolArray) -> FloatArray | None:
     values = stream.values.get(key)
     return None if values is None else values[mask]
 

@@ -10,12 +10,10 @@ smoothed with a moving average. It needs a course that does not come from the he
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.ndimage import uniform_filter1d
 
+from odocal.arrays import FloatArray
 from odocal.settings import SideslipSettings
-
-FloatArray = NDArray[np.float64]
 
 
 def estimate_sideslip(course: FloatArray, psi: FloatArray, yaw_rate: FloatArray,

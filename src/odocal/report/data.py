@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.checks.findings import Check, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.estimators.validation import segment_errors, validation_data
@@ -25,7 +25,6 @@ from odocal.report.advice import (
     coverage,
 )
 
-FloatArray = NDArray[np.float64]
 MAP_SEGMENTS = 3
 
 
@@ -68,8 +67,8 @@ class Fitted:
     start_s: FloatArray
     stop_s: FloatArray
     peak_yaw_radps: FloatArray
-    fitted: NDArray[np.bool_]
-    cluster: NDArray[np.int64]
+    fitted: BoolArray
+    cluster: IntArray
     drives: tuple[tuple[float, float, str], ...]
     length_s: float
     after_change_s: float | None = None
@@ -326,7 +325,7 @@ def _axis(drives: Sequence[Drive]) -> tuple[list[float], tuple[tuple[float, floa
     return offsets, tuple(spans)
 
 
-def _peak_yaw(d: Drive, start: NDArray[np.int64], steps: int) -> FloatArray:
+def _peak_yaw(d: Drive, start: IntArray, steps: int) -> FloatArray:
     """The largest |yaw rate| over ``steps + 1`` samples from each of ``start``."""
     rate = np.abs(np.asarray(d.yaw_rate, dtype=np.float64))
     if rate.size <= steps:

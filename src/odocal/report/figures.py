@@ -16,10 +16,10 @@ from matplotlib.collections import PolyCollection
 from matplotlib.ticker import FixedFormatter, FixedLocator, MaxNLocator, NullLocator
 from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES
 from odocal.report.style import CALIBRATED, DATASHEET, FITTED_ALT, RAW, REFERENCE, STEP1
 
-FloatArray = NDArray[np.float64]
 #: Display scale and unit of each parameter (c_d and d read best in mm).
 DISPLAY = PARAMETER_DISPLAY
 
@@ -312,7 +312,7 @@ def plot_uncertainty(ax: Axes, covariance_std: FloatArray, bootstrap_std: FloatA
 
 
 def plot_fitted(ax: Axes, start: FloatArray, stop: FloatArray, peak_yaw: FloatArray,
-                fitted: NDArray[np.bool_], cluster: NDArray[np.int64],
+                fitted: BoolArray, cluster: IntArray,
                 drives: Sequence[tuple[float, float, str]], used: FloatArray, *,
                 threshold: float,
                 unit: str, time_unit: str = "min", change: float | None = None) -> list[Any]:

@@ -16,9 +16,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from odocal.arrays import FloatArray
 
 #: Blocks (s of driving) whose offsets give the estimate's spread.
 BLOCK_S = 60.0

@@ -54,16 +54,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.linalg import solveh_banded
 
+from odocal.arrays import FloatArray
 from odocal.model.kinematics import body_rates, wheel_rates_for
 from odocal.model.parameters import PARAMETERS
 from odocal.sim.noise import NoiseProfile
 
 __all__ = ["applies", "information_bound", "wheel_information"]
 
-FloatArray = NDArray[np.float64]
 
 _FLOOR = 3e-2          # white floor, relative to the smallest process innovation std
 _FIXED_POINT = 8       # rounds of a_y = v w when the motion is recovered from the wheel rates

@@ -21,15 +21,13 @@ from dataclasses import dataclass
 from types import MappingProxyType
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.data.drive import Drive
 from odocal.errors import ConfigError
 from odocal.model.parameters import Parameters
 from odocal.model.vehicle import MODEL
 from odocal.sim.simulate import TRUE_PARAMETERS, SimulatedDrive, simulate
-
-FloatArray = NDArray[np.float64]
 
 #: Wheelbase and front track of the simulated car (m): where its front wheels are.
 WHEELBASE_M, FRONT_TRACK_M = 2.70, 1.54

@@ -11,15 +11,13 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.model import four_wheel
 from odocal.model.four_wheel import FOUR_WHEEL
 from odocal.model.parameters import Parameters
 from odocal.model.vehicle import MODEL
 from odocal.sim.simulate import TRUE_PARAMETERS, SimulatedDrive, _wheel_errors
-
-FloatArray = NDArray[np.float64]
 
 #: The simulated car's front axle and steering, behind :data:`~odocal.sim.simulate.TRUE_PARAMETERS`'
 #: rear axle: front tyres 5 mm smaller than the rear ones, 2.4 mm apart, a 1.55 m front track, a

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.data.drive import Drive
 from odocal.errors import ConfigError
 from odocal.model._jit import jit
@@ -40,7 +40,6 @@ from odocal.sim.noise import NOISE_PROFILES, NoiseProfile
 
 __all__ = ["NOISE_PROFILES", "TRUE_PARAMETERS", "NoiseProfile", "SimulatedDrive", "simulate"]
 
-FloatArray = NDArray[np.float64]
 
 #: True parameters of the simulated small car (c_e, c_d, t_r, d), close to the paper's Nissan Leaf.
 TRUE_PARAMETERS = Parameters(c_e=1.952, c_d=-0.0021, t_r=1.527, d=0.00076)

@@ -23,8 +23,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.data.segments import SegmentBatch
 from odocal.estimators.compensation.problem import (
     STAGE,
@@ -39,8 +39,6 @@ from odocal.estimators.parallel import map_chunks
 from odocal.model.parameters import Inputs
 from odocal.settings import CompensateSettings
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 log = logging.getLogger(__name__)
 
 #: Status codes of one solve, as stored in results (small integers keep big batches light).
@@ -164,8 +162,8 @@ class BatchCompensation:
 
     n_rl: FloatArray
     n_rr: FloatArray
-    status: NDArray[np.int64]
-    iterations: NDArray[np.int64]
+    status: IntArray
+    iterations: IntArray
 
     @property
     def solved(self) -> BoolArray:
@@ -187,7 +185,7 @@ _BATCH: dict[str, SegmentBatch] = {}
 
 
 def _compensate_block(args: tuple[int, int, FloatArray, CompensateSettings]
-                      ) -> tuple[FloatArray, NDArray[np.int64], NDArray[np.int64]]:
+                      ) -> tuple[FloatArray, IntArray, IntArray]:
     """Worker: :func:`_compensate_chunk` of the segments ``lo`` to ``hi`` of the batch."""
     lo, hi, thetas, settings = args
     part = _BATCH["segments"].part(lo, hi)
@@ -198,7 +196,7 @@ def _compensate_block(args: tuple[int, int, FloatArray, CompensateSettings]
 
 def _compensate_chunk(args: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
                                   FloatArray, float, CompensateSettings]
-                      ) -> tuple[FloatArray, NDArray[np.int64], NDArray[np.int64]]:
+                      ) -> tuple[FloatArray, IntArray, IntArray]:
     """Worker: every segment of a chunk with every theta, as :func:`compensate_segment` of each
     segment with the thetas in turn (each warm-started from the last active rate bounds); the
     QPs of one theta are linearised together and solved in one compiled call, and each
@@ -228,7 +226,7 @@ def _compensate_chunk(args: tuple[FloatArray, FloatArray, FloatArray, FloatArray
 def _compensate_theta(theta: FloatArray, inputs: Inputs, measured: FloatArray,
                       reference: FloatArray, t_s: float, settings: CompensateSettings,
                       warm: tuple[BoolArray, BoolArray]
-                      ) -> tuple[FloatArray, NDArray[np.int64], NDArray[np.int64],
+                      ) -> tuple[FloatArray, IntArray, IntArray,
                                  tuple[BoolArray, BoolArray]]:
     """:func:`compensate_segment` of every segment with one theta: the rates (N, K, 2),
     status, iterations, and the warm start for the next theta (each segment's final active

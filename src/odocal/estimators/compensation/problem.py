@@ -20,13 +20,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.model.jacobians import linearised_rollout
 from odocal.model.parameters import Inputs
 from odocal.settings import CompensateSettings
-
-FloatArray = NDArray[np.float64]
 
 STAGE = 5  # variables per stage: dn (2) then dx (3)
 

@@ -10,11 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import NDArray
 
+from odocal.arrays import FloatArray
 from odocal.estimators.compensation.problem import STAGE, CompensationProblem
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

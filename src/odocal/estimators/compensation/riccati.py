@@ -18,13 +18,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.estimators.compensation.problem import STAGE, CompensationProblem, ProblemBatch
 from odocal.model._jit import jit
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 _STATUS = ("optimal", "the active set cycles", "iteration limit",
            "a stage Hessian is not positive definite")
@@ -242,8 +239,8 @@ def _pdas(A: FloatArray, B: FloatArray, e: FloatArray, c: FloatArray, qd: FloatA
 def _pdas_batch(A: FloatArray, B: FloatArray, e: FloatArray, c: FloatArray, qd: FloatArray,
                 rd: FloatArray, lo: FloatArray, hi: FloatArray, act_lo: BoolArray,
                 act_hi: BoolArray, max_iterations: int, dn: FloatArray, dx: FloatArray,
-                mu: FloatArray, status: NDArray[np.int64],
-                iterations: NDArray[np.int64]) -> None:  # pragma: no cover - compiled
+                mu: FloatArray, status: IntArray,
+                iterations: IntArray) -> None:  # pragma: no cover - compiled
     """:func:`_pdas` for each of many segments (a leading axis on every per-segment array):
     one call for a chunk of QPs."""
     for s in range(A.shape[0]):
@@ -315,7 +312,7 @@ class RiccatiBatch:
     dx: FloatArray
     converged: BoolArray
     states_feasible: BoolArray
-    iterations: NDArray[np.int64]
+    iterations: IntArray
     active_lower: BoolArray
     active_upper: BoolArray
 

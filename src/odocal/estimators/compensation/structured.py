@@ -22,13 +22,10 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.linalg import lapack
 
+from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.estimators.compensation.problem import STAGE, CompensationProblem
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 _WIDTH = 8            # KKT unknowns per stage
 _KL = _KU = 9         # half-bandwidths of the stage-ordered KKT matrix
@@ -116,7 +113,7 @@ def _values(p: CompensationProblem) -> FloatArray:
     return np.concatenate(parts)
 
 
-def _runs(mask: NDArray[np.bool_], k: int) -> list[IntArray]:
+def _runs(mask: BoolArray, k: int) -> list[IntArray]:
     """Indices of ``mask`` (shape (5K,)) grouped into runs consecutive in time per component."""
     grid = mask.reshape(k, STAGE)
     runs: list[IntArray] = []
@@ -129,8 +126,8 @@ def _runs(mask: NDArray[np.bool_], k: int) -> list[IntArray]:
     return runs
 
 
-def _kkt_solve(base: FloatArray, rhs_base: FloatArray, z_index: NDArray[np.int64],
-               act_lo: NDArray[np.bool_], act_hi: NDArray[np.bool_], lower: FloatArray,
+def _kkt_solve(base: FloatArray, rhs_base: FloatArray, z_index: IntArray,
+               act_lo: BoolArray, act_hi: BoolArray, lower: FloatArray,
                upper: FloatArray) -> tuple[FloatArray, int]:
     """The banded KKT system with the working set's variables fixed at their bounds (their
     rows replaced by ``z_i = bound``), solved by banded LU; the solution and LAPACK's info."""
@@ -152,7 +149,7 @@ def _kkt_solve(base: FloatArray, rhs_base: FloatArray, z_index: NDArray[np.int64
 
 
 def solve_structured(p: CompensationProblem, *, max_iterations: int = 50,
-                     initial_active: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None,
+                     initial_active: tuple[BoolArray, BoolArray] | None = None,
                      ) -> StructuredSolution:
     """Solve the compensation QP with an active-set method on the banded KKT system.
 
