@@ -25,7 +25,9 @@ from odocal.checks import departures
 from odocal.checks.diagnosis import check_drives
 from odocal.checks.findings import Check, Finding, Severity
 from odocal.checks.gate import gate
-from odocal.estimators import core
+from odocal.estimators import core, fitting
+from odocal.estimators.error_model import ErrorModel
+from odocal.estimators.lag import Lag
 from odocal.estimators.windows import empty_windows
 from odocal.model.kinematics import rollout, wheel_rates_for
 from odocal.model.parameters import Inputs
@@ -396,12 +398,12 @@ def step_found(drives: Sequence[odocal.Drive], settings: Settings) -> bool:
 
 def stepped_fit(size: float) -> Any:
     """A fit whose c_e was ``size`` of itself larger before a change inside the log."""
-    p = core.pack(np.array([2.0, 0.0, 1.5, 0.0]))
-    p[core.CHANGE[0]] = 2.0 * size
-    fit = core.Fit(p=p, residual=np.zeros((0, 2)), jac=np.zeros((0, 2, core.P)),
-                   weight=np.zeros((0, 2)), stacked=np.zeros((0, 2, 1 + core.P)),
-                   white=np.zeros((0, 4, 1 + core.P)), cost=0.0)
-    return core._State(fit=fit, model=core.ErrorModel(), lag=core.Lag(), view=None)
+    p = fitting.pack(np.array([2.0, 0.0, 1.5, 0.0]))
+    p[fitting.CHANGE[0]] = 2.0 * size
+    fit = fitting.Fit(p=p, residual=np.zeros((0, 2)), jac=np.zeros((0, 2, fitting.P)),
+                   weight=np.zeros((0, 2)), stacked=np.zeros((0, 2, 1 + fitting.P)),
+                   white=np.zeros((0, 4, 1 + fitting.P)), cost=0.0)
+    return core._State(fit=fit, model=ErrorModel(), lag=Lag(), view=None)
 
 
 def change_room(clusters: int, settings: Settings) -> bool:

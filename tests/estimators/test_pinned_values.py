@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from odocal.estimators import core
+from odocal.estimators import core, fitting
 from odocal.estimators.estimate import tail_inflation
 from odocal.settings import Settings
 
@@ -38,9 +38,9 @@ def test_the_moving_wheel_rate_offsets_prior_is_half_an_encoding_step() -> None:
     assert core.offset_prior_std(_settings("always"), 0.08) == 0.02
     assert core.offset_prior_std(_settings("off"), 0.08) == 0.0
     # the prior enters the folded information as 1 / std^2, in h and in the meat alike
-    folded = core.Folded.prior(np.zeros(4), 0.04)
-    expected = np.zeros((core.P, core.P))
-    expected[core.OFFSET, core.OFFSET] = 1.0 / 0.04 ** 2                  # 625 (rev/s)^-2
+    folded = fitting.Folded.prior(np.zeros(4), 0.04)
+    expected = np.zeros((fitting.P, fitting.P))
+    expected[fitting.OFFSET, fitting.OFFSET] = 1.0 / 0.04 ** 2                  # 625 (rev/s)^-2
     np.testing.assert_allclose(folded.h, expected, rtol=1e-12)
     np.testing.assert_allclose(folded.meat, expected, rtol=1e-12)
     assert folded.offset_std == 0.04 and folded.offset_free

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import odocal
-from odocal.estimators import core
+from odocal.estimators import fitting
 from odocal.estimators.windows import WindowBuilder
 from odocal.model.kinematics import motion_increments
 from odocal.model.layout import REAR_AXLE, Layout, ParameterSpec
@@ -120,12 +120,12 @@ def test_the_estimators_are_sized_by_the_model() -> None:
     departures' nuisance parameters; the settings refuse a theta0 of another size."""
     from odocal.estimators import departures
 
-    assert core.THETA == slice(0, MODEL.size)
-    assert core.P == MODEL.size + len(departures.NUISANCES) == departures.P
-    assert [departures.at(n) for n in departures.NAMES] == list(range(MODEL.size, core.P))
-    p = core.pack(np.arange(MODEL.size, dtype=float), kappa=7.0, offset=8.0)
-    assert p[core.THETA].tolist() == list(range(MODEL.size))
-    assert p[core.KAPPA] == 7.0 and p[core.OFFSET] == 8.0
+    assert fitting.THETA == slice(0, MODEL.size)
+    assert fitting.P == MODEL.size + len(departures.NUISANCES) == departures.P
+    assert [departures.at(n) for n in departures.NAMES] == list(range(MODEL.size, fitting.P))
+    p = fitting.pack(np.arange(MODEL.size, dtype=float), kappa=7.0, offset=8.0)
+    assert p[fitting.THETA].tolist() == list(range(MODEL.size))
+    assert p[fitting.KAPPA] == 7.0 and p[fitting.OFFSET] == 8.0
     est = odocal.calibrate(odocal.simulate(duration_s=300, seed=1, noise="white").drive).estimate
     assert est.covariance.shape == (MODEL.size, MODEL.size)
     assert len(est.verdicts) == len(est.free) == MODEL.size

@@ -213,11 +213,11 @@ def test_both_wheels_shrinking_unequally_are_named_as_c_e() -> None:
     """Both circumferences smaller (by 2 and 4 cm): a change of both wheels, c_e, even where
     the wheels' difference stands out more in its own standard deviations; two wheels moving
     opposite ways are named by the larger."""
-    from odocal.estimators import core
+    from odocal.estimators import fitting
     from odocal.online.changes import Change, Suspect, describe
 
-    before = np.zeros(core.P)
-    before[core.THETA] = odocal.TRUE_PARAMETERS.as_array()
+    before = np.zeros(fitting.P)
+    before[fitting.THETA] = odocal.TRUE_PARAMETERS.as_array()
     suspect = Suspect(parameter=0, since_t=90.0, until_t=150.0, reference=before, sigmas=5.0)
 
     def named(left_m: float, right_m: float) -> tuple[str, str, float]:
@@ -282,14 +282,14 @@ def test_a_clusters_evidence_on_a_change_is_that_of_its_moving_windows_alone() -
     """Windows at a standstill (or disturbed) say nothing about a tyre: the evidence a cluster
     gives the change detector is the sum over the windows it can use, whatever the others
     hold."""
-    from odocal.estimators import core
+    from odocal.estimators import fitting
     from odocal.estimators.error_model import ErrorModel
     from odocal.online.changes import window_steps
 
     drive = odocal.simulate(duration_s=240, seed=6, noise="realistic").drive
     windows, _ = windows_from_drives([drive], odocal.Settings())
-    p = np.zeros(core.P)
-    p[core.THETA] = odocal.TRUE_PARAMETERS.as_array()
+    p = np.zeros(fitting.P)
+    p[fitting.THETA] = odocal.TRUE_PARAMETERS.as_array()
     steps = window_steps(windows, p, 0.0, 0.0, ErrorModel())
     assert steps.usable.sum() > 20 and (~steps.usable).sum() >= 2    # it stops on the way
     alone = window_steps(windows.take(steps.usable), p, 0.0, 0.0, ErrorModel())

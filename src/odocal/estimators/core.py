@@ -3,7 +3,7 @@
 The windows (:mod:`odocal.estimators.windows`) predict their revolutions for any theta; this
 module fits them. Batch calibration hands it every window of the drives and nothing folded;
 the online calibrator hands it the windows in memory and the older ones folded into sums
-(:class:`Folded`): normal equations linearised at the estimate of their time, the clusters'
+(:class:`~odocal.estimators.fitting.Folded`): normal equations linearised at the estimate of their time, the clusters'
 scores for the covariance, and the error model's sums. With nothing folded, the two are the
 same computation, to the last digit.
 
@@ -19,16 +19,15 @@ The procedure (:func:`fit`):
 2. **Which departures.** None at first (but the encoding's offset, where the rates lie on a
    grid); then one rule: the one whose score statistic exceeds Schwarz's penalty most enters,
    the fit is redone, and the rest tested again (:mod:`odocal.estimators.departures`). The
-   lag, once in, is found on a half-step grid of the yaw channel's cost first (a lag beyond
-   the linear range is not found by a gradient), then fitted jointly.
+   lag, once in, is found on a half-step grid of the yaw channel's cost first
+   (:mod:`odocal.estimators.lag`: a lag beyond the linear range is not found by a gradient),
+   then fitted jointly.
 3. The error model refitted at each fit; then the covariance of everything fitted, a sandwich
-   over clusters of windows (Newey-West weights on neighbours, each cluster's score scaled by
-   its leverage), and the identifiability verdict: parameters the data do not determine well
-   enough keep their datasheet values and are named, and the rest is refitted.
+   over clusters of windows (:func:`odocal.estimators.covariance.covariance`), and the
+   identifiability verdict: parameters the data do not determine well enough keep their
+   datasheet values and are named, and the rest is refitted.
 
-Gauss-Newton stops when its step is below a thousandth of every parameter's standard
-deviation (the cost's own scale: a reweighted fit approaches its fixed point geometrically, and
-a relative tolerance on the parameters never reaches it).
+p, the windows' residuals and one Gauss-Newton solve are :mod:`odocal.estimators.fitting`'s.
 """
 
 from __future__ import annotations
@@ -45,11 +44,14 @@ from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.estimators import departures as dep
 from odocal.estimators.covariance import (
     NEWEY_WEST,
+    Uncertainty,
     added_meat,
+    covariance,
+    doubted,
+    lateral_doubt,
     leverage_adjusted_scores,
 )
 from odocal.estimators.error_model import (
-    CHANNELS,
     HUBER,
     ErrorModel,
     arma_from_sums,
@@ -59,59 +61,50 @@ from odocal.estimators.error_model import (
     coupling_moments,
     coupling_sums,
     coupling_sums_at,
-    decouple,
     noise_from_sums,
     noise_sums,
-    prewhiten,
-    window_weights,
 )
 from odocal.estimators.estimate import (
     NotIdentified,
     Reason,
     hold_unidentified,
     numerically_free,
-    tail_inflation,
 )
+from odocal.estimators.fitting import (
+    CHANGE,
+    DIFFERENCE,
+    KAPPA,
+    LAG,
+    LAYOUT,
+    LEFT,
+    OFFSET,
+    RIGHT,
+    SCALE,
+    THETA,
+    Fit,
+    Folded,
+    P,
+    View,
+    evaluate,
+    free_of,
+    pack,
+    solve,
+)
+from odocal.estimators.lag import Lag, LagScan, choose_lag, lag_test, scan_lag
 from odocal.estimators.windows import (
-    AT_ACCEL,
-    AT_AREF,
-    AT_BETA_TURN,
-    AT_COS_TURN,
-    AT_CURVE,
-    AT_CUT,
-    AT_LAT,
-    AT_MOVING,
-    AT_TURN2,
     WindowSet,
 )
-from odocal.model.vehicle import MODEL
 from odocal.settings import Settings
 
 log = logging.getLogger(__name__)
 
-#: The layout of p: theta, then the nuisance parameters of :mod:`.departures`.
-LAYOUT = MODEL.layout
-THETA = slice(0, LAYOUT.size)
-P = dep.P
-KAPPA, LAG, OFFSET = (dep.at(n) for n in ("spread", "lag", "offset"))
-LEFT, RIGHT = dep.at("offset_left"), dep.at("offset_right")
-ARM_X, ARM_Y, CURVE, CUT = (dep.at(n) for n in ("arm_x", "arm_y", "curve", "cut"))
-LAT_OFFSET, LAT_SCALE, SLIP, DRIFT = (dep.at(n) for n in ("lateral_offset", "lateral_scale",
-                                                          "slip", "drift"))
-CHANGE = np.array([dep.at("change_e"), dep.at("change_d")])
-_E, _D = LAYOUT.index(LAYOUT.scale), LAYOUT.index(LAYOUT.difference)
-#: Fewer clusters than this: the covariance is the larger of the sandwich and the residual
-#: formula, widened for the clusters' small number.
-MIN_CLUSTERS_FOR_ROBUST = 10
 _SHIFT_ROUNDS = 6         # the lag scanned and theta refitted in turn at most so often
 _SHIFT_SETTLED = 1e-3     # steps
-_STEP_SIGMAS = 1e-3       # Gauss-Newton has converged when no step exceeds this many std
-_HALVINGS = 30            # a step that spoils the fit is halved at most so often
 #: The parameters that act through the wheels' difference, in p.
 _DIFFERENTIAL = np.array(LAYOUT.indices(LAYOUT.differential))
 #: Why a held parameter is known (its datasheet value is taken as exact): held on request.
 #: Every other held parameter is uncertain by its datasheet uncertainty, which widens the free
-#: ones as far as the data cannot tell them apart (:func:`covariance`).
+#: ones as far as the data cannot tell them apart (:func:`.covariance.covariance`).
 _KNOWN = (Reason.HELD,)
 #: The least spread the reference channels' residuals are given (a millimetre of sideways
 #: motion, a thousandth of a m/s of a_y's sum per window): a simulated a_y that is exactly the
@@ -119,477 +112,6 @@ _KNOWN = (Reason.HELD,)
 _REFERENCE_FLOOR = np.array([1e-3, 1e-3])
 #: Most change locations a test tries (cluster boundaries, evenly spread).
 _CHANGE_LOCATIONS = 60
-
-
-def pack(theta: FloatArray, kappa: float = 0.0, offset: float = 0.0) -> FloatArray:
-    """p from theta (the departures at zero but the spread ``kappa`` and the wheel-rate
-    ``offset``)."""
-    p = np.zeros(P)
-    p[THETA], p[KAPPA], p[OFFSET] = theta, kappa, offset
-    return p
-
-
-def free_of(theta_free: BoolArray, *, kappa: bool = False, offset: bool = False,
-            entered: Sequence[str] = ()) -> BoolArray:
-    """Which elements of p are fitted: theta's free ones and the departures entered."""
-    free = np.zeros(P, dtype=bool)
-    free[THETA] = np.asarray(theta_free, dtype=bool)
-    free[KAPPA] |= kappa
-    free[OFFSET] |= offset
-    for name in entered:
-        free[dep.at(name)] = True
-    return free
-
-
-@dataclass(frozen=True)
-class Folded:
-    """Windows folded into sums (the online calibrator's older evidence); empty in batch.
-
-    h, b : normal equations in information form (``b = g0 + H0 p_lin``)
-    meat, recent : the sandwich's long-run covariance of cluster scores, and the latest folded
-        clusters' scores (as many as its cross products reach)
-    clusters : clusters folded
-    noise, coupling, correlation : the error model's sums (see
-        :func:`~odocal.estimators.error_model.noise_sums`,
-        :func:`~odocal.estimators.error_model.coupling_moments` about ``origin``,
-        :func:`~odocal.estimators.error_model.correlation_sums`)
-    reference : (2, 2) the reference channels' sums of squared standardised residuals and
-        their count
-    half_h, half_b : (2, P, P), (2, P) the normal equations of each half of the folded
-        clusters (alternate ones), for the departures' held-out test
-    scan : (2, G) the yaw channel's cost on the lag grid, per half of the clusters, or None
-    cost, count : the weighted sum of squared residuals and their number
-    last : the last folded window, for the prewhitening to run on: the p it was linearised at,
-        its row unfiltered and filtered ((2, 1 + P) each: residual, Jacobian)
-    peak_yaw_radps : the largest window yaw rate folded
-    offset_std : the wheel-rate offset's prior standard deviation (rev/s; 0: not fitted)
-    """
-
-    origin: FloatArray
-    h: FloatArray = field(default_factory=lambda: np.zeros((P, P)))
-    b: FloatArray = field(default_factory=lambda: np.zeros(P))
-    meat: FloatArray = field(default_factory=lambda: np.zeros((P, P)))
-    recent: FloatArray = field(default_factory=lambda: np.zeros((0, P)))
-    clusters: int = 0
-    noise: FloatArray = field(default_factory=lambda: np.zeros((2, 5)))
-    coupling: FloatArray = field(default_factory=lambda: np.zeros((2, 1 + P, 1 + P)))
-    correlation: FloatArray = field(default_factory=lambda: np.zeros((2, 6)))
-    reference: FloatArray = field(default_factory=lambda: np.zeros((2, 2)))
-    half_h: FloatArray = field(default_factory=lambda: np.zeros((2, P, P)))
-    half_b: FloatArray = field(default_factory=lambda: np.zeros((2, P)))
-    scan: FloatArray | None = None
-    cost: float = 0.0
-    count: int = 0
-    last: tuple[FloatArray, FloatArray, FloatArray] | None = None
-    peak_yaw_radps: float = 0.0
-    offset_std: float = 0.0
-
-    @staticmethod
-    def prior(origin: FloatArray, offset_std: float) -> Folded:
-        """Nothing folded yet but the wheel-rate offset's prior (zero mean, ``offset_std``
-        rev/s; 0: the offset is not fitted): information in h, and as much in the meat (a prior
-        observation's score varies as much as it informs), so an offset the data do not
-        determine keeps the prior's spread and passes it on to c_e."""
-        precision = np.zeros(P)
-        if offset_std > 0:
-            precision[OFFSET] = offset_std ** -2.0
-        origin = np.asarray(origin, dtype=np.float64)
-        if origin.size < P:
-            origin = np.concatenate([origin, np.zeros(P - origin.size)])
-        return Folded(origin=origin, h=np.diag(precision), meat=np.diag(precision),
-                      offset_std=max(offset_std, 0.0))
-
-    @property
-    def offset_free(self) -> bool:
-        """Whether the wheel-rate offset is fitted from the start (it has a prior)."""
-        return self.offset_std > 0
-
-    @property
-    def windows(self) -> int:
-        """Windows folded (each counts two wheel channels)."""
-        return self.count // 2
-
-    def decayed(self, factor: float) -> Folded:
-        """The sums with older evidence faded by ``factor`` (forgetting)."""
-        return dataclasses.replace(
-            self, h=self.h * factor, b=self.b * factor, meat=self.meat * factor,
-            recent=self.recent * math.sqrt(factor), noise=self.noise * factor,
-            coupling=self.coupling * factor, correlation=self.correlation * factor,
-            reference=self.reference * factor, half_h=self.half_h * factor,
-            half_b=self.half_b * factor,
-            scan=None if self.scan is None else self.scan * factor, cost=self.cost * factor)
-
-
-@dataclass(frozen=True)
-class View:
-    """The windows as the model takes them at one shift and heading offset.
-
-    at, first, second : (W, AT_WIDTH) the moments, their first and second difference in the
-        shift
-    before : (W,) the windows before a change inside the log (None: no change)
-    tau_h : (W,) hours from each window to the end of its drive (c_e's drift), or None
-    across, lateral : whether the reference's sideways motion and a_y are channels of their own
-        (a heading that is not the course; an a_y that carries a lateral acceleration)
-    """
-
-    windows: WindowSet
-    shift: float
-    at: FloatArray
-    first: FloatArray
-    second: FloatArray
-    before: BoolArray | None = None
-    tau_h: FloatArray | None = None
-    across: bool = False
-    lateral: bool = False
-
-    @staticmethod
-    def of(windows: WindowSet, shift: float, heading_offset: float, *,
-           before: BoolArray | None = None, tau_h: FloatArray | None = None,
-           across: bool = False, lateral: bool = False) -> View:
-        at, first, second = windows.around(shift, heading_offset)
-        return View(windows, shift, at, first, second, before, tau_h, across, lateral)
-
-    def moved(self, shift: float, heading_offset: float) -> View:
-        """The same view at another shift."""
-        return View.of(self.windows, shift, heading_offset, before=self.before,
-                       tau_h=self.tau_h, across=self.across, lateral=self.lateral)
-
-
-@dataclass(frozen=True)
-class Fit:
-    """The windows' residuals at ``p`` and what Gauss-Newton needs of them.
-
-    residual : (W, 2) channel residuals, before the common wheel error is taken out
-    jac : (W, 2, P) their Jacobian in p
-    weight : (W, 2) the error model's weights
-    stacked : (W, 2, 1 + P) the wheel channels' standardised rows ``[residual, Jacobian]``,
-        before prewhitening
-    white : (W, 4, 1 + P) every channel's rows as the fit takes them: the wheel channels
-        prewhitened, then the reference's sideways motion and a_y (zero where not fitted)
-    across : (W, 2) the reference channels' residuals (sideways motion, m; a_y, m/s)
-    cost : the weighted sum of squares of the windows (the folded ones' is in Folded.cost)
-    """
-
-    p: FloatArray
-    residual: FloatArray
-    jac: FloatArray
-    weight: FloatArray
-    stacked: FloatArray
-    white: FloatArray
-    cost: float
-    across: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
-    iterations: int = 0
-    converged: bool = True
-    history: tuple[float, ...] = ()
-
-    @property
-    def decoupled(self) -> FloatArray:
-        """(W, 2): the standardised residuals, the common wheel error taken out."""
-        return np.asarray(self.stacked[..., 0] / np.sqrt(np.maximum(self.weight, 1e-300)))
-
-    def normal_equations(self, folded: Folded) -> tuple[FloatArray, FloatArray]:
-        """``H`` and ``g`` of the step, windows and folded sums together."""
-        jj, rr = self.white[..., 1:], self.white[..., 0]
-        rows, res = jj.reshape(-1, jj.shape[-1]), rr.reshape(-1)
-        h = rows.T @ rows + folded.h
-        g = rows.T @ res + folded.b - folded.h @ self.p
-        return h, g
-
-
-def _channels(per_wheel: FloatArray) -> FloatArray:
-    """(W, 2, ...) per wheel -> per channel: the wheels' mean (distance) and their difference
-    (yaw), as :data:`~odocal.estimators.error_model.CHANNELS` says."""
-    return np.moveaxis(np.tensordot(MODEL.channel_map, per_wheel, axes=([1], [1])), 0, 1)
-
-
-def wheels(p: FloatArray, view: View, *, smooth: bool, unseen_d: bool = False,
-           jacobian: bool = True) -> tuple[FloatArray, FloatArray]:
-    """Each window's predicted revolutions per wheel (W, 2) and their Jacobian in p
-    (W, 2, P), the departures included (:mod:`.departures`)."""
-    theta = p[THETA]
-    base = view.at
-    # the load transfer acts on a_y as logged (the specific force the tyres carry: a road's
-    # crossfall is in it as much as the turning); a_y's offset and scale against the
-    # reference's v w are the a_y channel's alone (:func:`reference_rows`), and what they would
-    # make of c_d and d were they the sensor's is in their uncertainty (:func:`_lateral_doubt`)
-    moments = np.array(base, dtype=np.float64, copy=True)
-    # the axle's travel from the reference point's (the chord the point turns through, along
-    # the axle's direction of travel: ds + arm_y 2 sin(dpsi/2) cos(beta) - arm_x ... sin(beta)),
-    # and the wheels' excess in bends (``curve``)
-    turn, beta_turn, curve = base[:, AT_COS_TURN], base[:, AT_BETA_TURN], base[:, AT_CURVE]
-    cut = base[:, AT_CUT]
-    moments[:, 0] += (p[ARM_Y] * turn - p[ARM_X] * beta_turn + p[CURVE] * curve
-                      + p[CUT] * cut)
-    pred, jac_theta = MODEL.predict(theta, moments)
-    if unseen_d:
-        jac_theta[..., LAYOUT.index(LAYOUT.load)] = MODEL.load_transfer_column(theta, moments)
-    jac = np.zeros((pred.shape[0], 2, P)) if jacobian else np.zeros((0, 2, P))
-    before = view.before
-    if before is not None and before.any():
-        early = theta.copy()
-        early[[_E, _D]] += p[CHANGE]
-        pred_b, jac_b = MODEL.predict(early, moments[before])
-        pred[before] = pred_b
-        if jacobian:
-            jac[before[:, None] & np.ones(2, dtype=bool)[None, :], :] = 0.0
-            jac[before, :, CHANGE[0]] = jac_b[..., _E]
-            jac[before, :, CHANGE[1]] = jac_b[..., _D]
-            jac_theta[before] = jac_b
-    moving = base[:, AT_MOVING]
-    pred[:, 0] += (p[OFFSET] + p[LEFT]) * moving
-    pred[:, 1] += (p[OFFSET] + p[RIGHT]) * moving
-    tau = view.tau_h
-    if tau is not None:
-        drift_col = jac_theta[..., _E] * float(theta[_E]) * tau[:, None]
-        pred += p[DRIFT] * drift_col
-    spread = np.zeros_like(pred)
-    if smooth:
-        spread, _ = MODEL.predict(theta, view.second)
-        pred += p[KAPPA] * spread
-    if not jacobian:
-        return pred, jac
-    jac[..., THETA] = jac_theta
-    gain = MODEL.along_gain(theta)[None, :]
-    jac[..., ARM_Y] = turn[:, None] * gain
-    jac[..., ARM_X] = -beta_turn[:, None] * gain
-    jac[..., CURVE] = curve[:, None] * gain
-    jac[..., CUT] = cut[:, None] * gain
-    jac[:, 0, OFFSET] = jac[:, 1, OFFSET] = moving
-    jac[:, 0, LEFT], jac[:, 1, RIGHT] = moving, moving
-    if tau is not None:
-        jac[..., DRIFT] = drift_col
-    jac[..., KAPPA] = spread
-    return pred, jac
-
-
-def _lag_column(p: FloatArray, view: View) -> FloatArray:
-    """The channels' derivative in the reference side's shift (W, 2). Whether a lag is fitted
-    is judged on the yaw channel alone (:meth:`_Context.tests`: a slip that grows with
-    acceleration is common to both wheels and would pass for a lag in the distance channel);
-    once fitted, it moves both."""
-    d_pred, _ = MODEL.predict(p[THETA], view.first)
-    return np.asarray(d_pred @ CHANNELS.T)
-
-
-def reference_rows(p: FloatArray, view: View) -> tuple[FloatArray, FloatArray]:
-    """The reference channels' residuals (W, 2) and their Jacobian (W, 2, P): the reference's
-    motion across its heading (``arm_x dpsi + arm_y beta dpsi + slip sum ds a``), and a_y's sum
-    against ``(1 + s) v w + o`` (zero where the view has no such channel)."""
-    at = view.at
-    count = at.shape[0]
-    residual, jac = np.zeros((count, 2)), np.zeros((count, 2, P))
-    if view.across:
-        turn, beta_turn, lateral = at[:, AT_COS_TURN], at[:, AT_BETA_TURN], at[:, 1]
-        residual[:, 0] = at[:, AT_LAT] - (p[ARM_X] * turn + p[ARM_Y] * beta_turn
-                                           + p[SLIP] * lateral)
-        jac[:, 0, ARM_X], jac[:, 0, ARM_Y], jac[:, 0, SLIP] = turn, beta_turn, lateral
-    if view.lateral:
-        # a_y against the axle's own v w: the reference point's, less what its being beside
-        # the axle adds (arm_y w^2)
-        span = view.windows.length * view.windows.t_s
-        axle = at[:, AT_AREF] + p[ARM_Y] * at[:, AT_TURN2]
-        residual[:, 1] = at[:, AT_ACCEL] - ((1.0 + p[LAT_SCALE]) * axle + p[LAT_OFFSET] * span)
-        jac[:, 1, LAT_SCALE], jac[:, 1, LAT_OFFSET] = axle, span
-        jac[:, 1, ARM_Y] = (1.0 + p[LAT_SCALE]) * at[:, AT_TURN2]
-    return residual, jac
-
-
-def evaluate(p: FloatArray, view: View, model: ErrorModel, folded: Folded,
-             channels: FloatArray, *, smooth: bool, unseen_d: bool = False,
-             reference: bool = False) -> Fit:
-    """Residuals, weights and prewhitened rows of every window at ``p``. ``unseen_d``: the a_y
-    column carries no lateral acceleration, so d's Jacobian is taken with the reference's own
-    (``v w``): what a load transfer the data cannot show would do (d is held, its datasheet
-    uncertainty widens the others'). ``reference``: the reference channels count in the cost
-    (a departure they show is fitted); their rows are there for the score tests either way."""
-    win = view.windows
-    pred, jac_w = wheels(p, view, smooth=smooth, unseen_d=unseen_d)
-    r = (win.measured - pred) @ CHANNELS.T
-    j = _channels(jac_w)
-    lag_col = _lag_column(p, view)
-    r -= p[LAG] * lag_col
-    j[:, :, LAG] = lag_col
-    gain = coupling_gain(win.measured, r, model.coupling)
-    w = window_weights(win.measured, r, model.noise, gain) * channels * win.weight[:, None]
-    stacked = decouple(np.concatenate([r[..., None], j], axis=2), gain) * np.sqrt(w)[..., None]
-    before = None
-    if folded.last is not None:
-        # the filter runs on from the last folded window, moved to p to first order
-        moved = p - folded.last[0]
-        before = tuple(row - np.concatenate([(row[:, 1:] @ moved)[:, None],
-                                             np.zeros_like(row[:, 1:])], axis=1)
-                       for row in folded.last[1:])
-    white = prewhiten(stacked, win.follows, model.ma, before)
-    across, across_jac = reference_rows(p, view)
-    rows = _reference_weighted(across, across_jac, model, win.weight)
-    full = np.concatenate([white, rows], axis=1)
-    cost = float(np.sum(white[..., 0] ** 2))
-    if reference:
-        cost += float(np.sum(rows[..., 0] ** 2))
-    else:
-        full[:, 2:, 0] = 0.0             # the channels say nothing of what is fitted now
-    return Fit(p=p, residual=r, jac=j, weight=w, stacked=stacked, white=full, cost=cost,
-               across=across)
-
-
-def _reference_weighted(residual: FloatArray, jac: FloatArray, model: ErrorModel,
-                        weight: FloatArray) -> FloatArray:
-    """The reference channels' rows ``[residual, Jacobian]`` (W, 2, 1 + P), standardised by
-    their spread (:attr:`ErrorModel.reference`), Huber-limited."""
-    spread = np.asarray(model.reference, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.abs(residual) / spread[None, :]
-        w = np.where(spread[None, :] > 0, 1.0 / spread[None, :] ** 2, 0.0) \
-            * np.minimum(1.0, HUBER / np.maximum(z, 1e-300)) * weight[:, None]
-    w = np.where(np.isfinite(w), w, 0.0)
-    return np.concatenate([residual[..., None], jac], axis=2) * np.sqrt(w)[..., None]
-
-
-def solve(p0: FloatArray, view: View, free: BoolArray, model: ErrorModel, folded: Folded,
-          channels: FloatArray, *, max_iterations: int, tolerance: float,
-          unseen_d: bool = False, reference: bool = False) -> Fit:
-    """Gauss-Newton on the prewhitened residuals of the windows and the folded normal
-    equations (nearly linear in p); ``free`` (P,) marks the free parameters of p. It stops
-    when no step exceeds a thousandth of the parameter's standard deviation (or its relative
-    change ``tolerance``), and says whether it did."""
-    smooth = bool(free[KAPPA])
-    p = p0.copy()
-
-    def evaluate_at(p: FloatArray) -> Fit:
-        return evaluate(p, view, model, folded, channels, smooth=smooth, unseen_d=unseen_d,
-                        reference=reference)
-
-    fit = evaluate_at(p)
-    history = [fit.cost]
-    iterations, converged = 0, True
-    for iterations in range(1, max_iterations + 1):
-        if not free.any():
-            iterations = 0
-            break
-        h, g = fit.normal_equations(folded)
-        # (a free element nothing informs yet, a reference channel before its spread is
-        # known, takes no step)
-        cols = np.flatnonzero(free & (np.diag(h) > 0))
-        if not cols.size:
-            break
-        scale = np.sqrt(np.diag(h)[cols])
-        step = np.zeros(P)
-        step[cols] = np.linalg.lstsq(h[np.ix_(cols, cols)] / np.outer(scale, scale),
-                                     g[cols] / scale, rcond=None)[0] / scale
-        trial = evaluate_at(p + step)
-        for _ in range(_HALVINGS):
-            # a step that spoils the fit (not finite, or far worse: a departure the windows
-            # barely show, linearised too far) is halved
-            if math.isfinite(trial.cost) and np.all(np.isfinite(trial.white)) \
-                    and trial.cost <= 2.0 * fit.cost + 10.0:
-                break
-            step = 0.5 * step
-            trial = evaluate_at(p + step)
-        p, fit = p + step, trial
-        history.append(fit.cost)
-        std = np.sqrt(np.clip(np.diag(np.linalg.pinv(h[np.ix_(cols, cols)])), 0.0, None))
-        if (np.all(np.abs(step[cols]) <= _STEP_SIGMAS * std)
-                or np.max(np.abs(step) / np.maximum(np.abs(p), 1e-3)) < tolerance):
-            break
-    else:
-        converged = not free.any()
-    return dataclasses.replace(fit, iterations=iterations, converged=converged,
-                               history=tuple(history))
-
-
-@dataclass(frozen=True)
-class LagScan:
-    """The yaw channel's cost on the lag grid (steps), per half of the clusters (2, G)."""
-
-    grid: FloatArray
-    costs: FloatArray
-
-
-def scan_lag(windows: WindowSet, theta: FloatArray, heading_offset: float, model: ErrorModel,
-             folded: Folded, offset: float | FloatArray = 0.0) -> LagScan:
-    """The yaw channel's weighted cost at every half step of shift of the reference side, with
-    p fixed (the distance channel is left out: a slip that grows with acceleration is common
-    to both wheels and would pass for a lag there).
-
-    The prediction is linear in the moments, so it is made once at every whole-step shift and
-    interpolated between them, as the moments are. ``offset``: the wheel-rate offset of the
-    fit (rev/s), or the whole p of it.
-    """
-    p = np.asarray(offset, dtype=np.float64) if np.ndim(offset) else pack(theta,
-                                                                        offset=float(offset))
-    p = p.copy()
-    p[THETA] = theta
-    limit = windows.shifts
-    grid = np.arange(-limit, limit + 0.25, 0.5)
-    half = (windows.cluster % 2).astype(np.int64)
-    costs = np.zeros((2, grid.size))
-    w_count, shifts = windows.size, windows.moments.shape[1]
-    if w_count and limit > 0:
-        rotated = windows.rotated(heading_offset)                    # (W, S, AT_WIDTH)
-        second = np.zeros_like(rotated)
-        second[:, 1:-1] = rotated[:, 2:] + rotated[:, :-2] - 2.0 * rotated[:, 1:-1]
-        flat = rotated.reshape(w_count * shifts, -1)
-        view = View(windows, 0.0, flat, flat, second.reshape(w_count * shifts, -1))
-        whole, _ = wheels(p, view, smooth=bool(p[KAPPA]), jacobian=False)
-        whole = whole.reshape(w_count, shifts, 2)
-        x = grid + windows.margin
-        lo = np.floor(x).astype(np.int64)
-        frac = (x - lo)[None, :, None]
-        pred = whole[:, lo] * (1.0 - frac) + whole[:, np.minimum(lo + 1, shifts - 1)] * frac
-        measured = np.repeat(windows.measured, grid.size, axis=0)
-        r = (measured - pred.reshape(-1, 2)) @ CHANNELS.T
-        gain = coupling_gain(measured, r, model.coupling)
-        w = window_weights(measured, r, model.noise, gain) \
-            * np.repeat(windows.weight, grid.size)[:, None]
-        cost = (w[:, 1] * decouple(r, gain)[:, 1] ** 2).reshape(w_count, grid.size)
-        for k in (0, 1):
-            costs[k] = cost[half == k].sum(axis=0)
-    if folded.scan is not None and folded.scan.shape == costs.shape:
-        costs = costs + folded.scan
-    return LagScan(grid=grid, costs=costs)
-
-
-@dataclass(frozen=True)
-class Lag:
-    """The lag applied: ``shift`` steps (0: none), its standard deviation (nan: not fitted),
-    the minimum of the scan (``found``), and why it was not fitted where it was not."""
-
-    shift: float = 0.0
-    std: float = float("nan")
-    found: float = 0.0
-    note: str = ""
-
-
-def _minimum(grid: FloatArray, costs: FloatArray) -> tuple[float, float] | None:
-    """The parabola's minimum through the lowest grid point and its neighbours, and its std
-    (the cost is a weighted sum of squares with unit-variance residuals near the minimum);
-    None at the edge of the grid or where the cost is flat."""
-    i = int(np.argmin(costs))
-    if i == 0 or i == grid.size - 1:
-        return None
-    c0, c1, c2 = costs[i - 1:i + 2]
-    curvature = (c0 - 2.0 * c1 + c2) / 0.25            # d^2 cost / d shift^2 (half steps)
-    if curvature <= 0:
-        return None
-    return (float(grid[i] + 0.25 * (c0 - c2) / (c0 - 2.0 * c1 + c2)),
-            float(math.sqrt(2.0 / curvature)))
-
-
-def choose_lag(scan: LagScan) -> Lag:
-    """The lag at the scan's minimum (refined by a parabola); none at the grid's edge or where
-    the cost is flat (with the reason). Whether a lag is fitted at all is the departures'
-    rule (:mod:`.departures`); this finds where."""
-    total = scan.costs.sum(axis=0)
-    found = _minimum(scan.grid, total)
-    if found is None:
-        i = int(np.argmin(total))
-        if 0 < i < total.size - 1:
-            return Lag(note="flat")                    # no turning to time the wheels by
-        log.warning("the wheel clock offset lies at the edge of the search range; none applied "
-                    "(widen [inverse] max_delay_s)")
-        return Lag(note="edge")
-    best, std = found
-    return Lag(shift=best, std=std, found=best)
 
 
 @dataclass(frozen=True)
@@ -764,7 +286,7 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
         # parameter whose information the sums could share with theta's
         with_nuisance[LAG] = False
     free, held, state, uncertainty = _identified(state, ctx, free, held, with_nuisance, change)
-    uncertainty = _lateral_doubt(uncertainty, state.fit.p, free)
+    uncertainty = lateral_doubt(uncertainty, state.fit.p, free)
     if "spread" in entered and not folded.clusters:
         uncertainty = _skew_doubt(uncertainty, state, ctx, free_of(free) | with_nuisance)
     lag = state.lag
@@ -815,24 +337,6 @@ def departing_drive(found: CoreFit, windows: WindowSet) -> tuple[int, float, flo
     return worst
 
 
-def _lateral_doubt(found: Uncertainty, p: FloatArray, free: BoolArray) -> Uncertainty:
-    """theta is for a_y as logged. Where a_y departs from the reference's ``v w`` (an offset
-    ``o``, a scale ``1 + s``), that is a road's crossfall or a body's roll the tyres feel, or an
-    IMU's tilt or scale they do not: the two cannot be told apart, and the sensor's reading
-    would make c_d ``2 d o / (1 + s)`` and d ``d s / (1 + s)`` other than they are. That much is
-    added to their variance (zero where a_y holds to ``v w``)."""
-    offset, scale = float(p[LAT_OFFSET]), float(p[LAT_SCALE])
-    if not (offset or scale):
-        return found
-    i_d, i_l = LAYOUT.index(LAYOUT.difference), LAYOUT.index(LAYOUT.load)
-    d = float(p[i_l])
-    extra = np.zeros(LAYOUT.size)
-    extra[i_d] = 2.0 * d * offset / (1.0 + scale)
-    extra[i_l] = d * scale / (1.0 + scale)
-    extra[~np.asarray(free, dtype=bool)] = 0.0
-    return _doubted(found, extra)
-
-
 def _skew_doubt(found: Uncertainty, state: _State, ctx: _Context,
                 free_p: BoolArray) -> Uncertainty:
     """The wheels' smoothing is fitted by its first two cumulants (a delay and a spread
@@ -855,20 +359,7 @@ def _skew_doubt(found: Uncertainty, state: _State, ctx: _Context,
     moved = ctx.solve(p, skewed, state.model, free_p)
     delta = moved.p[THETA] - plain.p[THETA]
     delta[~free_p[THETA] | ~np.isfinite(delta)] = 0.0
-    return _doubted(found, delta)
-
-
-def _doubted(found: Uncertainty, shift: FloatArray) -> Uncertainty:
-    """``found`` with ``shift`` (n,), what a cause the data cannot tell would move theta by,
-    squared into theta's variance (its widening and p's standard deviations with it)."""
-    cov = found.covariance + np.diag(shift ** 2)
-    before = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))
-    after = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        widening = found.widening * np.where(before > 0, after / before, 1.0)
-    p_std = found.p_std.copy()
-    p_std[THETA] = after
-    return dataclasses.replace(found, covariance=cov, widening=widening, p_std=p_std)
+    return doubted(found, delta)
 
 
 #: A departure fitted must lie this many of its standard deviations from zero (one a drive
@@ -903,7 +394,7 @@ def _acceptable(state: _State, settings: Settings) -> bool:
     if not np.all(np.isfinite(p)) or np.any(np.abs(p[LAYOUT.size:]) > dep.BOUNDS):
         return False
     if np.any(p[CHANGE]) and np.all(np.abs(p[CHANGE]) < settings.checks.change_min
-                                    * abs(float(p[_E]))):
+                                    * abs(float(p[SCALE]))):
         return False                   # a step that small is no change of the wheels
     return all(spec.vehicle_range[0] <= float(v) <= spec.vehicle_range[1]
                for spec, v in zip(LAYOUT.parameters, p[THETA], strict=True))
@@ -1019,10 +510,11 @@ class _Context:
         white = current.white
         out = []
         for block in blocks:
-            index = [dep.at(name) for name in block] if block[0] != "change_e" else [_E, _D]
+            index = ([dep.at(name) for name in block] if block[0] != "change_e"
+                     else [SCALE, DIFFERENCE])
             n = _informing(white, index) + float(folded.windows)
             if block[0] == "lag":
-                timed = _lag_test(scan_lag(self.windows, p[THETA], self.heading_offset,
+                timed = lag_test(scan_lag(self.windows, p[THETA], self.heading_offset,
                                            state.model, folded, p))
                 out.append(dataclasses.replace(timed, penalty=dep.penalty(1, n)))
                 continue
@@ -1068,22 +560,6 @@ def _with(p: FloatArray, index: int, value: float) -> FloatArray:
     return out
 
 
-def _lag_test(scan: LagScan) -> dep.Statistic:
-    """The held-out test of a lag: on each half of the clusters, the lag is where that half's
-    yaw cost is least (:func:`scan_lag`: the lag is nonlinear, found on a grid), and it must
-    lower the other half's cost against none."""
-    gains = []
-    for k in (0, 1):
-        found = _minimum(scan.grid, scan.costs[k])
-        other = scan.costs[1 - k]
-        if found is None or not other.any():
-            gains.append(-math.inf)
-            continue
-        gains.append(float(np.interp(0.0, scan.grid, other)
-                           - np.interp(found[0], scan.grid, other)))
-    return dep.Statistic(("lag",), (gains[0], gains[1]))
-
-
 def change_sought(windows: WindowSet, settings: Settings) -> bool:
     """Whether the windows hold enough clusters for a change inside the log to be sought:
     ``[checks] change_min_side_clusters`` either side of one at least."""
@@ -1117,7 +593,7 @@ def _change_test(current: Fit, windows: WindowSet, half: IntArray, halves: dep.H
                                             _CHANGE_LOCATIONS).round().astype(int)]
     jw, rw = current.white[..., 1:], current.white[..., 0]
     cols = np.flatnonzero(free_p)
-    rows = jw[..., [_E, _D]]                                      # (W, C, 2)
+    rows = jw[..., [SCALE, DIFFERENCE]]                                      # (W, C, 2)
     per_h = np.einsum("wck,wcp->wkp", rows, jw)                   # (W, 2, P)
     per_g = np.einsum("wck,wc->wk", rows, rw)                     # (W, 2)
     cums = []
@@ -1132,7 +608,7 @@ def _change_test(current: Fit, windows: WindowSet, half: IntArray, halves: dep.H
         block_h, block_g = cums[k][0][where], cums[k][1][where]
         out_h = np.zeros((P + 2, P + 2))
         out_h[:P, :P], out_h[P:, :P], out_h[:P, P:] = h, block_h, block_h.T
-        out_h[P:, P:] = block_h[:, [_E, _D]]
+        out_h[P:, P:] = block_h[:, [SCALE, DIFFERENCE]]
         return out_h, np.concatenate([g, block_g])
 
     def statistic(k: int, where: int) -> float:
@@ -1208,7 +684,7 @@ def _identified(state: _State, ctx: _Context, free: BoolArray, held: dict[str, N
                 ) -> tuple[BoolArray, dict[str, NotIdentified], _State, Uncertainty]:
     """The identifiability verdict (:func:`~odocal.estimators.estimate.hold_unidentified`)
     with this core's covariance. Parameters held because the windows cannot see them widen the
-    free ones by their datasheet uncertainty (:func:`covariance`)."""
+    free ones by their datasheet uncertainty (:func:`.covariance.covariance`)."""
     settings = ctx.settings
     datasheet = np.asarray(settings.identify.theta0, dtype=np.float64)
     prior = np.asarray(settings.identify.prior_std, dtype=np.float64)
@@ -1237,119 +713,6 @@ def _identified(state: _State, ctx: _Context, free: BoolArray, held: dict[str, N
         n = LAYOUT.size
         found = dataclasses.replace(found, covariance=np.zeros((n, n)), widening=np.ones(n))
     return free, held, states[-1], found
-
-
-@dataclass(frozen=True)
-class Uncertainty:
-    """The covariance of theta (n, n), the clusters it rests on, each window's information
-    (W, n, n) and score (W, n), how much each standard deviation was widened for the
-    parameters held at their datasheet values (1: not), the wheel-rate offset's standard
-    deviation (rev/s; zero where not fitted) and every element of p's (P,)."""
-
-    covariance: FloatArray
-    clusters: int
-    information: FloatArray
-    scores: FloatArray
-    widening: FloatArray
-    offset_std: float = 0.0
-    p_std: FloatArray = field(default_factory=lambda: np.zeros(P))
-    p_cov: FloatArray = field(default_factory=lambda: np.zeros((P, P)))
-
-
-def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray,
-               nuisance: FloatArray | None = None, *, few: bool = True) -> Uncertainty:
-    """Sandwich covariance of p over clusters of windows (folded clusters' meat included),
-    from the prewhitened rows, each cluster's score scaled by its leverage, cross products of
-    clusters up to three apart with Newey and West's weights; theta's block is the one
-    reported (the departures fitted beside it profiled out: their uncertainty is in it). What
-    it adds beyond the residual-variance formula is widened by Student's t for the clusters
-    each parameter's information comes from (with fewer than :data:`MIN_CLUSTERS_FOR_ROBUST`
-    clusters in all, the larger of the two).
-
-    ``few`` False leaves the widening for few clusters out (what a departure's own value is
-    judged by: whether the fit determines it, not how far a rare error reaches).
-
-    ``nuisance`` (n,): the datasheet uncertainty of each parameter held at its datasheet value
-    (0 for the free ones). A held parameter that is wrong by that much moves the free ones by
-    ``-H_ff^-1 H_fj`` times it: that spread is added, so a free parameter that cannot be told
-    apart from a held one (a circle at one rate, a missing a_y) carries its uncertainty.
-    """
-    jw, rw = current.white[..., 1:], current.white[..., 0]
-    info = np.einsum("wcp,wcq->wpq", jw, jw)
-    scores = np.einsum("wcp,wc->wp", jw, rw)
-    h = info.sum(axis=0) + folded.h
-    cols = np.flatnonzero(free)
-    h_inv = np.zeros((P, P))
-    if cols.size:
-        h_inv[np.ix_(cols, cols)] = np.linalg.pinv(h[np.ix_(cols, cols)])
-    meat = folded.meat.copy()
-    clusters = folded.clusters
-    if windows.size:
-        adjusted, labels = leverage_adjusted_scores(info, scores, free, windows.cluster, total=h)
-        clusters += labels.size
-        meat += added_meat(folded.recent, adjusted)
-    meat[~free, :] = 0.0
-    meat[:, ~free] = 0.0
-    values, vectors = np.linalg.eigh(meat)
-    meat = (vectors * np.clip(values, 0.0, None)) @ vectors.T
-    correction = clusters / (clusters - 1) if clusters > 1 else 1.0
-    cov = correction * (h_inv @ meat @ h_inv)
-    # the residual-variance (model-based) covariance: the error model's, from every row that
-    # counts in the cost
-    count = int(np.count_nonzero(current.white[..., 0])) + folded.count
-    naive = (current.cost + folded.cost) / max(count - int(free.sum()), 1) * h_inv
-    s_n = np.sqrt(np.clip(np.diag(naive), 0.0, None))
-    s_r = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    # The sandwich is needed where the errors are not what the error model says (correlated
-    # over seconds, a reference's own): what it adds beyond the model-based variance rests on
-    # the clusters the parameter's information comes from, few for t_r and d on a short drive
-    # (Satterthwaite's effective number; t_r's from the few clusters with bends), so it is
-    # widened by Student's t at the three-sigma tail for them. Where the two agree the error
-    # model holds, and its variance, from every window, needs no widening. With fewer than
-    # MIN_CLUSTERS_FOR_ROBUST clusters the larger of the two is taken as it stands.
-    effective = _effective_clusters(info, windows.cluster, folded, h_inv) if windows.size \
-        else np.full(P, float(clusters))
-    f = np.array([tail_inflation(max(float(e), 2.0)) if e > 0 else 1.0 for e in effective])
-    if clusters < 2 or not few:
-        f[:] = 1.0                # one cluster: the one-cluster rule leaves nothing identified
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if clusters < MIN_CLUSTERS_FOR_ROBUST:
-            target = np.maximum(s_n, s_r) * f
-        else:
-            target = np.sqrt(s_n ** 2 + f ** 2 * np.clip(s_r ** 2 - s_n ** 2, 0.0, None))
-        scale = np.where(s_r > 0, target / s_r, 1.0)
-    cov = cov * np.outer(scale, scale)
-    base = np.sqrt(np.clip(np.diag(cov)[THETA], 0.0, None))
-    if nuisance is not None:
-        for j in np.flatnonzero(nuisance > 0):
-            shift = -h_inv @ h[:, j]                   # d p_free / d theta_j (held)
-            cov = cov + nuisance[j] ** 2 * np.outer(shift, shift)
-    std = np.sqrt(np.clip(np.diag(cov)[THETA], 0.0, None))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        widening = np.where(base > 0, std / base, 1.0)
-    p_std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    return Uncertainty(cov[THETA, THETA], clusters, info[:, THETA, THETA], scores[:, THETA],
-                       widening, float(p_std[OFFSET]), p_std, cov)
-
-
-def _effective_clusters(info: FloatArray, cluster: IntArray, folded: Folded,
-                        h_inv: FloatArray) -> FloatArray:
-    """Per element of p, the effective number of independent clusters its variance rests on:
-    ``(sum_k e_k)^2 / sum_k e_k^2`` with ``e_k`` the share of cluster k's information in it
-    (``(H^-1 I_k H^-1)_jj``); folded clusters count as equal shares of the folded information.
-    One cluster that carries it all counts one; many equal ones count as many."""
-    labels, index = np.unique(cluster, return_inverse=True)
-    per = np.zeros((labels.size, P, P))
-    np.add.at(per, index, info)
-    shares = np.einsum("ip,kpq,iq->ki", h_inv, per, h_inv)          # (K, P): e_k per element
-    total = shares.sum(axis=0)
-    squares = (shares ** 2).sum(axis=0)
-    if folded.clusters:
-        folded_share = np.einsum("ip,pq,iq->i", h_inv, folded.h, h_inv)
-        total = total + folded_share
-        squares = squares + folded_share ** 2 / folded.clusters
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(squares > 0, total ** 2 / squares, 0.0)
 
 
 def fold(folded: Folded, windows: WindowSet, p: FloatArray, shift: float, heading_offset: float,

@@ -12,14 +12,26 @@ drawn with replacement from all step-1 batches, because the compensated rates in
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from odocal.arrays import BoolArray, FloatArray, IntArray
-from odocal.estimators.estimate import Estimate
+from odocal.estimators.estimate import Estimate, tail_inflation
+from odocal.estimators.fitting import (
+    LAT_OFFSET,
+    LAT_SCALE,
+    LAYOUT,
+    OFFSET,
+    THETA,
+    Fit,
+    Folded,
+    P,
+)
+from odocal.estimators.windows import WindowSet
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS
 from odocal.settings import UncertaintySettings
 
@@ -212,3 +224,152 @@ def bootstrap(result: Estimate, information: FloatArray, scores: FloatArray, clu
     return BootstrapResult(mode=settings.bootstrap_mode, samples=samples, std=std,
                            covariance_std=cov_std, ratio=ratio,
                            agree=agree, message=message)
+
+
+#: Fewer clusters than this: the covariance of the default method is the larger of the sandwich
+#: and the residual formula, widened for the clusters' small number.
+MIN_CLUSTERS_FOR_ROBUST = 10
+
+
+def lateral_doubt(found: Uncertainty, p: FloatArray, free: BoolArray) -> Uncertainty:
+    """theta is for a_y as logged. Where a_y departs from the reference's ``v w`` (an offset
+    ``o``, a scale ``1 + s``), that is a road's crossfall or a body's roll the tyres feel, or an
+    IMU's tilt or scale they do not: the two cannot be told apart, and the sensor's reading
+    would make c_d ``2 d o / (1 + s)`` and d ``d s / (1 + s)`` other than they are. That much is
+    added to their variance (zero where a_y holds to ``v w``)."""
+    offset, scale = float(p[LAT_OFFSET]), float(p[LAT_SCALE])
+    if not (offset or scale):
+        return found
+    i_d, i_l = LAYOUT.index(LAYOUT.difference), LAYOUT.index(LAYOUT.load)
+    d = float(p[i_l])
+    extra = np.zeros(LAYOUT.size)
+    extra[i_d] = 2.0 * d * offset / (1.0 + scale)
+    extra[i_l] = d * scale / (1.0 + scale)
+    extra[~np.asarray(free, dtype=bool)] = 0.0
+    return doubted(found, extra)
+
+
+def doubted(found: Uncertainty, shift: FloatArray) -> Uncertainty:
+    """``found`` with ``shift`` (n,), what a cause the data cannot tell would move theta by,
+    squared into theta's variance (its widening and p's standard deviations with it)."""
+    cov = found.covariance + np.diag(shift ** 2)
+    before = np.sqrt(np.clip(np.diag(found.covariance), 0.0, None))
+    after = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        widening = found.widening * np.where(before > 0, after / before, 1.0)
+    p_std = found.p_std.copy()
+    p_std[THETA] = after
+    return dataclasses.replace(found, covariance=cov, widening=widening, p_std=p_std)
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """The covariance of theta (n, n), the clusters it rests on, each window's information
+    (W, n, n) and score (W, n), how much each standard deviation was widened for the
+    parameters held at their datasheet values (1: not), the wheel-rate offset's standard
+    deviation (rev/s; zero where not fitted) and every element of p's (P,)."""
+
+    covariance: FloatArray
+    clusters: int
+    information: FloatArray
+    scores: FloatArray
+    widening: FloatArray
+    offset_std: float = 0.0
+    p_std: FloatArray = field(default_factory=lambda: np.zeros(P))
+    p_cov: FloatArray = field(default_factory=lambda: np.zeros((P, P)))
+
+
+def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray,
+               nuisance: FloatArray | None = None, *, few: bool = True) -> Uncertainty:
+    """Sandwich covariance of p over clusters of windows (folded clusters' meat included),
+    from the prewhitened rows, each cluster's score scaled by its leverage, cross products of
+    clusters up to three apart with Newey and West's weights; theta's block is the one
+    reported (the departures fitted beside it profiled out: their uncertainty is in it). What
+    it adds beyond the residual-variance formula is widened by Student's t for the clusters
+    each parameter's information comes from (with fewer than :data:`MIN_CLUSTERS_FOR_ROBUST`
+    clusters in all, the larger of the two).
+
+    ``few`` False leaves the widening for few clusters out (what a departure's own value is
+    judged by: whether the fit determines it, not how far a rare error reaches).
+
+    ``nuisance`` (n,): the datasheet uncertainty of each parameter held at its datasheet value
+    (0 for the free ones). A held parameter that is wrong by that much moves the free ones by
+    ``-H_ff^-1 H_fj`` times it: that spread is added, so a free parameter that cannot be told
+    apart from a held one (a circle at one rate, a missing a_y) carries its uncertainty.
+    """
+    jw, rw = current.white[..., 1:], current.white[..., 0]
+    info = np.einsum("wcp,wcq->wpq", jw, jw)
+    scores = np.einsum("wcp,wc->wp", jw, rw)
+    h = info.sum(axis=0) + folded.h
+    cols = np.flatnonzero(free)
+    h_inv = np.zeros((P, P))
+    if cols.size:
+        h_inv[np.ix_(cols, cols)] = np.linalg.pinv(h[np.ix_(cols, cols)])
+    meat = folded.meat.copy()
+    clusters = folded.clusters
+    if windows.size:
+        adjusted, labels = leverage_adjusted_scores(info, scores, free, windows.cluster, total=h)
+        clusters += labels.size
+        meat += added_meat(folded.recent, adjusted)
+    meat[~free, :] = 0.0
+    meat[:, ~free] = 0.0
+    values, vectors = np.linalg.eigh(meat)
+    meat = (vectors * np.clip(values, 0.0, None)) @ vectors.T
+    correction = clusters / (clusters - 1) if clusters > 1 else 1.0
+    cov = correction * (h_inv @ meat @ h_inv)
+    # the residual-variance (model-based) covariance: the error model's, from every row that
+    # counts in the cost
+    count = int(np.count_nonzero(current.white[..., 0])) + folded.count
+    naive = (current.cost + folded.cost) / max(count - int(free.sum()), 1) * h_inv
+    s_n = np.sqrt(np.clip(np.diag(naive), 0.0, None))
+    s_r = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    # The sandwich is needed where the errors are not what the error model says (correlated
+    # over seconds, a reference's own): what it adds beyond the model-based variance rests on
+    # the clusters the parameter's information comes from, few for t_r and d on a short drive
+    # (Satterthwaite's effective number; t_r's from the few clusters with bends), so it is
+    # widened by Student's t at the three-sigma tail for them. Where the two agree the error
+    # model holds, and its variance, from every window, needs no widening. With fewer than
+    # MIN_CLUSTERS_FOR_ROBUST clusters the larger of the two is taken as it stands.
+    effective = _effective_clusters(info, windows.cluster, folded, h_inv) if windows.size \
+        else np.full(P, float(clusters))
+    f = np.array([tail_inflation(max(float(e), 2.0)) if e > 0 else 1.0 for e in effective])
+    if clusters < 2 or not few:
+        f[:] = 1.0                # one cluster: the one-cluster rule leaves nothing identified
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if clusters < MIN_CLUSTERS_FOR_ROBUST:
+            target = np.maximum(s_n, s_r) * f
+        else:
+            target = np.sqrt(s_n ** 2 + f ** 2 * np.clip(s_r ** 2 - s_n ** 2, 0.0, None))
+        scale = np.where(s_r > 0, target / s_r, 1.0)
+    cov = cov * np.outer(scale, scale)
+    base = np.sqrt(np.clip(np.diag(cov)[THETA], 0.0, None))
+    if nuisance is not None:
+        for j in np.flatnonzero(nuisance > 0):
+            shift = -h_inv @ h[:, j]                   # d p_free / d theta_j (held)
+            cov = cov + nuisance[j] ** 2 * np.outer(shift, shift)
+    std = np.sqrt(np.clip(np.diag(cov)[THETA], 0.0, None))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        widening = np.where(base > 0, std / base, 1.0)
+    p_std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return Uncertainty(cov[THETA, THETA], clusters, info[:, THETA, THETA], scores[:, THETA],
+                       widening, float(p_std[OFFSET]), p_std, cov)
+
+
+def _effective_clusters(info: FloatArray, cluster: IntArray, folded: Folded,
+                        h_inv: FloatArray) -> FloatArray:
+    """Per element of p, the effective number of independent clusters its variance rests on:
+    ``(sum_k e_k)^2 / sum_k e_k^2`` with ``e_k`` the share of cluster k's information in it
+    (``(H^-1 I_k H^-1)_jj``); folded clusters count as equal shares of the folded information.
+    One cluster that carries it all counts one; many equal ones count as many."""
+    labels, index = np.unique(cluster, return_inverse=True)
+    per = np.zeros((labels.size, P, P))
+    np.add.at(per, index, info)
+    shares = np.einsum("ip,kpq,iq->ki", h_inv, per, h_inv)          # (K, P): e_k per element
+    total = shares.sum(axis=0)
+    squares = (shares ** 2).sum(axis=0)
+    if folded.clusters:
+        folded_share = np.einsum("ip,pq,iq->i", h_inv, folded.h, h_inv)
+        total = total + folded_share
+        squares = squares + folded_share ** 2 / folded.clusters
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(squares > 0, total ** 2 / squares, 0.0)

@@ -42,8 +42,9 @@ from odocal.checks.departures import wheel_lag_s, wheel_step
 from odocal.checks.findings import Check, Finding, Severity
 from odocal.data.drive import Drive
 from odocal.data.segments import common_sampling_time
-from odocal.estimators import core, departures
+from odocal.estimators import core, departures, fitting
 from odocal.estimators.base import MethodOutcome, Prepared, ProgressCallback
+from odocal.estimators.covariance import MIN_CLUSTERS_FOR_ROBUST
 from odocal.estimators.error_model import (
     CHANNELS,
     HUBER,
@@ -195,7 +196,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
         return _nothing(settings, dict(held or {}), started, windows.length * t_s)
     if progress:
         progress("inverse: fit", 1, 2)
-    prior = core.Folded.prior(_origin(settings),
+    prior = fitting.Folded.prior(_origin(settings),
                               core.offset_prior_std(settings, wheel_step(drives, settings)))
     found, windows, departing = _fit_agreeing(windows, prior, settings, drives,
                                               heading_offset=offset, held=held,
@@ -216,7 +217,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
 _MAX_TRIED = 12
 
 
-def _fit_agreeing(windows: WindowSet, prior: core.Folded, settings: Settings,
+def _fit_agreeing(windows: WindowSet, prior: fitting.Folded, settings: Settings,
                   drives: Sequence[Drive], *, heading_offset: float,
                   held: Mapping[str, NotIdentified] | None, distance_only: bool,
                   ) -> tuple[core.CoreFit, WindowSet, list[Finding]]:
@@ -313,7 +314,7 @@ def _findings(found: core.CoreFit, windows: WindowSet, drives: Sequence[Drive], 
 def _total(found: core.CoreFit) -> FloatArray:
     """The fit's p with the lag as a whole (the shift the fit stands at, in steps)."""
     p = found.fit.p.copy()
-    p[core.LAG] = found.lag.shift if "lag" in found.entered else 0.0
+    p[fitting.LAG] = found.lag.shift if "lag" in found.entered else 0.0
     return p
 
 
@@ -344,7 +345,7 @@ def screen(drives: Sequence[Drive], settings: Settings) -> Screen | None:
     if windows.size < MIN_WINDOWS:
         return None
     offset = heading_offset(straight) if settings.inverse.heading_offset == "estimate" else 0.0
-    prior = core.Folded.prior(_origin(settings),
+    prior = fitting.Folded.prior(_origin(settings),
                               core.offset_prior_std(settings, wheel_step(drives, settings)))
     found = core.fit(windows, prior, settings, heading_offset=offset,
                      setup=fit_setup(windows, settings))
@@ -381,7 +382,7 @@ def _origin(settings: Settings) -> FloatArray:
     """Where folded coupling moments are taken (the datasheet values, kappa and the offsets
     0)."""
     theta0 = np.asarray(settings.identify.theta0, dtype=np.float64)
-    return np.concatenate([theta0, np.zeros(core.P - theta0.size)])
+    return np.concatenate([theta0, np.zeros(fitting.P - theta0.size)])
 
 
 def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
@@ -405,7 +406,7 @@ def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
         scores=found.uncertainty.scores, cluster=windows.cluster,
         measured=windows.measured @ CHANNELS.T, residual=fit.residual,
         prewhitening=(float(found.model.ma[0, 0]), float(found.model.ma[1, 0])),
-        smoothing_steps2=float(2.0 * fit.p[core.KAPPA]), coupling=float(found.model.coupling),
+        smoothing_steps2=float(2.0 * fit.p[fitting.KAPPA]), coupling=float(found.model.coupling),
         delay_found_s=found.lag.found * t_s + reference_shift_s, delay_note=found.lag.note,
         wheel_offset_revps=found.offset[0], wheel_offset_std=found.offset[1], t0=windows.t0,
         departures=tuple((name, float(_total(found)[departures.at(name)]),
@@ -424,7 +425,7 @@ def _estimate(found: core.CoreFit, windows: WindowSet, settings: Settings,
     return Estimate(method=method, theta=Parameters.from_array(theta),
                     datasheet=Parameters.from_array(datasheet), covariance=found.covariance,
                     covariance_kind=(CovarianceKind.CLUSTER_ROBUST
-                                     if found.clusters >= core.MIN_CLUSTERS_FOR_ROBUST
+                                     if found.clusters >= MIN_CLUSTERS_FOR_ROBUST
                                      else CovarianceKind.RESIDUAL),
                     free=tuple(bool(f) for f in free),
                     verdicts=judge(std, free, settings.identify, held=found.held),

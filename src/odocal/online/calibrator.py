@@ -45,7 +45,7 @@ from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.checks.gate import gate
 from odocal.data.drive import Drive
 from odocal.errors import DataError
-from odocal.estimators import core
+from odocal.estimators import core, fitting
 from odocal.estimators import departures as fitted
 from odocal.estimators.base import held_by_checks
 from odocal.estimators.error_model import ErrorModel
@@ -58,6 +58,7 @@ from odocal.estimators.estimate import (
     judge,
 )
 from odocal.estimators.inverse import fit_setup
+from odocal.estimators.lag import Lag, choose_lag, scan_lag
 from odocal.estimators.windows import (
     WindowBuilder,
     WindowSet,
@@ -173,10 +174,10 @@ class OnlineCalibrator:
         self.datasheet = np.asarray(self.settings.identify.theta0, dtype=np.float64)
         self.theta = start.copy()
         # the departures fitted beside theta (p after theta: odocal.estimators.departures)
-        self._nuisance = np.zeros(core.P - MODEL.size)
+        self._nuisance = np.zeros(fitting.P - MODEL.size)
         self._entered: tuple[str, ...] = ()
         self._model = ErrorModel()
-        self._lag = core.Lag()
+        self._lag = Lag()
         self._t_s: float | None = None
         self._pending: FloatArray | None = None   # a lone first sample, until t_s is known
         self._unit: str | None = None             # how t comes: "s", "ms", "us", "ns", "datetime"
@@ -189,7 +190,7 @@ class OnlineCalibrator:
         self._windows: WindowSet | None = None
         # (the wheel-rate offset's prior from the start where the settings always fit it; for
         # rates on an encoding's grid from the first check that finds the grid)
-        self._folded = core.Folded.prior(core.pack(self.datasheet),
+        self._folded = fitting.Folded.prior(fitting.pack(self.datasheet),
                                          core.offset_prior_std(self.settings, 0.0))
         self._departures = LiveDepartures()       # what is taken out of the samples
         self._samples = 0
@@ -507,7 +508,7 @@ class OnlineCalibrator:
         self._model = core.refit_model(current, windows, self._folded, coupling=coupling,
                                        kept=bool(self._model.coupling))
         if self._smooth and "lag" in self._entered and self._clusters_done % _LAG_EVERY == 0:
-            self._lag = core.choose_lag(core.scan_lag(windows, self.theta, offset,
+            self._lag = choose_lag(scan_lag(windows, self.theta, offset,
                                                       self._model, self._folded, self._p()))
 
     def _changed(self, suspect: Suspect, cluster: WindowSet) -> bool:
@@ -561,9 +562,9 @@ class OnlineCalibrator:
         offset = self.heading_offset()
         kept = self._kept(p)
         fitted = self._fitted(p, kept)
-        total, _ = core.evaluate(p, core.View.of(fitted, self._lag.shift, offset), self._model,
-                                 self._folded, np.ones(2),
-                                 smooth=self._smooth).normal_equations(self._folded)
+        view = fitting.View.of(fitted, self._lag.shift, offset)
+        total, _ = fitting.evaluate(p, view, self._model, self._folded, np.ones(2),
+                                    smooth=self._smooth).normal_equations(self._folded)
         # (what a disturbance spoiled is not folded: it leaves memory unused)
         folding = mask & kept
         labels = windows.cluster[folding]
@@ -572,8 +573,8 @@ class OnlineCalibrator:
             if not group.size:
                 continue
             part = windows.take(group)
-            empty = core.Folded(origin=self._folded.origin)
-            scan = (core.scan_lag(part, p[core.THETA], offset, self._model, empty, p)
+            empty = fitting.Folded(origin=self._folded.origin)
+            scan = (scan_lag(part, p[fitting.THETA], offset, self._model, empty, p)
                     if windows.shifts > 0 else None)
             self._folded = core.fold(self._folded, part, p, self._lag.shift, offset,
                                      self._model, smooth=self._smooth, total_h=total,
@@ -586,14 +587,14 @@ class OnlineCalibrator:
         return np.concatenate([self.theta, self._nuisance])
 
     def _take_p(self, p: FloatArray) -> None:
-        self.theta = np.asarray(p[core.THETA], dtype=np.float64).copy()
+        self.theta = np.asarray(p[fitting.THETA], dtype=np.float64).copy()
         self._nuisance = np.asarray(p[MODEL.size:], dtype=np.float64).copy()
 
     def _free_p(self) -> BoolArray:
         """The elements of p the running fit takes: theta, the offset where it has a prior, and
         the departures the core last took in (the wheels' smoothing among them only where it
         held out, as in batch: freed always, it took up what the common slip's coupling is)."""
-        return core.free_of(np.ones(self.theta.size, dtype=bool),
+        return fitting.free_of(np.ones(self.theta.size, dtype=bool),
                             offset=self._folded.offset_free,
                             entered=[n for n in self._entered if n != "lag"])
 
@@ -632,7 +633,7 @@ class OnlineCalibrator:
         follows = windows.follows & np.concatenate([[True], keep[:-1]])
         return dataclasses.replace(windows, follows=follows).take(keep)
 
-    def _solve(self, windows: WindowSet, *, max_iterations: int) -> core.Fit:
+    def _solve(self, windows: WindowSet, *, max_iterations: int) -> fitting.Fit:
         """Gauss-Newton over ``windows`` and the folded sums with the error model and lag of
         now, and the datasheet values with their uncertainty (``[identify] prior_std``) as a
         prior: the running estimate (the change detector's reference, where windows are
@@ -640,16 +641,16 @@ class OnlineCalibrator:
         the first bends), and the data decide the rest (the estimate published is the core's,
         from the datasheet values, without the prior)."""
         setup = self._setup(windows)
-        view = core.View.of(windows, self._lag.shift, self.heading_offset(),
+        view = fitting.View.of(windows, self._lag.shift, self.heading_offset(),
                             tau_h=setup.tau_h, across=setup.across, lateral=setup.lateral)
         free = self._free_p()
         with np.errstate(divide="ignore", over="ignore"):
             prior = 1.0 / np.square(np.asarray(self.settings.identify.prior_std, dtype=float))
         prior = np.where(np.isfinite(prior), prior, 0.0)
         h, b = self._folded.h.copy(), self._folded.b.copy()
-        h[core.THETA, core.THETA] += np.diag(prior)
-        b[core.THETA] += prior * self.datasheet
-        return core.solve(self._p(), view, free, self._model,
+        h[fitting.THETA, fitting.THETA] += np.diag(prior)
+        b[fitting.THETA] += prior * self.datasheet
+        return fitting.solve(self._p(), view, free, self._model,
                           dataclasses.replace(self._folded, h=h, b=b), np.ones(2),
                           max_iterations=max_iterations,
                           tolerance=self.settings.inverse.tolerance)
@@ -676,15 +677,15 @@ class OnlineCalibrator:
         with what the checks hold back, as batch); the running estimate, error model and lag
         follow it."""
         assert self._windows is not None
-        fitting = self._fitted() if windows is None else windows
-        found = core.fit(fitting, self._folded, self.settings,
+        chosen = self._fitted() if windows is None else windows
+        found = core.fit(chosen, self._folded, self.settings,
                          heading_offset=self.heading_offset(),
                          held=held_by_checks(self._diagnosis),
                          distance_only=self._diagnosis.no_differential,
-                         setup=self._setup(fitting))
+                         setup=self._setup(chosen))
         if found.free.any():
             p = found.fit.p.copy()
-            p[core.LAG] = 0.0                      # (the lag is the view's shift)
+            p[fitting.LAG] = 0.0                      # (the lag is the view's shift)
             self._take_p(p)
         self._model, self._lag, self._entered = found.model, found.lag, found.entered
         self._since_fit = 0
@@ -726,7 +727,7 @@ class OnlineCalibrator:
         if refused:
             status = Status.REJECTED
         total = found.fit.p.copy()
-        total[core.LAG] = found.lag.shift if "lag" in found.entered else 0.0
+        total[fitting.LAG] = found.lag.shift if "lag" in found.entered else 0.0
         named = fitted.findings(total, found.nuisance_std, found.entered,
                                 t_s=self._t_s or 0.0,
                                 reference_shift_s=self._departures.reference_shift_s,

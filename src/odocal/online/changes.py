@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from odocal.arrays import BoolArray, FloatArray
-from odocal.estimators import core
+from odocal.estimators import fitting
 from odocal.estimators.error_model import (
     CHANNELS,
     ErrorModel,
@@ -43,6 +43,7 @@ from odocal.estimators.error_model import (
     expected_revolutions,
     window_variance,
 )
+from odocal.estimators.lag import Lag
 from odocal.estimators.windows import WindowSet
 from odocal.model.vehicle import MODEL
 
@@ -143,9 +144,9 @@ def _predicted(windows: WindowSet, p: FloatArray, shift: float,
     """Each window's revolutions (W, 2) at the core's ``p`` (theta and the departures fitted;
     a spread of the wheels' timing left out: it moves a window by a tiny share) and their
     Jacobian in theta (W, 2, n)."""
-    pred, jac = core.wheels(np.asarray(p, dtype=np.float64),
-                            core.View.of(windows, shift, heading_offset), smooth=False)
-    return pred, jac[..., core.THETA]
+    pred, jac = fitting.wheels(np.asarray(p, dtype=np.float64),
+                            fitting.View.of(windows, shift, heading_offset), smooth=False)
+    return pred, jac[..., fitting.THETA]
 
 
 def disturbed(windows: WindowSet, p: FloatArray, shift: float,
@@ -323,8 +324,8 @@ class Change:
     std: FloatArray
 
 
-def estimate_change(windows: WindowSet, folded: core.Folded, suspect: Suspect, *,
-                    p: FloatArray, lag: core.Lag, heading_offset: float, model: ErrorModel,
+def estimate_change(windows: WindowSet, folded: fitting.Folded, suspect: Suspect, *,
+                    p: FloatArray, lag: Lag, heading_offset: float, model: ErrorModel,
                     smooth: bool, tolerance: float) -> Change | None:
     """Where a suspected change began and how large it is.
 
@@ -341,14 +342,14 @@ def estimate_change(windows: WindowSet, folded: core.Folded, suspect: Suspect, *
     after = np.arange(windows.size) >= index
     if int((steps.usable & after).sum()) < _MIN_WINDOWS:
         return None
-    theta_size = int(np.asarray(p[core.THETA]).size)
-    free = core.free_of(np.ones(theta_size, dtype=bool), kappa=smooth,
+    theta_size = int(np.asarray(p[fitting.THETA]).size)
+    free = fitting.free_of(np.ones(theta_size, dtype=bool), kappa=smooth,
                         offset=folded.offset_free)
     channels = np.ones(2)
     before_fit: FloatArray = np.asarray(suspect.reference, dtype=np.float64).copy()
     if index > 0 or folded.clusters:
-        view = core.View.of(windows.take(~after), lag.shift, heading_offset)
-        fit = core.solve(np.asarray(p, dtype=np.float64), view, free, model, folded, channels,
+        view = fitting.View.of(windows.take(~after), lag.shift, heading_offset)
+        fit = fitting.solve(np.asarray(p, dtype=np.float64), view, free, model, folded, channels,
                          max_iterations=5, tolerance=tolerance)
         if np.all(np.isfinite(fit.p)):
             before_fit = np.asarray(fit.p, dtype=np.float64).copy()
@@ -360,11 +361,11 @@ def estimate_change(windows: WindowSet, folded: core.Folded, suspect: Suspect, *
     start = before_fit.copy()
     if np.all(np.isfinite(first)):
         start[wheels] = suspect.reference[wheels] + first
-    view = core.View.of(mine, lag.shift, heading_offset)
-    wheels_free = np.zeros(core.P, dtype=bool)
+    view = fitting.View.of(mine, lag.shift, heading_offset)
+    wheels_free = np.zeros(fitting.P, dtype=bool)
     wheels_free[wheels] = True
-    empty = core.Folded(origin=folded.origin)
-    fit = core.solve(start, view, wheels_free, model, empty, channels, max_iterations=8,
+    empty = fitting.Folded(origin=folded.origin)
+    fit = fitting.solve(start, view, wheels_free, model, empty, channels, max_iterations=8,
                      tolerance=tolerance)
     if not np.all(np.isfinite(fit.p)):
         return None
@@ -409,7 +410,7 @@ def describe(change: Change, suspect: Suspect, *, detected_t: float,
                  wheel=wheel)
 
 
-def eliminate(folded: core.Folded, step: FloatArray) -> core.Folded:
+def eliminate(folded: fitting.Folded, step: FloatArray) -> fitting.Folded:
     """The folded sums with what they say about c_e and c_d taken out (profiled: they keep
     what they say about t_r, d and the lag's spread, whatever the wheels were), and their
     residual moments moved by the wheels' ``step``: the evidence from before a change of the
@@ -417,12 +418,12 @@ def eliminate(folded: core.Folded, step: FloatArray) -> core.Folded:
     import dataclasses
 
     wheels = list(WHEELS)
-    rest = [i for i in range(core.P) if i not in wheels]
+    rest = [i for i in range(fitting.P) if i not in wheels]
     h = folded.h
     h_cc = h[np.ix_(wheels, wheels)]
     if not np.any(h_cc):
         return dataclasses.replace(folded, last=None)
-    project = np.eye(core.P)                        # scores -> profiled scores
+    project = np.eye(fitting.P)                        # scores -> profiled scores
     gain = h[np.ix_(rest, wheels)] @ np.linalg.pinv(h_cc)
     project[np.ix_(rest, wheels)] = -gain
     project[wheels, :] = 0.0
@@ -432,7 +433,7 @@ def eliminate(folded: core.Folded, step: FloatArray) -> core.Folded:
     recent = folded.recent @ project.T
     # the coupling's residual moments, about origin: the windows' residuals at p are now those
     # they had at p - step (v = (1, p - origin) -> (1, p - step - origin))
-    move = np.eye(1 + core.P)
+    move = np.eye(1 + fitting.P)
     for i, s in zip(wheels, step, strict=True):
         move[1 + i, 0] = -float(s)
     coupling = np.einsum("ai,kab,bj->kij", move, folded.coupling, move)

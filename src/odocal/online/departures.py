@@ -40,7 +40,7 @@ from odocal.checks.departures import (
     Departures,
     heading_correction,
 )
-from odocal.estimators import core
+from odocal.estimators import core, fitting
 from odocal.estimators.windows import WindowSet
 from odocal.settings import Settings
 
@@ -114,22 +114,23 @@ def recorrected(windows: WindowSet, *, wheels_revps: tuple[float, float]) -> Win
     return dataclasses.replace(windows, measured=measured)
 
 
-def with_offset_prior(folded: core.Folded, settings: Settings, step_revps: float) -> core.Folded:
+def with_offset_prior(folded: fitting.Folded, settings: Settings,
+                      step_revps: float) -> fitting.Folded:
     """The folded sums with the wheel-rate offset's prior for rates encoded on a grid of
-    ``step_revps`` (as :meth:`odocal.estimators.core.Folded.prior` gives batch); as they are
+    ``step_revps`` (as :meth:`odocal.estimators.fitting.Folded.prior` gives batch); as they are
     where it is already fitted or the settings do not fit it."""
     return with_offset_std(folded, core.offset_prior_std(settings, step_revps))
 
 
-def with_offset_std(folded: core.Folded, std: float) -> core.Folded:
+def with_offset_std(folded: fitting.Folded, std: float) -> fitting.Folded:
     """The folded sums with a wheel-rate offset prior of ``std`` (rev/s); as they are where the
     offset is already fitted or ``std`` is 0."""
     if folded.offset_free or std <= 0:
         return folded
     precision = std ** -2.0
     h, meat = folded.h.copy(), folded.meat.copy()
-    h[core.OFFSET, core.OFFSET] += precision
-    meat[core.OFFSET, core.OFFSET] += precision
+    h[fitting.OFFSET, fitting.OFFSET] += precision
+    meat[fitting.OFFSET, fitting.OFFSET] += precision
     return dataclasses.replace(folded, h=h, meat=meat, offset_std=std)
 
 
