@@ -3,9 +3,9 @@
 The windows (:mod:`odocal.estimators.windows`) predict their revolutions for any theta; this
 module fits them. Batch calibration hands it every window of the drives and nothing folded;
 the online calibrator hands it the windows in memory and the older ones folded into sums
-(:class:`~odocal.estimators.fitting.Folded`): normal equations linearised at the estimate of their time, the clusters'
-scores for the covariance, and the error model's sums. With nothing folded, the two are the
-same computation, to the last digit.
+(:class:`~odocal.estimators.fitting.Folded`): normal equations linearised at the estimate of
+their time, the clusters' scores for the covariance, and the error model's sums. With nothing
+folded, the two are the same computation, to the last digit.
 
 The procedure (:func:`fit`):
 
@@ -213,37 +213,18 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
     c_d, t_r and d held by the caller).
     """
     setup = setup or Setup(blocks=())
-    cfg = settings.inverse
-    datasheet = np.asarray(settings.identify.theta0, dtype=np.float64)
-    held = dict(held or {})
-    peak = max(float(windows.peak_yaw_radps.max(initial=0.0)), folded.peak_yaw_radps)
-    if peak <= settings.segments.yaw_rate_threshold_radps:
-        # t_r and d act on the yaw rate only in bends (METHOD 2)
-        for name in LAYOUT.bends:
-            held.setdefault(name, NotIdentified(Reason.NEEDS_BENDS, detail=peak))
+    held = _held_without_bends(windows, folded, settings, dict(held or {}))
     free = np.array([name not in held for name in LAYOUT.names])
-    timing = cfg.delay == "estimate" and not distance_only and windows.shifts > 0
-    blocks = [b for b in setup.blocks
-              if (timing or b[0] not in dep.TIMING)
-              and (setup.lateral or b[0] not in dep.LATERAL)
-              and (setup.across or b[0] not in dep.ACROSS)
-              and not (distance_only and b[0] in ("offset_left", "lag", "spread", "arm_y",
-                                                  "curve", "cut"))
-              and not any(n in setup.stated for n in b)]
+    timing = settings.inverse.delay == "estimate" and not distance_only and windows.shifts > 0
+    blocks = _allowed_blocks(setup, timing=timing, distance_only=distance_only)
     channels = np.array([1.0, 0.0 if distance_only else 1.0])
     unseen_d = LAYOUT.load in held and held[LAYOUT.load].reason is Reason.NO_LATERAL
-    p0 = pack(datasheet)
+    p0 = pack(np.asarray(settings.identify.theta0, dtype=np.float64))
     for name, value in setup.stated.items():
         p0[dep.at(name)] = value
     ctx = _Context(windows, folded, settings, heading_offset, channels, unseen_d, setup)
-    entered: list[str] = [n for b in blocks for n in b if b[0] in setup.kept]
-    excluded: set[tuple[str, ...]] = set()
-
-    def nuisance_free() -> BoolArray:
-        return free_of(np.zeros(LAYOUT.size, dtype=bool), offset=folded.offset_free,
-                       entered=entered)
-
-    state = ctx.run(p0, free, nuisance_free(), change=-1)
+    entered = _Entered([n for b in blocks for n in b if b[0] in setup.kept], folded.offset_free)
+    state = ctx.run(p0, free, entered.free(), change=-1)
     h_theta = state.fit.normal_equations(folded)[0][THETA, THETA]
     informed = numerically_free(h_theta, settings.identify.prior_std, free)
     if not np.array_equal(informed, free):
@@ -251,52 +232,104 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
         for j in np.flatnonzero(free & ~informed):
             held[LAYOUT.names[j]] = NotIdentified(Reason.NO_INFORMATION)
         free = informed
-        state = ctx.run(p0, free, nuisance_free(), change=-1)
-    statistics: tuple[dep.Statistic, ...] = ()
-    change = -1
-    rivals: dict[str, dict[str, float]] = {}
-    for _ in range(len(blocks)):
-        statistics = ctx.tests(state, free, nuisance_free(),
-                               [b for b in blocks if b[0] not in entered and b not in excluded])
-        # the one that holds out most, less its penalty (one wheel's offset or both wheels'
-        # alike: the one that needs fewer parameters where both explain as much)
-        best = max((s for s in statistics if s.holds), key=lambda s: s.value - s.penalty,
-                   default=None)
-        if best is None:
-            break
-        entered.extend(best.block)
-        rivals[best.block[0]] = {st.block[0]: st.value for st in statistics}
-        rivals[best.block[0]]["penalty"] = best.penalty
-        trial = ctx.run(state.fit.p, free, nuisance_free(),
-                        change=best.where if best.block[0] == "change_e" else change)
-        if not _acceptable(trial, settings) or not _determined(
-                trial, windows, folded, free_of(free) | nuisance_free(), best.block):
-            del entered[-len(best.block):]
-            excluded.add(best.block)
-            continue
-        state = trial
-        if best.block[0] == "change_e":
-            change = best.where
-    with_nuisance = nuisance_free()
-    before_verdict = (state.fit, free_of(free, entered=[n for n in entered if n != "lag"])
+        state = ctx.run(p0, free, entered.free(), change=-1)
+    state = _enter_departures(ctx, state, free, blocks, entered)
+    with_nuisance = entered.free()
+    before_verdict = (state.fit, free_of(free, entered=[n for n in entered.names if n != "lag"])
                       | (with_nuisance & (np.arange(P) == OFFSET)))
     if folded.clusters:
         # live, with windows folded: their sums stand at the shifts of their time, so the lag
         # is the windows' shift (found on the scan of every window, folded or not), not a
         # parameter whose information the sums could share with theta's
         with_nuisance[LAG] = False
-    free, held, state, uncertainty = _identified(state, ctx, free, held, with_nuisance, change)
+    free, held, state, uncertainty = _identified(state, ctx, free, held, with_nuisance,
+                                                 entered.change)
     uncertainty = lateral_doubt(uncertainty, state.fit.p, free)
-    if "spread" in entered and not folded.clusters:
+    if "spread" in entered.names and not folded.clusters:
         uncertainty = _skew_doubt(uncertainty, state, ctx, free_of(free) | with_nuisance)
     lag = state.lag
-    if "lag" in entered:
+    if "lag" in entered.names:
         lag = dataclasses.replace(lag, shift=lag.shift + float(state.fit.p[LAG]),
                                   std=float(uncertainty.p_std[LAG]))
     return CoreFit(fit=state.fit, free=free, held=held, uncertainty=uncertainty, lag=lag,
-                   model=state.model, heading_offset=heading_offset, entered=tuple(entered),
-                   statistics=statistics, change=change, before_verdict=before_verdict,
-                   rivals=rivals)
+                   model=state.model, heading_offset=heading_offset,
+                   entered=tuple(entered.names), statistics=entered.statistics,
+                   change=entered.change, before_verdict=before_verdict, rivals=entered.rivals)
+
+
+def _held_without_bends(windows: WindowSet, folded: Folded, settings: Settings,
+                        held: dict[str, NotIdentified]) -> dict[str, NotIdentified]:
+    """``held`` with the parameters that act on the yaw rate only in bends (t_r and d,
+    METHOD 2) held where no window turns faster than ``[segments] yaw_rate_threshold_radps``."""
+    peak = max(float(windows.peak_yaw_radps.max(initial=0.0)), folded.peak_yaw_radps)
+    if peak <= settings.segments.yaw_rate_threshold_radps:
+        for name in LAYOUT.bends:
+            held.setdefault(name, NotIdentified(Reason.NEEDS_BENDS, detail=peak))
+    return held
+
+
+def _allowed_blocks(setup: Setup, *, timing: bool,
+                    distance_only: bool) -> list[tuple[str, ...]]:
+    """The departures a fit may take: those whose channels it has (timing, the reference's
+    sideways motion, a_y), none the user stated, and on the distance channel alone none that
+    only the wheels' difference shows."""
+    return [b for b in setup.blocks
+            if (timing or b[0] not in dep.TIMING)
+            and (setup.lateral or b[0] not in dep.LATERAL)
+            and (setup.across or b[0] not in dep.ACROSS)
+            and not (distance_only and b[0] in ("offset_left", "lag", "spread", "arm_y",
+                                                "curve", "cut"))
+            and not any(n in setup.stated for n in b)]
+
+
+@dataclass
+class _Entered:
+    """The departures entered so far (in the order they entered), their last score tests, the
+    change's window (-1: none) and, per departure, its rivals' held-out gains."""
+
+    names: list[str]
+    offset_free: bool
+    statistics: tuple[dep.Statistic, ...] = ()
+    change: int = -1
+    rivals: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    def free(self) -> BoolArray:
+        """The elements of p beyond theta that are fitted."""
+        return free_of(np.zeros(LAYOUT.size, dtype=bool), offset=self.offset_free,
+                       entered=self.names)
+
+
+def _enter_departures(ctx: _Context, state: _State, free: BoolArray,
+                      blocks: Sequence[tuple[str, ...]], entered: _Entered) -> _State:
+    """The departures' one rule, in rounds: the one whose held-out test holds out most above
+    its penalty enters and the fit is redone; one that leaves the fit unacceptable or not
+    determined is taken out again and not tried again. ``entered`` is updated in place."""
+    excluded: set[tuple[str, ...]] = set()
+    for _ in range(len(blocks)):
+        statistics = ctx.tests(state, free, entered.free(),
+                               [b for b in blocks
+                                if b[0] not in entered.names and b not in excluded])
+        entered.statistics = statistics
+        # the one that holds out most, less its penalty (one wheel's offset or both wheels'
+        # alike: the one that needs fewer parameters where both explain as much)
+        best = max((s for s in statistics if s.holds), key=lambda s: s.value - s.penalty,
+                   default=None)
+        if best is None:
+            break
+        entered.names.extend(best.block)
+        entered.rivals[best.block[0]] = {st.block[0]: st.value for st in statistics}
+        entered.rivals[best.block[0]]["penalty"] = best.penalty
+        trial = ctx.run(state.fit.p, free, entered.free(),
+                        change=best.where if best.block[0] == "change_e" else entered.change)
+        if not _acceptable(trial, ctx.settings) or not _determined(
+                trial, ctx.windows, ctx.folded, free_of(free) | entered.free(), best.block):
+            del entered.names[-len(best.block):]
+            excluded.add(best.block)
+            continue
+        state = trial
+        if best.block[0] == "change_e":
+            entered.change = best.where
+    return state
 
 
 #: A drive departs from the others where its windows' evidence against their fit is beyond

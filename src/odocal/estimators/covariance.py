@@ -175,29 +175,10 @@ def bootstrap(result: Estimate, information: FloatArray, scores: FloatArray, clu
     theta = result.theta.as_array()
     free = np.array(result.free)
     rng = np.random.default_rng(seed)
-    labels, index = np.unique(clusters, return_inverse=True)
-    n_clusters = labels.shape[0]
     count = settings.bootstrap_count
-    samples = np.tile(theta, (count, 1))
-    if free.any() and n_clusters > 1:
-        draws = [np.bincount(rng.integers(0, n_clusters, n_clusters), minlength=n_clusters)
-                 for _ in range(count)]
-        if settings.bootstrap_mode == "full" and refit is not None:
-            members = [np.flatnonzero(index == c) for c in range(n_clusters)]
-            for b, w in enumerate(draws):
-                take = np.concatenate([np.tile(members[c], int(k)) for c, k in enumerate(w)
-                                       if k])
-                samples[b] = refit(take)
-        else:
-            h = np.zeros((n_clusters, PARAMETERS, PARAMETERS))
-            g = np.zeros((n_clusters, PARAMETERS))
-            np.add.at(h, index, information)
-            np.add.at(g, index, scores)
-            cols = np.flatnonzero(free)
-            for b, w in enumerate(draws):
-                hw = np.einsum("c,cij->ij", w.astype(float), h)[np.ix_(cols, cols)]
-                samples[b, cols] = theta[cols] + np.linalg.lstsq(hw, w @ g[:, cols],
-                                                                 rcond=None)[0]
+    samples, n_clusters = _resampled(theta, free, information, scores, clusters, count=count,
+                                     rng=rng, refit=refit if settings.bootstrap_mode == "full"
+                                     else None)
     if step1_thetas is not None and step1_sets > 0 and step1_thetas.shape[0] > 1:
         # the compensated rates inherit the mean of the step-1 sets: redraw those sets
         centre = step1_thetas.mean(axis=0)
@@ -224,6 +205,36 @@ def bootstrap(result: Estimate, information: FloatArray, scores: FloatArray, clu
     return BootstrapResult(mode=settings.bootstrap_mode, samples=samples, std=std,
                            covariance_std=cov_std, ratio=ratio,
                            agree=agree, message=message)
+
+
+def _resampled(theta: FloatArray, free: BoolArray, information: FloatArray, scores: FloatArray,
+               clusters: IntArray, *, count: int, rng: np.random.Generator,
+               refit: Callable[[IntArray], FloatArray] | None) -> tuple[FloatArray, int]:
+    """``count`` thetas (count, n), each from the clusters drawn with replacement: refitted by
+    ``refit`` where given, else one Gauss-Newton step from ``theta``; and the clusters' number.
+    With one cluster or nothing free, every sample is ``theta``."""
+    labels, index = np.unique(clusters, return_inverse=True)
+    n_clusters = labels.shape[0]
+    samples = np.tile(theta, (count, 1))
+    if not free.any() or n_clusters <= 1:
+        return samples, n_clusters
+    draws = [np.bincount(rng.integers(0, n_clusters, n_clusters), minlength=n_clusters)
+             for _ in range(count)]
+    if refit is not None:
+        members = [np.flatnonzero(index == c) for c in range(n_clusters)]
+        for b, w in enumerate(draws):
+            take = np.concatenate([np.tile(members[c], int(k)) for c, k in enumerate(w) if k])
+            samples[b] = refit(take)
+        return samples, n_clusters
+    h = np.zeros((n_clusters, PARAMETERS, PARAMETERS))
+    g = np.zeros((n_clusters, PARAMETERS))
+    np.add.at(h, index, information)
+    np.add.at(g, index, scores)
+    cols = np.flatnonzero(free)
+    for b, w in enumerate(draws):
+        hw = np.einsum("c,cij->ij", w.astype(float), h)[np.ix_(cols, cols)]
+        samples[b, cols] = theta[cols] + np.linalg.lstsq(hw, w @ g[:, cols], rcond=None)[0]
+    return samples, n_clusters
 
 
 #: Fewer clusters than this: the covariance of the default method is the larger of the sandwich
@@ -305,43 +316,14 @@ def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray
     h_inv = np.zeros((P, P))
     if cols.size:
         h_inv[np.ix_(cols, cols)] = np.linalg.pinv(h[np.ix_(cols, cols)])
-    meat = folded.meat.copy()
-    clusters = folded.clusters
-    if windows.size:
-        adjusted, labels = leverage_adjusted_scores(info, scores, free, windows.cluster, total=h)
-        clusters += labels.size
-        meat += added_meat(folded.recent, adjusted)
-    meat[~free, :] = 0.0
-    meat[:, ~free] = 0.0
-    values, vectors = np.linalg.eigh(meat)
-    meat = (vectors * np.clip(values, 0.0, None)) @ vectors.T
-    correction = clusters / (clusters - 1) if clusters > 1 else 1.0
-    cov = correction * (h_inv @ meat @ h_inv)
+    cov, clusters = _sandwich(info, scores, h, h_inv, windows, folded, free)
     # the residual-variance (model-based) covariance: the error model's, from every row that
     # counts in the cost
     count = int(np.count_nonzero(current.white[..., 0])) + folded.count
     naive = (current.cost + folded.cost) / max(count - int(free.sum()), 1) * h_inv
-    s_n = np.sqrt(np.clip(np.diag(naive), 0.0, None))
-    s_r = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    # The sandwich is needed where the errors are not what the error model says (correlated
-    # over seconds, a reference's own): what it adds beyond the model-based variance rests on
-    # the clusters the parameter's information comes from, few for t_r and d on a short drive
-    # (Satterthwaite's effective number; t_r's from the few clusters with bends), so it is
-    # widened by Student's t at the three-sigma tail for them. Where the two agree the error
-    # model holds, and its variance, from every window, needs no widening. With fewer than
-    # MIN_CLUSTERS_FOR_ROBUST clusters the larger of the two is taken as it stands.
     effective = _effective_clusters(info, windows.cluster, folded, h_inv) if windows.size \
         else np.full(P, float(clusters))
-    f = np.array([tail_inflation(max(float(e), 2.0)) if e > 0 else 1.0 for e in effective])
-    if clusters < 2 or not few:
-        f[:] = 1.0                # one cluster: the one-cluster rule leaves nothing identified
-    with np.errstate(divide="ignore", invalid="ignore"):
-        if clusters < MIN_CLUSTERS_FOR_ROBUST:
-            target = np.maximum(s_n, s_r) * f
-        else:
-            target = np.sqrt(s_n ** 2 + f ** 2 * np.clip(s_r ** 2 - s_n ** 2, 0.0, None))
-        scale = np.where(s_r > 0, target / s_r, 1.0)
-    cov = cov * np.outer(scale, scale)
+    cov = _widened(cov, naive, effective, clusters, few=few)
     base = np.sqrt(np.clip(np.diag(cov)[THETA], 0.0, None))
     if nuisance is not None:
         for j in np.flatnonzero(nuisance > 0):
@@ -353,6 +335,49 @@ def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray
     p_std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     return Uncertainty(cov[THETA, THETA], clusters, info[:, THETA, THETA], scores[:, THETA],
                        widening, float(p_std[OFFSET]), p_std, cov)
+
+
+def _sandwich(info: FloatArray, scores: FloatArray, h: FloatArray, h_inv: FloatArray,
+              windows: WindowSet, folded: Folded, free: BoolArray) -> tuple[FloatArray, int]:
+    """The cluster-robust covariance of p (P, P), ``H^-1 meat H^-1`` with the windows' clusters'
+    leverage-scaled scores and the folded meat, small-sample corrected; and the clusters."""
+    meat = folded.meat.copy()
+    clusters = folded.clusters
+    if windows.size:
+        adjusted, labels = leverage_adjusted_scores(info, scores, free, windows.cluster, total=h)
+        clusters += labels.size
+        meat += added_meat(folded.recent, adjusted)
+    meat[~free, :] = 0.0
+    meat[:, ~free] = 0.0
+    values, vectors = np.linalg.eigh(meat)
+    meat = (vectors * np.clip(values, 0.0, None)) @ vectors.T
+    correction = clusters / (clusters - 1) if clusters > 1 else 1.0
+    return correction * (h_inv @ meat @ h_inv), clusters
+
+
+def _widened(cov: FloatArray, naive: FloatArray, effective: FloatArray, clusters: int, *,
+             few: bool) -> FloatArray:
+    """The sandwich ``cov`` scaled so that what it adds beyond the model-based ``naive`` is
+    widened by Student's t for the ``effective`` clusters each element rests on."""
+    s_n = np.sqrt(np.clip(np.diag(naive), 0.0, None))
+    s_r = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    # The sandwich is needed where the errors are not what the error model says (correlated
+    # over seconds, a reference's own): what it adds beyond the model-based variance rests on
+    # the clusters the parameter's information comes from, few for t_r and d on a short drive
+    # (Satterthwaite's effective number; t_r's from the few clusters with bends), so it is
+    # widened by Student's t at the three-sigma tail for them. Where the two agree the error
+    # model holds, and its variance, from every window, needs no widening. With fewer than
+    # MIN_CLUSTERS_FOR_ROBUST clusters the larger of the two is taken as it stands.
+    f = np.array([tail_inflation(max(float(e), 2.0)) if e > 0 else 1.0 for e in effective])
+    if clusters < 2 or not few:
+        f[:] = 1.0                # one cluster: the one-cluster rule leaves nothing identified
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if clusters < MIN_CLUSTERS_FOR_ROBUST:
+            target = np.maximum(s_n, s_r) * f
+        else:
+            target = np.sqrt(s_n ** 2 + f ** 2 * np.clip(s_r ** 2 - s_n ** 2, 0.0, None))
+        scale = np.where(s_r > 0, target / s_r, 1.0)
+    return np.asarray(cov * np.outer(scale, scale))
 
 
 def _effective_clusters(info: FloatArray, cluster: IntArray, folded: Folded,
