@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -78,9 +79,11 @@ def _stamp(msg: Any) -> float | None:
     return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
 
 
-def read_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,
-                circumference_m: float) -> RawLog:
-    """One raw log from a ROS 1 bag, ROS 2 bag folder or MCAP file."""
+@contextmanager
+def _opened(source: str | Path) -> Iterator[tuple[Path, Any, dict[str, str]]]:
+    """The bag at ``source`` open for reading (a ROS 1 bag, a ROS 2 bag folder or an MCAP
+    file): its path, the rosbags reader and its topics' message types; closed on leaving.
+    A missing or unreadable bag is a one-line error."""
     try:
         from rosbags.highlevel import AnyReader
     except ImportError as err: # pragma: no cover - rosbags is a dependency
@@ -96,11 +99,17 @@ def read_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,
         raise DataError(f"'{path}' cannot be read as a ROS bag or MCAP file: "
                         f"{type(exc).__name__}: {exc}") from exc
     try:
-        topics = {c.topic: _normalise_type(c.msgtype) for c in reader.connections}
-        plan = _plan(path, topics, mapping)
-        raw = _collect(reader, plan, path)
+        yield path, reader, {c.topic: _normalise_type(c.msgtype) for c in reader.connections}
     finally:
         reader.close()
+
+
+def read_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,
+                circumference_m: float) -> RawLog:
+    """One raw log from a ROS 1 bag, ROS 2 bag folder or MCAP file."""
+    with _opened(source) as (path, reader, topics):
+        plan = _plan(path, topics, mapping)
+        raw = _collect(reader, plan, path)
     streams: dict[str, Stream] = {}
     origin: list[tuple[float, float, float]] = []
     for role in ("gnss", "wheels", "imu", "pose", "heading"):
@@ -128,22 +137,7 @@ def iter_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,
     :func:`read_rosbag` converts them (encoder ticks, whose rates need neighbouring counts, are
     not supported here). GNSS positions are not streamed (they need the whole log's fusion).
     """
-    try:
-        from rosbags.highlevel import AnyReader
-    except ImportError as err: # pragma: no cover - rosbags is a dependency
-        raise MissingDependencyError("reading ROS bags needs 'rosbags' (pip install rosbags)") \
-            from err
-    path = Path(source)
-    if not path.exists():
-        raise InputFileError(f"bag '{path}' does not exist")
-    try:
-        reader = AnyReader([path])
-        reader.open()
-    except Exception as exc:  # rosbags raises several kinds for a corrupt or unknown file
-        raise DataError(f"'{path}' cannot be read as a ROS bag or MCAP file: "
-                        f"{type(exc).__name__}: {exc}") from exc
-    try:
-        topics = {c.topic: _normalise_type(c.msgtype) for c in reader.connections}
+    with _opened(source) as (path, reader, topics):
         plan = {role: entry for role, entry in _plan(path, topics, mapping).items()
                 if role in ("wheels", "imu", "pose")}
         if "pose" not in plan:
@@ -176,8 +170,6 @@ def iter_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,
                 for key, value in _extract(role, section, msg, joint_index, conn.topic).items():
                     cols.setdefault(key, []).append(value)
         yield _chunk_streams(columns, plan, circumference_m)
-    finally:
-        reader.close()
 
 
 def _chunk_streams(columns: Mapping[str, Mapping[str, list[float]]],
