@@ -42,8 +42,9 @@ import numpy as np
 
 from odocal.arrays import FloatArray
 from odocal.checks.findings import Check, Finding, Severity
+from odocal.checks.seconds import pieces
 from odocal.data.drive import Drive
-from odocal.model.kinematics import body_rates, midpoint_heading, motion_increments
+from odocal.model.kinematics import body_rates, motion_increments
 from odocal.settings import ChecksSettings, Settings
 
 
@@ -153,23 +154,15 @@ def _seconds(drives: Sequence[Drive]) -> tuple[FloatArray, FloatArray, FloatArra
     """One-second sums of every piece: distance, turn, the course's gap to the heading (rad)
     and the heading at the middle."""
     out: list[list[FloatArray]] = [[], [], [], []]
-    for d in drives:
-        size = max(round(1.0 / d.t_s), 1)
-        for a, b in d.pieces:
-            n = (b - a - 1) // size
-            if n < 1:
-                continue
-            ds, _ = motion_increments(d.x[a:b], d.y[a:b], d.psi[a:b], d.beta[a:b])
-            starts = a + size * np.arange(n)
-            dx = d.x[starts + size] - d.x[starts]
-            dy = d.y[starts + size] - d.y[starts]
-            turn = d.psi[starts + size] - d.psi[starts]
-            heading = midpoint_heading(d.psi[starts], turn, d.beta[starts])
-            gap = np.remainder(np.arctan2(dy, dx) - heading + np.pi, 2 * np.pi) - np.pi
-            out[0].append(ds[:n * size].reshape(n, size).sum(axis=1))
-            out[1].append(turn)
-            out[2].append(gap)
-            out[3].append(heading)
+    for piece in pieces(drives):
+        d = piece.drive
+        ds, _ = motion_increments(d.x[piece.a:piece.b], d.y[piece.a:piece.b],
+                                  d.psi[piece.a:piece.b], d.beta[piece.a:piece.b])
+        turn, heading, gap = piece.course()
+        out[0].append(piece.sums(ds))
+        out[1].append(turn)
+        out[2].append(gap)
+        out[3].append(heading)
     cat = [np.concatenate(x) if x else np.zeros(0) for x in out]
     return cat[0], cat[1], cat[2], cat[3]
 

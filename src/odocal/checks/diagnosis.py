@@ -38,8 +38,9 @@ import numpy as np
 from odocal.arrays import BoolArray, FloatArray
 from odocal.checks.departures import lateral_delay, wheel_lag_s
 from odocal.checks.findings import Check, Diagnosis, Finding, Severity
+from odocal.checks.seconds import pieces
 from odocal.data.drive import Drive
-from odocal.model.kinematics import body_rates, midpoint_heading, motion_increments
+from odocal.model.kinematics import body_rates, motion_increments
 from odocal.model.layout import REAR_AXLE as LAYOUT
 from odocal.model.vehicle import MODEL
 from odocal.settings import ChecksSettings, GateSettings, Settings
@@ -68,41 +69,26 @@ def _windows(drives: Sequence[Drive], theta: FloatArray) -> _Windows:
     names = ("t", "ds", "dpsi", "gap", "wds", "wdpsi", "diff", "left", "right", "ay", "vw",
              "series", "drive")
     parts: dict[str, list[FloatArray]] = {k: [] for k in names}
-    series = 0
-    for index, d in enumerate(drives):
-        length = max(round(1.0 / d.t_s), 1)
-        for a, b in d.pieces:
-            n = (b - a - 1) // length
-            if n < 1:
-                continue
-            ds, dpsi = motion_increments(d.x[a:b], d.y[a:b], d.psi[a:b], d.beta[a:b])
-            v, w = body_rates(theta, d.n_rl[a:b - 1], d.n_rr[a:b - 1], d.a_y[a:b - 1])
-            cut = n * length
-
-            def wsum(x: FloatArray, cut: int = cut, length: int = length) -> FloatArray:
-                return x[:cut].reshape(-1, length).sum(axis=1)
-
-            starts = a + length * np.arange(n)
-            dx = d.x[starts + length] - d.x[starts]
-            dy = d.y[starts + length] - d.y[starts]
-            turn = d.psi[starts + length] - d.psi[starts]
-            heading = midpoint_heading(d.psi[starts], turn, wsum(d.beta[a:b - 1]) / length)
-            gap = np.remainder(np.arctan2(dy, dx) - heading + np.pi, 2 * np.pi) - np.pi
-            parts["t"].append(d.t[starts])
-            parts["ds"].append(wsum(ds))
-            parts["dpsi"].append(wsum(dpsi))
-            parts["gap"].append(gap)
-            parts["wds"].append(wsum(v * d.t_s))
-            parts["wdpsi"].append(wsum(w * d.t_s))
-            revs = np.column_stack([d.n_rl[a:b - 1], d.n_rr[a:b - 1]]) * d.t_s
-            parts["diff"].append(wsum(revs @ MODEL.channel_map[1]))    # the yaw channel
-            parts["left"].append(wsum(d.n_rl[a:b - 1] * d.t_s))
-            parts["right"].append(wsum(d.n_rr[a:b - 1] * d.t_s))
-            parts["ay"].append(wsum(d.a_y[a:b - 1]) / length)
-            parts["vw"].append(wsum(ds * dpsi) / (length * d.t_s**2))
-            parts["series"].append(np.full(n, float(series)))
-            parts["drive"].append(np.full(n, float(index)))
-            series += 1
+    for series, piece in enumerate(pieces(drives)):
+        d, a, b, n = piece.drive, piece.a, piece.b, piece.count
+        ds, dpsi = motion_increments(d.x[a:b], d.y[a:b], d.psi[a:b], d.beta[a:b])
+        v, w = body_rates(theta, d.n_rl[a:b - 1], d.n_rr[a:b - 1], d.a_y[a:b - 1])
+        _, _, gap = piece.course()
+        wsum = piece.sums
+        parts["t"].append(d.t[piece.starts])
+        parts["ds"].append(wsum(ds))
+        parts["dpsi"].append(wsum(dpsi))
+        parts["gap"].append(gap)
+        parts["wds"].append(wsum(v * d.t_s))
+        parts["wdpsi"].append(wsum(w * d.t_s))
+        revs = np.column_stack([d.n_rl[a:b - 1], d.n_rr[a:b - 1]]) * d.t_s
+        parts["diff"].append(wsum(revs @ MODEL.channel_map[1]))    # the yaw channel
+        parts["left"].append(wsum(d.n_rl[a:b - 1] * d.t_s))
+        parts["right"].append(wsum(d.n_rr[a:b - 1] * d.t_s))
+        parts["ay"].append(wsum(d.a_y[a:b - 1]) / piece.size)
+        parts["vw"].append(wsum(ds * dpsi) / (piece.size * d.t_s**2))
+        parts["series"].append(np.full(n, float(series)))
+        parts["drive"].append(np.full(n, float(piece.index)))
     cat = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
     return _Windows(t=cat["t"], ds=cat["ds"], dpsi=cat["dpsi"], course_gap=cat["gap"],
                     wheel_ds=cat["wds"], wheel_dpsi=cat["wdpsi"], diff_revs=cat["diff"],

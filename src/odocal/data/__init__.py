@@ -3,5 +3,6 @@
 Owns :class:`~odocal.data.drive.Drive` (checked on creation: units, limits, spikes) and the
 identification and validation segments (:mod:`.segments`).
 
-May import: :mod:`odocal.model`, :mod:`odocal.errors`, :mod:`odocal.settings`.
+May import: :mod:`odocal.model` and the leaves (:mod:`odocal.errors`, :mod:`odocal.settings`,
+:mod:`odocal.arrays`).
 """

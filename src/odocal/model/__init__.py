@@ -4,5 +4,5 @@ Owns the parameters and inputs (:mod:`.parameters`), the one model step with its
 (:mod:`.step`), every rollout and Jacobian built from it (:mod:`.kinematics`, :mod:`.jacobians`),
 and the model run backwards: the wheel revolutions a step's motion implies.
 
-May import: numpy, numba, :mod:`odocal.errors`. Nothing else of odocal.
+May import: numpy, numba, :mod:`odocal.errors`, :mod:`odocal.arrays`. Nothing else of odocal.
 """
