@@ -43,6 +43,7 @@ import numpy as np
 from odocal.arrays import FloatArray
 from odocal.checks.findings import Check, Finding, Severity
 from odocal.checks.seconds import pieces
+from odocal.correlation import correlations
 from odocal.data.drive import Drive
 from odocal.model.kinematics import body_rates, motion_increments
 from odocal.settings import ChecksSettings, Settings
@@ -91,31 +92,14 @@ def _pieces(drives: Sequence[Drive], seconds: float) -> list[tuple[Drive, int, i
 def best_lag(pairs: Sequence[tuple[FloatArray, FloatArray]], span: int, t_s: float,
              min_correlation: float) -> float | None:
     """The lag (s) of ``b`` behind ``a`` within ``span`` steps either way that correlates them
-    best, summed over the pairs of series, refined between steps by a parabola; None where even
-    the best correlation is below ``min_correlation`` (a signal that hardly varies, a circle at
-    one rate, has no timing to find)."""
-    scores = np.zeros(2 * span + 1)
-    energy_a = energy_b = 0.0
-    for a, b in pairs:
-        a, b = a - a.mean(), b - b.mean()
-        n = a.size
-        size = 1 << math.ceil(math.log2(max(2 * n, 2)))
-        # the cross-correlation at every lag by FFT: sum_i a[i] b[i + k]
-        full = np.fft.irfft(np.conj(np.fft.rfft(a, size)) * np.fft.rfft(b, size), size)
-        lags = np.arange(-span, span + 1)
-        scores += full[lags % size]
-        energy_a, energy_b = energy_a + float(a @ a), energy_b + float(b @ b)
-    best = int(np.argmax(scores))
-    if energy_a <= 0 or energy_b <= 0 \
-            or scores[best] < min_correlation * np.sqrt(energy_a * energy_b):
+    best over the pairs of series (:mod:`odocal.correlation`'s tapered estimate: a clock
+    offset is a few steps over long pieces); None where even the best correlation is below
+    ``min_correlation`` (a signal that hardly varies, a circle at one rate, has no timing to
+    find)."""
+    peak = correlations(pairs, span, estimate="tapered").peak()
+    if peak is None or peak.correlation < min_correlation:
         return None
-    shift = 0.0
-    if 0 < best < scores.size - 1:
-        c0, c1, c2 = scores[best - 1:best + 2]
-        curvature = c0 - 2.0 * c1 + c2
-        if curvature < 0:
-            shift = 0.5 * (c0 - c2) / curvature
-    return float((best - span + shift) * t_s)
+    return peak.steps * t_s
 
 
 def lateral_lag_s(drives: Sequence[Drive], settings: Settings) -> float | None:

@@ -39,6 +39,7 @@ from odocal.arrays import BoolArray, FloatArray
 from odocal.checks.departures import lateral_delay, wheel_lag_s
 from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.checks.seconds import pieces
+from odocal.correlation import correlations
 from odocal.data.drive import Drive
 from odocal.model.kinematics import body_rates, motion_increments
 from odocal.model.layout import REAR_AXLE as LAYOUT
@@ -94,13 +95,6 @@ def _windows(drives: Sequence[Drive], theta: FloatArray) -> _Windows:
                     wheel_ds=cat["wds"], wheel_dpsi=cat["wdpsi"], diff_revs=cat["diff"],
                     left_revs=cat["left"], right_revs=cat["right"], a_y=cat["ay"],
                     v_w=cat["vw"], series=cat["series"], drive=cat["drive"])
-
-
-def _correlation(a: FloatArray, b: FloatArray) -> float:
-    a = a - a.mean()
-    b = b - b.mean()
-    denominator = float(np.sqrt((a @ a) * (b @ b)))
-    return float(a @ b) / denominator if denominator > 0 else 0.0
 
 
 def _agreement(a: FloatArray, b: FloatArray) -> float:
@@ -232,23 +226,16 @@ def _sync(win: _Windows, lim: ChecksSettings) -> list[Finding]:
     spread = lim.sync_min_speed_spread_mps
     if wheels.size < lim.sync_min_seconds or ref.std() < spread or wheels.std() < spread:
         return []
-    here = _correlation(wheels, ref)
+    pairs = [(wheels[win.series == k], ref[win.series == k]) for k in np.unique(win.series)]
+    here = float(correlations(pairs, 0).values[0])
     if here >= lim.sync_min_correlation:
         return []
-    best, lag = here, float("nan")
-    reach = min(int(lim.sync_max_search_s), wheels.size // 2)
-    for k in range(-reach, reach + 1):
-        if k == 0:
-            continue
-        a, b = (wheels[:wheels.size - k], ref[k:]) if k > 0 else (wheels[-k:], ref[:k])
-        same = win.series[:win.series.size - abs(k)] == win.series[abs(k):]
-        if same.sum() < lim.sync_min_seconds:
-            continue
-        c = _correlation(a[same], b[same])
-        if c > best:
-            best, lag = c, float(k)
-    if best < lim.sync_lag_min_correlation:
-        lag = float("nan")
+    found = correlations(pairs, min(int(lim.sync_max_search_s), wheels.size // 2))
+    peak = found.peak((found.overlap >= lim.sync_min_seconds) & (found.lags != 0))
+    lag = float("nan")
+    if peak is not None and peak.correlation > here \
+            and peak.correlation >= lim.sync_lag_min_correlation:
+        lag = peak.steps                               # steps of one second
     return [Finding(Check.REFERENCE_SYNC, Severity.FATAL, lag, here)]
 
 

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from odocal.arrays import BoolArray, FloatArray
+from odocal.correlation import correlations
 from odocal.errors import DataError
 from odocal.io.streams import ANGLES, RawLog, Stream
 from odocal.model.vehicle import MODEL
@@ -115,9 +116,10 @@ def estimate_wheel_offset(wheels: Stream, imu: Stream, *, theta: Sequence[float]
     the rear axle ``(n_rr - n_rl) c / t_r``) with the IMU's.
 
     Both are resampled to ``rate_hz`` over their common span; the lag with the highest
-    correlation, refined by a parabola through its neighbours, is the offset to add to the wheel
-    stamps. Without enough turning (IMU yaw-rate spread below 0.02 rad/s), or where even the
-    best lag correlates below :data:`MIN_OFFSET_CORRELATION`, nothing is applied.
+    correlation (:mod:`odocal.correlation`), refined by a parabola through its neighbours, is
+    the offset to add to the wheel stamps. Without enough turning (IMU yaw-rate spread below
+    0.02 rad/s), or where even the best lag correlates below :data:`MIN_OFFSET_CORRELATION`,
+    nothing is applied.
     """
     tw = wheels.t + wheels.offset_s
     ti = imu.t + imu.offset_s
@@ -134,35 +136,24 @@ def estimate_wheel_offset(wheels: Stream, imu: Stream, *, theta: Sequence[float]
     rates = np.column_stack([wheels.values[c] for c in MODEL.wheel_inputs])
     _, yaw_wheels_t = MODEL.body_rates(np.asarray(theta, dtype=float), rates, 0.0)
     reach = int(max_offset_s * rate_hz)
-    lags = np.arange(-reach, reach + 1)
+    # the wheels' yaw rate reaches beyond the grid: every lag compares the whole grid
     wide = np.interp(grid[0] + np.arange(-reach, grid.size + reach) / rate_hz, tw, yaw_wheels_t)
-    a = yaw_imu - yaw_imu.mean()
-    scores = np.empty(lags.size)
-    for i, lag in enumerate(lags):
-        b = wide[reach + lag:reach + lag + grid.size]
-        b = b - b.mean()
-        scores[i] = float(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b) + 1e-300)
-    best = int(np.argmax(scores))
-    shift = float(lags[best])
-    if 0 < best < lags.size - 1:
-        y0, y1, y2 = scores[best - 1:best + 2]
-        denom = y0 - 2 * y1 + y2
-        if denom < 0:
-            shift += 0.5 * (y0 - y2) / denom
-    delay = shift / rate_hz
-    if scores[best] < MIN_OFFSET_CORRELATION:
-        return OffsetEstimate(0.0, float(scores[best]), False,
+    peak = correlations([(yaw_imu, wide)], reach).peak()
+    correlation = peak.correlation if peak is not None else float("nan")
+    delay = peak.steps / rate_hz if peak is not None else 0.0
+    if peak is None or correlation < MIN_OFFSET_CORRELATION:
+        return OffsetEstimate(0.0, correlation, False,
                               f"the wheels' yaw rate hardly follows the IMU's (best correlation "
-                              f"{scores[best]:.3f} at {delay * 1000:+.0f} ms); no offset "
+                              f"{correlation:.3f} at {delay * 1000:+.0f} ms); no offset "
                               "applied (check the wheel units, a wrapping tick counter, or "
                               "which wheel is which)")
-    if best in (0, lags.size - 1):
-        return OffsetEstimate(0.0, float(scores[best]), False,
+    if peak.at_edge:
+        return OffsetEstimate(0.0, correlation, False,
                               f"the best wheel/IMU lag lies at the edge of the search range "
                               f"(+-{max_offset_s} s); no offset applied")
-    return OffsetEstimate(-delay, float(scores[best]), True,
+    return OffsetEstimate(-delay, correlation, True,
                           f"wheel stamps are {delay * 1000:+.1f} ms late against the IMU "
-                          f"(correlation {scores[best]:.3f}); corrected")
+                          f"(correlation {correlation:.3f}); corrected")
 
 
 @dataclass(frozen=True)
