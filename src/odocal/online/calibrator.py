@@ -41,7 +41,7 @@ from odocal.checks.departures import Departures, wheel_lag_s
 from odocal.checks.departures import findings as departure_findings
 from odocal.checks.departures import measure as measure_departures
 from odocal.checks.diagnosis import check_drives
-from odocal.checks.findings import Check, Diagnosis, Finding, Severity
+from odocal.checks.findings import Diagnosis, Finding, Severity
 from odocal.checks.gate import gate
 from odocal.data.drive import Drive
 from odocal.errors import DataError
@@ -79,20 +79,16 @@ from odocal.online.changes import (
     eliminate,
     estimate_change,
 )
+from odocal.online.checking import CHECK_WINDOW_S, LiveChecks
 from odocal.online.departures import (
     LiveDepartures,
     ReferenceAligner,
     recorrected,
     with_offset_prior,
 )
-from odocal.online.samples import SAMPLE, Regrid, step_s, time_unit
-from odocal.online.samples import rows as pushed_rows
+from odocal.online.samples import Intake
 from odocal.settings import Settings
 
-#: The checks look at this much of the latest driving (s) ...
-CHECK_WINDOW_S = 600.0
-#: ... every time this much more has arrived (s), and before every estimate.
-CHECK_EVERY_S = 60.0
 #: The running update scans the lag every this many completed clusters.
 _LAG_EVERY = 4
 #: A suspected change is an alarm where the wheels refitted after it moved by this many of their
@@ -103,8 +99,6 @@ SETTLED = 3
 #: The samples are kept this long (s) at most, to make the windows again with a correction
 #: found after them (a heading error): the first of the drive.
 HISTORY_S = 2.0 * CHECK_WINDOW_S
-#: Samples with the wheels at 0 and the reference pose within this (m) are a parked vehicle's.
-PARKED_M = 0.5
 
 
 @dataclass(frozen=True)
@@ -178,14 +172,8 @@ class OnlineCalibrator:
         self._entered: tuple[str, ...] = ()
         self._model = ErrorModel()
         self._lag = Lag()
-        self._t_s: float | None = None
-        self._pending: FloatArray | None = None   # a lone first sample, until t_s is known
-        self._unit: str | None = None             # how t comes: "s", "ms", "us", "ns", "datetime"
-        self._scale = 1.0                         # ... and its unit in seconds
-        self._regrid: Regrid | None = None
+        self._intake = Intake()                   # the chunks as samples on one grid
         self._aligner: ReferenceAligner | None = None
-        self._last_t: float | None = None        # the latest sample's time, s
-        self._first_t: float | None = None       # the first one's, s
         self._builder: WindowBuilder | None = None
         self._windows: WindowSet | None = None
         # (the wheel-rate offset's prior from the start where the settings always fit it; for
@@ -193,7 +181,6 @@ class OnlineCalibrator:
         self._folded = fitting.Folded.prior(fitting.pack(self.datasheet),
                                          core.offset_prior_std(self.settings, 0.0))
         self._departures = LiveDepartures()       # what is taken out of the samples
-        self._samples = 0
         # the samples on the grid as they came, while the windows can still be made again
         self._history: list[FloatArray] | None = (
             None if self.settings.online.forgetting_s else [])
@@ -208,12 +195,7 @@ class OnlineCalibrator:
         cfg = self.settings.online
         self._changes = ChangeDetector(k=cfg.cusum_k, h=cfg.cusum_h)
         # the checks: the latest samples as they came, what they found, and whether they halted
-        self._recent: list[FloatArray] = []
-        self._checked_t = -math.inf
-        self._recent_t = -math.inf                # the newest of them
-        self._diagnosis = Diagnosis(())
-        self._failure: Finding | None = None      # the numbers could not be fitted
-        self._halted = False
+        self._checks = LiveChecks()
 
     # ---------------------------------------------------------------- input
 
@@ -227,55 +209,36 @@ class OnlineCalibrator:
         steps ends the current piece (windows never span a gap). A chunk that cannot be used
         raises a DataError naming why and leaves the calibrator as it was.
         """
-        rows, stamped = pushed_rows(chunk)
-        count = rows.shape[0]
-        if count == 0:
+        started = self._t_s is not None
+        rows = self._intake.take(chunk)
+        if not rows.shape[0]:
             return
-        if count > 1 and np.any(np.diff(rows[:, 0]) <= 0):
-            raise DataError("pushed samples' t must increase strictly (and continue the "
-                            "previous chunk)")
-        if self._unit is None:
-            if self._pending is not None:
-                rows = np.vstack([self._pending, rows])
-                if rows[1, 0] <= rows[0, 0]:
-                    raise DataError("pushed samples' t must increase strictly (and continue "
-                                    "the previous chunk)")
-            if rows.shape[0] < 2:                         # one sample so far: wait for more
-                self._samples += count
-                self._pending = rows.copy()
-                return
-            unit, scale = ("datetime", 1.0) if stamped else time_unit(
-                float(np.median(np.diff(rows[:, 0]))))
-            rows[:, 0] *= scale
-            self._first_t = float(rows[0, 0])
-            self._pending = None
-            self._unit, self._scale = unit, scale
-            self._t_s = step_s(rows[:, 0])
-            self._builder = builder_for(self.settings, self._t_s)
-            self._windows = empty_windows(length=self._builder.length,
-                                          margin=self._builder.margin, t_s=self._t_s)
-            self._regrid = Regrid(self._t_s)
-            self._aligner = ReferenceAligner(self._t_s)
-            self._samples += count
-        else:
-            if not stamped:
-                rows[:, 0] *= self._scale
-            if self._last_t is not None and rows[0, 0] <= self._last_t:
-                raise DataError("pushed samples' t must increase strictly (and continue the "
-                                "previous chunk)")
-            self._samples += count
-        self._last_t = float(rows[-1, 0])
-        if self._halted:
+        if not started:
+            self._start()
+        if self._checks.halted:
             return                       # the data contradicted the model: nothing more is used
         try:
             self._update(rows)
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
-            self._failed(exc)
+            self._checks.failed(exc)
+
+    def _start(self) -> None:
+        """The grid's step is known (the first two samples): the windows can be made."""
+        assert self._t_s is not None
+        self._builder = builder_for(self.settings, self._t_s)
+        self._windows = empty_windows(length=self._builder.length,
+                                      margin=self._builder.margin, t_s=self._t_s)
+        self._aligner = ReferenceAligner(self._t_s)
+
+    @property
+    def _t_s(self) -> float | None:
+        """The grid's step (s), once known."""
+        return self._intake.t_s
 
     def _update(self, rows: FloatArray) -> None:
         """The samples (in seconds) onto the grid, into windows, the estimate updated."""
-        assert self._builder is not None and self._regrid is not None
-        grid = self._regrid.add(rows)
+        assert self._builder is not None
+        grid = self._intake.grid(rows)
         if not grid.shape[0]:
             return
         if self._history is not None:
@@ -284,76 +247,38 @@ class OnlineCalibrator:
                 self._history = None                  # (no window can be made again now)
             else:
                 self._history.append(grid)
-        self._keep_recent(grid)                       # (as they came: the checks measure)
+        # (as they came: the checks measure)
+        self._checks.keep(grid, driven=bool(self._windows_total))
         assert self._aligner is not None
         aligned = self._aligner.add(grid)             # the reference on the wheels' clock
         if aligned.shape[0]:
             self._builder.add(*self._departures.correct(aligned).T)
         self._take(self._builder.windows())
-        if self._recent_t - self._checked_t >= CHECK_EVERY_S:
+        if self._checks.due:
             self._check()
 
-    def _failed(self, exc: Exception) -> None:
-        """The numbers could not be fitted (a solver that did not converge on degenerate
-        samples): the calibrator halts with that finding rather than publish anything."""
-        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        finding = Finding(Check.INVALID_INPUT, Severity.FATAL,
-                          name=f"the live samples cannot be fitted ({text}): they are "
-                               "degenerate or out of any vehicle's range")
-        self._failure = finding
-        self._halted = True
-
-    def _keep_recent(self, rows: FloatArray) -> None:
-        """The latest samples of driving on the grid, for the checks (the last CHECK_WINDOW_S
-        of them): once the vehicle has driven, samples of it parked (the wheels at 0, the
-        reference pose within :data:`PARKED_M`) are not kept, so that the checks never judge a
-        drive by the minutes parked after it (one that never drives is still recognised)."""
-        span = np.ptp(rows[:, 5:7], axis=0) if rows.shape[0] > 1 else np.zeros(2)
-        if not rows[:, 1:3].any() and float(np.hypot(*span)) <= PARKED_M:
-            if self._windows_total:
-                return
-        self._recent.append(rows)
-        newest = float(rows[-1, 0])
-        self._recent_t = newest
-        while len(self._recent) > 1 and float(self._recent[1][0, 0]) <= newest - CHECK_WINDOW_S:
-            self._recent.pop(0)
-
-    def _check(self) -> Diagnosis:
+    def _check(self) -> None:
         """The checks every path goes through, on the latest samples; a contradiction halts
         the calibrator (it publishes the finding instead of an estimate from then on)."""
-        samples = np.vstack(self._recent) if self._recent else np.zeros((0, len(SAMPLE)))
-        samples = samples[samples[:, 0] > samples[-1, 0] - CHECK_WINDOW_S] if samples.size \
-            else samples
-        self._checked_t = float(samples[-1, 0]) if samples.size else self._checked_t
-        if samples.shape[0] < 3:
-            return self._diagnosis
-        step = self._t_s or float(np.median(np.diff(samples[:, 0])))
-        piece = np.cumsum(np.concatenate([[0], np.diff(samples[:, 0]) > 1.5 * step]))
-        columns = {k: samples[:, i] for i, k in enumerate(SAMPLE)} | {"piece": piece}
-        # named by the source and the stretch (s) the checks judged
-        name = f"{self.source}, t={samples[0, 0]:.6g} to {samples[-1, 0]:.6g} s"
-        try:
-            drive = Drive.from_columns(columns, name=name)
-        except DataError as exc:
-            diagnosis = Diagnosis((Finding(Check.INVALID_INPUT, Severity.FATAL,
-                                           name=str(exc)),))
-        else:
-            diagnosis = check_drives([drive], self.settings)
-            if not (diagnosis.fatal or diagnosis.standstill):
-                # the reference on the wheels' clock, and the sensors' departures, measured as
-                # batch measures them (on the samples as they came) and taken out of the
-                # samples from now on, and of the windows in memory where that can be done
-                # exactly (odocal/online/departures.py)
-                self._align(drive)
-                self._adopt(measure_departures([drive], self.settings,
-                                               lateral=not diagnosis.lateral_missing),
-                            driving_s=samples.shape[0] * step)
-            diagnosis = diagnosis.plus(departure_findings(self._departures.as_measured(),
-                                                         self.settings))
-        self._diagnosis = diagnosis
-        if diagnosis.fatal:
-            self._halted = True
-        return diagnosis
+        latest = self._checks.latest(self._t_s, self.source)
+        if latest is None:
+            return
+        if isinstance(latest, Diagnosis):
+            self._checks.found(latest)
+            return
+        drive, driving_s = latest
+        diagnosis = check_drives([drive], self.settings)
+        if not (diagnosis.fatal or diagnosis.standstill):
+            # the reference on the wheels' clock, and the sensors' departures, measured as
+            # batch measures them (on the samples as they came) and taken out of the samples
+            # from now on, and of the windows in memory where that can be done exactly
+            # (odocal/online/departures.py)
+            self._align(drive)
+            self._adopt(measure_departures([drive], self.settings,
+                                           lateral=not diagnosis.lateral_missing),
+                        driving_s=driving_s)
+        self._checks.found(diagnosis.plus(departure_findings(self._departures.as_measured(),
+                                                             self.settings)))
 
     def _align(self, drive: Drive) -> None:
         """The wheel stream's lag behind the reference, measured as batch measures it (beyond
@@ -605,7 +530,7 @@ class OnlineCalibrator:
         windows are folded their sums hold no drift, and a drift is what the change detector
         and forgetting follow."""
         blocks = fitted.LIVE if self._folded.clusters else (*fitted.LIVE, ("drift",))
-        setup = fit_setup(windows, self.settings, held_by_checks(self._diagnosis),
+        setup = fit_setup(windows, self.settings, held_by_checks(self._checks.checked),
                           blocks=blocks)
         return dataclasses.replace(setup, kept=self._entered,
                                    coupled=bool(self._model.coupling))
@@ -680,8 +605,8 @@ class OnlineCalibrator:
         chosen = self._fitted() if windows is None else windows
         found = core.fit(chosen, self._folded, self.settings,
                          heading_offset=self.heading_offset(),
-                         held=held_by_checks(self._diagnosis),
-                         distance_only=self._diagnosis.no_differential,
+                         held=held_by_checks(self._checks.checked),
+                         distance_only=self._checks.checked.no_differential,
                          setup=self._setup(chosen))
         if found.free.any():
             p = found.fit.p.copy()
@@ -700,13 +625,13 @@ class OnlineCalibrator:
         contradict the model, or the estimate fails the quality gate, the status is
         ``REJECTED`` and the findings are in ``details.findings``.
         """
-        if self._recent_t > self._checked_t:
+        if self._checks.unchecked:
             self._check()
-        if self._halted:
+        if self._checks.halted:
             return self._nothing(Reason.REJECTED, Status.REJECTED)
         if self._windows is not None:
             self._flush()
-        if self._diagnosis.standstill and self._folded.clusters == 0 and (
+        if self._checks.checked.standstill and self._folded.clusters == 0 and (
                 self._windows is None or self._windows.size == 0):
             return self._nothing(Reason.STANDSTILL)
         if self._windows is None or self._windows.size + self._folded.clusters == 0:
@@ -715,7 +640,7 @@ class OnlineCalibrator:
         try:
             found = self._refit(windows)
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
-            self._failed(exc)
+            self._checks.failed(exc)
             return self._nothing(Reason.REJECTED, Status.REJECTED)
         free = found.free
         theta = found.theta.copy()
@@ -748,14 +673,12 @@ class OnlineCalibrator:
     def diagnosis(self) -> Diagnosis:
         """What the checks found on the latest samples (and why the numbers could not be
         fitted, where they could not)."""
-        if self._failure is not None:
-            return Diagnosis((*self._diagnosis.findings, self._failure))
-        return self._diagnosis
+        return self._checks.diagnosis
 
     @property
     def halted(self) -> bool:
         """Whether the data contradicted the model and the calibrator stopped updating."""
-        return self._halted
+        return self._checks.halted
 
     def delay_s(self) -> float:
         """The wheel stream's lag behind the reference that is applied (positive: late), s:
@@ -772,7 +695,7 @@ class OnlineCalibrator:
     def _details(self, clusters: int, more: Sequence[Finding] = ()) -> OnlineDetails:
         noise = self._model.noise
         return OnlineDetails(
-            samples=self._samples, windows=self._windows_total,
+            samples=self._intake.samples, windows=self._windows_total,
             windows_in_memory=(0 if self._windows is None
                                else self._windows.size + self._incoming_size),
             clusters=clusters, distance_km=self.distance_km, delay_s=self.delay_s(),
@@ -781,10 +704,9 @@ class OnlineCalibrator:
                    (float(noise[1, 0]), float(noise[1, 1]))),
             alarms=tuple(self._alarms), forgetting_s=self.settings.online.forgetting_s,
             coupling=float(self._model.coupling),
-            findings=(*self._diagnosis.findings,
-                      *((self._failure,) if self._failure is not None else ()), *more),
-            halted=self._halted,
-            time_unit=self._unit or "s",
+            findings=(*self.diagnosis.findings, *more),
+            halted=self._checks.halted,
+            time_unit=self._intake.unit or "s",
             sampling_s=self._t_s if self._t_s is not None else float("nan"))
 
     def _nothing(self, reason: Reason,
@@ -800,15 +722,15 @@ class OnlineCalibrator:
 
     def details_samples(self) -> int:
         """Samples pushed so far."""
-        return self._samples
+        return self._intake.samples
 
     @property
     def span_s(self) -> tuple[float, float] | None:
         """The first and the latest sample's time on the log's clock, in seconds (whatever the
         unit ``t`` is pushed in), or None before the unit is known."""
-        if self._first_t is None or self._last_t is None:
+        if self._intake.first_t is None or self._intake.last_t is None:
             return None
-        return self._first_t, self._last_t
+        return self._intake.first_t, self._intake.last_t
 
     @property
     def alarms(self) -> tuple[Alarm, ...]:
@@ -827,8 +749,8 @@ class OnlineCalibrator:
 
         windows = 0 if self._windows is None else self._windows.size
         state = ("halted: the data contradict the model (estimate().details.findings)"
-                 if self._halted else f"{len(self._alarms)} alarm(s)")
-        lines = [f"OnlineCalibrator({self._samples} samples, {self.distance_km:.2f} km, "
+                 if self._checks.halted else f"{len(self._alarms)} alarm(s)")
+        lines = [f"OnlineCalibrator({self._intake.samples} samples, {self.distance_km:.2f} km, "
                  f"{windows} windows in memory, {self._folded.clusters} clusters folded, "
                  f"{state})",
                  f"{'parameter':<10} {'datasheet':>16} {'running':>16}"]

@@ -219,3 +219,74 @@ class Regrid:
             out.append(mid)
             self._next = g + self.t_s
         return out
+
+
+class Intake:
+    """The pushed chunks as samples on one grid: the time unit told from the first two samples
+    (a lone first sample waits for the next), every chunk's ``t`` checked to continue the ones
+    before, and the samples put onto the first ones' grid (:class:`Regrid`).
+
+    ``samples`` counts every sample pushed; ``first_t`` and ``last_t`` are the first and the
+    latest sample's time in seconds; ``unit`` how ``t`` came; ``t_s`` the grid's step (None
+    until two samples have come).
+    """
+
+    def __init__(self) -> None:
+        self.samples = 0
+        self.unit: str | None = None
+        self.t_s: float | None = None
+        self.first_t: float | None = None
+        self.last_t: float | None = None
+        self._scale = 1.0
+        self._pending: FloatArray | None = None
+        self._regrid: Regrid | None = None
+
+    def take(self, chunk: Any) -> FloatArray:
+        """The chunk's samples, ``t`` in seconds (none where it is empty or a lone first
+        sample); a DataError, with nothing taken, where ``t`` does not increase."""
+        data, stamped = rows(chunk)
+        count = data.shape[0]
+        if count == 0:
+            return data
+        if count > 1 and np.any(np.diff(data[:, 0]) <= 0):
+            raise DataError(_NOT_INCREASING)
+        if self.unit is None:
+            return self._first(data, stamped)
+        if not stamped:
+            data[:, 0] *= self._scale
+        if self.last_t is not None and data[0, 0] <= self.last_t:
+            raise DataError(_NOT_INCREASING)
+        self.samples += count
+        self.last_t = float(data[-1, 0])
+        return data
+
+    def _first(self, data: FloatArray, stamped: bool) -> FloatArray:
+        """The first samples: the unit and the grid's step from the first two."""
+        count = data.shape[0]
+        if self._pending is not None:
+            data = np.vstack([self._pending, data])
+            if data[1, 0] <= data[0, 0]:
+                raise DataError(_NOT_INCREASING)
+        if data.shape[0] < 2:                         # one sample so far: wait for more
+            self.samples += count
+            self._pending = data.copy()
+            return data[:0]
+        unit, scale = ("datetime", 1.0) if stamped else time_unit(
+            float(np.median(np.diff(data[:, 0]))))
+        data[:, 0] *= scale
+        self.first_t = float(data[0, 0])
+        self._pending = None
+        self.unit, self._scale = unit, scale
+        self.t_s = step_s(data[:, 0])
+        self._regrid = Regrid(self.t_s)
+        self.samples += count
+        self.last_t = float(data[-1, 0])
+        return data
+
+    def grid(self, data: FloatArray) -> FloatArray:
+        """Samples taken (in seconds) onto the grid (:class:`Regrid`)."""
+        assert self._regrid is not None
+        return self._regrid.add(data)
+
+
+_NOT_INCREASING = "pushed samples' t must increase strictly (and continue the previous chunk)"
