@@ -13,7 +13,8 @@ import pytest
 
 import odocal
 from odocal.model.parameters import Parameters
-from odocal.output.export import Calibrated, OdometryNoise, export, parameters_yaml
+from odocal.output.export import Calibrated, export, parameters_yaml
+from odocal.pipeline.odometry import OdometryNoise
 from odocal.settings import DATASHEET_THETA, Settings
 from tests.conftest import run
 from tests.ros2.rosenv import keys_in_file, load_declared, require_rclpy, ros_context
@@ -202,7 +203,7 @@ def test_the_odometry_noise_is_the_wheels_error_through_their_own_circumferences
     one second and too little the next, on a noise-free drive, is a speed error of
     +-0.1 C_rr m/s and a yaw-rate error of +-0.2 C_rr / t_r rad/s: their median absolute
     deviations, times 1.4826 (the normal's std from the MAD)."""
-    from odocal.output.export import odometry_noise
+    from odocal.pipeline.odometry import odometry_noise
 
     sim = odocal.simulate(duration_s=120.0, seed=11, noise="none")
     d, theta = sim.drive, sim.true_parameters

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import odocal
-from odocal.output.trajectories import dead_reckoned
+from odocal.pipeline.odometry import dead_reckoned
 from tests.conftest import run
 
 BIN = Path(sys.executable).parent

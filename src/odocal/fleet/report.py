@@ -21,7 +21,8 @@ from odocal.fleet.drift import parse_stamp
 from odocal.fleet.store import Store
 from odocal.io.atomic import FLEET_MARKER, file_name, write_bytes, write_text
 from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES, Parameters
-from odocal.output.export import Calibrated, OdometryNoise, export
+from odocal.output.export import Calibrated, export
+from odocal.pipeline.odometry import OdometryNoise
 from odocal.redaction import redact_text
 from odocal.report.render import Call, FigureSpec, Renderer
 from odocal.report.style import CSS

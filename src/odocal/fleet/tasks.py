@@ -348,9 +348,7 @@ def run_pooled_task(task: PooledTask) -> dict[str, Any]:
         result = calibrate(drives, settings=settings, method=task.method)
         row.update(_parameter_columns(result))
         if result.success:
-            from odocal.output.export import odometry_noise
-
-            noise = odometry_noise(drives, result.theta)
+            noise = result.odometry_noise
             if noise is not None:
                 row["speed_std_mps"] = noise.speed_std_mps
                 row["yaw_rate_std_radps"] = noise.yaw_rate_std_radps

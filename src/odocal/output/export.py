@@ -34,7 +34,8 @@ speed scale factor without datasheet values or a known speed circumference) carr
 line starting ``# FILL IN`` that names it.
 
 Speeds and yaw-rate standard deviations are measured: the calibrated wheel odometry against the
-reference motion over 1 s windows (:func:`odometry_noise`); where no drive is at hand the
+reference motion over 1 s windows (:func:`odocal.pipeline.odometry.odometry_noise`); where
+no drive is at hand the
 target's default is kept and the file says so.
 """
 
@@ -50,12 +51,11 @@ import numpy as np
 import yaml
 
 from odocal._version import __version__
-from odocal.data.drive import Drive
 from odocal.errors import ConfigError
 from odocal.io.atomic import write_text
-from odocal.model.kinematics import inverse_revolutions, motion_increments
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS, PARAMETERS, Parameters
 from odocal.model.vehicle import MODEL
+from odocal.pipeline.odometry import OdometryNoise
 from odocal.redaction import redact_text
 from odocal.settings import datasheet_stated
 
@@ -73,17 +73,6 @@ RELEASES = {
     "robot_localization": "robot_localization 3.5 (Humble) and 3.6 (Jazzy and later)",
     "yaml": "any ROS 2 node that declares these parameters (odocal's own schema)",
 }
-
-@dataclass(frozen=True)
-class OdometryNoise:
-    """How far the calibrated wheel odometry is from the reference motion, averaged over
-    ``window_s`` (1 s where measured against the reference by :func:`odometry_noise`)."""
-
-    speed_std_mps: float
-    yaw_rate_std_radps: float
-    windows: int
-    window_s: float = 1.0
-
 
 @dataclass(frozen=True)
 class Calibrated:
@@ -109,39 +98,6 @@ class Calibrated:
     def datasheet_stated(self) -> bool:
         """Whether the datasheet values are the user's (not odocal's placeholder car)."""
         return datasheet_stated(self.datasheet)
-
-
-def odometry_noise(drives: Sequence[Drive], theta: Parameters,
-                   window_s: float = 1.0) -> OdometryNoise | None:
-    """Robust standard deviation of the wheel speed and yaw rate against the reference's."""
-    speed_err: list[np.ndarray] = []
-    yaw_err: list[np.ndarray] = []
-    th = theta.as_array()
-    to_body, _ = MODEL.body_map(th)            # a window's revolutions to its speed, yaw
-    for d in drives:
-        k = max(1, round(window_s / d.t_s))
-        for start, stop in d.pieces:
-            if stop - start <= k + 1:
-                continue
-            sl = slice(start, stop)
-            ds, dpsi = motion_increments(d.x[sl], d.y[sl], d.psi[sl], d.beta[sl])
-            revs, _ = inverse_revolutions(th, ds, dpsi, d.a_y[start:stop - 1])
-            measured = np.column_stack([getattr(d, c)[start:stop - 1]
-                                        for c in MODEL.wheel_inputs]) * d.t_s
-            err = measured - revs
-            n = (len(err) // k) * k
-            body = err[:n].reshape(-1, k, MODEL.wheels).sum(axis=1) @ to_body.T / (k * d.t_s)
-            speed_err.append(body[:, 0])
-            yaw_err.append(body[:, 1])
-    if not speed_err:
-        return None
-    sv, sy = np.concatenate(speed_err), np.concatenate(yaw_err)
-    if sv.size < 10:
-        return None
-    mad = 1.4826
-    return OdometryNoise(speed_std_mps=float(mad * np.median(np.abs(sv - np.median(sv)))),
-                         yaw_rate_std_radps=float(mad * np.median(np.abs(sy - np.median(sy)))),
-                         windows=int(sv.size))
 
 
 def comment(text: str) -> str:

@@ -96,9 +96,7 @@ def write_results(result: CalibrationResult, out_dir: str | Path, *,
     if "tum" in targets:
         from odocal.output.trajectories import write_trajectories
 
-        written += write_trajectories(result.drive_data, result.estimate.theta,
-                                      result.estimate.datasheet, out,
-                                      arm=result.reference_arm)
+        written += write_trajectories(result.trajectories(), out)
         targets.remove("tum")
     if targets and not result.success:
         notes.append("parameters not exported: the calibration did not succeed")
@@ -164,7 +162,7 @@ def export_stack(result: CalibrationResult, out_dir: str | Path, target: str, *,
 def _calibrated(result: CalibrationResult, *,
                 wheel_joints: tuple[str, str] | None = None) -> Any:
     """What the exports need from a calibration (:class:`odocal.output.export.Calibrated`)."""
-    from odocal.output.export import Calibrated, odometry_noise
+    from odocal.output.export import Calibrated
     from odocal.pipeline.result import speed_signal
 
     est = result.estimate
@@ -175,7 +173,7 @@ def _calibrated(result: CalibrationResult, *,
     return Calibrated(theta=est.theta, datasheet=est.datasheet,
                       std=tuple(float(s) for s in est.std),
                       identified=est.identified, method=result.method,
-                      noise=odometry_noise(result.drive_data, est.theta),
+                      noise=result.odometry_noise,
                       source=", ".join(d.name for d in result.drives),
                       wheel_joints=wheel_joints,
                       speed_circumference_m=(float(circumference)

@@ -29,32 +29,10 @@ import numpy as np
 from odocal.arrays import FloatArray
 from odocal.data.drive import Drive
 from odocal.io.atomic import file_name, write_text
-from odocal.model.kinematics import rollout
-from odocal.model.parameters import Inputs, Parameters
+from odocal.pipeline.odometry import Trajectories
 
 FOLDER = "trajectories"
 FILES = ("reference.tum", "odometry.tum", "odometry_datasheet.tum")
-
-
-def dead_reckoned(drive: Drive, theta: Parameters,
-                  arm: tuple[float, float] = (0.0, 0.0)) -> FloatArray:
-    """The wheel odometry of ``drive`` with ``theta``: (N, 3) poses [x, y, psi], started at the
-    reference pose at the start of every piece, of the reference point ``arm`` (forward, left
-    of the rear axle, m: where the reference reports; the model rolls the axle out)."""
-    poses = np.empty((drive.n_samples, 3))
-    th = theta.as_array()
-    forward, left = arm
-    for start, stop in drive.pieces:
-        sl = slice(start, stop - 1)
-        u = Inputs(drive.n_rl[sl], drive.n_rr[sl], drive.beta[sl], drive.a_y[sl])
-        psi0 = drive.psi[start]
-        x0 = np.array([drive.x[start] - forward * np.cos(psi0) + left * np.sin(psi0),
-                       drive.y[start] - forward * np.sin(psi0) - left * np.cos(psi0), psi0])
-        poses[start:stop] = rollout(th, u, x0, drive.t_s)
-    psi = poses[:, 2]
-    poses[:, 0] += forward * np.cos(psi) - left * np.sin(psi)
-    poses[:, 1] += forward * np.sin(psi) + left * np.cos(psi)
-    return poses
 
 
 def tum_text(t: FloatArray, poses: FloatArray) -> str:
@@ -79,19 +57,18 @@ def _folder_names(drives: Sequence[Drive]) -> list[str]:
     return names
 
 
-def write_trajectories(drives: Sequence[Drive], theta: Parameters, datasheet: Parameters,
-                       out_dir: str | Path, *, arm: tuple[float, float] = (0.0, 0.0)
-                       ) -> list[Path]:
-    """Write the three TUM files of every drive under ``out_dir/trajectories``."""
+def write_trajectories(trajectories: Sequence[Trajectories], out_dir: str | Path) -> list[Path]:
+    """Write the three TUM files of every drive's trajectories under ``out_dir/trajectories``
+    (:meth:`odocal.pipeline.result.CalibrationResult.trajectories`)."""
     root = Path(out_dir) / FOLDER
+    drives = [t.drive for t in trajectories]
     folders = [root] if len(drives) == 1 else [root / n for n in _folder_names(drives)]
     written: list[Path] = []
-    for drive, folder in zip(drives, folders, strict=True):
+    for found, folder in zip(trajectories, folders, strict=True):
         folder.mkdir(parents=True, exist_ok=True)
-        reference = np.column_stack([drive.x, drive.y, drive.psi])
-        for name, poses in zip(FILES, (reference, dead_reckoned(drive, theta, arm),
-                                       dead_reckoned(drive, datasheet, arm)), strict=True):
+        for name, poses in zip(FILES, (found.reference, found.calibrated, found.datasheet),
+                               strict=True):
             path = folder / name
-            write_text(path, tum_text(drive.t, poses))
+            write_text(path, tum_text(found.drive.t, poses))
             written.append(path)
     return written

@@ -7,6 +7,7 @@ them in :mod:`odocal.report` and :mod:`odocal.cli`, files in :mod:`odocal.output
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +25,7 @@ from odocal.estimators.estimate import Estimate
 from odocal.estimators.inverse import InverseDetails
 from odocal.estimators.validation import ValidationResult
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.pipeline.odometry import OdometryNoise, Trajectories, odometry_noise, trajectories
 from odocal.settings import Settings
 
 if TYPE_CHECKING:
@@ -202,6 +204,18 @@ class CalibrationResult:
             return float(stated[0]), float(stated[1])
         fitted = dict(getattr(self.estimate.details, "fitted_departures", {}) or {})
         return float(fitted.get("arm_x", 0.0)), float(fitted.get("arm_y", 0.0))
+
+    @functools.cached_property
+    def odometry_noise(self) -> OdometryNoise | None:
+        """The calibrated wheel odometry's speed and yaw-rate noise against the reference
+        motion over 1 s windows (robust standard deviations); None without drives enough."""
+        return odometry_noise(self.drive_data, self.theta)
+
+    def trajectories(self) -> list[Trajectories]:
+        """Every drive's reference poses and its wheels dead-reckoned with the calibrated and
+        the datasheet parameters, from where the reference reports (:attr:`reference_arm`)."""
+        return trajectories(self.drive_data, self.estimate.theta, self.estimate.datasheet,
+                            arm=self.reference_arm)
 
     @property
     def speed_scale(self) -> SpeedScale | None:

@@ -61,13 +61,8 @@ from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.model.vehicle import MODEL
 from odocal.online.calibrator import OnlineCalibrator
 from odocal.online.replay import GridResampler, publishable
-from odocal.output.export import (
-    TARGETS,
-    Calibrated,
-    OdometryNoise,
-    export,
-    parameters_yaml,
-)
+from odocal.output.export import TARGETS, Calibrated, export, parameters_yaml
+from odocal.pipeline.odometry import OdometryNoise
 from odocal.report.advice import finding_text, reason_text
 from odocal.ros2 import cdr, params
 from odocal.ros2.exports import imu_corrector, point_ekf_at
