@@ -68,6 +68,7 @@ from odocal.estimators.windows import (
 )
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
 from odocal.model.vehicle import MODEL
+from odocal.online.arrivals import Arrivals
 from odocal.online.changes import (
     WHEELS,
     Alarm,
@@ -184,14 +185,11 @@ class OnlineCalibrator:
         # the samples on the grid as they came, while the windows can still be made again
         self._history: list[FloatArray] | None = (
             None if self.settings.online.forgetting_s else [])
-        self._windows_total = 0
-        self._incoming: list[WindowSet] = []     # the cluster under way's windows, kept aside
-        self._incoming_size = 0
+        self._arrivals = Arrivals()               # the cluster under way, kept aside
         self._since_fit = 0                       # windows added since the core last ran
         self._updates = 0                         # running updates of the estimate so far
         self._alarms: list[Alarm] = []
         self._clusters_done = 0
-        self._current_cluster: int | None = None
         cfg = self.settings.online
         self._changes = ChangeDetector(k=cfg.cusum_k, h=cfg.cusum_h)
         # the checks: the latest samples as they came, what they found, and whether they halted
@@ -248,7 +246,7 @@ class OnlineCalibrator:
             else:
                 self._history.append(grid)
         # (as they came: the checks measure)
-        self._checks.keep(grid, driven=bool(self._windows_total))
+        self._checks.keep(grid, driven=bool(self._arrivals.total))
         assert self._aligner is not None
         aligned = self._aligner.add(grid)             # the reference on the wheels' clock
         if aligned.shape[0]:
@@ -349,39 +347,29 @@ class OnlineCalibrator:
         self._aligner = aligner
         windows = builder.windows()
         self._builder = builder
-        self._incoming, self._incoming_size = [], 0
+        self._arrivals.restart(windows)
         self._windows = dataclasses.replace(windows, weight=np.ones(windows.size))
-        self._windows_total = windows.size
-        self._current_cluster = int(windows.cluster[-1]) if windows.size else None
         self._since_fit = windows.size
         return True
 
     def _take(self, new: WindowSet) -> None:
         """Add new windows cluster by cluster: a completed cluster is watched for a change and
         the running estimate updated; the oldest are folded beyond the memory limit."""
-        if not new.size:
-            return
-        labels = new.cluster
-        bounds = np.flatnonzero(np.diff(labels)) + 1
-        for group in np.split(np.arange(new.size), bounds):
-            cluster = int(labels[group[0]])
-            if self._current_cluster is not None and cluster != self._current_cluster:
-                self._cluster_done(self._current_cluster)
-            self._current_cluster = cluster
-            self._append(new.take(group))
+        for done, group in self._arrivals.groups(new):
+            if done is not None:
+                self._cluster_done(done)
+            self._append(group)
 
     def _append(self, new: WindowSet) -> None:
-        """New windows of the cluster under way: kept aside until it completes (the window set
-        is put together once per cluster, not once per push: with a lag range of a second a
-        window holds 85 shifts of its moments)."""
+        """New windows of the cluster under way: kept aside until it completes
+        (:class:`~odocal.online.arrivals.Arrivals`); with forgetting, into the window set at
+        once, the older evidence faded."""
         assert self._windows is not None
         cfg = self.settings.online
         if not cfg.forgetting_s:
-            self._incoming.append(new)
-            self._incoming_size += new.size
-            self._windows_total += new.size
+            self._arrivals.set_aside(new)
             self._since_fit += new.size
-            if self._windows.size + self._incoming_size > cfg.max_windows:
+            if self._windows.size + self._arrivals.aside > cfg.max_windows:
                 self._flush()
             return
         self._flush()
@@ -393,7 +381,7 @@ class OnlineCalibrator:
             windows = windows.scaled(factor**k)
             new = dataclasses.replace(new, weight=new.weight * factor ** np.arange(k - 1, -1, -1))
         self._windows = WindowSet.concat([windows, new])
-        self._windows_total += new.size
+        self._arrivals.counted(new)
         self._since_fit += new.size
         while self._windows.size > cfg.max_windows:
             self._fold()
@@ -401,9 +389,8 @@ class OnlineCalibrator:
     def _flush(self) -> None:
         """The windows kept aside into the window set; the oldest folded beyond the memory."""
         assert self._windows is not None
-        if self._incoming:
-            self._windows = WindowSet.concat([self._windows, *self._incoming])
-            self._incoming, self._incoming_size = [], 0
+        if self._arrivals.aside:
+            self._windows = WindowSet.concat([self._windows, *self._arrivals.take_aside()])
         while self._windows.size > self.settings.online.max_windows:
             self._fold()
 
@@ -695,9 +682,9 @@ class OnlineCalibrator:
     def _details(self, clusters: int, more: Sequence[Finding] = ()) -> OnlineDetails:
         noise = self._model.noise
         return OnlineDetails(
-            samples=self._intake.samples, windows=self._windows_total,
+            samples=self._intake.samples, windows=self._arrivals.total,
             windows_in_memory=(0 if self._windows is None
-                               else self._windows.size + self._incoming_size),
+                               else self._windows.size + self._arrivals.aside),
             clusters=clusters, distance_km=self.distance_km, delay_s=self.delay_s(),
             heading_offset_rad=self.heading_offset(),
             noise=((float(noise[0, 0]), float(noise[0, 1])),
