@@ -143,7 +143,7 @@ def test_fleet(place: Path, fleet: tuple[Path, Path, list[tuple[object, ...]]], 
     (["replay", "drive.parquet", "--out", "prevr"],
      "odocal.output.results:write_replay_results", "prevr"),
     (["minimum", "small.parquet", "--out", "minimum.json", "--seed", "3"],
-     "odocal.io.results:write_json", "minimum.json"),
+     "odocal.io.json_files:write_json", "minimum.json"),
 ])
 def test_an_interrupt_a_library_swallowed_still_stops_the_run(place: Path, command: list[str],
                                                               target: str, output: str

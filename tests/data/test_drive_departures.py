@@ -158,7 +158,7 @@ def test_small_wheels_are_judged_with_their_stated_circumference(
     code, out, err = run(capsys, "calibrate", str(path), "--datasheet", stated, "--out",
                          str(tmp_path / "r"), "--no-report", "-q")
     assert code == EXIT_OK, err
-    result = odocal.io.results.read_json(tmp_path / "r" / "calibration.json")
+    result = odocal.io.json_files.read_json(tmp_path / "r" / "calibration.json")
     for name in ("c_e", "c_d", "t_r", "d"):
         error = abs(result["theta"][name] - truth.as_dict()[name])
         assert error < 4.0 * result["std"][name], (name, result["theta"][name])

@@ -14,7 +14,7 @@ import pytest
 import odocal
 from odocal.errors import ConfigError, DataError
 from odocal.fleet.store import open_store
-from odocal.io.results import read_parameters
+from odocal.io.json_files import read_parameters
 from odocal.model import registry
 from odocal.model.kinematics import body_rates, wheel_rates_for
 from odocal.model.protocol import VehicleModel

@@ -85,7 +85,7 @@ def test_gnss_positions_only_with_imu_and_wheels_calibrate(
                        str(tmp_path / "map.toml"), "--datasheet", "c_e=1.95,t_r=1.5",
                        "--out", str(tmp_path / "r"), "--no-report", "-q")
     assert code == EXIT_OK, out
-    result = odocal.io.results.read_json(tmp_path / "r" / "calibration.json")
+    result = odocal.io.json_files.read_json(tmp_path / "r" / "calibration.json")
     true = sim.true_parameters.as_dict()
     for name in ("c_e", "c_d", "t_r"):
         assert result["identified"][name]
@@ -223,7 +223,7 @@ def test_wrapping_counters_calibrate_from_a_table(
                        str(tmp_path / "map.toml"), "--datasheet", "c_e=1.95,t_r=1.5",
                        "--out", str(tmp_path / "r"), "--no-report", "-q")
     assert code == EXIT_OK, out
-    result = odocal.io.results.read_json(tmp_path / "r" / "calibration.json")
+    result = odocal.io.json_files.read_json(tmp_path / "r" / "calibration.json")
     true = sim.true_parameters.as_dict()
     assert abs(result["theta"]["c_e"] - true["c_e"]) < 0.001
     assert abs(result["theta"]["c_d"] - true["c_d"]) < 0.0002

@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 
 def _parameters(params: str | None, settings: Settings) -> Parameters:
     """The parameters of ``--params``, or the datasheet values."""
-    from odocal.io.results import read_parameters
+    from odocal.io.json_files import read_parameters
     from odocal.model.parameters import Parameters
 
     if params:
@@ -62,7 +62,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 
 def cmd_minimum(args: argparse.Namespace) -> int:
-    from odocal.io.results import write_json
+    from odocal.io.json_files import write_json
     from odocal.pipeline.calibrate import minimum
 
     settings = settings_for(config=args.config, datasheet=args.datasheet, workers=args.workers,

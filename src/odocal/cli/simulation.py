@@ -64,7 +64,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from odocal.io import save_drive
-    from odocal.io.results import write_json
+    from odocal.io.json_files import write_json
     from odocal.sim.simulate import simulate
 
     out = out_file(args.out, "drive.parquet")
@@ -87,7 +87,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
-    from odocal.io.results import write_json
+    from odocal.io.json_files import write_json
     from odocal.pipeline.reproduce import format_report, reproduce
 
     settings = settings_for(config=args.config, datasheet=args.datasheet, workers=args.workers,

@@ -14,7 +14,7 @@ import numpy as np
 
 from odocal._version import __version__
 from odocal.errors import OutputError
-from odocal.io.results import write_json
+from odocal.io.json_files import write_json
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS
 from odocal.pipeline.result import CalibrationResult
 

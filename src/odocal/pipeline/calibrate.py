@@ -177,7 +177,7 @@ def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
                    theta: Parameters | FloatArray, *,
                    settings: Settings | None = None) -> ValidationResult:
     """E_p of ``theta`` on the validation segments of ``drives`` (METHOD 6)."""
-    from odocal.io.results import plausible
+    from odocal.io.json_files import plausible
 
     settings = settings or Settings()
     plausible(theta if isinstance(theta, Parameters) else Parameters.from_array(theta))

@@ -1,4 +1,5 @@
-"""calibration.json and other result files: written atomically, read back with checks."""
+"""JSON files (calibration.json and the other result files): written atomically, read back
+with checks."""
 
 from __future__ import annotations
 
