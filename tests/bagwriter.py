@@ -13,7 +13,8 @@ from rosbags.typesys import Stores, get_typestore
 from odocal.data.drive import Drive
 
 EPOCH = 1_700_000_000.0
-JOINTS = ["front_left_wheel", "front_right_wheel", "rear_left_wheel", "rear_right_wheel"]
+JOINTS = ["front_left_wheel", "front_right_wheel", "rear_left_wheel", "rear_right_wheel",
+          "steering_wheel"]
 
 
 def _messages(drive: Drive, store: object, ros1: bool) -> list[tuple[str, str, float, object]]:
@@ -24,6 +25,9 @@ def _messages(drive: Drive, store: object, ros1: bool) -> list[tuple[str, str, f
     quat = types["geometry_msgs/msg/Quaternion"]
     point = types["geometry_msgs/msg/Point"]
     out = []
+    # the front wheels and the steering wheel as the drive carries them (0 where it does not)
+    zeros = np.zeros(drive.n_samples)
+    n_fl, n_fr, steer = (drive.inputs.get(k, zeros) for k in ("n_fl", "n_fr", "steer"))
     for k in range(drive.n_samples):
         t = EPOCH + float(drive.t[k])
         sec = int(np.floor(t))
@@ -35,9 +39,10 @@ def _messages(drive: Drive, store: object, ros1: bool) -> list[tuple[str, str, f
         header = header_t(stamp=stamp, frame_id="base_link", **extra)
         two_pi = 2 * np.pi
         joint = types["sensor_msgs/msg/JointState"](
-            header=header, name=JOINTS, position=np.zeros(4),
-            velocity=np.array([0.0, 0.0, drive.n_rl[k] * two_pi, drive.n_rr[k] * two_pi]),
-            effort=np.zeros(4))
+            header=header, name=JOINTS, position=np.array([0.0, 0.0, 0.0, 0.0, steer[k]]),
+            velocity=np.array([n_fl[k] * two_pi, n_fr[k] * two_pi, drive.n_rl[k] * two_pi,
+                               drive.n_rr[k] * two_pi, 0.0]),
+            effort=np.zeros(5))
         imu = types["sensor_msgs/msg/Imu"](
             header=header, orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0),
             orientation_covariance=np.zeros(9),

@@ -9,6 +9,10 @@ from odocal.errors import ConfigError, DataError
 from odocal.io.rosbag import _joints
 from odocal.ros2.inputs import wheel_joints
 
+
+def _rear(found) -> tuple[int, int]:
+    return found.velocities["rear_left"], found.velocities["rear_right"]
+
 FOUND = [
     (["front_left_wheel", "front_right_wheel", "rear_left_wheel", "rear_right_wheel"], (2, 3)),
     (["left_wheel_joint", "right_wheel_joint"], (0, 1)),
@@ -29,7 +33,7 @@ FOUND = [
 def test_the_bag_and_the_node_find_the_same_wheels(names: list[str],
                                                    found: tuple[int, int]) -> None:
     assert wheel_joints(names, "", "", "/joint_states") == found
-    assert _joints(names, {}, "/joint_states") == found
+    assert _rear(_joints(names, {}, "/joint_states")) == found
 
 
 @pytest.mark.parametrize("names", [
@@ -50,7 +54,50 @@ def test_joints_the_rule_cannot_tell_are_refused_by_both_naming_the_setting(
 def test_named_joints_win_and_a_missing_name_is_refused() -> None:
     names = ["a", "b", "rear_left_wheel", "rear_right_wheel"]
     assert wheel_joints(names, "b", "a", "/j") == (1, 0)
-    assert _joints(names, {"rear_left": "b", "rear_right": "a"}, "/j") == (1, 0)
+    assert _rear(_joints(names, {"rear_left": "b", "rear_right": "a"}, "/j")) == (1, 0)
     with pytest.raises(DataError, match=r"no joint named 'c' \(the mapping's \[wheels\] "
                                         r"rear_left\); joints: a, b"):
         _joints(names, {"rear_left": "c"}, "/j")
+
+
+@pytest.mark.parametrize(("names", "front"), [
+    (["front_left_wheel", "front_right_wheel", "rear_left_wheel", "rear_right_wheel"], (0, 1)),
+    (["robot_front_left_wheel_joint", "robot_front_right_wheel_joint",
+      "robot_rear_left_wheel_joint", "robot_rear_right_wheel_joint"], (0, 1)),
+    (["rl", "rr", "fl", "fr"], (2, 3)),
+    (["wheel_rear_left", "wheel_rear_right", "wheel_front_right", "wheel_front_left"], (3, 2)),
+    # steering joints and casters turn a wheel about its vertical axis: never a front wheel
+    (["front_left_steer", "front_right_steer", "left_wheel", "right_wheel"], None),
+    (["left_wheel_joint", "right_wheel_joint", "front_caster_left", "front_caster_right"],
+     None),
+    (["left_wheel_joint", "right_wheel_joint"], None),
+])
+def test_a_cars_front_wheels_are_read_beside_the_rear_ones(names: list[str], front) -> None:
+    found = _joints(names, {}, "/joint_states")
+    if front is None:
+        assert set(found.velocities) == {"rear_left", "rear_right"}
+    else:
+        assert (found.velocities["front_left"], found.velocities["front_right"]) == front
+    assert found.steering is None
+
+
+def test_front_wheels_that_cannot_be_paired_are_refused_naming_the_setting() -> None:
+    with pytest.raises(DataError, match=r"a front left wheel joint but no front right one "
+                                        r"among .*; set the mapping's \[wheels\] front_right"):
+        _joints(["rear_left", "rear_right", "front_left_wheel"], {}, "/j")
+    with pytest.raises(DataError, match=r"cannot tell which joint is the front left wheel"):
+        _joints(["rear_left", "rear_right", "front_left_a", "front_left_b", "front_right"],
+                {}, "/j")
+    with pytest.raises(DataError, match=r"the same joint is taken for a rear and a front wheel "
+                                        r"\(rear_left\)"):
+        _joints(["rear_left", "rear_right", "x"], {"front_left": "rear_left",
+                                                   "front_right": "x"}, "/j")
+
+
+def test_the_steering_joint_is_the_one_the_mapping_names() -> None:
+    names = ["rear_left", "rear_right", "steering_wheel"]
+    assert _joints(names, {}, "/j").steering is None            # never guessed
+    assert _joints(names, {"steering": "steering_wheel"}, "/j").steering == 2
+    with pytest.raises(DataError, match=r"no joint named 'steer' \(the mapping's \[wheels\] "
+                                        r"steering\)"):
+        _joints(names, {"steering": "steer"}, "/j")

@@ -441,3 +441,24 @@ def test_table_format_takes_the_front_wheels_and_the_steering(short_drive: Simul
     mapping.write_text(MAPPING.replace('rear_right = "rr"\n', wheels.replace('"deg"', '"grad"')))
     with pytest.raises(ConfigError, match="steering_unit = 'grad': 'rad' or 'deg'"):
         convert("table", sources, mapping=mapping, settings=NO_OFFSET)
+
+
+@pytest.mark.parametrize("kind", ["ros1", "mcap"])
+def test_a_bags_four_wheel_joints_and_steering_joint_are_the_drives_inputs(
+        short_drive: SimulatedDrive, tmp_path: Path, kind: str) -> None:
+    """A car's JointState with four wheel joints and a steering-wheel joint (issue 37): the front
+    wheels are found by their names, the steering joint is the one the mapping names, and the
+    drive carries them as the four-wheel model's inputs, as logged."""
+    from odocal.sim.four_wheel import with_front_axle
+
+    drive = with_front_axle(short_drive)[0].drive
+    path = write_bag(drive, tmp_path / ("drive.bag" if kind == "ros1" else kind), kind)
+    back = convert("rosbag", [path], settings=NO_OFFSET,
+                   mapping={"wheels": {"topic": "/joint_states",
+                                       "steering": "steering_wheel"}})[0]
+    assert set(back.inputs) == {"n_fl", "n_fr", "steer"}
+    for key in ("n_fl", "n_fr", "steer"):
+        np.testing.assert_allclose(back.inputs[key], drive.inputs[key], atol=1e-9, err_msg=key)
+    # without the steering joint named, the front wheels alone
+    plain = convert("rosbag", [path], settings=NO_OFFSET)[0]
+    assert set(plain.inputs) == {"n_fl", "n_fr"}

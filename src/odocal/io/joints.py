@@ -13,6 +13,13 @@ The rule, per side:
 
 Where none of these finds exactly one joint (or both sides find the same), the error names the
 joints and the setting that picks them.
+
+A car's front wheels (the four-wheel model's ``n_fl``, ``n_fr``; :func:`front_wheel_joints`),
+per side: the joint named by the user (``[wheels] front_left``/``front_right``), else the one
+joint whose name says front and the side (``front_left_wheel``, ``wheel_front_right``) or is the
+side's short name (``fl``, ``fl_wheel``, ``f_left_wheel_joint``), and does not say steer or
+caster (a steering joint turns the wheel about its vertical axis; it does not roll it). Neither side
+found: the log has no front wheels; one side only, or several on a side: the error names them.
 """
 
 from __future__ import annotations
@@ -30,6 +37,12 @@ _SIDE = {"left": re.compile(r"left|(^|_)l(_|$)", re.IGNORECASE),
          "right": re.compile(r"right|(^|_)r(_|$)", re.IGNORECASE)}
 _NOT_DRIVEN = re.compile(r"front|steer|caster|castor", re.IGNORECASE)
 _WHEEL = re.compile(r"wheel", re.IGNORECASE)
+#: A front wheel's joint of a side.
+_FRONT = {"left": re.compile(r"front.*left|left.*front|^f[_.\-]?l(eft)?([_.\-]|$)",
+                             re.IGNORECASE),
+          "right": re.compile(r"front.*right|right.*front|^f[_.\-]?r(ight)?([_.\-]|$)",
+                              re.IGNORECASE)}
+_NOT_ROLLING = re.compile(r"steer|caster|castor", re.IGNORECASE)
 
 
 def wheel_joints(names: Sequence[str], named: tuple[str, str], *, where: str,
@@ -63,3 +76,37 @@ def wheel_joints(names: Sequence[str], named: tuple[str, str], *, where: str,
         raise error(f"{where}: the left and the right wheel are the same joint "
                     f"{names[found[0]]!r}; set {setting('left')} and {setting('right')}")
     return found[0], found[1]
+
+
+def front_wheel_joints(names: Sequence[str], named: tuple[str, str], *, where: str,
+                       setting: Callable[[str], str],
+                       error: type[Exception]) -> tuple[int, int] | None:
+    """The indices of the front left and right wheel joints in ``names`` by the module's rule,
+    or None where the joints hold no front wheels. Arguments as :func:`wheel_joints`'."""
+    names = list(names)
+    listed = ", ".join(names) or "none"
+    found: list[int | None] = []
+    for side, wanted in zip(("left", "right"), named, strict=True):
+        if wanted:
+            if wanted not in names:
+                raise error(f"{where}: no joint named {wanted!r} ({setting(side)}); "
+                            f"joints: {listed}")
+            found.append(names.index(wanted))
+            continue
+        matches = [i for i, n in enumerate(names)
+                   if _FRONT[side].search(n) and not _NOT_ROLLING.search(n)]
+        if len(matches) > 1:
+            raise error(f"{where}: cannot tell which joint is the front {side} wheel among "
+                        f"{listed}; set {setting(side)}")
+        found.append(matches[0] if matches else None)
+    left, right = found
+    if left is None and right is None:
+        return None
+    if left is None or right is None:
+        missing = "left" if left is None else "right"
+        raise error(f"{where}: a front {'right' if left is None else 'left'} wheel joint "
+                    f"but no front {missing} one among {listed}; set {setting(missing)}")
+    if left == right:
+        raise error(f"{where}: the front left and right wheel are the same joint "
+                    f"{names[left]!r}; set {setting('left')} and {setting('right')}")
+    return left, right

@@ -14,7 +14,11 @@ standard type is used with these defaults:
 ``geometry_msgs/msg/PoseStamped`` pose: ``pose.position.x/y``, ``pose.orientation``
 ``sensor_msgs/msg/JointState``   wheels: ``velocity`` (rad/s) of the joints named by
                                  ``rear_left``/``rear_right``, else found by their names
-                                 (:mod:`odocal.io.joints`, the live node's rule)
+                                 (:mod:`odocal.io.joints`, the live node's rule); a car's
+                                 front wheels too (``front_left``/``front_right``, or
+                                 found by their names), and the ``position`` of the joint
+                                 ``steering`` names (the steering wheel's angle, in
+                                 ``steering_unit``)
 ================================ =========================================================
 
 Time stamps are the messages' ``header.stamp`` (``time = "header"``, the default when there is a
@@ -26,6 +30,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +38,7 @@ import numpy as np
 
 from odocal.arrays import FloatArray
 from odocal.errors import ConfigError, DataError, InputFileError, MissingDependencyError
-from odocal.io.joints import wheel_joints
+from odocal.io.joints import front_wheel_joints, wheel_joints
 from odocal.io.registry import ReadOptions
 from odocal.io.streams import RawLog, Stream
 from odocal.io.table import speed_metadata, stream_from_columns
@@ -150,7 +155,7 @@ def iter_rosbag(source: str | Path, mapping: Mapping[str, Mapping[str, Any]], *,
         for role, (topic, _) in plan.items():
             by_topic.setdefault(topic, []).append(role)
         conns = [c for c in reader.connections if c.topic in by_topic]
-        joint_index: dict[str, tuple[int, int]] = {}
+        joint_index: dict[str, _Joints] = {}
         columns: dict[str, dict[str, list[float]]] = {role: {} for role in plan}
         chunk_end: float | None = None
         for conn, receive_ns, data in reader.messages(connections=conns):
@@ -228,7 +233,7 @@ def _collect(reader: Any, plan: Mapping[str, tuple[str, dict[str, Any]]],
     for role, (topic, _) in plan.items():
         by_topic.setdefault(topic, []).append(role)
     columns: dict[str, dict[str, list[float]]] = {role: {} for role in plan}
-    joint_index: dict[str, tuple[int, int]] = {}
+    joint_index: dict[str, _Joints] = {}
     conns = [c for c in reader.connections if c.topic in by_topic]
     for conn, receive_ns, data in reader.messages(connections=conns):
         msg = reader.deserialize(data, conn.msgtype)
@@ -258,14 +263,15 @@ def _collect(reader: Any, plan: Mapping[str, tuple[str, dict[str, Any]]],
 
 
 def _extract(role: str, section: Mapping[str, Any], msg: Any,
-             joint_index: dict[str, tuple[int, int]], topic: str) -> dict[str, float]:
+             joint_index: dict[str, _Joints], topic: str) -> dict[str, float]:
     values: dict[str, float] = {}
     if role == "wheels" and section.get("_type") == "sensor_msgs/msg/JointState":
         if topic not in joint_index:
             joint_index[topic] = _joints(list(msg.name), section, topic)
-        left, right = joint_index[topic]
-        values["rear_left"] = float(msg.velocity[left])
-        values["rear_right"] = float(msg.velocity[right])
+        for key, index in joint_index[topic].velocities.items():
+            values[key] = float(msg.velocity[index])
+        if joint_index[topic].steering is not None:
+            values["steering"] = float(msg.position[joint_index[topic].steering])
         return values
     for key in ("rear_left", "rear_right", "yaw_rate", "lateral_accel", "x", "y", "heading",
                 "vx", "vy", "latitude", "longitude", "altitude", "speed", "course", "std"):
@@ -283,13 +289,46 @@ def _extract(role: str, section: Mapping[str, Any], msg: Any,
     return values
 
 
-def _joints(names: Sequence[str], section: Mapping[str, Any], topic: str) -> tuple[int, int]:
-    """The rear wheels' joints by :mod:`odocal.io.joints`' rule (the live node's)."""
-    named = tuple(v if isinstance(v := section.get(f"rear_{side}"), str) else ""
-                  for side in ("left", "right"))
-    return wheel_joints(names, (named[0], named[1]), where=f"topic {topic}",
-                        setting=lambda side: f"the mapping's [wheels] rear_{side}",
-                        error=DataError)
+@dataclass(frozen=True)
+class _Joints:
+    """Where a JointState's wheels are: the velocities' indices by column (``rear_left``,
+    ``rear_right``, and a car's ``front_left``, ``front_right``) and the steering joint's."""
+
+    velocities: dict[str, int]
+    steering: int | None = None
+
+
+def _joints(names: Sequence[str], section: Mapping[str, Any], topic: str) -> _Joints:
+    """The wheels' joints by :mod:`odocal.io.joints`' rule (the live node's), and the steering
+    joint the mapping names (``[wheels] steering``)."""
+    def named(key: str) -> str:
+        value = section.get(key)
+        return value if isinstance(value, str) else ""
+
+    def setting(side: str, axle: str) -> str:
+        return f"the mapping's [wheels] {axle}_{side}"
+
+    where = f"topic {topic}"
+    left, right = wheel_joints(names, (named("rear_left"), named("rear_right")), where=where,
+                               setting=lambda side: setting(side, "rear"), error=DataError)
+    velocities = {"rear_left": left, "rear_right": right}
+    front = front_wheel_joints(names, (named("front_left"), named("front_right")),
+                               where=where, setting=lambda side: setting(side, "front"),
+                               error=DataError)
+    if front is not None:
+        if {left, right} & set(front):
+            raise DataError(f"{where}: the same joint is taken for a rear and a front wheel "
+                            f"({', '.join(names[i] for i in sorted({left, right} & set(front)))}"
+                            "); name them in the mapping's [wheels] rear_left, rear_right, "
+                            "front_left, front_right")
+        velocities |= {"front_left": front[0], "front_right": front[1]}
+    steering = None
+    if named("steering"):
+        if named("steering") not in names:
+            raise DataError(f"{where}: no joint named {named('steering')!r} (the mapping's "
+                            f"[wheels] steering); joints: {', '.join(names) or 'none'}")
+        steering = list(names).index(named("steering"))
+    return _Joints(velocities, steering)
 
 
 def read(sources: Sequence[str | Path], *, mapping: Mapping[str, Mapping[str, Any]],
