@@ -163,22 +163,12 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
     it do less (a change inside the log, wheels without a differential signal, no lateral
     acceleration) keeps it amber, and says so.
     """
-    from odocal.estimators.estimate import Status
-    from odocal.report.advice import finding_text
-
+    unusable = _no_calibration(result)
+    if unusable is not None:
+        return unusable
     est = result.estimate
-    findings = result.diagnosis.findings
-    fatal = [f for f in findings if f.severity is Severity.FATAL]
-    if fatal:
-        return ("Do not use: " + "; ".join(finding_text(f, result.settings) for f in fatal)
-                + ".", "bad")
-    if result.diagnosis.standstill:
-        return "Nothing to calibrate: the vehicle does not move.", "partial"
-    if est.status is Status.NOTHING_IDENTIFIABLE:
-        return f"Nothing calibrated: {est.message}; see the identifiability notes.", "partial"
-    if not result.success:
-        return f"Calibration failed: {est.message}.", "bad"
-    change = next((f for f in findings if f.check is Check.CHANGE_IN_LOG), None)
+    change = next((f for f in result.diagnosis.findings if f.check is Check.CHANGE_IN_LOG),
+                  None)
     missing = est.unidentified
     if result.validation is None or result.datasheet_validation is None:
         base = "Calibrated, but the drive holds no validation segment to check it on"
@@ -206,6 +196,38 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
         level = "partial"
     else:
         base += "; all four parameters identified" + said_zero
+    base, level = _caveats(result, base, level, change, raw_m)
+    return base + ".", level
+
+
+def _no_calibration(result: CalibrationResult) -> tuple[str, str] | None:
+    """The verdict where there is no calibration to use (a fatal finding, a standstill,
+    nothing identifiable, a failed solve); None where there is one."""
+    from odocal.estimators.estimate import Status
+    from odocal.report.advice import finding_text
+
+    est = result.estimate
+    fatal = [f for f in result.diagnosis.findings if f.severity is Severity.FATAL]
+    if fatal:
+        return ("Do not use: " + "; ".join(finding_text(f, result.settings) for f in fatal)
+                + ".", "bad")
+    if result.diagnosis.standstill:
+        return "Nothing to calibrate: the vehicle does not move.", "partial"
+    if est.status is Status.NOTHING_IDENTIFIABLE:
+        return f"Nothing calibrated: {est.message}; see the identifiability notes.", "partial"
+    if not result.success:
+        return f"Calibration failed: {est.message}.", "bad"
+    return None
+
+
+def _caveats(result: CalibrationResult, base: str, level: str, change: Finding | None,
+             raw_m: float | None) -> tuple[str, str]:
+    """The verdict line ``base`` with what qualifies it (a change inside the log, a short
+    drive, the bootstrap's doubt, departures taken out, a better raw estimate), and its
+    level: kept from green by any of them but the departures, and by a fallback finding."""
+    from odocal.report.advice import finding_text
+
+    findings = result.diagnosis.findings
     if change is not None:
         # the numbers are of the vehicle after the change: said first, as the short drive is
         base = (f"A change inside the log: {finding_text(change, result.settings)}. {base}")
@@ -231,7 +253,7 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
         base += (f". Batch G-N on the measured rates validates better ({raw_m:.2f} m): "
                  "consider --method raw")
         level = "partial" if level == "good" else level
-    return base + ".", level
+    return base, level
 
 
 #: The notes of departures measured and taken out before the fit (the checks' findings).
