@@ -280,40 +280,7 @@ def finding_text(finding: Finding, settings: Settings) -> str:
                 f"(correlation {v:+.2f}): a locked axle or a single speed signal? Only c_e is "
                 "calibrated")
     if c is Check.SPEED_SCALE:
-        if finding.severity is Severity.NOTE:
-            c_e = settings.identify.datasheet("c_e")
-            speeds = (" Or are they wheel speeds in m/s given as rev/s?"
-                      if abs(np.log(v / c_e)) < 0.25 else "")
-            return (f"with the datasheet c_e ({c_e:g} m) the wheels imply {v:.3f} times the "
-                    "distance the reference travels: is [identify] theta0 set for this "
-                    f"vehicle?{speeds}")
-        if not v > 0:                         # (a log of it would be NaN, and a warning)
-            if not v < 0:
-                travelled = f" ({ref / 1000:.2f} km)" if ref > 1.0 else ""
-                return (f"the wheels read no motion while the reference travels{travelled}: "
-                        "the wheel columns are empty, unmapped or dead (or the vehicle was "
-                        "carried); fix the mapping")
-            scale = (f"; and by {abs(v):.3g} times its distance, also a wrong unit or scale"
-                     if abs(np.log(abs(v))) > 0.25 else "")
-            return (f"the wheels turn backwards while the reference moves forwards (they imply "
-                    f"{v:+.3g} times the distance it travels): the wheel rates' sign is "
-                    f"flipped{scale}; n_rl and n_rr count forward revolutions as positive "
-                    "(negate both columns, or fix the mapping)")
-        c_e = settings.identify.datasheet("c_e")
-        unit_hints = ((3.6 * c_e, 'wheel speeds in km/h given as rev/s: give the mapping\'s unit = '
-                              '"km/h"'),
-                  (c_e, 'wheel speeds in m/s given as rev/s: give the mapping\'s unit = "m/s"'),
-                  (3.6 * c_e / 1.609344, 'wheel speeds in mph given as rev/s: give the '
-                                         'mapping\'s unit = "mph"'))
-        factor, cause = min((*_SCALE_HINTS, *unit_hints), key=lambda h: abs(np.log(v / h[0])))
-        hint = f" ({cause}?)" if abs(np.log(v / factor)) < 0.25 else ""
-        from odocal.settings import datasheet_stated
-
-        sheet = ("" if datasheet_stated(settings.identify.theta0) else
-                 f", or a vehicle unlike odocal's placeholder datasheet (c_e "
-                 f"{settings.identify.datasheet('c_e'):g} m): state yours with --datasheet")
-        return (f"the wheels imply {v:.3g} times the distance the reference travels: a wrong "
-                f"wheel-speed unit or scale{hint}{sheet}")
+        return _speed_scale_text(finding, settings)
     if c is Check.LATERAL_SIGN:
         return (f"a_y has the wrong sign against speed times yaw rate (slope {v:+.2f}): the "
                 "lateral acceleration must be positive to the left")
@@ -338,6 +305,46 @@ def finding_text(finding: Finding, settings: Settings) -> str:
     if c is Check.DATA_REPAIRED:
         return f"{finding.name}: {v:.0f} isolated spike(s) repaired"
     return _reference_and_sensor_text(finding)
+
+
+def _speed_scale_text(finding: Finding, settings: Settings) -> str:
+    """The wheels' distance against the reference's in plain words: a datasheet c_e that
+    does not fit (a note), or a sign, unit or scale mistake, with its likely cause."""
+    v, ref = finding.value, finding.reference
+    if finding.severity is Severity.NOTE:
+        c_e = settings.identify.datasheet("c_e")
+        speeds = (" Or are they wheel speeds in m/s given as rev/s?"
+                  if abs(np.log(v / c_e)) < 0.25 else "")
+        return (f"with the datasheet c_e ({c_e:g} m) the wheels imply {v:.3f} times the "
+                "distance the reference travels: is [identify] theta0 set for this "
+                f"vehicle?{speeds}")
+    if not v > 0:                     # (a log of it would be NaN, and a warning)
+        if not v < 0:
+            travelled = f" ({ref / 1000:.2f} km)" if ref > 1.0 else ""
+            return (f"the wheels read no motion while the reference travels{travelled}: "
+                    "the wheel columns are empty, unmapped or dead (or the vehicle was "
+                    "carried); fix the mapping")
+        scale = (f"; and by {abs(v):.3g} times its distance, also a wrong unit or scale"
+                 if abs(np.log(abs(v))) > 0.25 else "")
+        return (f"the wheels turn backwards while the reference moves forwards (they imply "
+                f"{v:+.3g} times the distance it travels): the wheel rates' sign is "
+                f"flipped{scale}; n_rl and n_rr count forward revolutions as positive "
+                "(negate both columns, or fix the mapping)")
+    c_e = settings.identify.datasheet("c_e")
+    unit_hints = ((3.6 * c_e, 'wheel speeds in km/h given as rev/s: give the mapping\'s '
+                              'unit = "km/h"'),
+                  (c_e, 'wheel speeds in m/s given as rev/s: give the mapping\'s unit = "m/s"'),
+                  (3.6 * c_e / 1.609344, 'wheel speeds in mph given as rev/s: give the '
+                                         'mapping\'s unit = "mph"'))
+    factor, cause = min((*_SCALE_HINTS, *unit_hints), key=lambda h: abs(np.log(v / h[0])))
+    hint = f" ({cause}?)" if abs(np.log(v / factor)) < 0.25 else ""
+    from odocal.settings import datasheet_stated
+
+    sheet = ("" if datasheet_stated(settings.identify.theta0) else
+             f", or a vehicle unlike odocal's placeholder datasheet (c_e "
+             f"{settings.identify.datasheet('c_e'):g} m): state yours with --datasheet")
+    return (f"the wheels imply {v:.3g} times the distance the reference travels: a wrong "
+            f"wheel-speed unit or scale{hint}{sheet}")
 
 
 def _departure_text(finding: Finding) -> str:
