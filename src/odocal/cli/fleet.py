@@ -196,11 +196,17 @@ def cmd_simulate_fleet(args: argparse.Namespace) -> int:
 
 def add_parsers(sub: Any) -> None:
     """Register ``fleet`` and ``simulate-fleet`` on the main parser's subcommands."""
-    from odocal.sim.noise import NOISE_PROFILES
-
     fleet = sub.add_parser("fleet", help="calibrate many vehicles' drives, keep their history, "
                                          "detect drift")
     fsub = fleet.add_subparsers(dest="fleet_command", required=True, metavar="ACTION")
+    _add_fleet_calibrate(fsub)
+    _add_fleet_queries(fsub)
+    _add_fleet_demo(fsub)
+    _add_simulate_fleet(sub)
+
+
+def _add_fleet_calibrate(fsub: Any) -> None:
+    """Register ``fleet calibrate`` on the ``fleet`` parser's actions."""
     p = fsub.add_parser("calibrate", help="calibrate a catalog of drives into the store")
     p.add_argument("catalog", metavar="CATALOG",
                    help="CSV/Parquet catalog (vehicle, path, time, ...), a path or a URL "
@@ -223,6 +229,9 @@ def add_parsers(sub: Any) -> None:
     add_quiet(p)
     p.set_defaults(func=cmd_fleet_calibrate)
 
+
+def _add_fleet_queries(fsub: Any) -> None:
+    """Register ``fleet alarms`` and ``fleet history``, the store's two read-only queries."""
     p = fsub.add_parser("alarms", help="list the alarms in the store")
     p.add_argument("--store", required=True, metavar="DB",
                    help="the fleet's SQLite file (written by fleet calibrate)")
@@ -240,6 +249,9 @@ def add_parsers(sub: Any) -> None:
     add_quiet(p)
     p.set_defaults(func=cmd_fleet_history)
 
+
+def _add_fleet_demo(fsub: Any) -> None:
+    """Register ``fleet demo`` on the ``fleet`` parser's actions."""
     p = fsub.add_parser("demo", help="simulate a small fleet with events and calibrate it "
                                      "(under a minute)")
     p.add_argument("--out", metavar="DIR", help="keep the store and the fleet report here")
@@ -251,6 +263,11 @@ def add_parsers(sub: Any) -> None:
                    help="local cluster worker processes (0 or default: one per core)")
     add_quiet(p)
     p.set_defaults(func=cmd_fleet_demo)
+
+
+def _add_simulate_fleet(sub: Any) -> None:
+    """Register ``simulate-fleet`` on the main parser's subcommands."""
+    from odocal.sim.noise import NOISE_PROFILES
 
     p = sub.add_parser("simulate-fleet", help="write a simulated fleet with known truth and "
                                               "events")

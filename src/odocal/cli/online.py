@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from odocal.cli import interrupt
 from odocal.cli.arguments import add_common
@@ -21,6 +21,11 @@ from odocal.cli.common import (
 )
 from odocal.errors import OdocalError, shown
 
+if TYPE_CHECKING:
+    from odocal.estimators.estimate import Estimate
+    from odocal.online.replay import TraceRow
+    from odocal.settings import Settings
+
 
 def cmd_replay(args: argparse.Namespace) -> int:
     """Stream a log through the online calibrator; write the estimate, its trace and alarms."""
@@ -34,10 +39,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def _replay(args: argparse.Namespace, drawer: Any) -> int:
     from odocal.io.atomic import results_folder
-    from odocal.model.parameters import PARAMETER_NAMES
-    from odocal.online.replay import TraceRow, replay
+    from odocal.online.replay import replay
     from odocal.report.replay import alarm_words, convergence_km
-    from odocal.report.summary import parameter_text, std_text
 
     settings = settings_for(config=args.config, datasheet=args.datasheet, workers=args.workers)
     inputs = inputs_of(args.source, config=args.config, mapping=args.mapping)
@@ -48,26 +51,14 @@ def _replay(args: argparse.Namespace, drawer: Any) -> int:
         interrupt.checkpoint()       # (called at every update: Ctrl-C stops the replay here)
         if args.quiet:
             return
-        parts = [f"{n} {parameter_text(n, v)} {std_text(n, s)}" if ok else f"{n} -"
-                 for n, v, s, ok in zip(PARAMETER_NAMES, row.theta, row.std, row.identified,
-                                        strict=True)]
-        say(f"{row.t:9.1f} s {row.distance_km:8.2f} km  " + "  ".join(parts)
-            + (f"  REJECTED ({row.rejected_by or 'gate'}): not published" if row.rejected
-               else ""))
+        say(_update_line(row))
 
     result = replay(args.source, fmt=args.source_format, settings=settings,
                     mapping=args.mapping, on_update=show)
     refused = rejection(result.estimate, result.estimate.details.findings, settings)
     batch = None
     if not refused and not args.no_batch and (args.source_format or "drive") == "drive":
-        from odocal.pipeline.calibrate import calibrate
-
-        try:
-            batch = calibrate(args.source, settings=settings).estimate
-        except OdocalError as exc:   # the comparison is an extra: the replay's answer stands
-            interrupt.checkpoint()
-            say(f"note: no batch calibration to compare with: {shown(exc, 300)}")
-        interrupt.checkpoint()
+        batch = _batch_estimate(args.source, settings)
     start = result.trace[-1].t - result.duration_s if result.trace else 0.0
     for alarm in result.alarms:
         say(f"change: {alarm_words(alarm)}, since {alarm.t - start:.0f} s from the log's "
@@ -93,6 +84,35 @@ def _replay(args: argparse.Namespace, drawer: Any) -> int:
         for path in written:
             say(f"wrote {out / path}")
     return EXIT_OK
+
+
+def _update_line(row: TraceRow) -> str:
+    """One update of the replay as the terminal shows it: each parameter with its standard
+    deviation (- where not identified), and whether the gate refused it."""
+    from odocal.model.parameters import PARAMETER_NAMES
+    from odocal.report.summary import parameter_text, std_text
+
+    parts = [f"{n} {parameter_text(n, v)} {std_text(n, s)}" if ok else f"{n} -"
+             for n, v, s, ok in zip(PARAMETER_NAMES, row.theta, row.std, row.identified,
+                                    strict=True)]
+    return (f"{row.t:9.1f} s {row.distance_km:8.2f} km  " + "  ".join(parts)
+            + (f"  REJECTED ({row.rejected_by or 'gate'}): not published" if row.rejected
+               else ""))
+
+
+def _batch_estimate(source: str, settings: Settings) -> Estimate | None:
+    """The batch calibration of the whole log, to compare the replay's estimate with; None,
+    said in a note, where there is none."""
+    from odocal.pipeline.calibrate import calibrate
+
+    batch = None
+    try:
+        batch = calibrate(source, settings=settings).estimate
+    except OdocalError as exc:   # the comparison is an extra: the replay's answer stands
+        interrupt.checkpoint()
+        say(f"note: no batch calibration to compare with: {shown(exc, 300)}")
+    interrupt.checkpoint()
+    return batch
 
 
 def cmd_ros2(args: argparse.Namespace) -> int:

@@ -257,6 +257,23 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
     started = time.perf_counter()
     if progress:
         progress("step 3: identification", 0, 1)
+    final, raw, at_final = _step3_fits(batch, comp, s1, sets, settings=settings,
+                                       clusters=clusters, held=held, workers=workers)
+    if progress:
+        progress("step 3: identification", 1, 1)
+    timings["step3"] = time.perf_counter() - started
+    return ThreeStepOutcome(step1=s1, compensation=comp, final=final, raw=raw,
+                            warnings=tuple(warnings), timings_s=timings,
+                            mean_relative_change=relative_change(batch, comp),
+                            at_final=at_final)
+
+
+def _step3_fits(batch: SegmentBatch, comp: BatchCompensation, s1: Step1Result,
+                sets: FloatArray, *, settings: Settings, clusters: IntArray | None,
+                held: Mapping[str, NotIdentified] | None,
+                workers: int) -> tuple[Estimate, Estimate, Linearisation]:
+    """Step 3: the calibration on the compensated rates (with its linearisation at the end)
+    and the comparison on the measured rates, from the step-1 ``sets``."""
     # Start from the step-1 sets' mean: the same minimum as from the datasheet, in fewer steps.
     start = sets.mean(axis=0) if s1.success.any() else None
     compensated = batch.with_wheel_rates(comp.n_rl, comp.n_rr)
@@ -275,13 +292,7 @@ def three_step(batch: SegmentBatch, validation: RaggedSegments | None, *, settin
     if held_final != held:
         raw = gauss_newton(batch, settings=settings.identify, start=start, clusters=clusters,
                            held=held_final)
-    if progress:
-        progress("step 3: identification", 1, 1)
-    timings["step3"] = time.perf_counter() - started
-    return ThreeStepOutcome(step1=s1, compensation=comp, final=final, raw=raw,
-                            warnings=tuple(warnings), timings_s=timings,
-                            mean_relative_change=relative_change(batch, comp),
-                            at_final=at_final)
+    return final, raw, at_final
 
 
 #: What the workers of step 3 read (set only while they run): the compensated and the measured

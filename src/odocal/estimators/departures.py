@@ -291,19 +291,7 @@ def findings(p: FloatArray, std: FloatArray, entered: Sequence[str], *, t_s: flo
             out.append(Finding(Check.REFERENCE_ARM, Severity.NOTE, *value(name), label))
     if "curve" in names:
         q, q_std = value("curve")
-        distance = math.sqrt(2.0 * q) if q > 0 else 0.0
-        mine = rivals.get("curve", {})
-        ahead = mine.get("curve", math.inf) - mine.get("cut", -math.inf)
-        if heading_own and distance >= FRONT_MIN_M and q > _FRONT_SIGMAS * q_std \
-                and ahead > mine.get("penalty", 0.0):
-            # wheels a wheelbase ahead of the axle, on a reference with its own heading (no
-            # course for a lever arm to hide in), and nothing else explains them: a smoothed
-            # reference (``cut``, which grows with speed) held out by less, by more than the
-            # penalty of a parameter, when they entered (the one rule, between the two)
-            out.append(Finding(Check.FRONT_WHEELS, Severity.FATAL, distance,
-                               q_std / max(2.0 * distance, 1e-9)))
-        else:
-            out.append(Finding(Check.CURVE_EXCESS, Severity.NOTE, q, q_std))
+        out.append(_curve_finding(q, q_std, rivals.get("curve", {}), heading_own=heading_own))
     if "cut" in names:
         out.append(Finding(Check.REFERENCE_SMOOTHED, Severity.NOTE, *value("cut")))
     if "lateral_offset" in names:
@@ -316,16 +304,40 @@ def findings(p: FloatArray, std: FloatArray, entered: Sequence[str], *, t_s: flo
     if "drift" in names:
         out.append(Finding(Check.DRIFT, Severity.NOTE, *value("drift"), "c_e"))
     if "change_e" in names and change is not None:
-        # as the parameter's relative change (c_e), or its change over c_e (c_d), after less
-        # before: the calibration is of the part after it
-        when, where = change
-        lay = MODEL.layout
-        c_e = float(p[lay.index(lay.scale)])
-        step_e, step_d = value("change_e")[0], value("change_d")[0]
-        sizes = {"c_e": -step_e / max(c_e + step_e, 1e-9), "c_d": -step_d / max(c_e, 1e-9)}
-        stds = {"c_e": value("change_e")[1] / max(c_e, 1e-9),
-                "c_d": value("change_d")[1] / max(c_e, 1e-9)}
-        parameter = max(sizes, key=lambda k: abs(sizes[k]) / max(stds[k], 1e-12))
-        out.append(Finding(Check.CHANGE_IN_LOG, Severity.FALLBACK, sizes[parameter], when,
-                           f"{parameter}|{where}"))
+        out.append(_change_finding(p, std, change))
     return out
+
+
+def _curve_finding(q: float, q_std: float, mine: Mapping[str, float], *,
+                   heading_own: bool) -> Finding:
+    """The curve departure ``q`` (m^2): wheels that travel more, or less, than the rear axle in
+    bends, or front wheels mapped as the rear ones where nothing else explains them (``mine``:
+    the held-out gains of the curve's rivals in the round it entered)."""
+    distance = math.sqrt(2.0 * q) if q > 0 else 0.0
+    ahead = mine.get("curve", math.inf) - mine.get("cut", -math.inf)
+    if heading_own and distance >= FRONT_MIN_M and q > _FRONT_SIGMAS * q_std \
+            and ahead > mine.get("penalty", 0.0):
+        # wheels a wheelbase ahead of the axle, on a reference with its own heading (no
+        # course for a lever arm to hide in), and nothing else explains them: a smoothed
+        # reference (``cut``, which grows with speed) held out by less, by more than the
+        # penalty of a parameter, when they entered (the one rule, between the two)
+        return Finding(Check.FRONT_WHEELS, Severity.FATAL, distance,
+                       q_std / max(2.0 * distance, 1e-9))
+    return Finding(Check.CURVE_EXCESS, Severity.NOTE, q, q_std)
+
+
+def _change_finding(p: FloatArray, std: FloatArray, change: tuple[float, str]) -> Finding:
+    """The step of c_e and c_d at ``change`` (its time and drive), named by the parameter whose
+    step stands out more against its standard deviation."""
+    # as the parameter's relative change (c_e), or its change over c_e (c_d), after less
+    # before: the calibration is of the part after it
+    when, where = change
+    lay = MODEL.layout
+    c_e = float(p[lay.index(lay.scale)])
+    step_e, step_d = float(p[at("change_e")]), float(p[at("change_d")])
+    sizes = {"c_e": -step_e / max(c_e + step_e, 1e-9), "c_d": -step_d / max(c_e, 1e-9)}
+    stds = {"c_e": float(std[at("change_e")]) / max(c_e, 1e-9),
+            "c_d": float(std[at("change_d")]) / max(c_e, 1e-9)}
+    parameter = max(sizes, key=lambda k: abs(sizes[k]) / max(stds[k], 1e-12))
+    return Finding(Check.CHANGE_IN_LOG, Severity.FALLBACK, sizes[parameter], when,
+                   f"{parameter}|{where}")

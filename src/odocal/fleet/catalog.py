@@ -122,47 +122,55 @@ def _read_table(path: Location, label: object, resolve: Callable[[str], Location
         raise DataError(f"catalog '{label}' lists no drive")
     entries = []
     for i in range(n):
-        where = f"catalog '{label}' row {i + 1}"
         row = {k: (columns[k][i] if k in columns else None) for k in (*REQUIRED, *OPTIONAL)}
-        vehicle = (row["vehicle"] or "").strip()
-        if not vehicle:
-            raise DataError(f"{where}: the vehicle is empty")
-        text = (row["path"] or "").strip()
-        if not text:
-            raise DataError(f"{where}: the path is empty")
-        drive = resolve(text)
-        if isinstance(drive, str):
-            check_url(drive, f"{where}: drive")
-        elif not local:
-            pass
-        elif not drive.exists():
-            raise InputFileError(f"{where}: '{shown(drive)}' does not exist")
-        elif not drive.is_dir():
-            input_file(drive, f"{where}: drive")
-        fmt = (row["format"] or "").strip() or "drive"
-        if fmt != "drive" and fmt not in FORMATS:
-            raise DataError(f"{where}: unknown format {fmt!r}; use drive or one of "
-                            f"{', '.join(FORMATS)}")
-        mapping = (row["mapping"] or "").strip()
-        mapping_at = resolve(mapping) if mapping else None
-        if isinstance(mapping_at, str):
-            check_url(mapping_at, f"{where}: mapping file")
-        elif mapping_at is not None and local:   # named now, not as a crash when it is hashed
-            input_file(mapping_at, f"{where}: mapping file")
-        odometer = (row["odometer_km"] or "").strip()
-        try:
-            km = float(odometer) if odometer else None
-        except ValueError as err:
-            raise DataError(f"{where}: odometer_km {odometer!r} is not a number") from err
-        if km is not None and not (km >= 0 and km < 1e8):
-            raise DataError(f"{where}: odometer_km {odometer!r} is not a plausible reading")
-        event = (row["event"] or "").strip() or None
-        entries.append(CatalogEntry(vehicle=vehicle, path=drive,
-                                    time=parse_time(row["time"] or "", where=where),
-                                    odometer_km=km, format=fmt,
-                                    mapping=mapping_at,
-                                    event=event, row=i + 1))
+        entries.append(_catalog_entry(row, i + 1, label, resolve, local=local))
     return sorted(entries, key=lambda e: (e.vehicle, e.time, e.row))
+
+
+def _catalog_entry(row: dict[str, str | None], number: int, label: object,
+                   resolve: Callable[[str], Location], *, local: bool) -> CatalogEntry:
+    """Row ``number`` (1 = the first) of a catalog table, checked: a vehicle, a drive that
+    exists (a local one, of a local catalog), a known format, a mapping file, a plausible
+    odometer reading and a time."""
+    where = f"catalog '{label}' row {number}"
+    vehicle = (row["vehicle"] or "").strip()
+    if not vehicle:
+        raise DataError(f"{where}: the vehicle is empty")
+    text = (row["path"] or "").strip()
+    if not text:
+        raise DataError(f"{where}: the path is empty")
+    drive = resolve(text)
+    if isinstance(drive, str):
+        check_url(drive, f"{where}: drive")
+    elif not local:
+        pass
+    elif not drive.exists():
+        raise InputFileError(f"{where}: '{shown(drive)}' does not exist")
+    elif not drive.is_dir():
+        input_file(drive, f"{where}: drive")
+    fmt = (row["format"] or "").strip() or "drive"
+    if fmt != "drive" and fmt not in FORMATS:
+        raise DataError(f"{where}: unknown format {fmt!r}; use drive or one of "
+                        f"{', '.join(FORMATS)}")
+    mapping = (row["mapping"] or "").strip()
+    mapping_at = resolve(mapping) if mapping else None
+    if isinstance(mapping_at, str):
+        check_url(mapping_at, f"{where}: mapping file")
+    elif mapping_at is not None and local:   # named now, not as a crash when it is hashed
+        input_file(mapping_at, f"{where}: mapping file")
+    odometer = (row["odometer_km"] or "").strip()
+    try:
+        km = float(odometer) if odometer else None
+    except ValueError as err:
+        raise DataError(f"{where}: odometer_km {odometer!r} is not a number") from err
+    if km is not None and not (km >= 0 and km < 1e8):
+        raise DataError(f"{where}: odometer_km {odometer!r} is not a plausible reading")
+    event = (row["event"] or "").strip() or None
+    return CatalogEntry(vehicle=vehicle, path=drive,
+                        time=parse_time(row["time"] or "", where=where),
+                        odometer_km=km, format=fmt,
+                        mapping=mapping_at,
+                        event=event, row=number)
 
 
 def _beside_url(base: str, text: str) -> Location:

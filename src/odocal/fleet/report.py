@@ -150,32 +150,7 @@ def _page(out: Path, drives: Sequence[Mapping[str, Any]], alarms: Sequence[Mappi
         f"<td>{a['relative_change'] * 100:+.3f}%</td><td>{a['confidence']:.3f}</td>"
         f"<td>{a['drives_to_detect']} / {a['km_to_detect']:.0f} km</td>"
         f"<td class='text'>{html.escape(a['message'])}</td></tr>" for a in alarms)
-    sections = []
-    for v in vehicles:
-        mine = [r for r in drives if r["vehicle"] == v]
-        p = pooled.get(v)
-        current = (" &middot; ".join(_fmt(n, p[n], p[f"{n}_std"]) if p[f"{n}_identified"]
-                                     else f"{n} not identified" for n in PARAMETER_NAMES)
-                   if p else "no pooled calibration")
-        fig = pngs.get(f"history_{_safe(v)}")
-        img = (f'<figure><img alt="history of {html.escape(v)}" src="data:image/png;base64,'
-               f'{base64.b64encode(fig[1]).decode("ascii")}"><figcaption>{html.escape(fig[0])}'
-               "</figcaption></figure>" if fig else "")
-        links = []
-        for r in mine:
-            label = f"{r['time'][:16]} {html.escape(r['status'])}"
-            if r.get("error"):
-                label += f": {html.escape(r['error'])}"
-            if r.get("report") and Path(r["report"]).exists():
-                try:
-                    rel = Path(r["report"]).resolve().relative_to(out.resolve())
-                    label = f'<a href="{html.escape(rel.as_posix())}">{label}</a>'
-                except ValueError:
-                    label = f'<a href="{html.escape(Path(r["report"]).as_uri())}">{label}</a>'
-            links.append(f"<li>{label}</li>")
-        sections.append(f"<h2 id='{_safe(v)}'>{html.escape(v)}</h2><p>{len(mine)} drives; "
-                        f"current (pooled) calibration: {current}</p>{img}"
-                        f"<details><summary>drives</summary><ul>{''.join(links)}</ul></details>")
+    sections = [_vehicle_section(out, v, drives, pooled, pngs) for v in vehicles]
     recal = sorted({a["vehicle"] for a in alarms})
     recal_rows = "".join(
         f"<tr><td><a href='#{_safe(v)}'>{html.escape(v)}</a></td><td class='text'>"
@@ -200,3 +175,34 @@ def _page(out: Path, drives: Sequence[Mapping[str, Any]], alarms: Sequence[Mappi
 parameter files are in vehicles/ID/.</p>
 </main></body></html>
 """
+
+
+def _vehicle_section(out: Path, v: str, drives: Sequence[Mapping[str, Any]],
+                     pooled: Mapping[str, Mapping[str, Any]],
+                     pngs: Mapping[str, tuple[str, bytes]]) -> str:
+    """Vehicle ``v``'s section: its pooled calibration, its history figure, and its drives,
+    each linked to its own report where there is one (relative to ``out`` where inside it)."""
+    mine = [r for r in drives if r["vehicle"] == v]
+    p = pooled.get(v)
+    current = (" &middot; ".join(_fmt(n, p[n], p[f"{n}_std"]) if p[f"{n}_identified"]
+                                 else f"{n} not identified" for n in PARAMETER_NAMES)
+               if p else "no pooled calibration")
+    fig = pngs.get(f"history_{_safe(v)}")
+    img = (f'<figure><img alt="history of {html.escape(v)}" src="data:image/png;base64,'
+           f'{base64.b64encode(fig[1]).decode("ascii")}"><figcaption>{html.escape(fig[0])}'
+           "</figcaption></figure>" if fig else "")
+    links = []
+    for r in mine:
+        label = f"{r['time'][:16]} {html.escape(r['status'])}"
+        if r.get("error"):
+            label += f": {html.escape(r['error'])}"
+        if r.get("report") and Path(r["report"]).exists():
+            try:
+                rel = Path(r["report"]).resolve().relative_to(out.resolve())
+                label = f'<a href="{html.escape(rel.as_posix())}">{label}</a>'
+            except ValueError:
+                label = f'<a href="{html.escape(Path(r["report"]).as_uri())}">{label}</a>'
+        links.append(f"<li>{label}</li>")
+    return (f"<h2 id='{_safe(v)}'>{html.escape(v)}</h2><p>{len(mine)} drives; "
+            f"current (pooled) calibration: {current}</p>{img}"
+            f"<details><summary>drives</summary><ul>{''.join(links)}</ul></details>")

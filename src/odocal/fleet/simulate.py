@@ -127,20 +127,12 @@ def _write_fleet(root: Path, *, vehicles: int, drives: int, duration_s: float, s
         (root / name).mkdir()
         for i in range(drives):
             when = START + dt.timedelta(days=i, hours=float(rng.uniform(0, 10)))
-            current = theta.copy()
             event = ""
-            if kind == "pressure" and i >= at:
-                current[1] -= 2.0 * size * current[0]
-                current[0] *= 1.0 - size
-            elif kind == "wear":
-                current[0] *= 1.0 - wear * i / (drives - 1)
-            elif kind == "tyres" and i >= at:
-                if i == at:
-                    event = "tyre change"
-                    theta = _vehicle_theta(rng)
-                current = theta.copy()
-            current[0] *= 1.0 + rng.normal(0.0, 0.0001)     # load, temperature
-            current[1] += rng.normal(0.0, 0.0001)
+            if kind == "tyres" and i == at:
+                event = "tyre change"
+                theta = _vehicle_theta(rng)
+            current = _drive_theta(theta, rng, kind=kind, i=i, at=at, drives=drives, size=size,
+                                   wear=wear)
             sim = simulate(duration_s=duration_s, seed=int(rng.integers(2**31)), noise=noise,
                            theta=Parameters(*current), name=f"{name}-{i:02d}")
             drive = sim.drive
@@ -167,10 +159,31 @@ def _write_fleet(root: Path, *, vehicles: int, drives: int, duration_s: float, s
             events.append(FleetEvent(name, 0, str(history[0]["time"]), "wear", -wear, False))
         truth["vehicles"][name] = {"plan": kind, "drives": history}
     truth["events"] = [dataclasses.asdict(e) for e in events]
+    _write_catalog(root, rows, truth)
+    return events
+
+
+def _drive_theta(theta: np.ndarray, rng: np.random.Generator, *, kind: str, i: int, at: int,
+                 drives: int, size: float, wear: float) -> np.ndarray:
+    """The parameters on drive ``i`` of a vehicle whose own are ``theta`` (new ones after a
+    tyre change), under its plan ``kind`` (a pressure loss from drive ``at`` on, wear over its
+    ``drives``), scattered a little by load and temperature."""
+    current = theta.copy()
+    if kind == "pressure" and i >= at:
+        current[1] -= 2.0 * size * current[0]
+        current[0] *= 1.0 - size
+    elif kind == "wear":
+        current[0] *= 1.0 - wear * i / (drives - 1)
+    current[0] *= 1.0 + rng.normal(0.0, 0.0001)     # load, temperature
+    current[1] += rng.normal(0.0, 0.0001)
+    return current
+
+
+def _write_catalog(root: Path, rows: list[dict[str, Any]], truth: dict[str, Any]) -> None:
+    """``catalog.csv`` (one row per drive) and ``truth.json``, written into ``root``."""
     header = ["vehicle", "path", "time", "odometer_km", "event"]
     lines = [",".join(header)] + [",".join(str(r[h]) for h in header) for r in rows]
     catalog = root / "catalog.csv"
     write_text(catalog, "\n".join(lines) + "\n")
     truth_path = root / "truth.json"
     write_text(truth_path, json.dumps(truth, indent=1) + "\n")
-    return events

@@ -426,9 +426,6 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
 
     calibrator = OnlineCalibrator(settings, theta0, source=redact(source))
     trace: list[TraceRow] = []
-    first_t: float | None = None
-    last_t = 0.0
-    next_update: float | None = None
     good: list[tuple[Estimate, float]] = []       # the latest publishable estimate, and where
 
     def update(t: float) -> Estimate:
@@ -441,6 +438,34 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
             on_update(row, est)
         return est
 
+    span = _feed(calibrator, source, fmt=fmt, settings=settings, mapping=mapping, update=update)
+    if span is None:
+        from odocal.io.urls import redact
+
+        raise DataError(f"'{redact(source)}' holds no samples (or a single one)")
+    first_t, last_t = span
+    final = update(last_t)
+    published, published_km = final, None
+    if final.status is Status.REJECTED and not calibrator.halted and good:
+        published, published_km = good[0]
+    from odocal.io.urls import redact
+
+    return ReplayResult(source=redact(source), estimate=published, trace=tuple(trace),
+                        alarms=calibrator.alarms, samples=calibrator.details_samples(),
+                        duration_s=last_t - first_t, distance_km=calibrator.distance_km,
+                        elapsed_s=time.perf_counter() - started, final=final,
+                        published_km=published_km)
+
+
+def _feed(calibrator: OnlineCalibrator, source: str | Path, *, fmt: str | None,
+          settings: Settings, mapping: str | Path | Mapping[str, Mapping[str, Any]] | None,
+          update: Callable[[float], Estimate]) -> tuple[float, float] | None:
+    """Push ``source``'s chunks into ``calibrator``, calling ``update(t)`` every ``[online]
+    update_s`` of data, until the log ends or the checks halt it; the span of t pushed (in
+    seconds), None for no samples or a single one."""
+    first_t: float | None = None
+    last_t = 0.0
+    next_update: float | None = None
     read = 0                                      # samples read before this chunk
     piece: float | None = None                    # the drive format's piece, if it has one
     previous_t: float | None = None               # the last one's t, as the log has it
@@ -467,17 +492,5 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
             update(last_t)
             next_update = last_t + settings.online.update_s
     if first_t is None:
-        from odocal.io.urls import redact
-
-        raise DataError(f"'{redact(source)}' holds no samples (or a single one)")
-    final = update(last_t)
-    published, published_km = final, None
-    if final.status is Status.REJECTED and not calibrator.halted and good:
-        published, published_km = good[0]
-    from odocal.io.urls import redact
-
-    return ReplayResult(source=redact(source), estimate=published, trace=tuple(trace),
-                        alarms=calibrator.alarms, samples=calibrator.details_samples(),
-                        duration_s=last_t - first_t, distance_km=calibrator.distance_km,
-                        elapsed_s=time.perf_counter() - started, final=final,
-                        published_km=published_km)
+        return None
+    return first_t, last_t

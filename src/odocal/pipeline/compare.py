@@ -77,7 +77,7 @@ def compare(drives: Sequence[Drive], *, settings: Settings | None = None,
 
     ``progress(stage, done, total)`` counts each method's three fits (two halves, the whole).
     """
-    from odocal.pipeline.calibrate import calibrate, validate_theta
+    from odocal.pipeline.calibrate import validate_theta
 
     settings = settings or Settings()
     halves = check_comparable(drives, settings, block_s)
@@ -89,49 +89,60 @@ def compare(drives: Sequence[Drive], *, settings: Settings | None = None,
         except OdocalError:
             return None
 
-    scores = []
-    for method in methods:
-        started = time.perf_counter()
-        per_fold: list[float | None] = []
-        error = None
-        stage = f"comparing the methods: {method}, 3 fits"
-        try:
-            for k in (0, 1):
-                if progress:
-                    progress(stage, k, 3)
-                fit = calibrate(halves[k], settings=settings, method=method)
-                per_fold.append(held_out(fit.theta, k) if fit.success else None)
-            if progress:
-                progress(stage, 2, 3)
-            whole = calibrate(list(drives), settings=settings, method=method)
-            if progress:
-                progress(stage, 3, 3)
-        except OdocalError as exc:
-            if progress:
-                progress(stage, 3, 3)
-            error = str(exc)
-            scores.append(MethodScore(method, Parameters(*settings.identify.theta0),
-                                      (0.0,) * 4, (False,) * 4, "error", None, tuple(per_fold),
-                                      None, time.perf_counter() - started, error))
-            continue
-        est = whole.estimate
-        ok = [v for v in per_fold if v is not None]
-        truth_error = None
-        if truth is not None:
-            diff = est.theta.as_array() - truth.as_array()
-            truth_error = dict(zip(PARAMETER_NAMES, diff.tolist(), strict=True))
-        scores.append(MethodScore(
-            method=method, theta=est.theta, std=tuple(est.std.tolist()),
-            identified=est.identified, status=est.status.name.lower(),
-            held_out_e_p_m=float(np.mean(ok)) if len(ok) == 2 else None,
-            folds_e_p_m=tuple(per_fold), truth_error=truth_error,
-            elapsed_s=time.perf_counter() - started))
+    scores = [_method_score(method, drives, halves, settings=settings, truth=truth,
+                            held_out=held_out, progress=progress) for method in methods]
     datasheet = [held_out(Parameters(*settings.identify.theta0), k) for k in (0, 1)]
     data_ok = [v for v in datasheet if v is not None]
     held = sorted((s.held_out_e_p_m, s.method) for s in scores if s.held_out_e_p_m is not None)
     favoured = tuple(m for e_p, m in held if e_p <= held[0][0] * (1.0 + TIE))
     return Comparison(scores=tuple(scores), block_s=block, favoured=favoured,
                       datasheet_e_p_m=float(np.mean(data_ok)) if len(data_ok) == 2 else None)
+
+
+def _method_score(method: str, drives: Sequence[Drive],
+                  halves: tuple[list[Drive], list[Drive]], *,
+                  settings: Settings, truth: Parameters | None,
+                  held_out: Callable[[Parameters, int], float | None],
+                  progress: Callable[[str, int, int], None] | None) -> MethodScore:
+    """One method's score: fitted on each half and validated on the other (``held_out(theta,
+    k)``: E_p on the half fit ``k`` did not see), and fitted on the whole; a method that fails
+    is scored as an error."""
+    from odocal.pipeline.calibrate import calibrate
+
+    started = time.perf_counter()
+    per_fold: list[float | None] = []
+    error = None
+    stage = f"comparing the methods: {method}, 3 fits"
+    try:
+        for k in (0, 1):
+            if progress:
+                progress(stage, k, 3)
+            fit = calibrate(halves[k], settings=settings, method=method)
+            per_fold.append(held_out(fit.theta, k) if fit.success else None)
+        if progress:
+            progress(stage, 2, 3)
+        whole = calibrate(list(drives), settings=settings, method=method)
+        if progress:
+            progress(stage, 3, 3)
+    except OdocalError as exc:
+        if progress:
+            progress(stage, 3, 3)
+        error = str(exc)
+        return MethodScore(method, Parameters(*settings.identify.theta0),
+                           (0.0,) * 4, (False,) * 4, "error", None, tuple(per_fold),
+                           None, time.perf_counter() - started, error)
+    est = whole.estimate
+    ok = [v for v in per_fold if v is not None]
+    truth_error = None
+    if truth is not None:
+        diff = est.theta.as_array() - truth.as_array()
+        truth_error = dict(zip(PARAMETER_NAMES, diff.tolist(), strict=True))
+    return MethodScore(
+        method=method, theta=est.theta, std=tuple(est.std.tolist()),
+        identified=est.identified, status=est.status.name.lower(),
+        held_out_e_p_m=float(np.mean(ok)) if len(ok) == 2 else None,
+        folds_e_p_m=tuple(per_fold), truth_error=truth_error,
+        elapsed_s=time.perf_counter() - started)
 
 
 def format_table(comparison: Comparison) -> list[str]:

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from odocal.arrays import FloatArray, IntArray
+from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.errors import DataError
 from odocal.model._jit import jit
 from odocal.settings import FusionSettings
@@ -199,51 +199,13 @@ def fuse(t_grid: FloatArray, yaw_rate: FloatArray, *, gnss_t: FloatArray,
     Each GNSS fix is moved to its nearest grid point along its measured velocity (so a 10 Hz
     receiver's fixes are not smeared by up to half a grid step).
     """
-    n = t_grid.size
     dt = float(t_grid[1] - t_grid[0])
-    pos = np.full((n, 2), np.nan)
-    pos_std = np.full(n, settings.gnss_position_std_m)
-    speed = np.full(n, np.nan)
-    course = np.full(n, np.nan)
-    idx = on_grid(t_grid, gnss_t, east)
-    ok = idx >= 0
-    if not ok.any():
-        raise DataError(f"'{name}': no GNSS fix inside the drive's time span")
-    shift = t_grid[idx[ok]] - gnss_t[ok]
-    e, nn = east[ok].copy(), north[ok].copy()
-    if gnss_speed is not None and gnss_course is not None:
-        e += gnss_speed[ok] * np.cos(gnss_course[ok]) * shift
-        nn += gnss_speed[ok] * np.sin(gnss_course[ok]) * shift
-    pos[idx[ok], 0], pos[idx[ok], 1] = e, nn
-    if gnss_std is not None:
-        pos_std[idx[ok]] = np.maximum(gnss_std[ok], 0.05)
-    if gnss_speed is not None:
-        speed[idx[ok]] = gnss_speed[ok]
-    if gnss_course is not None:
-        course[idx[ok]] = gnss_course[ok]
-    head = np.full(n, np.nan)
-    if heading_t is not None and heading is not None:
-        hidx = on_grid(t_grid, heading_t, heading)
-        head[hidx[hidx >= 0]] = heading[hidx >= 0]
-
-    first = int(np.flatnonzero(np.isfinite(pos[:, 0]))[0])
-    x0 = np.zeros(6)
-    x0[0], x0[1] = pos[first]
+    pos, pos_std, speed, course, head = _gridded_measurements(
+        t_grid, gnss_t=gnss_t, east=east, north=north, gnss_speed=gnss_speed,
+        gnss_course=gnss_course, gnss_std=gnss_std, heading_t=heading_t, heading=heading,
+        settings=settings, name=name)
     moving = np.isfinite(course) & (np.nan_to_num(speed) > settings.min_course_speed_mps)
-    psi_var = np.pi**2
-    if np.isfinite(head).any():
-        x0[2], psi_var = head[np.isfinite(head)][0], settings.heading_std_rad**2
-    elif moving.any():
-        x0[2], psi_var = course[moving][0], settings.gnss_course_std_rad**2
-    else:
-        # positions only (a NavSatFix): the heading the vehicle first moves along, turned back
-        # by what the gyro turned until then. Without it the filter may settle on the mirror
-        # image (speed negative, heading turned by pi), which explains the fixes equally well.
-        start = _first_heading(pos, pos_std, np.asarray(yaw_rate, dtype=np.float64), dt)
-        if start is not None:
-            x0[2], psi_var = start, _START_HEADING_STD_RAD**2
-    x0[3] = speed[np.isfinite(speed)][0] if np.isfinite(speed).any() else 0.0
-    P0 = np.diag([pos_std[first]**2, pos_std[first]**2, psi_var, 4.0, 0.01**2, 0.002**2])
+    x0, P0 = _initial_state(pos, pos_std, speed, course, head, moving, yaw_rate, dt, settings)
     q = np.array([settings.position_noise_m**2, settings.position_noise_m**2,
                   settings.gyro_noise_radps**2, settings.accel_noise_mps2**2,
                   settings.gyro_bias_walk_radps**2])
@@ -268,6 +230,69 @@ def fuse(t_grid: FloatArray, yaw_rate: FloatArray, *, gnss_t: FloatArray,
                   "course": int(rejected[2]), "heading": int(rejected[3])},
         position_innovation_rms_m=float(np.sqrt(innov[0] / innov[1])) if innov[1] else 0.0,
         mirrored=mirrored)
+
+
+def _gridded_measurements(
+        t_grid: FloatArray, *, gnss_t: FloatArray, east: FloatArray, north: FloatArray,
+        gnss_speed: FloatArray | None, gnss_course: FloatArray | None,
+        gnss_std: FloatArray | None, heading_t: FloatArray | None, heading: FloatArray | None,
+        settings: FusionSettings,
+        name: str) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The measurements on the grid: positions (N, 2), their standard deviations (the
+    setting's where the receiver gives none), speed, course and heading; NaN where none."""
+    n = t_grid.size
+    pos = np.full((n, 2), np.nan)
+    pos_std = np.full(n, settings.gnss_position_std_m)
+    speed = np.full(n, np.nan)
+    course = np.full(n, np.nan)
+    idx = on_grid(t_grid, gnss_t, east)
+    ok = idx >= 0
+    if not ok.any():
+        raise DataError(f"'{name}': no GNSS fix inside the drive's time span")
+    shift = t_grid[idx[ok]] - gnss_t[ok]
+    e, nn = east[ok].copy(), north[ok].copy()
+    if gnss_speed is not None and gnss_course is not None:
+        e += gnss_speed[ok] * np.cos(gnss_course[ok]) * shift
+        nn += gnss_speed[ok] * np.sin(gnss_course[ok]) * shift
+    pos[idx[ok], 0], pos[idx[ok], 1] = e, nn
+    if gnss_std is not None:
+        pos_std[idx[ok]] = np.maximum(gnss_std[ok], 0.05)
+    if gnss_speed is not None:
+        speed[idx[ok]] = gnss_speed[ok]
+    if gnss_course is not None:
+        course[idx[ok]] = gnss_course[ok]
+    head = np.full(n, np.nan)
+    if heading_t is not None and heading is not None:
+        hidx = on_grid(t_grid, heading_t, heading)
+        head[hidx[hidx >= 0]] = heading[hidx >= 0]
+    return pos, pos_std, speed, course, head
+
+
+def _initial_state(pos: FloatArray, pos_std: FloatArray, speed: FloatArray,
+                   course: FloatArray, head: FloatArray, moving: BoolArray,
+                   yaw_rate: FloatArray, dt: float,
+                   settings: FusionSettings) -> tuple[FloatArray, FloatArray]:
+    """The filter's start x0 and its covariance P0: the first fix, the first measured heading
+    (else the first course while moving, else from the fixes' first displacement) and the
+    first speed."""
+    first = int(np.flatnonzero(np.isfinite(pos[:, 0]))[0])
+    x0 = np.zeros(6)
+    x0[0], x0[1] = pos[first]
+    psi_var = np.pi**2
+    if np.isfinite(head).any():
+        x0[2], psi_var = head[np.isfinite(head)][0], settings.heading_std_rad**2
+    elif moving.any():
+        x0[2], psi_var = course[moving][0], settings.gnss_course_std_rad**2
+    else:
+        # positions only (a NavSatFix): the heading the vehicle first moves along, turned back
+        # by what the gyro turned until then. Without it the filter may settle on the mirror
+        # image (speed negative, heading turned by pi), which explains the fixes equally well.
+        start = _first_heading(pos, pos_std, np.asarray(yaw_rate, dtype=np.float64), dt)
+        if start is not None:
+            x0[2], psi_var = start, _START_HEADING_STD_RAD**2
+    x0[3] = speed[np.isfinite(speed)][0] if np.isfinite(speed).any() else 0.0
+    P0 = np.diag([pos_std[first]**2, pos_std[first]**2, psi_var, 4.0, 0.01**2, 0.002**2])
+    return x0, P0
 
 
 #: How far the first fixes must lie apart to give a starting heading, and its uncertainty.

@@ -280,40 +280,7 @@ def finding_text(finding: Finding, settings: Settings) -> str:
                 f"(correlation {v:+.2f}): a locked axle or a single speed signal? Only c_e is "
                 "calibrated")
     if c is Check.SPEED_SCALE:
-        if finding.severity is Severity.NOTE:
-            c_e = settings.identify.datasheet("c_e")
-            speeds = (" Or are they wheel speeds in m/s given as rev/s?"
-                      if abs(np.log(v / c_e)) < 0.25 else "")
-            return (f"with the datasheet c_e ({c_e:g} m) the wheels imply {v:.3f} times the "
-                    "distance the reference travels: is [identify] theta0 set for this "
-                    f"vehicle?{speeds}")
-        if not v > 0:                         # (a log of it would be NaN, and a warning)
-            if not v < 0:
-                travelled = f" ({ref / 1000:.2f} km)" if ref > 1.0 else ""
-                return (f"the wheels read no motion while the reference travels{travelled}: "
-                        "the wheel columns are empty, unmapped or dead (or the vehicle was "
-                        "carried); fix the mapping")
-            scale = (f"; and by {abs(v):.3g} times its distance, also a wrong unit or scale"
-                     if abs(np.log(abs(v))) > 0.25 else "")
-            return (f"the wheels turn backwards while the reference moves forwards (they imply "
-                    f"{v:+.3g} times the distance it travels): the wheel rates' sign is "
-                    f"flipped{scale}; n_rl and n_rr count forward revolutions as positive "
-                    "(negate both columns, or fix the mapping)")
-        c_e = settings.identify.datasheet("c_e")
-        unit_hints = ((3.6 * c_e, 'wheel speeds in km/h given as rev/s: give the mapping\'s unit = '
-                              '"km/h"'),
-                  (c_e, 'wheel speeds in m/s given as rev/s: give the mapping\'s unit = "m/s"'),
-                  (3.6 * c_e / 1.609344, 'wheel speeds in mph given as rev/s: give the '
-                                         'mapping\'s unit = "mph"'))
-        factor, cause = min((*_SCALE_HINTS, *unit_hints), key=lambda h: abs(np.log(v / h[0])))
-        hint = f" ({cause}?)" if abs(np.log(v / factor)) < 0.25 else ""
-        from odocal.settings import datasheet_stated
-
-        sheet = ("" if datasheet_stated(settings.identify.theta0) else
-                 f", or a vehicle unlike odocal's placeholder datasheet (c_e "
-                 f"{settings.identify.datasheet('c_e'):g} m): state yours with --datasheet")
-        return (f"the wheels imply {v:.3g} times the distance the reference travels: a wrong "
-                f"wheel-speed unit or scale{hint}{sheet}")
+        return _speed_scale_text(finding, settings)
     if c is Check.LATERAL_SIGN:
         return (f"a_y has the wrong sign against speed times yaw rate (slope {v:+.2f}): the "
                 "lateral acceleration must be positive to the left")
@@ -338,6 +305,46 @@ def finding_text(finding: Finding, settings: Settings) -> str:
     if c is Check.DATA_REPAIRED:
         return f"{finding.name}: {v:.0f} isolated spike(s) repaired"
     return _reference_and_sensor_text(finding)
+
+
+def _speed_scale_text(finding: Finding, settings: Settings) -> str:
+    """The wheels' distance against the reference's in plain words: a datasheet c_e that
+    does not fit (a note), or a sign, unit or scale mistake, with its likely cause."""
+    v, ref = finding.value, finding.reference
+    if finding.severity is Severity.NOTE:
+        c_e = settings.identify.datasheet("c_e")
+        speeds = (" Or are they wheel speeds in m/s given as rev/s?"
+                  if abs(np.log(v / c_e)) < 0.25 else "")
+        return (f"with the datasheet c_e ({c_e:g} m) the wheels imply {v:.3f} times the "
+                "distance the reference travels: is [identify] theta0 set for this "
+                f"vehicle?{speeds}")
+    if not v > 0:                     # (a log of it would be NaN, and a warning)
+        if not v < 0:
+            travelled = f" ({ref / 1000:.2f} km)" if ref > 1.0 else ""
+            return (f"the wheels read no motion while the reference travels{travelled}: "
+                    "the wheel columns are empty, unmapped or dead (or the vehicle was "
+                    "carried); fix the mapping")
+        scale = (f"; and by {abs(v):.3g} times its distance, also a wrong unit or scale"
+                 if abs(np.log(abs(v))) > 0.25 else "")
+        return (f"the wheels turn backwards while the reference moves forwards (they imply "
+                f"{v:+.3g} times the distance it travels): the wheel rates' sign is "
+                f"flipped{scale}; n_rl and n_rr count forward revolutions as positive "
+                "(negate both columns, or fix the mapping)")
+    c_e = settings.identify.datasheet("c_e")
+    unit_hints = ((3.6 * c_e, 'wheel speeds in km/h given as rev/s: give the mapping\'s '
+                              'unit = "km/h"'),
+                  (c_e, 'wheel speeds in m/s given as rev/s: give the mapping\'s unit = "m/s"'),
+                  (3.6 * c_e / 1.609344, 'wheel speeds in mph given as rev/s: give the '
+                                         'mapping\'s unit = "mph"'))
+    factor, cause = min((*_SCALE_HINTS, *unit_hints), key=lambda h: abs(np.log(v / h[0])))
+    hint = f" ({cause}?)" if abs(np.log(v / factor)) < 0.25 else ""
+    from odocal.settings import datasheet_stated
+
+    sheet = ("" if datasheet_stated(settings.identify.theta0) else
+             f", or a vehicle unlike odocal's placeholder datasheet (c_e "
+             f"{settings.identify.datasheet('c_e'):g} m): state yours with --datasheet")
+    return (f"the wheels imply {v:.3g} times the distance the reference travels: a wrong "
+            f"wheel-speed unit or scale{hint}{sheet}")
 
 
 def _departure_text(finding: Finding) -> str:
@@ -401,31 +408,15 @@ def _departure_text(finding: Finding) -> str:
 
 
 def _reference_and_sensor_text(finding: Finding) -> str:
-    """The checks of the reference pose and of single sensors, in plain words."""
-    c, v, ref = finding.check, finding.value, finding.reference
-    if c is Check.WHEEL_DEAD:
-        side = {"n_rl": "rear-left", "n_rr": "rear-right"}.get(finding.name, finding.name)
-        return (f"the {side} wheel speed ({finding.name}) reads nothing while the other wheel "
-                f"turns, in {v:.0%} of the moving seconds: a dead wheel sensor or an unmapped "
-                "signal; fix the log or the mapping (nothing is calibrated from it)")
-    if c is Check.LATERAL_MISSING:
-        return ("a_y carries no lateral acceleration (it is zero or constant while the "
-                "vehicle turns: a missing or unplugged sensor?); d is not calibrated and its "
-                "uncertainty widens t_r's")
-    if c is Check.LATERAL_DELAY:
-        way = "lags" if v > 0 else "leads"
-        return (f"a_y {way} speed times the reference yaw rate by {abs(v):.2f} s: a "
-                "calibration aligns it before the fit (aligning the IMU stream's clock, the "
-                "mapping's offset_s, is better)")
-    if c is Check.LATERAL_OFFSET:
-        tilt = np.degrees(np.arcsin(np.clip(v / 9.81, -1.0, 1.0)))
-        return (f"a_y reads {v:+.2f} m/s^2 (+-{ref:.2f}) more than the reference's turning "
-                f"gives (a road's crossfall, or an IMU rolled by {abs(tilt):.1f} degrees?): the "
-                "parameters are for a_y as logged, and c_d's uncertainty carries what it "
-                "would be were the offset the sensor's")
+    """The checks of the reference pose, of the logs and of single sensors, and the departures
+    the fit took in, in plain words."""
+    sensor = _sensor_text(finding)
+    if sensor:
+        return sensor
     departure = _departure_text(finding)
     if departure:
         return departure
+    c, v, ref = finding.check, finding.value, finding.reference
     if c is Check.CHANGE_IN_LOG:
         parameter, _, where = finding.name.partition("|")
         what = (f"c_e changed by {v:+.2%}" if parameter == "c_e" else
@@ -434,15 +425,6 @@ def _reference_and_sensor_text(finding: Finding) -> str:
         return (f"{what} at t = {ref:.0f} s of {where}: the calibration is of the part after "
                 "the change (the vehicle as it is now; the part before still informs t_r and "
                 "d); calibrate the part before on its own if you need it")
-    if c is Check.WHEEL_OFFSET:
-        return (f"the wheels read {v:+.3f} and {ref:+.3f} rev/s (rear left, right) while the "
-                "reference stands still: an offset of the speed signal, taken out of every "
-                "sample before the fit")
-    if c is Check.MOVING_OFFSET:
-        return (f"the wheels read {v:+.4f} rev/s (+-{ref:.4f}) more than the reference's motion "
-                "gives, at every speed (an offset of the speed signal; the drive did not stand "
-                "still long enough to measure it at rest): fitted beside c_e, whose standard "
-                "deviation carries it; a drive with stops measures it better")
     if c is Check.HEADING_ERROR:
         return (f"the reference heading's error varies with the heading by up to "
                 f"{np.degrees(v):.1f} degrees against its course on straights (a compass or "
@@ -472,3 +454,39 @@ def _reference_and_sensor_text(finding: Finding) -> str:
     if c is Check.INVALID_INPUT:
         return finding.name
     return c.value
+
+
+def _sensor_text(finding: Finding) -> str:
+    """The checks of single sensors (a wheel speed, a_y), in plain words; empty for any
+    other finding."""
+    c, v, ref = finding.check, finding.value, finding.reference
+    if c is Check.WHEEL_DEAD:
+        side = {"n_rl": "rear-left", "n_rr": "rear-right"}.get(finding.name, finding.name)
+        return (f"the {side} wheel speed ({finding.name}) reads nothing while the other wheel "
+                f"turns, in {v:.0%} of the moving seconds: a dead wheel sensor or an unmapped "
+                "signal; fix the log or the mapping (nothing is calibrated from it)")
+    if c is Check.LATERAL_MISSING:
+        return ("a_y carries no lateral acceleration (it is zero or constant while the "
+                "vehicle turns: a missing or unplugged sensor?); d is not calibrated and its "
+                "uncertainty widens t_r's")
+    if c is Check.LATERAL_DELAY:
+        way = "lags" if v > 0 else "leads"
+        return (f"a_y {way} speed times the reference yaw rate by {abs(v):.2f} s: a "
+                "calibration aligns it before the fit (aligning the IMU stream's clock, the "
+                "mapping's offset_s, is better)")
+    if c is Check.LATERAL_OFFSET:
+        tilt = np.degrees(np.arcsin(np.clip(v / 9.81, -1.0, 1.0)))
+        return (f"a_y reads {v:+.2f} m/s^2 (+-{ref:.2f}) more than the reference's turning "
+                f"gives (a road's crossfall, or an IMU rolled by {abs(tilt):.1f} degrees?): the "
+                "parameters are for a_y as logged, and c_d's uncertainty carries what it "
+                "would be were the offset the sensor's")
+    if c is Check.WHEEL_OFFSET:
+        return (f"the wheels read {v:+.3f} and {ref:+.3f} rev/s (rear left, right) while the "
+                "reference stands still: an offset of the speed signal, taken out of every "
+                "sample before the fit")
+    if c is Check.MOVING_OFFSET:
+        return (f"the wheels read {v:+.4f} rev/s (+-{ref:.4f}) more than the reference's motion "
+                "gives, at every speed (an offset of the speed signal; the drive did not stand "
+                "still long enough to measure it at rest): fitted beside c_e, whose standard "
+                "deviation carries it; a drive with stops measures it better")
+    return ""

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -24,6 +24,10 @@ from odocal.report.advice import (
     consistent_with_zero,
     coverage,
 )
+
+if TYPE_CHECKING:
+    from odocal.checks.departures import Departures
+    from odocal.estimators.inverse import InverseDetails
 
 MAP_SEGMENTS = 3
 
@@ -163,22 +167,12 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
     it do less (a change inside the log, wheels without a differential signal, no lateral
     acceleration) keeps it amber, and says so.
     """
-    from odocal.estimators.estimate import Status
-    from odocal.report.advice import finding_text
-
+    unusable = _no_calibration(result)
+    if unusable is not None:
+        return unusable
     est = result.estimate
-    findings = result.diagnosis.findings
-    fatal = [f for f in findings if f.severity is Severity.FATAL]
-    if fatal:
-        return ("Do not use: " + "; ".join(finding_text(f, result.settings) for f in fatal)
-                + ".", "bad")
-    if result.diagnosis.standstill:
-        return "Nothing to calibrate: the vehicle does not move.", "partial"
-    if est.status is Status.NOTHING_IDENTIFIABLE:
-        return f"Nothing calibrated: {est.message}; see the identifiability notes.", "partial"
-    if not result.success:
-        return f"Calibration failed: {est.message}.", "bad"
-    change = next((f for f in findings if f.check is Check.CHANGE_IN_LOG), None)
+    change = next((f for f in result.diagnosis.findings if f.check is Check.CHANGE_IN_LOG),
+                  None)
     missing = est.unidentified
     if result.validation is None or result.datasheet_validation is None:
         base = "Calibrated, but the drive holds no validation segment to check it on"
@@ -206,6 +200,38 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
         level = "partial"
     else:
         base += "; all four parameters identified" + said_zero
+    base, level = _caveats(result, base, level, change, raw_m)
+    return base + ".", level
+
+
+def _no_calibration(result: CalibrationResult) -> tuple[str, str] | None:
+    """The verdict where there is no calibration to use (a fatal finding, a standstill,
+    nothing identifiable, a failed solve); None where there is one."""
+    from odocal.estimators.estimate import Status
+    from odocal.report.advice import finding_text
+
+    est = result.estimate
+    fatal = [f for f in result.diagnosis.findings if f.severity is Severity.FATAL]
+    if fatal:
+        return ("Do not use: " + "; ".join(finding_text(f, result.settings) for f in fatal)
+                + ".", "bad")
+    if result.diagnosis.standstill:
+        return "Nothing to calibrate: the vehicle does not move.", "partial"
+    if est.status is Status.NOTHING_IDENTIFIABLE:
+        return f"Nothing calibrated: {est.message}; see the identifiability notes.", "partial"
+    if not result.success:
+        return f"Calibration failed: {est.message}.", "bad"
+    return None
+
+
+def _caveats(result: CalibrationResult, base: str, level: str, change: Finding | None,
+             raw_m: float | None) -> tuple[str, str]:
+    """The verdict line ``base`` with what qualifies it (a change inside the log, a short
+    drive, the bootstrap's doubt, departures taken out, a better raw estimate), and its
+    level: kept from green by any of them but the departures, and by a fallback finding."""
+    from odocal.report.advice import finding_text
+
+    findings = result.diagnosis.findings
     if change is not None:
         # the numbers are of the vehicle after the change: said first, as the short drive is
         base = (f"A change inside the log: {finding_text(change, result.settings)}. {base}")
@@ -231,7 +257,7 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
         base += (f". Batch G-N on the measured rates validates better ({raw_m:.2f} m): "
                  "consider --method raw")
         level = "partial" if level == "good" else level
-    return base + ".", level
+    return base, level
 
 
 #: The notes of departures measured and taken out before the fit (the checks' findings).
@@ -386,66 +412,82 @@ def corrections(result: CalibrationResult) -> tuple[Correction, ...]:
     rates' offset while moving)."""
     from odocal.estimators.inverse import InverseDetails
 
-    dep = result.departures
     out: list[Correction] = []
-    if dep is not None:
-        lag = dep.lateral_lag_s
-        out.append(Correction(
-            "a_y's clock against the reference's (speed times yaw rate)",
-            f"{abs(lag):.2f} s {'late' if lag > 0 else 'early'}" if lag else "in step",
-            bool(lag), "a_y moved onto the reference's clock" if lag else "nothing to move"))
-        out.append(Correction(
-            "the reference heading's error varying with the heading (a compass)",
-            f"up to {np.degrees(dep.heading_amplitude_rad):.1f} degrees"
-            if dep.heading_amplitude_rad else "none found",
-            bool(dep.heading_amplitude_rad),
-            "taken out of the heading" if dep.heading_amplitude_rad else "nothing taken out"))
-        o_rl, o_rr = dep.standstill_offset_revps
-        still = bool(o_rl or o_rr)
-        out.append(Correction(
-            "the wheel rates while the reference stands still",
-            f"{o_rl:+.3f}, {o_rr:+.3f} rev/s (rear left, right)" if still else "zero",
-            still, "subtracted from every sample" if still else "nothing taken out"))
-        if dep.wheel_step_revps:
-            out.append(Correction(
-                "the wheel rates' encoding step",
-                f"{dep.wheel_step_revps:.4f} rev/s", False,
-                "rates on a grid may be truncated (half a step low): the fit estimates an "
-                "offset, with half a step as its prior"))
+    if result.departures is not None:
+        out += _measured_before_fit(result.departures)
     details = result.estimate.details
     if isinstance(details, InverseDetails) and details.windows:
-        applied = bool(details.delay_s)
-        shown = details.delay_s if applied else details.delay_found_s
-        std = (f" +-{details.delay_std_s:.3f}" if applied and np.isfinite(details.delay_std_s)
-               else "")
-        note = ("the reference shifted to match it" if applied else
-                f"not applied ({details.delay_note})" if details.delay_note else "not applied")
-        out.append(Correction("the wheel stream's clock against the reference's (in the fit)",
-                              f"{abs(shown):.3f}{std} s {'late' if shown > 0 else 'early'}"
-                              if shown else "in step", applied, note))
-        out.append(Correction("the reference heading's constant offset (in the fit)",
-                              f"{np.degrees(details.heading_offset_rad):+.2f} degrees",
-                              bool(details.heading_offset_rad),
-                              "taken out of the heading on every window"
-                              if details.heading_offset_rad else "nothing taken out"))
-        if details.wheel_offset_std > 0 and "offset" not in details.fitted_departures:
-            out.append(Correction("the wheel rates' offset while moving (in the fit)",
-                                  f"{details.wheel_offset_revps:+.4f} "
-                                  f"+-{details.wheel_offset_std:.4f} rev/s", True,
-                                  "the encoding's: estimated with the parameters, with half "
-                                  "a step as its prior; its uncertainty is in c_e's"))
-        from odocal.estimators.departures import NAMES, NUISANCES
-
-        for key, number, spread in details.departures:
-            if key == "lag":
-                continue                            # (the wheel stream's clock, above)
-            spec = NUISANCES[NAMES.index(key)]
-            unit = "" if spec.unit == "1" else f" {spec.unit}"
-            out.append(Correction(f"{spec.label} (in the fit)",
-                                  f"{number:+.4g} +-{spread:.2g}{unit}", True,
-                                  "it held out on both halves of the drive: estimated with "
-                                  "the parameters, its uncertainty in theirs"))
+        out += _estimated_in_fit(details)
     return tuple(out)
+
+
+def _measured_before_fit(dep: Departures) -> list[Correction]:
+    """The departures the checks measured before the fit: a_y's clock, a heading error
+    varying with the heading, the wheel rates at standstill and their encoding step."""
+    out: list[Correction] = []
+    lag = dep.lateral_lag_s
+    out.append(Correction(
+        "a_y's clock against the reference's (speed times yaw rate)",
+        f"{abs(lag):.2f} s {'late' if lag > 0 else 'early'}" if lag else "in step",
+        bool(lag), "a_y moved onto the reference's clock" if lag else "nothing to move"))
+    out.append(Correction(
+        "the reference heading's error varying with the heading (a compass)",
+        f"up to {np.degrees(dep.heading_amplitude_rad):.1f} degrees"
+        if dep.heading_amplitude_rad else "none found",
+        bool(dep.heading_amplitude_rad),
+        "taken out of the heading" if dep.heading_amplitude_rad else "nothing taken out"))
+    o_rl, o_rr = dep.standstill_offset_revps
+    still = bool(o_rl or o_rr)
+    out.append(Correction(
+        "the wheel rates while the reference stands still",
+        f"{o_rl:+.3f}, {o_rr:+.3f} rev/s (rear left, right)" if still else "zero",
+        still, "subtracted from every sample" if still else "nothing taken out"))
+    if dep.wheel_step_revps:
+        out.append(Correction(
+            "the wheel rates' encoding step",
+            f"{dep.wheel_step_revps:.4f} rev/s", False,
+            "rates on a grid may be truncated (half a step low): the fit estimates an "
+            "offset, with half a step as its prior"))
+    return out
+
+
+def _estimated_in_fit(details: InverseDetails) -> list[Correction]:
+    """The departures the default method estimated in its fit: the wheel stream's clock, the
+    heading's constant offset, the wheel rates' offset while moving and the nuisances that
+    held out."""
+    from odocal.estimators.departures import NAMES, NUISANCES
+
+    out: list[Correction] = []
+    applied = bool(details.delay_s)
+    shown = details.delay_s if applied else details.delay_found_s
+    std = (f" +-{details.delay_std_s:.3f}" if applied and np.isfinite(details.delay_std_s)
+           else "")
+    note = ("the reference shifted to match it" if applied else
+            f"not applied ({details.delay_note})" if details.delay_note else "not applied")
+    out.append(Correction("the wheel stream's clock against the reference's (in the fit)",
+                          f"{abs(shown):.3f}{std} s {'late' if shown > 0 else 'early'}"
+                          if shown else "in step", applied, note))
+    out.append(Correction("the reference heading's constant offset (in the fit)",
+                          f"{np.degrees(details.heading_offset_rad):+.2f} degrees",
+                          bool(details.heading_offset_rad),
+                          "taken out of the heading on every window"
+                          if details.heading_offset_rad else "nothing taken out"))
+    if details.wheel_offset_std > 0 and "offset" not in details.fitted_departures:
+        out.append(Correction("the wheel rates' offset while moving (in the fit)",
+                              f"{details.wheel_offset_revps:+.4f} "
+                              f"+-{details.wheel_offset_std:.4f} rev/s", True,
+                              "the encoding's: estimated with the parameters, with half "
+                              "a step as its prior; its uncertainty is in c_e's"))
+    for key, number, spread in details.departures:
+        if key == "lag":
+            continue                            # (the wheel stream's clock, above)
+        spec = NUISANCES[NAMES.index(key)]
+        unit = "" if spec.unit == "1" else f" {spec.unit}"
+        out.append(Correction(f"{spec.label} (in the fit)",
+                              f"{number:+.4g} +-{spread:.2g}{unit}", True,
+                              "it held out on both halves of the drive: estimated with "
+                              "the parameters, its uncertainty in theirs"))
+    return out
 
 
 def _maps(result: CalibrationResult, drives: Sequence[Drive], segs: Any) -> list[MapSegment]:

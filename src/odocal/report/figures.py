@@ -326,10 +326,38 @@ def plot_fitted(ax: Axes, start: FloatArray, stop: FloatArray, peak_yaw: FloatAr
     used : (M, 2) the time the fit used, as disjoint (start, stop) spans on the axis
     change : where a change inside the log was found (the fit is of the part after it)
     """
-    from matplotlib.collections import LineCollection
-
     peak = np.asarray(peak_yaw, dtype=np.float64)
     top = max(float(peak.max()) if peak.size else 0.0, 1.5 * threshold)
+    artists = _fitted_lines(ax, start, stop, peak, fitted, cluster, unit=unit)
+    artists.append(ax.axhline(threshold, color=DATASHEET, lw=1, ls="--",
+                              label=f"bends: above {threshold:g} rad/s"))
+    # the drives' spans, and the time the fit used, as a strip beneath
+    strip = -0.08 * top
+    artists += _drive_strip(ax, drives, used, strip=strip, top=top)
+    if change is not None:
+        artists.append(ax.axvline(change, color=DATASHEET, lw=1.4,
+                                  label="change inside the log"))
+    ends = [b for _, b, _ in drives] or [float(stop.max()) if stop.size else 1.0]
+    begins = [a for a, _, _ in drives] or [0.0]
+    span = max(max(ends) - min(begins), 1e-9)
+    ax.set_xlim(min(begins) - 0.01 * span, max(ends) + 0.01 * span)
+    ax.set_ylim(2.0 * strip, top * (1.18 if len(drives) > 1 else 1.08))
+    ax.set_xlabel(f"time [{time_unit}]" + (", the drives one after another"
+                                           if len(drives) > 1 else ""))
+    ax.set_ylabel("peak |yaw rate| [rad/s]")
+    # above the axes: the drives' names take the top of the panel
+    ax.legend(fontsize=8, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=4, frameon=False)
+    ax.grid(True, axis="y", alpha=0.3)
+    return artists
+
+
+def _fitted_lines(ax: Axes, start: FloatArray, stop: FloatArray, peak: FloatArray,
+                  fitted: BoolArray, cluster: IntArray, *, unit: str) -> list[Any]:
+    """Each window or segment as a line at the height of its peak |yaw rate|, fitted ones in
+    blue (neighbouring clusters alternate their shade), the others in grey; with their legend
+    entries."""
+    from matplotlib.collections import LineCollection
+
     artists: list[Any] = []
     # a shade per cluster, alternating: where one cluster ends and the next begins shows
     labels = np.unique(cluster[fitted]) if fitted.any() else np.zeros(0, dtype=np.int64)
@@ -349,10 +377,16 @@ def plot_fitted(ax: Axes, start: FloatArray, stop: FloatArray, peak_yaw: FloatAr
     if other:
         artists.append(ax.plot([], [], color=STEP1, lw=2.2,
                                label=f"not fitted: {other} {unit}s")[0])
-    artists.append(ax.axhline(threshold, color=DATASHEET, lw=1, ls="--",
-                              label=f"bends: above {threshold:g} rad/s"))
-    # the drives' spans, and the time the fit used, as a strip beneath
-    strip = -0.08 * top
+    return artists
+
+
+def _drive_strip(ax: Axes, drives: Sequence[tuple[float, float, str]], used: FloatArray, *,
+                 strip: float, top: float) -> list[Any]:
+    """At height ``strip`` beneath the lines, each drive's span (grey) and the time the fit
+    used (blue); with several drives, each one's start marked and named at ``top``."""
+    from matplotlib.collections import LineCollection
+
+    artists: list[Any] = []
     for a, b, name in drives:
         artists.append(ax.hlines(strip, a, b, color="#cccccc", lw=6))
         if len(drives) > 1:
@@ -362,20 +396,6 @@ def plot_fitted(ax: Axes, start: FloatArray, stop: FloatArray, peak_yaw: FloatAr
     if len(used):
         artists.append(ax.add_collection(LineCollection(
             [((a, strip), (b, strip)) for a, b in used], colors=CALIBRATED, linewidths=6)))
-    if change is not None:
-        artists.append(ax.axvline(change, color=DATASHEET, lw=1.4,
-                                  label="change inside the log"))
-    ends = [b for _, b, _ in drives] or [float(stop.max()) if stop.size else 1.0]
-    begins = [a for a, _, _ in drives] or [0.0]
-    span = max(max(ends) - min(begins), 1e-9)
-    ax.set_xlim(min(begins) - 0.01 * span, max(ends) + 0.01 * span)
-    ax.set_ylim(2.0 * strip, top * (1.18 if len(drives) > 1 else 1.08))
-    ax.set_xlabel(f"time [{time_unit}]" + (", the drives one after another"
-                                           if len(drives) > 1 else ""))
-    ax.set_ylabel("peak |yaw rate| [rad/s]")
-    # above the axes: the drives' names take the top of the panel
-    ax.legend(fontsize=8, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=4, frameon=False)
-    ax.grid(True, axis="y", alpha=0.3)
     return artists
 
 

@@ -457,10 +457,28 @@ def _next_step(result: CalibrationResult, data: ReportData) -> str:
     return f"<h2>Next step</h2><p>{e(text)}</p><pre id='next-step'>{e(command)}</pre>"
 
 
+def _result_table(result: CalibrationResult) -> str:
+    """The parameter table (datasheet, calibrated, standard deviations, identified) and a line
+    on the covariance and the bootstrap beneath it."""
+    e = html.escape
+    rows = _parameter_rows(result)
+    boot = result.bootstrap
+    from odocal.settings import datasheet_stated
+
+    sheet = ("datasheet" if datasheet_stated(result.estimate.datasheet)
+             else "datasheet (placeholder: no <span class='nowrap'>--datasheet</span>)")
+    boot_head = "<th>std (bootstrap)</th>" if boot is not None else ""
+    return f"""<table id="parameters"><tr><th>parameter</th><th>{sheet}</th><th>calibrated</th>
+<th>std (covariance)</th>{boot_head}<th>identified</th></tr>
+{''.join(rows)}</table>
+<p class="meta">Covariance: {e(result.estimate.covariance_kind.value)}.
+{e(boot.message[:1].upper() + boot.message[1:]) + '.' if boot is not None
+ else 'No bootstrap.'}</p>"""
+
+
 def _page(result: CalibrationResult, data: ReportData,
           figs: dict[str, tuple[str, str]]) -> str:
     e = html.escape
-    rows = _parameter_rows(result)
     val = _validation(result, data)
 
     def fig(name: str) -> str:
@@ -471,12 +489,6 @@ def _page(result: CalibrationResult, data: ReportData,
                 f"<figcaption>{e(caption)}</figcaption></figure>")
 
     cov = data.coverage
-    boot = result.bootstrap
-    from odocal.settings import datasheet_stated
-
-    sheet = ("datasheet" if datasheet_stated(result.estimate.datasheet)
-             else "datasheet (placeholder: no <span class='nowrap'>--datasheet</span>)")
-    boot_head = "<th>std (bootstrap)</th>" if boot is not None else ""
     warnings = "".join(f"<li>{e(w)}</li>" for w in result.warnings)
     advice = "".join(f"<li class='{_advice_style(a.name, a.identified, data)}'>"
                      f"<b>{a.name}</b>: <span style='color:#222'>{e(a.text)}</span></li>"
@@ -494,12 +506,7 @@ def _page(result: CalibrationResult, data: ReportData,
 &middot; {cov['distance_m'] / 1000:.2f} km, {cov['duration_s'] / 60:.1f} min</div>
 <div class="verdict {data.verdict_level}" id="verdict">{e(data.verdict)}</div>
 <h2>Result</h2>
-<table id="parameters"><tr><th>parameter</th><th>{sheet}</th><th>calibrated</th>
-<th>std (covariance)</th>{boot_head}<th>identified</th></tr>
-{''.join(rows)}</table>
-<p class="meta">Covariance: {e(result.estimate.covariance_kind.value)}.
-{e(boot.message[:1].upper() + boot.message[1:]) + '.' if boot is not None
- else 'No bootstrap.'}</p>
+{_result_table(result)}
 {_speed_scale(result)}
 {val}
 {comparison}

@@ -103,6 +103,35 @@ def _convergence_text(result: ReplayResult) -> str:
                      for n, km in convergence_km(result).items())
 
 
+def _parameter_rows(est: Estimate, batch: Estimate | None) -> list[str]:
+    """The parameter table's rows: each parameter online (at the end of the log) and from the
+    batch calibration of the whole log, if there is one."""
+    e = html.escape
+    rows = []
+    for j, (name, label) in enumerate(zip(PARAMETER_NAMES, PARAMETER_LABELS, strict=True)):
+        online = (f"{_fmt(name, est.theta.as_array()[j])} &plusmn; {_fmt(name, est.std[j])}"
+                  if est.identified[j] else "not identified")
+        cmp = "-"
+        if batch is not None:
+            cmp = (f"{_fmt(name, batch.theta.as_array()[j])} &plusmn; {_fmt(name, batch.std[j])}"
+                   if batch.identified[j] else "not identified")
+        rows.append(f"<tr><td><b>{name}</b> {e(label)}</td><td>{online}</td><td>{cmp}</td></tr>")
+    return rows
+
+
+def _alarm_rows(result: ReplayResult) -> str:
+    """The alarms table's rows, one per change detected (empty: none)."""
+    e = html.escape
+    # the log's own clock may be epoch seconds: times are shown from the log's start (the last
+    # trace row is the end of the log)
+    start = result.trace[-1].t - result.duration_s if result.trace else 0.0
+    return "".join(
+        f"<tr><td>{a.parameter}</td><td>{a.t - start:.0f} s</td><td>{a.distance_km:.2f} km</td>"
+        f"<td>{a.detected_distance_km:.2f} km</td><td>{a.relative_change * 100:+.3f}%</td>"
+        f"<td>{e(alarm_words(a))}</td></tr>"
+        for a in result.alarms)
+
+
 def write_replay_report(result: ReplayResult, out_dir: str | Path, *,
                         batch: Estimate | None = None,
                         renderer: Renderer | None = None) -> Path:
@@ -118,24 +147,8 @@ def write_replay_report(result: ReplayResult, out_dir: str | Path, *,
             draw.close()
     write_bytes(out / "figures" / "trace.png", png)
     e = html.escape
-    est = result.estimate
-    rows = []
-    for j, (name, label) in enumerate(zip(PARAMETER_NAMES, PARAMETER_LABELS, strict=True)):
-        online = (f"{_fmt(name, est.theta.as_array()[j])} &plusmn; {_fmt(name, est.std[j])}"
-                  if est.identified[j] else "not identified")
-        cmp = "-"
-        if batch is not None:
-            cmp = (f"{_fmt(name, batch.theta.as_array()[j])} &plusmn; {_fmt(name, batch.std[j])}"
-                   if batch.identified[j] else "not identified")
-        rows.append(f"<tr><td><b>{name}</b> {e(label)}</td><td>{online}</td><td>{cmp}</td></tr>")
-    # the log's own clock may be epoch seconds: times are shown from the log's start (the last
-    # trace row is the end of the log)
-    start = result.trace[-1].t - result.duration_s if result.trace else 0.0
-    alarms = "".join(
-        f"<tr><td>{a.parameter}</td><td>{a.t - start:.0f} s</td><td>{a.distance_km:.2f} km</td>"
-        f"<td>{a.detected_distance_km:.2f} km</td><td>{a.relative_change * 100:+.3f}%</td>"
-        f"<td>{e(alarm_words(a))}</td></tr>"
-        for a in result.alarms)
+    rows = _parameter_rows(result.estimate, batch)
+    alarms = _alarm_rows(result)
     rejected = _rejected_text(result)
     conv_text = _convergence_text(result)
     uri = "data:image/png;base64," + base64.b64encode(png).decode("ascii")

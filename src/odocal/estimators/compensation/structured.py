@@ -148,6 +148,41 @@ def _kkt_solve(base: FloatArray, rhs_base: FloatArray, z_index: IntArray,
     return np.asarray(x), int(info)
 
 
+def _kkt_system(p: CompensationProblem
+                ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The KKT matrix in LAPACK band storage and its right-hand side, no bound fixed; the KKT
+    nonzero values (in the order of :func:`_pattern`), q (5K,), and the curvature of each
+    z-variable (its diagonal entry), to compare multipliers by."""
+    k = p.steps
+    n = _WIDTH * k
+    rows, cols, band_rows, z_index = _pattern(k)
+    vals = _values(p)
+    q, _ = p.gradient_terms()
+    q = q.ravel()
+
+    base = np.zeros((2 * _KL + _KU + 1, n))
+    base[band_rows, cols] = vals
+    rhs_base = np.zeros(n)
+    rhs_base[z_index] = -q
+
+    diag = np.zeros(n)
+    on_diag = rows == cols
+    diag[rows[on_diag]] = vals[on_diag]
+    scale = np.maximum(diag[z_index], 1e-8)       # curvature per variable, to compare multipliers
+    return base, rhs_base, vals, q, scale
+
+
+def _initial_set(fixed: BoolArray, initial_active: tuple[BoolArray, BoolArray] | None
+                 ) -> tuple[BoolArray, BoolArray]:
+    """The starting working set (at the lower bound, at the upper): ``initial_active`` where
+    given, and every fixed variable at its lower bound."""
+    if initial_active is None:
+        return fixed.copy(), np.zeros_like(fixed)
+    act_lo = initial_active[0] | fixed
+    act_hi = initial_active[1] & ~act_lo
+    return act_lo, act_hi
+
+
 def solve_structured(p: CompensationProblem, *, max_iterations: int = 50,
                      initial_active: tuple[BoolArray, BoolArray] | None = None,
                      ) -> StructuredSolution:
@@ -161,29 +196,13 @@ def solve_structured(p: CompensationProblem, *, max_iterations: int = 50,
     """
     k = p.steps
     n = _WIDTH * k
-    rows, cols, band_rows, z_index = _pattern(k)
-    vals = _values(p)
-    q, _ = p.gradient_terms()
-    q = q.ravel()
+    rows, cols, _, z_index = _pattern(k)
+    base, rhs_base, vals, q, scale = _kkt_system(p)
     lower, upper = p.lower.ravel(), p.upper.ravel()
-
-    base = np.zeros((2 * _KL + _KU + 1, n))
-    base[band_rows, cols] = vals
-    rhs_base = np.zeros(n)
-    rhs_base[z_index] = -q
-
-    diag = np.zeros(n)
-    on_diag = rows == cols
-    diag[rows[on_diag]] = vals[on_diag]
-    scale = np.maximum(diag[z_index], 1e-8)       # curvature per variable, to compare multipliers
     width = np.maximum(upper - lower, 1e-12)
     fixed = upper - lower <= 0.0
     tol_z = 1e-10 * (1.0 + np.abs(lower) + np.abs(upper))
-    if initial_active is None:
-        act_lo, act_hi = fixed.copy(), np.zeros_like(fixed)
-    else:
-        act_lo = initial_active[0] | fixed
-        act_hi = initial_active[1] & ~act_lo
+    act_lo, act_hi = _initial_set(fixed, initial_active)
     seen: set[bytes] = set()
     z = np.zeros(STAGE * k)
     message = "iteration limit"
