@@ -58,10 +58,8 @@ def wheel_joints(names: Sequence[str], named: tuple[str, str], *, where: str,
     found: list[int] = []
     for side, wanted in zip(("left", "right"), named, strict=True):
         if wanted:
-            if wanted not in names:
-                raise error(f"{where}: no joint named {wanted!r} ({setting(side)}); "
-                            f"joints: {listed}")
-            found.append(names.index(wanted))
+            found.append(named_joint(names, wanted, where=where, setting=setting(side),
+                                     error=error))
             continue
         rear = [i for i, n in enumerate(names)
                 if _REAR[side].search(n) and not _NOT_DRIVEN.search(n)]
@@ -88,10 +86,8 @@ def front_wheel_joints(names: Sequence[str], named: tuple[str, str], *, where: s
     found: list[int | None] = []
     for side, wanted in zip(("left", "right"), named, strict=True):
         if wanted:
-            if wanted not in names:
-                raise error(f"{where}: no joint named {wanted!r} ({setting(side)}); "
-                            f"joints: {listed}")
-            found.append(names.index(wanted))
+            found.append(named_joint(names, wanted, where=where, setting=setting(side),
+                                     error=error))
             continue
         matches = [i for i, n in enumerate(names)
                    if _FRONT[side].search(n) and not _NOT_ROLLING.search(n)]
@@ -110,3 +106,14 @@ def front_wheel_joints(names: Sequence[str], named: tuple[str, str], *, where: s
         raise error(f"{where}: the front left and right wheel are the same joint "
                     f"{names[left]!r}; set {setting('left')} and {setting('right')}")
     return left, right
+
+
+def named_joint(names: Sequence[str], wanted: str, *, where: str, setting: str,
+                error: type[Exception]) -> int:
+    """The index of the joint the user named ``wanted`` (by ``setting``) in ``names``; the
+    error names the joints where there is none of that name."""
+    names = list(names)
+    if wanted not in names:
+        raise error(f"{where}: no joint named {wanted!r} ({setting}); "
+                    f"joints: {', '.join(names) or 'none'}")
+    return names.index(wanted)

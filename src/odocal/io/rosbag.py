@@ -38,7 +38,7 @@ import numpy as np
 
 from odocal.arrays import FloatArray
 from odocal.errors import ConfigError, DataError, InputFileError, MissingDependencyError
-from odocal.io.joints import front_wheel_joints, wheel_joints
+from odocal.io.joints import front_wheel_joints, named_joint, wheel_joints
 from odocal.io.registry import ReadOptions
 from odocal.io.streams import RawLog, Stream
 from odocal.io.table import speed_metadata, stream_from_columns
@@ -324,10 +324,8 @@ def _joints(names: Sequence[str], section: Mapping[str, Any], topic: str) -> _Jo
         velocities |= {"front_left": front[0], "front_right": front[1]}
     steering = None
     if named("steering"):
-        if named("steering") not in names:
-            raise DataError(f"{where}: no joint named {named('steering')!r} (the mapping's "
-                            f"[wheels] steering); joints: {', '.join(names) or 'none'}")
-        steering = list(names).index(named("steering"))
+        steering = named_joint(names, named("steering"), where=where,
+                               setting="the mapping's [wheels] steering", error=DataError)
     return _Joints(velocities, steering)
 
 
