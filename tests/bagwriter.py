@@ -13,8 +13,9 @@ from rosbags.typesys import Stores, get_typestore
 from odocal.data.drive import Drive
 
 EPOCH = 1_700_000_000.0
-JOINTS = ["front_left_wheel", "front_right_wheel", "rear_left_wheel", "rear_right_wheel",
-          "steering_wheel"]
+JOINTS = ["front_left_wheel", "front_right_wheel", "rear_left_wheel", "rear_right_wheel"]
+#: The bag's JointState: the four wheels and the steering wheel (its position: its angle).
+BAG_JOINTS = [*JOINTS, "steering_wheel"]
 
 
 def _messages(drive: Drive, store: object, ros1: bool) -> list[tuple[str, str, float, object]]:
@@ -39,7 +40,7 @@ def _messages(drive: Drive, store: object, ros1: bool) -> list[tuple[str, str, f
         header = header_t(stamp=stamp, frame_id="base_link", **extra)
         two_pi = 2 * np.pi
         joint = types["sensor_msgs/msg/JointState"](
-            header=header, name=JOINTS, position=np.array([0.0, 0.0, 0.0, 0.0, steer[k]]),
+            header=header, name=BAG_JOINTS, position=np.array([0.0, 0.0, 0.0, 0.0, steer[k]]),
             velocity=np.array([n_fl[k] * two_pi, n_fr[k] * two_pi, drive.n_rl[k] * two_pi,
                                drive.n_rr[k] * two_pi, 0.0]),
             effort=np.zeros(5))

@@ -47,8 +47,6 @@ from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.estimators import core, fitting
 from odocal.estimators import departures as fitted
-from odocal.estimators.base import held_by_checks
-from odocal.estimators.error_model import ErrorModel
 from odocal.estimators.estimate import (
     CovarianceKind,
     Estimate,
@@ -57,8 +55,6 @@ from odocal.estimators.estimate import (
     Status,
     judge,
 )
-from odocal.estimators.inverse import fit_setup
-from odocal.estimators.lag import Lag, choose_lag, scan_lag
 from odocal.estimators.windows import (
     WindowBuilder,
     WindowSet,
@@ -76,7 +72,6 @@ from odocal.online.changes import (
     ChangeDetector,
     Suspect,
     describe,
-    disturbed,
     eliminate,
     estimate_change,
 )
@@ -87,6 +82,7 @@ from odocal.online.departures import (
     recorrected,
     with_offset_prior,
 )
+from odocal.online.running import RunningFit
 from odocal.online.samples import Intake
 from odocal.settings import Settings
 
@@ -95,8 +91,6 @@ _LAG_EVERY = 4
 #: A suspected change is an alarm where the wheels refitted after it moved by this many of their
 #: standard deviations.
 CONFIRM_SIGMAS = 5.0
-#: Running updates after which the estimate is trusted to tell a disturbed window.
-SETTLED = 3
 #: The samples are kept this long (s) at most, to make the windows again with a correction
 #: found after them (a heading error): the first of the drive.
 HISTORY_S = 2.0 * CHECK_WINDOW_S
@@ -167,27 +161,18 @@ class OnlineCalibrator:
                 or np.any(start[list(lengths)] <= 0):
             raise DataError(f"theta0 {start.tolist()} is not a usable starting estimate")
         self.datasheet = np.asarray(self.settings.identify.theta0, dtype=np.float64)
-        self.theta = start.copy()
-        # the departures fitted beside theta (p after theta: odocal.estimators.departures)
-        self._nuisance = np.zeros(fitting.P - MODEL.size)
-        self._entered: tuple[str, ...] = ()
-        self._model = ErrorModel()
-        self._lag = Lag()
+        # the running estimate, its error model and lag, and the evidence folded
+        self._fit = RunningFit(self.settings, self.datasheet, start)
         self._intake = Intake()                   # the chunks as samples on one grid
         self._aligner: ReferenceAligner | None = None
         self._builder: WindowBuilder | None = None
         self._windows: WindowSet | None = None
-        # (the wheel-rate offset's prior from the start where the settings always fit it; for
-        # rates on an encoding's grid from the first check that finds the grid)
-        self._folded = fitting.Folded.prior(fitting.pack(self.datasheet),
-                                         core.offset_prior_std(self.settings, 0.0))
         self._departures = LiveDepartures()       # what is taken out of the samples
         # the samples on the grid as they came, while the windows can still be made again
         self._history: list[FloatArray] | None = (
             None if self.settings.online.forgetting_s else [])
         self._arrivals = Arrivals()               # the cluster under way, kept aside
         self._since_fit = 0                       # windows added since the core last ran
-        self._updates = 0                         # running updates of the estimate so far
         self._alarms: list[Alarm] = []
         self._clusters_done = 0
         cfg = self.settings.online
@@ -241,7 +226,7 @@ class OnlineCalibrator:
             return
         if self._history is not None:
             since = self._history[0][0, 0] if self._history else grid[0, 0]
-            if self._folded.clusters or self._alarms or grid[-1, 0] - since > HISTORY_S:
+            if self._fit.folded.clusters or self._alarms or grid[-1, 0] - since > HISTORY_S:
                 self._history = None                  # (no window can be made again now)
             else:
                 self._history.append(grid)
@@ -320,22 +305,23 @@ class OnlineCalibrator:
                 self._windows,
                 wheels_revps=(new.wheel_offset_revps[0] - old.wheel_offset_revps[0],
                               new.wheel_offset_revps[1] - old.wheel_offset_revps[1]))
-        if self._windows is not None and self._windows.size and self._updates:
+        if self._windows is not None and self._windows.size and self._fit.updates:
             # the running estimate moved to the corrected windows, and the change detector
             # starts again from it: a correction is not a change of the wheels
             current = self._solve(self._fitted(), max_iterations=3)
             if np.all(np.isfinite(current.p)):
-                self._take_p(current.p)
+                self._fit.take(current.p)
             self._changes.reset()
         if new.wheel_step_revps:
-            self._folded = with_offset_prior(self._folded, self.settings, new.wheel_step_revps)
+            self._fit.folded = with_offset_prior(self._fit.folded, self.settings,
+                                                 new.wheel_step_revps)
 
     def _rebuilt(self) -> bool:
         """The windows in memory made again from the samples as they came, with the
         corrections of now (a heading error cannot be taken out of a window's moments after
         the fact): where nothing has been folded, restarted or faded yet (the first minutes of
         a drive, whose samples are kept for this). Whether they were."""
-        if (self._folded.clusters or self._alarms or self.settings.online.forgetting_s
+        if (self._fit.folded.clusters or self._alarms or self.settings.online.forgetting_s
                 or self._t_s is None or not self._history):
             return False
         raw = np.vstack(self._history)
@@ -377,7 +363,7 @@ class OnlineCalibrator:
         if cfg.forgetting_s:
             factor = math.exp(-self.settings.inverse.window_s / cfg.forgetting_s)
             k = new.size
-            self._folded = self._folded.decayed(factor**k)
+            self._fit.folded = self._fit.folded.decayed(factor**k)
             windows = windows.scaled(factor**k)
             new = dataclasses.replace(new, weight=new.weight * factor ** np.arange(k - 1, -1, -1))
         self._windows = WindowSet.concat([windows, new])
@@ -404,32 +390,23 @@ class OnlineCalibrator:
         self._clusters_done += 1
         offset = self.heading_offset()
         if mine.size >= 3 and self._clusters_done > self.settings.online.warmup_clusters:
-            suspect = self._changes.watch(mine, self._p(), self._lag.shift, offset, self._model)
+            suspect = self._changes.watch(mine, self._fit.p, self._fit.lag.shift, offset,
+                                          self._fit.model)
             if suspect is not None and self._changed(suspect, mine):
                 return
-        # a running update from a warm start (estimate() solves to convergence): theta, the
-        # error model, and every few clusters the lag, so that the change detector and the
-        # folding work with current ones
-        windows = self._fitted()
-        current = self._solve(windows, max_iterations=3)
-        if not np.all(np.isfinite(current.p)):
-            return                        # (a solve that failed moves nothing; estimate() says)
-        self._take_p(current.p)
-        self._updates += 1
-        coupling = self.settings.inverse.common_wheel_error == "estimate"
-        self._model = core.refit_model(current, windows, self._folded, coupling=coupling,
-                                       kept=bool(self._model.coupling))
-        if self._smooth and "lag" in self._entered and self._clusters_done % _LAG_EVERY == 0:
-            self._lag = choose_lag(scan_lag(windows, self.theta, offset,
-                                                      self._model, self._folded, self._p()))
+        # a running update from a warm start (estimate() solves to convergence), so that the
+        # change detector and the folding work with current ones (a solve that failed moves
+        # nothing; estimate() says)
+        self._fit.update(self._fitted(), offset, self._checks.checked, smooth=self._smooth,
+                         scan_lag_now=self._clusters_done % _LAG_EVERY == 0)
 
     def _changed(self, suspect: Suspect, cluster: WindowSet) -> bool:
         """A suspected change: where it began and how large (an alarm), and the estimate
         restarted from it; False where the windows cannot tell yet."""
         assert self._windows is not None and self._t_s is not None
         change = estimate_change(
-            self._windows, self._folded, suspect, p=self._p(),
-            lag=self._lag, heading_offset=self.heading_offset(), model=self._model,
+            self._windows, self._fit.folded, suspect, p=self._fit.p,
+            lag=self._fit.lag, heading_offset=self.heading_offset(), model=self._fit.model,
             smooth=self._smooth, tolerance=self.settings.inverse.tolerance)
         if change is None:
             return False
@@ -452,14 +429,14 @@ class OnlineCalibrator:
         p = change.before
         before = np.arange(self._windows.size) < change.index
         self._fold_windows(before, p)
-        self._folded = eliminate(self._folded, change.step)
+        self._fit.folded = eliminate(self._fit.folded, change.step)
         kept = self._windows
         follows = kept.follows.copy()
         follows[:1] = False                          # no filtering across the change
         self._windows = dataclasses.replace(kept, follows=follows)
         after = change.before.copy()
         after[list(WHEELS)] += change.step            # (c_e and c_d)
-        self._take_p(after)
+        self._fit.take(after)
         self._clusters_done = 0                      # a new warm-up before watching again
         self._changes.reset()
         self._since_fit = self._windows.size
@@ -468,104 +445,17 @@ class OnlineCalibrator:
         """Fold the windows at ``mask`` (the oldest in memory), cluster by cluster, linearised
         at ``p``; they leave memory."""
         assert self._windows is not None
-        windows = self._windows
-        if not mask.any():
-            return
-        offset = self.heading_offset()
-        kept = self._kept(p)
-        fitted = self._fitted(p, kept)
-        view = fitting.View.of(fitted, self._lag.shift, offset)
-        total, _ = fitting.evaluate(p, view, self._model, self._folded, np.ones(2),
-                                    smooth=self._smooth).normal_equations(self._folded)
-        # (what a disturbance spoiled is not folded: it leaves memory unused)
-        folding = mask & kept
-        labels = windows.cluster[folding]
-        index = np.flatnonzero(folding)
-        for group in np.split(index, np.flatnonzero(np.diff(labels)) + 1):
-            if not group.size:
-                continue
-            part = windows.take(group)
-            empty = fitting.Folded(origin=self._folded.origin)
-            scan = (scan_lag(part, p[fitting.THETA], offset, self._model, empty, p)
-                    if windows.shifts > 0 else None)
-            self._folded = core.fold(self._folded, part, p, self._lag.shift, offset,
-                                     self._model, smooth=self._smooth, total_h=total,
-                                     scan=scan, free=self._free_p(),
-                                     setup=self._setup(part))
-        self._windows = windows.take(~mask)
+        self._windows = self._fit.fold(self._windows, mask, p, self.heading_offset(),
+                                       self._checks.checked, smooth=self._smooth)
 
-    def _p(self) -> FloatArray:
-        """The running estimate as the core's p (theta and the departures fitted)."""
-        return np.concatenate([self.theta, self._nuisance])
-
-    def _take_p(self, p: FloatArray) -> None:
-        self.theta = np.asarray(p[fitting.THETA], dtype=np.float64).copy()
-        self._nuisance = np.asarray(p[MODEL.size:], dtype=np.float64).copy()
-
-    def _free_p(self) -> BoolArray:
-        """The elements of p the running fit takes: theta, the offset where it has a prior, and
-        the departures the core last took in (the wheels' smoothing among them only where it
-        held out, as in batch: freed always, it took up what the common slip's coupling is)."""
-        return fitting.free_of(np.ones(self.theta.size, dtype=bool),
-                            offset=self._folded.offset_free,
-                            entered=[n for n in self._entered if n != "lag"])
-
-    def _setup(self, windows: WindowSet) -> core.Setup:
-        """What the live fit may take beside theta (:func:`~odocal.estimators.inverse.
-        fit_setup`, the live departures: a change it detects itself). A drift of c_e is fitted
-        as batch fits it while every window is in memory (the estimate is c_e now); once
-        windows are folded their sums hold no drift, and a drift is what the change detector
-        and forgetting follow."""
-        blocks = fitted.LIVE if self._folded.clusters else (*fitted.LIVE, ("drift",))
-        setup = fit_setup(windows, self.settings, held_by_checks(self._checks.checked),
-                          blocks=blocks)
-        return dataclasses.replace(setup, kept=self._entered,
-                                   coupled=bool(self._model.coupling))
-
-    def _kept(self, p: FloatArray | None = None) -> BoolArray:
-        """Which windows in memory the fit takes: all but those a disturbance spoils (a wheel
-        more than a tenth away from the running estimate, or ``p``: slip, a skid, reversing
-        with unsigned wheel speeds; :func:`~odocal.online.changes.disturbed`), once the
-        running estimate has settled (:data:`SETTLED` updates)."""
+    def _fitted(self) -> WindowSet:
+        """The windows in memory the fit takes (:meth:`RunningFit.fitted`)."""
         assert self._windows is not None
-        windows = self._windows
-        if self._updates < SETTLED or not windows.size:
-            return np.ones(windows.size, dtype=bool)
-        p = self._p() if p is None else p
-        return ~disturbed(windows, p, self._lag.shift, self.heading_offset())
-
-    def _fitted(self, p: FloatArray | None = None, keep: BoolArray | None = None) -> WindowSet:
-        """The windows the fit takes (:meth:`_kept`), each following the one before it only
-        where that one is taken too."""
-        assert self._windows is not None
-        windows = self._windows
-        keep = self._kept(p) if keep is None else keep
-        if keep.all():
-            return windows
-        follows = windows.follows & np.concatenate([[True], keep[:-1]])
-        return dataclasses.replace(windows, follows=follows).take(keep)
+        return self._fit.fitted(self._windows, self.heading_offset())
 
     def _solve(self, windows: WindowSet, *, max_iterations: int) -> fitting.Fit:
-        """Gauss-Newton over ``windows`` and the folded sums with the error model and lag of
-        now, and the datasheet values with their uncertainty (``[identify] prior_std``) as a
-        prior: the running estimate (the change detector's reference, where windows are
-        folded) stays near them in what the windows do not determine yet (t_r and d before
-        the first bends), and the data decide the rest (the estimate published is the core's,
-        from the datasheet values, without the prior)."""
-        setup = self._setup(windows)
-        view = fitting.View.of(windows, self._lag.shift, self.heading_offset(),
-                            tau_h=setup.tau_h, across=setup.across, lateral=setup.lateral)
-        free = self._free_p()
-        with np.errstate(divide="ignore", over="ignore"):
-            prior = 1.0 / np.square(np.asarray(self.settings.identify.prior_std, dtype=float))
-        prior = np.where(np.isfinite(prior), prior, 0.0)
-        h, b = self._folded.h.copy(), self._folded.b.copy()
-        h[fitting.THETA, fitting.THETA] += np.diag(prior)
-        b[fitting.THETA] += prior * self.datasheet
-        return fitting.solve(self._p(), view, free, self._model,
-                          dataclasses.replace(self._folded, h=h, b=b), np.ones(2),
-                          max_iterations=max_iterations,
-                          tolerance=self.settings.inverse.tolerance)
+        return self._fit.solve(windows, self.heading_offset(), self._checks.checked,
+                               max_iterations=max_iterations)
 
     @property
     def _smooth(self) -> bool:
@@ -582,24 +472,15 @@ class OnlineCalibrator:
         oldest = windows.cluster == windows.cluster[0]
         if oldest.all():
             oldest = np.arange(windows.size) < windows.size // 2   # (one huge cluster: half)
-        self._fold_windows(oldest, self._p())
+        self._fold_windows(oldest, self._fit.p)
 
     def _refit(self, windows: WindowSet | None = None) -> core.CoreFit:
         """The core on everything so far (``windows``: those the fit takes, :meth:`_fitted`;
         with what the checks hold back, as batch); the running estimate, error model and lag
         follow it."""
         assert self._windows is not None
-        chosen = self._fitted() if windows is None else windows
-        found = core.fit(chosen, self._folded, self.settings,
-                         heading_offset=self.heading_offset(),
-                         held=held_by_checks(self._checks.checked),
-                         distance_only=self._checks.checked.no_differential,
-                         setup=self._setup(chosen))
-        if found.free.any():
-            p = found.fit.p.copy()
-            p[fitting.LAG] = 0.0                      # (the lag is the view's shift)
-            self._take_p(p)
-        self._model, self._lag, self._entered = found.model, found.lag, found.entered
+        found = self._fit.refit(self._fitted() if windows is None else windows,
+                                self.heading_offset(), self._checks.checked)
         self._since_fit = 0
         return found
 
@@ -618,10 +499,10 @@ class OnlineCalibrator:
             return self._nothing(Reason.REJECTED, Status.REJECTED)
         if self._windows is not None:
             self._flush()
-        if self._checks.checked.standstill and self._folded.clusters == 0 and (
+        if self._checks.checked.standstill and self._fit.folded.clusters == 0 and (
                 self._windows is None or self._windows.size == 0):
             return self._nothing(Reason.STANDSTILL)
-        if self._windows is None or self._windows.size + self._folded.clusters == 0:
+        if self._windows is None or self._windows.size + self._fit.folded.clusters == 0:
             return self._nothing(Reason.NO_INFORMATION)
         windows = self._fitted()
         try:
@@ -643,7 +524,7 @@ class OnlineCalibrator:
         named = fitted.findings(total, found.nuisance_std, found.entered,
                                 t_s=self._t_s or 0.0,
                                 reference_shift_s=self._departures.reference_shift_s,
-                                heading_own=self._setup(windows).across,
+                                heading_own=self._fit.setup(windows, self._checks.checked).across,
                                 rivals=found.rivals)
         if any(f.severity is Severity.FATAL for f in named):
             status = Status.REJECTED
@@ -655,6 +536,11 @@ class OnlineCalibrator:
                         status=status,
                         details=self._details(found.clusters, [*named, *refused]),
                         widening=found.uncertainty.widening)
+
+    @property
+    def theta(self) -> FloatArray:
+        """The running estimate of theta."""
+        return self._fit.theta
 
     @property
     def diagnosis(self) -> Diagnosis:
@@ -670,7 +556,7 @@ class OnlineCalibrator:
     def delay_s(self) -> float:
         """The wheel stream's lag behind the reference that is applied (positive: late), s:
         the reference's alignment and the fit's fine lag together."""
-        return self._lag.shift * (self._t_s or 0.0) + self._departures.reference_shift_s
+        return self._fit.lag.shift * (self._t_s or 0.0) + self._departures.reference_shift_s
 
     def heading_offset(self) -> float:
         """The reference heading's rotation against the direction of travel (rad), found on the
@@ -680,7 +566,7 @@ class OnlineCalibrator:
         return heading_offset(self._builder.straight_so_far())
 
     def _details(self, clusters: int, more: Sequence[Finding] = ()) -> OnlineDetails:
-        noise = self._model.noise
+        noise = self._fit.model.noise
         return OnlineDetails(
             samples=self._intake.samples, windows=self._arrivals.total,
             windows_in_memory=(0 if self._windows is None
@@ -690,7 +576,7 @@ class OnlineCalibrator:
             noise=((float(noise[0, 0]), float(noise[0, 1])),
                    (float(noise[1, 0]), float(noise[1, 1]))),
             alarms=tuple(self._alarms), forgetting_s=self.settings.online.forgetting_s,
-            coupling=float(self._model.coupling),
+            coupling=float(self._fit.model.coupling),
             findings=(*self.diagnosis.findings, *more),
             halted=self._checks.halted,
             time_unit=self._intake.unit or "s",
@@ -738,10 +624,10 @@ class OnlineCalibrator:
         state = ("halted: the data contradict the model (estimate().details.findings)"
                  if self._checks.halted else f"{len(self._alarms)} alarm(s)")
         lines = [f"OnlineCalibrator({self._intake.samples} samples, {self.distance_km:.2f} km, "
-                 f"{windows} windows in memory, {self._folded.clusters} clusters folded, "
+                 f"{windows} windows in memory, {self._fit.folded.clusters} clusters folded, "
                  f"{state})",
                  f"{'parameter':<10} {'datasheet':>16} {'running':>16}"]
-        for name, sheet, now in zip(PARAMETER_NAMES, self.datasheet, self.theta, strict=True):
+        for name, sheet, now in zip(PARAMETER_NAMES, self.datasheet, self._fit.theta, strict=True):
             lines.append(f"{name:<10} {parameter_text(name, float(sheet)):>16} "
                          f"{parameter_text(name, float(now)):>16}")
         return "\n".join(lines)
