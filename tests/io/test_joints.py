@@ -3,6 +3,8 @@ bag took ``robot_front_left_wheel_joint`` as a rear wheel and read names the nod
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 
 from odocal.errors import ConfigError, DataError
@@ -10,7 +12,7 @@ from odocal.io.rosbag import _joints
 from odocal.ros2.inputs import wheel_joints
 
 
-def _rear(found) -> tuple[int, int]:
+def _rear(found: Any) -> tuple[int, int]:
     return found.velocities["rear_left"], found.velocities["rear_right"]
 
 FOUND = [
@@ -72,7 +74,8 @@ def test_named_joints_win_and_a_missing_name_is_refused() -> None:
      None),
     (["left_wheel_joint", "right_wheel_joint"], None),
 ])
-def test_a_cars_front_wheels_are_read_beside_the_rear_ones(names: list[str], front) -> None:
+def test_a_cars_front_wheels_are_read_beside_the_rear_ones(
+        names: list[str], front: tuple[int, int] | None) -> None:
     found = _joints(names, {}, "/joint_states")
     if front is None:
         assert set(found.velocities) == {"rear_left", "rear_right"}
@@ -81,13 +84,19 @@ def test_a_cars_front_wheels_are_read_beside_the_rear_ones(names: list[str], fro
     assert found.steering is None
 
 
-def test_front_wheels_that_cannot_be_paired_are_refused_naming_the_setting() -> None:
-    with pytest.raises(DataError, match=r"a front left wheel joint but no front right one "
-                                        r"among .*; set the mapping's \[wheels\] front_right"):
-        _joints(["rear_left", "rear_right", "front_left_wheel"], {}, "/j")
-    with pytest.raises(DataError, match=r"cannot tell which joint is the front left wheel"):
-        _joints(["rear_left", "rear_right", "front_left_a", "front_left_b", "front_right"],
-                {}, "/j")
+def test_front_wheels_the_names_do_not_pair_are_left_out_and_named_ones_must_pair() -> None:
+    # found by their names: one on each side, or the log is read as it read before (rear only)
+    for names in (["rear_left", "rear_right", "front_left_wheel"],
+                  ["rear_left", "rear_right", "front_left_a", "front_left_b", "front_right"]):
+        assert set(_joints(names, {}, "/j").velocities) == {"rear_left", "rear_right"}
+    # named by the user: both, and there
+    with pytest.raises(DataError, match=r"a front wheel joint is named without the other; "
+                                        r"set the mapping's \[wheels\] front_right too"):
+        _joints(["rear_left", "rear_right", "x"], {"front_left": "x"}, "/j")
+    with pytest.raises(DataError, match=r"no joint named 'y' \(the mapping's \[wheels\] "
+                                        r"front_right\)"):
+        _joints(["rear_left", "rear_right", "x"], {"front_left": "x", "front_right": "y"},
+                "/j")
     with pytest.raises(DataError, match=r"the same joint is taken for a rear and a front wheel "
                                         r"\(rear_left\)"):
         _joints(["rear_left", "rear_right", "x"], {"front_left": "rear_left",

@@ -462,3 +462,26 @@ def test_a_bags_four_wheel_joints_and_steering_joint_are_the_drives_inputs(
     # without the steering joint named, the front wheels alone
     plain = convert("rosbag", [path], settings=NO_OFFSET)[0]
     assert set(plain.inputs) == {"n_fl", "n_fr"}
+
+
+def test_a_further_input_with_missing_values_is_left_out_and_costs_no_rear_sample() -> None:
+    """A JointState whose front joints report NaN (a driver that does not measure them), or a
+    steering column with gaps: the rear wheels keep every sample, the input is left out whole
+    and named in the stream's report."""
+    t = np.arange(10) * 0.025
+    front = np.full(10, 2.0)
+    front[3] = np.nan
+    stream = Stream(name="wheels", role="wheels", t=t,
+                    values={"n_rl": np.full(10, 2.0), "n_rr": np.full(10, 2.1),
+                            "n_fl": front, "n_fr": np.full(10, 2.0), "steer": np.zeros(10)},
+                    units={"n_rl": "rev/s", "n_rr": "rev/s", "n_fl": "rev/s", "n_fr": "rev/s",
+                           "steer": "rad"})
+    cleaned, report = clean(stream)
+    assert cleaned.t.size == 10 and report.missing == 0
+    assert set(cleaned.values) == {"n_rl", "n_rr", "n_fr", "steer"}
+    assert report.dropped == ("n_fl",) and report.to_dict()["dropped"] == ["n_fl"]
+    # a rear wheel's missing value still costs its sample (the rear axle needs both)
+    rear = dict(stream.values, n_rl=np.where(np.arange(10) == 5, np.nan, 2.0))
+    cleaned, report = clean(Stream(name="wheels", role="wheels", t=t, values=rear,
+                                   units=stream.units))
+    assert cleaned.t.size == 9 and report.missing == 1

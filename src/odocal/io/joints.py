@@ -18,8 +18,10 @@ A car's front wheels (the four-wheel model's ``n_fl``, ``n_fr``; :func:`front_wh
 per side: the joint named by the user (``[wheels] front_left``/``front_right``), else the one
 joint whose name says front and the side (``front_left_wheel``, ``wheel_front_right``) or is the
 side's short name (``fl``, ``fl_wheel``, ``f_left_wheel_joint``), and does not say steer or
-caster (a steering joint turns the wheel about its vertical axis; it does not roll it). Neither side
-found: the log has no front wheels; one side only, or several on a side: the error names them.
+caster (a steering joint turns the wheel about its vertical axis; it does not roll it). Where the
+names do not give one such joint on each side, the log is read without front wheels (a robot's
+casters, a tricycle's one front wheel: what read before still reads); joints the user named
+that are not there, or one named front side without the other, are errors.
 """
 
 from __future__ import annotations
@@ -80,28 +82,22 @@ def front_wheel_joints(names: Sequence[str], named: tuple[str, str], *, where: s
                        setting: Callable[[str], str],
                        error: type[Exception]) -> tuple[int, int] | None:
     """The indices of the front left and right wheel joints in ``names`` by the module's rule,
-    or None where the joints hold no front wheels. Arguments as :func:`wheel_joints`'."""
-    names = list(names)
-    listed = ", ".join(names) or "none"
-    found: list[int | None] = []
-    for side, wanted in zip(("left", "right"), named, strict=True):
-        if wanted:
-            found.append(named_joint(names, wanted, where=where, setting=setting(side),
-                                     error=error))
-            continue
-        matches = [i for i, n in enumerate(names)
-                   if _FRONT[side].search(n) and not _NOT_ROLLING.search(n)]
-        if len(matches) > 1:
-            raise error(f"{where}: cannot tell which joint is the front {side} wheel among "
-                        f"{listed}; set {setting(side)}")
-        found.append(matches[0] if matches else None)
-    left, right = found
-    if left is None and right is None:
-        return None
-    if left is None or right is None:
-        missing = "left" if left is None else "right"
-        raise error(f"{where}: a front {'right' if left is None else 'left'} wheel joint "
-                    f"but no front {missing} one among {listed}; set {setting(missing)}")
+    or None where the joints hold no pair of them. Arguments as :func:`wheel_joints`'."""
+    if any(named):
+        if not all(named):
+            missing = "right" if named[0] else "left"
+            raise error(f"{where}: a front wheel joint is named without the other; "
+                        f"set {setting(missing)} too")
+        left, right = (named_joint(names, wanted, where=where, setting=setting(side),
+                                   error=error)
+                       for side, wanted in zip(("left", "right"), named, strict=True))
+    else:
+        found = [[i for i, n in enumerate(names)
+                  if _FRONT[side].search(n) and not _NOT_ROLLING.search(n)]
+                 for side in ("left", "right")]
+        if any(len(matches) != 1 for matches in found):
+            return None
+        left, right = found[0][0], found[1][0]
     if left == right:
         raise error(f"{where}: the front left and right wheel are the same joint "
                     f"{names[left]!r}; set {setting('left')} and {setting('right')}")

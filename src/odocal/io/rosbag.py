@@ -269,9 +269,18 @@ def _extract(role: str, section: Mapping[str, Any], msg: Any,
         if topic not in joint_index:
             joint_index[topic] = _joints(list(msg.name), section, topic)
         for key, index in joint_index[topic].velocities.items():
+            if index >= len(msg.velocity):
+                raise DataError(f"topic {topic}: the joint {msg.name[index]!r} ({key}) has no "
+                                f"velocity ({len(msg.velocity)} velocities for "
+                                f"{len(msg.name)} joints)")
             values[key] = float(msg.velocity[index])
-        if joint_index[topic].steering is not None:
-            values["steering"] = float(msg.position[joint_index[topic].steering])
+        steering = joint_index[topic].steering
+        if steering is not None:
+            if steering >= len(msg.position):
+                raise DataError(f"topic {topic}: the steering joint {msg.name[steering]!r} "
+                                f"has no position ({len(msg.position)} positions for "
+                                f"{len(msg.name)} joints)")
+            values["steering"] = float(msg.position[steering])
         return values
     for key in ("rear_left", "rear_right", "yaw_rate", "lateral_accel", "x", "y", "heading",
                 "vx", "vy", "latitude", "longitude", "altitude", "speed", "course", "std"):

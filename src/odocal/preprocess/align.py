@@ -20,6 +20,7 @@ import numpy as np
 
 from odocal.arrays import BoolArray, FloatArray
 from odocal.correlation import correlations
+from odocal.data.drive import MODEL_INPUTS
 from odocal.errors import DataError
 from odocal.io.streams import ANGLES, RawLog, Stream
 from odocal.model.vehicle import MODEL
@@ -42,13 +43,19 @@ class StreamReport:
     longest_gap_s: float
     offset_s: float
     units: Mapping[str, str]
+    dropped: tuple[str, ...] = ()
+    """Further inputs left out for missing values (a model's beyond the rear axle's: a front
+    wheel, the steering), so that they cost none of the rear wheels' samples."""
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self) | {"units": dict(self.units)}
+        return dataclasses.asdict(self) | {"units": dict(self.units),
+                                           "dropped": list(self.dropped)}
 
 
 def clean(stream: Stream) -> tuple[Stream, StreamReport]:
-    """Sort, drop repeated stamps and missing values; report what was done."""
+    """Sort, drop repeated stamps and missing values; report what was done. A further input
+    (:data:`~odocal.data.drive.MODEL_INPUTS`: a front wheel, the steering) with missing values
+    is left out whole rather than cost the samples of the rear wheels."""
     t = np.asarray(stream.t, dtype=np.float64)
     finite_t = np.isfinite(t)
     order = np.argsort(t, kind="stable")
@@ -58,6 +65,9 @@ def clean(stream: Stream) -> tuple[Stream, StreamReport]:
     keep[1:] &= np.diff(t_sorted) > 0
     duplicates = int(np.sum(np.isfinite(t_sorted)) - np.sum(keep))
     values = {k: np.asarray(v, dtype=np.float64)[order] for k, v in stream.values.items()}
+    dropped = tuple(k for k, v in values.items()
+                    if k in MODEL_INPUTS and not np.all(np.isfinite(v[keep])))
+    values = {k: v for k, v in values.items() if k not in dropped}
     complete = keep.copy()
     for v in values.values():
         complete &= np.isfinite(v)
@@ -77,7 +87,8 @@ def clean(stream: Stream) -> tuple[Stream, StreamReport]:
         end_s=float(t_clean[-1] + stream.offset_s) if t_clean.size else float("nan"),
         out_of_order=out_of_order, duplicates=duplicates, missing=missing,
         gaps=int(gap_mask.sum()), longest_gap_s=float(dt.max()) if dt.size else 0.0,
-        offset_s=stream.offset_s, units=dict(stream.units))
+        offset_s=stream.offset_s,
+        units={k: u for k, u in stream.units.items() if k not in dropped}, dropped=dropped)
     return cleaned, report
 
 
