@@ -8,8 +8,10 @@ import pytest
 from odocal.correlation import correlations
 
 
-def _pearson_by_hand(pairs, k):
-    a_all, b_all = [], []
+def _pearson_by_hand(pairs: list[tuple[np.ndarray, np.ndarray]],
+                     k: int) -> tuple[list[float], list[float]]:
+    a_all: list[float] = []
+    b_all: list[float] = []
     for a, b in pairs:
         for i in range(a.size):
             if 0 <= i + k < a.size:
@@ -18,7 +20,7 @@ def _pearson_by_hand(pairs, k):
     return a_all, b_all
 
 
-def test_every_lag_is_pearsons_correlation_of_the_samples_both_pairs_hold():
+def test_every_lag_is_pearsons_correlation_of_the_samples_both_pairs_hold() -> None:
     rng = np.random.default_rng(0)
     pairs = [(rng.normal(size=50) + 3.0, rng.normal(size=50)),
              (rng.normal(size=30), rng.normal(size=30) + 1.0)]
@@ -33,7 +35,7 @@ def test_every_lag_is_pearsons_correlation_of_the_samples_both_pairs_hold():
             assert np.isnan(value)
 
 
-def test_a_delayed_copy_is_found_between_steps():
+def test_a_delayed_copy_is_found_between_steps() -> None:
     t = np.arange(4000) * 0.01
     a = np.sin(0.7 * t) + 0.5 * np.sin(2.3 * t)
     late = 0.0437                                   # 4.37 steps
@@ -44,7 +46,7 @@ def test_a_delayed_copy_is_found_between_steps():
     assert peak.correlation > 0.999
 
 
-def test_no_pair_of_samples_spans_two_series():
+def test_no_pair_of_samples_spans_two_series() -> None:
     # each series alone is its own shift of the other; joined, a lag across the join would
     # compare the end of one with the start of the next
     rng = np.random.default_rng(1)
@@ -54,7 +56,7 @@ def test_no_pair_of_samples_spans_two_series():
     assert peak is not None and round(peak.steps) == 5
 
 
-def test_a_lag_beyond_the_search_is_at_the_edge_and_a_flat_signal_has_none():
+def test_a_lag_beyond_the_search_is_at_the_edge_and_a_flat_signal_has_none() -> None:
     rng = np.random.default_rng(2)
     x = np.cumsum(rng.normal(size=1000))
     peak = correlations([(x[50:-50], x[80:-20])], 10).peak()   # b is 30 steps ahead
@@ -63,7 +65,7 @@ def test_a_lag_beyond_the_search_is_at_the_edge_and_a_flat_signal_has_none():
     assert correlations([], 3).peak() is None
 
 
-def test_unusable_lags_are_passed_over():
+def test_unusable_lags_are_passed_over() -> None:
     rng = np.random.default_rng(3)
     x = np.cumsum(rng.normal(size=500))
     found = correlations([(x, x)], 5)
@@ -72,7 +74,7 @@ def test_unusable_lags_are_passed_over():
     assert peak is not None and abs(peak.steps) == 1.0
 
 
-def test_where_b_reaches_beyond_a_every_lag_compares_all_of_a():
+def test_where_b_reaches_beyond_a_every_lag_compares_all_of_a() -> None:
     rng = np.random.default_rng(4)
     a = rng.normal(size=80)
     b = rng.normal(size=80 + 2 * 6)
@@ -85,7 +87,7 @@ def test_where_b_reaches_beyond_a_every_lag_compares_all_of_a():
         correlations([(a, b[:-1])], 6)
 
 
-def test_the_tapered_estimate_divides_the_products_by_the_whole_series_energies():
+def test_the_tapered_estimate_divides_the_products_by_the_whole_series_energies() -> None:
     rng = np.random.default_rng(5)
     pairs = [(rng.normal(size=40) + 1.0, rng.normal(size=40)),
              (rng.normal(size=25), rng.normal(size=25) - 2.0)]

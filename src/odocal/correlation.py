@@ -20,7 +20,7 @@ from typing import Literal
 
 import numpy as np
 
-from odocal.arrays import FloatArray, IntArray
+from odocal.arrays import BoolArray, FloatArray, IntArray
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,7 @@ class Correlations:
     values: FloatArray
     overlap: IntArray
 
-    def peak(self, usable: FloatArray | None = None) -> Peak | None:
+    def peak(self, usable: BoolArray | None = None) -> Peak | None:
         """The best lag among the ``usable`` ones (default: all), refined between steps by a
         parabola through its neighbours; None where no usable lag has a correlation."""
         values = np.where(np.isfinite(self.values), self.values, -np.inf)

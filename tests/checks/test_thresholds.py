@@ -401,8 +401,8 @@ def stepped_fit(size: float) -> Any:
     p = fitting.pack(np.array([2.0, 0.0, 1.5, 0.0]))
     p[fitting.CHANGE[0]] = 2.0 * size
     fit = fitting.Fit(p=p, residual=np.zeros((0, 2)), jac=np.zeros((0, 2, fitting.P)),
-                   weight=np.zeros((0, 2)), stacked=np.zeros((0, 2, 1 + fitting.P)),
-                   white=np.zeros((0, 4, 1 + fitting.P)), cost=0.0)
+                      weight=np.zeros((0, 2)), stacked=np.zeros((0, 2, 1 + fitting.P)),
+                      white=np.zeros((0, 4, 1 + fitting.P)), cost=0.0)
     return core._State(fit=fit, model=ErrorModel(), lag=Lag(), view=None)
 
 

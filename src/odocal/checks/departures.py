@@ -85,7 +85,7 @@ class Departures:
                 "wheel_step_revps": self.wheel_step_revps}
 
 
-def _pieces(drives: Sequence[Drive], seconds: float) -> list[tuple[Drive, int, int]]:
+def _long_pieces(drives: Sequence[Drive], seconds: float) -> list[tuple[Drive, int, int]]:
     return [(d, a, b) for d in drives for a, b in d.pieces if b - a >= round(seconds / d.t_s)]
 
 
@@ -107,12 +107,12 @@ def lateral_lag_s(drives: Sequence[Drive], settings: Settings) -> float | None:
     ``lateral_lag_search_s``), over every piece of at least ``lag_min_piece_s``; None where not
     determined."""
     lim = settings.checks
-    pieces = _pieces(drives, lim.lag_min_piece_s)
-    if not pieces:
+    long = _long_pieces(drives, lim.lag_min_piece_s)
+    if not long:
         return None
     t_s = drives[0].t_s
     pairs = []
-    for d, a, b in pieces:
+    for d, a, b in long:
         ds, dpsi = motion_increments(d.x[a:b], d.y[a:b], d.psi[a:b], d.beta[a:b])
         pairs.append((ds * dpsi / t_s**2, np.asarray(d.a_y[a:b - 1])))
     return best_lag(pairs, round(lim.lateral_lag_search_s / t_s), t_s, lim.lag_min_correlation)
@@ -123,12 +123,12 @@ def wheel_lag_s(drives: Sequence[Drive], theta: FloatArray, settings: Settings) 
     ``wheel_lag_search_s``, over every piece of at least ``lag_min_piece_s`` (positive: the
     wheel stream late); None where not determined."""
     lim = settings.checks
-    pieces = _pieces(drives, lim.lag_min_piece_s)
-    if not pieces:
+    long = _long_pieces(drives, lim.lag_min_piece_s)
+    if not long:
         return None
     t_s = drives[0].t_s
     pairs = []
-    for d, a, b in pieces:
+    for d, a, b in long:
         _, w = body_rates(theta, d.n_rl[a:b], d.n_rr[a:b], d.a_y[a:b])
         pairs.append((np.gradient(d.psi[a:b], d.t_s), np.asarray(w)))
     return best_lag(pairs, round(lim.wheel_lag_search_s / t_s), t_s, lim.lag_min_correlation)

@@ -5,8 +5,8 @@
 line lists them without loading numpy); the pipeline runs them by these names.
 
 May import: :mod:`odocal.checks` (what the data allow a method to fit), :mod:`odocal.data`,
-:mod:`odocal.model` and the leaves (:mod:`odocal.settings`, :mod:`odocal.errors`); nothing
-above.
+:mod:`odocal.model` and the leaves (:mod:`odocal.settings`, :mod:`odocal.errors`,
+:mod:`odocal.arrays`, :mod:`odocal.correlation`); nothing above.
 """
 
 from __future__ import annotations

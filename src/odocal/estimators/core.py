@@ -33,7 +33,6 @@ p, the windows' residuals and one Gauss-Newton solve are :mod:`odocal.estimators
 from __future__ import annotations
 
 import dataclasses
-import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -91,12 +90,8 @@ from odocal.estimators.fitting import (
     solve,
 )
 from odocal.estimators.lag import Lag, LagScan, choose_lag, lag_test, scan_lag
-from odocal.estimators.windows import (
-    WindowSet,
-)
+from odocal.estimators.windows import WindowSet
 from odocal.settings import Settings
-
-log = logging.getLogger(__name__)
 
 _SHIFT_ROUNDS = 6         # the lag scanned and theta refitted in turn at most so often
 _SHIFT_SETTLED = 1e-3     # steps
@@ -213,7 +208,7 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
     c_d, t_r and d held by the caller).
     """
     setup = setup or Setup(blocks=())
-    held = _held_without_bends(windows, folded, settings, dict(held or {}))
+    held = _held_without_bends(windows, folded, settings, held or {})
     free = np.array([name not in held for name in LAYOUT.names])
     timing = settings.inverse.delay == "estimate" and not distance_only and windows.shifts > 0
     blocks = _allowed_blocks(setup, timing=timing, distance_only=distance_only)
@@ -233,7 +228,7 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
             held[LAYOUT.names[j]] = NotIdentified(Reason.NO_INFORMATION)
         free = informed
         state = ctx.run(p0, free, entered.free(), change=-1)
-    state = _enter_departures(ctx, state, free, blocks, entered)
+    state, entered = _enter_departures(ctx, state, free, blocks, entered)
     with_nuisance = entered.free()
     before_verdict = (state.fit, free_of(free, entered=[n for n in entered.names if n != "lag"])
                       | (with_nuisance & (np.arange(P) == OFFSET)))
@@ -258,14 +253,15 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
 
 
 def _held_without_bends(windows: WindowSet, folded: Folded, settings: Settings,
-                        held: dict[str, NotIdentified]) -> dict[str, NotIdentified]:
-    """``held`` with the parameters that act on the yaw rate only in bends (t_r and d,
-    METHOD 2) held where no window turns faster than ``[segments] yaw_rate_threshold_radps``."""
+                        held: Mapping[str, NotIdentified]) -> dict[str, NotIdentified]:
+    """``held`` and the parameters that act on the yaw rate only in bends (t_r and d,
+    METHOD 2), where no window turns faster than ``[segments] yaw_rate_threshold_radps``."""
+    out = dict(held)
     peak = max(float(windows.peak_yaw_radps.max(initial=0.0)), folded.peak_yaw_radps)
     if peak <= settings.segments.yaw_rate_threshold_radps:
         for name in LAYOUT.bends:
-            held.setdefault(name, NotIdentified(Reason.NEEDS_BENDS, detail=peak))
-    return held
+            out.setdefault(name, NotIdentified(Reason.NEEDS_BENDS, detail=peak))
+    return out
 
 
 def _allowed_blocks(setup: Setup, *, timing: bool,
@@ -300,10 +296,14 @@ class _Entered:
 
 
 def _enter_departures(ctx: _Context, state: _State, free: BoolArray,
-                      blocks: Sequence[tuple[str, ...]], entered: _Entered) -> _State:
+                      blocks: Sequence[tuple[str, ...]],
+                      start: _Entered) -> tuple[_State, _Entered]:
     """The departures' one rule, in rounds: the one whose held-out test holds out most above
     its penalty enters and the fit is redone; one that leaves the fit unacceptable or not
-    determined is taken out again and not tried again. ``entered`` is updated in place."""
+    determined is taken out again and not tried again. The fit and the departures entered
+    (``start``'s and those after them)."""
+    entered = dataclasses.replace(start, names=list(start.names),
+                                  rivals={k: dict(v) for k, v in start.rivals.items()})
     excluded: set[tuple[str, ...]] = set()
     for _ in range(len(blocks)):
         statistics = ctx.tests(state, free, entered.free(),
@@ -329,7 +329,7 @@ def _enter_departures(ctx: _Context, state: _State, free: BoolArray,
         state = trial
         if best.block[0] == "change_e":
             entered.change = best.where
-    return state
+    return state, entered
 
 
 #: A drive departs from the others where its windows' evidence against their fit is beyond

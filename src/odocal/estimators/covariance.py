@@ -1,13 +1,19 @@
-"""How sure a calibration is: the bootstrap over segments, checked against the covariance.
+"""How sure a calibration is: the default method's sandwich covariance, its doubts, and the
+bootstrap that checks a covariance.
 
-The covariance a calibration reports is cluster-robust (see :mod:`odocal.estimators.gauss_newton`):
-residuals of
-overlapping segments are summed into clusters, because a rollout's errors are strongly correlated
-and a white-noise covariance is far too small (10 to 50 times, on simulated drives). The
-bootstrap is an independent check: clusters of segments are drawn with replacement and theta is
-re-estimated, by one Gauss-Newton step from the estimate (``one-step``) or by rerunning the
-identification (``full``). For the three-step method the five step-1 parameter sets are also
-drawn with replacement from all step-1 batches, because the compensated rates inherit them.
+* **The default method's covariance** (:func:`covariance`): a sandwich over clusters of windows
+  (each cluster's score scaled by its leverage, cross products of neighbouring clusters with
+  Newey and West's weights, the folded clusters' meat included), what it adds beyond the error
+  model's own variance widened by Student's t for the clusters each parameter rests on; and the
+  doubts the data cannot settle added to it (:func:`lateral_doubt`, :func:`doubted`).
+* **The bootstrap** (:func:`bootstrap`): the covariance a calibration reports is cluster-robust
+  (see :mod:`odocal.estimators.gauss_newton`): residuals of overlapping segments are summed into
+  clusters, because a rollout's errors are strongly correlated and a white-noise covariance is
+  far too small (10 to 50 times, on simulated drives). The bootstrap is an independent check:
+  clusters of segments are drawn with replacement and theta is re-estimated, by one
+  Gauss-Newton step from the estimate (``one-step``) or by rerunning the identification
+  (``full``). For the three-step method the five step-1 parameter sets are also drawn with
+  replacement from all step-1 batches, because the compensated rates inherit them.
 """
 
 from __future__ import annotations
@@ -43,6 +49,10 @@ from odocal.settings import UncertaintySettings
 #: (RMS z 1.97, largest |z| 6.7; with these weights 0.80 and 1.8). The taper also reaches
 #: errors slower than a cluster (a smoother's output drifting over a minute).
 NEWEY_WEST = (0.75, 0.5, 0.25)
+#: Fewer clusters than this: a covariance is the larger of the sandwich and the residual
+#: formula, widened for the clusters' small number (the default method's and the segment
+#: methods' alike).
+MIN_CLUSTERS_FOR_ROBUST = 10
 
 
 def long_run_meat(g: FloatArray, weights: Sequence[float] = (1.0,)) -> FloatArray:
@@ -235,11 +245,6 @@ def _resampled(theta: FloatArray, free: BoolArray, information: FloatArray, scor
         hw = np.einsum("c,cij->ij", w.astype(float), h)[np.ix_(cols, cols)]
         samples[b, cols] = theta[cols] + np.linalg.lstsq(hw, w @ g[:, cols], rcond=None)[0]
     return samples, n_clusters
-
-
-#: Fewer clusters than this: the covariance of the default method is the larger of the sandwich
-#: and the residual formula, widened for the clusters' small number.
-MIN_CLUSTERS_FOR_ROBUST = 10
 
 
 def lateral_doubt(found: Uncertainty, p: FloatArray, free: BoolArray) -> Uncertainty:

@@ -31,7 +31,7 @@ from scipy.linalg import lapack, qr
 from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.data.segments import SegmentBatch
 from odocal.estimators.base import BootstrapTerms
-from odocal.estimators.covariance import robust_covariance
+from odocal.estimators.covariance import MIN_CLUSTERS_FOR_ROBUST, robust_covariance
 from odocal.estimators.estimate import (
     CovarianceKind,
     Estimate,
@@ -49,7 +49,6 @@ from odocal.settings import IdentifySettings, Settings
 
 log = logging.getLogger(__name__)
 
-_MIN_CLUSTERS_FOR_ROBUST = 10
 _MAX_HALVINGS = 10
 #: A weighted RMS residual below this (m, or rad times the heading weight's root) is numerically
 #: zero: the data fit the model exactly.
@@ -308,7 +307,7 @@ def _covariance(lin: Linearisation, free: BoolArray, clusters: IntArray,
     the residual formula, widened for the clusters' small number), the residual formula's, and
     which it is."""
     naive = _naive_covariance(lin, free)
-    if n_clusters >= _MIN_CLUSTERS_FOR_ROBUST:
+    if n_clusters >= MIN_CLUSTERS_FOR_ROBUST:
         return _robust_covariance(lin, free, clusters), naive, CovarianceKind.CLUSTER_ROBUST
     if n_clusters >= 2:
         return (_larger(naive, _robust_covariance(lin, free, clusters))

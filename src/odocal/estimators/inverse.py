@@ -197,7 +197,7 @@ def inverse_calibration(drives: Sequence[Drive], *, settings: Settings,
     if progress:
         progress("inverse: fit", 1, 2)
     prior = fitting.Folded.prior(_origin(settings),
-                              core.offset_prior_std(settings, wheel_step(drives, settings)))
+                                 core.offset_prior_std(settings, wheel_step(drives, settings)))
     found, windows, departing = _fit_agreeing(windows, prior, settings, drives,
                                               heading_offset=offset, held=held,
                                               distance_only=distance_only)
@@ -346,7 +346,7 @@ def screen(drives: Sequence[Drive], settings: Settings) -> Screen | None:
         return None
     offset = heading_offset(straight) if settings.inverse.heading_offset == "estimate" else 0.0
     prior = fitting.Folded.prior(_origin(settings),
-                              core.offset_prior_std(settings, wheel_step(drives, settings)))
+                                 core.offset_prior_std(settings, wheel_step(drives, settings)))
     found = core.fit(windows, prior, settings, heading_offset=offset,
                      setup=fit_setup(windows, settings))
     findings = _findings(found, windows, drives, reference_shift_s=_shifted(drives))

@@ -2,7 +2,7 @@
 format back.
 
 May import: :mod:`odocal.data`, :mod:`odocal.model` (the parameter layout), the leaves
-(:mod:`odocal.settings`, :mod:`odocal.errors`); nothing above.
+(:mod:`odocal.settings`, :mod:`odocal.errors`, :mod:`odocal.arrays`); nothing above.
 """
 
 from __future__ import annotations

@@ -72,7 +72,6 @@ from odocal.online.changes import (
     ChangeDetector,
     Suspect,
     describe,
-    eliminate,
     estimate_change,
 )
 from odocal.online.checking import CHECK_WINDOW_S, LiveChecks
@@ -80,7 +79,6 @@ from odocal.online.departures import (
     LiveDepartures,
     ReferenceAligner,
     recorrected,
-    with_offset_prior,
 )
 from odocal.online.running import RunningFit
 from odocal.online.samples import Intake
@@ -313,8 +311,7 @@ class OnlineCalibrator:
                 self._fit.take(current.p)
             self._changes.reset()
         if new.wheel_step_revps:
-            self._fit.folded = with_offset_prior(self._fit.folded, self.settings,
-                                                 new.wheel_step_revps)
+            self._fit.encoded(new.wheel_step_revps)
 
     def _rebuilt(self) -> bool:
         """The windows in memory made again from the samples as they came, with the
@@ -363,7 +360,7 @@ class OnlineCalibrator:
         if cfg.forgetting_s:
             factor = math.exp(-self.settings.inverse.window_s / cfg.forgetting_s)
             k = new.size
-            self._fit.folded = self._fit.folded.decayed(factor**k)
+            self._fit.fade(factor**k)
             windows = windows.scaled(factor**k)
             new = dataclasses.replace(new, weight=new.weight * factor ** np.arange(k - 1, -1, -1))
         self._windows = WindowSet.concat([windows, new])
@@ -429,7 +426,7 @@ class OnlineCalibrator:
         p = change.before
         before = np.arange(self._windows.size) < change.index
         self._fold_windows(before, p)
-        self._fit.folded = eliminate(self._fit.folded, change.step)
+        self._fit.restart_wheels(change.step)
         kept = self._windows
         follows = kept.follows.copy()
         follows[:1] = False                          # no filtering across the change

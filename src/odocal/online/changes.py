@@ -145,7 +145,7 @@ def _predicted(windows: WindowSet, p: FloatArray, shift: float,
     a spread of the wheels' timing left out: it moves a window by a tiny share) and their
     Jacobian in theta (W, 2, n)."""
     pred, jac = fitting.wheels(np.asarray(p, dtype=np.float64),
-                            fitting.View.of(windows, shift, heading_offset), smooth=False)
+                               fitting.View.of(windows, shift, heading_offset), smooth=False)
     return pred, jac[..., fitting.THETA]
 
 
@@ -344,13 +344,13 @@ def estimate_change(windows: WindowSet, folded: fitting.Folded, suspect: Suspect
         return None
     theta_size = int(np.asarray(p[fitting.THETA]).size)
     free = fitting.free_of(np.ones(theta_size, dtype=bool), kappa=smooth,
-                        offset=folded.offset_free)
+                           offset=folded.offset_free)
     channels = np.ones(2)
     before_fit: FloatArray = np.asarray(suspect.reference, dtype=np.float64).copy()
     if index > 0 or folded.clusters:
         view = fitting.View.of(windows.take(~after), lag.shift, heading_offset)
         fit = fitting.solve(np.asarray(p, dtype=np.float64), view, free, model, folded, channels,
-                         max_iterations=5, tolerance=tolerance)
+                            max_iterations=5, tolerance=tolerance)
         if np.all(np.isfinite(fit.p)):
             before_fit = np.asarray(fit.p, dtype=np.float64).copy()
     # after: the wheels alone, from the reference moved by the windows' own step (a good start
@@ -366,7 +366,7 @@ def estimate_change(windows: WindowSet, folded: fitting.Folded, suspect: Suspect
     wheels_free[wheels] = True
     empty = fitting.Folded(origin=folded.origin)
     fit = fitting.solve(start, view, wheels_free, model, empty, channels, max_iterations=8,
-                     tolerance=tolerance)
+                        tolerance=tolerance)
     if not np.all(np.isfinite(fit.p)):
         return None
     h, _ = fit.normal_equations(empty)

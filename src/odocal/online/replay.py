@@ -440,16 +440,12 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
 
     span = _feed(calibrator, source, fmt=fmt, settings=settings, mapping=mapping, update=update)
     if span is None:
-        from odocal.io.urls import redact
-
         raise DataError(f"'{redact(source)}' holds no samples (or a single one)")
     first_t, last_t = span
     final = update(last_t)
     published, published_km = final, None
     if final.status is Status.REJECTED and not calibrator.halted and good:
         published, published_km = good[0]
-    from odocal.io.urls import redact
-
     return ReplayResult(source=redact(source), estimate=published, trace=tuple(trace),
                         alarms=calibrator.alarms, samples=calibrator.details_samples(),
                         duration_s=last_t - first_t, distance_km=calibrator.distance_km,

@@ -18,7 +18,8 @@ from odocal.estimators.inverse import fit_setup
 from odocal.estimators.lag import Lag, choose_lag, scan_lag
 from odocal.estimators.windows import WindowSet
 from odocal.model.vehicle import MODEL
-from odocal.online.changes import disturbed
+from odocal.online.changes import disturbed, eliminate
+from odocal.online.departures import with_offset_prior
 from odocal.settings import Settings
 
 #: Running updates after which the estimate is trusted to tell a disturbed window.
@@ -48,6 +49,20 @@ class RunningFit:
         self.folded = fitting.Folded.prior(fitting.pack(datasheet),
                                            core.offset_prior_std(settings, 0.0))
         self.updates = 0
+
+    def fade(self, factor: float) -> None:
+        """The folded evidence faded by ``factor`` (forgetting)."""
+        self.folded = self.folded.decayed(factor)
+
+    def encoded(self, step_revps: float) -> None:
+        """The wheel rates lie on a grid of ``step_revps``: the wheel-rate offset gets its
+        prior (:func:`~odocal.online.departures.with_offset_prior`)."""
+        self.folded = with_offset_prior(self.folded, self.settings, step_revps)
+
+    def restart_wheels(self, step: FloatArray) -> None:
+        """After a change of the wheels by ``step`` (c_e, c_d): what the folded evidence says
+        about them is taken out (:func:`~odocal.online.changes.eliminate`)."""
+        self.folded = eliminate(self.folded, step)
 
     @property
     def p(self) -> FloatArray:

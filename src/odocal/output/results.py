@@ -96,7 +96,7 @@ def write_results(result: CalibrationResult, out_dir: str | Path, *,
     if "tum" in targets:
         from odocal.output.trajectories import write_trajectories
 
-        written += write_trajectories(result.trajectories(), out)
+        written += write_trajectories(result.drive_data, result.trajectories(), out)
         targets.remove("tum")
     if targets and not result.success:
         notes.append("parameters not exported: the calibration did not succeed")

@@ -21,7 +21,7 @@ gain. With one log the files lie in ``trajectories/``; with several, in
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -57,11 +57,12 @@ def _folder_names(drives: Sequence[Drive]) -> list[str]:
     return names
 
 
-def write_trajectories(trajectories: Sequence[Trajectories], out_dir: str | Path) -> list[Path]:
-    """Write the three TUM files of every drive's trajectories under ``out_dir/trajectories``
-    (:meth:`odocal.pipeline.result.CalibrationResult.trajectories`)."""
+def write_trajectories(drives: Sequence[Drive], trajectories: Iterable[Trajectories],
+                       out_dir: str | Path) -> list[Path]:
+    """Write the three TUM files of every drive's trajectories (``drives``' in order, one
+    drive at a time: :meth:`odocal.pipeline.result.CalibrationResult.trajectories`) under
+    ``out_dir/trajectories``."""
     root = Path(out_dir) / FOLDER
-    drives = [t.drive for t in trajectories]
     folders = [root] if len(drives) == 1 else [root / n for n in _folder_names(drives)]
     written: list[Path] = []
     for found, folder in zip(trajectories, folders, strict=True):

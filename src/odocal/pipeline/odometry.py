@@ -5,7 +5,7 @@ the exports' covariances)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,12 +73,12 @@ class Trajectories:
 
 
 def trajectories(drives: Sequence[Drive], theta: Parameters, datasheet: Parameters, *,
-                 arm: tuple[float, float] = (0.0, 0.0)) -> list[Trajectories]:
+                 arm: tuple[float, float] = (0.0, 0.0)) -> Iterator[Trajectories]:
     """Every drive's :class:`Trajectories` (:func:`dead_reckoned` from the reference point
-    ``arm``)."""
-    return [Trajectories(drive, np.column_stack([drive.x, drive.y, drive.psi]),
-                         dead_reckoned(drive, theta, arm), dead_reckoned(drive, datasheet, arm))
-            for drive in drives]
+    ``arm``), one drive at a time."""
+    for drive in drives:
+        yield Trajectories(drive, np.column_stack([drive.x, drive.y, drive.psi]),
+                           dead_reckoned(drive, theta, arm), dead_reckoned(drive, datasheet, arm))
 
 
 def dead_reckoned(drive: Drive, theta: Parameters,

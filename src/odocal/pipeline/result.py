@@ -8,7 +8,7 @@ them in :mod:`odocal.report` and :mod:`odocal.cli`, files in :mod:`odocal.output
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -211,9 +211,10 @@ class CalibrationResult:
         motion over 1 s windows (robust standard deviations); None without drives enough."""
         return odometry_noise(self.drive_data, self.theta)
 
-    def trajectories(self) -> list[Trajectories]:
+    def trajectories(self) -> Iterator[Trajectories]:
         """Every drive's reference poses and its wheels dead-reckoned with the calibrated and
-        the datasheet parameters, from where the reference reports (:attr:`reference_arm`)."""
+        the datasheet parameters, from where the reference reports (:attr:`reference_arm`),
+        one drive at a time."""
         return trajectories(self.drive_data, self.estimate.theta, self.estimate.datasheet,
                             arm=self.reference_arm)
 
