@@ -203,3 +203,17 @@ def test_repaired_samples_are_noted_by_drive_and_column(noisy_drive: SimulatedDr
              if f.check is Check.DATA_REPAIRED]
     assert sorted((f.name, f.value, f.severity) for f in found) == [
         ("logged:n_rl", 1.0, Severity.NOTE), ("logged:t", 3.0, Severity.NOTE)]
+
+
+def test_a_scale_mistake_is_named_with_the_ratio_and_the_one_it_should_be_near(
+        noisy_drive: SimulatedDrive) -> None:
+    """Wheel rates three times what they are (beyond ``[gate] max_scale``): the distance
+    check's finding carries the ratio of the wheels' distance to the reference's (3) and the
+    1 it should be near, which the words are made from."""
+    sim = noisy_drive
+    drive = altered(sim, n_rl=sim.drive.n_rl * 3.0, n_rr=sim.drive.n_rr * 3.0)
+    (finding,) = [f for f in check_drives([drive], Settings()).findings
+                  if f.check is Check.SPEED_SCALE]
+    assert finding.severity is Severity.FATAL
+    assert finding.value == pytest.approx(3.0, rel=0.03)
+    assert finding.reference == 1.0

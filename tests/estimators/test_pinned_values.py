@@ -44,3 +44,21 @@ def test_the_moving_wheel_rate_offsets_prior_is_half_an_encoding_step() -> None:
     np.testing.assert_allclose(folded.h, expected, rtol=1e-12)
     np.testing.assert_allclose(folded.meat, expected, rtol=1e-12)
     assert folded.offset_std == 0.04 and folded.offset_free
+
+
+def test_the_prewhitening_is_fitted_from_twenty_pairs_of_windows_and_not_fewer() -> None:
+    """The ARMA filter of the telescoping errors needs 20 lag-one and 20 lag-two pairs (a
+    correlation from fewer is chance): at 20 it is fitted, at 19 of either it is not."""
+    from odocal.estimators.error_model import arma_from_sums
+
+    def sums(n1: int, n2: int) -> np.ndarray:
+        # per channel: sum of squares, count, lag-one products and pairs, lag-two ditto; a
+        # lag-one correlation of -0.8, beyond what 20 pairs of white errors show (-3/sqrt(20)),
+        # lag-two 0
+        n = 40.0
+        return np.array([[n, n, -0.8 * n1, float(n1), 0.0, float(n2)]] * 2)
+
+    fitted = arma_from_sums(sums(20, 20))
+    assert np.all(fitted[:, 0] != 0.0)
+    for n1, n2 in ((19, 20), (20, 19)):
+        np.testing.assert_array_equal(arma_from_sums(sums(n1, n2)), np.zeros((2, 2)))

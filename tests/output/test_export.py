@@ -171,6 +171,13 @@ def test_every_export_loads_in_ros2_as_the_upstream_nodes_declare_it(
     values = _load(tmp_path / "other", ros)
     assert values["autoware/vehicle_velocity_converter.param.yaml"]["speed_scale_factor"] == \
         pytest.approx(THETA.c_e / 1.96)
+    # odocal's own file says the same (the true speed over the reported one), as ROS 2 loads it
+    speed = {"speed_scale_factor": "DOUBLE", "speed_scale_factor_std": "DOUBLE",
+             "assumed_wheel_circumference": "DOUBLE"}
+    own = load_declared(tmp_path / "other" / "odometry_parameters.yaml", "wheel_odometry",
+                        {**OWN, **speed}, context=ros)
+    assert own["speed_scale_factor"] == pytest.approx(THETA.c_e / 1.96)
+    assert own["assumed_wheel_circumference"] == 1.96
     assert values["autoware/vehicle_velocity_converter.param.yaml"]["velocity_stddev_xx"] == 0.2
     assert values["ros2_control/diff_drive_controller.yaml"]["left_wheel_names"] == ["l"]
 

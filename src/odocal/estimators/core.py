@@ -492,8 +492,8 @@ class _Context:
         model = refit_reference(model, current, self.folded)
         lag_on = bool(free_p[LAG])
         if lag_on:
-            lag = choose_lag(scan_lag(self.windows, current.p[THETA], self.heading_offset,
-                                      model, self.folded, current.p))
+            lag = choose_lag(scan_lag(self.windows, current.p, self.heading_offset, model,
+                                      self.folded))
             view = view.moved(lag.shift, self.heading_offset)
             current = dataclasses.replace(current, p=_with(current.p, LAG, 0.0))
         for _ in range(2):                 # the error model refitted at the lag
@@ -547,8 +547,8 @@ class _Context:
                      else [SCALE, DIFFERENCE])
             n = _informing(white, index) + float(folded.windows)
             if block[0] == "lag":
-                timed = lag_test(scan_lag(self.windows, p[THETA], self.heading_offset,
-                                           state.model, folded, p))
+                timed = lag_test(scan_lag(self.windows, p, self.heading_offset, state.model,
+                                          folded))
                 out.append(dataclasses.replace(timed, penalty=dep.penalty(1, n)))
                 continue
             if block[0] == "change_e":

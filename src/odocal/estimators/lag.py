@@ -19,7 +19,7 @@ from odocal.estimators.error_model import (
     decouple,
     window_weights,
 )
-from odocal.estimators.fitting import KAPPA, THETA, Folded, View, pack, wheels
+from odocal.estimators.fitting import KAPPA, Folded, View, wheels
 from odocal.estimators.windows import WindowSet
 
 log = logging.getLogger(__name__)
@@ -33,20 +33,16 @@ class LagScan:
     costs: FloatArray
 
 
-def scan_lag(windows: WindowSet, theta: FloatArray, heading_offset: float, model: ErrorModel,
-             folded: Folded, offset: float | FloatArray = 0.0) -> LagScan:
+def scan_lag(windows: WindowSet, p: FloatArray, heading_offset: float, model: ErrorModel,
+             folded: Folded) -> LagScan:
     """The yaw channel's weighted cost at every half step of shift of the reference side, with
-    p fixed (the distance channel is left out: a slip that grows with acceleration is common
-    to both wheels and would pass for a lag there).
+    ``p`` (theta and the departures) fixed (the distance channel is left out: a slip that
+    grows with acceleration is common to both wheels and would pass for a lag there).
 
     The prediction is linear in the moments, so it is made once at every whole-step shift and
-    interpolated between them, as the moments are. ``offset``: the wheel-rate offset of the
-    fit (rev/s), or the whole p of it.
+    interpolated between them, as the moments are.
     """
-    p = np.asarray(offset, dtype=np.float64) if np.ndim(offset) else pack(theta,
-                                                                        offset=float(offset))
-    p = p.copy()
-    p[THETA] = theta
+    p = np.asarray(p, dtype=np.float64)
     limit = windows.shifts
     grid = np.arange(-limit, limit + 0.25, 0.5)
     half = (windows.cluster % 2).astype(np.int64)

@@ -165,23 +165,26 @@ class ReferenceAligner:
         for run in np.split(rows, breaks):
             if self._piece.shape[0] and (not first or
                                          run[0, 0] - self._piece[-1, 0] > 1.5 * self.t_s):
-                out.append(self._drain())     # the piece ended: what can still go out
+                out.append(self._ready())     # the piece ended: what can still go out
                 self._piece = np.zeros((0, 8))
             first = False
             self._piece = np.vstack([self._piece, run])
             out.append(self._ready())
         return np.vstack(out) if out else np.zeros((0, 8))
 
-    def _ready(self, final: bool = False) -> FloatArray:
+    def _ready(self) -> FloatArray:
         """The samples of the current piece whose shifted reference is within reach, shifted;
-        the piece's older samples no longer needed are let go."""
+        the piece's older samples no longer needed are let go. (A sample held back for a
+        reference ahead of it goes out only once that reference has come: at the piece's end,
+        those still held back are the ones whose shifted time falls beyond it, which batch
+        leaves out too.)"""
         piece = self._piece
         if not piece.shape[0]:
             return piece
         t = piece[:, 0]
         newest = t[-1]
         # a sample goes out once its shifted time is covered (ahead: it is held back)
-        latest = newest if final else newest + min(self.shift_s, 0.0)
+        latest = newest + min(self.shift_s, 0.0)
         ready = (t > self._sent_t) & (t <= latest + 1e-9 * self.t_s)
         if not ready.any():
             return np.zeros((0, 8))
@@ -198,13 +201,10 @@ class ReferenceAligner:
         self._piece = piece[t >= keep_from]
         return rows[inside]
 
-    def _drain(self) -> FloatArray:
-        return self._ready(final=True)
-
     def flush(self) -> FloatArray:
         """What is held back, aligned as far as the samples reach (the stream ends here)."""
         if self.shift_s == 0.0:
             return np.zeros((0, 8))
-        out = self._drain()
+        out = self._ready()
         self._piece = np.zeros((0, 8))
         return out

@@ -149,8 +149,8 @@ class RunningFit:
         self.model = core.refit_model(current, windows, self.folded, coupling=coupling,
                                       kept=bool(self.model.coupling))
         if smooth and "lag" in self.entered and scan_lag_now:
-            self.lag = choose_lag(scan_lag(windows, self.theta, heading_offset, self.model,
-                                           self.folded, self.p))
+            self.lag = choose_lag(scan_lag(windows, self.p, heading_offset, self.model,
+                                           self.folded))
         return True
 
     def refit(self, windows: WindowSet, heading_offset: float,
@@ -188,7 +188,7 @@ class RunningFit:
                 continue
             part = windows.take(group)
             empty = fitting.Folded(origin=self.folded.origin)
-            scan = (scan_lag(part, p[fitting.THETA], heading_offset, self.model, empty, p)
+            scan = (scan_lag(part, p, heading_offset, self.model, empty)
                     if windows.shifts > 0 else None)
             self.folded = core.fold(self.folded, part, p, self.lag.shift, heading_offset,
                                     self.model, smooth=smooth, total_h=total, scan=scan,
