@@ -674,3 +674,12 @@ def test_a_wheel_dead_for_a_quarter_or_a_third_of_the_drive_is_named(share: floa
     found = findings(dead_wheel(share), DEFAULTS)[Check.WHEEL_DEAD]
     assert found.name == "n_rl" and found.value == pytest.approx(share)
     assert found.reference == 0.2
+
+
+def test_drives_of_two_vehicles_are_named_with_their_wheels_gap_and_its_limit() -> None:
+    """The finding that two drives' wheels differ carries the gap between their wheels'
+    difference over mean (what the words quote) and ``vehicles_max_ratio_gap``."""
+    found = findings(two_vehicles(0.03), DEFAULTS)[Check.VEHICLES_DIFFER]
+    assert found.severity is Severity.FATAL
+    assert found.value == pytest.approx(0.03, rel=0.05)
+    assert found.reference == DEFAULTS.checks.vehicles_max_ratio_gap
