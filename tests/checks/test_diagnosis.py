@@ -217,3 +217,17 @@ def test_a_scale_mistake_is_named_with_the_ratio_and_the_one_it_should_be_near(
     assert finding.severity is Severity.FATAL
     assert finding.value == pytest.approx(3.0, rel=0.03)
     assert finding.reference == 1.0
+
+
+def test_wheels_that_read_nothing_while_the_reference_drives_are_a_scale_fault_with_its_distance(
+        noisy_drive: SimulatedDrive) -> None:
+    """Both wheel columns at zero (an unmapped signal) under a reference that drives: the
+    finding is the scale check's, with the ratio 0 and the reference's distance (m), not a
+    vehicle standing still."""
+    sim = noisy_drive
+    drive = altered(sim, n_rl=np.zeros(sim.drive.n_samples), n_rr=np.zeros(sim.drive.n_samples))
+    (finding,) = [f for f in check_drives([drive], Settings()).findings
+                  if f.check is Check.SPEED_SCALE]
+    assert finding.severity is Severity.FATAL and finding.value == 0.0
+    travelled = float(np.sum(np.hypot(np.diff(sim.drive.x), np.diff(sim.drive.y))))
+    assert finding.reference == pytest.approx(travelled, rel=0.02)
