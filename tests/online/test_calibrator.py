@@ -12,7 +12,7 @@ import pytest
 import odocal
 from odocal.cli.main import EXIT_ERROR, EXIT_OK, main
 from odocal.errors import DataError
-from odocal.estimators.estimate import CovarianceKind
+from odocal.estimators.estimate import CovarianceKind, Status
 from odocal.estimators.windows import windows_from_drives
 from odocal.model.kinematics import inverse_revolutions
 from odocal.model.parameters import Parameters
@@ -304,3 +304,21 @@ def test_before_any_sample_nothing_is_identified_in_seconds() -> None:
     assert not est.success and est.free == (False,) * MODEL.layout.size
     assert est.details.time_unit == "s" and est.details.distance_km == 0.0
     assert est.details.samples == 0 and est.details.alarms == ()
+
+
+def test_a_cluster_longer_than_the_memory_is_folded_half_by_half() -> None:
+    """Segments of 100 s (clusters of 50 windows) under a memory of 30 windows: the oldest
+    cluster never completes before the memory is full, so its older half is folded, and the
+    calibrator goes on within its memory (a survivor of issue 38's mutation sample: that
+    path was reached by no test)."""
+    settings = odocal.Settings().replace(segments={"length": 4000}, online={"max_windows": 30})
+    sim = odocal.simulate(duration_s=300, seed=3, noise="realistic")
+    calibrator = OnlineCalibrator(settings)
+    columns = sim.drive.columns()
+    for start in range(0, sim.drive.n_samples, 400):
+        calibrator.push({k: np.asarray(columns[k])[start:start + 400]
+                         for k in ("t", "n_rl", "n_rr", "a_y", "beta", "x", "y", "psi")})
+    est = calibrator.estimate()
+    assert est.details.windows == 139 and est.details.windows_in_memory <= 30
+    assert est.status is Status.CONVERGED and est.identified["c_d"]
+    assert est.theta.c_d == pytest.approx(sim.true_parameters.c_d, abs=4 * est.std[1])
