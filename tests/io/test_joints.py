@@ -110,3 +110,26 @@ def test_the_steering_joint_is_the_one_the_mapping_names() -> None:
     with pytest.raises(DataError, match=r"no joint named 'steer' \(the mapping's \[wheels\] "
                                         r"steering\)"):
         _joints(names, {"steering": "steer"}, "/j")
+
+
+def test_a_joint_without_its_velocity_or_the_steering_joint_without_a_position_is_one_line(
+        ) -> None:
+    """A JointState whose arrays are shorter than its names (a driver that publishes positions
+    only, or no positions): the bag reader names the joint and what it lacks, in one line."""
+    from types import SimpleNamespace
+
+    from odocal.io.rosbag import _extract
+
+    section = {"_type": "sensor_msgs/msg/JointState", "steering": "steering_wheel"}
+    names = ["rear_left", "rear_right", "steering_wheel"]
+    no_velocity = SimpleNamespace(name=names, velocity=[], position=[0.0, 0.0, 0.1])
+    with pytest.raises(DataError, match=r"^topic /j: the joint 'rear_left' \(rear_left\) has "
+                                        r"no velocity \(0 velocities for 3 joints\)$"):
+        _extract("wheels", section, no_velocity, {}, "/j")
+    no_position = SimpleNamespace(name=names, velocity=[1.0, 1.0, 0.0], position=[])
+    with pytest.raises(DataError, match=r"^topic /j: the steering joint 'steering_wheel' has "
+                                        r"no position \(0 positions for 3 joints\)$"):
+        _extract("wheels", section, no_position, {}, "/j")
+    fine = SimpleNamespace(name=names, velocity=[6.0, 6.2, 0.0], position=[0.0, 0.0, 0.1])
+    assert _extract("wheels", section, fine, {}, "/j") == {
+        "rear_left": 6.0, "rear_right": 6.2, "steering": 0.1}
