@@ -207,13 +207,48 @@ def simulated(seeds: range, duration_s: float, noise: str) -> None:
         print(line + (f"; not identified in {held[name]}" if held[name] else ""))
 
 
+def calibrated(seeds: range, duration_s: float, noise: str) -> None:
+    """odocal's four-wheel calibration (``[vehicle] model = "four_wheel"``: the default
+    method's rear axle joined with the front axle and the steering) on simulated four-wheel
+    drives: each identified parameter's error over its stated standard deviation."""
+    settings = Settings().replace(vehicle={"model": "four_wheel"})
+    z: dict[str, list[float]] = {n: [] for n in FOUR_WHEEL.names}
+    held = dict.fromkeys(z, 0)
+    seconds = []
+    for seed in seeds:
+        sim, truth = with_front_axle(odocal.simulate(duration_s=duration_s, seed=seed,
+                                                     noise=noise))
+        result = odocal.calibrate(sim.drive, settings=settings)
+        est = result.model_estimate
+        seconds.append(result.timings_s.get("front axle", 0.0) / max(result.elapsed_s, 1e-9))
+        for j, name in enumerate(est.names):
+            if est.identified[j]:
+                z[name].append(float((est.theta.as_array()[j] - truth.as_array()[j])
+                                     / est.std[j]))
+            else:
+                held[name] += 1
+    print(f"\nodocal calibrate, four_wheel model, {len(seeds)} seeds x {duration_s:g} s, noise "
+          f"{noise!r} (the front axle's share of the time: {np.mean(seconds):.0%})")
+    for name, values in z.items():
+        v = np.array(values)
+        line = (f"  {name:<6} RMS z {np.sqrt(np.mean(v ** 2)):5.2f}, max |z| "
+                f"{np.max(np.abs(v)):5.2f} over {v.size}" if v.size else f"  {name:<6} -")
+        print(line + (f"; not identified in {held[name]}" if held[name] else ""))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=Path(os.environ.get(
         "ODOCAL_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")))
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--duration", type=float, default=1200.0)
+    parser.add_argument("--calibrate", nargs="*", metavar="NOISE",
+                        help="only odocal's four-wheel calibration, on these noise profiles")
     args = parser.parse_args()
+    if args.calibrate is not None:
+        for noise in args.calibrate or ("white", "realistic", "everything", "slip", "heavy"):
+            calibrated(range(1, args.seeds + 1), args.duration, noise)
+        return
     for noise in ("white", "realistic"):
         simulated(range(1, args.seeds + 1), args.duration, noise)
     datasheet = np.array(FOUR_WHEEL.placeholder)

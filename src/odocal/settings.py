@@ -27,7 +27,7 @@ from typing import Any, Literal
 
 from odocal.errors import ConfigError, input_file, shown
 from odocal.model import registry
-from odocal.model.layout import REAR_AXLE, Layout
+from odocal.model.layout import REAR_AXLE, Layout, ParameterSpec
 
 #: Datasheet parameters of the paper, ``[c_e, c_d, t_r, d]`` (m, m, m, m per m/s^2).
 DATASHEET_THETA: tuple[float, ...] = REAR_AXLE.placeholder
@@ -132,17 +132,18 @@ def parse_datasheet(text: str, *, what: str = "--datasheet") -> dict[str, float]
     return datasheet_values(datasheet_pairs(text, what=what), source=what)
 
 
-def datasheet_theta(values: Any, base: Any = (), *, source: str = "datasheet"
-                    ) -> tuple[float, ...]:
+def datasheet_theta(values: Any, base: Any = (), *, source: str = "datasheet",
+                    layout: Layout = REAR_AXLE) -> tuple[float, ...]:
     """theta0 from named datasheet values (c_e, c_d, t_r, d; missing ones from ``base`` or the
     placeholder), or a one-line ConfigError naming ``source``: a vehicle no wheels make
     (:func:`vehicle_problem`), or a circumference difference beyond
-    :data:`MAX_DIFFERENCE_SHARE` of the circumference (millimetres given as metres)."""
-    theta = [float(v) for v in (base if len(base) else DATASHEET_THETA)]
+    :data:`MAX_DIFFERENCE_SHARE` of the circumference (millimetres given as metres).
+    ``layout``: the model's, whose theta ``base`` is (its rear axle's values are given)."""
+    theta = [float(v) for v in (base if len(base) else layout.placeholder)]
     given = datasheet_values(values, source=source)
     for key, value in given.items():
-        theta[DATASHEET_NAMES.index(key)] = value
-    problem = vehicle_problem(theta)
+        theta[layout.index(key)] = value
+    problem = vehicle_problem(theta, layout)
     if problem is not None:
         raise ConfigError(f"{source}: {problem}")
     difference = REAR_AXLE.value(theta, REAR_AXLE.difference)
@@ -928,6 +929,12 @@ class Settings:
             if isinstance(value, dict):
                 value = _build_section(name, _SECTIONS[name], value, base=current)
             updates[name] = value
+        model = updates.get("vehicle", self.vehicle).model
+        if model != self.vehicle.model:
+            given = {(n, k) for n, v in sections.items() if isinstance(v, dict) for k in v}
+            given |= {(n, k) for n, k in PER_PARAMETER
+                      if n in sections and not isinstance(sections[n], dict)}
+            updates = _resized(updates, self, self.vehicle.model, model, given)
         return dataclasses.replace(self, **updates)
 
     def to_dict(self) -> dict[str, dict[str, Any]]:
@@ -1022,7 +1029,37 @@ def settings_from_dict(data: dict[str, Any], *, source: str = "settings") -> Set
         if not isinstance(values, dict):
             raise ConfigError(f"{source}: [{name}] must be a table of settings, got {values!r}")
         sections[name] = _build_section(name, _SECTIONS[name], values)
+    model = sections["vehicle"].model if "vehicle" in sections else registry.DEFAULT
+    if model != registry.DEFAULT:
+        given = {(n, k) for n, v in data.items() for k in v}
+        sections = _resized(sections, Settings(), registry.DEFAULT, model, given)
     return Settings(**sections)
+
+
+def _per_parameter_default(key: str, spec: ParameterSpec) -> float:
+    """A per-parameter setting's default for a parameter the rear axle does not have: the
+    datasheet placeholder, its uncertainty (also the minimum search's half width), no floor."""
+    return {"theta0": spec.placeholder, "prior_std": spec.prior_std,
+            "half_width": spec.prior_std, "excess_floor": 0.0}[key]
+
+
+def _resized(sections: dict[str, Any], base: Settings, before: str, after: str,
+             given: set[tuple[str, str]]) -> dict[str, Any]:
+    """``sections`` with the per-parameter settings not ``given`` anew listed for model
+    ``after``'s parameters: by name from model ``before``'s values (``sections``' or
+    ``base``'s), a parameter ``before`` has not from its default. One line of settings
+    (``[vehicle] model = "four_wheel"``) then takes a model with the rear axle's values kept."""
+    old, new = registry.layout(before), registry.layout(after)
+    out = dict(sections)
+    for name, key in PER_PARAMETER:
+        if (name, key) in given:
+            continue
+        section = out.get(name, getattr(base, name))
+        values = dict(zip(old.names, getattr(section, key), strict=False))
+        resized = tuple(values[p.name] if p.name in values else _per_parameter_default(key, p)
+                        for p in new.parameters)
+        out[name] = dataclasses.replace(section, **{key: resized})
+    return out
 
 
 def read_toml(path: str | Path, kind: str) -> dict[str, Any]:

@@ -52,6 +52,7 @@ class Check(enum.Enum):
     DRIFT = "drift"
     DRIVE_DEPARTS = "drive-departs"
     REFERENCE_SMOOTHED = "reference-smoothed"
+    WHEEL_MAPPING = "wheel-mapping"
 
 
 class Severity(enum.IntEnum):

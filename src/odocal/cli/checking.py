@@ -37,7 +37,8 @@ def _parameters(params: str | None, settings: Settings) -> Parameters:
 def cmd_validate(args: argparse.Namespace) -> int:
     from odocal.pipeline.calibrate import validate_theta
 
-    settings = settings_for(config=args.config, datasheet=args.datasheet, workers=args.workers,
+    settings = settings_for(command="validate",
+                            config=args.config, datasheet=args.datasheet, workers=args.workers,
                             reference=args.reference, circumference=args.circumference)
     theta = _parameters(args.params, settings)
     drives = drives_from(args.logs, source_format=args.source_format, mapping=args.mapping,
@@ -65,7 +66,8 @@ def cmd_minimum(args: argparse.Namespace) -> int:
     from odocal.io.json_files import write_json
     from odocal.pipeline.calibrate import minimum
 
-    settings = settings_for(config=args.config, datasheet=args.datasheet, workers=args.workers,
+    settings = settings_for(command="minimum",
+                            config=args.config, datasheet=args.datasheet, workers=args.workers,
                             seed=args.seed, reference=args.reference,
                             circumference=args.circumference)
     out = out_file(args.out, "minimum.json") if args.out else None

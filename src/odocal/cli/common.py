@@ -63,13 +63,18 @@ def settings_for(*, config: str | None, datasheet: Mapping[str, float] | None = 
                  workers: int | None = None, seed: int | None = None,
                  reference: str | None = None,
                  circumference: float | None = None,
-                 reference_offset: tuple[float, float] | None = None) -> Settings:
+                 reference_offset: tuple[float, float] | None = None,
+                 command: str | None = None) -> Settings:
     """The settings a command runs with: the file (or the defaults), then what the command
     line states. A datasheet that does not go with the file's (a c_d beside its c_e) is a
-    usage error naming --datasheet."""
+    usage error naming --datasheet. ``command``: a command that takes the rear-axle model
+    only (a settings file choosing another is a one-line error naming it)."""
+    from odocal.model.registry import require_rear_axle
     from odocal.settings import datasheet_theta
 
     settings = load_config(config)
+    if command is not None:
+        require_rear_axle(settings.vehicle.model, f"odocal {command}")
     overrides: dict[str, dict[str, Any]] = {}
     if workers is not None:
         overrides.setdefault("calibrate", {})["workers"] = workers
@@ -83,7 +88,7 @@ def settings_for(*, config: str | None, datasheet: Mapping[str, float] | None = 
         overrides.setdefault("reference", {})["offset_m"] = list(reference_offset)
     if datasheet:
         try:
-            theta0 = datasheet_theta(datasheet, settings.identify.theta0,
+            theta0 = datasheet_theta(datasheet, settings.identify.theta0, layout=settings.layout,
                                      source="the datasheet")
         except ConfigError as err:
             raise UsageError("--datasheet", str(err).removeprefix("the datasheet: ")) from err

@@ -42,7 +42,8 @@ def _replay(args: argparse.Namespace, drawer: Any) -> int:
     from odocal.online.replay import replay
     from odocal.report.replay import alarm_words, convergence_km
 
-    settings = settings_for(config=args.config, datasheet=args.datasheet, workers=args.workers)
+    settings = settings_for(command="replay",
+                            config=args.config, datasheet=args.datasheet, workers=args.workers)
     inputs = inputs_of(args.source, config=args.config, mapping=args.mapping)
     out = Path(args.out)
     check_out_dir(args.out, inputs)
@@ -117,7 +118,8 @@ def _batch_estimate(source: str, settings: Settings) -> Estimate | None:
 
 def cmd_ros2(args: argparse.Namespace) -> int:
     """The online calibrator as a ROS 2 node (docs: ROS 2), until Ctrl-C or SIGTERM."""
-    settings = settings_for(config=args.config, datasheet=args.datasheet)
+    settings = settings_for(command="ros2",
+                            config=args.config, datasheet=args.datasheet)
     from odocal.ros2.node import run
 
     return run(list(args.ros_args), settings=settings)

@@ -31,7 +31,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from odocal.pipeline.calibrate import calibrate, validate_theta
     from odocal.sim.simulate import simulate
 
-    settings = settings_for(config=args.config, datasheet=args.datasheet, workers=args.workers)
+    settings = settings_for(command="demo",
+                            config=args.config, datasheet=args.datasheet, workers=args.workers)
     inputs = inputs_of(config=args.config)
     check_out_dir(args.out, inputs)
     if not args.quiet:
@@ -90,7 +91,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from odocal.io.json_files import write_json
     from odocal.pipeline.reproduce import format_report, reproduce
 
-    settings = settings_for(config=args.config, datasheet=args.datasheet, workers=args.workers,
+    settings = settings_for(command="reproduce",
+                            config=args.config, datasheet=args.datasheet, workers=args.workers,
                             seed=args.seed)
     out = out_file(args.out, "reproduce.json") if args.out else None
     if out is not None:                             # checked before the long computation

@@ -328,7 +328,7 @@ def covariance(current: Fit, windows: WindowSet, folded: Folded, free: BoolArray
     naive = (current.cost + folded.cost) / max(count - int(free.sum()), 1) * h_inv
     effective = _effective_clusters(info, windows.cluster, folded, h_inv) if windows.size \
         else np.full(P, float(clusters))
-    cov = _widened(cov, naive, effective, clusters, few=few)
+    cov = widened(cov, naive, effective, clusters, few=few)
     base = np.sqrt(np.clip(np.diag(cov)[THETA], 0.0, None))
     if nuisance is not None:
         for j in np.flatnonzero(nuisance > 0):
@@ -360,7 +360,7 @@ def _sandwich(info: FloatArray, scores: FloatArray, h: FloatArray, h_inv: FloatA
     return correction * (h_inv @ meat @ h_inv), clusters
 
 
-def _widened(cov: FloatArray, naive: FloatArray, effective: FloatArray, clusters: int, *,
+def widened(cov: FloatArray, naive: FloatArray, effective: FloatArray, clusters: int, *,
              few: bool) -> FloatArray:
     """The sandwich ``cov`` scaled so that what it adds beyond the model-based ``naive`` is
     widened by Student's t for the ``effective`` clusters each element rests on."""

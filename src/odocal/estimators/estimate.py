@@ -71,11 +71,12 @@ class ByName(np.ndarray):
 
     names: tuple[str, ...] = PARAMETER_NAMES
 
-    def __new__(cls, values: Any) -> ByName:
+    def __new__(cls, values: Any, names: tuple[str, ...] = PARAMETER_NAMES) -> ByName:
         out = np.asarray(values, dtype=np.float64).view(cls)
-        if out.shape != (len(cls.names),):
-            raise ValueError(f"one value per parameter ({', '.join(cls.names)}), not shape "
+        if out.shape != (len(names),):
+            raise ValueError(f"one value per parameter ({', '.join(names)}), not shape "
                              f"{out.shape}")
+        out.names = names
         return out
 
     def __array_wrap__(self, array: Any, context: Any = None,
@@ -85,7 +86,7 @@ class ByName(np.ndarray):
 
     def __getitem__(self, key: Any) -> Any:
         if isinstance(key, str):
-            key = _index(key)
+            key = _index(key, self.names)
         out = super().__getitem__(key)
         return out.view(np.ndarray) if isinstance(out, np.ndarray) else out
 
@@ -101,14 +102,15 @@ class Flags(tuple[bool, ...]):
 
     names: tuple[str, ...] = PARAMETER_NAMES
 
-    def __new__(cls, values: Any) -> Flags:
+    def __new__(cls, values: Any, names: tuple[str, ...] = PARAMETER_NAMES) -> Flags:
         out = super().__new__(cls, (bool(v) for v in values))
-        if len(out) != len(cls.names):
-            raise ValueError(f"one flag per parameter ({', '.join(cls.names)}), not {len(out)}")
+        if len(out) != len(names):
+            raise ValueError(f"one flag per parameter ({', '.join(names)}), not {len(out)}")
+        out.names = names
         return out
 
     def __getitem__(self, key: Any) -> Any:
-        return super().__getitem__(_index(key) if isinstance(key, str) else key)
+        return super().__getitem__(_index(key, self.names) if isinstance(key, str) else key)
 
     def as_dict(self) -> dict[str, bool]:
         return dict(zip(self.names, self, strict=True))
@@ -117,12 +119,12 @@ class Flags(tuple[bool, ...]):
         return "Flags(" + ", ".join(f"{n}={v}" for n, v in self.as_dict().items()) + ")"
 
 
-def _index(name: str) -> int:
+def _index(name: str, names: tuple[str, ...] = PARAMETER_NAMES) -> int:
     try:
-        return PARAMETER_NAMES.index(name)
+        return names.index(name)
     except ValueError:
         raise KeyError(f"{name!r} is not a parameter; the parameters are "
-                       f"{', '.join(PARAMETER_NAMES)}") from None
+                       f"{', '.join(names)}") from None
 
 
 def parameter_text(name: str, value: float) -> str:
@@ -282,13 +284,13 @@ class Estimate:
     def std(self) -> ByName:
         """Standard deviations of c_e, c_d, t_r, d (zero where not estimated), by order or by
         name (``std["t_r"]``)."""
-        return ByName(np.sqrt(np.clip(np.diag(self.covariance), 0.0, None)))
+        return ByName(np.sqrt(np.clip(np.diag(self.covariance), 0.0, None)), self.names)
 
     @property
     def identified(self) -> Flags:
         """Whether the data identify each parameter, by order or by name
         (``identified["t_r"]``)."""
-        return Flags(isinstance(v, Identified) for v in self.verdicts)
+        return Flags((isinstance(v, Identified) for v in self.verdicts), self.names)
 
     def table(self, *, speed_scale: bool = False) -> list[str]:
         """The parameters as the command line prints them: datasheet, calibrated, std (the
@@ -367,7 +369,7 @@ def parameter_table(est: Estimate, *, truth: Parameters | None = None,
     true = truth.as_dict() if truth is not None else None
     std = est.std
     exact = est.status is Status.EXACT
-    for j, (name, ok) in enumerate(zip(PARAMETER_NAMES, est.identified, strict=True)):
+    for j, (name, ok) in enumerate(zip(est.names, est.identified, strict=True)):
         if ok:
             cal = parameter_text(name, theta[name])
             sd = "exact" if exact else std_text(name, float(std[j]))

@@ -48,6 +48,7 @@ from odocal.fleet.tasks import (
 )
 from odocal.io.atomic import check_fleet_folder, refuse_inputs
 from odocal.io.urls import name_of
+from odocal.model import registry
 from odocal.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -328,6 +329,7 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
     refuse_unguarded_start()             # a worker process re-running an unguarded script
     started = time.perf_counter()
     settings = settings or Settings()
+    registry.require_rear_axle(settings.vehicle.model, "odocal fleet calibrate")
     method = method or DEFAULT_METHOD
     _check_run(method, scheduler, client, connect_timeout_s)
     catalog_path, store_path, out_path = _paths(catalog, store, out)

@@ -34,8 +34,11 @@ front wheels (the Zoe's datasheet: 2.588 m) and 3.046 +- 0.138 m (z = +3.3) wher
 steering also tells L; by odocal's rule (a std below half the datasheet's 0.2 m) these
 seconds do not identify L, and the fit keeps the datasheet's.
 
-This module holds the equations and their Jacobians; the model is not yet registered
-(:mod:`odocal.model.registry`) because no estimator, reader or exporter takes four wheels yet.
+This module holds the equations and their Jacobians, and :data:`FOUR_WHEEL_MODEL`, the model
+``[vehicle] model = "four_wheel"`` chooses (:mod:`odocal.model.registry`). Its rear axle is the
+rear-axle model's (the same parameters, the same equations), so the default estimator fits the
+rear axle as it does for two wheels, and :mod:`odocal.estimators.front_axle` the front axle and
+the steering on the same motion.
 """
 
 from __future__ import annotations
@@ -43,31 +46,8 @@ from __future__ import annotations
 import numpy as np
 
 from odocal.arrays import FloatArray
-from odocal.model.layout import REAR_AXLE, Layout, ParameterSpec
-
-_REAR = REAR_AXLE.parameters
-
-#: ``theta = [c_e, c_d, t_r, d, c_f, c_fd, t_f, L, ratio, s_0]``: the rear axle's four, then
-#: the front axle's mean circumference, difference and track, the wheelbase, and the steering's
-#: ratio and offset.
-FOUR_WHEEL = Layout(
-    parameters=(
-        *_REAR,
-        ParameterSpec("c_f", "m", "front effective wheel circumference", 1.0, "m", 2.0, 0.05,
-                      (0.05, 50.0), 50.0),
-        ParameterSpec("c_fd", "m", "front left-right circumference difference", 1e3, "mm",
-                      0.0, 0.01, (-50.0, 50.0), 50.0),
-        ParameterSpec("t_f", "m", "front track width", 1.0, "m", 1.6, 0.10, (0.05, 30.0),
-                      30.0),
-        ParameterSpec("L", "m", "wheelbase", 1.0, "m", 2.7, 0.2, (0.1, 30.0), 30.0),
-        ParameterSpec("ratio", "1", "steering ratio (steering-wheel over road-wheel angle)",
-                      1.0, "", 15.0, 3.0, (1.0, 40.0), 40.0),
-        ParameterSpec("s_0", "rad", "steering-wheel angle offset", 57.29577951308232, "deg",
-                      0.0, 0.05, (-1.0, 1.0), 1.0),
-    ),
-    scale="c_e", track="t_r", difference="c_d", load="d",
-    differential=("c_d", "t_r", "d", "c_fd", "t_f"), bends=("t_r", "d", "t_f", "L", "ratio"),
-    lengths=("c_e", "t_r", "c_f", "t_f", "L"))
+from odocal.model.layout import FOUR_WHEEL
+from odocal.model.vehicle import MODEL, RearAxleModel
 
 #: The wheels in the order of :func:`inverse_step`'s columns, as a drive's columns name them.
 WHEEL_INPUTS = ("n_fl", "n_fr", "n_rl", "n_rr")
@@ -137,3 +117,69 @@ def steering(theta: FloatArray, ds: FloatArray, dpsi: FloatArray) -> tuple[Float
 def rear_axle(theta: FloatArray) -> FloatArray:
     """The rear axle's parameters of a four-wheel theta (the rear-axle model's theta)."""
     return np.asarray(theta, dtype=np.float64)[[_E, _D, _T, _A]]
+
+
+class FourWheelModel:
+    """The four-wheel car with a steering angle: the rear axle of METHOD 1 (:attr:`rear`, its
+    parameters first in theta) with a steered front axle a wheelbase ahead.
+
+    name : as ``[vehicle] model`` names it (:mod:`odocal.model.registry`)
+    layout : the parameters (:data:`~odocal.model.layout.FOUR_WHEEL`)
+    rear : the rear-axle model whose parameters lead theta
+    wheels, wheel_inputs : four wheel rates, as the drive's columns name them (front first)
+    steering_input : the drive's column of the steering-wheel angle (rad)
+    """
+
+    name: str = "four_wheel"
+    layout = FOUR_WHEEL
+    rear: RearAxleModel = MODEL
+    states: int = 3
+    wheels: int = 4
+    wheel_inputs: tuple[str, ...] = WHEEL_INPUTS
+    steering_input: str = "steer"
+
+    @property
+    def front_names(self) -> tuple[str, ...]:
+        """The parameters the rear axle does not have (the front axle's and the steering's)."""
+        return self.layout.names[self.rear.size:]
+
+    def rear_axle(self, theta: FloatArray) -> FloatArray:
+        """The rear axle's parameters of a four-wheel theta (the rear-axle model's theta)."""
+        return rear_axle(theta)
+
+    def inverse_step(self, theta: FloatArray, ds: FloatArray, dpsi: FloatArray,
+                     a_y: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Each wheel's revolutions over each step (..., 4: fl, fr, rl, rr) and their
+        Jacobian in theta: :func:`inverse_step`."""
+        return inverse_step(theta, ds, dpsi, a_y)
+
+    def steering(self, theta: FloatArray, ds: FloatArray,
+                 dpsi: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The steering-wheel angle a step's motion implies and its Jacobian: :func:`steering`."""
+        return steering(theta, ds, dpsi)
+
+    def circumferences(self, theta: FloatArray, a_y: FloatArray | float = 0.0) -> FloatArray:
+        """Each wheel's rolling circumference (..., 4: fl, fr, rl, rr), m (at ``a_y = 0``: the
+        tyres' own)."""
+        th = np.asarray(theta, dtype=np.float64)
+        load = th[_A] * np.asarray(a_y, dtype=np.float64)
+        return np.stack(np.broadcast_arrays(th[_F] + 0.5 * th[_FD] + load,
+                                            th[_F] - 0.5 * th[_FD] - load,
+                                            th[_E] + 0.5 * th[_D] + load,
+                                            th[_E] - 0.5 * th[_D] - load), axis=-1)
+
+    def geometry(self, theta: FloatArray) -> dict[str, float]:
+        """What a car-like exporter needs (ros2_controllers' steering controllers, Autoware's
+        vehicle_info), from theta: ``wheelbase``, ``front_wheel_track``, ``rear_wheel_track``,
+        ``front_wheels_radius``, ``rear_wheels_radius`` (each axle's mean wheel), and the
+        steering's ``steering_ratio`` and ``steering_offset_rad``."""
+        th = np.asarray(theta, dtype=np.float64)
+        two_pi = 2.0 * np.pi
+        return {"wheelbase": float(th[_L]), "front_wheel_track": float(th[_TF]),
+                "rear_wheel_track": float(th[_T]), "front_wheels_radius": float(th[_F]) / two_pi,
+                "rear_wheels_radius": float(th[_E]) / two_pi,
+                "steering_ratio": float(th[_RATIO]), "steering_offset_rad": float(th[_S0])}
+
+
+#: The four-wheel car (``[vehicle] model = "four_wheel"``).
+FOUR_WHEEL_MODEL = FourWheelModel()

@@ -150,3 +150,25 @@ REAR_AXLE = Layout(
     ),
     scale="c_e", track="t_r", difference="c_d", load="d",
     differential=("c_d", "t_r", "d"), bends=("t_r", "d"), lengths=("c_e", "t_r"))
+
+#: ``theta = [c_e, c_d, t_r, d, c_f, c_fd, t_f, L, ratio, s_0]``: the rear axle's four, then
+#: the front axle's mean circumference, difference and track, the wheelbase, and the steering's
+#: ratio and offset.
+FOUR_WHEEL = Layout(
+    parameters=(
+        *REAR_AXLE.parameters,
+        ParameterSpec("c_f", "m", "front effective wheel circumference", 1.0, "m", 2.0, 0.05,
+                      (0.05, 50.0), 50.0),
+        ParameterSpec("c_fd", "m", "front left-right circumference difference", 1e3, "mm",
+                      0.0, 0.01, (-50.0, 50.0), 50.0),
+        ParameterSpec("t_f", "m", "front track width", 1.0, "m", 1.6, 0.10, (0.05, 30.0),
+                      30.0),
+        ParameterSpec("L", "m", "wheelbase", 1.0, "m", 2.7, 0.2, (0.1, 30.0), 30.0),
+        ParameterSpec("ratio", "1", "steering ratio (steering-wheel over road-wheel angle)",
+                      1.0, "", 15.0, 3.0, (1.0, 40.0), 40.0),
+        ParameterSpec("s_0", "rad", "steering-wheel angle offset", 57.29577951308232, "deg",
+                      0.0, 0.05, (-1.0, 1.0), 1.0),
+    ),
+    scale="c_e", track="t_r", difference="c_d", load="d",
+    differential=("c_d", "t_r", "d", "c_fd", "t_f"), bends=("t_r", "d", "t_f", "L", "ratio"),
+    lengths=("c_e", "t_r", "c_f", "t_f", "L"))

@@ -11,14 +11,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from odocal.arrays import FloatArray
-from odocal.model.layout import REAR_AXLE, Layout
+from odocal.model.layout import FOUR_WHEEL, REAR_AXLE, Layout
 
 #: Names, units and labels of theta, in order, and how each is best displayed (scale and
 #: unit: c_d and d read best in mm): the rear-axle model's layout (:mod:`.layout`).
 PARAMETER_NAMES: tuple[str, ...] = REAR_AXLE.names
 PARAMETER_UNITS: tuple[str, ...] = REAR_AXLE.units
 PARAMETER_LABELS: tuple[str, ...] = REAR_AXLE.labels
-PARAMETER_DISPLAY: dict[str, tuple[float, str]] = REAR_AXLE.display
+PARAMETER_DISPLAY: dict[str, tuple[float, str]] = {**FOUR_WHEEL.display, **REAR_AXLE.display}
 STATES, WHEELS, PARAMETERS = 3, 2, REAR_AXLE.size
 
 

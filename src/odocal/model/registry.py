@@ -13,9 +13,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from odocal.errors import ConfigError, DataError
-from odocal.model.layout import REAR_AXLE, Layout
+from odocal.model.layout import FOUR_WHEEL, REAR_AXLE, Layout
 
 if TYPE_CHECKING:
+    from odocal.model.four_wheel import FourWheelModel
     from odocal.model.protocol import VehicleModel
 
 #: The model a setting, a calibration.json or a fleet store that names none means (all of
@@ -38,6 +39,9 @@ class Entry:
 _ENTRIES: dict[str, Entry] = {e.name: e for e in (
     Entry("rear_axle", "two rear wheel rates (METHOD 1: c_e, c_d, t_r, d)", REAR_AXLE,
           ("n_rl", "n_rr"), "odocal.model.vehicle:MODEL"),
+    Entry("four_wheel", "four wheel rates and the steering-wheel angle (the rear axle's four, "
+          "then c_f, c_fd, t_f, L, ratio, s_0)", FOUR_WHEEL, ("n_fl", "n_fr", "n_rl", "n_rr"),
+          "odocal.model.four_wheel:FOUR_WHEEL_MODEL"),
 )}
 
 
@@ -62,10 +66,10 @@ def layout(name: str) -> Layout:
     return entry(name).layout
 
 
-def model(name: str = DEFAULT) -> VehicleModel:
+def model(name: str = DEFAULT) -> VehicleModel | FourWheelModel:
     """The model object ``name`` (its equations: loads numpy)."""
     module, attribute = entry(name).where.split(":")
-    found: VehicleModel = getattr(importlib.import_module(module), attribute)
+    found: VehicleModel | FourWheelModel = getattr(importlib.import_module(module), attribute)
     return found
 
 
@@ -80,3 +84,12 @@ def check_stated(stated: object, expected: str, what: str) -> str:
         raise DataError(f"{what} is a calibration of the {name} model, not of the {expected} "
                         "model this run uses ([vehicle] model)")
     return name
+
+
+def require_rear_axle(name: str, what: str) -> None:
+    """A one-line ConfigError where ``what`` (a command, a part of odocal) is asked to run a
+    model other than the rear axle: in this version only ``odocal calibrate`` (and
+    :func:`odocal.calibrate`) takes the others."""
+    if name != DEFAULT:
+        raise ConfigError(f"{what} takes the {DEFAULT} model only in this version; the {name} "
+                          "model ([vehicle] model) is calibrated by 'odocal calibrate'")

@@ -62,6 +62,7 @@ from odocal.estimators.windows import (
     empty_windows,
     heading_offset,
 )
+from odocal.model import registry
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
 from odocal.model.vehicle import MODEL
 from odocal.online.arrivals import Arrivals
@@ -149,6 +150,7 @@ class OnlineCalibrator:
                  theta0: Parameters | FloatArray | None = None, *,
                  source: str = "live samples") -> None:
         self.settings = settings or Settings()
+        registry.require_rear_axle(self.settings.vehicle.model, "the live calibration")
         #: What the samples are called in the checks' words (``replay``: the log's name).
         self.source = source
         start = (np.asarray(self.settings.identify.theta0, dtype=np.float64) if theta0 is None

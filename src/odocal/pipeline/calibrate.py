@@ -66,6 +66,7 @@ from odocal.estimators.estimate import (
     refused_estimate,
     weak,
 )
+from odocal.estimators.front_axle import four_wheel_estimate, mapping_findings
 from odocal.estimators.validation import (
     MinimumResult,
     ValidationResult,
@@ -73,6 +74,7 @@ from odocal.estimators.validation import (
     validation_data,
 )
 from odocal.io.drivefile import load_drive
+from odocal.model import registry
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.model.vehicle import MODEL
 from odocal.pipeline.result import CalibrationResult, summarise
@@ -266,6 +268,8 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     settings = settings or Settings()
     method = method or DEFAULT_METHOD
     _check_method(method)
+    # a model beyond the rear axle: its rear axle is fitted as the rear-axle model's
+    model_settings, settings = _rear_axle_settings(settings, method)
     clock = Stopwatch(progress)
     with clock.stage("read"):
         drive_list = load_drives(drives, settings=settings)
@@ -290,6 +294,16 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         val, datasheet = _validated(estimate, fitted, drive_list, prep, settings, method)
     if estimate.success:
         diagnosis, estimate = _gated(diagnosis, estimate, settings, val, datasheet)
+    vehicle = None
+    if model_settings is not None:
+        with clock.stage("front axle"):
+            vehicle = four_wheel_estimate(
+                estimate, _as_fitted(drive_list, estimate, fitted, settings, method),
+                model_settings)
+        diagnosis = diagnosis.plus(mapping_findings(vehicle, diagnosis))
+        if diagnosis.fatal:             # the wheels' mapping: nothing of the car stands
+            estimate = dataclasses.replace(estimate, status=Status.REJECTED)
+            vehicle = dataclasses.replace(vehicle, status=Status.REJECTED)
     for w in warnings:
         log.warning("%s", w)
     return CalibrationResult(
@@ -298,7 +312,21 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         warnings=tuple(warnings), elapsed_s=time.perf_counter() - started, bootstrap=boot,
         three_step=outcome.three_step, batch=prep.__dict__.get("batch"),
         drive_data=tuple(drive_list),
-        timings_s=dict(clock.seconds), diagnosis=diagnosis, departures=departures)
+        timings_s=dict(clock.seconds), diagnosis=diagnosis, departures=departures,
+        vehicle_estimate=vehicle, model_settings=model_settings)
+
+
+def _rear_axle_settings(settings: Settings, method: str) -> tuple[Settings | None, Settings]:
+    """For the four-wheel model: its settings, and the rear-axle model's that the default
+    method fits its rear axle with (the per-parameter settings' rear values); for the rear
+    axle: None and the settings as given. A method other than the default is refused for the
+    four-wheel model in one line."""
+    if settings.vehicle.model == registry.DEFAULT:
+        return None, settings
+    if method != DEFAULT_METHOD:
+        raise ConfigError(f"the {settings.vehicle.model} model is calibrated by the default "
+                          f"method only ({DEFAULT_METHOD}), not --method {method}")
+    return settings, settings.replace(vehicle={"model": registry.DEFAULT})
 
 
 def _check_method(method: str) -> None:
@@ -408,25 +436,32 @@ def _validated(estimate: Estimate, fitted: Sequence[Finding], drives: Sequence[D
 
     Returns ``(estimate's, datasheet's)``, both None where no validation segment remains.
     """
-    judged, val_segs, val_data = drives, prep.validation_segments, prep.validation
-    changed = [f for f in fitted if f.check is Check.CHANGE_IN_LOG]
-    fitted_departures = dict(getattr(estimate.details, "fitted_departures", {}) or {})
-    if settings.reference.offset_m is not None and method == "inverse":
-        # a lever arm stated: held in the fit, taken out of what is judged as fitted ones are
-        fitted_departures.update(arm_x=settings.reference.offset_m[0],
-                                 arm_y=settings.reference.offset_m[1])
-    if changed or fitted_departures:
-        # judged as it was fitted: the departures the fit found taken out, and on the part
-        # after a change inside the log where it calibrated that part
-        judged = corrected_drives(drives, fitted_departures, estimate.theta.as_array())
-        if changed:
-            judged = _after_change(judged, changed[0])
+    val_segs, val_data = prep.validation_segments, prep.validation
+    judged = _as_fitted(drives, estimate, fitted, settings, method)
+    if judged is not drives:
         val_segs = validation_segments(judged, settings.segments)
         val_data = validation_data(judged, val_segs, settings) if len(val_segs) else None
     if val_data is None:
         return None, None
     return (validation(estimate.theta, val_data, val_segs, judged),
             validation(estimate.datasheet, val_data, val_segs, judged))
+
+
+def _as_fitted(drives: Sequence[Drive], estimate: Estimate, fitted: Sequence[Finding],
+               settings: Settings, method: str) -> Sequence[Drive]:
+    """The drives as the estimate was fitted on them: the departures the fit found (and a
+    stated lever arm, for the default method) taken out, and the part after a change inside
+    the log where it calibrated that part; ``drives`` itself where neither applies."""
+    changed = [f for f in fitted if f.check is Check.CHANGE_IN_LOG]
+    fitted_departures = dict(getattr(estimate.details, "fitted_departures", {}) or {})
+    if settings.reference.offset_m is not None and method == "inverse":
+        # a lever arm stated: held in the fit, taken out of what is judged as fitted ones are
+        fitted_departures.update(arm_x=settings.reference.offset_m[0],
+                                 arm_y=settings.reference.offset_m[1])
+    if not (changed or fitted_departures):
+        return drives
+    judged = corrected_drives(drives, fitted_departures, estimate.theta.as_array())
+    return _after_change(judged, changed[0]) if changed else judged
 
 
 def _against_the_default(estimate: Estimate, screened: Screen,

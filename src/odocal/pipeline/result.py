@@ -171,6 +171,10 @@ class CalibrationResult:
     :mod:`odocal.pipeline.compare`)
     departures : the sensors' departures measured and taken out before the fit (a_y's clock and
         offset, a heading error varying with the heading: :mod:`odocal.checks.departures`)
+    vehicle_estimate : for a model beyond the rear axle (``[vehicle] model = "four_wheel"``),
+        its estimate: :attr:`estimate` is its rear axle's, fitted as the rear-axle model's and
+        validated, reported and exported as that; None for the rear axle
+    model_settings : the settings of that model (:attr:`settings` are its rear axle's)
     """
 
     estimate: Estimate
@@ -190,6 +194,15 @@ class CalibrationResult:
     diagnosis: Diagnosis = field(default_factory=lambda: Diagnosis(()))
     comparison: Comparison | None = None
     departures: Departures | None = None
+    vehicle_estimate: Estimate | None = None
+    model_settings: Settings | None = None
+
+    @property
+    def model_estimate(self) -> Estimate:
+        """The chosen vehicle model's estimate (``[vehicle] model``): the four-wheel car's
+        (the rear axle's :attr:`estimate` joined with its front axle and steering), or the
+        rear axle's :attr:`estimate` itself."""
+        return self.vehicle_estimate if self.vehicle_estimate is not None else self.estimate
 
     @property
     def theta(self) -> Parameters:
@@ -263,6 +276,10 @@ class CalibrationResult:
         has the same words with a simulated drive's truth)."""
         lines = [self.read_text(), f"method: {self.method}, identified from {self.used_text()}",
                  "", *self.estimate.table(speed_scale=self.speed_scale is not None)]
+        if self.vehicle_estimate is not None:
+            lines += ["", f"the {self.vehicle_estimate.model} model (the rear axle above, "
+                          "joined with the front axle and the steering):",
+                      *self.vehicle_estimate.table()]
         if self.validation is not None and self.datasheet_validation is not None:
             lines += ["", f"validation error E_p over {self.validation_text()}: datasheet "
                           f"{self.datasheet_validation.mean_error_m:.2f} m -> calibrated "
@@ -330,7 +347,7 @@ class CalibrationResult:
 
     def to_dict(self) -> dict[str, Any]:
         """The content of ``calibration.json``."""
-        est = self.estimate
+        est = self.model_estimate
         out: dict[str, Any] = {"odocal_version": __version__, **est.to_dict()}
         out["unidentified_reasons"] = {n: est.verdict(n).reason.value  # type: ignore[union-attr]
                                        for n in est.unidentified}
@@ -355,7 +372,7 @@ class CalibrationResult:
         out["timings_s"] = dict(self.timings_s)
         out["diagnosis"] = self.diagnosis.to_dict()
         out["departures"] = self.departures.to_dict() if self.departures is not None else None
-        out["settings"] = self.settings.to_dict()
+        out["settings"] = (self.model_settings or self.settings).to_dict()
         out["bootstrap"] = self.bootstrap.to_dict() if self.bootstrap is not None else None
         if self.three_step is not None:
             out["three_step"] = self.three_step.to_dict()

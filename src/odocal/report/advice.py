@@ -383,6 +383,15 @@ def _departure_text(finding: Finding) -> str:
                 "the fit took in (a lever arm, a smoothed reference, slip) explains it: front "
                 "wheels mapped as the rear ones? odocal's model is the rear axle's; map the "
                 "rear wheels (nothing is calibrated from these)")
+    if c is Check.WHEEL_MAPPING and finding.name == "front-sides":
+        return (f"the front wheels' difference runs against the turning (t_f = {v:.2f} m "
+                f"+-{ref:.2f}): front left and right swapped? map them the other way round "
+                "(nothing is calibrated from these)")
+    if c is Check.WHEEL_MAPPING:
+        return ("the rear wheels turn alike in bends while the car has four wheel signals: "
+                "two wheels of one side mapped as an axle (a wheel among the four in the "
+                "wrong column)? check the mapping of all four (nothing is calibrated from "
+                "these)")
     if c is Check.REFERENCE_SMOOTHED:
         return (f"the reference travels less than the wheels in bends at speed, as a pose "
                 f"smoothed over about {math.sqrt(2.0 * max(v, 0.0)):.2f} s does (it cuts the "

@@ -1,0 +1,659 @@
+"""The four-wheel car's front axle and steering (issue 37), fitted on the motion the rear
+axle's default fit settled.
+
+The wheels of the two axles share no parameter but the load transfer ``d``
+(:mod:`odocal.model.four_wheel`): given the reference motion, the front wheels' revolutions
+and the steering-wheel angle depend on ``c_f, c_fd, t_f, L, ratio, s_0`` and ``d`` alone. So
+the four-wheel calibration is the default method's rear-axle fit (its lag, departures, error
+model and sandwich, unchanged) and this fit of the front axle and the steering on the same
+motion: the reference on the wheels' clock (the lag the rear fit found), with the departures
+it fitted taken out, turned by its heading offset.
+
+``d`` is fitted here too, with the rear fit's estimate as its prior (its value and std): the
+front wheels' own evidence on it joins the rear axle's, and the rear axle's other parameters
+follow by their covariance with it (:func:`joined`: the two fits' Gaussian summaries joined,
+which is the joint fit where the axles' errors are independent). It matters: in bends the
+front wheels' difference moves with ``t_f``, ``d`` and ``L`` alike, and holding ``d`` at the
+rear's value would leave its whole uncertainty in ``L`` and ``t_f``. Where the rear fit does
+not identify ``d`` it stays held, its datasheet uncertainty carried into the front parameters
+(``-H^-1 H_d`` times it), as is that of every front parameter the drives do not identify: a
+free parameter that cannot be told from a held one carries its uncertainty.
+
+The channels of a window (``window_s``, as the default's): the front wheels' mean and
+difference revolutions (the rear axle's channels, on the front axle) and the mean
+steering-wheel angle over its moving steps. Each channel is weighted by its robust residual
+scale, refitted; windows beyond :data:`OUTLIER` scales in a channel are left out of the final
+fit. The covariance is the default's: the sandwich over clusters of windows (errors that last
+seconds stay in one), widened by Student's t for the clusters each parameter rests on, never
+below the residual-variance formula.
+
+The wheelbase is estimated by the front wheels alone (their path around a bend is ``hypot(ds
+- t_f dpsi / 2, L dpsi)``): at small angles the steering says ``ratio L`` only, and the little
+it says of L by itself is what an unmodelled steering (understeer, a ratio that varies with
+the angle) moves first. The steering's equations estimate the ratio and the offset; the
+sandwich carries L's uncertainty into the ratio.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from odocal.arrays import BoolArray, FloatArray, IntArray
+from odocal.checks.departures import shifted_reference
+from odocal.checks.findings import Check, Diagnosis, Finding, Severity
+from odocal.data.drive import Drive
+from odocal.errors import DataError
+from odocal.estimators.covariance import widened
+from odocal.estimators.departures import corrected
+from odocal.estimators.estimate import Estimate, Identified, NotIdentified, Reason, Verdict
+from odocal.estimators.windows import MOVING_MPS, cluster_steps_for
+from odocal.model.four_wheel import FOUR_WHEEL_MODEL
+from odocal.model.kinematics import midpoint_heading
+from odocal.model.parameters import Parameters
+from odocal.settings import Settings
+
+LAYOUT = FOUR_WHEEL_MODEL.layout
+#: The parameters this fit estimates, and where theta holds them.
+FRONT: tuple[str, ...] = FOUR_WHEEL_MODEL.front_names
+_FRONT = np.array(LAYOUT.indices(FRONT))
+_LOAD = LAYOUT.index(LAYOUT.load)
+#: What the fit solves for: the front parameters, then d (with its prior).
+_FIT = np.append(_FRONT, _LOAD)
+_D = len(FRONT)
+#: The channels: the front wheels' mean and difference (right minus left) revolutions, the
+#: mean steering-wheel angle.
+CHANNELS = ("front mean", "front difference", "steering")
+#: A window beyond this many robust scales in any channel is left out of the final fit ...
+OUTLIER = 5.0
+#: ... unless more than this share of the channel's windows are.
+MAX_OUTLIER_SHARE = 0.05
+#: Rounds of judging, fitting and rescaling the channels.
+ROUNDS = 4
+#: Gauss-Newton steps per round at most, and the relative step that ends them.
+MAX_STEPS, STEP_TOLERANCE = 50, 1e-10
+
+
+@dataclass(frozen=True)
+class FrontWindows:
+    """Windows of steps: the reference motion per step and what was measured per window.
+
+    ds, dpsi, a_y : (N, k) each step's motion along track (m), in heading (rad) and its
+        lateral acceleration
+    revolutions : (N, 2) the front left and right wheels' revolutions over the window
+    steer : (N, k) the steering-wheel angle of each step (rad; NaN where not measured or the
+        step barely moves)
+    cluster : (N,) the windows' clusters (neighbouring windows share their errors)
+    """
+
+    ds: FloatArray
+    dpsi: FloatArray
+    a_y: FloatArray
+    revolutions: FloatArray
+    steer: FloatArray
+    cluster: IntArray
+
+    @property
+    def size(self) -> int:
+        return int(self.ds.shape[0])
+
+    def measured(self) -> FloatArray:
+        """(N, 3): the channels' measurements (:data:`CHANNELS`; the steering's NaN where a
+        window has no moving step with an angle)."""
+        fl, fr = self.revolutions[:, 0], self.revolutions[:, 1]
+        known = np.isfinite(self.steer)
+        count = known.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            angle = np.where(known, self.steer, 0.0).sum(axis=1) / count
+        return np.column_stack([0.5 * (fl + fr), fr - fl, np.where(count > 0, angle, np.nan)])
+
+
+def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float = 0.0,
+                  heading_offset: float = 0.0) -> FrontWindows:
+    """The drives' windows of ``[inverse] window_s`` (the default method's), piece by piece:
+    the reference delayed by ``delay_s`` (the wheels' lag behind it) and its heading turned by
+    ``heading_offset`` onto the course, as the default fit found them. Windows that do not
+    move (a mean speed below :data:`~odocal.estimators.windows.MOVING_MPS`) say nothing and
+    are left out. A DataError names a drive without the front wheels' rates."""
+    for d in drives:
+        missing = [k for k in ("n_fl", "n_fr") if k not in d.inputs]
+        if missing:
+            raise DataError(f"the four_wheel model needs the front wheels' rates, and "
+                            f"{d.name!r} has no {' and no '.join(missing)}: map them "
+                            "([wheels] front_left/front_right, or the table's columns), or "
+                            "calibrate the rear axle ([vehicle] model = \"rear_axle\")")
+    parts: dict[str, list[FloatArray]] = {k: [] for k in ("ds", "dpsi", "a_y", "revs", "steer",
+                                                          "cluster")}
+    cluster_s = cluster_steps_for(drives, settings) * (drives[0].t_s if drives else 1.0)
+    for index, drive in enumerate(drives):
+        if delay_s:
+            drive = shifted_reference(drive, delay_s)
+        _add_windows(parts, drive, settings.inverse.window_s, heading_offset,
+                     index * 10**9, cluster_s)
+    if not parts["ds"]:
+        empty = np.zeros((0, 1))
+        return FrontWindows(empty, empty, empty, np.zeros((0, 2)), empty,
+                            np.zeros(0, dtype=np.int64))
+    cat = {k: np.concatenate(v) for k, v in parts.items()}
+    return FrontWindows(cat["ds"], cat["dpsi"], cat["a_y"], cat["revs"], cat["steer"],
+                        cat["cluster"].astype(np.int64))
+
+
+def _add_windows(parts: dict[str, list[FloatArray]], drive: Drive, window_s: float,
+                 heading_offset: float, label: int, cluster_s: float) -> None:
+    """One drive's windows, piece by piece, into ``parts``."""
+    t_s = drive.t_s
+    k = max(round(window_s / t_s), 1)
+    steer_in = drive.inputs.get("steer")
+    for a, b in drive.pieces:
+        n = (b - a - 1) // k
+        if n < 1:
+            continue
+        cut = n * k
+        psi = np.asarray(drive.psi[a:b], dtype=np.float64)
+        dpsi = np.remainder(np.diff(psi) + np.pi, 2.0 * np.pi) - np.pi
+        h = midpoint_heading(psi[:-1], dpsi, np.asarray(drive.beta[a:b - 1]) + heading_offset)
+        ds = np.diff(drive.x[a:b]) * np.cos(h) + np.diff(drive.y[a:b]) * np.sin(h)
+        ds, dpsi = ds[:cut].reshape(n, k), dpsi[:cut].reshape(n, k)
+        moving = np.abs(ds).sum(axis=1) > MOVING_MPS * k * t_s
+        revs = np.column_stack([drive.inputs["n_fl"][a:b - 1], drive.inputs["n_fr"][a:b - 1]])
+        revs = (revs[:cut] * t_s).reshape(n, k, 2).sum(axis=1)
+        if steer_in is None:
+            steer = np.full((n, k), np.nan)
+        else:
+            steer = np.array(steer_in[a:b - 1][:cut], dtype=np.float64).reshape(n, k)
+            steer[np.abs(ds) <= MOVING_MPS * t_s] = np.nan    # at a crawl: the reference's noise
+        keep = moving & np.isfinite(revs).all(axis=1)
+        t0 = drive.t[a:b - 1][:cut:k]
+        cluster = label + np.floor((t0 - drive.t[0]) / cluster_s)
+        parts["ds"].append(ds[keep])
+        parts["dpsi"].append(dpsi[keep])
+        parts["a_y"].append(np.asarray(drive.a_y[a:b - 1][:cut]).reshape(n, k)[keep])
+        parts["revs"].append(revs[keep])
+        parts["steer"].append(steer[keep])
+        parts["cluster"].append(cluster[keep])
+
+
+@dataclass(frozen=True)
+class FrontDetails:
+    """What the front axle's fit did.
+
+    windows, clusters : the windows fitted (of ``window_s``) and their clusters
+    steering_windows : those with a steering angle
+    scales : each channel's residual scale, the RMS over the windows (rev, rev, rad)
+    left_out : windows beyond :data:`OUTLIER` scales, left out of the final fit
+    iterations : Gauss-Newton steps of the final round
+    load_prior : d's value and std from the rear fit (the prior), and whether it was fitted
+        here (False: the rear fit holds it, so it stays held)
+    """
+
+    windows: int
+    window_s: float
+    clusters: int
+    steering_windows: int
+    scales: tuple[float, float, float]
+    left_out: int
+    iterations: int
+    load_prior: tuple[float, float, bool]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"windows": self.windows, "window_s": self.window_s, "clusters": self.clusters,
+                "steering_windows": self.steering_windows,
+                "scales": dict(zip(("front_mean_rev", "front_difference_rev", "steering_rad"),
+                                   self.scales, strict=True)),
+                "left_out": self.left_out, "iterations": self.iterations,
+                "load_prior": {"value": self.load_prior[0], "std": self.load_prior[1],
+                               "fitted": self.load_prior[2]}}
+
+
+@dataclass(frozen=True)
+class FrontFit:
+    """The front axle's and the steering's estimate, with d.
+
+    theta : the four-wheel theta (the rear axle's values as given but d, fitted here where the
+        rear fit identifies it; the front ones fitted or kept at the datasheet's)
+    covariance : (10, 10) of the front parameters and d (the rest zero: the rear fit's own)
+    verdicts : per parameter of :data:`FRONT`
+    """
+
+    theta: FloatArray
+    covariance: FloatArray
+    verdicts: tuple[Verdict, ...]
+    details: FrontDetails
+
+    @property
+    def free(self) -> tuple[bool, ...]:
+        return tuple(isinstance(v, Identified) for v in self.verdicts)
+
+
+def _predict(theta: FloatArray, w: FrontWindows) -> tuple[FloatArray, FloatArray]:
+    """Each window's channels (N, 3) and their Jacobian in theta (N, 3, 10)."""
+    revs, jac = FOUR_WHEEL_MODEL.inverse_step(theta, w.ds, w.dpsi, w.a_y)
+    angle, jac_s = FOUR_WHEEL_MODEL.steering(theta, w.ds, w.dpsi)
+    known = np.isfinite(w.steer)
+    count = np.maximum(known.sum(axis=1), 1)
+    mean_angle = np.where(known, angle, 0.0).sum(axis=1) / count
+    mean_jac = np.where(known[..., None], jac_s, 0.0).sum(axis=1) / count[:, None]
+    fl, fr = revs[..., 0].sum(axis=1), revs[..., 1].sum(axis=1)
+    j_fl, j_fr = jac[..., 0, :].sum(axis=1), jac[..., 1, :].sum(axis=1)
+    pred = np.column_stack([0.5 * (fl + fr), fr - fl, mean_angle])
+    return pred, np.stack([0.5 * (j_fl + j_fr), j_fr - j_fl, mean_jac], axis=1)
+
+
+#: Which channel's equations estimate which parameter (1) or only carry it (0), in
+#: :data:`_FIT`'s order: the steering's leave L to the wheels.
+_TOLD = np.ones((3, _FIT.size))
+_TOLD[2, FRONT.index("L")] = 0.0
+
+
+@dataclass(frozen=True)
+class _Prior:
+    """d's prior: its value and std (0: held)."""
+
+    value: float
+    std: float
+
+    def information(self) -> FloatArray:
+        out = np.zeros((_FIT.size, _FIT.size))
+        if self.std > 0:
+            out[_D, _D] = self.std ** -2
+        return out
+
+
+@dataclass(frozen=True)
+class _Normal:
+    """The weighted estimating equations at a theta, in :data:`_FIT`'s order (d's prior
+    included in ``a`` and ``g``, not in ``scores`` and ``told_info``: the data's own)."""
+
+    a: FloatArray          # (told J)^T J + prior
+    g: FloatArray          # (told J)^T r + prior's pull
+    scores: FloatArray     # (N, 8) per window
+    told_info: FloatArray  # (told J)^T (told J): what each parameter's own equations say
+    residual: FloatArray   # (N, 3), unweighted
+    white: FloatArray      # (N, 3) weighted residuals
+
+
+def _normal(theta: FloatArray, w: FrontWindows, measured: FloatArray, weight: FloatArray,
+            scale: FloatArray, prior: _Prior) -> _Normal:
+    pred, jac = _predict(theta, w)
+    residual = measured - pred
+    root = np.sqrt(weight) / scale                         # (N, 3)
+    white = np.where(weight > 0, residual, 0.0) * root
+    j = (jac * root[..., None])[..., _FIT]
+    told = _TOLD * j
+    info = prior.information()
+    pull = np.zeros(_FIT.size)
+    pull[_D] = info[_D, _D] * (prior.value - float(theta[_LOAD]))
+    return _Normal(a=np.einsum("ncp,ncq->pq", told, j) + info,
+                   g=np.einsum("ncp,nc->p", told, white) + pull,
+                   scores=np.einsum("ncp,nc->np", told, white),
+                   told_info=np.einsum("ncp,ncq->pq", told, told) + info, residual=residual,
+                   white=white)
+
+
+def _std(information: FloatArray) -> FloatArray:
+    """Each parameter's standard deviation from an information matrix; infinite for those a
+    direction the data do not see moves (a pseudo-inverse would call them exact)."""
+    diag = np.sqrt(np.clip(np.diag(information), 0.0, None))
+    out = np.full(diag.size, np.inf)
+    seen = diag > 0
+    if not seen.any():
+        return out
+    normed = information[np.ix_(seen, seen)] / np.outer(diag[seen], diag[seen])
+    values, vectors = np.linalg.eigh(0.5 * (normed + normed.T))
+    blind = values <= 1e-10 * max(float(values.max()), 0.0)
+    var = (vectors[:, ~blind] ** 2 / values[~blind]).sum(axis=1)
+    var[(vectors[:, blind] ** 2 > 1e-12).any(axis=1)] = np.inf
+    out[seen] = np.sqrt(var) / diag[seen]
+    return out
+
+
+def _judged(told_info: FloatArray, limit: FloatArray, usable: BoolArray) -> BoolArray:
+    """Which parameters (of :data:`_FIT`) the drives identify: the weakest front one held in
+    turn until every one left has a std (from its own equations' information) within its
+    limit, as the default does (d, with its prior, is judged by the rear fit)."""
+    free = usable.copy()
+    while free[:_D].any():
+        std = np.full(free.size, np.inf)
+        std[free] = _std(told_info[np.ix_(free, free)])
+        worst = int(np.argmax(np.where(free[:_D], std[:_D] / limit, -np.inf)))
+        if std[worst] <= limit[worst]:
+            break
+        free[worst] = False
+    return free
+
+
+def fit_front(windows: FrontWindows, theta0: FloatArray, settings: Settings, *,
+              load_std: float, fit_load: bool = True) -> FrontFit:
+    """Gauss-Newton for the front axle and the steering over ``windows``, from the four-wheel
+    ``theta0`` (its rear axle: the rear fit's estimate), judged by the identifiability rule of
+    ``[identify]`` (a std within ``identifiable_ratio`` of the datasheet's). ``load_std``: the
+    rear fit's std of d (0 where the rear fit holds d), its prior here where ``fit_load``;
+    else d stays held and that std (or d's datasheet uncertainty) is carried into the front
+    parameters."""
+    theta0 = np.array(theta0, dtype=np.float64)
+    stds = np.asarray(settings.identify.prior_std, dtype=np.float64)
+    prior = stds[_FRONT]
+    limit = settings.identify.identifiable_ratio * prior
+    load = _Prior(float(theta0[_LOAD]), float(load_std) if fit_load else 0.0)
+    measured = windows.measured()
+    has_angle = np.isfinite(measured[:, 2])
+    clusters = int(np.unique(windows.cluster).size)
+    details = FrontDetails(windows=windows.size, window_s=settings.inverse.window_s,
+                           clusters=clusters, steering_windows=int(has_angle.sum()),
+                           scales=(math.nan,) * 3, left_out=0, iterations=0,
+                           load_prior=(load.value, float(load_std), load.std > 0))
+    if windows.size < 3 or clusters < 2:
+        reason = Reason.ONE_CLUSTER if windows.size >= 3 else Reason.NO_INFORMATION
+        return FrontFit(theta=theta0, covariance=np.zeros((LAYOUT.size, LAYOUT.size)),
+                        verdicts=tuple(NotIdentified(reason, limit=float(x)) for x in limit),
+                        details=details)
+    measured = np.where(np.isfinite(measured), measured, 0.0)
+    weight = np.column_stack([np.ones(windows.size), np.ones(windows.size), has_angle])
+    usable = np.ones(_FIT.size, dtype=bool)
+    usable[_D] = load.std > 0
+    if not has_angle.any():             # no steering angle: the ratio and offset say nothing
+        usable[[FRONT.index("ratio"), FRONT.index("s_0")]] = False
+    scale = np.broadcast_to(np.array(
+        [float(np.std(measured[weight[:, c] > 0, c])) if (weight[:, c] > 0).any() else 1.0
+         for c in range(3)]) + 1e-12, measured.shape)
+    held = np.zeros(_FIT.size, dtype=bool)
+    nuisance = np.append(prior, 0.0 if load.std > 0 else (load_std or stds[_LOAD]))
+    while True:
+        theta, free, weight_f, scale_f, steps = _rounds(
+            theta0, windows, measured, (weight, scale), usable & ~held, limit, load)
+        eq = _normal(theta, windows, measured, weight_f, scale_f, load)
+        cov = _covariance(eq, windows, free, nuisance, clusters, load)
+        std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        over = free[:_D] & ~(std[:_D] <= limit)
+        if not over.any():               # the widened std of each is within its limit
+            break
+        held[int(np.argmax(np.where(over, std[:_D] / limit, -np.inf)))] = True
+    covariance = np.zeros((LAYOUT.size, LAYOUT.size))
+    covariance[np.ix_(_FIT, _FIT)] = cov
+    details = dataclasses.replace(
+        details, scales=(_rms(scale_f[:, 0]), _rms(scale_f[:, 1]), _rms(scale_f[:, 2])),
+        left_out=int((weight_f[:, :2] == 0).any(axis=1).sum()), iterations=steps)
+    return FrontFit(theta=theta, covariance=covariance,
+                    verdicts=_verdicts(free[:_D], usable[:_D], std[:_D], limit),
+                    details=details)
+
+
+def _rounds(theta0: FloatArray, windows: FrontWindows, measured: FloatArray,
+            start: tuple[FloatArray, FloatArray], usable: BoolArray, limit: FloatArray,
+            load: _Prior) -> tuple[FloatArray, BoolArray, FloatArray, FloatArray, int]:
+    """:data:`ROUNDS` of judging (from the datasheet), fitting the identified and rescaling
+    the channels, each window beyond :data:`OUTLIER` scales left out of its channel: theta,
+    the parameters fitted, the weights, the scales and the last round's steps."""
+    weight, scale = start
+    has_angle = weight[:, 2] > 0
+    theta = np.array(theta0, dtype=np.float64)
+    free, steps = usable.copy(), 0
+    for round_ in range(ROUNDS + 1):
+        first = np.array(theta0, dtype=np.float64)
+        if round_:                        # the first round fits every usable one, for scales
+            free = _judged(_normal(first, windows, measured, weight, scale, load).told_info,
+                           limit, usable)
+        theta, steps = _solve(first, windows, measured, weight, scale, free, load)
+        residual = _normal(theta, windows, measured, weight, scale, load).residual
+        scale = _scales(residual, weight, scale, np.abs(measured[:, 0]))
+        weight = _outliers_out(residual, scale, has_angle)
+    return theta, free, weight, scale, steps
+
+
+def _rms(values: FloatArray) -> float:
+    return float(np.sqrt(np.mean(np.square(values))))
+
+
+def _outliers_out(residual: FloatArray, scale: FloatArray, has_angle: BoolArray) -> FloatArray:
+    """The channels' weights (N, 3): a window beyond :data:`OUTLIER` robust scales from its
+    channel's median residual is left out of that channel; where more than
+    :data:`MAX_OUTLIER_SHARE` of a channel's windows are, they are the model's departure,
+    not outliers, and every window stays."""
+    base = np.column_stack([np.ones(has_angle.size), np.ones(has_angle.size), has_angle])
+    out = base.copy()
+    for c in range(3):
+        counted = base[:, c] > 0
+        if not counted.any():
+            continue
+        r = residual[:, c]
+        far = counted & (np.abs(r - np.median(r[counted])) > OUTLIER * scale[:, c])
+        if far.sum() <= MAX_OUTLIER_SHARE * counted.sum():
+            out[far, c] = 0.0
+    return out
+
+
+def _solve(theta: FloatArray, windows: FrontWindows, measured: FloatArray, weight: FloatArray,
+           scale: FloatArray, free: BoolArray, load: _Prior) -> tuple[FloatArray, int]:
+    """Gauss-Newton on the free parameters of :data:`_FIT` (the others as given)."""
+    index = _FIT[free]
+    if not index.size:
+        return theta, 0
+    for steps in range(1, MAX_STEPS + 1):
+        eq = _normal(theta, windows, measured, weight, scale, load)
+        step = np.linalg.lstsq(eq.a[np.ix_(free, free)], eq.g[free], rcond=None)[0]
+        theta[index] += step
+        if np.all(np.abs(step) <= STEP_TOLERANCE * np.maximum(1.0, np.abs(theta[index]))):
+            return theta, steps
+    return theta, MAX_STEPS
+
+
+def _scales(residual: FloatArray, weight: FloatArray, before: FloatArray,
+            revolutions: FloatArray) -> FloatArray:
+    """Each window's scale per channel (N, 3): the wheels' channels ``sqrt(s0^2 + f^2 n^2)``
+    with ``n`` the window's revolutions (wheel noise grows with the speed, as the default's
+    error model has it), ``s0^2`` and ``f^2`` regressed from the squared residuals of the
+    windows that count (a robust core: those within :data:`OUTLIER` scales); the steering's
+    one scale, its residuals' standard deviation over that core. The scale before where a
+    channel has fewer than three windows."""
+    out = np.array(before, dtype=np.float64, copy=True)
+    n2 = revolutions ** 2
+    for c in range(3):
+        core = (weight[:, c] > 0) & (np.abs(residual[:, c]) <= OUTLIER * out[:, c])
+        r2 = residual[core, c] ** 2
+        if r2.size < 3:
+            continue
+        if c == 2:
+            out[:, c] = max(float(np.sqrt(r2.mean())), 1e-12)
+            continue
+        design = np.column_stack([np.ones(r2.size), n2[core]])
+        s0, f = np.linalg.lstsq(design, r2, rcond=None)[0]
+        if s0 <= 0.0 or f < 0.0:            # no growth with the speed the data show
+            s0, f = float(r2.mean()), 0.0
+        out[:, c] = np.sqrt(np.maximum(s0 + f * n2, 1e-24))
+    return out
+
+
+def _covariance(eq: _Normal, windows: FrontWindows, free: BoolArray, nuisance: FloatArray,
+                clusters: int, load: _Prior) -> FloatArray:
+    """The covariance (8, 8) of :data:`_FIT`: the data's sandwich over clusters, widened as
+    the default's (:func:`~odocal.estimators.covariance.widened`), d's prior's own, plus the
+    spread that each held parameter's datasheet uncertainty (``nuisance``) gives the free
+    ones."""
+    n = _FIT.size
+    cols = np.flatnonzero(free)
+    if not cols.size:
+        return np.zeros((n, n))
+    bread = np.zeros((n, n))
+    bread[np.ix_(cols, cols)] = np.linalg.pinv(eq.a[np.ix_(cols, cols)])
+    labels, index = np.unique(windows.cluster, return_inverse=True)
+    sums = np.zeros((labels.size, n))
+    np.add.at(sums, index, eq.scores)
+    sums[:, ~free] = 0.0
+    correction = clusters / (clusters - 1) if clusters > 1 else 1.0
+    sandwich = correction * bread @ (sums.T @ sums) @ bread.T
+    # the model-based form: the residual variance over the rows that count
+    rows = int(np.count_nonzero(eq.white))
+    sigma2 = float((eq.white ** 2).sum()) / max(rows - int(free.sum()), 1)
+    data_info = eq.told_info - load.information()
+    naive = sigma2 * bread @ data_info @ bread.T
+    effective = _effective(eq, bread, labels.size, index)
+    cov = widened(sandwich, naive, effective, clusters, few=True)
+    cov = cov + bread @ load.information() @ bread.T
+    for j in np.flatnonzero(~free & (nuisance > 0)):
+        shift = -bread @ eq.a[:, j]                 # d p_free / d p_j (held)
+        cov = cov + nuisance[j] ** 2 * np.outer(shift, shift)
+    return np.asarray(cov)
+
+
+def _effective(eq: _Normal, bread: FloatArray, count: int, index: IntArray) -> FloatArray:
+    """Per parameter, the effective number of clusters its variance rests on: ``(sum_k
+    e_k)^2 / sum_k e_k^2`` with ``e_k`` cluster k's share (its scores through the bread)."""
+    shares = np.zeros((count, bread.shape[0]))
+    np.add.at(shares, index, (eq.scores @ bread.T) ** 2)
+    total, squares = shares.sum(axis=0), (shares ** 2).sum(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(squares > 0, total ** 2 / squares, 0.0)
+
+
+def _verdicts(free: BoolArray, usable: BoolArray, std: FloatArray,
+              limit: FloatArray) -> tuple[Verdict, ...]:
+    """Per front parameter: identified with its std, or why not (no steering angle; bends
+    the drives lack; too weak)."""
+    out: list[Verdict] = []
+    for j, name in enumerate(FRONT):
+        if free[j]:
+            out.append(Identified(float(std[j]), float(limit[j])))
+        elif not usable[j]:
+            out.append(NotIdentified(Reason.NO_INFORMATION, limit=float(limit[j])))
+        else:
+            reason = Reason.NEEDS_BENDS if name in LAYOUT.bends else Reason.WEAK
+            out.append(NotIdentified(reason, limit=float(limit[j])))
+    return tuple(out)
+
+
+def joined(rear_theta: FloatArray, rear_cov: FloatArray, front: FrontFit
+           ) -> tuple[FloatArray, FloatArray]:
+    """The four-wheel theta (10,) and covariance (10, 10) of the rear fit's estimate
+    (``rear_theta``, ``rear_cov``: the rear axle's four and their covariance) joined with the
+    front fit's: where the front fit moved d (its prior: the rear's), the rear axle's other
+    parameters follow by their regression on d (``Sigma_rd / sigma_d^2``), and their
+    covariance is conditioned alike; the front parameters' covariance with the rear's is
+    theirs with d times that regression."""
+    r = np.array(LAYOUT.indices(FOUR_WHEEL_MODEL.rear.layout.names))
+    theta = np.array(front.theta, dtype=np.float64)
+    cov = np.array(front.covariance, dtype=np.float64)
+    rear_theta = np.asarray(rear_theta, dtype=np.float64)
+    rear_cov = np.asarray(rear_cov, dtype=np.float64)
+    d = FOUR_WHEEL_MODEL.rear.layout.index(LAYOUT.load)
+    prior_var = float(rear_cov[d, d])
+    if not front.details.load_prior[2] or prior_var <= 0:
+        theta[r] = rear_theta
+        cov[np.ix_(r, r)] = rear_cov
+        return theta, cov
+    k = rear_cov[:, d] / prior_var                       # the rear axle's regression on d
+    moved = float(theta[_LOAD]) - float(rear_theta[d])
+    theta[r] = rear_theta + k * moved
+    post_var = float(cov[_LOAD, _LOAD])
+    cov[np.ix_(r, r)] = rear_cov + np.outer(k, k) * (post_var - prior_var)
+    cross = np.outer(cov[_FRONT, _LOAD], k)              # (front, rear)
+    cov[np.ix_(_FRONT, r)] = cross
+    cov[np.ix_(r, _FRONT)] = cross.T
+    return theta, cov
+
+
+@dataclass(frozen=True)
+class FourWheelDetails:
+    """What the four-wheel calibration did: the rear axle's default fit and the front fit."""
+
+    rear: Any
+    front: FrontDetails | None
+
+    def to_dict(self) -> dict[str, Any]:
+        rear = self.rear.to_dict() if hasattr(self.rear, "to_dict") else None
+        return {"rear_axle": rear,
+                "front_axle": self.front.to_dict() if self.front is not None else None}
+
+
+def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Settings, *,
+                        departures: Mapping[str, float] | None = None) -> Estimate:
+    """The four-wheel model's estimate from the rear axle's (the default method's, on
+    ``drives``): the front axle and the steering fitted on the motion it settled (its lag and
+    heading offset, the ``departures`` it fitted taken out) and joined with it
+    (:func:`joined`). ``settings``: the four-wheel model's. Where the rear fit ended without an
+    estimate, nothing of the front is fitted either (its verdicts say why)."""
+    datasheet_values = np.array(settings.identify.theta0, dtype=np.float64)
+    rear_size = FOUR_WHEEL_MODEL.rear.layout.size
+    datasheet_values[:rear_size] = rear.datasheet.as_array()
+    datasheet = Parameters.from_array(datasheet_values, layout=LAYOUT)
+    limit = settings.identify.identifiable_ratio * np.asarray(settings.identify.prior_std)
+    details = rear.details
+    if not rear.success or not hasattr(details, "delay_s"):
+        reason = Reason.FAILED if not rear.success else Reason.NO_INFORMATION
+        first = rear.verdicts[0]
+        if isinstance(first, NotIdentified) and first.reason in (Reason.REJECTED,
+                                                                 Reason.STANDSTILL):
+            reason = first.reason
+        theta = datasheet_values.copy()
+        theta[:rear_size] = rear.theta.as_array()
+        cov = np.zeros((LAYOUT.size, LAYOUT.size))
+        cov[:rear_size, :rear_size] = rear.covariance
+        none = (*rear.verdicts, *(NotIdentified(reason, limit=float(limit[j]))
+                                  for j in _FRONT))
+        return Estimate(method=rear.method, theta=Parameters.from_array(theta, layout=LAYOUT),
+                        datasheet=datasheet, covariance=cov,
+                        covariance_kind=rear.covariance_kind,
+                        free=(*rear.free, *(False,) * len(FRONT)), verdicts=none,
+                        status=rear.status, details=FourWheelDetails(details, None),
+                        widening=np.append(rear.widening, np.ones(len(FRONT))),
+                        model=FOUR_WHEEL_MODEL.name)
+    judged = corrected(drives, dict(departures or {}), rear.theta.as_array())
+    windows = front_windows(judged, settings, delay_s=float(details.delay_s),
+                            heading_offset=float(details.heading_offset_rad))
+    theta0 = datasheet_values.copy()
+    theta0[:rear_size] = rear.theta.as_array()
+    d = FOUR_WHEEL_MODEL.rear.layout.index(LAYOUT.load)
+    load_std = float(rear.std[d]) if rear.identified[d] else 0.0
+    front = fit_front(windows, theta0, settings, load_std=load_std, fit_load=load_std > 0)
+    if load_std > 0 and not _joins(front, float(rear.theta.as_array()[d]), load_std):
+        front = fit_front(windows, theta0, settings, load_std=load_std, fit_load=False)
+    theta, cov = joined(rear.theta.as_array(), rear.covariance, front)
+    verdicts: list[Verdict] = list(rear.verdicts)
+    if front.details.load_prior[2]:      # d, joined with the front wheels' evidence
+        verdicts[d] = Identified(float(np.sqrt(max(cov[_LOAD, _LOAD], 0.0))),
+                                 float(limit[_LOAD]))
+    return Estimate(method=rear.method, theta=Parameters.from_array(theta, layout=LAYOUT),
+                    datasheet=datasheet, covariance=cov, covariance_kind=rear.covariance_kind,
+                    free=(*rear.free, *front.free), verdicts=(*verdicts, *front.verdicts),
+                    status=rear.status, details=FourWheelDetails(details, front.details),
+                    widening=np.append(rear.widening, np.ones(len(FRONT))),
+                    model=FOUR_WHEEL_MODEL.name)
+
+
+#: The front parameters whose evidence on d is its own only where the fit identifies them:
+#: in bends the front wheels' difference moves with t_f, d and L alike.
+_WITH_LOAD = ("t_f", "L")
+
+
+def _joins(front: FrontFit, prior_value: float, prior_std: float) -> bool:
+    """Whether the front fit's d may join the rear's: the front identifies t_f and L (held at
+    the datasheet's they would pull d), it adds information (a std below the prior's) and it
+    agrees with the rear's within three of the prior's std (beyond, the axles' load transfer
+    differ: a departure from the model, and the rear axle's d is kept)."""
+    identified = dict(zip(FRONT, front.free, strict=True))
+    std = float(np.sqrt(max(front.covariance[_LOAD, _LOAD], 0.0)))
+    moved = abs(float(front.theta[_LOAD]) - prior_value)
+    return (all(identified[n] for n in _WITH_LOAD) and 0.0 < std < prior_std
+            and moved <= 3.0 * prior_std)
+
+
+def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis) -> tuple[Finding, ...]:
+    """What the four-wheel fit shows of the wheels' mapping, fatal each: front wheels whose
+    difference runs against the turning (a negative front track: left and right swapped),
+    and rear wheels without a difference in bends beside front ones (two wheels of one side
+    taken as an axle). A front and rear axle swapped, or a front wheel in a rear column, the
+    rear fit names itself (:data:`~odocal.checks.findings.Check.FRONT_WHEELS`)."""
+    found = []
+    t_f = LAYOUT.index("t_f")
+    if vehicle.identified[t_f] and vehicle.theta.as_array()[t_f] < 0.0:
+        found.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL,
+                             float(vehicle.theta.as_array()[t_f]), float(vehicle.std[t_f]),
+                             "front-sides"))
+    if diagnosis.no_differential:
+        found.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL, name="sides"))
+    return tuple(found)
