@@ -25,13 +25,13 @@ THETA = np.array([2.031, -0.0042, 1.512, 0.0011])
 
 
 def test_the_registry_names_each_model_and_loads_it() -> None:
-    assert registry.names() == ("rear_axle",)
+    assert registry.names() == ("rear_axle", "four_wheel")
     assert registry.model("rear_axle") is MODEL
     assert isinstance(MODEL, VehicleModel)
     assert registry.layout("rear_axle") is MODEL.layout
     assert registry.entry("rear_axle").wheel_inputs == MODEL.wheel_inputs
     with pytest.raises(ConfigError, match=r"unknown vehicle model 'rear_axel' \(did you mean "
-                                          r"'rear_axle'\?\); known: rear_axle"):
+                                          r"'rear_axle'\?\); known: rear_axle, four_wheel"):
         registry.model("rear_axel")
 
 
@@ -132,10 +132,10 @@ def test_a_fleet_store_holds_one_model_s_parameters(tmp_path: Path) -> None:
     import sqlite3
 
     raw = sqlite3.connect(path)
-    raw.execute("UPDATE meta SET value = 'four_wheel' WHERE key = 'model'")
+    raw.execute("UPDATE meta SET value = 'skid_steer' WHERE key = 'model'")
     raw.commit()
     raw.close()
-    with pytest.raises(DataError, match="names the vehicle model 'four_wheel'"):
+    with pytest.raises(DataError, match="names the vehicle model 'skid_steer'"):
         open_store(path, model="rear_axle")
 
 
@@ -193,11 +193,16 @@ def test_another_model_s_layout_sizes_the_per_parameter_settings(
                  "minimum": {"half_width": [0.05, 0.1]}, "fleet": {"excess_floor": [0.0, 0.0]}}
     settings = settings_from_dict({"vehicle": {"model": "skid_steer"}, **per_model})
     assert settings.layout is two and settings.identify.theta0 == (0.61, 0.52)
+    # a per-parameter setting left out is the model's own default (its datasheet uncertainty
+    # for the minimum's half width), not the rear axle's four
+    unstated = settings_from_dict({"vehicle": {"model": "skid_steer"},
+                                   "identify": per_model["identify"], "fleet": per_model["fleet"]})
+    assert unstated.minimum.half_width == (0.01, 0.05)
     with pytest.raises(ConfigError, match=r"\[minimum\] half_width = \(0\.1, 0\.02, 0\.3, "
                                           r"0\.01\) is invalid: expected 2 values, one per "
                                           r"parameter of the skid_steer model \(c, b\)"):
-        settings_from_dict({"vehicle": {"model": "skid_steer"},
-                            "identify": per_model["identify"], "fleet": per_model["fleet"]})
+        settings_from_dict({"vehicle": {"model": "skid_steer"}, **per_model,
+                            "minimum": {"half_width": [0.1, 0.02, 0.3, 0.01]}})
     with pytest.raises(ConfigError, match=r"theta0 = \(0\.61, 70\.0\) is invalid: expected a "
                                           r"wheeled vehicle's values \(b = 70 is not"):
         settings_from_dict({"vehicle": {"model": "skid_steer"}, **per_model,

@@ -1,0 +1,164 @@
+"""The four-wheel car calibrated (issue 37): its settings, its estimate against the truth of
+simulated four-wheel drives, what it names of a wrong wheel mapping, and the shared real logs."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import odocal
+from odocal.checks.findings import Check
+from odocal.data.drive import Drive
+from odocal.errors import ConfigError, DataError
+from odocal.estimators.estimate import Status
+from odocal.model.layout import FOUR_WHEEL, REAR_AXLE
+from odocal.preprocess.convert import convert
+from odocal.settings import Settings, settings_from_dict
+from odocal.sim.four_wheel import with_front_axle
+
+FOUR = Settings().replace(vehicle={"model": "four_wheel"})
+
+
+@pytest.fixture(scope="module")
+def four_wheel_drive() -> tuple[Drive, np.ndarray]:
+    sim, truth = with_front_axle(odocal.simulate(duration_s=1200.0, seed=3, noise="realistic"))
+    return sim.drive, truth.as_array()
+
+
+def test_the_model_sizes_every_per_parameter_setting_by_name() -> None:
+    """One line of settings takes the model: the rear axle's values kept by name, the front
+    ones from the layout's defaults; back to the rear axle, the rear ones kept."""
+    stated = Settings().replace(identify={"theta0": (1.93, 0.001, 1.46, 0.002)})
+    four = stated.replace(vehicle={"model": "four_wheel"})
+    assert four.identify.theta0 == (1.93, 0.001, 1.46, 0.002, *FOUR_WHEEL.placeholder[4:])
+    assert four.identify.prior_std == FOUR_WHEEL.prior_std
+    assert len(four.minimum.half_width) == len(four.fleet.excess_floor) == FOUR_WHEEL.size
+    assert four.replace(vehicle={"model": "rear_axle"}).identify.theta0 == \
+        stated.identify.theta0
+    from_file = settings_from_dict({"vehicle": {"model": "four_wheel"}})
+    assert from_file.identify.theta0 == FOUR_WHEEL.placeholder
+    with pytest.raises(ConfigError, match=r"\[identify\] theta0 .* 10 values|theta0"):
+        settings_from_dict({"vehicle": {"model": "four_wheel"},
+                            "identify": {"theta0": list(REAR_AXLE.placeholder)}})
+
+
+def test_the_four_wheel_estimate_is_within_its_stds_and_leaves_the_rear_axle_as_it_was(
+        four_wheel_drive: tuple[Drive, np.ndarray]) -> None:
+    drive, truth = four_wheel_drive
+    four = odocal.calibrate(drive, settings=FOUR)
+    rear = odocal.calibrate(drive)
+    est = four.model_estimate
+    assert est.model == "four_wheel" and est.names == FOUR_WHEEL.names
+    assert all(est.identified), est.unidentified
+    z = (est.theta.as_array() - truth) / np.asarray(est.std)
+    assert np.all(np.abs(z) < 3.0), dict(zip(est.names, z.round(2), strict=True))
+    # the rear axle is the rear-axle model's fit, bit for bit
+    np.testing.assert_array_equal(four.estimate.theta.as_array(), rear.estimate.theta.as_array())
+    np.testing.assert_array_equal(four.estimate.covariance, rear.estimate.covariance)
+    # the joined covariance is symmetric, positive, and holds the front's own stds
+    cov = est.covariance
+    np.testing.assert_allclose(cov, cov.T, rtol=0, atol=1e-18)
+    assert np.linalg.eigvalsh(cov).min() > -1e-15
+    front = [FOUR_WHEEL.index(n) for n in ("c_f", "t_f", "L", "ratio")]
+    assert np.all(np.sqrt(np.diag(cov))[front] > 0)
+
+
+def test_calibration_json_names_the_model_and_its_ten_parameters(
+        four_wheel_drive: tuple[Drive, np.ndarray], tmp_path: Path) -> None:
+    drive, _ = four_wheel_drive
+    result = odocal.calibrate(drive, settings=FOUR)
+    result.save(tmp_path / "out", report=False)
+    data = json.loads((tmp_path / "out" / "calibration.json").read_text())
+    assert data["model"] == "four_wheel"
+    assert list(data["theta"]) == list(FOUR_WHEEL.names)
+    assert np.array(data["covariance"]).shape == (10, 10)
+    assert data["settings"]["vehicle"]["model"] == "four_wheel"
+    assert data["details"]["front_axle"]["windows"] > 100
+    for name in FOUR_WHEEL.names:
+        assert data["std"][name] == pytest.approx(np.sqrt(data["covariance"][
+            FOUR_WHEEL.index(name)][FOUR_WHEEL.index(name)]))
+    lines = "\n".join(result.summary())
+    assert "the four_wheel model" in lines and "ratio" in lines
+
+
+def _mapped(drive: Drive, fl: str, fr: str, rl: str, rr: str) -> Drive:
+    wheels = {"fl": drive.inputs["n_fl"], "fr": drive.inputs["n_fr"], "rl": drive.n_rl,
+              "rr": drive.n_rr}
+    return dataclasses.replace(drive, n_rl=wheels[rl], n_rr=wheels[rr],
+                               inputs={**drive.inputs, "n_fl": wheels[fl], "n_fr": wheels[fr]})
+
+
+@pytest.mark.parametrize(("mapping", "check"), [
+    (("rl", "rr", "fl", "fr"), Check.FRONT_WHEELS),      # front and rear axles swapped
+    (("rl", "fr", "fl", "rr"), Check.FRONT_WHEELS),      # a front wheel in a rear column
+    (("fr", "fl", "rl", "rr"), Check.WHEEL_MAPPING),     # front left and right swapped
+    (("rr", "fr", "rl", "fl"), Check.WHEEL_MAPPING),     # two wheels of one side as an axle
+])
+def test_a_wrong_wheel_mapping_among_four_is_named_never_calibrated(
+        four_wheel_drive: tuple[Drive, np.ndarray], mapping: tuple[str, ...],
+        check: Check) -> None:
+    drive, _ = four_wheel_drive
+    result = odocal.calibrate(_mapped(drive, *mapping), settings=FOUR)
+    assert result.model_estimate.status is Status.REJECTED
+    assert result.estimate.status is Status.REJECTED
+    assert check in {f.check for f in result.diagnosis.findings if f.severity.name == "FATAL"}
+
+
+def test_a_drive_without_front_wheels_is_one_line(
+        four_wheel_drive: tuple[Drive, np.ndarray]) -> None:
+    drive, _ = four_wheel_drive
+    with pytest.raises(DataError, match=r"four_wheel model needs the front wheels' rates.*"
+                                        r"no n_fl and no n_fr"):
+        odocal.calibrate(dataclasses.replace(drive, inputs={}), settings=FOUR)
+    with pytest.raises(ConfigError, match="calibrated by the default method only"):
+        odocal.calibrate(drive, settings=FOUR, method="raw")
+
+
+def test_a_drive_without_steering_leaves_the_ratio_and_offset_unidentified(
+        four_wheel_drive: tuple[Drive, np.ndarray]) -> None:
+    drive, _ = four_wheel_drive
+    inputs = {k: v for k, v in drive.inputs.items() if k != "steer"}
+    est = odocal.calibrate(dataclasses.replace(drive, inputs=inputs),
+                           settings=FOUR).model_estimate
+    assert est.identified["c_f"] and est.identified["t_f"]
+    assert not est.identified["ratio"] and not est.identified["s_0"]
+    assert est.verdict("ratio").reason.value == "no-information"
+
+
+def test_commands_for_the_rear_axle_only_refuse_the_model_in_one_line(tmp_path: Path) -> None:
+    config = tmp_path / "four.toml"
+    config.write_text('[vehicle]\nmodel = "four_wheel"\n')
+    run = subprocess.run([sys.executable, "-m", "odocal", "demo", "--config", str(config),
+                          "--out", str(tmp_path / "demo")], capture_output=True, text=True,
+                         check=False)
+    assert run.returncode != 0
+    assert "Traceback" not in run.stderr
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "rear_axle model only" in lines[0], run.stderr
+    with pytest.raises(ConfigError, match="the live calibration takes the rear_axle model"):
+        odocal.OnlineCalibrator(FOUR)
+
+
+def test_the_shared_nuscenes_scenes_keep_the_rear_axle_and_name_what_the_front_lacks(
+        shared_data: Path) -> None:
+    """Four Singapore scenes (1.3 min): the rear axle as the rear-axle model's fit; the front
+    wheels' mean circumference within a percent of the rear's; what 36 windows cannot tell
+    (the front track, the wheelbase, the ratio) left at the datasheet, and named."""
+    scenes = [d for d in convert("nuscenes", [shared_data / "nuscenes-can-bus-mini"])
+              if d.name in ("scene-0061", "scene-0796", "scene-0916", "scene-1077")]
+    settings = FOUR.replace(identify={"theta0": (1.95, 0.0, 1.51, *FOUR.identify.theta0[3:])})
+    result = odocal.calibrate(scenes, settings=settings)
+    rear = odocal.calibrate(scenes, settings=settings.replace(vehicle={"model": "rear_axle"}))
+    est = result.model_estimate
+    np.testing.assert_array_equal(est.theta.as_array()[:4], rear.estimate.theta.as_array())
+    assert est.identified["c_f"]
+    assert est.theta.c_f == pytest.approx(est.theta.c_e, rel=0.01)
+    for name in ("t_f", "L", "ratio"):
+        assert not est.identified[name]
+        assert est.theta.as_dict()[name] == settings.identify.theta0[FOUR_WHEEL.index(name)]
