@@ -63,9 +63,15 @@ LAYOUT = FOUR_WHEEL_MODEL.layout
 FRONT: tuple[str, ...] = FOUR_WHEEL_MODEL.front_names
 _FRONT = np.array(LAYOUT.indices(FRONT))
 _LOAD = LAYOUT.index(LAYOUT.load)
-#: What the fit solves for: the front parameters, then d (with its prior).
-_FIT = np.append(_FRONT, _LOAD)
+#: The traction slip's place in the working vector ``p = [theta, traction]``: the front
+#: wheels' revolutions times ``1 + traction a_x`` (a driven axle slips as it pulls, a braked
+#: one as it brakes: 1/(m/s^2)), fitted beside the parameters, not one of them.
+_K = LAYOUT.size
+#: What the fit solves for: the front parameters, then d (with its prior), the traction.
+_FIT = np.concatenate([_FRONT, [_LOAD, _K]])
 _D = len(FRONT)
+#: The traction's prior: none expected, a percent per m/s^2 allowed.
+TRACTION_STD = 0.01
 #: The channels: the front wheels' mean and difference (right minus left) revolutions, the
 #: mean steering-wheel angle.
 CHANNELS = ("front mean", "front difference", "steering")
@@ -75,6 +81,8 @@ OUTLIER = 5.0
 MAX_OUTLIER_SHARE = 0.05
 #: Rounds of judging, fitting and rescaling the channels.
 ROUNDS = 4
+#: The model runs on sub-steps of about this long (s): :func:`_substep`.
+SUBSTEP_S = 0.1
 #: Gauss-Newton steps per round at most, and the relative step that ends them.
 MAX_STEPS, STEP_TOLERANCE = 50, 1e-10
 
@@ -83,17 +91,19 @@ MAX_STEPS, STEP_TOLERANCE = 50, 1e-10
 class FrontWindows:
     """Windows of steps: the reference motion per step and what was measured per window.
 
-    ds, dpsi, a_y : (N, k) each step's motion along track (m), in heading (rad) and its
-        lateral acceleration
+    ds, dpsi, a_y : (N, q) each sub-step's motion along track (m), in heading (rad) and its
+        mean lateral acceleration (a window of k steps in q sub-steps: :func:`_substep`)
+    a_x : (N, q) each sub-step's mean acceleration along track (m/s^2, the reference's)
     revolutions : (N, 2) the front left and right wheels' revolutions over the window
-    steer : (N, k) the steering-wheel angle of each step (rad; NaN where not measured or the
-        step barely moves)
+    steer : (N, q) each sub-step's mean steering-wheel angle (rad; NaN where not measured or
+        a step of it barely moves)
     cluster : (N,) the windows' clusters (neighbouring windows share their errors)
     """
 
     ds: FloatArray
     dpsi: FloatArray
     a_y: FloatArray
+    a_x: FloatArray
     revolutions: FloatArray
     steer: FloatArray
     cluster: IntArray
@@ -127,8 +137,8 @@ def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float
                             f"{d.name!r} has no {' and no '.join(missing)}: map them "
                             "([wheels] front_left/front_right, or the table's columns), or "
                             "calibrate the rear axle ([vehicle] model = \"rear_axle\")")
-    parts: dict[str, list[FloatArray]] = {k: [] for k in ("ds", "dpsi", "a_y", "revs", "steer",
-                                                          "cluster")}
+    parts: dict[str, list[FloatArray]] = {k: [] for k in ("ds", "dpsi", "a_y", "a_x", "revs",
+                                                          "steer", "cluster")}
     cluster_s = cluster_steps_for(drives, settings) * (drives[0].t_s if drives else 1.0)
     for index, drive in enumerate(drives):
         if delay_s:
@@ -137,11 +147,11 @@ def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float
                      index * 10**9, cluster_s)
     if not parts["ds"]:
         empty = np.zeros((0, 1))
-        return FrontWindows(empty, empty, empty, np.zeros((0, 2)), empty,
+        return FrontWindows(empty, empty, empty, empty, np.zeros((0, 2)), empty,
                             np.zeros(0, dtype=np.int64))
     cat = {k: np.concatenate(v) for k, v in parts.items()}
-    return FrontWindows(cat["ds"], cat["dpsi"], cat["a_y"], cat["revs"], cat["steer"],
-                        cat["cluster"].astype(np.int64))
+    return FrontWindows(cat["ds"], cat["dpsi"], cat["a_y"], cat["a_x"], cat["revs"],
+                        cat["steer"], cat["cluster"].astype(np.int64))
 
 
 def _add_windows(parts: dict[str, list[FloatArray]], drive: Drive, window_s: float,
@@ -159,6 +169,7 @@ def _add_windows(parts: dict[str, list[FloatArray]], drive: Drive, window_s: flo
         dpsi = np.remainder(np.diff(psi) + np.pi, 2.0 * np.pi) - np.pi
         h = midpoint_heading(psi[:-1], dpsi, np.asarray(drive.beta[a:b - 1]) + heading_offset)
         ds = np.diff(drive.x[a:b]) * np.cos(h) + np.diff(drive.y[a:b]) * np.sin(h)
+        a_x = np.gradient(ds / t_s, t_s) if ds.size > 1 else np.zeros_like(ds)
         ds, dpsi = ds[:cut].reshape(n, k), dpsi[:cut].reshape(n, k)
         moving = np.abs(ds).sum(axis=1) > MOVING_MPS * k * t_s
         revs = np.column_stack([drive.inputs["n_fl"][a:b - 1], drive.inputs["n_fr"][a:b - 1]])
@@ -171,12 +182,31 @@ def _add_windows(parts: dict[str, list[FloatArray]], drive: Drive, window_s: flo
         keep = moving & np.isfinite(revs).all(axis=1)
         t0 = drive.t[a:b - 1][:cut:k]
         cluster = label + np.floor((t0 - drive.t[0]) / cluster_s)
-        parts["ds"].append(ds[keep])
-        parts["dpsi"].append(dpsi[keep])
-        parts["a_y"].append(np.asarray(drive.a_y[a:b - 1][:cut]).reshape(n, k)[keep])
+        m = _substep(k, t_s)
+        a_y = np.asarray(drive.a_y[a:b - 1][:cut], dtype=np.float64).reshape(n, k)
+        parts["ds"].append(_summed(ds[keep], m))
+        parts["dpsi"].append(_summed(dpsi[keep], m))
+        parts["a_y"].append(_summed(a_y[keep], m) / m)
+        parts["a_x"].append(_summed(a_x[:cut].reshape(n, k)[keep], m) / m)
         parts["revs"].append(revs[keep])
-        parts["steer"].append(steer[keep])
+        # a sub-step's angle where every step of it moves (NaN sums to NaN)
+        parts["steer"].append(_summed(steer[keep], m) / m)
         parts["cluster"].append(cluster[keep])
+
+
+def _substep(k: int, t_s: float) -> int:
+    """Steps per sub-step: the divisor of the window's ``k`` steps nearest
+    :data:`SUBSTEP_S`. Over a sub-step that short the curvature barely changes, and a wheel's
+    path over steps of one curvature is its path over their sum (each step moves the contact
+    point by the same vector in the body's frame), so the model runs on sub-steps: the
+    front wheels' revolutions to the second order of the curvature's change within one."""
+    divisors = [m for m in range(1, k + 1) if k % m == 0]
+    return min(divisors, key=lambda m: abs(m * t_s - SUBSTEP_S))
+
+
+def _summed(steps: FloatArray, m: int) -> FloatArray:
+    """(N, k) steps summed over sub-steps of ``m``: (N, k / m)."""
+    return np.asarray(steps.reshape(steps.shape[0], -1, m).sum(axis=2))
 
 
 @dataclass(frozen=True)
@@ -190,6 +220,8 @@ class FrontDetails:
     iterations : Gauss-Newton steps of the final round
     load_prior : d's value and std from the rear fit (the prior), and whether it was fitted
         here (False: the rear fit holds it, so it stays held)
+    traction : the front wheels' slip per m/s^2 of acceleration fitted beside (1/(m/s^2)),
+        and its std
     """
 
     windows: int
@@ -200,6 +232,7 @@ class FrontDetails:
     left_out: int
     iterations: int
     load_prior: tuple[float, float, bool]
+    traction: tuple[float, float] = (0.0, 0.0)
 
     def to_dict(self) -> dict[str, Any]:
         return {"windows": self.windows, "window_s": self.window_s, "clusters": self.clusters,
@@ -208,7 +241,8 @@ class FrontDetails:
                                    self.scales, strict=True)),
                 "left_out": self.left_out, "iterations": self.iterations,
                 "load_prior": {"value": self.load_prior[0], "std": self.load_prior[1],
-                               "fitted": self.load_prior[2]}}
+                               "fitted": self.load_prior[2]},
+                "traction_per_mps2": {"value": self.traction[0], "std": self.traction[1]}}
 
 
 @dataclass(frozen=True)
@@ -231,10 +265,17 @@ class FrontFit:
         return tuple(isinstance(v, Identified) for v in self.verdicts)
 
 
-def _predict(theta: FloatArray, w: FrontWindows) -> tuple[FloatArray, FloatArray]:
-    """Each window's channels (N, 3) and their Jacobian in theta (N, 3, 10)."""
+def _predict(p: FloatArray, w: FrontWindows) -> tuple[FloatArray, FloatArray]:
+    """Each window's channels (N, 3) and their Jacobian in ``p = [theta, traction]``
+    (N, 3, 11)."""
+    theta = p[:_K]
     revs, jac = FOUR_WHEEL_MODEL.inverse_step(theta, w.ds, w.dpsi, w.a_y)
+    slip = w.a_x[..., None]                                     # (N, k, 1)
+    jac = np.concatenate([jac * (1.0 + p[_K] * slip)[..., None],
+                          (revs * slip)[..., None]], axis=-1)
+    revs = revs * (1.0 + p[_K] * slip)
     angle, jac_s = FOUR_WHEEL_MODEL.steering(theta, w.ds, w.dpsi)
+    jac_s = np.concatenate([jac_s, np.zeros((*jac_s.shape[:-1], 1))], axis=-1)
     known = np.isfinite(w.steer)
     count = np.maximum(known.sum(axis=1), 1)
     mean_angle = np.where(known, angle, 0.0).sum(axis=1) / count
@@ -253,7 +294,8 @@ _TOLD[2, FRONT.index("L")] = 0.0
 
 @dataclass(frozen=True)
 class _Prior:
-    """d's prior: its value and std (0: held)."""
+    """d's prior: its value and std (0: held); the traction's is :data:`TRACTION_STD` about
+    none."""
 
     value: float
     std: float
@@ -262,6 +304,15 @@ class _Prior:
         out = np.zeros((_FIT.size, _FIT.size))
         if self.std > 0:
             out[_D, _D] = self.std ** -2
+        out[-1, -1] = TRACTION_STD ** -2
+        return out
+
+    def pull(self, p: FloatArray) -> FloatArray:
+        """The prior's gradient at ``p`` (in :data:`_FIT`'s order)."""
+        out = np.zeros(_FIT.size)
+        if self.std > 0:
+            out[_D] = (self.value - float(p[_LOAD])) / self.std ** 2
+        out[-1] = -float(p[_K]) / TRACTION_STD ** 2
         return out
 
 
@@ -278,19 +329,17 @@ class _Normal:
     white: FloatArray      # (N, 3) weighted residuals
 
 
-def _normal(theta: FloatArray, w: FrontWindows, measured: FloatArray, weight: FloatArray,
+def _normal(p: FloatArray, w: FrontWindows, measured: FloatArray, weight: FloatArray,
             scale: FloatArray, prior: _Prior) -> _Normal:
-    pred, jac = _predict(theta, w)
+    pred, jac = _predict(p, w)
     residual = measured - pred
     root = np.sqrt(weight) / scale                         # (N, 3)
     white = np.where(weight > 0, residual, 0.0) * root
     j = (jac * root[..., None])[..., _FIT]
     told = _TOLD * j
     info = prior.information()
-    pull = np.zeros(_FIT.size)
-    pull[_D] = info[_D, _D] * (prior.value - float(theta[_LOAD]))
     return _Normal(a=np.einsum("ncp,ncq->pq", told, j) + info,
-                   g=np.einsum("ncp,nc->p", told, white) + pull,
+                   g=np.einsum("ncp,nc->p", told, white) + prior.pull(p),
                    scores=np.einsum("ncp,nc->np", told, white),
                    told_info=np.einsum("ncp,ncq->pq", told, told) + info, residual=residual,
                    white=white)
@@ -363,11 +412,12 @@ def fit_front(windows: FrontWindows, theta0: FloatArray, settings: Settings, *,
         [float(np.std(measured[weight[:, c] > 0, c])) if (weight[:, c] > 0).any() else 1.0
          for c in range(3)]) + 1e-12, measured.shape)
     held = np.zeros(_FIT.size, dtype=bool)
-    nuisance = np.append(prior, 0.0 if load.std > 0 else (load_std or stds[_LOAD]))
+    nuisance = np.append(prior, [0.0 if load.std > 0 else (load_std or stds[_LOAD]), 0.0])
+    p0 = np.append(theta0, 0.0)                 # no traction slip to start from
     while True:
-        theta, free, weight_f, scale_f, steps = _rounds(
-            theta0, windows, measured, (weight, scale), usable & ~held, limit, load)
-        eq = _normal(theta, windows, measured, weight_f, scale_f, load)
+        p, free, weight_f, scale_f, steps = _rounds(
+            p0, windows, measured, (weight, scale), usable & ~held, limit, load)
+        eq = _normal(p, windows, measured, weight_f, scale_f, load)
         cov = _covariance(eq, windows, free, nuisance, clusters, load)
         std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
         over = free[:_D] & ~(std[:_D] <= limit)
@@ -375,11 +425,12 @@ def fit_front(windows: FrontWindows, theta0: FloatArray, settings: Settings, *,
             break
         held[int(np.argmax(np.where(over, std[:_D] / limit, -np.inf)))] = True
     covariance = np.zeros((LAYOUT.size, LAYOUT.size))
-    covariance[np.ix_(_FIT, _FIT)] = cov
+    covariance[np.ix_(_FIT[:-1], _FIT[:-1])] = cov[:-1, :-1]     # the traction profiled out
     details = dataclasses.replace(
         details, scales=(_rms(scale_f[:, 0]), _rms(scale_f[:, 1]), _rms(scale_f[:, 2])),
-        left_out=int((weight_f[:, :2] == 0).any(axis=1).sum()), iterations=steps)
-    return FrontFit(theta=theta, covariance=covariance,
+        left_out=int((weight_f[:, :2] == 0).any(axis=1).sum()), iterations=steps,
+        traction=(float(p[_K]), float(std[-1])))
+    return FrontFit(theta=p[:_K], covariance=covariance,
                     verdicts=_verdicts(free[:_D], usable[:_D], std[:_D], limit),
                     details=details)
 
