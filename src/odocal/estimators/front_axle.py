@@ -549,7 +549,7 @@ def _covariance(eq: _Normal, windows: FrontWindows, free: BoolArray, nuisance: F
     for j in np.flatnonzero(~free & (nuisance > 0)):
         shift = -bread @ eq.a[:, j]                 # d p_free / d p_j (held)
         cov = cov + nuisance[j] ** 2 * np.outer(shift, shift)
-    return np.asarray(cov)
+    return np.asarray(0.5 * (cov + cov.T))          # symmetric to the last bit
 
 
 def _effective(eq: _Normal, bread: FloatArray, count: int, index: IntArray) -> FloatArray:
