@@ -3,6 +3,11 @@
     python benchmarks/bench_pipeline.py [--minutes 15,60,600] [--methods inverse,raw,...]
                                         [--no-first-run]
 
+``four_wheel`` among the methods is the default method with ``[vehicle] model = "four_wheel"``
+(issue 37: the rear axle's fit, then the front axle's and the steering's); the drives then carry
+a four-wheel car's front wheels and steering (:func:`odocal.sim.four_wheel.with_front_axle`),
+which the other methods leave unread.
+
 For each simulated drive (realistic noise) and method, ``odocal calibrate`` runs as a separate
 process once with the report (the wall time a user waits, and the peak memory of the process
 tree) and three times with ``--no-report``. The split by stage comes from ``timings_s`` in
@@ -47,6 +52,7 @@ from _measure import run_measured
 
 import odocal
 from odocal.estimators import METHOD_NAMES
+from odocal.sim.four_wheel import with_front_axle
 
 #: Runs without the report per drive and method (each stage's best is kept).
 RUNS = 3
@@ -58,7 +64,22 @@ TARGET_10H_S, TARGET_10H_MB = 15.0, 800.0
 TARGET_FIRST_RUN = 1.5
 STAGES = ("read", "checks", "segments", "inverse: fit", "step 1: batches", "step 2: compensation",
           "step 3: identification", "identify", "bootstrap",
-          "validation")
+          "validation", "front axle")
+#: The four-wheel model's row: the default method on the four-wheel model's settings.
+FOUR_WHEEL = "four_wheel"
+
+
+def _simulated(duration_s: float, seed: int, four_wheel: bool) -> odocal.Drive:
+    sim = odocal.simulate(duration_s=duration_s, seed=seed)
+    return (with_front_axle(sim)[0] if four_wheel else sim).drive
+
+
+def _method_args(method: str, work: Path) -> list[str]:
+    if method != FOUR_WHEEL:
+        return ["--method", method]
+    config = work / "four_wheel.toml"
+    config.write_text('[vehicle]\nmodel = "four_wheel"\n')
+    return ["--method", "inverse", "--config", str(config)]
 
 
 def main() -> None:
@@ -70,10 +91,11 @@ def main() -> None:
     exe = str(Path(sys.executable).with_name("odocal"))
     work = Path(tempfile.mkdtemp(prefix="odocal-bench-"))
     warm = work / "warm.parquet"
-    odocal.save_drive(odocal.simulate(duration_s=300, seed=99).drive, warm)
+    four = FOUR_WHEEL in args.methods.split(",")
+    odocal.save_drive(_simulated(300, 99, four), warm)
     for method in args.methods.split(","):
-        run_measured([exe, "calibrate", str(warm), "--out", str(work / "w"), "--method", method,
-                      "-q"])
+        run_measured([exe, "calibrate", str(warm), "--out", str(work / "w"),
+                      *_method_args(method, work), "-q"])
     print(f"{'drive':>8} {'method':<12} {'wall s':>7} {'peak MB':>8} {'start':>6} "
           + " ".join(f"{s.split(':')[0][:9]:>9}" for s in STAGES)
           + f" {'report':>7} {'s per h':>8} {'x default':>9}")
@@ -82,16 +104,16 @@ def main() -> None:
     verdicts: list[str] = []
     for minutes in (int(m) for m in args.minutes.split(",")):
         drive = work / f"drive{minutes}.parquet"
-        odocal.save_drive(odocal.simulate(duration_s=60.0 * minutes, seed=1).drive, drive)
+        odocal.save_drive(_simulated(60.0 * minutes, 1, four), drive)
         for method in args.methods.split(","):
             out = work / f"{method}{minutes}"
             wall, peak = run_measured([exe, "calibrate", str(drive), "--out", str(out),
-                                       "--method", method, "-q"])
+                                       *_method_args(method, work), "-q"])
             walls, stage_runs = [], []
             for attempt in range(RUNS):
                 folder = Path(f"{out}n{attempt}")
                 bare, _ = run_measured([exe, "calibrate", str(drive), "--out", str(folder),
-                                        "--method", method, "-q", "--no-report"])
+                                        *_method_args(method, work), "-q", "--no-report"])
                 walls.append(bare)
                 stage_runs.append(json.loads((folder / "calibration.json").read_text())
                                   ["timings_s"])
@@ -143,14 +165,15 @@ def first_run(exe: str, work: Path, methods: list[str]) -> None:
     """A one-hour drive with the report: on a fresh install (an empty numba cache) and warm."""
     drive = work / "drive60.parquet"
     if not drive.exists():
-        odocal.save_drive(odocal.simulate(duration_s=3600.0, seed=1).drive, drive)
+        odocal.save_drive(_simulated(3600.0, 1, FOUR_WHEEL in methods), drive)
     print("\nfirst run after a fresh install (one hour, with the report; numba cache empty)")
     for method in methods:
         env = {**os.environ, "NUMBA_CACHE_DIR": str(Path(tempfile.mkdtemp(prefix="nb-")))}
         cold, _ = run_measured([exe, "calibrate", str(drive), "--out", str(work / "cold"),
-                                "--method", method, "-q"], env=env)
+                                *_method_args(method, work), "-q"], env=env)
         warm = min(run_measured([exe, "calibrate", str(drive), "--out", str(work / "warm"),
-                                 "--method", method, "-q"], env=env)[0] for _ in range(2))
+                                 *_method_args(method, work), "-q"], env=env)[0]
+                   for _ in range(2))
         print(f"  {method:<12} first run {cold:6.2f} s, warm {warm:6.2f} s: "
               f"{cold / warm:.2f}x {'ok' if cold <= TARGET_FIRST_RUN * warm else 'MISS'} "
               f"(target {TARGET_FIRST_RUN}x)", flush=True)

@@ -162,3 +162,69 @@ def test_the_shared_nuscenes_scenes_keep_the_rear_axle_and_name_what_the_front_l
     for name in ("t_f", "L", "ratio"):
         assert not est.identified[name]
         assert est.theta.as_dict()[name] == settings.identify.theta0[FOUR_WHEEL.index(name)]
+
+
+# ros2_controllers' ackermann_steering_controller as each release declares it
+# (steering_controllers_library and ackermann_steering_controller parameter files): 2.x
+# Humble the front_/rear_ names, 4.x Jazzy both, 5.x Kilted and 6.x Rolling the traction_ and
+# steering_ names only.
+ACKERMANN_COMMON = {"type": "STRING", "wheelbase": "DOUBLE", "odom_frame_id": "STRING",
+                    "base_frame_id": "STRING", "pose_covariance_diagonal": "DOUBLE_ARRAY",
+                    "twist_covariance_diagonal": "DOUBLE_ARRAY"}
+ACKERMANN_HUMBLE = {**ACKERMANN_COMMON, "front_wheel_track": "DOUBLE",
+                    "rear_wheel_track": "DOUBLE", "front_wheels_radius": "DOUBLE",
+                    "rear_wheels_radius": "DOUBLE", "rear_wheels_names": "STRING_ARRAY",
+                    "front_wheels_names": "STRING_ARRAY"}
+ACKERMANN_KILTED = {**ACKERMANN_COMMON, "traction_track_width": "DOUBLE",
+                    "steering_track_width": "DOUBLE", "traction_wheels_radius": "DOUBLE",
+                    "traction_joints_names": "STRING_ARRAY",
+                    "steering_joints_names": "STRING_ARRAY"}
+
+
+def test_the_cars_exports_load_in_ros2_with_its_geometry(
+        four_wheel_drive: tuple[Drive, np.ndarray], tmp_path: Path) -> None:
+    """ackermann_steering_controller (each release's names), Autoware's vehicle_info with the
+    wheelbase, and odocal's own file with the ten parameters, as ROS 2 loads them; a rear-axle
+    calibration asked for the ackermann export is refused in one line."""
+    from tests.ros2.rosenv import load_declared, require_rclpy, ros_context
+
+    require_rclpy()
+    drive, _ = four_wheel_drive
+    result = odocal.calibrate(drive, settings=FOUR)
+    out = tmp_path / "out"
+    result.save(out, exports=("ackermann", "autoware", "yaml"), report=False)
+    est = result.model_estimate
+    th = est.theta
+    with ros_context() as ros:
+        for declared in (ACKERMANN_HUMBLE, {**ACKERMANN_HUMBLE, **ACKERMANN_KILTED},
+                         ACKERMANN_KILTED):
+            values = load_declared(out / "ackermann" / "ackermann_steering_controller.yaml",
+                                   "ackermann_steering_controller", declared, context=ros)
+            assert values["wheelbase"] == pytest.approx(th.L, rel=1e-12)
+            assert values["type"] == "ackermann_steering_controller/AckermannSteeringController"
+            if "rear_wheel_track" in declared:
+                assert values["rear_wheel_track"] == pytest.approx(th.t_r, rel=1e-12)
+                assert values["front_wheel_track"] == pytest.approx(th.t_f, rel=1e-12)
+                assert values["front_wheels_radius"] * 2 * np.pi == pytest.approx(th.c_f)
+                assert values["rear_wheels_radius"] * 2 * np.pi == pytest.approx(th.c_e)
+            if "traction_track_width" in declared:
+                assert values["traction_track_width"] == pytest.approx(th.t_r, rel=1e-12)
+                assert values["steering_track_width"] == pytest.approx(th.t_f, rel=1e-12)
+                assert values["traction_wheels_radius"] * 2 * np.pi == pytest.approx(th.c_e)
+        info = load_declared(out / "autoware" / "vehicle_info.param.yaml", "vehicle_info",
+                             {"wheel_radius": "DOUBLE", "wheel_tread": "DOUBLE",
+                              "wheel_base": "DOUBLE"}, context=ros)
+        assert info["wheel_base"] == pytest.approx(th.L, rel=1e-12)
+        assert info["wheel_tread"] == pytest.approx(th.t_r, rel=1e-12)
+        own = load_declared(out / "odometry_parameters.yaml", "wheel_odometry",
+                            {"wheelbase": "DOUBLE", "steering_ratio": "DOUBLE",
+                             "steering_offset": "DOUBLE", "front_track_width": "DOUBLE",
+                             "parameter_names": "STRING_ARRAY", "covariance": "DOUBLE_ARRAY",
+                             "std": "DOUBLE_ARRAY"}, context=ros)
+    assert own["steering_ratio"] == pytest.approx(th.ratio, rel=1e-12)
+    assert list(own["parameter_names"]) == list(FOUR_WHEEL.names)
+    np.testing.assert_allclose(own["covariance"], est.covariance.ravel(), rtol=1e-12)
+    np.testing.assert_allclose(own["std"], np.asarray(est.std), rtol=1e-12)
+    rear = odocal.calibrate(drive)
+    with pytest.raises(ConfigError, match="the ackermann export needs a car's wheelbase"):
+        rear.save(tmp_path / "rear", exports=("ackermann",), report=False)

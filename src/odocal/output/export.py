@@ -23,6 +23,15 @@ and the releases of the receiving node it is written for.
     and the pose and twist covariance diagonals (ros2_controllers 2.x Humble to 6.x Rolling).
     Without stated datasheet values the calibrated values go into ``wheel_separation`` and
     ``wheel_radius`` and the multipliers carry only the left/right difference.
+``ackermann`` (the four-wheel model: ``[vehicle] model = "four_wheel"``)
+    ``ackermann/ackermann_steering_controller.yaml``: ros2_controllers'
+    ``ackermann_steering_controller`` with the car's geometry: ``wheelbase``, the tracks and
+    wheel radii under both releases' names (Humble's ``front_wheel_track``,
+    ``rear_wheel_track``, ``front_wheels_radius``, ``rear_wheels_radius``, deprecated in Jazzy;
+    Jazzy's and later ``traction_track_width``, ``steering_track_width``,
+    ``traction_wheels_radius``: a release reads the names it declares), and the twist
+    covariance. The steering's ratio and offset have no key there (the controller commands
+    road-wheel angles): they are in ``--export yaml``.
 ``robot_localization``
     ``robot_localization/ekf_odometry.yaml``: the wheel-odometry input of an ``ekf_node``
     (``odom0`` fusing forward speed and yaw rate, ``two_d_mode``; robot_localization 3.5 Humble,
@@ -53,13 +62,16 @@ import yaml
 from odocal._version import __version__
 from odocal.errors import ConfigError
 from odocal.io.atomic import write_text
-from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS, PARAMETERS, Parameters
+from odocal.model.four_wheel import FOUR_WHEEL_MODEL
+from odocal.model.parameters import Parameters
 from odocal.model.vehicle import MODEL
 from odocal.pipeline.odometry import OdometryNoise
 from odocal.redaction import redact_text
 from odocal.settings import datasheet_stated
 
 TARGETS = ("autoware", "ros2_control", "robot_localization")
+#: The targets of a model with a wheelbase and a steering (the four-wheel car) besides.
+CAR_TARGETS = ("ackermann",)
 #: Autoware's vehicle_velocity_converter defaults (used where no noise was measured).
 AUTOWARE_VELOCITY_STD, AUTOWARE_YAW_RATE_STD = 0.2, 0.1
 
@@ -71,6 +83,7 @@ RELEASES = {
                     "spawner reads 'type' from --param-file from controller_manager 2.46.0 "
                     "(Humble) and 4.21.0 (Jazzy) on",
     "robot_localization": "robot_localization 3.5 (Humble) and 3.6 (Jazzy and later)",
+    "ackermann": "ros2_controllers ackermann_steering_controller 2.x (Humble) to 6.x (Rolling)",
     "yaml": "any ROS 2 node that declares these parameters (odocal's own schema)",
 }
 
@@ -92,7 +105,7 @@ class Calibrated:
     whose wheels are speeds in m/s, such as comma2k19): the speed scale factor is relative to
     it."""
     covariance: tuple[tuple[float, ...], ...] | None = None
-    """The 4x4 covariance of theta (``--export yaml``), order c_e, c_d, t_r, d."""
+    """The covariance of theta (``--export yaml``), in theta's order."""
 
     @property
     def datasheet_stated(self) -> bool:
@@ -128,7 +141,7 @@ def _header(c: Calibrated, what: str, release: str) -> list[str]:
              f"for: {RELEASES[release]}"]
     if c.source:
         lines.append(f"from: {redact_text(c.source)}")
-    missing = [n for n, ok in zip(PARAMETER_NAMES, c.identified, strict=True) if not ok]
+    missing = [n for n, ok in zip(c.theta.layout.names, c.identified, strict=True) if not ok]
     if missing:
         lines.append(f"not identified by the data (datasheet values kept): {', '.join(missing)}")
     if not c.datasheet_stated:
@@ -150,9 +163,11 @@ def autoware(c: Calibrated, out: Path) -> list[Path]:
         [*_header(c, "Autoware vehicle_info: the keys wheel-odometry calibration sets",
                   "autoware_info"),
          "Merge into the vehicle's vehicle_info.param.yaml (its other keys stay).",
-         "wheel_radius: c_e / 2 pi (m); wheel_tread: the rear track width t_r (m)"],
+         "wheel_radius: c_e / 2 pi (m); wheel_tread: the rear track width t_r (m)",
+         *(["wheel_base: the wheelbase L (m)"] if "L" in th.layout.names else [])],
         "/**", {"wheel_radius": _float(th.c_e / (2.0 * math.pi)),
-                "wheel_tread": _float(th.t_r)})
+                "wheel_tread": _float(th.t_r),
+                **({"wheel_base": _float(th.L)} if "L" in th.layout.names else {})})
     v_std, w_std, note = _noise(c)
     if c.speed_circumference_m is not None:
         scale = th.c_e / c.speed_circumference_m
@@ -225,6 +240,46 @@ def ros2_control(c: Calibrated, out: Path) -> list[Path]:
     return [path]
 
 
+def ackermann(c: Calibrated, out: Path) -> list[Path]:
+    """``ackermann_steering_controller.yaml``: the car's geometry for ros2_controllers'
+    ackermann_steering_controller (rear traction wheels, steered front ones), under the names
+    of every release (each declares its own; the others are left unread)."""
+    th = c.theta
+    if "L" not in th.layout.names:
+        raise ConfigError("the ackermann export needs a car's wheelbase and steering: calibrate "
+                          "with [vehicle] model = \"four_wheel\"")
+    g = FOUR_WHEEL_MODEL.geometry(th.as_array())
+    v_std, w_std, note = _noise(c)
+    header = [*_header(c, "ros2_controllers ackermann_steering_controller", "ackermann"),
+              "wheelbase, tracks and radii: the calibrated car (each axle's mean wheel); "
+              "Humble reads front_/rear_ names, Jazzy and later traction_/steering_ ones.",
+              "The top key is the controller's name in your controller_manager configuration.",
+              f"twist_covariance_diagonal: vx and vyaw variances {note}",
+              "FILL IN rear_wheels_names/front_wheels_names (Humble), traction_joints_names/"
+              "steering_joints_names (Jazzy and later): your robot description's joints"]
+    params = {
+        "type": "ackermann_steering_controller/AckermannSteeringController",
+        "wheelbase": _float(g["wheelbase"]),
+        "front_wheel_track": _float(g["front_wheel_track"]),
+        "rear_wheel_track": _float(g["rear_wheel_track"]),
+        "front_wheels_radius": _float(g["front_wheels_radius"]),
+        "rear_wheels_radius": _float(g["rear_wheels_radius"]),
+        "traction_track_width": _float(g["rear_wheel_track"]),
+        "steering_track_width": _float(g["front_wheel_track"]),
+        "traction_wheels_radius": _float(g["rear_wheels_radius"]),
+        "rear_wheels_names": ["rear_left_wheel_joint", "rear_right_wheel_joint"],
+        "front_wheels_names": ["front_left_steering_joint", "front_right_steering_joint"],
+        "traction_joints_names": ["rear_left_wheel_joint", "rear_right_wheel_joint"],
+        "steering_joints_names": ["front_left_steering_joint", "front_right_steering_joint"],
+        "odom_frame_id": "odom", "base_frame_id": "base_link",
+        "pose_covariance_diagonal": [0.001, 0.001, 1.0e6, 1.0e6, 1.0e6, 1000.0],
+        "twist_covariance_diagonal": [_float(v_std**2), 0.001, 1.0e6, 1.0e6, 1.0e6,
+                                      _float(w_std**2)]}
+    path = out / "ackermann_steering_controller.yaml"
+    write_text(path, parameter_file(header, "ackermann_steering_controller", params))
+    return [path]
+
+
 def robot_localization(c: Calibrated, out: Path) -> list[Path]:
     v_std, w_std, note = _noise(c)
     flags = [False] * 15
@@ -245,15 +300,16 @@ def parameters_yaml(c: Calibrated, path: Path) -> Path:
     """``odometry_parameters.yaml`` (``--export yaml``): theta, the derived wheel radius, which
     parameters the drive identified and their covariance, as a ROS 2 parameter file."""
     th = c.theta
-    cov = (np.zeros((PARAMETERS, PARAMETERS)) if c.covariance is None
+    names, units = th.layout.names, th.layout.units
+    n = len(names)
+    cov = (np.zeros((n, n)) if c.covariance is None
            else np.asarray(c.covariance, dtype=float))
     header = [*_header(c, "Wheel-odometry parameters", "yaml"),
               "Parameters a drive did not identify keep their datasheet values (identified: "
               "false).",
-              "Units: " + ", ".join(f"{n} {u}" for n, u in
-                                    zip(PARAMETER_NAMES, PARAMETER_UNITS, strict=True))
+              "Units: " + ", ".join(f"{n} {u}" for n, u in zip(names, units, strict=True))
               + "; wheel_radius = c_e / (2 pi), m; c_d is left minus right.",
-              "covariance: row-major 4x4 in the order of parameter_names, SI units"]
+              f"covariance: row-major {n}x{n} in the order of parameter_names, SI units"]
     speed: dict[str, Any] = {}
     if c.speed_circumference_m is not None:
         # the wheels were speeds turned into rates with an assumed circumference: c_e is that
@@ -270,7 +326,12 @@ def parameters_yaml(c: Calibrated, path: Path) -> Path:
               "circumference_difference": _float(th.c_d),
               "rear_track_width": _float(th.t_r),
               "load_transfer_coefficient": _float(th.d),
-              "parameter_names": list(PARAMETER_NAMES),
+              **({"front_wheel_circumference": _float(th.c_f),
+                  "front_circumference_difference": _float(th.c_fd),
+                  "front_track_width": _float(th.t_f), "wheelbase": _float(th.L),
+                  "steering_ratio": _float(th.ratio), "steering_offset": _float(th.s_0)}
+                 if "L" in names else {}),
+              "parameter_names": list(names),
               "identified": [bool(ok) for ok in c.identified],
               "std": [_float(s) for s in c.std],
               "covariance": [_float(v) for v in cov.ravel()], **speed}
@@ -279,7 +340,7 @@ def parameters_yaml(c: Calibrated, path: Path) -> Path:
 
 
 _WRITERS = {"autoware": autoware, "ros2_control": ros2_control,
-            "robot_localization": robot_localization}
+            "robot_localization": robot_localization, "ackermann": ackermann}
 
 
 def export(c: Calibrated, out: str | Path, targets: Sequence[str] = TARGETS) -> list[Path]:
@@ -288,7 +349,7 @@ def export(c: Calibrated, out: str | Path, targets: Sequence[str] = TARGETS) -> 
     for target in targets:
         if target not in _WRITERS:
             raise ConfigError(f"unknown export target {target!r}; choose from "
-                              f"{', '.join(TARGETS)}")
+                              f"{', '.join((*TARGETS, *CAR_TARGETS))}")
         folder = Path(out) / target
         folder.mkdir(parents=True, exist_ok=True)
         written += _WRITERS[target](c, folder)

@@ -15,12 +15,12 @@ import numpy as np
 from odocal._version import __version__
 from odocal.errors import OutputError
 from odocal.io.json_files import write_json
-from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS
 from odocal.pipeline.result import CalibrationResult
 
 CALIBRATION_FILE = "calibration.json"
 #: What ``--export`` may name: parameter files (yaml, json), the stacks' files, trajectories.
-EXPORT_TARGETS = ("yaml", "json", "autoware", "ros2_control", "robot_localization", "tum")
+EXPORT_TARGETS = ("yaml", "json", "autoware", "ros2_control", "robot_localization", "ackermann",
+                  "tum")
 
 
 @dataclass(frozen=True)
@@ -128,18 +128,19 @@ def write_calibration(result: CalibrationResult, out_dir: str | Path, *,
 def export_parameters(result: CalibrationResult, out_dir: str | Path, fmt: str) -> Path:
     """The parameters for a localisation stack: ``yaml`` (a ROS 2 parameter file) or ``json``.
 
-    Both carry theta, its covariance (order c_e, c_d, t_r, d; SI units) and which parameters the
-    drive identified; the YAML adds the derived wheel radius.
+    Both carry theta (the chosen model's: ``[vehicle] model``), its covariance (theta's order;
+    SI units) and which parameters the drive identified; the YAML adds the derived wheel radius.
     """
-    est = result.estimate
+    est = result.model_estimate
     theta = est.theta.as_dict()
     cov = est.covariance
+    names, units = est.theta.layout.names, est.theta.layout.units
     if fmt == "json":
         return write_json(Path(out_dir) / "odometry_parameters.json", {
-            "theta": theta, "covariance": cov.tolist(),
-            "std": dict(zip(PARAMETER_NAMES, est.std.tolist(), strict=True)),
-            "identified": dict(zip(PARAMETER_NAMES, est.identified, strict=True)),
-            "units": dict(zip(PARAMETER_NAMES, PARAMETER_UNITS, strict=True)),
+            "model": est.model, "theta": theta, "covariance": cov.tolist(),
+            "std": dict(zip(names, est.std.tolist(), strict=True)),
+            "identified": dict(zip(names, est.identified, strict=True)),
+            "units": dict(zip(names, units, strict=True)),
             "speed_scale": (result.speed_scale.to_dict() if result.speed_scale is not None
                             else None),
             "method": result.method, "odocal_version": __version__})
@@ -165,7 +166,7 @@ def _calibrated(result: CalibrationResult, *,
     from odocal.output.export import Calibrated
     from odocal.pipeline.result import speed_signal
 
-    est = result.estimate
+    est = result.model_estimate
     # logs whose wheels were speeds (m/s, km/h) were turned into rates with one circumference:
     # the vehicle's reported speed relates to it (the speed scale factor is relative to it)
     signal = speed_signal(result.drive_data)
