@@ -25,6 +25,13 @@ fit that bends c_d to follow it wins the first judge over 16 s windows and loses
 Printed: the held-out E_p table (m), each method's sum, and the default's ratio to the best of
 ``raw`` and the plain fit, in total and per log (the goal: within 1.10x in total and 1.25x on
 every log). Also what each method identified on each fold.
+
+``--four-wheel`` (issue 37) instead calibrates each fold with ``[vehicle] model =
+"four_wheel"`` and judges the held-out log twice with the same calibration: dead reckoning on
+the rear wheels alone (the rear-axle model's odometry: its rear axle is that model's fit) and
+on all four (:meth:`odocal.model.four_wheel.FourWheelModel.body_rates`: the mean of the rear
+axle's and the front axle's speed and yaw rate), with each fold's wheelbase, front track and
+steering ratio against the cars' datasheets (Renault Zoe 2.588 m, Toyota RAV4 XA40 2.660 m).
 """
 
 from __future__ import annotations
@@ -44,6 +51,8 @@ from odocal.data.segments import gather, gather_ragged, identification_segments
 from odocal.estimators.gauss_newton import gauss_newton
 from odocal.estimators.validation import segment_errors
 from odocal.estimators.windows import drives_heading_offset
+from odocal.model.four_wheel import FOUR_WHEEL_MODEL
+from odocal.model.vehicle import MODEL
 from odocal.preprocess.convert import convert
 from odocal.settings import SegmentSettings, Settings
 
@@ -164,6 +173,67 @@ def report(table: Table, methods: Sequence[str], windows: Sequence[int]) -> None
                   + f"{sums[methods[0]] / rival:>15.2f}x")
 
 
+#: The cars' datasheet wheelbases (m): the nuScenes Renault Zoe, comma2k19's Toyota RAV4 XA40.
+WHEELBASE = {"Singapore nuScenes car": 2.588, "Boston nuScenes car": 2.588,
+             "comma2k19 RAV4, 20 s blocks": 2.660}
+FOUR_WHEEL_SETTINGS = SETTINGS.replace(vehicle={"model": "four_wheel"})
+
+
+def on_four_wheels(drive: Drive, theta: np.ndarray, std: np.ndarray) -> Drive:
+    """``drive`` with its rear wheels' rates replaced by those that dead-reckon, through the
+    rear axle of ``theta``, the speed and yaw rate all four wheels give (weighted by ``std``:
+    :meth:`~odocal.model.four_wheel.FourWheelModel.body_rates`), so that the rear-axle judges
+    roll out the four-wheel odometry unchanged."""
+    rates = np.column_stack([drive.inputs["n_fl"], drive.inputs["n_fr"], drive.n_rl,
+                             drive.n_rr])
+    v, w = FOUR_WHEEL_MODEL.body_rates(theta, rates, drive.a_y, std=std)
+    virtual = MODEL.wheel_rates(FOUR_WHEEL_MODEL.rear_axle(theta), v, w, drive.a_y)
+    return dataclasses.replace(drive, n_rl=virtual[:, 0], n_rr=virtual[:, 1])
+
+
+def four_wheel_leave_one_out(car: str, logs: Sequence[Drive], windows: Sequence[int]) -> None:
+    """Each log held out in turn: the four-wheel calibration of the others, judged on the
+    rear wheels alone and on all four; what each fold identifies of the car's geometry."""
+    judged = [(w, c) for c in (False, True) for w in windows]
+    sums = {k: {j: 0.0 for j in judged} for k in ("rear", "four")}
+    for held in logs:
+        train = [d for d in logs if d is not held]
+        result = odocal.calibrate(train, settings=FOUR_WHEEL_SETTINGS)
+        est = result.model_estimate
+        theta = est.theta.as_array()
+        # a parameter the fold did not identify leaves its axle's part out
+        std = np.where(est.identified, np.asarray(est.std), np.inf)
+        four = on_four_wheels(held, theta, std)
+        row = {"rear": {j: held_out_error(held, theta[:4], j[0], corrected=j[1])
+                        for j in judged},
+               "four": {j: held_out_error(four, theta[:4], j[0], corrected=j[1])
+                        for j in judged}}
+        geometry = "; ".join(
+            f"{n} {est.theta.as_dict()[n]:.4g} +-{float(est.std[n]):.2g}"
+            if est.identified[n] else f"{n} -" for n in ("t_f", "L", "ratio"))
+        cells = "  ".join(f"{w}{'c' if c else ''}: {row['rear'][(w, c)] or float('nan'):.3f} "
+                          f"-> {row['four'][(w, c)] or float('nan'):.3f}" for w, c in judged)
+        print(f"  held out {held.name} [{est.status.name.lower()}]: {geometry}\n    E_p rear "
+              f"-> four wheels (m): {cells}", flush=True)
+        for k in sums:
+            for j in judged:
+                sums[k][j] += row[k][j] or 0.0
+    print(f"  {car}: sums, rear wheels -> four wheels (m; c: the heading offset taken out): "
+          + "  ".join(f"{w}{'c' if c else ''} {sums['rear'][(w, c)]:.3f} -> "
+                      f"{sums['four'][(w, c)]:.3f}" for w, c in judged), flush=True)
+    whole = odocal.calibrate(list(logs), settings=FOUR_WHEEL_SETTINGS).model_estimate
+    wheelbase = WHEELBASE[car]
+    if whole.identified["L"]:
+        z = (whole.theta.L - wheelbase) / float(whole.std["L"])
+        said = f"L {whole.theta.L:.3f} +-{float(whole.std['L']):.3f} m, z = {z:+.2f}"
+    else:
+        said = "L not identified"
+    print(f"  {car}, every log together: {said} against the datasheet's {wheelbase} m; "
+          + "; ".join(f"{n} {whole.theta.as_dict()[n]:.4g} +-{float(whole.std[n]):.2g}"
+                      if whole.identified[n] else f"{n} -"
+                      for n in ("c_f", "c_fd", "t_f", "ratio", "s_0")), flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     default = Path(os.environ.get("ODOCAL_SHARED_DATA",
@@ -171,6 +241,8 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=default)
     parser.add_argument("--methods", default="inverse,raw,compensated")
     parser.add_argument("--windows", default="650,400,200")
+    parser.add_argument("--four-wheel", action="store_true",
+                        help="the four-wheel model: rear wheels against all four, held out")
     args = parser.parse_args()
     methods = args.methods.split(",")
     windows = [int(w) for w in args.windows.split(",")]
@@ -184,8 +256,12 @@ def main() -> None:
                       ("Boston nuScenes car", [scenes[s] for s in BOSTON]),
                       ("comma2k19 RAV4, 20 s blocks", blocks(comma, 20.0))):
         print(f"== {car}: {len(logs)} logs", flush=True)
+        if args.four_wheel:
+            four_wheel_leave_one_out(car, logs, windows)
+            continue
         table.update(leave_one_out(logs, methods, windows))
-    report(table, methods, windows)
+    if not args.four_wheel:
+        report(table, methods, windows)
 
 
 if __name__ == "__main__":

@@ -228,3 +228,34 @@ def test_the_cars_exports_load_in_ros2_with_its_geometry(
     rear = odocal.calibrate(drive)
     with pytest.raises(ConfigError, match="the ackermann export needs a car's wheelbase"):
         rear.save(tmp_path / "rear", exports=("ackermann",), report=False)
+
+
+def test_four_wheels_give_the_motion_they_were_made_from_and_leave_out_an_unknown_axle() -> None:
+    """The front axle's speed and yaw rate invert inverse_step exactly (forwards, backwards,
+    in bends); weighted by the parameters' stds, an axle whose scale is unknown adds nothing."""
+    from odocal.model.four_wheel import FOUR_WHEEL_MODEL, inverse_step
+    from odocal.model.vehicle import MODEL
+
+    theta = np.array([1.95, -0.002, 1.52, 0.0008, 1.947, 0.0024, 1.55, 2.7, 15.2, 0.012])
+    rng = np.random.default_rng(7)
+    v = rng.uniform(-3.0, 20.0, 2000)
+    w = rng.uniform(-0.5, 0.5, 2000) * np.minimum(1.0, np.abs(v) / 3.0)
+    t_s = 0.01
+    revs, _ = inverse_step(theta, v * t_s, w * t_s, v * w)
+    rates = revs / t_s
+    v_f, w_f = FOUR_WHEEL_MODEL.front_body_rates(theta, rates[:, :2], v * w)
+    np.testing.assert_allclose(v_f, v, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(w_f, w, rtol=0, atol=1e-12)
+    # the front wheels 1% fast: an unknown front scale leaves the rear's speed, a known one
+    # as sure as the rear's gives the mean
+    fast = rates * np.array([1.01, 1.01, 1.0, 1.0])
+    v_r, w_r = MODEL.body_rates(theta[:4], rates[:, 2:], v * w)
+    std = np.full(10, 1e-3)
+    std[[4, 6]] = np.inf
+    v_u, w_u = FOUR_WHEEL_MODEL.body_rates(theta, fast, v * w, std=std)
+    np.testing.assert_allclose(v_u, v_r, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(w_u, w_r, rtol=1e-12, atol=1e-12)
+    same = theta * 1e-4
+    v_m, _ = FOUR_WHEEL_MODEL.body_rates(theta, fast, v * w, std=same)
+    np.testing.assert_allclose(v_m, 0.5 * (v_r + FOUR_WHEEL_MODEL.front_body_rates(
+        theta, fast[:, :2], v * w)[0]), rtol=1e-12, atol=1e-12)

@@ -206,7 +206,7 @@ def _substep(k: int, t_s: float) -> int:
 
 def _summed(steps: FloatArray, m: int) -> FloatArray:
     """(N, k) steps summed over sub-steps of ``m``: (N, k / m)."""
-    return np.asarray(steps.reshape(steps.shape[0], -1, m).sum(axis=2))
+    return np.asarray(steps.reshape(steps.shape[0], steps.shape[1] // m, m).sum(axis=2))
 
 
 @dataclass(frozen=True)

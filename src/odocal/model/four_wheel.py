@@ -168,6 +168,60 @@ class FourWheelModel:
                                             th[_E] + 0.5 * th[_D] + load,
                                             th[_E] - 0.5 * th[_D] - load), axis=-1)
 
+    def front_body_rates(self, theta: FloatArray, rates: FloatArray,
+                         a_y: FloatArray | float) -> tuple[FloatArray, FloatArray]:
+        """The body's speed (m/s) and yaw rate (rad/s) at the rear axle from the front wheels'
+        rates alone (..., 2: fl, fr; rev/s), the front half of :func:`inverse_step` solved
+        exactly: with the contact points' speeds ``s_l, s_r`` (rates times circumferences),
+        ``s_r^2 - s_l^2 = 2 t_f v w`` and ``(s_l^2 + s_r^2) / 2 = v^2 + (t_f^2 / 4 + L^2) w^2``,
+        so ``v^2`` is the larger root of ``v^4 - Q v^2 + a P^2 = 0`` and ``w = P / v`` (no
+        steering angle needed). Signed by the wheels' direction; where noise leaves no real
+        root, ``v^2 = Q / 2``."""
+        th = np.asarray(theta, dtype=np.float64)
+        r = np.asarray(rates, dtype=np.float64)
+        c = self.circumferences(th, a_y)
+        s_l, s_r = r[..., 0] * c[..., 0], r[..., 1] * c[..., 1]
+        sign = np.where(s_l + s_r < 0.0, -1.0, 1.0)
+        p = (s_r * np.abs(s_r) - s_l * np.abs(s_l)) / (2.0 * th[_TF]) * sign
+        q = 0.5 * (s_l * s_l + s_r * s_r)
+        a = 0.25 * th[_TF] ** 2 + th[_L] ** 2
+        v2 = 0.5 * (q + np.sqrt(np.clip(q * q - 4.0 * a * p * p, 0.0, None)))
+        v = sign * np.sqrt(v2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            w = np.where(v2 > 0.0, p / v, 0.0)
+        return v, w
+
+    def body_rates(self, theta: FloatArray, rates: FloatArray, a_y: FloatArray | float, *,
+                   std: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
+        """The body's speed and yaw rate from all four wheels (..., 4: fl, fr, rl, rr): the
+        rear axle's (2a)-(2b) and the front axle's :meth:`front_body_rates`, two measurements
+        of one motion, averaged. ``std`` (theta's standard deviations; a parameter the drives
+        did not identify at its datasheet uncertainty) weights them by how well each axle's
+        scale is known: the speeds by the inverse of their circumference's relative variance
+        (``c_e``, ``c_f``), the yaw rates by that of their track's (``t_r``, ``t_f``). An
+        infinite std (a parameter the drives did not identify) leaves that axle's part out
+        (the rear's where neither is known: the rear-axle model's odometry), so that an axle
+        whose geometry the calibration did not tell adds nothing it would spoil. Without
+        ``std``, the plain mean."""
+        r = np.asarray(rates, dtype=np.float64)
+        v_f, w_f = self.front_body_rates(theta, r[..., :2], a_y)
+        v_r, w_r = self.rear.body_rates(self.rear_axle(theta), r[..., 2:], a_y)
+        if std is None:
+            return 0.5 * (v_f + v_r), 0.5 * (w_f + w_r)
+        th, sd = np.asarray(theta, dtype=np.float64), np.asarray(std, dtype=np.float64)
+
+        def share(front: int, rear: int) -> float:
+            """The front axle's weight: its relative variance against the rear's."""
+            var_f, var_r = (sd[front] / th[front]) ** 2, (sd[rear] / th[rear]) ** 2
+            if not np.isfinite(var_f):
+                return 0.0
+            if not np.isfinite(var_r):
+                return 1.0
+            return float(var_r / (var_f + var_r)) if var_f + var_r > 0 else 0.5
+
+        k_v, k_w = share(_F, _E), share(_TF, _T)
+        return k_v * v_f + (1.0 - k_v) * v_r, k_w * w_f + (1.0 - k_w) * w_r
+
     def geometry(self, theta: FloatArray) -> dict[str, float]:
         """What a car-like exporter needs (ros2_controllers' steering controllers, Autoware's
         vehicle_info), from theta: ``wheelbase``, ``front_wheel_track``, ``rear_wheel_track``,
