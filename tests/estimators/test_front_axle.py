@@ -19,6 +19,7 @@ from odocal.errors import ConfigError, DataError
 from odocal.estimators.estimate import Status
 from odocal.model.layout import FOUR_WHEEL, REAR_AXLE
 from odocal.preprocess.convert import convert
+from odocal.report.summary import summary_lines
 from odocal.settings import Settings, settings_from_dict
 from odocal.sim.four_wheel import with_front_axle
 
@@ -73,9 +74,14 @@ def test_calibration_json_names_the_model_and_its_ten_parameters(
         four_wheel_drive: tuple[Drive, np.ndarray], tmp_path: Path) -> None:
     drive, _ = four_wheel_drive
     result = odocal.calibrate(drive, settings=FOUR)
-    result.save(tmp_path / "out", report=False)
+    result.save(tmp_path / "out")
     data = json.loads((tmp_path / "out" / "calibration.json").read_text())
     assert data["model"] == "four_wheel"
+    # the report: the whole car's table, and a sentence on each front parameter
+    page = (tmp_path / "out" / "report.html").read_text()
+    assert "<table id='car'>" in page and "<b>L</b> wheelbase" in page
+    advice = {a["name"]: a for a in data["report"]["identifiability"]}
+    assert advice["L"]["identified"] and "wheelbase is identified to +-" in advice["L"]["text"]
     assert list(data["theta"]) == list(FOUR_WHEEL.names)
     assert np.array(data["covariance"]).shape == (10, 10)
     assert data["settings"]["vehicle"]["model"] == "four_wheel"
@@ -161,7 +167,14 @@ def test_the_shared_nuscenes_scenes_keep_the_rear_axle_and_name_what_the_front_l
     assert est.theta.c_f == pytest.approx(est.theta.c_e, rel=0.01)
     for name in ("t_f", "L", "ratio"):
         assert not est.identified[name]
-        assert est.theta.as_dict()[name] == settings.identify.theta0[FOUR_WHEEL.index(name)]
+    # held at the datasheet's: the wheelbase and ratio as the settings state them, the front
+    # track (left at its placeholder) as the rear's stated one
+    assert est.theta.L == 2.7 and est.theta.ratio == 15.0
+    assert est.theta.t_f == 1.51 and est.datasheet.c_f == 1.95
+    # the report names what the front lacks, in words, and shows the whole car's table
+    lines = "\n".join(summary_lines(result))
+    assert "the four_wheel model" in lines
+    assert "wheelbase is not identified by these drives: it needs tight bends" in lines
 
 
 # ros2_controllers' ackermann_steering_controller as each release declares it

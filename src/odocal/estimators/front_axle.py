@@ -626,11 +626,19 @@ def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Setti
     """The four-wheel model's estimate from the rear axle's (the default method's, on
     ``drives``): the front axle and the steering fitted on the motion it settled (its lag and
     heading offset, the ``departures`` it fitted taken out) and joined with it
-    (:func:`joined`). ``settings``: the four-wheel model's. Where the rear fit ended without an
+    (:func:`joined`). ``settings``: the four-wheel model's. The front axle's datasheet
+    circumference and track are the rear's (as stated, ``--datasheet``) where the settings
+    leave them at their placeholders: a car's tyres and tracks are alike front and rear, and
+    their datasheet uncertainty covers the difference. Where the rear fit ended without an
     estimate, nothing of the front is fitted either (its verdicts say why)."""
     datasheet_values = np.array(settings.identify.theta0, dtype=np.float64)
     rear_size = FOUR_WHEEL_MODEL.rear.layout.size
     datasheet_values[:rear_size] = rear.datasheet.as_array()
+    # the front tyres and track as the rear's where the settings state none of their own
+    for front, rear_name in (("c_f", LAYOUT.scale), ("t_f", LAYOUT.track)):
+        k = LAYOUT.index(front)
+        if datasheet_values[k] == LAYOUT.placeholder[k]:
+            datasheet_values[k] = datasheet_values[LAYOUT.index(rear_name)]
     datasheet = Parameters.from_array(datasheet_values, layout=LAYOUT)
     limit = settings.identify.identifiable_ratio * np.asarray(settings.identify.prior_std)
     details = rear.details

@@ -193,6 +193,46 @@ def reason_text(name: str, verdict: NotIdentified, *, threshold_radps: float) ->
     return "held at the datasheet value"
 
 
+#: Why each front parameter of the four-wheel car needs what it needs, in plain words.
+_FRONT_NEEDS = {
+    "c_f": "distance on the front wheels",
+    "c_fd": "bends on the front wheels (their difference turns with the yaw)",
+    "t_f": ("bends: the front wheels' difference tells their track only while turning, and "
+            "in bends it moves with the wheelbase and the load transfer alike"),
+    "L": ("tight bends: the wheelbase shows only in the front wheels' longer path around a "
+          "bend (a share of about (L x curvature)^2 / 2 of it), a few millimetres a turn"),
+    "ratio": ("a known wheelbase: at the small angles of most driving the steering-wheel "
+              "angle says ratio x L only, so the ratio is told from the wheelbase"),
+    "s_0": "driving with the steering angle logged (its offset is its mean on straights)",
+}
+
+
+def front_advice(vehicle: Estimate) -> list[ParameterAdvice]:
+    """One sentence per parameter the four-wheel car adds to the rear axle (its front axle and
+    its steering): identified to what, or what the drives lack for it, in plain words."""
+    layout = vehicle.theta.layout
+    out = []
+    for name in _FRONT_NEEDS:
+        j = layout.index(name)
+        label = layout.labels[j]
+        verdict = vehicle.verdicts[j]
+        if isinstance(verdict, Identified):
+            text = (f"{label} is identified to +-{format_value(name, verdict.std)} (the limit "
+                    f"for calling it identified is +-{format_value(name, verdict.limit)}).")
+        elif verdict.reason is Reason.NO_INFORMATION and name in ("ratio", "s_0"):
+            text = (f"{label} is not identified: the drives carry no steering-wheel angle "
+                    "(map a steering column, or a bag's steering joint); its datasheet value "
+                    "is kept.")
+        elif verdict.reason in (Reason.FAILED, Reason.REJECTED, Reason.STANDSTILL):
+            text = f"{label} is not calibrated: {reason_text(name, verdict, threshold_radps=0)}."
+        else:
+            text = (f"{label} is not identified by these drives: it needs "
+                    f"{_FRONT_NEEDS[name]}. Its datasheet value is kept, and its datasheet "
+                    "uncertainty is carried into the parameters identified beside it.")
+        out.append(ParameterAdvice(name, label, isinstance(verdict, Identified), text))
+    return out
+
+
 #: Parameters whose zero means "no such effect" (the layout's wheel difference and load
 #: transfer: c_d, d), and the effect.
 ZERO_MEANS = {LAYOUT.difference: "difference between the two wheels' circumferences",

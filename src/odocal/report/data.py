@@ -23,6 +23,7 @@ from odocal.report.advice import (
     advise,
     consistent_with_zero,
     coverage,
+    front_advice,
 )
 
 if TYPE_CHECKING:
@@ -307,7 +308,9 @@ def build(result: CalibrationResult) -> ReportData:
     threshold = settings.segments.yaw_rate_threshold_radps
     return ReportData(
         verdict=line, verdict_level=level,
-        advice=advise(result.estimate, cov, settings, settings.segments.length * t_s),
+        advice=[*advise(result.estimate, cov, settings, settings.segments.length * t_s),
+                *(front_advice(result.vehicle_estimate)
+                  if result.vehicle_estimate is not None else [])],
         coverage={**cov.to_dict(),
                   "fitted": fitted.to_dict(threshold) if fitted is not None else None},
         speed_hist=(speed_hist[0] * t_s, speed_hist[1]), yaw_hist=(yaw_hist[0] * t_s, yaw_edges),

@@ -473,7 +473,30 @@ def _result_table(result: CalibrationResult) -> str:
 {''.join(rows)}</table>
 <p class="meta">Covariance: {e(result.estimate.covariance_kind.value)}.
 {e(boot.message[:1].upper() + boot.message[1:]) + '.' if boot is not None
- else 'No bootstrap.'}</p>"""
+ else 'No bootstrap.'}</p>{_car_table(result)}"""
+
+
+def _car_table(result: CalibrationResult) -> str:
+    """The four-wheel car's table (its rear axle joined with the front axle and the steering)
+    where ``[vehicle] model`` chose it; nothing for the rear axle."""
+    vehicle = result.vehicle_estimate
+    if vehicle is None or vehicle.status is Status.REJECTED:
+        return ""
+    e = html.escape
+    layout = vehicle.theta.layout
+    theta, sheet, std = vehicle.theta.as_array(), vehicle.datasheet.as_array(), vehicle.std
+    rows = []
+    for j, name in enumerate(layout.names):
+        ok = bool(vehicle.identified[j])
+        rows.append(f"<tr><td><b>{name}</b> {e(layout.labels[j])}</td>"
+                    f"<td>{_fmt(name, float(sheet[j]))}</td>"
+                    f"<td>{_fmt(name, float(theta[j])) if ok else 'not identified'}</td>"
+                    f"<td>{_fmt(name, float(std[j])) if ok else '-'}</td>"
+                    f"<td class='{'yes' if ok else 'no'}'>{'yes' if ok else 'no'}</td></tr>")
+    return (f"<h3>The {e(vehicle.model)} model: the rear axle joined with the front axle and "
+            "the steering</h3><table id='car'><tr><th>parameter</th><th>datasheet</th>"
+            "<th>calibrated</th><th>std (covariance)</th><th>identified</th></tr>"
+            f"{''.join(rows)}</table>")
 
 
 def _page(result: CalibrationResult, data: ReportData,

@@ -22,7 +22,13 @@ from odocal.estimators.estimate import (
 )
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS, Parameters
 from odocal.pipeline.result import CalibrationResult, SpeedScale
-from odocal.report.advice import consistent_with_zero, finding_text, reason_text, zero_text
+from odocal.report.advice import (
+    consistent_with_zero,
+    finding_text,
+    front_advice,
+    reason_text,
+    zero_text,
+)
 from odocal.settings import Settings, datasheet_stated
 
 #: The words before each finding by its severity.
@@ -93,6 +99,11 @@ def summary_lines(result: CalibrationResult, *, truth: Parameters | None = None,
     for name in consistent_with_zero(est):       # identified, but no evidence of the effect
         j = PARAMETER_NAMES.index(name)
         lines.append(f"note: {zero_text(name, float(est.theta.as_array()[j]), float(est.std[j]))}")
+    vehicle = result.vehicle_estimate
+    if vehicle is not None and vehicle.status is not Status.REJECTED:
+        lines += ["", f"the {vehicle.model} model: the rear axle above joined with the front "
+                      "axle and the steering", *parameter_table(vehicle)]
+        lines += [f"note: {a.text}" for a in front_advice(vehicle) if not a.identified]
     lines += [f"warning: {w}" for w in result.warnings]
     if not result.success and est.status is not Status.NOTHING_IDENTIFIABLE:
         lines.append(f"calibration failed: {est.message}")
