@@ -635,8 +635,8 @@ def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Setti
     rear_size = FOUR_WHEEL_MODEL.rear.layout.size
     datasheet_values[:rear_size] = rear.datasheet.as_array()
     # the front tyres and track as the rear's where the settings state none of their own
-    for front, rear_name in (("c_f", LAYOUT.scale), ("t_f", LAYOUT.track)):
-        k = LAYOUT.index(front)
+    for own, rear_name in (("c_f", LAYOUT.scale), ("t_f", LAYOUT.track)):
+        k = LAYOUT.index(own)
         if datasheet_values[k] == LAYOUT.placeholder[k]:
             datasheet_values[k] = datasheet_values[LAYOUT.index(rear_name)]
     datasheet = Parameters.from_array(datasheet_values, layout=LAYOUT)
