@@ -32,6 +32,7 @@ import numpy as np
 
 import odocal
 from odocal.data.drive import Drive
+from odocal.estimators.front_axle import std_from_information as _std
 from odocal.model.four_wheel import FOUR_WHEEL, inverse_step, steering
 from odocal.model.kinematics import motion_increments
 from odocal.model.vehicle import MODEL
@@ -80,23 +81,6 @@ def _predict(theta: np.ndarray, w: dict) -> tuple[np.ndarray, np.ndarray]:
     pred = np.column_stack([0.5 * (fl + fr), fr - fl, mean_angle])
     j = np.stack([0.5 * (j_fl + j_fr), j_fr - j_fl, mean_jac], axis=1)
     return pred, j[:, :, FITTED]
-
-
-def _std(information: np.ndarray) -> np.ndarray:
-    """Each parameter's standard deviation from an information matrix, infinite for those a
-    direction the data do not see moves (a pseudo-inverse would call them exact)."""
-    diag = np.sqrt(np.clip(np.diag(information), 0.0, None))
-    out = np.full(diag.size, np.inf)
-    seen = diag > 0
-    if not seen.any():
-        return out
-    normed = information[np.ix_(seen, seen)] / np.outer(diag[seen], diag[seen])
-    values, vectors = np.linalg.eigh(0.5 * (normed + normed.T))
-    blind = values <= 1e-10 * values.max()
-    var = (vectors[:, ~blind] ** 2 / values[~blind]).sum(axis=1)
-    var[(vectors[:, blind] ** 2 > 1e-12).any(axis=1)] = np.inf
-    out[seen] = np.sqrt(var) / diag[seen]
-    return out
 
 
 def fit(windows: list[dict], theta0: np.ndarray, *, steering_tells_l: bool = False,
@@ -200,6 +184,11 @@ def simulated(seeds: range, duration_s: float, noise: str) -> None:
                 held[name] += 1
     print(f"\nsimulated four-wheel drives, {len(seeds)} seeds x {duration_s:g} s, noise "
           f"{noise!r}: the error over the std of each identified parameter")
+    _print_z(z, held)
+
+
+def _print_z(z: dict[str, list[float]], held: dict[str, int]) -> None:
+    """Each parameter's RMS and largest |z| over the drives that identify it."""
     for name, values in z.items():
         v = np.array(values)
         line = (f"  {name:<6} RMS z {np.sqrt(np.mean(v ** 2)):5.2f}, max |z| "
@@ -229,11 +218,7 @@ def calibrated(seeds: range, duration_s: float, noise: str) -> None:
                 held[name] += 1
     print(f"\nodocal calibrate, four_wheel model, {len(seeds)} seeds x {duration_s:g} s, noise "
           f"{noise!r} (the front axle's share of the time: {np.mean(seconds):.0%})")
-    for name, values in z.items():
-        v = np.array(values)
-        line = (f"  {name:<6} RMS z {np.sqrt(np.mean(v ** 2)):5.2f}, max |z| "
-                f"{np.max(np.abs(v)):5.2f} over {v.size}" if v.size else f"  {name:<6} -")
-        print(line + (f"; not identified in {held[name]}" if held[name] else ""))
+    _print_z(z, held)
 
 
 def main() -> None:

@@ -345,7 +345,7 @@ def _normal(p: FloatArray, w: FrontWindows, measured: FloatArray, weight: FloatA
                    white=white)
 
 
-def _std(information: FloatArray) -> FloatArray:
+def std_from_information(information: FloatArray) -> FloatArray:
     """Each parameter's standard deviation from an information matrix; infinite for those a
     direction the data do not see moves (a pseudo-inverse would call them exact)."""
     diag = np.sqrt(np.clip(np.diag(information), 0.0, None))
@@ -369,7 +369,7 @@ def _judged(told_info: FloatArray, limit: FloatArray, usable: BoolArray) -> Bool
     free = usable.copy()
     while free[:_D].any():
         std = np.full(free.size, np.inf)
-        std[free] = _std(told_info[np.ix_(free, free)])
+        std[free] = std_from_information(told_info[np.ix_(free, free)])
         worst = int(np.argmax(np.where(free[:_D], std[:_D] / limit, -np.inf)))
         if std[worst] <= limit[worst]:
             break

@@ -194,6 +194,14 @@ def autoware(c: Calibrated, out: Path) -> list[Path]:
     return [a, b]
 
 
+def _covariance_diagonals(v_std: float, w_std: float) -> dict[str, list[float]]:
+    """A ros2_controllers odometry's pose and twist covariance diagonals: the twist's speed
+    and yaw-rate variances measured, the planar pose's a small start, the rest out of play."""
+    return {"pose_covariance_diagonal": [0.001, 0.001, 1.0e6, 1.0e6, 1.0e6, 1000.0],
+            "twist_covariance_diagonal": [_float(v_std**2), 0.001, 1.0e6, 1.0e6, 1.0e6,
+                                          _float(w_std**2)]}
+
+
 def multipliers(geometry: Mapping[str, float],
                 nominal: Mapping[str, float]) -> dict[str, float]:
     """diff_drive_controller's multipliers (effective = nominal x multiplier) of a model's
@@ -232,9 +240,7 @@ def ros2_control(c: Calibrated, out: Path) -> list[Path]:
         "wheel_radius": _float(nominal_geometry["wheel_radius"]),
         **{key: _float(value) for key, value in multipliers(now, nominal_geometry).items()},
         "odom_frame_id": "odom", "base_frame_id": "base_link",
-        "pose_covariance_diagonal": [0.001, 0.001, 1.0e6, 1.0e6, 1.0e6, 1000.0],
-        "twist_covariance_diagonal": [_float(v_std**2), 0.001, 1.0e6, 1.0e6, 1.0e6,
-                                      _float(w_std**2)]}
+        **_covariance_diagonals(v_std, w_std)}
     path = out / "diff_drive_controller.yaml"
     write_text(path, parameter_file(header, "diff_drive_controller", params))
     return [path]
@@ -272,9 +278,7 @@ def ackermann(c: Calibrated, out: Path) -> list[Path]:
         "traction_joints_names": ["rear_left_wheel_joint", "rear_right_wheel_joint"],
         "steering_joints_names": ["front_left_steering_joint", "front_right_steering_joint"],
         "odom_frame_id": "odom", "base_frame_id": "base_link",
-        "pose_covariance_diagonal": [0.001, 0.001, 1.0e6, 1.0e6, 1.0e6, 1000.0],
-        "twist_covariance_diagonal": [_float(v_std**2), 0.001, 1.0e6, 1.0e6, 1.0e6,
-                                      _float(w_std**2)]}
+        **_covariance_diagonals(v_std, w_std)}
     path = out / "ackermann_steering_controller.yaml"
     write_text(path, parameter_file(header, "ackermann_steering_controller", params))
     return [path]
