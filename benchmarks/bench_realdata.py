@@ -51,8 +51,7 @@ from odocal.data.segments import gather, gather_ragged, identification_segments
 from odocal.estimators.gauss_newton import gauss_newton
 from odocal.estimators.validation import segment_errors
 from odocal.estimators.windows import drives_heading_offset
-from odocal.model.four_wheel import FOUR_WHEEL_MODEL
-from odocal.model.vehicle import MODEL
+from odocal.pipeline.odometry import on_four_wheels
 from odocal.preprocess.convert import convert
 from odocal.settings import SegmentSettings, Settings
 
@@ -179,18 +178,6 @@ WHEELBASE = {"Singapore nuScenes car": 2.588, "Boston nuScenes car": 2.588,
 FOUR_WHEEL_SETTINGS = SETTINGS.replace(vehicle={"model": "four_wheel"})
 
 
-def on_four_wheels(drive: Drive, theta: np.ndarray, std: np.ndarray) -> Drive:
-    """``drive`` with its rear wheels' rates replaced by those that dead-reckon, through the
-    rear axle of ``theta``, the speed and yaw rate all four wheels give (weighted by ``std``:
-    :meth:`~odocal.model.four_wheel.FourWheelModel.body_rates`), so that the rear-axle judges
-    roll out the four-wheel odometry unchanged."""
-    rates = np.column_stack([drive.inputs["n_fl"], drive.inputs["n_fr"], drive.n_rl,
-                             drive.n_rr])
-    v, w = FOUR_WHEEL_MODEL.body_rates(theta, rates, drive.a_y, std=std)
-    virtual = MODEL.wheel_rates(FOUR_WHEEL_MODEL.rear_axle(theta), v, w, drive.a_y)
-    return dataclasses.replace(drive, n_rl=virtual[:, 0], n_rr=virtual[:, 1])
-
-
 def four_wheel_leave_one_out(car: str, logs: Sequence[Drive], windows: Sequence[int]) -> None:
     """Each log held out in turn: the four-wheel calibration of the others, judged on the
     rear wheels alone and on all four; what each fold identifies of the car's geometry."""
@@ -203,7 +190,7 @@ def four_wheel_leave_one_out(car: str, logs: Sequence[Drive], windows: Sequence[
         theta = est.theta.as_array()
         # a parameter the fold did not identify leaves its axle's part out
         std = np.where(est.identified, np.asarray(est.std), np.inf)
-        four = on_four_wheels(held, theta, std)
+        four = on_four_wheels([held], est.theta, std)[0]
         row = {"rear": {j: held_out_error(held, theta[:4], j[0], corrected=j[1])
                         for j in judged},
                "four": {j: held_out_error(four, theta[:4], j[0], corrected=j[1])

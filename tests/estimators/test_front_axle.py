@@ -272,3 +272,36 @@ def test_four_wheels_give_the_motion_they_were_made_from_and_leave_out_an_unknow
     v_m, _ = FOUR_WHEEL_MODEL.body_rates(theta, fast, v * w, std=same)
     np.testing.assert_allclose(v_m, 0.5 * (v_r + FOUR_WHEEL_MODEL.front_body_rates(
         theta, fast[:, :2], v * w)[0]), rtol=1e-12, atol=1e-12)
+
+
+def test_a_four_wheel_calibration_validates_on_all_four_wheels_better_than_on_two(
+        four_wheel_drive: tuple[Drive, np.ndarray], tmp_path: Path) -> None:
+    """Calibrated on one drive, judged on another (held out): the four wheels' odometry beats
+    the rear axle's when the front geometry is identified; `odocal validate` reads the
+    four-wheel calibration.json with its stds (a rear-axle run refuses it by name)."""
+    from odocal.cli.main import main
+    from odocal.pipeline.calibrate import validate_theta
+
+    drive, _ = four_wheel_drive
+    held_out, _ = with_front_axle(odocal.simulate(duration_s=1200.0, seed=4, noise="realistic"))
+    car = odocal.calibrate(drive, settings=FOUR)
+    est = car.model_estimate
+    assert all(est.identified)
+    four = validate_theta(held_out.drive, est.theta, settings=FOUR, std=np.asarray(est.std))
+    rear = validate_theta(held_out.drive, car.estimate.theta)
+    assert four.mean_error_m < 0.9 * rear.mean_error_m, (four.mean_error_m, rear.mean_error_m)
+    # no stds: every axle's scale unknown, the (joined) rear axle's odometry alone
+    alone = validate_theta(held_out.drive, est.theta, settings=FOUR)
+    joined_rear = validate_theta(held_out.drive, est.theta.as_array()[:4])
+    assert alone.mean_error_m == pytest.approx(joined_rear.mean_error_m, rel=1e-9)
+    # the command line: the calibration's stds are read from its calibration.json
+    car.save(tmp_path / "car", report=False)
+    odocal.save_drive(held_out.drive, tmp_path / "other.parquet")
+    config = tmp_path / "four.toml"
+    config.write_text('[vehicle]\nmodel = "four_wheel"\n')
+    assert main(["validate", str(tmp_path / "other.parquet"), "--config", str(config),
+                 "--params", str(tmp_path / "car" / "calibration.json"), "-q"]) == 0
+    with pytest.raises(DataError, match="is a calibration of the four_wheel model"):
+        from odocal.io.json_files import read_parameters
+
+        read_parameters(tmp_path / "car" / "calibration.json")

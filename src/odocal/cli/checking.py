@@ -31,19 +31,23 @@ def _parameters(params: str | None, settings: Settings) -> Parameters:
 
     if params:
         return read_parameters(params, settings.vehicle.model)
-    return Parameters.from_array(settings.identify.theta0)
+    return Parameters.from_array(settings.identify.theta0, layout=settings.layout)
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
     from odocal.pipeline.calibrate import validate_theta
 
-    settings = settings_for(command="validate",
-                            config=args.config, datasheet=args.datasheet, workers=args.workers,
+    settings = settings_for(config=args.config, datasheet=args.datasheet, workers=args.workers,
                             reference=args.reference, circumference=args.circumference)
     theta = _parameters(args.params, settings)
+    std = None
+    if args.params and settings.vehicle.model != "rear_axle":
+        from odocal.io.json_files import read_uncertainty
+
+        std = read_uncertainty(args.params, settings.vehicle.model)
     drives = drives_from(args.logs, source_format=args.source_format, mapping=args.mapping,
                          scenes=args.scene, settings=settings, quiet=args.quiet)
-    result = validate_theta(drives, theta, settings=settings)
+    result = validate_theta(drives, theta, settings=settings, std=std)
     if args.quiet:
         return EXIT_OK
     n = len(result.segments)

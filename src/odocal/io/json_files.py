@@ -60,28 +60,55 @@ def read_json(path: str | Path) -> dict[str, Any]:
 
 
 def read_parameters(path: str | Path, model: str = registry.DEFAULT) -> Parameters:
-    """theta from a calibration.json (or any JSON with a ``theta`` object of the four names)
-    of the vehicle model ``model`` (one that names another model is refused; one that names
-    none is the rear axle's, as every calibration.json before models were named)."""
+    """theta from a calibration.json (or any JSON with a ``theta`` object of the model's
+    names) of the vehicle model ``model`` (one that names another model is refused; one that
+    names none is the rear axle's, as every calibration.json before models were named), in
+    that model's layout."""
     data = read_json(path)
     registry.check_stated(data.get("model"), model, f"'{shown(Path(path))}'")
-    theta = data.get("theta")
-    if not isinstance(theta, dict):
-        raise DataError(f"'{path}' has no \"theta\" object with {', '.join(PARAMETER_NAMES)}")
-    missing = [n for n in PARAMETER_NAMES if n not in theta]
-    if missing:
-        raise DataError(f"'{path}' theta lacks {', '.join(missing)}")
-    values = []
-    for name in PARAMETER_NAMES:
-        value = theta[name]
-        if not isinstance(value, int | float) or isinstance(value, bool) \
-                or not math.isfinite(value):
-            raise DataError(f"'{path}' theta.{name} = {value!r} is not a finite number")
-        values.append(float(value))
+    layout = registry.layout(model)
+    values = _named_numbers(data, "theta", layout.names, path)
+    if values is None:
+        raise DataError(f"'{path}' has no \"theta\" object with {', '.join(layout.names)}")
     try:
-        return plausible(Parameters(*values))
+        rear = plausible(Parameters(*values[:len(PARAMETER_NAMES)]))
     except DataError as exc:
         raise DataError(f"'{path}': {exc}") from exc
+    return rear if layout.names == PARAMETER_NAMES else Parameters(*values, layout=layout)
+
+
+def read_uncertainty(path: str | Path, model: str = registry.DEFAULT) -> list[float]:
+    """Each parameter's standard deviation in a calibration.json of ``model`` (its ``std``),
+    infinite for those it says the drives did not identify (its ``identified``), or for all
+    where it states neither."""
+    data = read_json(path)
+    layout = registry.layout(model)
+    std = _named_numbers(data, "std", layout.names, path)
+    flags = data.get("identified")
+    if std is None or not isinstance(flags, dict):
+        return [math.inf] * layout.size
+    return [s if flags.get(n) is True and s >= 0 else math.inf
+            for n, s in zip(layout.names, std, strict=True)]
+
+
+def _named_numbers(data: dict[str, Any], key: str, names: tuple[str, ...],
+                   path: str | Path) -> list[float] | None:
+    """``data[key]``'s finite numbers by ``names``, in that order; None where ``data`` has no
+    such object; a DataError naming what is missing or not a number."""
+    obj = data.get(key)
+    if not isinstance(obj, dict):
+        return None
+    missing = [n for n in names if n not in obj]
+    if missing:
+        raise DataError(f"'{path}' {key} lacks {', '.join(missing)}")
+    values = []
+    for name in names:
+        value = obj[name]
+        if not isinstance(value, int | float) or isinstance(value, bool) \
+                or not math.isfinite(value):
+            raise DataError(f"'{path}' {key}.{name} = {value!r} is not a finite number")
+        values.append(float(value))
+    return values
 
 
 def plausible(theta: Parameters) -> Parameters:

@@ -177,13 +177,29 @@ def stated_circumference(settings: Settings | None) -> float | None:
 
 def validate_theta(drives: Drive | str | Path | Sequence[Drive | str | Path],
                    theta: Parameters | FloatArray, *,
-                   settings: Settings | None = None) -> ValidationResult:
-    """E_p of ``theta`` on the validation segments of ``drives`` (METHOD 6)."""
+                   settings: Settings | None = None,
+                   std: Sequence[float] | FloatArray | None = None) -> ValidationResult:
+    """E_p of ``theta`` on the validation segments of ``drives`` (METHOD 6).
+
+    A four-wheel ``theta`` (:data:`~odocal.model.layout.FOUR_WHEEL`) is judged on the
+    odometry of all four wheels (:func:`odocal.pipeline.odometry.on_four_wheels`, each axle
+    weighted by ``std``, its standard deviations: infinite for a parameter not identified,
+    the default), the result's theta being its rear axle's."""
     from odocal.io.json_files import plausible
 
     settings = settings or Settings()
+    four = isinstance(theta, Parameters) and theta.layout.names != PARAMETER_NAMES
+    if four:
+        assert isinstance(theta, Parameters)
+        from odocal.pipeline.odometry import on_four_wheels
+
+        full = theta
+        theta = Parameters.from_array(full.as_array()[:len(PARAMETER_NAMES)])
     plausible(theta if isinstance(theta, Parameters) else Parameters.from_array(theta))
     drive_list = load_drives(drives, settings=settings)
+    if four:
+        spread = np.full(full.layout.size, np.inf) if std is None else np.asarray(std, float)
+        drive_list = on_four_wheels(drive_list, full, spread)
     segs = validation_segments(drive_list, settings.segments)
     data = validation_data(drive_list, segs, settings)
     return validation(theta, data, segs, drive_list)

@@ -100,3 +100,30 @@ def dead_reckoned(drive: Drive, theta: Parameters,
     poses[:, 0] += forward * np.cos(psi) - left * np.sin(psi)
     poses[:, 1] += forward * np.sin(psi) + left * np.cos(psi)
     return poses
+
+
+def on_four_wheels(drives: Sequence[Drive], theta: Parameters,
+                   std: Sequence[float] | FloatArray) -> list[Drive]:
+    """The drives with their rear wheels' rates replaced by those that dead-reckon, through
+    the rear axle of the four-wheel ``theta``, the speed and yaw rate all four wheels give
+    (:meth:`~odocal.model.four_wheel.FourWheelModel.body_rates`, each axle weighted by ``std``,
+    an axle whose scale is not known left out): the rear axle's validation then judges the
+    four-wheel odometry unchanged. A drive without front wheels is refused in one line."""
+    import dataclasses
+
+    from odocal.errors import DataError
+    from odocal.model.four_wheel import FOUR_WHEEL_MODEL
+
+    th = theta.as_array()
+    rear = FOUR_WHEEL_MODEL.rear_axle(th)
+    out = []
+    for d in drives:
+        if "n_fl" not in d.inputs or "n_fr" not in d.inputs:
+            raise DataError(f"{d.name!r} has no front wheels' rates (n_fl, n_fr): the "
+                            "four_wheel model's odometry needs all four")
+        rates = np.column_stack([d.inputs["n_fl"], d.inputs["n_fr"], d.n_rl, d.n_rr])
+        v, w = FOUR_WHEEL_MODEL.body_rates(th, rates, d.a_y, std=np.asarray(std, dtype=float))
+        virtual = MODEL.wheel_rates(rear, v, w, d.a_y)
+        out.append(dataclasses.replace(d, n_rl=virtual[:, 0], n_rr=virtual[:, 1]))
+    return out
+
