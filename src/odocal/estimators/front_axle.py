@@ -47,6 +47,7 @@ import numpy as np
 from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.checks.departures import shifted_reference
 from odocal.checks.findings import Check, Diagnosis, Finding, Severity
+from odocal.correlation import correlations
 from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.estimators.covariance import widened
@@ -107,6 +108,8 @@ class FrontWindows:
     revolutions: FloatArray
     steer: FloatArray
     cluster: IntArray
+    steering_lag_s: tuple[float, ...] = ()
+    """Each drive's steering lag behind the reference that was found and taken out."""
 
     @property
     def size(self) -> int:
@@ -129,37 +132,90 @@ def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float
     the reference delayed by ``delay_s`` (the wheels' lag behind it) and its heading turned by
     ``heading_offset`` onto the course, as the default fit found them. Windows that do not
     move (a mean speed below :data:`~odocal.estimators.windows.MOVING_MPS`) say nothing and
-    are left out. A DataError names a drive without the front wheels' rates."""
-    for d in drives:
-        missing = [k for k in ("n_fl", "n_fr") if k not in d.inputs]
-        if missing:
-            raise DataError(f"the four_wheel model needs the front wheels' rates, and "
-                            f"{d.name!r} has no {' and no '.join(missing)}: map them "
-                            "([wheels] front_left/front_right, or the table's columns), or "
-                            "calibrate the rear axle ([vehicle] model = \"rear_axle\")")
+    are left out, as are drives without front wheels (:func:`require_front_wheels` names a
+    set with none). The steering angle is put on the reference's clock by its own lag
+    (:func:`steering_lag`): a steering sensor's latency is not the wheels'."""
+    require_front_wheels(drives)
     parts: dict[str, list[FloatArray]] = {k: [] for k in ("ds", "dpsi", "a_y", "a_x", "revs",
                                                           "steer", "cluster")}
     cluster_s = cluster_steps_for(drives, settings) * (drives[0].t_s if drives else 1.0)
+    lags = []
     for index, drive in enumerate(drives):
+        if "n_fl" not in drive.inputs or "n_fr" not in drive.inputs:
+            continue
         if delay_s:
             drive = shifted_reference(drive, delay_s)
-        _add_windows(parts, drive, settings.inverse.window_s, heading_offset,
+        steer, lag = steering_lag(drive)
+        if lag is not None:
+            lags.append(lag)
+        _add_windows(parts, drive, steer, settings.inverse.window_s, heading_offset,
                      index * 10**9, cluster_s)
     if not parts["ds"]:
         empty = np.zeros((0, 1))
         return FrontWindows(empty, empty, empty, empty, np.zeros((0, 2)), empty,
-                            np.zeros(0, dtype=np.int64))
+                            np.zeros(0, dtype=np.int64), tuple(lags))
     cat = {k: np.concatenate(v) for k, v in parts.items()}
     return FrontWindows(cat["ds"], cat["dpsi"], cat["a_y"], cat["a_x"], cat["revs"],
-                        cat["steer"], cat["cluster"].astype(np.int64))
+                        cat["steer"], cat["cluster"].astype(np.int64), tuple(lags))
 
 
-def _add_windows(parts: dict[str, list[FloatArray]], drive: Drive, window_s: float,
-                 heading_offset: float, label: int, cluster_s: float) -> None:
-    """One drive's windows, piece by piece, into ``parts``."""
+def require_front_wheels(drives: Sequence[Drive]) -> None:
+    """A one-line DataError where no drive carries both front wheels' rates (the four-wheel
+    model fits its front axle on those that do)."""
+    if not any("n_fl" in d.inputs and "n_fr" in d.inputs for d in drives):
+        name = drives[0].name if len(drives) == 1 else f"none of the {len(drives)} drives"
+        raise DataError(f"the four_wheel model needs the front wheels' rates (n_fl, n_fr), "
+                        f"and {name!r} has none: map them ([wheels] front_left/front_right, "
+                        "or the table's columns), or calibrate the rear axle ([vehicle] "
+                        "model = \"rear_axle\")")
+
+
+#: The steering angle's lag is searched within this many seconds either way ...
+STEERING_LAG_S = 1.0
+#: ... and taken where the steering and the reference's curvature agree at least this well.
+STEERING_MIN_CORRELATION = 0.5
+
+
+def steering_lag(drive: Drive) -> tuple[FloatArray | None, float | None]:
+    """The drive's steering angle on the reference's clock, and its lag behind it (s): the lag
+    at which the angle agrees best with the reference's curvature (its yaw rate over a speed
+    of at least 2 m/s), refined between samples, within :data:`STEERING_LAG_S`. None for the
+    lag where the drive has no steering, or it agrees too little (straight driving): the angle
+    then stays as logged."""
+    steer = drive.inputs.get("steer")
+    if steer is None:
+        return None, None
+    t_s = drive.t_s
+    pairs = []
+    for a, b in drive.pieces:
+        psi = np.unwrap(np.asarray(drive.psi[a:b], dtype=np.float64))
+        speed = np.hypot(np.gradient(drive.x[a:b], t_s), np.gradient(drive.y[a:b], t_s))
+        curvature = np.gradient(psi, t_s) / np.maximum(speed, 2.0)
+        if b - a > 4 * STEERING_LAG_S / t_s:
+            pairs.append((curvature, np.asarray(steer[a:b], dtype=np.float64)))
+    span = max(1, round(STEERING_LAG_S / t_s))
+    peak = correlations(pairs, span).peak() if pairs else None
+    if peak is None or peak.at_edge or abs(peak.correlation) < STEERING_MIN_CORRELATION:
+        return np.asarray(steer, dtype=np.float64), None
+    # a steering angle with the wrong sign agrees best at a negative correlation: the lag is
+    # that of the agreement either way (the fit names the sign)
+    if peak.correlation < 0:
+        negated = correlations([(a, -b) for a, b in pairs], span).peak()
+        peak = negated if negated is not None else peak
+    lag = peak.steps * t_s
+    aligned = np.array(steer, dtype=np.float64)
+    for a, b in drive.pieces:
+        t = drive.t[a:b]
+        aligned[a:b] = np.interp(t + lag, t, np.asarray(steer[a:b], dtype=np.float64))
+    return aligned, float(lag)
+
+
+def _add_windows(parts: dict[str, list[FloatArray]], drive: Drive, steer_in: FloatArray | None,
+                 window_s: float, heading_offset: float, label: int, cluster_s: float) -> None:
+    """One drive's windows, piece by piece, into ``parts`` (``steer_in``: its steering angle
+    on the reference's clock, None without one)."""
     t_s = drive.t_s
     k = max(round(window_s / t_s), 1)
-    steer_in = drive.inputs.get("steer")
     for a, b in drive.pieces:
         n = (b - a - 1) // k
         if n < 1:
@@ -662,7 +718,11 @@ def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Setti
                         widening=np.append(rear.widening, np.ones(len(FRONT))),
                         model=FOUR_WHEEL_MODEL.name)
     judged = corrected(drives, dict(departures or {}), rear.theta.as_array())
-    windows = front_windows(judged, settings, delay_s=float(details.delay_s),
+    # the wheels' whole lag is the rear fit's delay; a lag it fitted as a departure is part
+    # of it, and the drives (as fitted) are already shifted by that part
+    taken = float(dict(getattr(details, "fitted_departures", {}) or {}).get("lag", 0.0))
+    shift = float(details.delay_s) - taken * (drives[0].t_s if drives else 0.0)
+    windows = front_windows(judged, settings, delay_s=shift,
                             heading_offset=float(details.heading_offset_rad))
     theta0 = datasheet_values.copy()
     theta0[:rear_size] = rear.theta.as_array()
