@@ -8,6 +8,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -119,8 +120,9 @@ def test_a_wrong_wheel_mapping_among_four_is_named_never_calibrated(
 def test_a_drive_without_front_wheels_is_one_line(
         four_wheel_drive: tuple[Drive, np.ndarray]) -> None:
     drive, _ = four_wheel_drive
-    with pytest.raises(DataError, match=r"four_wheel model needs the front wheels' rates.*"
-                                        r"no n_fl and no n_fr"):
+    with pytest.raises(DataError, match=r"four_wheel model needs the front wheels' rates "
+                                        r"\(n_fl, n_fr\), and 'simulated-realistic-seed3' "
+                                        r"has none"):
         odocal.calibrate(dataclasses.replace(drive, inputs={}), settings=FOUR)
     with pytest.raises(ConfigError, match="calibrated by the default method only"):
         odocal.calibrate(drive, settings=FOUR, method="raw")
@@ -155,7 +157,7 @@ def test_the_shared_nuscenes_scenes_keep_the_rear_axle_and_name_what_the_front_l
         shared_data: Path) -> None:
     """Four Singapore scenes (1.3 min): the rear axle as the rear-axle model's fit; the front
     wheels' mean circumference within a percent of the rear's; what 36 windows cannot tell
-    (the front track, the wheelbase, the ratio) left at the datasheet, and named."""
+    (the front track, the wheelbase) left at the datasheet, and named."""
     scenes = [d for d in convert("nuscenes", [shared_data / "nuscenes-can-bus-mini"])
               if d.name in ("scene-0061", "scene-0796", "scene-0916", "scene-1077")]
     settings = FOUR.replace(identify={"theta0": (1.95, 0.0, 1.51, *FOUR.identify.theta0[3:])})
@@ -165,12 +167,15 @@ def test_the_shared_nuscenes_scenes_keep_the_rear_axle_and_name_what_the_front_l
     np.testing.assert_array_equal(est.theta.as_array()[:4], rear.estimate.theta.as_array())
     assert est.identified["c_f"]
     assert est.theta.c_f == pytest.approx(est.theta.c_e, rel=0.01)
-    for name in ("t_f", "L", "ratio"):
+    for name in ("t_f", "L"):
         assert not est.identified[name]
-    # held at the datasheet's: the wheelbase and ratio as the settings state them, the front
-    # track (left at its placeholder) as the rear's stated one
-    assert est.theta.L == 2.7 and est.theta.ratio == 15.0
+    # held at the datasheet's: the wheelbase as the settings state it, the front track (left
+    # at its placeholder) as the rear's stated one
+    assert est.theta.L == 2.7
     assert est.theta.t_f == 1.51 and est.datasheet.c_f == 1.95
+    # the steering says ratio x L: with L held, the ratio carries L's datasheet uncertainty
+    if est.identified["ratio"]:
+        assert float(est.std["ratio"]) >= 0.9 * est.theta.ratio * 0.2 / 2.7
     # the report names what the front lacks, in words, and shows the whole car's table
     lines = "\n".join(summary_lines(result))
     assert "the four_wheel model" in lines
@@ -239,7 +244,9 @@ def test_the_cars_exports_load_in_ros2_with_its_geometry(
     np.testing.assert_allclose(own["covariance"], est.covariance.ravel(), rtol=1e-12)
     np.testing.assert_allclose(own["std"], np.asarray(est.std), rtol=1e-12)
     rear = odocal.calibrate(drive)
-    with pytest.raises(ConfigError, match="the ackermann export needs a car's wheelbase"):
+    from odocal.errors import OutputError
+
+    with pytest.raises(OutputError, match="--export ackermann needs a car's wheelbase"):
         rear.save(tmp_path / "rear", exports=("ackermann",), report=False)
 
 
@@ -305,3 +312,98 @@ def test_a_four_wheel_calibration_validates_on_all_four_wheels_better_than_on_tw
         from odocal.io.json_files import read_parameters
 
         read_parameters(tmp_path / "car" / "calibration.json")
+
+
+@pytest.mark.parametrize(("change", "name"), [
+    (lambda d: {"steer": np.full(d.n_samples, 0.3)}, "constant"),
+    (lambda d: {"steer": -d.inputs["steer"]}, "sign"),
+    (lambda d: {"steer": np.degrees(d.inputs["steer"])}, "unit"),
+])
+def test_a_steering_angle_that_cannot_be_the_cars_is_left_out_and_named(
+        four_wheel_drive: tuple[Drive, np.ndarray], change: Any, name: str) -> None:
+    """A constant column, a flipped sign, degrees given as radians: the wheels calibrate, the
+    ratio and offset are not identified, and a finding says why (never a ratio of 2e-16 or
+    -15 with a tight std)."""
+    drive, truth = four_wheel_drive
+    bad = dataclasses.replace(drive, inputs={**drive.inputs, **change(drive)})
+    result = odocal.calibrate(bad, settings=FOUR)
+    est = result.model_estimate
+    assert result.success
+    assert not est.identified["ratio"] and not est.identified["s_0"]
+    assert est.identified["c_f"] and est.identified["L"]
+    found = [f for f in result.diagnosis.findings if f.check is Check.STEERING]
+    assert [f.name.partition("|")[0] for f in found] == [name]
+    assert found[0].severity.name == "FALLBACK"
+    z = (est.theta.as_array() - truth) / np.where(np.asarray(est.std) > 0, est.std, np.inf)
+    assert np.all(np.abs(z) < 3.0)
+
+
+@pytest.mark.parametrize(("change", "name"), [
+    (lambda d: {"n_fl": np.zeros(d.n_samples)}, "dead-left"),
+    (lambda d: {"n_fl": 1.947 * d.inputs["n_fl"], "n_fr": 1.947 * d.inputs["n_fr"]}, "rates"),
+    (lambda d: {"n_fr": 0.5 * d.inputs["n_fr"]}, "difference"),
+])
+def test_a_dead_or_scaled_front_wheel_is_named_never_calibrated(
+        four_wheel_drive: tuple[Drive, np.ndarray], change: Any, name: str) -> None:
+    """A front wheel that reads nothing, front rates in m/s given as rev/s, one front wheel
+    reading half its turns: refused with the front axle named (never c_f = 7573 m)."""
+    drive, _ = four_wheel_drive
+    bad = dataclasses.replace(drive, inputs={**drive.inputs, **change(drive)})
+    result = odocal.calibrate(bad, settings=FOUR)
+    assert result.model_estimate.status is Status.REJECTED
+    fatal = [f.name.partition("|")[0] for f in result.diagnosis.findings
+             if f.check is Check.FRONT_AXLE and f.severity.name == "FATAL"]
+    assert fatal == [name]
+
+
+def test_front_sides_swapped_are_named_on_a_minute_that_does_not_tell_the_front_track(
+        four_wheel_drive: tuple[Drive, np.ndarray]) -> None:
+    drive, _ = four_wheel_drive
+    minute = drive.select(drive.t < drive.t[0] + 60.0)
+    swapped = dataclasses.replace(minute, inputs={**minute.inputs, "n_fl": minute.inputs["n_fr"],
+                                                  "n_fr": minute.inputs["n_fl"]})
+    result = odocal.calibrate(swapped, settings=FOUR)
+    assert result.model_estimate.status is Status.REJECTED
+    assert any(f.check is Check.WHEEL_MAPPING and f.name.startswith("front-sides-yaw")
+               for f in result.diagnosis.findings)
+    right = odocal.calibrate(minute, settings=FOUR)
+    assert right.success and not any(f.check in (Check.WHEEL_MAPPING, Check.FRONT_AXLE)
+                                      for f in right.diagnosis.findings)
+
+
+def test_a_gap_in_an_input_the_rear_axle_does_not_read_costs_it_nothing(
+        four_wheel_drive: tuple[Drive, np.ndarray], tmp_path: Path) -> None:
+    """A drive file whose steering column has NaN: the rear axle calibrates as without it,
+    the four-wheel model without the steering, and both say the column was left out."""
+    import pandas as pd
+
+    drive, _ = four_wheel_drive
+    path = tmp_path / "drive.csv"
+    odocal.save_drive(drive, path)
+    table = pd.read_csv(path)
+    table.loc[100:200, "steer"] = np.nan
+    table.to_csv(path, index=False)
+    rear = odocal.calibrate(path)
+    assert rear.success
+    assert any("column steer contains 101 NaN" in w and "left out" in w for w in rear.warnings)
+    four = odocal.calibrate(path, settings=FOUR)
+    assert four.success and not four.model_estimate.identified["ratio"]
+
+
+def test_the_compare_and_the_ackermann_export_are_refused_before_any_fit(
+        four_wheel_drive: tuple[Drive, np.ndarray], tmp_path: Path) -> None:
+    from odocal.cli.main import main
+    from odocal.errors import OutputError
+    from odocal.pipeline.compare import check_comparable
+
+    drive, _ = four_wheel_drive
+    with pytest.raises(ConfigError, match=r"--compare .* takes the rear_axle model only"):
+        check_comparable([drive], FOUR)
+    path = tmp_path / "drive.parquet"
+    odocal.save_drive(drive, path)
+    assert main(["calibrate", str(path), "--export", "ackermann", "--out",
+                 str(tmp_path / "out"), "-q"]) == 1
+    assert not (tmp_path / "out").exists()
+    with pytest.raises(OutputError, match="--export ackermann needs a car's wheelbase"):
+        odocal.calibrate(drive).save(tmp_path / "out2", exports=["ackermann"])
+    assert not (tmp_path / "out2").exists()

@@ -53,6 +53,8 @@ class Check(enum.Enum):
     DRIVE_DEPARTS = "drive-departs"
     REFERENCE_SMOOTHED = "reference-smoothed"
     WHEEL_MAPPING = "wheel-mapping"
+    FRONT_AXLE = "front-axle"
+    STEERING = "steering"
 
 
 class Severity(enum.IntEnum):

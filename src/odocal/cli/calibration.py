@@ -48,6 +48,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                                 reference_offset=args.reference_offset)
         inputs = inputs_of(*args.logs, config=args.config, mapping=args.mapping)
         check_out_dir(args.out, inputs)
+        from odocal.output.results import refuse_car_targets
+
+        refuse_car_targets(args.export or (), settings.vehicle.model)
         drives = drives_from(args.logs, source_format=args.source_format,
                              mapping=args.mapping, scenes=args.scene, settings=settings,
                              quiet=args.quiet)

@@ -240,7 +240,7 @@ class Drive:
         circumference (a datasheet's ``c_e``; default the one ``metadata["datasheet"]`` states,
         else a car's 2 m), which the wheel rates' plausibility is judged with.
         """
-        arrays = _columns(columns, name)
+        arrays, left_out = _columns(columns, name)
         _check_increasing(name, arrays["t"])
         arrays, pieces, t_s, resampled = _on_uniform_steps(name, arrays)
         m = arrays["t"].shape[0]
@@ -267,6 +267,7 @@ class Drive:
                    yaw_rate=_as_float_array(yaw_rate), t_s=t_s, pieces=pieces, name=name,
                    pose_std=pose_std, inputs={k: arrays[k] for k in MODEL_INPUTS if k in arrays},
                    metadata=MappingProxyType({**dict(metadata or {}),
+                                              **({"left_out": left_out} if left_out else {}),
                                               **({"repaired": repaired} if repaired else {}),
                                               **({"resampled": resampled} if resampled
                                                  else {})}))
@@ -348,7 +349,8 @@ def _pose_std(name: str, arrays: Mapping[str, FloatArray]) -> FloatArray | None:
     return pose_std
 
 
-def _columns(columns: Mapping[str, Any], name: str) -> dict[str, FloatArray]:
+def _columns(columns: Mapping[str, Any], name: str
+             ) -> tuple[dict[str, FloatArray], list[str]]:
     """The drive format's columns as float arrays, each checked: present, numeric, one row per
     sample, finite."""
     missing = [c for c in REQUIRED_COLUMNS if c not in columns]
@@ -378,7 +380,8 @@ def _columns(columns: Mapping[str, Any], name: str) -> dict[str, FloatArray]:
     if m < 3:
         raise DataError(f"'{name}' has only {m} rows; a drive needs many samples")
     t = arrays["t"]
-    for key, arr in arrays.items():
+    left_out: list[str] = []
+    for key, arr in list(arrays.items()):
         if arr.shape[0] != m:
             raise DataError(f"'{name}' column {key} has {arr.shape[0]} rows, t has {m}")
         bad = ~np.isfinite(arr)
@@ -386,9 +389,15 @@ def _columns(columns: Mapping[str, Any], name: str) -> dict[str, FloatArray]:
             first = int(np.argmax(bad))
             where = f"t={t[first]:.3f} s" if key != "t" and np.isfinite(t[first]) \
                 else f"row {first + 1}"
-            raise DataError(f"'{name}' column {key} contains {int(bad.sum())} NaN or "
-                            f"infinite values (first at {where})")
-    return arrays
+            said = (f"'{name}' column {key} contains {int(bad.sum())} NaN or infinite values "
+                    f"(first at {where})")
+            if key not in MODEL_INPUTS:
+                raise DataError(said)
+            # a further input (a front wheel, the steering) only a model beyond the rear axle
+            # reads: left out whole, as a bag's (that model then says what it lacks)
+            left_out.append(f"{said}: left out (an input only the four_wheel model reads)")
+            del arrays[key]
+    return arrays, left_out
 
 
 def _pieces(name: str, t: FloatArray, piece: FloatArray | None) -> tuple[tuple[int, int], ...]:

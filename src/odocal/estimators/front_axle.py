@@ -57,7 +57,7 @@ from odocal.estimators.windows import MOVING_MPS, cluster_steps_for
 from odocal.model.four_wheel import FOUR_WHEEL_MODEL
 from odocal.model.kinematics import midpoint_heading
 from odocal.model.parameters import Parameters
-from odocal.settings import Settings
+from odocal.settings import MAX_DIFFERENCE_SHARE, Settings
 
 LAYOUT = FOUR_WHEEL_MODEL.layout
 #: The parameters this fit estimates, and where theta holds them.
@@ -762,17 +762,138 @@ def _joins(front: FrontFit, prior_value: float, prior_std: float) -> bool:
 
 
 def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis) -> tuple[Finding, ...]:
-    """What the four-wheel fit shows of the wheels' mapping, fatal each: front wheels whose
-    difference runs against the turning (a negative front track: left and right swapped),
-    and rear wheels without a difference in bends beside front ones (two wheels of one side
-    taken as an axle). A front and rear axle swapped, or a front wheel in a rear column, the
-    rear fit names itself (:data:`~odocal.checks.findings.Check.FRONT_WHEELS`)."""
+    """What the four-wheel fit shows of the wheels' mapping and units, fatal each: front
+    wheels whose difference runs against the turning (a negative front track: left and right
+    swapped); rear wheels without a difference in bends beside front ones (two wheels of one
+    side taken as an axle); a front axle whose wheels imply a circumference far from the rear
+    one's (another unit, a wheel that reads a share of its turns), or two front wheels apart
+    by more than a tenth of it (one of them dead or scaled), or a wheelbase no car has. A
+    front and rear axle swapped, or a front wheel in a rear column, the rear fit names itself
+    (:data:`~odocal.checks.findings.Check.FRONT_WHEELS`)."""
     found = []
+    th, ok = vehicle.theta.as_dict(), vehicle.identified
     t_f = LAYOUT.index("t_f")
-    if vehicle.identified[t_f] and vehicle.theta.as_array()[t_f] < 0.0:
-        found.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL,
-                             float(vehicle.theta.as_array()[t_f]), float(vehicle.std[t_f]),
-                             "front-sides"))
+    if ok[t_f] and th["t_f"] < 0.0:
+        found.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL, th["t_f"],
+                             float(vehicle.std[t_f]), "front-sides"))
     if diagnosis.no_differential:
         found.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL, name="sides"))
+    if ok["c_f"] and th["c_e"] > 0:
+        ratio = th["c_f"] / th["c_e"]
+        if not FRONT_SCALE[0] <= ratio <= FRONT_SCALE[1]:
+            found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, ratio, th["c_f"], "scale"))
+    if ok["c_fd"] and abs(th["c_fd"]) > MAX_DIFFERENCE_SHARE * abs(th["c_f"]):
+        found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, th["c_fd"], th["c_f"],
+                             "difference"))
+    low, high = LAYOUT.parameters[LAYOUT.index("L")].vehicle_range
+    if ok["L"] and not low <= th["L"] <= high:
+        found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, th["L"], high, "wheelbase"))
     return tuple(found)
+
+
+#: The front wheels' circumference over the rear ones' that a car's tyres span (staggered
+#: sizes differ by a tenth or two); beyond, the front rates are in another unit or scaled.
+FRONT_SCALE = (0.67, 1.5)
+#: A front wheel reading nothing on more than this share of the moving samples, while the
+#: other turns, is dead.
+DEAD_SHARE = 0.9
+#: The steering angle's span (rad) below which it carries nothing (a constant column).
+STEERING_MIN_SPAN = 1e-6
+#: The agreement of the steering (or the front wheels' difference) with the reference's
+#: turning beyond which its sign and scale are judged.
+TURNING_CORRELATION = 0.5
+
+
+@dataclass(frozen=True)
+class FrontChecks:
+    """The front axle's inputs checked before its fit: the drives to fit (a steering angle
+    that cannot be the car's taken out of its drive) and what was found."""
+
+    drives: tuple[Drive, ...]
+    findings: tuple[Finding, ...]
+
+
+def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
+    """Each drive's front wheels and steering against the reference's motion, before they are
+    fitted. Fatal: a dead front wheel; front wheels whose difference turns against the yaw
+    (left and right swapped, seen without the front track being identified); front wheels
+    turning at a rate no car's tyres give beside the rear ones' (another unit). Left out of
+    the fit and named (the ratio and offset then not identified): a steering angle that is
+    constant, turns against the curvature (its sign) or says a ratio no steering has with
+    the datasheet's wheelbase (its unit: degrees as radians)."""
+    found: list[Finding] = []
+    out: list[Drive] = []
+    wheelbase = float(settings.identify.theta0[LAYOUT.index("L")])
+    low, high = LAYOUT.parameters[LAYOUT.index("ratio")].vehicle_range
+    for d in drives:
+        if "n_fl" not in d.inputs or "n_fr" not in d.inputs:
+            out.append(d)
+            continue
+        speed = np.hypot(np.gradient(d.x, d.t_s), np.gradient(d.y, d.t_s))
+        yaw = np.gradient(np.unwrap(np.asarray(d.psi, dtype=np.float64)), d.t_s)
+        moving = speed > 1.0
+        fl, fr = np.asarray(d.inputs["n_fl"]), np.asarray(d.inputs["n_fr"])
+        dead = False
+        for side, own, other in (("left", fl, fr), ("right", fr, fl)):
+            turning = moving & (np.abs(other) > 0.1)
+            if turning.sum() > 10 and np.mean(np.abs(own[turning]) < 1e-9) > DEAD_SHARE:
+                dead = True
+                found.append(Finding(Check.FRONT_AXLE, Severity.FATAL,
+                                     float(np.mean(np.abs(own[turning]) < 1e-9)), DEAD_SHARE,
+                                     f"dead-{side}|{d.name}"))
+        rear = np.abs(np.asarray(d.n_rl)) + np.abs(np.asarray(d.n_rr))
+        rolling = moving & (rear > 0.5)
+        if rolling.sum() > 10 and not dead:
+            ratio = float(np.median((np.abs(fl) + np.abs(fr))[rolling] / rear[rolling]))
+            # the rates go as the inverse circumferences: a car's tyres span FRONT_SCALE
+            if not 1.0 / FRONT_SCALE[1] <= ratio <= 1.0 / FRONT_SCALE[0]:
+                found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, ratio, 1.0,
+                                     f"rates|{d.name}"))
+        bends = moving & (np.abs(yaw) > 0.05)
+        if bends.sum() > 100:
+            r = _correlation(fr[bends] - fl[bends], yaw[bends])
+            if r < -TURNING_CORRELATION:
+                found.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL, r, 1.0,
+                                     f"front-sides-yaw|{d.name}"))
+        problem = _steering_problem(d, moving, yaw / np.maximum(speed, 2.0), wheelbase,
+                                    (low, high))
+        if problem is None:
+            out.append(d)
+            continue
+        found.append(problem)
+        out.append(dataclasses.replace(d, inputs={k: v for k, v in d.inputs.items()
+                                                  if k != "steer"}))
+    return FrontChecks(tuple(out), tuple(found))
+
+
+def _correlation(a: FloatArray, b: FloatArray) -> float:
+    a, b = a - a.mean(), b - b.mean()
+    den = float(np.sqrt((a * a).sum() * (b * b).sum()))
+    return float((a * b).sum() / den) if den > 0 else 0.0
+
+
+def _steering_problem(drive: Drive, moving: BoolArray, curvature: FloatArray,
+                      wheelbase: float, ratio_range: tuple[float, float]) -> Finding | None:
+    """Why the drive's steering angle cannot be the car's (a FALLBACK finding: it is left
+    out), or None: constant while moving, against the curvature, or a ratio beyond
+    ``ratio_range`` with ``wheelbase`` (the slope of the angle on the curvature is ``ratio
+    L`` at small angles)."""
+    steer = drive.inputs.get("steer")
+    if steer is None or not moving.any():
+        return None
+    s = np.asarray(steer, dtype=np.float64)[moving]
+    if float(np.ptp(s)) < STEERING_MIN_SPAN:
+        return Finding(Check.STEERING, Severity.FALLBACK, float(s[0]), 0.0,
+                       f"constant|{drive.name}")
+    k = curvature[moving]
+    r = _correlation(s, k)
+    if abs(r) < TURNING_CORRELATION:
+        return None                          # too straight to judge the sign or the scale
+    slope = float(((s - s.mean()) * (k - k.mean())).sum() / ((k - k.mean()) ** 2).sum())
+    ratio = slope / wheelbase
+    if ratio < 0:
+        return Finding(Check.STEERING, Severity.FALLBACK, ratio, r, f"sign|{drive.name}")
+    if not ratio_range[0] <= ratio <= ratio_range[1]:
+        return Finding(Check.STEERING, Severity.FALLBACK, ratio, wheelbase,
+                       f"unit|{drive.name}")
+    return None

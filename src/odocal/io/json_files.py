@@ -74,7 +74,13 @@ def read_parameters(path: str | Path, model: str = registry.DEFAULT) -> Paramete
         rear = plausible(Parameters(*values[:len(PARAMETER_NAMES)]))
     except DataError as exc:
         raise DataError(f"'{path}': {exc}") from exc
-    return rear if layout.names == PARAMETER_NAMES else Parameters(*values, layout=layout)
+    if layout.names == PARAMETER_NAMES:
+        return rear
+    problem = vehicle_problem(values, layout)
+    if problem is not None:
+        raise DataError(f"'{path}': parameters {dict(zip(layout.names, values, strict=True))} "
+                        f"are not those of a wheeled vehicle: {problem}")
+    return Parameters(*values, layout=layout)
 
 
 def read_uncertainty(path: str | Path, model: str = registry.DEFAULT) -> list[float]:

@@ -59,6 +59,7 @@ def save_results(result: CalibrationResult, folder: str | Path, *,
 
     out = Path(folder)
     refuse_inputs(out, [*source_files(result), *inputs], folder=True)
+    refuse_car_targets(exports, result.model_estimate.model)
     check_replaceable(out)
     with results_folder(out) as tmp:
         written = write_results(result, tmp, exports=exports, report=report,
@@ -93,6 +94,7 @@ def write_results(result: CalibrationResult, out_dir: str | Path, *,
     if unknown:
         raise OutputError(f"unknown export target {unknown[0]!r}; choose from "
                           f"{', '.join(EXPORT_TARGETS)}")
+    refuse_car_targets(targets, result.model_estimate.model)
     if "tum" in targets:
         from odocal.output.trajectories import write_trajectories
 
@@ -114,6 +116,15 @@ def write_results(result: CalibrationResult, out_dir: str | Path, *,
             written.append(path)
     return Written(paths=tuple(p.relative_to(out) if p.is_relative_to(out) else p
                                for p in written), notes=tuple(notes))
+
+
+def refuse_car_targets(targets: Sequence[str], model: str) -> None:
+    """A one-line OutputError, before anything is written, for a car's export (``ackermann``:
+    a wheelbase and a steering) asked of a model without them."""
+    if "ackermann" in targets and model != "four_wheel":
+        raise OutputError(f"--export ackermann needs a car's wheelbase and steering: "
+                          f"calibrate with [vehicle] model = \"four_wheel\" (this run is the "
+                          f"{model} model's)")
 
 
 def write_calibration(result: CalibrationResult, out_dir: str | Path, *,

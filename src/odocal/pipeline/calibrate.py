@@ -66,7 +66,12 @@ from odocal.estimators.estimate import (
     refused_estimate,
     weak,
 )
-from odocal.estimators.front_axle import four_wheel_estimate, mapping_findings
+from odocal.estimators.front_axle import (
+    four_wheel_estimate,
+    front_checks,
+    mapping_findings,
+    require_front_wheels,
+)
 from odocal.estimators.validation import (
     MinimumResult,
     ValidationResult,
@@ -289,6 +294,8 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     clock = Stopwatch(progress)
     with clock.stage("read"):
         drive_list = load_drives(drives, settings=settings)
+    if model_settings is not None:
+        require_front_wheels(drive_list)             # before any time is spent on a fit
     settings = with_stated_datasheet(drive_list, settings)
     drive_list = _arm_taken_out(drive_list, settings, method)
     with clock.stage("checks"):
@@ -305,7 +312,8 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         diagnosis = diagnosis.plus(fitted)
         if diagnosis.fatal:
             estimate = dataclasses.replace(estimate, status=Status.REJECTED)
-    warnings = _warnings(method, prep, outcome, boot)
+    warnings = [*(str(said) for d in drive_list for said in d.metadata.get("left_out", ())),
+                *_warnings(method, prep, outcome, boot)]
     with clock.stage("validation"):
         val, datasheet = _validated(estimate, fitted, drive_list, prep, settings, method)
     if estimate.success:
@@ -313,9 +321,12 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     vehicle = None
     if model_settings is not None:
         with clock.stage("front axle"):
-            vehicle = four_wheel_estimate(
-                estimate, _as_fitted(drive_list, estimate, fitted, settings, method),
-                model_settings)
+            checked = front_checks(_as_fitted(drive_list, estimate, fitted, settings, method),
+                                   model_settings)
+            diagnosis = diagnosis.plus(checked.findings)
+            if diagnosis.fatal:
+                estimate = dataclasses.replace(estimate, status=Status.REJECTED)
+            vehicle = four_wheel_estimate(estimate, checked.drives, model_settings)
         diagnosis = diagnosis.plus(mapping_findings(vehicle, diagnosis))
         if diagnosis.fatal:             # the wheels' mapping: nothing of the car stands
             estimate = dataclasses.replace(estimate, status=Status.REJECTED)

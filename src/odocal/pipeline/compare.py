@@ -52,8 +52,10 @@ def check_comparable(drives: Sequence[Drive], settings: Settings | None = None,
     """The two held-out halves, or a DataError (before anything is fitted) when either holds no
     validation segment to score a method on."""
     from odocal.data.segments import validation_segments
+    from odocal.model.registry import require_rear_axle
 
     settings = settings or Settings()
+    require_rear_axle(settings.vehicle.model, "--compare (every method on held-out data)")
     duration = sum(d.duration_s for d in drives)
     block = min(block_s, max(duration / 6.0, 30.0))
     halves = folds(drives, block)

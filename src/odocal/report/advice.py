@@ -221,8 +221,8 @@ def front_advice(vehicle: Estimate) -> list[ParameterAdvice]:
                     f"for calling it identified is +-{format_value(name, verdict.limit)}).")
         elif verdict.reason is Reason.NO_INFORMATION and name in ("ratio", "s_0"):
             text = (f"{label} is not identified: the drives carry no steering-wheel angle "
-                    "(map a steering column, or a bag's steering joint); its datasheet value "
-                    "is kept.")
+                    "that can be used (none is mapped, or the one logged was left out: see "
+                    "the notes); its datasheet value is kept.")
         elif verdict.reason in (Reason.FAILED, Reason.REJECTED, Reason.STANDSTILL):
             text = f"{label} is not calibrated: {reason_text(name, verdict, threshold_radps=0)}."
         else:
@@ -423,6 +423,43 @@ def _departure_text(finding: Finding) -> str:
                 "the fit took in (a lever arm, a smoothed reference, slip) explains it: front "
                 "wheels mapped as the rear ones? odocal's model is the rear axle's; map the "
                 "rear wheels (nothing is calibrated from these)")
+    if c is Check.WHEEL_MAPPING and finding.name.startswith("front-sides-yaw"):
+        return (f"the front wheels' difference turns against the yaw rate (correlation "
+                f"{v:+.2f}) in {finding.name.partition('|')[2]}: front left and right swapped? "
+                "map them the other way round (nothing is calibrated from these)")
+    if c is Check.FRONT_AXLE:
+        what, _, where = finding.name.partition("|")
+        if what.startswith("dead-"):
+            return (f"the front {what.removeprefix('dead-')} wheel reads nothing on {v:.0%} "
+                    f"of the moving samples of {where} while the other turns: a dead sensor "
+                    "or an unmapped column (nothing is calibrated from these)")
+        if what == "rates":
+            return (f"the front wheels turn {v:.3g} times as fast as the rear ones in "
+                    f"{where}: front wheel rates in another unit (m/s, km/h or rad/s given "
+                    "as rev/s?) or scaled (nothing is calibrated from these)")
+        if what == "scale":
+            return (f"the front wheels imply a circumference of {ref:.4g} m, {v:.3g} times "
+                    "the rear ones': front wheel rates in another unit (m/s, km/h or rad/s "
+                    "given as rev/s?) or scaled (nothing is calibrated from these)")
+        if what == "difference":
+            return (f"the front wheels' circumferences differ by {v * 1e3:.4g} mm of "
+                    f"{ref:.4g} m: one front wheel reads a share of its turns, or another "
+                    "unit (nothing is calibrated from these)")
+        return (f"the front wheels put the front axle {v:.4g} m ahead of the rear one, "
+                f"beyond any vehicle's {ref:.0f} m (nothing is calibrated from these)")
+    if c is Check.STEERING:
+        what, _, where = finding.name.partition("|")
+        left = ("it is left out: the steering ratio and offset are not calibrated, the "
+                "wheels are")
+        if what == "constant":
+            return f"the steering angle of {where} does not change while moving: {left}"
+        if what == "sign":
+            return (f"the steering angle of {where} turns against the reference's curvature "
+                    f"(as a ratio of {v:.3g}): its sign is flipped? negate the column or map "
+                    f"it so; {left}")
+        return (f"the steering angle of {where} implies a steering ratio of {v:.4g} with the "
+                f"datasheet's wheelbase of {ref:.4g} m (a steering has 1 to 40): in degrees "
+                f"given as radians, or another unit? {left}")
     if c is Check.WHEEL_MAPPING and finding.name == "front-sides":
         return (f"the front wheels' difference runs against the turning (t_f = {v:.2f} m "
                 f"+-{ref:.2f}): front left and right swapped? map them the other way round "
