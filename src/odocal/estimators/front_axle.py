@@ -82,6 +82,9 @@ OUTLIER = 5.0
 MAX_OUTLIER_SHARE = 0.05
 #: Rounds of judging, fitting and rescaling the channels.
 ROUNDS = 4
+#: The least residual scale of each channel (rev, rev, rad): a measurement is never taken as
+#: exact (a channel that fits to the last bit, a constant column, would weigh without bound).
+SCALE_FLOOR = (1e-5, 1e-5, 2e-5)
 #: The model runs on sub-steps of about this long (s): :func:`_substep`.
 SUBSTEP_S = 0.1
 #: Gauss-Newton steps per round at most, and the relative step that ends them.
@@ -464,9 +467,9 @@ def fit_front(windows: FrontWindows, theta0: FloatArray, settings: Settings, *,
     usable[_D] = load.std > 0
     if not has_angle.any():             # no steering angle: the ratio and offset say nothing
         usable[[FRONT.index("ratio"), FRONT.index("s_0")]] = False
-    scale = np.broadcast_to(np.array(
+    scale = np.broadcast_to(np.maximum(np.array(
         [float(np.std(measured[weight[:, c] > 0, c])) if (weight[:, c] > 0).any() else 1.0
-         for c in range(3)]) + 1e-12, measured.shape)
+         for c in range(3)]), SCALE_FLOOR), measured.shape)
     held = np.zeros(_FIT.size, dtype=bool)
     nuisance = np.append(prior, [0.0 if load.std > 0 else (load_std or stds[_LOAD]), 0.0])
     p0 = np.append(theta0, 0.0)                 # no traction slip to start from
@@ -566,13 +569,13 @@ def _scales(residual: FloatArray, weight: FloatArray, before: FloatArray,
         if r2.size < 3:
             continue
         if c == 2:
-            out[:, c] = max(float(np.sqrt(r2.mean())), 1e-12)
+            out[:, c] = max(float(np.sqrt(r2.mean())), SCALE_FLOOR[c])
             continue
         design = np.column_stack([np.ones(r2.size), n2[core]])
         s0, f = np.linalg.lstsq(design, r2, rcond=None)[0]
         if s0 <= 0.0 or f < 0.0:            # no growth with the speed the data show
             s0, f = float(r2.mean()), 0.0
-        out[:, c] = np.sqrt(np.maximum(s0 + f * n2, 1e-24))
+        out[:, c] = np.sqrt(np.maximum(s0 + f * n2, SCALE_FLOOR[c] ** 2))
     return out
 
 
