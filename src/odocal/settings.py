@@ -65,8 +65,8 @@ def _out_of_range(name: str, value: float, layout: Layout = REAR_AXLE) -> str | 
     lo, hi = spec.vehicle_range
     if math.isfinite(value) and lo <= value <= hi:
         return None
-    span = (f"{lo:g} to {hi:g} {spec.unit}" if lo > 0
-            else f"|{name}| up to {hi:g} {spec.unit}")
+    unit = "" if spec.unit == "1" else f" {spec.unit}"           # a ratio has no unit
+    span = f"{lo:g} to {hi:g}{unit}" if lo > 0 else f"|{name}| up to {hi:g}{unit}"
     return f"{name} = {value:.6g} is not a wheeled vehicle's {spec.label} ({span})"
 
 
@@ -120,8 +120,11 @@ def datasheet_pairs(text: str, *, what: str = "--datasheet") -> list[tuple[str, 
                               "wheel_radius=0.1,wheel_separation=0.4 (metres)")
     unknown = [k for k, _ in pairs if k not in DATASHEET_NAMES and k not in STACK_NAMES]
     if unknown:
+        other = [n for n in registry.layout("four_wheel").names if n not in DATASHEET_NAMES]
+        hint = (" (the four_wheel model's front axle and steering are stated in the settings "
+                "file: [identify] theta0)" if unknown[0] in other else "")
         raise ConfigError(f"{what}: {shown(unknown[0])!r} is not one of "
-                          f"{', '.join((*DATASHEET_NAMES, *STACK_NAMES))}")
+                          f"{', '.join((*DATASHEET_NAMES, *STACK_NAMES))}{hint}")
     return [(STACK_NAMES.get(k, k), v * 2.0 * math.pi if k == "wheel_radius" else v)
             for k, v in pairs]
 
@@ -925,6 +928,10 @@ class Settings:
         for name, value in sections.items():
             if name not in _SECTIONS:
                 raise ConfigError(f"unknown settings section {name!r}; known: {sorted(_SECTIONS)}")
+            if not isinstance(value, dict | _SECTIONS[name]):
+                raise ConfigError(f"settings section {name!r} takes a dict of its keys (e.g. "
+                                  f"{name}={{...}}) or a {_SECTIONS[name].__name__}, not "
+                                  f"{value!r}")
             current = getattr(self, name)
             if isinstance(value, dict):
                 value = _build_section(name, _SECTIONS[name], value, base=current)
