@@ -21,8 +21,9 @@ from odocal.sim.simulate import TRUE_PARAMETERS, SimulatedDrive, _wheel_errors
 
 #: The simulated car's front axle and steering, behind :data:`~odocal.sim.simulate.TRUE_PARAMETERS`'
 #: rear axle: front tyres 5 mm smaller than the rear ones, 2.4 mm apart, a 1.55 m front track, a
-#: 2.70 m wheelbase, a steering ratio of 15.2 and a 0.7 degree offset of the steering wheel.
-TRUE_FOUR_WHEEL = Parameters(*TRUE_PARAMETERS.as_array(), 1.947, 0.0024, 1.55, 2.70, 15.2,
+#: 2.62 m wheelbase (not odocal's 2.7 m placeholder: a wheelbase held at the datasheet's is off,
+#: as on a real car), a steering ratio of 15.2 and a 0.7 degree offset of the steering wheel.
+TRUE_FOUR_WHEEL = Parameters(*TRUE_PARAMETERS.as_array(), 1.947, 0.0024, 1.55, 2.62, 15.2,
                              0.012, layout=FOUR_WHEEL)
 #: The steering-angle sensor's noise, rad (a tenth of a degree of the steering wheel).
 STEERING_NOISE_RAD = 0.0017
