@@ -292,6 +292,9 @@ class FrontDetails:
     iterations: int
     load_prior: tuple[float, float, bool]
     traction: tuple[float, float] = (0.0, 0.0)
+    steering_out_of_range: float | None = None
+    """The steering ratio the drives said where it lies beyond any steering's (the ratio and
+    offset were then held: the steering is named, not calibrated); None otherwise."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"windows": self.windows, "window_s": self.window_s, "clusters": self.clusters,
@@ -301,7 +304,8 @@ class FrontDetails:
                 "left_out": self.left_out, "iterations": self.iterations,
                 "load_prior": {"value": self.load_prior[0], "std": self.load_prior[1],
                                "fitted": self.load_prior[2]},
-                "traction_per_mps2": {"value": self.traction[0], "std": self.traction[1]}}
+                "traction_per_mps2": {"value": self.traction[0], "std": self.traction[1]},
+                "steering_out_of_range": self.steering_out_of_range}
 
 
 @dataclass(frozen=True)
@@ -471,6 +475,7 @@ def fit_front(windows: FrontWindows, theta0: FloatArray, settings: Settings, *,
         [float(np.std(measured[weight[:, c] > 0, c])) if (weight[:, c] > 0).any() else 1.0
          for c in range(3)]), SCALE_FLOOR), measured.shape)
     held = np.zeros(_FIT.size, dtype=bool)
+    steering_range: float | None = None
     nuisance = np.append(prior, [0.0 if load.std > 0 else (load_std or stds[_LOAD]), 0.0])
     p0 = np.append(theta0, 0.0)                 # no traction slip to start from
     while True:
@@ -479,6 +484,14 @@ def fit_front(windows: FrontWindows, theta0: FloatArray, settings: Settings, *,
         eq = _normal(p, windows, measured, weight_f, scale_f, load)
         cov = _covariance(eq, windows, free, nuisance, clusters, load)
         std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        # a steering ratio no steering has (a stuck or noisy sensor on a straight drive, a
+        # flipped one the pre-check could not judge) is the steering's failure, not a value
+        ratio = FRONT.index("ratio")
+        low, high = LAYOUT.parameters[LAYOUT.index("ratio")].vehicle_range
+        if free[ratio] and not low <= p[_FRONT[ratio]] <= high:
+            steering_range = float(p[_FRONT[ratio]])
+            held[[ratio, FRONT.index("s_0")]] = True
+            continue
         over = free[:_D] & ~(std[:_D] <= limit)
         if not over.any():               # the widened std of each is within its limit
             break
@@ -488,7 +501,7 @@ def fit_front(windows: FrontWindows, theta0: FloatArray, settings: Settings, *,
     details = dataclasses.replace(
         details, scales=(_rms(scale_f[:, 0]), _rms(scale_f[:, 1]), _rms(scale_f[:, 2])),
         left_out=int((weight_f[:, :2] == 0).any(axis=1).sum()), iterations=steps,
-        traction=(float(p[_K]), float(std[-1])))
+        traction=(float(p[_K]), float(std[-1])), steering_out_of_range=steering_range)
     return FrontFit(theta=p[:_K], covariance=covariance,
                     verdicts=_verdicts(free[:_D], usable[:_D], std[:_D], limit),
                     details=details)
@@ -788,6 +801,10 @@ def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis) -> tuple[Finding, 
     if ok["c_fd"] and abs(th["c_fd"]) > MAX_DIFFERENCE_SHARE * abs(th["c_f"]):
         found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, th["c_fd"], th["c_f"],
                              "difference"))
+    front = getattr(vehicle.details, "front", None)
+    said = getattr(front, "steering_out_of_range", None)
+    if said is not None:
+        found.append(Finding(Check.STEERING, Severity.FALLBACK, said, 0.0, "range"))
     low, high = LAYOUT.parameters[LAYOUT.index("L")].vehicle_range
     if ok["L"] and not low <= th["L"] <= high:
         found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, th["L"], high, "wheelbase"))
@@ -844,17 +861,29 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
                 found.append(Finding(Check.FRONT_AXLE, Severity.FATAL,
                                      float(np.mean(np.abs(own[turning]) < 1e-9)), DEAD_SHARE,
                                      f"dead-{side}|{d.name}"))
-        rear = np.abs(np.asarray(d.n_rl)) + np.abs(np.asarray(d.n_rr))
-        rolling = moving & (rear > 0.5)
+        rear = 0.5 * (np.asarray(d.n_rl) + np.asarray(d.n_rr))
+        rolling = moving & (np.abs(rear) > 0.25)
         if rolling.sum() > 10 and not dead:
-            ratio = float(np.median((np.abs(fl) + np.abs(fr))[rolling] / rear[rolling]))
-            # the rates go as the inverse circumferences: a car's tyres span FRONT_SCALE
-            if not 1.0 / FRONT_SCALE[1] <= ratio <= 1.0 / FRONT_SCALE[0]:
-                found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, ratio, 1.0,
-                                     f"rates|{d.name}"))
-        bends = moving & (np.abs(yaw) > 0.05)
-        if bends.sum() > 100:
-            r = _correlation(fr[bends] - fl[bends], yaw[bends])
+            for side, own in (("left", fl), ("right", fr)):
+                if np.mean(own[rolling] * rear[rolling] < 0) > DEAD_SHARE:
+                    found.append(Finding(Check.FRONT_AXLE, Severity.FATAL,
+                                         float(np.mean(own[rolling] * rear[rolling] < 0)),
+                                         DEAD_SHARE, f"backwards-{side}|{d.name}"))
+                    continue
+                # the rates go as the inverse circumferences: a car's tyres span FRONT_SCALE
+                ratio = float(np.median(np.abs(own[rolling]) / np.abs(rear[rolling])))
+                if not 1.0 / FRONT_SCALE[1] <= ratio <= 1.0 / FRONT_SCALE[0]:
+                    found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, ratio, 1.0,
+                                         f"rates-{side}|{d.name}"))
+        # the front wheels' difference against the yaw, over seconds (a second's sums: the
+        # wheels' noise of one sample would hide a short drive's few bends)
+        size = max(1, round(1.0 / d.t_s))
+        whole = (d.n_samples // size) * size
+        diff = ((fr - fl) * moving)[:whole].reshape(-1, size).sum(axis=1)
+        turn = (yaw * moving)[:whole].reshape(-1, size).sum(axis=1)
+        bends = np.abs(turn) > 0.05 * size
+        if bends.sum() >= 5:
+            r = _correlation(diff[bends], turn[bends])
             if r < -TURNING_CORRELATION:
                 found.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL, r, 1.0,
                                      f"front-sides-yaw|{d.name}"))

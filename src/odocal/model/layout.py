@@ -165,7 +165,7 @@ FOUR_WHEEL = Layout(
                       30.0),
         ParameterSpec("L", "m", "wheelbase", 1.0, "m", 2.7, 0.2, (0.1, 30.0), 30.0),
         ParameterSpec("ratio", "1", "steering ratio (steering-wheel over road-wheel angle)",
-                      1.0, "", 15.0, 3.0, (1.0, 40.0), 40.0),
+                      1.0, "", 15.0, 3.0, (0.5, 40.0), 40.0),
         ParameterSpec("s_0", "rad", "steering-wheel angle offset", 57.29577951308232, "deg",
                       0.0, 0.05, (-1.0, 1.0), 1.0),
     ),

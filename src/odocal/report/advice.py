@@ -433,10 +433,14 @@ def _departure_text(finding: Finding) -> str:
             return (f"the front {what.removeprefix('dead-')} wheel reads nothing on {v:.0%} "
                     f"of the moving samples of {where} while the other turns: a dead sensor "
                     "or an unmapped column (nothing is calibrated from these)")
-        if what == "rates":
-            return (f"the front wheels turn {v:.3g} times as fast as the rear ones in "
-                    f"{where}: front wheel rates in another unit (m/s, km/h or rad/s given "
-                    "as rev/s?) or scaled (nothing is calibrated from these)")
+        if what.startswith("rates-"):
+            return (f"the front {what.removeprefix('rates-')} wheel turns {v:.3g} times as "
+                    f"fast as the rear ones in {where}: its rates in another unit (m/s, km/h "
+                    "or rad/s given as rev/s?) or scaled (nothing is calibrated from these)")
+        if what.startswith("backwards-"):
+            return (f"the front {what.removeprefix('backwards-')} wheel turns against the "
+                    f"rear ones on {v:.0%} of the moving samples of {where}: its sign is "
+                    "flipped (nothing is calibrated from these)")
         if what == "scale":
             return (f"the front wheels imply a circumference of {ref:.4g} m, {v:.3g} times "
                     "the rear ones': front wheel rates in another unit (m/s, km/h or rad/s "
@@ -453,12 +457,16 @@ def _departure_text(finding: Finding) -> str:
                 "wheels are")
         if what == "constant":
             return f"the steering angle of {where} does not change while moving: {left}"
+        if what == "range":
+            return (f"the steering angle says a steering ratio of {v:.3g}, which no steering "
+                    "has (0.5 to 40): a stuck or noisy sensor, a flipped sign, or too little "
+                    f"turning to tell it; {left}")
         if what == "sign":
             return (f"the steering angle of {where} turns against the reference's curvature "
                     f"(as a ratio of {v:.3g}): its sign is flipped? negate the column or map "
                     f"it so; {left}")
         return (f"the steering angle of {where} implies a steering ratio of {v:.4g} with the "
-                f"datasheet's wheelbase of {ref:.4g} m (a steering has 1 to 40): in degrees "
+                f"datasheet's wheelbase of {ref:.4g} m (a steering has 0.5 to 40): in degrees "
                 f"given as radians, or another unit? {left}")
     if c is Check.WHEEL_MAPPING and finding.name == "front-sides":
         return (f"the front wheels' difference runs against the turning (t_f = {v:.2f} m "
