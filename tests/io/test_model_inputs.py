@@ -65,13 +65,18 @@ def test_the_inputs_follow_the_drive_through_cuts_and_its_file(shared_data: Path
         Drive(**{**_fields(d), "inputs": {"n_fx": d.inputs["steer"]}})
 
 
-def test_a_steering_angle_in_degrees_is_refused_as_a_unit_mistake() -> None:
+def test_a_steering_angle_in_degrees_is_named_as_a_unit_mistake_and_left_out() -> None:
+    """Beyond any car's steering (15 rad): named as a unit mistake and left out of the drive
+    (the rear axle never reads it; the four-wheel model then calibrates without it)."""
     t = np.arange(0.0, 60.0, 0.02)
     cols = {"t": t, "n_rl": np.full(t.size, 5.0), "n_rr": np.full(t.size, 5.0),
             "a_y": np.zeros(t.size), "x": 10.0 * t, "y": np.zeros(t.size),
             "psi": np.zeros(t.size), "steer": 90.0 * np.sin(0.1 * t)}
-    with pytest.raises(DataError, match=r"column steer reaches 90 rad, beyond any car"):
-        Drive.from_columns(cols, name="degrees")
+    degrees = Drive.from_columns(cols, name="degrees")
+    assert "steer" not in degrees.inputs
+    said = list(degrees.metadata["left_out"])
+    assert len(said) == 1 and "column steer reaches 90 rad, beyond any car" in said[0]
+    assert "left out" in said[0]
     cols["steer"] = np.deg2rad(cols["steer"])
     assert Drive.from_columns(cols, name="radians").inputs["steer"].max() == pytest.approx(
         np.pi / 2, rel=1e-3)

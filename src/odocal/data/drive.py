@@ -252,12 +252,20 @@ class Drive:
         _check_wheel_units(name, arrays["n_rl"], arrays["n_rr"], circumference_m=wheel_m,
                            stated=stated, percentile=90.0)
         arrays, repaired = _without_spikes(name, arrays, pieces)
-        _check_limits(name, arrays)
+        _check_limits(name, arrays, left_out)
         n_rl, n_rr = arrays["n_rl"], arrays["n_rr"]
         _check_wheel_bursts(name, arrays["t"], n_rl, n_rr, circumference_m=wheel_m)
         _check_held_reference(name, arrays, pieces)
-        _check_wheel_units(name, n_rl, n_rr, circumference_m=wheel_m, stated=stated,
-                           more={k: arrays[k] for k in ("n_fl", "n_fr") if k in arrays})
+        _check_wheel_units(name, n_rl, n_rr, circumference_m=wheel_m, stated=stated)
+        for key in ("n_fl", "n_fr"):           # the front wheels: left out, not refused
+            if key not in arrays:
+                continue
+            try:
+                _check_wheel_units(name, arrays[key], arrays[key], circumference_m=wheel_m,
+                                   stated=stated, key=key)
+            except DataError as err:
+                left_out.append(f"{err}: left out (an input only the four_wheel model reads)")
+                del arrays[key]
         psi, yaw_rate = _heading_and_yaw_rate(name, arrays, t_s, pieces)
         x, y = arrays["x"], arrays["y"]
         _check_position_units(name, x, y, n_rl, n_rr, t_s, pieces, circumference_m=wheel_m)
@@ -684,24 +692,30 @@ def _psi_too_fast(name: str, psi: FloatArray, yaw: FloatArray, t_s: float) -> No
                     "jumps; smooth it, or check which column it is")
 
 
-def _check_limits(name: str, arrays: Mapping[str, FloatArray]) -> None:
+def _check_limits(name: str, arrays: dict[str, FloatArray], left_out: list[str]) -> None:
+    """A column beyond any car's values is an error; a further input (the steering) is left out
+    instead (``left_out`` says so; only a model beyond the rear axle reads it)."""
     for key, (limit, unit) in LIMITS.items():
         if key not in arrays:
             continue
         peak = float(np.max(np.abs(arrays[key])))
         if peak > limit:
-            raise DataError(f"'{name}' column {key} reaches {peak:.4g} {unit}, beyond any car "
-                            f"(limit {limit:g} {unit}); check its unit and the log")
+            said = (f"'{name}' column {key} reaches {peak:.4g} {unit}, beyond any car "
+                    f"(limit {limit:g} {unit}); check its unit and the log")
+            if key not in MODEL_INPUTS:
+                raise DataError(said)
+            left_out.append(f"{said}: left out (an input only the four_wheel model reads)")
+            del arrays[key]
 
 
 def _check_wheel_units(name: str, n_rl: FloatArray, n_rr: FloatArray, *,
                        circumference_m: float = _CAR_CIRCUMFERENCE_M, stated: bool = False,
-                       percentile: float = 99.0,
-                       more: Mapping[str, FloatArray] | None = None) -> None:
+                       percentile: float = 99.0, key: str | None = None) -> None:
     """Wheel rates no wheel of ``circumference_m`` reaches below 288 km/h are another unit
-    (the rear wheels', and ``more``'s: the front wheels' where the log has them)."""
+    (``key``: one other wheel's column, given as both)."""
     limit = _MAX_WHEEL_SPEED_MPS / circumference_m
-    for key, n in (("n_rl", n_rl), ("n_rr", n_rr), *(more or {}).items()):
+    columns = (("n_rl", n_rl), ("n_rr", n_rr)) if key is None else ((key, n_rl),)
+    for key, n in columns:
         finite = np.abs(n[np.isfinite(n)])
         if finite.size == 0:
             continue

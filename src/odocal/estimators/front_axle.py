@@ -166,9 +166,14 @@ def require_front_wheels(drives: Sequence[Drive]) -> None:
     """A one-line DataError where no drive carries both front wheels' rates (the four-wheel
     model fits its front axle on those that do)."""
     if not any("n_fl" in d.inputs and "n_fr" in d.inputs for d in drives):
-        name = drives[0].name if len(drives) == 1 else f"none of the {len(drives)} drives"
+        name = repr(drives[0].name) if len(drives) == 1 else f"none of the {len(drives)} drives"
+        why = [str(said) for d in drives for said in d.metadata.get("left_out", ())
+               if "column n_f" in str(said)]
+        if why:                              # the reader left them out: say why
+            raise DataError(f"the four_wheel model needs the front wheels' rates, and "
+                            f"{why[0].split(': left out')[0]}: they were left out")
         raise DataError(f"the four_wheel model needs the front wheels' rates (n_fl, n_fr), "
-                        f"and {name!r} has none: map them ([wheels] front_left/front_right, "
+                        f"and {name} has none: map them ([wheels] front_left/front_right, "
                         "or the table's columns), or calibrate the rear axle ([vehicle] "
                         "model = \"rear_axle\")")
 
