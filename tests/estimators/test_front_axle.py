@@ -344,6 +344,8 @@ def test_a_steering_angle_that_cannot_be_the_cars_is_left_out_and_named(
      "rates-left"),
     (lambda d: {"n_fr": 1.947 * d.inputs["n_fr"]}, "rates-right"),
     (lambda d: {"n_fl": -d.inputs["n_fl"]}, "backwards-left"),
+    (lambda d: {"n_fl": np.where(np.arange(d.n_samples) < d.n_samples // 3, d.inputs["n_fl"],
+                                 d.inputs["n_fl"][d.n_samples // 3])}, "frozen-left"),
     (lambda d: {"n_fr": 0.85 * d.inputs["n_fr"]}, "difference"),
     (lambda d: {"n_fr": 0.5 * d.inputs["n_fr"]}, "rates-right"),
 ])

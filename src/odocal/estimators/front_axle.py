@@ -822,6 +822,9 @@ FRONT_SCALE = (0.67, 1.5)
 #: A front wheel reading nothing on more than this share of the moving samples, while the
 #: other turns, is dead.
 DEAD_SHARE = 0.9
+#: A front wheel that follows none of the other's changes for longer than this (s, of changes)
+#: has stopped updating (the shared logs' longest such run is a fraction of a second).
+FROZEN_S = 5.0
 #: The steering angle's span (rad) below which it carries nothing (a constant column).
 STEERING_MIN_SPAN = 1e-6
 #: The agreement of the steering (or the front wheels' difference) with the reference's
@@ -866,6 +869,14 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
                 found.append(Finding(Check.FRONT_AXLE, Severity.FATAL,
                                      float(np.mean(np.abs(own[turning]) < 1e-9)), DEAD_SHARE,
                                      f"dead-{side}|{d.name}"))
+                continue
+            # frozen at a value while the other wheel's changes: a sensor that stopped updating
+            # (the longest run of the other's changes it does not follow, in seconds)
+            longest = _frozen_s(own, other, turning, d.t_s)
+            if longest > FROZEN_S:
+                dead = True
+                found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, longest, FROZEN_S,
+                                     f"frozen-{side}|{d.name}"))
         rear = 0.5 * (np.asarray(d.n_rl) + np.asarray(d.n_rr))
         rolling = moving & (np.abs(rear) > 0.25)
         if rolling.sum() > 10 and not dead:
@@ -901,6 +912,24 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
         out.append(dataclasses.replace(d, inputs={k: v for k, v in d.inputs.items()
                                                   if k != "steer"}))
     return FrontChecks(tuple(out), tuple(found))
+
+
+def _frozen_s(own: FloatArray, other: FloatArray, turning: BoolArray, t_s: float) -> float:
+    """The longest time (s, of the other wheel's changes) ``own`` holds one value while
+    ``other`` changes and its speed moves by more than a tenth: a sensor that stopped updating.
+    An encoder at a steady speed holds its count too, while the other wheel's count flickers
+    by a tick: that the tenth leaves out."""
+    changing = np.flatnonzero(turning[1:] & (np.diff(other) != 0)) + 1
+    if changing.size < 2:
+        return 0.0
+    stuck = (own[changing] == own[changing - 1]).astype(np.int64)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], stuck, [0]])))
+    longest = 0.0
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        span = other[changing[start]:changing[stop - 1] + 1]
+        if np.ptp(span) > 0.1 * max(float(np.mean(np.abs(span))), 1e-9):
+            longest = max(longest, float(stop - start) * t_s)
+    return longest
 
 
 def _correlation(a: FloatArray, b: FloatArray) -> float:

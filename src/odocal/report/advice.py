@@ -433,6 +433,10 @@ def _departure_text(finding: Finding) -> str:
             return (f"the front {what.removeprefix('dead-')} wheel reads nothing on {v:.0%} "
                     f"of the moving samples of {where} while the other turns: a dead sensor "
                     "or an unmapped column (nothing is calibrated from these)")
+        if what.startswith("frozen-"):
+            return (f"the front {what.removeprefix('frozen-')} wheel's rate stays put for "
+                    f"{v:.0f} s of {where} while the other's changes: a sensor that stopped "
+                    "updating (nothing is calibrated from these)")
         if what.startswith("rates-"):
             return (f"the front {what.removeprefix('rates-')} wheel turns {v:.3g} times as "
                     f"fast as the rear ones in {where}: its rates in another unit (m/s, km/h "
