@@ -264,8 +264,7 @@ class Drive:
                 _check_wheel_units(name, arrays[key], arrays[key], circumference_m=wheel_m,
                                    stated=stated, key=key)
             except DataError as err:
-                left_out.append(f"{err}: left out (an input only the four_wheel model reads)")
-                del arrays[key]
+                _refuse_or_leave_out(str(err), key, arrays, left_out)
         psi, yaw_rate = _heading_and_yaw_rate(name, arrays, t_s, pieces)
         x, y = arrays["x"], arrays["y"]
         _check_position_units(name, x, y, n_rl, n_rr, t_s, pieces, circumference_m=wheel_m)
@@ -397,14 +396,8 @@ def _columns(columns: Mapping[str, Any], name: str
             first = int(np.argmax(bad))
             where = f"t={t[first]:.3f} s" if key != "t" and np.isfinite(t[first]) \
                 else f"row {first + 1}"
-            said = (f"'{name}' column {key} contains {int(bad.sum())} NaN or infinite values "
-                    f"(first at {where})")
-            if key not in MODEL_INPUTS:
-                raise DataError(said)
-            # a further input (a front wheel, the steering) only a model beyond the rear axle
-            # reads: left out whole, as a bag's (that model then says what it lacks)
-            left_out.append(f"{said}: left out (an input only the four_wheel model reads)")
-            del arrays[key]
+            _refuse_or_leave_out(f"'{name}' column {key} contains {int(bad.sum())} NaN or "
+                                 f"infinite values (first at {where})", key, arrays, left_out)
     return arrays, left_out
 
 
@@ -692,6 +685,17 @@ def _psi_too_fast(name: str, psi: FloatArray, yaw: FloatArray, t_s: float) -> No
                     "jumps; smooth it, or check which column it is")
 
 
+def _refuse_or_leave_out(said: str, key: str, arrays: dict[str, FloatArray],
+                         left_out: list[str]) -> None:
+    """A column that cannot be used: a DataError saying why, or, for a further input (a front
+    wheel, the steering) only a model beyond the rear axle reads, left out whole with the same
+    words in ``left_out`` (as a bag's: that model then says what it lacks)."""
+    if key not in MODEL_INPUTS:
+        raise DataError(said)
+    left_out.append(f"{said}: left out (an input only the four_wheel model reads)")
+    del arrays[key]
+
+
 def _check_limits(name: str, arrays: dict[str, FloatArray], left_out: list[str]) -> None:
     """A column beyond any car's values is an error; a further input (the steering) is left out
     instead (``left_out`` says so; only a model beyond the rear axle reads it)."""
@@ -700,12 +704,9 @@ def _check_limits(name: str, arrays: dict[str, FloatArray], left_out: list[str])
             continue
         peak = float(np.max(np.abs(arrays[key])))
         if peak > limit:
-            said = (f"'{name}' column {key} reaches {peak:.4g} {unit}, beyond any car "
-                    f"(limit {limit:g} {unit}); check its unit and the log")
-            if key not in MODEL_INPUTS:
-                raise DataError(said)
-            left_out.append(f"{said}: left out (an input only the four_wheel model reads)")
-            del arrays[key]
+            _refuse_or_leave_out(f"'{name}' column {key} reaches {peak:.4g} {unit}, beyond "
+                                 f"any car (limit {limit:g} {unit}); check its unit and the "
+                                 "log", key, arrays, left_out)
 
 
 def _check_wheel_units(name: str, n_rl: FloatArray, n_rr: FloatArray, *,

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -51,7 +51,6 @@ from odocal.correlation import correlations
 from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.estimators.covariance import widened
-from odocal.estimators.departures import corrected
 from odocal.estimators.estimate import Estimate, Identified, NotIdentified, Reason, Verdict
 from odocal.estimators.windows import MOVING_MPS, cluster_steps_for
 from odocal.model.four_wheel import FOUR_WHEEL_MODEL
@@ -471,14 +470,7 @@ def fit_front(windows: FrontWindows, theta0: FloatArray, settings: Settings, *,
                         verdicts=tuple(NotIdentified(reason, limit=float(x)) for x in limit),
                         details=details)
     measured = np.where(np.isfinite(measured), measured, 0.0)
-    weight = np.column_stack([np.ones(windows.size), np.ones(windows.size), has_angle])
-    usable = np.ones(_FIT.size, dtype=bool)
-    usable[_D] = load.std > 0
-    if not has_angle.any():             # no steering angle: the ratio and offset say nothing
-        usable[[FRONT.index("ratio"), FRONT.index("s_0")]] = False
-    scale = np.broadcast_to(np.maximum(np.array(
-        [float(np.std(measured[weight[:, c] > 0, c])) if (weight[:, c] > 0).any() else 1.0
-         for c in range(3)]), SCALE_FLOOR), measured.shape)
+    weight, scale, usable = _start(measured, has_angle, load)
     held = np.zeros(_FIT.size, dtype=bool)
     steering_range: float | None = None
     nuisance = np.append(prior, [0.0 if load.std > 0 else (load_std or stds[_LOAD]), 0.0])
@@ -489,18 +481,11 @@ def fit_front(windows: FrontWindows, theta0: FloatArray, settings: Settings, *,
         eq = _normal(p, windows, measured, weight_f, scale_f, load)
         cov = _covariance(eq, windows, free, nuisance, clusters, load)
         std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        # a steering ratio no steering has (a stuck or noisy sensor on a straight drive, a
-        # flipped one the pre-check could not judge) is the steering's failure, not a value
-        ratio = FRONT.index("ratio")
-        low, high = LAYOUT.parameters[LAYOUT.index("ratio")].vehicle_range
-        if free[ratio] and not low <= p[_FRONT[ratio]] <= high:
-            steering_range = float(p[_FRONT[ratio]])
-            held[[ratio, FRONT.index("s_0")]] = True
-            continue
-        over = free[:_D] & ~(std[:_D] <= limit)
-        if not over.any():               # the widened std of each is within its limit
+        hold, out_of_range = _to_hold(p, free, std, limit)
+        if not hold:
             break
-        held[int(np.argmax(np.where(over, std[:_D] / limit, -np.inf)))] = True
+        held[hold] = True
+        steering_range = out_of_range if out_of_range is not None else steering_range
     covariance = np.zeros((LAYOUT.size, LAYOUT.size))
     covariance[np.ix_(_FIT[:-1], _FIT[:-1])] = cov[:-1, :-1]     # the traction profiled out
     details = dataclasses.replace(
@@ -510,6 +495,39 @@ def fit_front(windows: FrontWindows, theta0: FloatArray, settings: Settings, *,
     return FrontFit(theta=p[:_K], covariance=covariance,
                     verdicts=_verdicts(free[:_D], usable[:_D], std[:_D], limit),
                     details=details)
+
+
+def _start(measured: FloatArray, has_angle: BoolArray, load: _Prior
+           ) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """The first weights (the steering's only where a window has an angle), the first channel
+    scales (the measurements' spread, floored) and which of :data:`_FIT` may be fitted (d only
+    with its prior, the ratio and offset only with a steering angle)."""
+    weight = np.column_stack([np.ones(has_angle.size), np.ones(has_angle.size), has_angle])
+    usable = np.ones(_FIT.size, dtype=bool)
+    usable[_D] = load.std > 0
+    if not has_angle.any():             # no steering angle: the ratio and offset say nothing
+        usable[[FRONT.index("ratio"), FRONT.index("s_0")]] = False
+    scale = np.broadcast_to(np.maximum(np.array(
+        [float(np.std(measured[weight[:, c] > 0, c])) if (weight[:, c] > 0).any() else 1.0
+         for c in range(3)]), SCALE_FLOOR), measured.shape)
+    return weight, scale, usable
+
+
+def _to_hold(p: FloatArray, free: BoolArray, std: FloatArray, limit: FloatArray
+             ) -> tuple[list[int], float | None]:
+    """What the fit must hold next (positions in :data:`_FIT`; none: the fit stands), and the
+    ratio that made it hold the steering. A ratio no steering has (a stuck or noisy sensor on
+    a straight drive, a flipped one the pre-check could not judge) holds the ratio and offset:
+    it is the steering's failure, not a value. Else the front parameter furthest beyond its
+    limit (the widened std of each must be within it)."""
+    ratio = FRONT.index("ratio")
+    low, high = LAYOUT.parameters[LAYOUT.index("ratio")].vehicle_range
+    if free[ratio] and not low <= p[_FRONT[ratio]] <= high:
+        return [ratio, FRONT.index("s_0")], float(p[_FRONT[ratio]])
+    over = free[:_D] & ~(std[:_D] <= limit)
+    if not over.any():
+        return [], None
+    return [int(np.argmax(np.where(over, std[:_D] / limit, -np.inf)))], None
 
 
 def _rounds(theta0: FloatArray, windows: FrontWindows, measured: FloatArray,
@@ -698,55 +716,26 @@ class FourWheelDetails:
                 "front_axle": self.front.to_dict() if self.front is not None else None}
 
 
-def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Settings, *,
-                        departures: Mapping[str, float] | None = None) -> Estimate:
+def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Settings
+                        ) -> Estimate:
     """The four-wheel model's estimate from the rear axle's (the default method's, on
-    ``drives``): the front axle and the steering fitted on the motion it settled (its lag and
-    heading offset, the ``departures`` it fitted taken out) and joined with it
-    (:func:`joined`). ``settings``: the four-wheel model's. The front axle's datasheet
-    circumference and track are the rear's (as stated, ``--datasheet``) where the settings
-    leave them at their placeholders: a car's tyres and tracks are alike front and rear, and
-    their datasheet uncertainty covers the difference. Where the rear fit ended without an
+    ``drives`` as it fitted them: its departures taken out): the front axle and the steering
+    fitted on the motion it settled (its lag and heading offset) and joined with it
+    (:func:`joined`). ``settings``: the four-wheel model's. Where the rear fit ended without an
     estimate, nothing of the front is fitted either (its verdicts say why)."""
-    datasheet_values = np.array(settings.identify.theta0, dtype=np.float64)
-    rear_size = FOUR_WHEEL_MODEL.rear.layout.size
-    datasheet_values[:rear_size] = rear.datasheet.as_array()
-    # the front tyres and track as the rear's where the settings state none of their own
-    for own, rear_name in (("c_f", LAYOUT.scale), ("t_f", LAYOUT.track)):
-        k = LAYOUT.index(own)
-        if datasheet_values[k] == LAYOUT.placeholder[k]:
-            datasheet_values[k] = datasheet_values[LAYOUT.index(rear_name)]
-    datasheet = Parameters.from_array(datasheet_values, layout=LAYOUT)
+    datasheet = _front_datasheet(rear, settings)
     limit = settings.identify.identifiable_ratio * np.asarray(settings.identify.prior_std)
     details = rear.details
     if not rear.success or not hasattr(details, "delay_s"):
-        reason = Reason.FAILED if not rear.success else Reason.NO_INFORMATION
-        first = rear.verdicts[0]
-        if isinstance(first, NotIdentified) and first.reason in (Reason.REJECTED,
-                                                                 Reason.STANDSTILL):
-            reason = first.reason
-        theta = datasheet_values.copy()
-        theta[:rear_size] = rear.theta.as_array()
-        cov = np.zeros((LAYOUT.size, LAYOUT.size))
-        cov[:rear_size, :rear_size] = rear.covariance
-        none = (*rear.verdicts, *(NotIdentified(reason, limit=float(limit[j]))
-                                  for j in _FRONT))
-        return Estimate(method=rear.method, theta=Parameters.from_array(theta, layout=LAYOUT),
-                        datasheet=datasheet, covariance=cov,
-                        covariance_kind=rear.covariance_kind,
-                        free=(*rear.free, *(False,) * len(FRONT)), verdicts=none,
-                        status=rear.status, details=FourWheelDetails(details, None),
-                        widening=np.append(rear.widening, np.ones(len(FRONT))),
-                        model=FOUR_WHEEL_MODEL.name)
-    judged = corrected(drives, dict(departures or {}), rear.theta.as_array())
+        return _without_front(rear, datasheet, limit)
     # the wheels' whole lag is the rear fit's delay; a lag it fitted as a departure is part
     # of it, and the drives (as fitted) are already shifted by that part
     taken = float(dict(getattr(details, "fitted_departures", {}) or {}).get("lag", 0.0))
     shift = float(details.delay_s) - taken * (drives[0].t_s if drives else 0.0)
-    windows = front_windows(judged, settings, delay_s=shift,
+    windows = front_windows(drives, settings, delay_s=shift,
                             heading_offset=float(details.heading_offset_rad))
-    theta0 = datasheet_values.copy()
-    theta0[:rear_size] = rear.theta.as_array()
+    theta0 = datasheet.as_array().copy()
+    theta0[:_REAR_SIZE] = rear.theta.as_array()
     d = FOUR_WHEEL_MODEL.rear.layout.index(LAYOUT.load)
     load_std = float(rear.std[d]) if rear.identified[d] else 0.0
     front = fit_front(windows, theta0, settings, load_std=load_std, fit_load=load_std > 0)
@@ -761,6 +750,44 @@ def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Setti
                     datasheet=datasheet, covariance=cov, covariance_kind=rear.covariance_kind,
                     free=(*rear.free, *front.free), verdicts=(*verdicts, *front.verdicts),
                     status=rear.status, details=FourWheelDetails(details, front.details),
+                    widening=np.append(rear.widening, np.ones(len(FRONT))),
+                    model=FOUR_WHEEL_MODEL.name)
+
+
+_REAR_SIZE = FOUR_WHEEL_MODEL.rear.layout.size
+
+
+def _front_datasheet(rear: Estimate, settings: Settings) -> Parameters:
+    """The four-wheel datasheet: the rear axle's as the rear fit took it; the front axle's
+    circumference and track as the rear's where the settings leave them at their placeholders
+    (a car's tyres and tracks are alike front and rear, and their datasheet uncertainty covers
+    the difference); the rest as the settings state."""
+    values = np.array(settings.identify.theta0, dtype=np.float64)
+    values[:_REAR_SIZE] = rear.datasheet.as_array()
+    for own, rear_name in (("c_f", LAYOUT.scale), ("t_f", LAYOUT.track)):
+        k = LAYOUT.index(own)
+        if values[k] == LAYOUT.placeholder[k]:
+            values[k] = values[LAYOUT.index(rear_name)]
+    return Parameters.from_array(values, layout=LAYOUT)
+
+
+def _without_front(rear: Estimate, datasheet: Parameters, limit: FloatArray) -> Estimate:
+    """The four-wheel estimate where the rear fit gave none: the rear axle's as it ended, the
+    front at the datasheet's, each front parameter not calibrated for the rear's reason."""
+    reason = Reason.FAILED if not rear.success else Reason.NO_INFORMATION
+    first = rear.verdicts[0]
+    if isinstance(first, NotIdentified) and first.reason in (Reason.REJECTED,
+                                                             Reason.STANDSTILL):
+        reason = first.reason
+    theta = datasheet.as_array().copy()
+    theta[:_REAR_SIZE] = rear.theta.as_array()
+    cov = np.zeros((LAYOUT.size, LAYOUT.size))
+    cov[:_REAR_SIZE, :_REAR_SIZE] = rear.covariance
+    verdicts = (*rear.verdicts, *(NotIdentified(reason, limit=float(limit[j])) for j in _FRONT))
+    return Estimate(method=rear.method, theta=Parameters.from_array(theta, layout=LAYOUT),
+                    datasheet=datasheet, covariance=cov, covariance_kind=rear.covariance_kind,
+                    free=(*rear.free, *(False,) * len(FRONT)), verdicts=verdicts,
+                    status=rear.status, details=FourWheelDetails(rear.details, None),
                     widening=np.append(rear.widening, np.ones(len(FRONT))),
                     model=FOUR_WHEEL_MODEL.name)
 
@@ -860,49 +887,7 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
         speed = np.hypot(np.gradient(d.x, d.t_s), np.gradient(d.y, d.t_s))
         yaw = np.gradient(np.unwrap(np.asarray(d.psi, dtype=np.float64)), d.t_s)
         moving = speed > 1.0
-        fl, fr = np.asarray(d.inputs["n_fl"]), np.asarray(d.inputs["n_fr"])
-        dead = False
-        for side, own, other in (("left", fl, fr), ("right", fr, fl)):
-            turning = moving & (np.abs(other) > 0.1)
-            if turning.sum() > 10 and np.mean(np.abs(own[turning]) < 1e-9) > DEAD_SHARE:
-                dead = True
-                found.append(Finding(Check.FRONT_AXLE, Severity.FATAL,
-                                     float(np.mean(np.abs(own[turning]) < 1e-9)), DEAD_SHARE,
-                                     f"dead-{side}|{d.name}"))
-                continue
-            # frozen at a value while the other wheel's changes: a sensor that stopped updating
-            # (the longest run of the other's changes it does not follow, in seconds)
-            longest = _frozen_s(own, other, turning, d.t_s)
-            if longest > FROZEN_S:
-                dead = True
-                found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, longest, FROZEN_S,
-                                     f"frozen-{side}|{d.name}"))
-        rear = 0.5 * (np.asarray(d.n_rl) + np.asarray(d.n_rr))
-        rolling = moving & (np.abs(rear) > 0.25)
-        if rolling.sum() > 10 and not dead:
-            for side, own in (("left", fl), ("right", fr)):
-                if np.mean(own[rolling] * rear[rolling] < 0) > DEAD_SHARE:
-                    found.append(Finding(Check.FRONT_AXLE, Severity.FATAL,
-                                         float(np.mean(own[rolling] * rear[rolling] < 0)),
-                                         DEAD_SHARE, f"backwards-{side}|{d.name}"))
-                    continue
-                # the rates go as the inverse circumferences: a car's tyres span FRONT_SCALE
-                ratio = float(np.median(np.abs(own[rolling]) / np.abs(rear[rolling])))
-                if not 1.0 / FRONT_SCALE[1] <= ratio <= 1.0 / FRONT_SCALE[0]:
-                    found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, ratio, 1.0,
-                                         f"rates-{side}|{d.name}"))
-        # the front wheels' difference against the yaw, over seconds (a second's sums: the
-        # wheels' noise of one sample would hide a short drive's few bends)
-        size = max(1, round(1.0 / d.t_s))
-        whole = (d.n_samples // size) * size
-        diff = ((fr - fl) * moving)[:whole].reshape(-1, size).sum(axis=1)
-        turn = (yaw * moving)[:whole].reshape(-1, size).sum(axis=1)
-        bends = np.abs(turn) > 0.05 * size
-        if bends.sum() >= 5:
-            r = _correlation(diff[bends], turn[bends])
-            if r < -TURNING_CORRELATION:
-                found.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL, r, 1.0,
-                                     f"front-sides-yaw|{d.name}"))
+        found += _front_wheel_findings(d, moving, yaw)
         problem = _steering_problem(d, moving, yaw / np.maximum(speed, 2.0), wheelbase,
                                     (low, high))
         if problem is None:
@@ -912,6 +897,55 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
         out.append(dataclasses.replace(d, inputs={k: v for k, v in d.inputs.items()
                                                   if k != "steer"}))
     return FrontChecks(tuple(out), tuple(found))
+
+
+def _front_wheel_findings(d: Drive, moving: BoolArray, yaw: FloatArray) -> list[Finding]:
+    """One drive's front wheels, each on its own (dead or frozen while the other turns; turning
+    against the rear ones, or at a rate no car's tyres give beside them), and their difference
+    against the reference's yaw over seconds (left and right swapped)."""
+    found: list[Finding] = []
+    fl, fr = np.asarray(d.inputs["n_fl"]), np.asarray(d.inputs["n_fr"])
+    dead = False
+    for side, own, other in (("left", fl, fr), ("right", fr, fl)):
+        turning = moving & (np.abs(other) > 0.1)
+        if turning.sum() > 10 and np.mean(np.abs(own[turning]) < 1e-9) > DEAD_SHARE:
+            dead = True
+            found.append(Finding(Check.FRONT_AXLE, Severity.FATAL,
+                                 float(np.mean(np.abs(own[turning]) < 1e-9)), DEAD_SHARE,
+                                 f"dead-{side}|{d.name}"))
+            continue
+        longest = _frozen_s(own, other, turning, d.t_s)
+        if longest > FROZEN_S:
+            dead = True
+            found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, longest, FROZEN_S,
+                                 f"frozen-{side}|{d.name}"))
+    rear = 0.5 * (np.asarray(d.n_rl) + np.asarray(d.n_rr))
+    rolling = moving & (np.abs(rear) > 0.25)
+    if rolling.sum() > 10 and not dead:
+        for side, own in (("left", fl), ("right", fr)):
+            against = float(np.mean(own[rolling] * rear[rolling] < 0))
+            if against > DEAD_SHARE:
+                found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, against, DEAD_SHARE,
+                                     f"backwards-{side}|{d.name}"))
+                continue
+            # the rates go as the inverse circumferences: a car's tyres span FRONT_SCALE
+            ratio = float(np.median(np.abs(own[rolling]) / np.abs(rear[rolling])))
+            if not 1.0 / FRONT_SCALE[1] <= ratio <= 1.0 / FRONT_SCALE[0]:
+                found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, ratio, 1.0,
+                                     f"rates-{side}|{d.name}"))
+    # the front wheels' difference against the yaw, over seconds (a second's sums: the
+    # wheels' noise of one sample would hide a short drive's few bends)
+    size = max(1, round(1.0 / d.t_s))
+    whole = (d.n_samples // size) * size
+    diff = ((fr - fl) * moving)[:whole].reshape(-1, size).sum(axis=1)
+    turn = (yaw * moving)[:whole].reshape(-1, size).sum(axis=1)
+    bends = np.abs(turn) > 0.05 * size
+    if bends.sum() >= 5:
+        r = _correlation(diff[bends], turn[bends])
+        if r < -TURNING_CORRELATION:
+            found.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL, r, 1.0,
+                                 f"front-sides-yaw|{d.name}"))
+    return found
 
 
 def _frozen_s(own: FloatArray, other: FloatArray, turning: BoolArray, t_s: float) -> float:

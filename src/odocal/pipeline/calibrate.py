@@ -289,13 +289,10 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     settings = settings or Settings()
     method = method or DEFAULT_METHOD
     _check_method(method)
-    # a model beyond the rear axle: its rear axle is fitted as the rear-axle model's
-    model_settings, settings = _rear_axle_settings(settings, method)
+    model_settings, settings = _rear_axle_settings(settings, method)   # a car: its rear axle
     clock = Stopwatch(progress)
     with clock.stage("read"):
-        drive_list = load_drives(drives, settings=settings)
-    if model_settings is not None:
-        require_front_wheels(drive_list)             # before any time is spent on a fit
+        drive_list = _loaded(drives, settings, model_settings)
     settings = with_stated_datasheet(drive_list, settings)
     drive_list = _arm_taken_out(drive_list, settings, method)
     with clock.stage("checks"):
@@ -306,14 +303,8 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     outcome, estimate, boot = _fitted(method, prep, settings, clock, diagnosis=diagnosis,
                                       departures=departures, screened=screened,
                                       drives=drive_list)
-    fitted = tuple(getattr(estimate.details, "findings", ()))
-    if fitted:
-        # what the fit's residuals showed: front wheels (refused), a change inside the log
-        diagnosis = diagnosis.plus(fitted)
-        if diagnosis.fatal:
-            estimate = dataclasses.replace(estimate, status=Status.REJECTED)
-    warnings = [*(str(said) for d in drive_list for said in d.metadata.get("left_out", ())),
-                *_warnings(method, prep, outcome, boot)]
+    diagnosis, estimate, fitted = _with_fit_findings(diagnosis, estimate)
+    warnings = _warnings(method, prep, outcome, boot, drive_list)
     with clock.stage("validation"):
         val, datasheet = _validated(estimate, fitted, drive_list, prep, settings, method)
     if estimate.success:
@@ -321,16 +312,9 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     vehicle = None
     if model_settings is not None:
         with clock.stage("front axle"):
-            checked = front_checks(_as_fitted(drive_list, estimate, fitted, settings, method),
-                                   model_settings)
-            diagnosis = diagnosis.plus(checked.findings)
-            if diagnosis.fatal:
-                estimate = dataclasses.replace(estimate, status=Status.REJECTED)
-            vehicle = four_wheel_estimate(estimate, checked.drives, model_settings)
-        diagnosis = diagnosis.plus(mapping_findings(vehicle, diagnosis))
-        if diagnosis.fatal:             # the wheels' mapping: nothing of the car stands
-            estimate = dataclasses.replace(estimate, status=Status.REJECTED)
-            vehicle = dataclasses.replace(vehicle, status=Status.REJECTED)
+            diagnosis, estimate, vehicle = _the_car(_as_fitted(
+                drive_list, estimate, fitted, settings, method), diagnosis, estimate,
+                model_settings)
     for w in warnings:
         log.warning("%s", w)
     return CalibrationResult(
@@ -341,6 +325,36 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         drive_data=tuple(drive_list),
         timings_s=dict(clock.seconds), diagnosis=diagnosis, departures=departures,
         vehicle_estimate=vehicle, model_settings=model_settings)
+
+
+def _with_fit_findings(diagnosis: Diagnosis, estimate: Estimate
+                       ) -> tuple[Diagnosis, Estimate, tuple[Finding, ...]]:
+    """What the fit's residuals showed (front wheels: refused; a change inside the log) added
+    to the diagnosis, the estimate refused where it is fatal; and those findings."""
+    fitted = tuple(getattr(estimate.details, "findings", ()))
+    if fitted:
+        diagnosis = diagnosis.plus(fitted)
+        if diagnosis.fatal:
+            estimate = dataclasses.replace(estimate, status=Status.REJECTED)
+    return diagnosis, estimate, fitted
+
+
+def _the_car(drives: Sequence[Drive], diagnosis: Diagnosis, estimate: Estimate,
+             model_settings: Settings) -> tuple[Diagnosis, Estimate, Estimate]:
+    """The four-wheel car on the drives as the rear fit fitted them: its front wheels and
+    steering checked (a refusal refuses the rear axle too: the mapping is wrong), its front
+    axle and steering fitted and joined, and what that fit shows of the mapping. Returns the
+    diagnosis, the rear axle's estimate and the car's."""
+    checked = front_checks(drives, model_settings)
+    diagnosis = diagnosis.plus(checked.findings)
+    if diagnosis.fatal:
+        estimate = dataclasses.replace(estimate, status=Status.REJECTED)
+    vehicle = four_wheel_estimate(estimate, checked.drives, model_settings)
+    diagnosis = diagnosis.plus(mapping_findings(vehicle, diagnosis))
+    if diagnosis.fatal:                 # the wheels' mapping: nothing of the car stands
+        estimate = dataclasses.replace(estimate, status=Status.REJECTED)
+        vehicle = dataclasses.replace(vehicle, status=Status.REJECTED)
+    return diagnosis, estimate, vehicle
 
 
 def _rear_axle_settings(settings: Settings, method: str) -> tuple[Settings | None, Settings]:
@@ -443,12 +457,24 @@ def _fitted(method: str, prep: Prepared, settings: Settings, clock: Stopwatch, *
     return outcome, estimate, boot
 
 
+def _loaded(drives: Drive | str | Path | Sequence[Drive | str | Path], settings: Settings,
+            model_settings: Settings | None) -> list[Drive]:
+    """The drives read; for the four-wheel model (``model_settings``), a one-line error where
+    none carries front wheels, before any time is spent on a fit."""
+    drive_list = load_drives(drives, settings=settings)
+    if model_settings is not None:
+        require_front_wheels(drive_list)
+    return drive_list
+
+
 def _warnings(method: str, prep: Prepared, outcome: MethodOutcome,
-              boot: BootstrapResult | None) -> list[str]:
-    """The run's warnings: the segment selection's (a segment method's only: the default fits
-    every window), the preparation's, the method's, and the bootstrap's where it disagrees."""
+              boot: BootstrapResult | None, drives: Sequence[Drive] = ()) -> list[str]:
+    """The run's warnings: the columns the reader left out of the ``drives``, the segment
+    selection's (a segment method's only: the default fits every window), the preparation's,
+    the method's, and the bootstrap's where it disagrees."""
     selection = prep.selection_warnings if method != "inverse" else ()
-    warnings = [*selection, *prep.warnings, *outcome.warnings]
+    left_out = [str(said) for d in drives for said in d.metadata.get("left_out", ())]
+    warnings = [*left_out, *selection, *prep.warnings, *outcome.warnings]
     if boot is not None and not all(boot.agree):
         warnings.append(boot.message)
     return warnings

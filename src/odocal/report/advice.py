@@ -387,6 +387,75 @@ def _speed_scale_text(finding: Finding, settings: Settings) -> str:
             f"wheel-speed unit or scale{hint}{sheet}")
 
 
+#: A front wheel's own faults (``FRONT_AXLE`` findings named ``what-side|drive``): what the
+#: value is, and what it means.
+_FRONT_WHEEL_WORDS = {
+    "dead": "reads nothing on {v:.0%} of the moving samples of {where} while the other turns: "
+            "a dead sensor or an unmapped column",
+    "frozen": "'s rate stays put for {v:.0f} s of {where} while the other's changes: a sensor "
+              "that stopped updating",
+    "rates": "turns {v:.3g} times as fast as the rear ones in {where}: its rates in another "
+             "unit (m/s, km/h or rad/s given as rev/s?) or scaled",
+    "backwards": "turns against the rear ones on {v:.0%} of the moving samples of {where}: its "
+                 "sign is flipped",
+}
+#: What a refusal of the four-wheel car ends with.
+_NOTHING = " (nothing is calibrated from these)"
+
+
+def _four_wheel_text(finding: Finding) -> str:
+    """The four-wheel car's findings (the wheels' mapping, the front axle, the steering) in
+    plain words."""
+    c, v, ref = finding.check, finding.value, finding.reference
+    what, _, where = finding.name.partition("|")
+    if c is Check.STEERING:
+        return _steering_text(what, where, v, ref)
+    if c is Check.WHEEL_MAPPING:
+        if what == "front-sides-yaw":
+            return (f"the front wheels' difference turns against the yaw rate (correlation "
+                    f"{v:+.2f}) in {where}: front left and right swapped? map them the other "
+                    f"way round{_NOTHING}")
+        if what == "front-sides":
+            return (f"the front wheels' difference runs against the turning (t_f = {v:.2f} m "
+                    f"+-{ref:.2f}): front left and right swapped? map them the other way "
+                    f"round{_NOTHING}")
+        return ("the rear wheels turn alike in bends while the car has four wheel signals: "
+                "two wheels of one side mapped as an axle (a wheel among the four in the "
+                f"wrong column)? check the mapping of all four{_NOTHING}")
+    fault, _, side = what.partition("-")
+    if fault in _FRONT_WHEEL_WORDS:
+        gap = "" if fault == "frozen" else " "
+        return (f"the front {side} wheel{gap}"
+                + _FRONT_WHEEL_WORDS[fault].format(v=v, where=where) + _NOTHING)
+    if what == "scale":
+        return (f"the front wheels imply a circumference of {ref:.4g} m, {v:.3g} times the "
+                "rear ones': front wheel rates in another unit (m/s, km/h or rad/s given as "
+                f"rev/s?) or scaled{_NOTHING}")
+    if what == "difference":
+        return (f"the front wheels' circumferences differ by {v * 1e3:.4g} mm of {ref:.4g} m: "
+                f"one front wheel reads a share of its turns, or another unit{_NOTHING}")
+    return (f"the front wheels put the front axle {v:.4g} m ahead of the rear one, beyond any "
+            f"vehicle's {ref:.0f} m{_NOTHING}")
+
+
+def _steering_text(what: str, where: str, v: float, ref: float) -> str:
+    """A steering angle left out (``STEERING`` findings), in plain words."""
+    left = "it is left out: the steering ratio and offset are not calibrated, the wheels are"
+    if what == "constant":
+        return f"the steering angle of {where} does not change while moving: {left}"
+    if what == "range":
+        return (f"the steering angle says a steering ratio of {v:.3g}, which no steering has "
+                "(0.5 to 40): a stuck or noisy sensor, a flipped sign, or too little turning "
+                f"to tell it; {left}")
+    if what == "sign":
+        return (f"the steering angle of {where} turns against the reference's curvature (as a "
+                f"ratio of {v:.3g}): its sign is flipped? negate the column or map it so; "
+                f"{left}")
+    return (f"the steering angle of {where} implies a steering ratio of {v:.4g} with the "
+            f"datasheet's wheelbase of {ref:.4g} m (a steering has 0.5 to 40): in degrees "
+            f"given as radians, or another unit? {left}")
+
+
 def _departure_text(finding: Finding) -> str:
     """A departure the one fit took in (:mod:`odocal.estimators.departures`), in plain words;
     empty for any other finding."""
@@ -423,64 +492,8 @@ def _departure_text(finding: Finding) -> str:
                 "the fit took in (a lever arm, a smoothed reference, slip) explains it: front "
                 "wheels mapped as the rear ones? odocal's model is the rear axle's; map the "
                 "rear wheels (nothing is calibrated from these)")
-    if c is Check.WHEEL_MAPPING and finding.name.startswith("front-sides-yaw"):
-        return (f"the front wheels' difference turns against the yaw rate (correlation "
-                f"{v:+.2f}) in {finding.name.partition('|')[2]}: front left and right swapped? "
-                "map them the other way round (nothing is calibrated from these)")
-    if c is Check.FRONT_AXLE:
-        what, _, where = finding.name.partition("|")
-        if what.startswith("dead-"):
-            return (f"the front {what.removeprefix('dead-')} wheel reads nothing on {v:.0%} "
-                    f"of the moving samples of {where} while the other turns: a dead sensor "
-                    "or an unmapped column (nothing is calibrated from these)")
-        if what.startswith("frozen-"):
-            return (f"the front {what.removeprefix('frozen-')} wheel's rate stays put for "
-                    f"{v:.0f} s of {where} while the other's changes: a sensor that stopped "
-                    "updating (nothing is calibrated from these)")
-        if what.startswith("rates-"):
-            return (f"the front {what.removeprefix('rates-')} wheel turns {v:.3g} times as "
-                    f"fast as the rear ones in {where}: its rates in another unit (m/s, km/h "
-                    "or rad/s given as rev/s?) or scaled (nothing is calibrated from these)")
-        if what.startswith("backwards-"):
-            return (f"the front {what.removeprefix('backwards-')} wheel turns against the "
-                    f"rear ones on {v:.0%} of the moving samples of {where}: its sign is "
-                    "flipped (nothing is calibrated from these)")
-        if what == "scale":
-            return (f"the front wheels imply a circumference of {ref:.4g} m, {v:.3g} times "
-                    "the rear ones': front wheel rates in another unit (m/s, km/h or rad/s "
-                    "given as rev/s?) or scaled (nothing is calibrated from these)")
-        if what == "difference":
-            return (f"the front wheels' circumferences differ by {v * 1e3:.4g} mm of "
-                    f"{ref:.4g} m: one front wheel reads a share of its turns, or another "
-                    "unit (nothing is calibrated from these)")
-        return (f"the front wheels put the front axle {v:.4g} m ahead of the rear one, "
-                f"beyond any vehicle's {ref:.0f} m (nothing is calibrated from these)")
-    if c is Check.STEERING:
-        what, _, where = finding.name.partition("|")
-        left = ("it is left out: the steering ratio and offset are not calibrated, the "
-                "wheels are")
-        if what == "constant":
-            return f"the steering angle of {where} does not change while moving: {left}"
-        if what == "range":
-            return (f"the steering angle says a steering ratio of {v:.3g}, which no steering "
-                    "has (0.5 to 40): a stuck or noisy sensor, a flipped sign, or too little "
-                    f"turning to tell it; {left}")
-        if what == "sign":
-            return (f"the steering angle of {where} turns against the reference's curvature "
-                    f"(as a ratio of {v:.3g}): its sign is flipped? negate the column or map "
-                    f"it so; {left}")
-        return (f"the steering angle of {where} implies a steering ratio of {v:.4g} with the "
-                f"datasheet's wheelbase of {ref:.4g} m (a steering has 0.5 to 40): in degrees "
-                f"given as radians, or another unit? {left}")
-    if c is Check.WHEEL_MAPPING and finding.name == "front-sides":
-        return (f"the front wheels' difference runs against the turning (t_f = {v:.2f} m "
-                f"+-{ref:.2f}): front left and right swapped? map them the other way round "
-                "(nothing is calibrated from these)")
-    if c is Check.WHEEL_MAPPING:
-        return ("the rear wheels turn alike in bends while the car has four wheel signals: "
-                "two wheels of one side mapped as an axle (a wheel among the four in the "
-                "wrong column)? check the mapping of all four (nothing is calibrated from "
-                "these)")
+    if c in (Check.WHEEL_MAPPING, Check.FRONT_AXLE, Check.STEERING):
+        return _four_wheel_text(finding)
     if c is Check.REFERENCE_SMOOTHED:
         return (f"the reference travels less than the wheels in bends at speed, as a pose "
                 f"smoothed over about {math.sqrt(2.0 * max(v, 0.0)):.2f} s does (it cuts the "
