@@ -451,3 +451,27 @@ def test_a_road_wheel_angle_is_a_steering_of_ratio_one(
                            settings=FOUR).model_estimate
     assert est.identified["ratio"]
     assert est.theta.ratio == pytest.approx(1.0, abs=3 * float(est.std["ratio"]))
+
+
+def test_validate_refuses_a_four_wheel_parameter_file_no_car_has_in_one_line(
+        four_wheel_drive: tuple[Drive, np.ndarray], tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from odocal.cli.main import main
+
+    drive, _ = four_wheel_drive
+    car = odocal.calibrate(drive, settings=FOUR)
+    car.save(tmp_path / "car", report=False)
+    path = tmp_path / "car" / "calibration.json"
+    data = json.loads(path.read_text())
+    data["theta"]["L"] = 100.0
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(data))
+    odocal.save_drive(drive, tmp_path / "drive.parquet")
+    config = tmp_path / "four.toml"
+    config.write_text('[vehicle]\nmodel = "four_wheel"\n')
+    capsys.readouterr()
+    code = main(["validate", str(tmp_path / "drive.parquet"), "--config", str(config),
+                 "--params", str(bad)])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 1 and len(err) == 1
+    assert "L = 100 is not a wheeled vehicle's wheelbase" in err[0]
