@@ -167,7 +167,8 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--export", action="extend", type=export_targets, metavar="TARGET,...",
                    help="also write the parameters for a localisation stack: yaml (a ROS 2 "
                         "parameter file) or json, with their covariance, or the parameter files "
-                        "of autoware, ros2_control, robot_localization; or tum: the reference "
+                        "of autoware, ros2_control, robot_localization, ackermann (the "
+                        "four_wheel model's ackermann_steering_controller); or tum: the reference "
                         "and the wheel odometry (calibrated and datasheet) as trajectories for "
                         "evo (a comma list, or repeated)")
     p.add_argument("--wheel-joints", type=wheel_joints, metavar="LEFT,RIGHT",
