@@ -280,6 +280,35 @@ def test_workers_die_when_their_parent_is_killed(tmp_path: Path, script: str) ->
 
 # ---------------------------------------------------------------- Ctrl-C
 
+_MASK_SCRIPT = """
+from odocal.fleet.engine import dask_client
+
+def blocked():
+    status = open("/proc/self/status").read().splitlines()
+    return int(next(line for line in status if line.startswith("SigBlk:")).split()[1], 16)
+
+if __name__ == "__main__":
+    with dask_client(workers=2) as client:
+        print(" ".join(str(mask) for mask in client.run(blocked).values()))
+"""
+
+
+def test_the_workers_are_born_with_ctrl_c_blocked(tmp_path: Path) -> None:
+    """A terminal's Ctrl-C goes to every process of its group, the workers included: one that
+    lands while a worker's interpreter starts (before any handler can be set) printed "Fatal
+    Python error: init_import_site" and a stack. The workers are spawned with SIGINT blocked
+    (on main, multiprocessing's resource tracker, started from Dask's IO loop, unblocked it
+    there, and the workers were born with nothing blocked)."""
+    path = tmp_path / "mask.py"
+    path.write_text(_MASK_SCRIPT)
+    proc = subprocess.run([sys.executable, str(path)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    masks = [int(m) for m in proc.stdout.split()]
+    assert len(masks) == 2
+    assert all(mask & (1 << (signal.SIGINT - 1)) for mask in masks), masks
+
+
 def _stored(store: Path) -> int:
     try:
         with sqlite3.connect(f"file:{store}?mode=ro", uri=True, timeout=30) as db:

@@ -26,11 +26,12 @@ import signal
 import tempfile
 import threading
 from collections.abc import Iterator
+from multiprocessing import resource_tracker
 from pathlib import Path
 from typing import Any
 
 from odocal.errors import ConfigError
-from odocal.estimators.parallel import die_with_parent
+from odocal.estimators.parallel import die_with_parent, interrupts_held
 
 log = logging.getLogger(__name__)
 
@@ -188,9 +189,18 @@ def local_client(n: int) -> Iterator[Any]:
     try:
         with _guard_flag() as flag:
             try:
-                cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                       host="127.0.0.1", dashboard_address="127.0.0.1:0",
-                                       silence_logs=logging.CRITICAL, env=threads)
+                # Ctrl-C blocked while the cluster starts: its IO-loop thread, created now,
+                # keeps the blocked mask, and so does every worker process it spawns (the mask
+                # survives fork and exec), so a terminal's Ctrl-C cannot land in a worker's
+                # interpreter start-up ("Fatal Python error: init_import_site"); this process
+                # gets it as soon as the cluster is up. The resource tracker is started
+                # first, here: starting it later, from the IO loop, would unblock Ctrl-C there
+                # (multiprocessing unblocks it after spawning the tracker, whatever the mask was)
+                resource_tracker.ensure_running()
+                with interrupts_held():
+                    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                           host="127.0.0.1", dashboard_address="127.0.0.1:0",
+                                           silence_logs=logging.CRITICAL, env=threads)
             except Exception:
                 if flag.exists():
                     # the cause is Dask's and multiprocessing's own confusion about a script
