@@ -140,7 +140,6 @@ def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float
     require_front_wheels(drives)
     parts: dict[str, list[FloatArray]] = {k: [] for k in ("ds", "dpsi", "a_y", "a_x", "revs",
                                                           "steer", "cluster")}
-    cluster_s = cluster_steps_for(drives, settings) * (drives[0].t_s if drives else 1.0)
     lags = []
     for index, drive in enumerate(drives):
         if "n_fl" not in drive.inputs or "n_fr" not in drive.inputs:
@@ -150,6 +149,10 @@ def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float
         steer, lag = steering_lag(drive)
         if lag is not None:
             lags.append(lag)
+        # clustered drive by drive, as the rear fit's windows are: a drive added changes
+        # nothing of the others' clusters, and a short scene is several clusters, not a share
+        # of one pooled over every drive
+        cluster_s = cluster_steps_for([drive], settings) * drive.t_s
         _add_windows(parts, drive, steer, settings.inverse.window_s, heading_offset,
                      index * 10**9, cluster_s)
     if not parts["ds"]:
@@ -282,7 +285,10 @@ class FrontDetails:
     left_out : windows beyond :data:`OUTLIER` scales, left out of the final fit
     iterations : Gauss-Newton steps of the final round
     load_prior : d's value and std from the rear fit (the prior), and whether it was fitted
-        here (False: the rear fit holds it, so it stays held)
+        here (False: the rear fit holds it, or the front wheels disagree with it, so it stays
+        held)
+    load_joined : whether the front wheels' evidence on d joined the rear's (else d, fitted
+        here with its prior, was a nuisance of the front fit only: the rear's d stands)
     traction : the front wheels' slip per m/s^2 of acceleration fitted beside (1/(m/s^2)),
         and its std
     """
@@ -295,6 +301,7 @@ class FrontDetails:
     left_out: int
     iterations: int
     load_prior: tuple[float, float, bool]
+    load_joined: bool = False
     traction: tuple[float, float] = (0.0, 0.0)
     steering_out_of_range: float | None = None
     """The steering ratio the drives said where it lies beyond any steering's (the ratio and
@@ -307,7 +314,7 @@ class FrontDetails:
                                    self.scales, strict=True)),
                 "left_out": self.left_out, "iterations": self.iterations,
                 "load_prior": {"value": self.load_prior[0], "std": self.load_prior[1],
-                               "fitted": self.load_prior[2]},
+                               "fitted": self.load_prior[2], "joined": self.load_joined},
                 "traction_per_mps2": {"value": self.traction[0], "std": self.traction[1]},
                 "steering_out_of_range": self.steering_out_of_range}
 
@@ -688,7 +695,7 @@ def joined(rear_theta: FloatArray, rear_cov: FloatArray, front: FrontFit
     rear_cov = np.asarray(rear_cov, dtype=np.float64)
     d = FOUR_WHEEL_MODEL.rear.layout.index(LAYOUT.load)
     prior_var = float(rear_cov[d, d])
-    if not front.details.load_prior[2] or prior_var <= 0:
+    if not front.details.load_joined or prior_var <= 0:
         theta[r] = rear_theta
         cov[np.ix_(r, r)] = rear_cov
         return theta, cov
@@ -739,11 +746,12 @@ def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Setti
     d = FOUR_WHEEL_MODEL.rear.layout.index(LAYOUT.load)
     load_std = float(rear.std[d]) if rear.identified[d] else 0.0
     front = fit_front(windows, theta0, settings, load_std=load_std, fit_load=load_std > 0)
-    if load_std > 0 and not _joins(front, float(rear.theta.as_array()[d]), load_std):
-        front = fit_front(windows, theta0, settings, load_std=load_std, fit_load=False)
+    if load_std > 0:
+        front = _with_load(front, windows, theta0, settings, float(rear.theta.as_array()[d]),
+                           load_std)
     theta, cov = joined(rear.theta.as_array(), rear.covariance, front)
     verdicts: list[Verdict] = list(rear.verdicts)
-    if front.details.load_prior[2]:      # d, joined with the front wheels' evidence
+    if front.details.load_joined:      # d, joined with the front wheels' evidence
         verdicts[d] = Identified(float(np.sqrt(max(cov[_LOAD, _LOAD], 0.0))),
                                  float(limit[_LOAD]))
     return Estimate(method=rear.method, theta=Parameters.from_array(theta, layout=LAYOUT),
@@ -797,16 +805,36 @@ def _without_front(rear: Estimate, datasheet: Parameters, limit: FloatArray) -> 
 _WITH_LOAD = ("t_f", "L")
 
 
-def _joins(front: FrontFit, prior_value: float, prior_std: float) -> bool:
-    """Whether the front fit's d may join the rear's: the front identifies t_f and L (held at
-    the datasheet's they would pull d), it adds information (a std below the prior's) and it
-    agrees with the rear's within three of the prior's std (beyond, the axles' load transfer
-    differ: a departure from the model, and the rear axle's d is kept)."""
+def _with_load(front: FrontFit, windows: FrontWindows, theta0: FloatArray, settings: Settings,
+               prior_value: float, prior_std: float) -> FrontFit:
+    """The front fit as d's evidence allows, from the fit with d under its prior (the rear's).
+    Where the front wheels agree with the rear's d (within three of the prior's std), the
+    front parameters stand as fitted with d beside them (d's uncertainty is in theirs), and the
+    front's d joins the rear's where it is the front's own evidence (:func:`_joins`); else
+    it is the front fit's nuisance only and the rear's d stands. Where they disagree, the
+    axles' load transfer differ (a departure from the model): the front is fitted again with
+    d held at the rear's, its uncertainty carried."""
+    moved = abs(float(front.theta[_LOAD]) - prior_value)
+    if moved > 3.0 * prior_std:
+        return fit_front(windows, theta0, settings, load_std=prior_std, fit_load=False)
+    joins = _joins(front, prior_std)
+    theta = np.array(front.theta, dtype=np.float64)
+    covariance = np.array(front.covariance, dtype=np.float64)
+    if not joins:                            # the rear's d stands, uncorrelated with the front
+        theta[_LOAD] = prior_value
+        covariance[_LOAD, :] = 0.0
+        covariance[:, _LOAD] = 0.0
+    return dataclasses.replace(front, theta=theta, covariance=covariance,
+                               details=dataclasses.replace(front.details, load_joined=joins))
+
+
+def _joins(front: FrontFit, prior_std: float) -> bool:
+    """Whether the front fit's d (agreeing with the rear's) may join the rear's: the front
+    identifies t_f and L (held at the datasheet's, they would pull d) and adds information (a
+    std below the prior's)."""
     identified = dict(zip(FRONT, front.free, strict=True))
     std = float(np.sqrt(max(front.covariance[_LOAD, _LOAD], 0.0)))
-    moved = abs(float(front.theta[_LOAD]) - prior_value)
-    return (all(identified[n] for n in _WITH_LOAD) and 0.0 < std < prior_std
-            and moved <= 3.0 * prior_std)
+    return all(identified[n] for n in _WITH_LOAD) and 0.0 < std < prior_std
 
 
 def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis) -> tuple[Finding, ...]:
