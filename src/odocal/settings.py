@@ -60,7 +60,21 @@ def vehicle_problem(theta: Any, layout: Layout = REAR_AXLE) -> str | None:
     return None
 
 
-def _out_of_range(name: str, value: float, layout: Layout = REAR_AXLE) -> str | None:
+def _named_layout(name: str) -> Layout:
+    """The first registered model's layout that has parameter ``name``."""
+    return next(registry.layout(m) for m in registry.names() if name in registry.layout(m).names)
+
+
+def _datasheet_names() -> tuple[str, ...]:
+    """Every registered model's parameter names, the rear axle's first."""
+    out: list[str] = []
+    for m in registry.names():
+        out += [n for n in registry.layout(m).names if n not in out]
+    return tuple(out)
+
+
+def _out_of_range(name: str, value: float, layout: Layout | None = None) -> str | None:
+    layout = layout or _named_layout(name)
     spec = layout.parameters[layout.index(name)]
     lo, hi = spec.vehicle_range
     if math.isfinite(value) and lo <= value <= hi:
@@ -77,10 +91,10 @@ def datasheet_values(pairs: Any, *, source: str = "--datasheet") -> dict[str, fl
     valid range."""
     items = list(pairs.items()) if isinstance(pairs, dict) else list(pairs)
     values: dict[str, float] = {}
+    known = _datasheet_names()
     for key, value in items:
-        if key not in DATASHEET_NAMES:
-            raise ConfigError(f"{source}: {shown(key)!r} is not one of "
-                              f"{', '.join(DATASHEET_NAMES)}")
+        if key not in known:
+            raise ConfigError(f"{source}: {shown(key)!r} is not one of {', '.join(known)}")
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ConfigError(f"{source}: {key} = {shown(repr(value))} is not a number")
         if key in values:
@@ -93,10 +107,14 @@ def datasheet_values(pairs: Any, *, source: str = "--datasheet") -> dict[str, fl
     return values
 
 
-#: The names the localisation stacks give datasheet values (ROS 2's diff_drive_controller,
-#: Autoware's vehicle_info), by odocal's parameter they state (a radius is c_e / 2 pi).
+#: The names the localisation stacks give datasheet values (ROS 2's diff_drive_controller and
+#: ackermann_steering_controller, Autoware's vehicle_info), by odocal's parameter they state.
 STACK_NAMES: dict[str, str] = {"wheel_radius": "c_e", "wheel_separation": "t_r",
-                               "wheel_tread": "t_r"}
+                               "wheel_tread": "t_r", "rear_wheels_radius": "c_e",
+                               "rear_wheel_track": "t_r", "front_wheels_radius": "c_f",
+                               "front_wheel_track": "t_f", "wheel_base": "L", "wheelbase": "L"}
+#: The stacks' names that state a radius (the circumference over 2 pi).
+RADII = frozenset({"wheel_radius", "rear_wheels_radius", "front_wheels_radius"})
 #: A circumference difference beyond this share of the circumference is no pair of tyres of one
 #: axle (a space-saver spare differs by about 5%): a c_d given in mm as metres is named.
 MAX_DIFFERENCE_SHARE = 0.1
@@ -118,15 +136,12 @@ def datasheet_pairs(text: str, *, what: str = "--datasheet") -> list[tuple[str, 
             raise ConfigError(f"{what} {shown(text)!r}: write NAME=VALUE pairs separated by "
                               "commas, e.g. c_e=1.84,t_r=1.52 or "
                               "wheel_radius=0.1,wheel_separation=0.4 (metres)")
-    unknown = [k for k, _ in pairs if k not in DATASHEET_NAMES and k not in STACK_NAMES]
+    known = _datasheet_names()
+    unknown = [k for k, _ in pairs if k not in known and k not in STACK_NAMES]
     if unknown:
-        other = [n for n in registry.layout("four_wheel").names if n not in DATASHEET_NAMES]
-        hint = (" (the four_wheel model's front axle and steering are stated in the settings "
-                "file: [identify] theta0)" if unknown[0] in other else "")
         raise ConfigError(f"{what}: {shown(unknown[0])!r} is not one of "
-                          f"{', '.join((*DATASHEET_NAMES, *STACK_NAMES))}{hint}")
-    return [(STACK_NAMES.get(k, k), v * 2.0 * math.pi if k == "wheel_radius" else v)
-            for k, v in pairs]
+                          f"{', '.join((*known, *STACK_NAMES))}")
+    return [(STACK_NAMES.get(k, k), v * 2.0 * math.pi if k in RADII else v) for k, v in pairs]
 
 
 def parse_datasheet(text: str, *, what: str = "--datasheet") -> dict[str, float]:
@@ -144,6 +159,13 @@ def datasheet_theta(values: Any, base: Any = (), *, source: str = "datasheet",
     ``layout``: the model's, whose theta ``base`` is (its rear axle's values are given)."""
     theta = [float(v) for v in (base if len(base) else layout.placeholder)]
     given = datasheet_values(values, source=source)
+    other = [k for k in given if k not in layout.names]
+    if other:
+        model = next((m for m in registry.names() if registry.layout(m) is layout), "this")
+        owner = next(m for m in registry.names() if other[0] in registry.layout(m).names)
+        raise ConfigError(f"{source}: {other[0]} is a parameter of the {owner} model, not of "
+                          f"the {model} model this run calibrates (choose the model with "
+                          "[vehicle] model in a settings file)")
     for key, value in given.items():
         theta[layout.index(key)] = value
     problem = vehicle_problem(theta, layout)

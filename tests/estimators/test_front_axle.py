@@ -142,9 +142,8 @@ def test_a_drive_without_steering_leaves_the_ratio_and_offset_unidentified(
 def test_commands_for_the_rear_axle_only_refuse_the_model_in_one_line(tmp_path: Path) -> None:
     config = tmp_path / "four.toml"
     config.write_text('[vehicle]\nmodel = "four_wheel"\n')
-    run = subprocess.run([sys.executable, "-m", "odocal", "demo", "--config", str(config),
-                          "--out", str(tmp_path / "demo")], capture_output=True, text=True,
-                         check=False)
+    run = subprocess.run([sys.executable, "-m", "odocal", "reproduce", "--config", str(config),
+                          "--distance-km", "1"], capture_output=True, text=True, check=False)
     assert run.returncode != 0
     assert "Traceback" not in run.stderr
     lines = [line for line in run.stderr.splitlines() if line.strip()]
@@ -506,3 +505,72 @@ def test_validate_refuses_a_four_wheel_parameter_file_no_car_has_in_one_line(
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert code == 1 and len(err) == 1
     assert "L = 100 is not a wheeled vehicle's wheelbase" in err[0]
+
+
+def _odocal(*argv: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "odocal", *argv], capture_output=True,
+                          text=True, check=False, cwd=cwd)
+
+
+def test_the_demo_and_the_simulator_take_the_four_wheel_car(tmp_path: Path) -> None:
+    """`odocal simulate --model four_wheel` writes the four wheels, the steering and the
+    four-wheel truth; `odocal demo` with the model calibrates such a drive and prints the whole
+    car beside its truth, every identified parameter within three stds of it; a method the
+    model does not take is a one-line usage error."""
+    (tmp_path / "four.toml").write_text('[vehicle]\nmodel = "four_wheel"\n')
+    made = _odocal("simulate", "--model", "four_wheel", "--duration", "300", "--seed", "2",
+                   "--out", "s.parquet", cwd=tmp_path)
+    assert made.returncode == 0, made.stderr
+    drive = odocal.load_drive(tmp_path / "s.parquet")
+    assert {"n_fl", "n_fr", "steer"} <= set(drive.inputs)
+    truth = json.loads((tmp_path / "s.truth.json").read_text())
+    assert truth["model"] == "four_wheel" and list(truth["theta"]) == list(FOUR_WHEEL.names)
+    assert truth["theta"]["L"] == 2.62
+
+    demo = _odocal("demo", "--config", "four.toml", "--seed", "1", "--out", "out",
+                   cwd=tmp_path)
+    assert demo.returncode == 0, demo.stderr
+    assert "Traceback" not in demo.stderr
+    table = demo.stdout[demo.stdout.index("the four_wheel model:"):].splitlines()[1:12]
+    assert table[0].split()[-2:] == ["true", "error"]
+    saved = json.loads((tmp_path / "out" / "calibration.json").read_text())
+    assert saved["model"] == "four_wheel"
+    true = with_front_axle(odocal.simulate(duration_s=1200.0, seed=1))[1].as_dict()
+    for name in FOUR_WHEEL.names:
+        row = next(line.split() for line in table if line.split()[0] == name)
+        assert true[name] == pytest.approx(truth["theta"][name])
+        if saved["identified"][name]:
+            err = abs(saved["theta"][name] - true[name])
+            assert err <= 3.0 * saved["std"][name], (name, err, saved["std"][name])
+        else:
+            assert "not identified" in " ".join(row)
+
+    raw = _odocal("demo", "--config", "four.toml", "--method", "raw", cwd=tmp_path)
+    assert raw.returncode == 2
+    lines = [line for line in raw.stderr.splitlines() if line.strip()]
+    assert lines == ["odocal demo: error: argument --method: the four_wheel model is "
+                     "calibrated by the default method (inverse) only"], raw.stderr
+
+
+def test_the_datasheet_names_the_whole_car(tmp_path: Path) -> None:
+    """--datasheet takes the four-wheel car's names and the steering controllers' (a radius
+    made a circumference) into the datasheet the calibration starts from and reports; with the
+    rear-axle model a front name is a one-line usage error naming the model it belongs to."""
+    sim, _ = with_front_axle(odocal.simulate(duration_s=300.0, seed=5))
+    odocal.save_drive(sim.drive, tmp_path / "d.parquet")
+    (tmp_path / "four.toml").write_text('[vehicle]\nmodel = "four_wheel"\n')
+    run = _odocal("calibrate", "d.parquet", "--config", "four.toml", "--out", "o", "-q",
+                  "--no-report", "--datasheet",
+                  "wheelbase=2.61,front_wheel_track=1.53,front_wheels_radius=0.31,ratio=15.5",
+                  cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    sheet = json.loads((tmp_path / "o" / "calibration.json").read_text())["datasheet"]["theta"]
+    assert sheet["L"] == 2.61 and sheet["t_f"] == 1.53 and sheet["ratio"] == 15.5
+    assert sheet["c_f"] == pytest.approx(2.0 * np.pi * 0.31, rel=1e-12)
+    rear = _odocal("calibrate", "d.parquet", "--out", "r", "--datasheet", "L=2.6",
+                   cwd=tmp_path)
+    assert rear.returncode == 2 and not (tmp_path / "r").exists()
+    lines = [line for line in rear.stderr.splitlines() if line.strip()]
+    assert lines == ["odocal calibrate: error: argument --datasheet: L is a parameter of the "
+                     "four_wheel model, not of the rear_axle model this run calibrates (choose "
+                     "the model with [vehicle] model in a settings file)"], rear.stderr

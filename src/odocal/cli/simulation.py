@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from odocal.cli.arguments import DURATION_S, SEED, add_common, add_quiet, number
 from odocal.cli.common import (
     EXIT_OK,
+    UsageError,
     check_out_dir,
     check_out_file,
     compared,
@@ -24,38 +25,46 @@ from odocal.cli.common import (
 from odocal.cli.progress import Progress
 from odocal.errors import OutputError
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
+from odocal.model import registry
 from odocal.sim.noise import NOISE_PROFILES
+
+if TYPE_CHECKING:
+    from odocal.model.parameters import Parameters
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from odocal.pipeline.calibrate import calibrate, validate_theta
-    from odocal.sim.simulate import simulate
 
-    settings = settings_for(command="demo",
-                            config=args.config, datasheet=args.datasheet, workers=args.workers)
+    settings = settings_for(config=args.config, datasheet=args.datasheet, workers=args.workers)
+    four = settings.vehicle.model != registry.DEFAULT
+    if four and args.method not in (None, DEFAULT_METHOD):
+        raise UsageError("--method", f"the {settings.vehicle.model} model is calibrated by the "
+                                     f"default method ({DEFAULT_METHOD}) only")
     inputs = inputs_of(config=args.config)
     check_out_dir(args.out, inputs)
     if not args.quiet:
-        say(f"simulating a {args.duration / 60:.0f}-minute city drive (noise profile "
+        car = " of a four-wheel car with its steering" if four else ""
+        say(f"simulating a {args.duration / 60:.0f}-minute city drive{car} (noise profile "
             f"'{args.noise}', seed {args.seed}) with known true parameters ...")
-    sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
+    sim, truth = _simulated(args, settings.vehicle.model)
+    compare = not args.no_compare and not four
+    if four and not args.no_compare and not args.quiet:
+        say("(the methods are compared on the rear_axle model only: --no-compare taken)")
     method = args.method or DEFAULT_METHOD
-    compile_note([method] + ([] if args.no_compare else list(METHOD_NAMES)), quiet=args.quiet)
+    compile_note([method] + (list(METHOD_NAMES) if compare else []), quiet=args.quiet)
     progress = Progress(not args.quiet)
     try:
         result = calibrate(sim.drive, settings=settings, method=args.method, progress=progress)
-        truth_error = validate_theta(sim.drive, sim.true_parameters,
-                                     settings=settings).mean_error_m
-        if not args.no_compare:
-            result = compared(result, [sim.drive], settings, sim.true_parameters,
-                              quiet=args.quiet, progress=progress)
+        truth_error = validate_theta(sim.drive, truth, settings=settings).mean_error_m
+        if compare:
+            result = compared(result, [sim.drive], settings, truth, quiet=args.quiet,
+                              progress=progress)
     finally:
         progress.close()
     if not args.quiet:
         bound = sim.cramer_rao_bound()
         best = None if bound is None else [math.sqrt(v) for v in bound.diagonal()]
-        print_summary(result, truth=sim.true_parameters, truth_error_m=truth_error,
-                      best_std=best)
+        print_summary(result, truth=truth, truth_error_m=truth_error, best_std=best)
     if args.out:
         write_outputs(result, args.out, inputs=inputs, quiet=args.quiet)
     elif not args.quiet:
@@ -63,10 +72,22 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return exit_code(result)
 
 
+def _simulated(args: argparse.Namespace, model: str) -> tuple[Any, Parameters]:
+    """The simulated drive of ``args`` for vehicle ``model`` and its true parameters (the
+    four-wheel car's: the front wheels and the steering added to the rear axle's drive)."""
+    from odocal.sim.simulate import simulate
+
+    sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
+    if model == registry.DEFAULT:
+        return sim, sim.true_parameters
+    from odocal.sim.four_wheel import with_front_axle
+
+    return with_front_axle(sim)
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     from odocal.io import save_drive
     from odocal.io.json_files import write_json
-    from odocal.sim.simulate import simulate
 
     out = out_file(args.out, "drive.parquet")
     truth_path = out.with_name(out.stem + ".truth.json")
@@ -77,13 +98,15 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if truth_path.exists() and other:
         raise OutputError(f"'{truth_path}' is the truth of '{other[0]}'; writing '{out}' would "
                           "replace it: choose another name")
-    sim = simulate(duration_s=args.duration, seed=args.seed, noise=args.noise)
+    sim, truth = _simulated(args, args.model)
     save_drive(sim.drive, out, owned=True)
-    write_json(truth_path, sim.truth_dict(), owned=True)
+    write_json(truth_path, {**sim.truth_dict(), "theta": truth.as_dict(), "model": args.model},
+               owned=True)
     if not args.quiet:
         d = sim.drive
+        car = ", four wheels and the steering" if args.model != registry.DEFAULT else ""
         say(f"wrote {out} ({d.n_samples} samples, {d.duration_s / 60:.1f} min, "
-            f"{d.distance_m / 1000:.2f} km, noise '{args.noise}') and {truth_path}")
+            f"{d.distance_m / 1000:.2f} km, noise '{args.noise}'{car}) and {truth_path}")
     return EXIT_OK
 
 
@@ -153,6 +176,10 @@ def add_parsers(sub: Any) -> None:
     p.add_argument("--duration", type=DURATION_S, default=1800.0, metavar="S",
                    help="drive length in seconds (default 1800, at most 86400)")
     _noise(p)
+    p.add_argument("--model", choices=registry.names(), default=registry.DEFAULT,
+                   help="the vehicle model simulated (default rear_axle: the two rear wheels); "
+                        "four_wheel adds the front wheels (n_fl, n_fr) and the steering-wheel "
+                        "angle (steer), with the four-wheel truth")
     add_quiet(p)
     p.set_defaults(func=cmd_simulate)
 

@@ -101,8 +101,9 @@ def summary_lines(result: CalibrationResult, *, truth: Parameters | None = None,
         lines.append(f"note: {zero_text(name, float(est.theta.as_array()[j]), float(est.std[j]))}")
     vehicle = result.vehicle_estimate
     if vehicle is not None and vehicle.status is not Status.REJECTED:
+        whole = truth if truth is not None and truth.layout.names == vehicle.names else None
         lines += ["", f"the {vehicle.model} model: the rear axle above joined with the front "
-                      "axle and the steering", *parameter_table(vehicle)]
+                      "axle and the steering", *parameter_table(vehicle, truth=whole)]
         lines += [f"note: {a.text}" for a in front_advice(vehicle) if not a.identified]
     lines += [f"warning: {w}" for w in result.warnings]
     if not result.success and est.status is not Status.NOTHING_IDENTIFIABLE:
