@@ -108,8 +108,10 @@ class Drive:
             if key not in MODEL_INPUTS:
                 raise DataError(f"{self.name}: {key!r} is not an input odocal knows "
                                 f"({', '.join(MODEL_INPUTS)})")
-            if arr.shape != (m,) or not np.all(np.isfinite(arr)):
-                raise DataError(f"{self.name}: column {key} must hold {m} finite values")
+            # NaN: a sample not measured (its model's fit leaves it out); never infinite
+            if arr.shape != (m,) or np.isinf(arr).any() or (m and np.isnan(arr).all()):
+                raise DataError(f"{self.name}: column {key} must hold {m} values, finite or "
+                                "NaN (not measured), not all NaN")
             arr.flags.writeable = False
         object.__setattr__(self, "inputs", MappingProxyType(inputs))
         for key in ("n_rl", "n_rr", "a_y", "beta", "x", "y", "psi", "yaw_rate"):
@@ -260,8 +262,9 @@ class Drive:
         for key in ("n_fl", "n_fr"):           # the front wheels: left out, not refused
             if key not in arrays:
                 continue
+            known = arrays[key][np.isfinite(arrays[key])]
             try:
-                _check_wheel_units(name, arrays[key], arrays[key], circumference_m=wheel_m,
+                _check_wheel_units(name, known, known, circumference_m=wheel_m,
                                    stated=stated, key=key)
             except DataError as err:
                 _refuse_or_leave_out(str(err), key, arrays, left_out)
@@ -396,8 +399,16 @@ def _columns(columns: Mapping[str, Any], name: str
             first = int(np.argmax(bad))
             where = f"t={t[first]:.3f} s" if key != "t" and np.isfinite(t[first]) \
                 else f"row {first + 1}"
-            _refuse_or_leave_out(f"'{name}' column {key} contains {int(bad.sum())} NaN or "
-                                 f"infinite values (first at {where})", key, arrays, left_out)
+            said = (f"'{name}' column {key} contains {int(bad.sum())} NaN or infinite values "
+                    f"(first at {where})")
+            if key in MODEL_INPUTS and not bad.all():
+                # a further input's samples not measured (dropped CAN frames): those samples
+                # are left out of its model's fit, the rest of the column is read
+                arrays[key] = np.where(bad, np.nan, arr)
+                left_out.append(f"{said}: those samples are left out (an input only the "
+                                "four_wheel model reads)")
+                continue
+            _refuse_or_leave_out(said, key, arrays, left_out)
     return arrays, left_out
 
 
@@ -702,7 +713,7 @@ def _check_limits(name: str, arrays: dict[str, FloatArray], left_out: list[str])
     for key, (limit, unit) in LIMITS.items():
         if key not in arrays:
             continue
-        peak = float(np.max(np.abs(arrays[key])))
+        peak = float(np.nanmax(np.abs(arrays[key])))
         if peak > limit:
             _refuse_or_leave_out(f"'{name}' column {key} reaches {peak:.4g} {unit}, beyond "
                                  f"any car (limit {limit:g} {unit}); check its unit and the "

@@ -70,6 +70,7 @@ _K = LAYOUT.size
 #: What the fit solves for: the front parameters, then d (with its prior), the traction.
 _FIT = np.concatenate([_FRONT, [_LOAD, _K]])
 _D = len(FRONT)
+_RATIO = FRONT.index("ratio")
 #: The traction's prior: none expected, a percent per m/s^2 allowed.
 TRACTION_STD = 0.01
 #: The channels: the front wheels' mean and difference (right minus left) revolutions, the
@@ -112,6 +113,9 @@ class FrontWindows:
     cluster: IntArray
     steering_lag_s: tuple[float, ...] = ()
     """Each drive's steering lag behind the reference that was found and taken out."""
+    heading_noise: FloatArray | None = None
+    """(N,) the reference heading's sample-to-sample noise (rad) of each window's piece
+    (:func:`heading_noise`); None: not known."""
 
     @property
     def size(self) -> int:
@@ -139,7 +143,7 @@ def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float
     (:func:`steering_lag`): a steering sensor's latency is not the wheels'."""
     require_front_wheels(drives)
     parts: dict[str, list[FloatArray]] = {k: [] for k in ("ds", "dpsi", "a_y", "a_x", "revs",
-                                                          "steer", "cluster")}
+                                                          "steer", "cluster", "noise")}
     lags = []
     for index, drive in enumerate(drives):
         if "n_fl" not in drive.inputs or "n_fr" not in drive.inputs:
@@ -158,10 +162,11 @@ def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float
     if not parts["ds"]:
         empty = np.zeros((0, 1))
         return FrontWindows(empty, empty, empty, empty, np.zeros((0, 2)), empty,
-                            np.zeros(0, dtype=np.int64), tuple(lags))
+                            np.zeros(0, dtype=np.int64), tuple(lags), np.zeros(0))
     cat = {k: np.concatenate(v) for k, v in parts.items()}
     return FrontWindows(cat["ds"], cat["dpsi"], cat["a_y"], cat["a_x"], cat["revs"],
-                        cat["steer"], cat["cluster"].astype(np.int64), tuple(lags))
+                        cat["steer"], cat["cluster"].astype(np.int64), tuple(lags),
+                        cat["noise"])
 
 
 def require_front_wheels(drives: Sequence[Drive]) -> None:
@@ -202,7 +207,7 @@ def steering_lag(drive: Drive) -> tuple[FloatArray | None, float | None]:
         speed = np.hypot(np.gradient(drive.x[a:b], t_s), np.gradient(drive.y[a:b], t_s))
         curvature = np.gradient(psi, t_s) / np.maximum(speed, 2.0)
         if b - a > 4 * STEERING_LAG_S / t_s:
-            pairs.append((curvature, np.asarray(steer[a:b], dtype=np.float64)))
+            pairs.append((curvature, filled(steer[a:b])))
     span = max(1, round(STEERING_LAG_S / t_s))
     peak = correlations(pairs, span).peak() if pairs else None
     if peak is None or peak.at_edge or abs(peak.correlation) < STEERING_MIN_CORRELATION:
@@ -258,6 +263,44 @@ def _add_windows(parts: dict[str, list[FloatArray]], drive: Drive, steer_in: Flo
         # a sub-step's angle where every step of it moves (NaN sums to NaN)
         parts["steer"].append(_summed(steer[keep], m) / m)
         parts["cluster"].append(cluster[keep])
+        parts["noise"].append(np.full(int(keep.sum()), heading_noise(psi)))
+
+
+def heading_noise(psi: FloatArray) -> float:
+    """The white noise (rad) of a heading sampled at a fixed rate: a robust spread of its
+    second differences over sqrt(6) (a car's true heading bends too slowly to show in them at
+    a wheel-speed rate; a pose that jitters sample to sample shows whole)."""
+    d2 = np.diff(np.unwrap(np.asarray(psi, dtype=np.float64)), 2)
+    if d2.size < 3:
+        return 0.0
+    mad = float(np.median(np.abs(d2 - np.median(d2))))
+    return 1.4826 * mad / math.sqrt(6.0)
+
+
+def steering_attenuation(windows: FrontWindows, theta: FloatArray) -> float | None:
+    """How much of the spread of the road-wheel angle the reference's motion implies (the
+    steering's regressor, ``atan(L curvature)`` averaged over a window) is turning, not the
+    reference heading's noise: ``1 - mean(noise variance) / variance`` over the windows with
+    a steering angle. The fitted ratio comes out that share of the true one (errors in the
+    regressor dilute its slope); None where it cannot be told (fewer than three windows, no
+    noise known, no spread)."""
+    if windows.heading_noise is None:
+        return None
+    known = np.isfinite(windows.steer)
+    has = known.any(axis=1)
+    if has.sum() < 3:
+        return None
+    wheelbase = float(np.asarray(theta, dtype=np.float64)[LAYOUT.index("L")])
+    moving = windows.ds != 0.0
+    curvature = np.where(moving, windows.dpsi / np.where(moving, windows.ds, 1.0), 0.0)
+    delta = np.where(known & moving, np.arctan(wheelbase * curvature), 0.0)
+    x = delta.sum(axis=1)[has] / np.maximum((known & moving).sum(axis=1)[has], 1)
+    distance = np.abs(windows.ds).sum(axis=1)[has]
+    noise = 2.0 * (wheelbase * windows.heading_noise[has] / np.maximum(distance, 1e-9)) ** 2
+    spread = float(np.var(x))
+    if not spread > 0.0:
+        return None
+    return 1.0 - float(np.mean(noise)) / spread
 
 
 def _substep(k: int, t_s: float) -> int:
@@ -306,6 +349,10 @@ class FrontDetails:
     steering_out_of_range: float | None = None
     """The steering ratio the drives said where it lies beyond any steering's (the ratio and
     offset were then held: the steering is named, not calibrated); None otherwise."""
+    steering_attenuation: float | None = None
+    """The share of the steering regressor's spread that is turning, not the reference
+    heading's noise (:func:`steering_attenuation`); below :data:`MIN_ATTENUATION` the ratio
+    is held. None where not told."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"windows": self.windows, "window_s": self.window_s, "clusters": self.clusters,
@@ -316,7 +363,8 @@ class FrontDetails:
                 "load_prior": {"value": self.load_prior[0], "std": self.load_prior[1],
                                "fitted": self.load_prior[2], "joined": self.load_joined},
                 "traction_per_mps2": {"value": self.traction[0], "std": self.traction[1]},
-                "steering_out_of_range": self.steering_out_of_range}
+                "steering_out_of_range": self.steering_out_of_range,
+                "steering_attenuation": self.steering_attenuation}
 
 
 @dataclass(frozen=True)
@@ -479,6 +527,9 @@ def fit_front(windows: FrontWindows, theta0: FloatArray, settings: Settings, *,
     measured = np.where(np.isfinite(measured), measured, 0.0)
     weight, scale, usable = _start(measured, has_angle, load)
     held = np.zeros(_FIT.size, dtype=bool)
+    attenuation = steering_attenuation(windows, theta0) if usable[_RATIO] else None
+    if attenuation is not None and attenuation < MIN_ATTENUATION:
+        held[_RATIO] = True          # the reference's noise dilutes the ratio: not judged
     steering_range: float | None = None
     nuisance = np.append(prior, [0.0 if load.std > 0 else (load_std or stds[_LOAD]), 0.0])
     p0 = np.append(theta0, 0.0)                 # no traction slip to start from
@@ -498,7 +549,8 @@ def fit_front(windows: FrontWindows, theta0: FloatArray, settings: Settings, *,
     details = dataclasses.replace(
         details, scales=(_rms(scale_f[:, 0]), _rms(scale_f[:, 1]), _rms(scale_f[:, 2])),
         left_out=int((weight_f[:, :2] == 0).any(axis=1).sum()), iterations=steps,
-        traction=(float(p[_K]), float(std[-1])), steering_out_of_range=steering_range)
+        traction=(float(p[_K]), float(std[-1])), steering_out_of_range=steering_range,
+        steering_attenuation=attenuation)
     return FrontFit(theta=p[:_K], covariance=covariance,
                     verdicts=_verdicts(free[:_D], usable[:_D], std[:_D], limit),
                     details=details)
@@ -800,6 +852,11 @@ def _without_front(rear: Estimate, datasheet: Parameters, limit: FloatArray) -> 
                     model=FOUR_WHEEL_MODEL.name)
 
 
+#: Below this share of the steering regressor's spread being turning (the rest the reference
+#: heading's noise, :func:`steering_attenuation`) the ratio is held: the fit would find it
+#: low by at least the rest (errors in the regressor dilute a slope).
+MIN_ATTENUATION = 0.95
+
 #: The front parameters whose evidence on d is its own only where the fit identifies them:
 #: in bends the front wheels' difference moves with t_f, d and L alike.
 _WITH_LOAD = ("t_f", "L")
@@ -837,13 +894,17 @@ def _joins(front: FrontFit, prior_std: float) -> bool:
     return all(identified[n] for n in _WITH_LOAD) and 0.0 < std < prior_std
 
 
-def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis) -> tuple[Finding, ...]:
+def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis, *,
+                     max_difference: float = MAX_DIFFERENCE_SHARE) -> tuple[Finding, ...]:
     """What the four-wheel fit shows of the wheels' mapping and units, fatal each: front
     wheels whose difference runs against the turning (a negative front track: left and right
     swapped); rear wheels without a difference in bends beside front ones (two wheels of one
     side taken as an axle); a front axle whose wheels imply a circumference far from the rear
     one's (another unit, a wheel that reads a share of its turns), or two front wheels apart
-    by more than a tenth of it (one of them dead or scaled), or a wheelbase no car has. A
+    by more than ``max_difference`` of it (the rear wheels' gate, ``[gate]
+    max_abs_c_d_fraction``: one of them scaled, another tooth count), or a wheelbase no car
+    has. A front axle whose circumference differs from the rear's by more than
+    :data:`FRONT_SCALE_NOTE` is a note (staggered tyres differ by a few per cent). A
     front and rear axle swapped, or a front wheel in a rear column, the rear fit names itself
     (:data:`~odocal.checks.findings.Check.FRONT_WHEELS`)."""
     found = []
@@ -858,13 +919,20 @@ def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis) -> tuple[Finding, 
         ratio = th["c_f"] / th["c_e"]
         if not FRONT_SCALE[0] <= ratio <= FRONT_SCALE[1]:
             found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, ratio, th["c_f"], "scale"))
-    if ok["c_fd"] and abs(th["c_fd"]) > MAX_DIFFERENCE_SHARE * abs(th["c_f"]):
+        elif abs(ratio - 1.0) > FRONT_SCALE_NOTE:
+            found.append(Finding(Check.FRONT_AXLE, Severity.NOTE, ratio, th["c_f"],
+                                 "scale-note"))
+    if ok["c_fd"] and abs(th["c_fd"]) > max_difference * abs(th["c_f"]):
         found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, th["c_fd"], th["c_f"],
                              "difference"))
     front = getattr(vehicle.details, "front", None)
     said = getattr(front, "steering_out_of_range", None)
     if said is not None:
         found.append(Finding(Check.STEERING, Severity.FALLBACK, said, 0.0, "range"))
+    attenuation = getattr(front, "steering_attenuation", None)
+    if attenuation is not None and attenuation < MIN_ATTENUATION:
+        found.append(Finding(Check.STEERING, Severity.NOTE, attenuation, MIN_ATTENUATION,
+                             "diluted"))
     low, high = LAYOUT.parameters[LAYOUT.index("L")].vehicle_range
     if ok["L"] and not low <= th["L"] <= high:
         found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, th["L"], high, "wheelbase"))
@@ -874,6 +942,10 @@ def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis) -> tuple[Finding, 
 #: The front wheels' circumference over the rear ones' that a car's tyres span (staggered
 #: sizes differ by a tenth or two); beyond, the front rates are in another unit or scaled.
 FRONT_SCALE = (0.67, 1.5)
+#: The front wheels' circumference off the rear ones' by more than this share is said in a
+#: note: staggered tyres differ by a few per cent; more is a front speed signal converted
+#: with another circumference, or rings of another tooth count, unless the car is built so.
+FRONT_SCALE_NOTE = 0.05
 #: A front wheel reading nothing on more than this share of the moving samples, while the
 #: other turns, is dead.
 DEAD_SHARE = 0.9
@@ -882,6 +954,15 @@ DEAD_SHARE = 0.9
 FROZEN_S = 5.0
 #: The steering angle's span (rad) below which it carries nothing (a constant column).
 STEERING_MIN_SPAN = 1e-6
+#: Driving straight: the reference's curvature (1/m, averaged over a second) below this (a
+#: radius beyond 500 m, where a car's steering wheel stands within a few degrees of centre).
+STRAIGHT_CURVATURE = 0.002
+#: The seconds of straight driving a steering angle's centre and spread are judged on.
+STRAIGHT_MIN_S = 10.0
+#: A steering-wheel angle off centre by more than this (rad, 20 degrees) while driving
+#: straight, its median or the 95th percentile of its spread, is no car's: degrees given as
+#: radians (a degree of offset reads as 57), or another zero.
+STRAIGHT_MAX_RAD = 0.35
 #: The agreement of the steering (or the front wheels' difference) with the reference's
 #: turning beyond which its sign and scale are judged.
 TURNING_CORRELATION = 0.5
@@ -915,8 +996,11 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
         speed = np.hypot(np.gradient(d.x, d.t_s), np.gradient(d.y, d.t_s))
         yaw = np.gradient(np.unwrap(np.asarray(d.psi, dtype=np.float64)), d.t_s)
         moving = speed > 1.0
-        found += _front_wheel_findings(d, moving, yaw)
-        problem = _steering_problem(d, moving, yaw / np.maximum(speed, 2.0), wheelbase,
+        # judged on the inputs with their samples not measured (NaN) bridged: a few dropped
+        # frames change no verdict (the fit leaves those samples out)
+        judged = dataclasses.replace(d, inputs={k: filled(v) for k, v in d.inputs.items()})
+        found += _front_wheel_findings(judged, moving, yaw)
+        problem = _steering_problem(judged, moving, yaw / np.maximum(speed, 2.0), wheelbase,
                                     (low, high))
         if problem is None:
             out.append(d)
@@ -925,6 +1009,17 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
         out.append(dataclasses.replace(d, inputs={k: v for k, v in d.inputs.items()
                                                   if k != "steer"}))
     return FrontChecks(tuple(out), tuple(found))
+
+
+def filled(values: FloatArray) -> FloatArray:
+    """``values`` with its NaN (samples not measured) bridged linearly between the measured
+    ones (held at the ends)."""
+    x = np.asarray(values, dtype=np.float64)
+    known = np.isfinite(x)
+    if known.all() or not known.any():
+        return x
+    index = np.arange(x.size)
+    return np.interp(index, index[known], x[known])
 
 
 def _front_wheel_findings(d: Drive, moving: BoolArray, yaw: FloatArray) -> list[Finding]:
@@ -1000,10 +1095,21 @@ def _correlation(a: FloatArray, b: FloatArray) -> float:
     return float((a * b).sum() / den) if den > 0 else 0.0
 
 
+def _straight(curvature: FloatArray, moving: BoolArray, t_s: float) -> BoolArray:
+    """The samples of straight driving: moving, with the reference's curvature, averaged over
+    a second (its noise sample to sample is a jittery pose's), below :data:`STRAIGHT_CURVATURE`."""
+    n = max(round(1.0 / t_s), 1)
+    k = np.where(moving, curvature, 0.0)
+    mean = np.convolve(k, np.ones(n) / n, mode="same")
+    return moving & (np.abs(mean) < STRAIGHT_CURVATURE)
+
+
 def _steering_problem(drive: Drive, moving: BoolArray, curvature: FloatArray,
                       wheelbase: float, ratio_range: tuple[float, float]) -> Finding | None:
     """Why the drive's steering angle cannot be the car's (a FALLBACK finding: it is left
-    out), or None: constant while moving, against the curvature, or a ratio beyond
+    out), or None: constant while moving; where it agrees too little with the curvature to
+    judge its sign and scale, far off centre while driving straight (its median or spread
+    beyond :data:`STRAIGHT_MAX_RAD`); else against the curvature, or a ratio beyond
     ``ratio_range`` with ``wheelbase`` (the slope of the angle on the curvature is ``ratio
     L`` at small angles)."""
     steer = drive.inputs.get("steer")
@@ -1015,8 +1121,16 @@ def _steering_problem(drive: Drive, moving: BoolArray, curvature: FloatArray,
                        f"constant|{drive.name}")
     k = curvature[moving]
     r = _correlation(s, k)
-    if abs(r) < TURNING_CORRELATION:
-        return None                          # too straight to judge the sign or the scale
+    if abs(r) < TURNING_CORRELATION:         # too straight to judge the sign or the scale:
+        straight = _straight(curvature, moving, drive.t_s)[moving]      # its centre then
+        if straight.sum() < STRAIGHT_MIN_S / drive.t_s:
+            return None
+        centre = float(np.median(s[straight]))
+        spread = float(np.percentile(np.abs(s[straight] - centre), 95))
+        if max(abs(centre), spread) > STRAIGHT_MAX_RAD:
+            return Finding(Check.STEERING, Severity.FALLBACK, centre, spread,
+                           f"straight|{drive.name}")
+        return None
     slope = float(((s - s.mean()) * (k - k.mean())).sum() / ((k - k.mean()) ** 2).sum())
     ratio = slope / wheelbase
     if ratio < 0:

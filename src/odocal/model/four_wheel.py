@@ -208,8 +208,8 @@ class FourWheelModel:
         a scene's own departure is not the others'. An infinite std
         (a parameter the drives did not identify) leaves that axle's part out (the rear's
         where neither is known: the rear-axle model's odometry), so that an axle whose
-        geometry the calibration did not tell adds nothing it would spoil. Without ``std``,
-        the plain mean."""
+        geometry the calibration did not tell adds nothing it would spoil; so does a front
+        sample not measured (NaN). Without ``std``, the plain mean."""
         r = np.asarray(rates, dtype=np.float64)
         v_f, w_f = self.front_body_rates(theta, r[..., :2], a_y)
         v_r, w_r = self.rear.body_rates(self.rear_axle(theta), r[..., 2:], a_y)
@@ -228,7 +228,11 @@ class FourWheelModel:
 
         k_v = share(_F, _E)
         k_w = 0.0 if np.isfinite(sd[_T]) else share(_TF, _T)
-        return k_v * v_f + (1.0 - k_v) * v_r, k_w * w_f + (1.0 - k_w) * w_r
+        # a front sample not measured (NaN): the rear axle's alone there
+        front = np.isfinite(v_f) & np.isfinite(w_f)
+        v = np.where(front, k_v * np.where(front, v_f, 0.0) + (1.0 - k_v) * v_r, v_r)
+        w = np.where(front, k_w * np.where(front, w_f, 0.0) + (1.0 - k_w) * w_r, w_r)
+        return v, w
 
     def geometry(self, theta: FloatArray) -> dict[str, float]:
         """What a car-like exporter needs (ros2_controllers' steering controllers, Autoware's

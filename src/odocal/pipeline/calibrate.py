@@ -350,7 +350,8 @@ def _the_car(drives: Sequence[Drive], diagnosis: Diagnosis, estimate: Estimate,
     if diagnosis.fatal:
         estimate = dataclasses.replace(estimate, status=Status.REJECTED)
     vehicle = four_wheel_estimate(estimate, checked.drives, model_settings)
-    diagnosis = diagnosis.plus(mapping_findings(vehicle, diagnosis))
+    diagnosis = diagnosis.plus(mapping_findings(
+        vehicle, diagnosis, max_difference=model_settings.gate.max_abs_c_d_fraction))
     if diagnosis.fatal:                 # the wheels' mapping: nothing of the car stands
         estimate = dataclasses.replace(estimate, status=Status.REJECTED)
         vehicle = dataclasses.replace(vehicle, status=Status.REJECTED)

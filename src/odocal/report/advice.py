@@ -223,6 +223,10 @@ def front_advice(vehicle: Estimate) -> list[ParameterAdvice]:
             text = (f"{label} is not identified: the drives carry no steering-wheel angle "
                     "that can be used (none is mapped, or the one logged was left out: see "
                     "the notes); its datasheet value is kept.")
+        elif name == "ratio" and _diluted(vehicle):
+            text = (f"{label} is not identified: the reference heading's noise is too large a "
+                    "share of the turning it would be judged against (see the notes); its "
+                    "datasheet value is kept.")
         elif verdict.reason in (Reason.FAILED, Reason.REJECTED, Reason.STANDSTILL):
             text = f"{label} is not calibrated: {reason_text(name, verdict, threshold_radps=0)}."
         else:
@@ -231,6 +235,16 @@ def front_advice(vehicle: Estimate) -> list[ParameterAdvice]:
                     "uncertainty is carried into the parameters identified beside it.")
         out.append(ParameterAdvice(name, label, isinstance(verdict, Identified), text))
     return out
+
+
+def _diluted(vehicle: Estimate) -> bool:
+    """Whether the four-wheel fit held the steering ratio because the reference's noise
+    dilutes it (:func:`odocal.estimators.front_axle.steering_attenuation`)."""
+    from odocal.estimators.front_axle import MIN_ATTENUATION
+
+    front = getattr(vehicle.details, "front", None)
+    share = getattr(front, "steering_attenuation", None)
+    return share is not None and share < MIN_ATTENUATION
 
 
 #: Parameters whose zero means "no such effect" (the layout's wheel difference and load
@@ -431,9 +445,16 @@ def _four_wheel_text(finding: Finding) -> str:
         return (f"the front wheels imply a circumference of {ref:.4g} m, {v:.3g} times the "
                 "rear ones': front wheel rates in another unit (m/s, km/h or rad/s given as "
                 f"rev/s?) or scaled{_NOTHING}")
+    if what == "scale-note":
+        return (f"the front wheels roll {abs(v - 1.0):.1%} {'further' if v > 1 else 'less far'}"
+                f" per turn than the rear ones (c_f {ref:.4g} m): staggered tyres differ by a "
+                "few per cent; more is a front speed signal converted with another "
+                "circumference, or wheel-speed rings of another tooth count (the calibration "
+                "stands as the wheels report)")
     if what == "difference":
-        return (f"the front wheels' circumferences differ by {v * 1e3:.4g} mm of {ref:.4g} m: "
-                f"one front wheel reads a share of its turns, or another unit{_NOTHING}")
+        return (f"the front wheels' circumferences differ by {v * 1e3:.4g} mm of {ref:.4g} m, "
+                "more than two tyres of one axle do: one front wheel reads a share of its "
+                f"turns (another tooth count, a scaled signal), or another unit{_NOTHING}")
     return (f"the front wheels put the front axle {v:.4g} m ahead of the rear one, beyond any "
             f"vehicle's {ref:.0f} m{_NOTHING}")
 
@@ -443,6 +464,17 @@ def _steering_text(what: str, where: str, v: float, ref: float) -> str:
     left = "it is left out: the steering ratio and offset are not calibrated, the wheels are"
     if what == "constant":
         return f"the steering angle of {where} does not change while moving: {left}"
+    if what == "diluted":
+        return ("the steering ratio is not calibrated: the reference heading's noise makes "
+                f"up {1.0 - v:.0%} of the turning the steering is judged against on these "
+                f"drives (at most {1.0 - ref:.0%} is taken), and noise in the turning makes a "
+                "fitted ratio come out low by about that share; bends (or a smoother "
+                "reference) tell it; the offset is calibrated")
+    if what == "straight":
+        return (f"the steering angle of {where} stands {math.degrees(v):+.3g} degrees off "
+                f"centre (spread {math.degrees(ref):.3g} degrees) while driving straight, "
+                "where a car's steering wheel stays within a few degrees: in degrees given "
+                f"as radians, or a sensor zeroed elsewhere? {left}")
     if what == "range":
         return (f"the steering angle says a steering ratio of {v:.3g}, which no steering has "
                 "(0.5 to 40): a stuck or noisy sensor, a flipped sign, or too little turning "
