@@ -672,3 +672,42 @@ def test_a_front_wheel_scaled_beyond_two_tyres_of_an_axle_is_refused_and_an_axle
     assert len(notes) == 1
     assert notes[0].value == pytest.approx(truth[4] / truth[0] / 1.1, rel=2e-3)
     assert "per turn than the rear ones" in "\n".join(summary_lines(noted))
+
+
+def test_a_wheelbase_no_drive_identified_nor_datasheet_stated_is_left_for_the_user(
+        tmp_path: Path) -> None:
+    """A straight highway identifies neither the wheelbase nor the tracks: the controller's
+    and Autoware's files leave those keys out and say to fill them in (on main they carried
+    odocal's placeholder car, wheel_base 2.7 m, as if the car's, and a user merging Autoware's
+    file would have replaced the vehicle's own); a datasheet value stated is written."""
+    from tests.ros2.rosenv import load_declared, require_rclpy, ros_context
+
+    require_rclpy()
+    drive = _highway(3, heading_noise=0.0)
+    result = odocal.calibrate(drive, settings=FOUR)
+    est = result.model_estimate
+    assert not est.identified["L"] and not est.identified["t_f"]
+    assert not est.identified["t_r"]
+    result.save(tmp_path / "a", exports=("ackermann", "autoware"), report=False)
+    stated = odocal.calibrate(drive, settings=FOUR.replace(identify={"theta0": tuple(
+        2.62 if n == "L" else v for n, v in zip(FOUR_WHEEL.names, FOUR.identify.theta0,
+                                                 strict=True))}))
+    stated.save(tmp_path / "b", exports=("ackermann", "autoware"), report=False)
+    text = (tmp_path / "a" / "ackermann" / "ackermann_steering_controller.yaml").read_text()
+    for key, name in (("wheelbase", "L"), ("front_wheel_track", "t_f"),
+                      ("rear_wheel_track", "t_r")):
+        assert f"# FILL IN {key}: not written, as {name} is not identified" in text
+    with ros_context() as ros:
+        values = load_declared(tmp_path / "a" / "ackermann" / "ackermann_steering_controller.yaml",
+                               "ackermann_steering_controller", ACKERMANN_HUMBLE, context=ros)
+        assert values["wheelbase"] is None and values["front_wheel_track"] is None
+        assert values["front_wheels_radius"] * 2 * np.pi == pytest.approx(est.theta.c_f)
+        info = {k: load_declared(tmp_path / k / "autoware" / "vehicle_info.param.yaml",
+                                 "vehicle_info", {"wheel_radius": "DOUBLE",
+                                                  "wheel_base": "DOUBLE"}, context=ros)
+                for k in ("a", "b")}
+        again = load_declared(tmp_path / "b" / "ackermann" / "ackermann_steering_controller.yaml",
+                              "ackermann_steering_controller", ACKERMANN_HUMBLE, context=ros)
+    assert info["a"]["wheel_base"] is None
+    assert info["a"]["wheel_radius"] * 2 * np.pi == pytest.approx(est.theta.c_e)
+    assert info["b"]["wheel_base"] == 2.62 and again["wheelbase"] == 2.62

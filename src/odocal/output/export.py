@@ -150,6 +150,24 @@ def _header(c: Calibrated, what: str, release: str) -> list[str]:
     return lines
 
 
+def unstated(c: Calibrated) -> tuple[str, ...]:
+    """The parameters the drives did not identify and no datasheet stated (odocal's
+    placeholder kept): a stack's file leaves them out rather than state a guess as the car's."""
+    layout = c.theta.layout
+    sheet = c.datasheet.as_array()
+    return tuple(n for j, (n, ok) in enumerate(zip(layout.names, c.identified, strict=True))
+                 if not ok and sheet[j] == layout.placeholder[j])
+
+
+def _left_out(keys: Mapping[str, str], missing: Sequence[str]) -> tuple[list[str], set[str]]:
+    """The header lines for a stack file's ``keys`` (key: the parameter it states) whose
+    parameter is ``missing`` (:func:`unstated`), and those keys."""
+    gone = {k for k, name in keys.items() if name in missing}
+    lines = [f"FILL IN {k}: not written, as {keys[k]} is not identified by these drives and no "
+             f"datasheet states it (--datasheet {keys[k]}=...)" for k in keys if k in gone]
+    return lines, gone
+
+
 def _noise(c: Calibrated) -> tuple[float, float, str]:
     if c.noise is not None:
         return (c.noise.speed_std_mps, c.noise.yaw_rate_std_radps,
@@ -159,15 +177,18 @@ def _noise(c: Calibrated) -> tuple[float, float, str]:
 
 def autoware(c: Calibrated, out: Path) -> list[Path]:
     th, ds = c.theta, c.datasheet
+    car = "L" in th.layout.names
+    keys = {"wheel_radius": "c_e", "wheel_tread": "t_r", **({"wheel_base": "L"} if car else {})}
+    fill, gone = _left_out(keys, unstated(c))
+    values = {"wheel_radius": _float(th.c_e / (2.0 * math.pi)), "wheel_tread": _float(th.t_r),
+              **({"wheel_base": _float(th.L)} if car else {})}
     info = parameter_file(
         [*_header(c, "Autoware vehicle_info: the keys wheel-odometry calibration sets",
                   "autoware_info"),
          "Merge into the vehicle's vehicle_info.param.yaml (its other keys stay).",
          "wheel_radius: c_e / 2 pi (m); wheel_tread: the rear track width t_r (m)",
-         *(["wheel_base: the wheelbase L (m)"] if "L" in th.layout.names else [])],
-        "/**", {"wheel_radius": _float(th.c_e / (2.0 * math.pi)),
-                "wheel_tread": _float(th.t_r),
-                **({"wheel_base": _float(th.L)} if "L" in th.layout.names else {})})
+         *(["wheel_base: the wheelbase L (m)"] if car else []), *fill],
+        "/**", {k: v for k, v in values.items() if k not in gone})
     v_std, w_std, note = _noise(c)
     if c.speed_circumference_m is not None:
         scale = th.c_e / c.speed_circumference_m
@@ -256,13 +277,18 @@ def ackermann(c: Calibrated, out: Path) -> list[Path]:
                           "with [vehicle] model = \"four_wheel\"")
     g = FOUR_WHEEL_MODEL.geometry(th.as_array())
     v_std, w_std, note = _noise(c)
+    keys = {"wheelbase": "L", "front_wheel_track": "t_f", "rear_wheel_track": "t_r",
+            "front_wheels_radius": "c_f", "rear_wheels_radius": "c_e",
+            "traction_track_width": "t_r", "steering_track_width": "t_f",
+            "traction_wheels_radius": "c_e"}
+    fill, gone = _left_out(keys, unstated(c))
     header = [*_header(c, "ros2_controllers ackermann_steering_controller", "ackermann"),
               "wheelbase, tracks and radii: the calibrated car (each axle's mean wheel); "
               "Humble reads front_/rear_ names, Jazzy and later traction_/steering_ ones.",
               "The top key is the controller's name in your controller_manager configuration.",
               f"twist_covariance_diagonal: vx and vyaw variances {note}",
               "FILL IN rear_wheels_names/front_wheels_names (Humble), traction_joints_names/"
-              "steering_joints_names (Jazzy and later): your robot description's joints"]
+              "steering_joints_names (Jazzy and later): your robot description's joints", *fill]
     params = {
         "type": "ackermann_steering_controller/AckermannSteeringController",
         "wheelbase": _float(g["wheelbase"]),
@@ -279,6 +305,7 @@ def ackermann(c: Calibrated, out: Path) -> list[Path]:
         "steering_joints_names": ["front_left_steering_joint", "front_right_steering_joint"],
         "odom_frame_id": "odom", "base_frame_id": "base_link",
         **_covariance_diagonals(v_std, w_std)}
+    params = {k: v for k, v in params.items() if k not in gone}
     path = out / "ackermann_steering_controller.yaml"
     write_text(path, parameter_file(header, "ackermann_steering_controller", params))
     return [path]
