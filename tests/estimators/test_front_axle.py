@@ -711,3 +711,30 @@ def test_a_wheelbase_no_drive_identified_nor_datasheet_stated_is_left_for_the_us
     assert info["a"]["wheel_base"] is None
     assert info["a"]["wheel_radius"] * 2 * np.pi == pytest.approx(est.theta.c_e)
     assert info["b"]["wheel_base"] == 2.62 and again["wheelbase"] == 2.62
+
+
+def test_a_steering_angle_stuck_from_some_time_on_is_left_out_there_and_said(
+        four_wheel_drive: tuple[Drive, np.ndarray]) -> None:
+    """The steering column zeroed from the middle of the drive on (a sensor that stopped, a
+    logger that lost it): that span is left out and said, and the ratio and offset come from
+    the rest within 3 std of the truth (on main they were not identified, for the wrong
+    reasons). A second drive without front wheels, or without a steering angle, is named."""
+    drive, truth = four_wheel_drive
+    steer = np.array(drive.inputs["steer"])
+    steer[steer.size // 2:] = 0.0
+    stuck = dataclasses.replace(drive, inputs={**drive.inputs, "steer": steer})
+    result = odocal.calibrate(stuck, settings=FOUR)
+    est = result.model_estimate
+    notes = [f for f in result.diagnosis.findings if f.name.startswith("stuck|")]
+    assert len(notes) == 1 and notes[0].value == pytest.approx(drive.duration_s / 2, rel=0.05)
+    assert "holds one value through bends" in "\n".join(summary_lines(result))
+    for j, name in ((8, "ratio"), (9, "s_0")):
+        assert est.identified[name]
+        assert abs(est.theta.as_dict()[name] - truth[j]) <= 3.0 * float(est.std[name])
+    other, _ = with_front_axle(odocal.simulate(duration_s=300.0, seed=8))
+    bare = dataclasses.replace(other.drive, inputs={})
+    unsteered = dataclasses.replace(other.drive, inputs={
+        k: v for k, v in other.drive.inputs.items() if k != "steer"})
+    for extra, name in ((bare, "no-front"), (unsteered, "no-steering")):
+        found = odocal.calibrate([drive, extra], settings=FOUR).diagnosis.findings
+        assert [f.name for f in found if f.name.startswith(name)] == [f"{name}|{extra.name}"]

@@ -954,6 +954,11 @@ DEAD_SHARE = 0.9
 FROZEN_S = 5.0
 #: The steering angle's span (rad) below which it carries nothing (a constant column).
 STEERING_MIN_SPAN = 1e-6
+#: A steering angle holding one value for longer than this (s) through a bend is stuck there
+#: (a car's steering wheel moves in every bend) ...
+STUCK_S = 5.0
+#: ... a bend: the reference's curvature (1/m, a second's mean) spanning this (a 50 m radius).
+STUCK_TURN = 0.02
 #: Driving straight: the reference's curvature (1/m, averaged over a second) below this (a
 #: radius beyond 500 m, where a car's steering wheel stands within a few degrees of centre).
 STRAIGHT_CURVATURE = 0.002
@@ -989,13 +994,24 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
     out: list[Drive] = []
     wheelbase = float(settings.identify.theta0[LAYOUT.index("L")])
     low, high = LAYOUT.parameters[LAYOUT.index("ratio")].vehicle_range
-    for d in drives:
-        if "n_fl" not in d.inputs or "n_fr" not in d.inputs:
+    fronts = ["n_fl" in d.inputs and "n_fr" in d.inputs for d in drives]
+    steers = ["steer" in d.inputs for d in drives]
+    for d, front, steer in zip(drives, fronts, steers, strict=True):
+        if not front and any(fronts):            # the others carry the front axle: say so
+            found.append(Finding(Check.FRONT_AXLE, Severity.NOTE, name=f"no-front|{d.name}"))
+        elif front and not steer and any(steers):
+            found.append(Finding(Check.STEERING, Severity.NOTE, name=f"no-steering|{d.name}"))
+        if not front:
             out.append(d)
             continue
         speed = np.hypot(np.gradient(d.x, d.t_s), np.gradient(d.y, d.t_s))
         yaw = np.gradient(np.unwrap(np.asarray(d.psi, dtype=np.float64)), d.t_s)
         moving = speed > 1.0
+        if steer:
+            d, stuck_s = _without_stuck_steering(d, moving, yaw / np.maximum(speed, 2.0))
+            if stuck_s > 0.0:
+                found.append(Finding(Check.STEERING, Severity.NOTE, stuck_s, STUCK_S,
+                                     f"stuck|{d.name}"))
         # judged on the inputs with their samples not measured (NaN) bridged: a few dropped
         # frames change no verdict (the fit leaves those samples out)
         judged = dataclasses.replace(d, inputs={k: filled(v) for k, v in d.inputs.items()})
@@ -1009,6 +1025,29 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
         out.append(dataclasses.replace(d, inputs={k: v for k, v in d.inputs.items()
                                                   if k != "steer"}))
     return FrontChecks(tuple(out), tuple(found))
+
+
+def _without_stuck_steering(drive: Drive, moving: BoolArray, curvature: FloatArray
+                            ) -> tuple[Drive, float]:
+    """The drive with its steering angle left out (NaN) where it holds one value for longer
+    than :data:`STUCK_S` while the reference turns through a bend (its curvature, averaged
+    over a second, spanning :data:`STUCK_TURN` or more): a sensor that stopped updating, or
+    a column zeroed from some time on. And the seconds left out."""
+    steer = np.asarray(drive.inputs["steer"], dtype=np.float64)
+    n = max(round(1.0 / drive.t_s), 1)
+    bend = np.convolve(np.where(moving, curvature, 0.0), np.ones(n) / n, mode="same")
+    same = np.concatenate([[False], np.diff(steer) == 0.0])
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], same.astype(np.int8), [0]])))
+    out = steer.copy()
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        first = max(start - 1, 0)                   # the run's first sample holds it too
+        if (stop - first) * drive.t_s > STUCK_S and moving[first:stop].any() \
+                and float(np.ptp(bend[first:stop])) >= STUCK_TURN:
+            out[first:stop] = np.nan
+    gone = float(np.count_nonzero(np.isnan(out) & ~np.isnan(steer))) * drive.t_s
+    if gone == 0.0 or np.isnan(out).all():
+        return drive, 0.0
+    return dataclasses.replace(drive, inputs={**drive.inputs, "steer": out}), gone
 
 
 def filled(values: FloatArray) -> FloatArray:

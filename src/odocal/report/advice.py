@@ -436,6 +436,9 @@ def _four_wheel_text(finding: Finding) -> str:
         return ("the rear wheels turn alike in bends while the car has four wheel signals: "
                 "two wheels of one side mapped as an axle (a wheel among the four in the "
                 f"wrong column)? check the mapping of all four{_NOTHING}")
+    if what == "no-front":
+        return (f"{where} carries no front wheels' rates while other drives do: the front "
+                "axle is calibrated on those")
     fault, _, side = what.partition("-")
     if fault in _FRONT_WHEEL_WORDS:
         gap = "" if fault == "frozen" else " "
@@ -464,6 +467,14 @@ def _steering_text(what: str, where: str, v: float, ref: float) -> str:
     left = "it is left out: the steering ratio and offset are not calibrated, the wheels are"
     if what == "constant":
         return f"the steering angle of {where} does not change while moving: {left}"
+    if what == "stuck":
+        return (f"the steering angle of {where} holds one value through bends for {v:.0f} s "
+                "in all, where a steering wheel turns: a sensor that stopped updating, or a "
+                "column zeroed from some time on; those spans are left out of the steering's "
+                "fit")
+    if what == "no-steering":
+        return (f"{where} carries no steering angle while other drives do: the steering is "
+                "calibrated on those")
     if what == "diluted":
         return ("the steering ratio is not calibrated: the reference heading's noise makes "
                 f"up {1.0 - v:.0%} of the turning the steering is judged against on these "
