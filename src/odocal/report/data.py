@@ -174,7 +174,8 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
     est = result.estimate
     change = next((f for f in result.diagnosis.findings if f.check is Check.CHANGE_IN_LOG),
                   None)
-    missing = est.unidentified
+    whole = result.model_estimate           # the four-wheel car's: its front and steering too
+    missing = whole.unidentified
     if result.validation is None or result.datasheet_validation is None:
         base = "Calibrated, but the drive holds no validation segment to check it on"
         level = "partial"
@@ -200,7 +201,7 @@ def verdict(result: CalibrationResult, raw_m: float | None = None) -> tuple[str,
                  + (f"; {said_zero.strip(' ()')}" if zero else ""))
         level = "partial"
     else:
-        base += "; all four parameters identified" + said_zero
+        base += f"; all {len(whole.names)} parameters identified" + said_zero
     base, level = _caveats(result, base, level, change, raw_m)
     return base + ".", level
 
