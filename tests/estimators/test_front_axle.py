@@ -738,3 +738,17 @@ def test_a_steering_angle_stuck_from_some_time_on_is_left_out_there_and_said(
     for extra, name in ((bare, "no-front"), (unsteered, "no-steering")):
         found = odocal.calibrate([drive, extra], settings=FOUR).diagnosis.findings
         assert [f.name for f in found if f.name.startswith(name)] == [f"{name}|{extra.name}"]
+
+
+def test_one_front_wheel_copied_into_both_columns_is_named_as_a_copy(
+        four_wheel_drive: tuple[Drive, np.ndarray]) -> None:
+    """n_fl holding n_fr's signal: named as one column mapped twice, nothing calibrated (on
+    main it was called a left-right swap, which swapping would not mend)."""
+    drive, _ = four_wheel_drive
+    copied = dataclasses.replace(drive, inputs={**drive.inputs, "n_fl": drive.inputs["n_fr"]})
+    result = odocal.calibrate(copied, settings=FOUR)
+    assert not result.success
+    fatal = [f.name.partition("|")[0] for f in result.diagnosis.findings
+             if f.severity.name == "FATAL"]
+    assert fatal == ["front-copy"]
+    assert "one column mapped twice" in "\n".join(summary_lines(result))

@@ -1067,6 +1067,9 @@ def _front_wheel_findings(d: Drive, moving: BoolArray, yaw: FloatArray) -> list[
     against the reference's yaw over seconds (left and right swapped)."""
     found: list[Finding] = []
     fl, fr = np.asarray(d.inputs["n_fl"]), np.asarray(d.inputs["n_fr"])
+    if moving.sum() > 10 and np.array_equal(fl[moving], fr[moving]):
+        # one signal in both columns: no difference to swap or to fit
+        return [Finding(Check.WHEEL_MAPPING, Severity.FATAL, name=f"front-copy|{d.name}")]
     dead = False
     for side, own, other in (("left", fl, fr), ("right", fr, fl)):
         turning = moving & (np.abs(other) > 0.1)

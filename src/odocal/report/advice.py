@@ -429,6 +429,9 @@ def _four_wheel_text(finding: Finding) -> str:
             return (f"the front wheels' difference turns against the yaw rate (correlation "
                     f"{v:+.2f}) in {where}: front left and right swapped? map them the other "
                     f"way round{_NOTHING}")
+        if what == "front-copy":
+            return (f"the front left and right wheels' columns hold one signal in {where}: one "
+                    f"column mapped twice? map each front wheel to its own{_NOTHING}")
         if what == "front-sides":
             return (f"the front wheels' difference runs against the turning (t_f = {v:.2f} m "
                     f"+-{ref:.2f}): front left and right swapped? map them the other way "
