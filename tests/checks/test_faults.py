@@ -166,6 +166,55 @@ def test_a_reference_heading_in_another_frame_is_refused(noisy_drive: SimulatedD
     refused_everywhere(drive, Check.REFERENCE_HEADING)
 
 
+def _backwards(c: Columns) -> Columns:
+    """The drive backed along its own path: every column in reverse order on the same clock,
+    the wheels turning backwards (a_y, speed times yaw rate, is the same)."""
+    out = {k: v[::-1].copy() for k, v in c.items()}
+    out["t"] = c["t"]
+    for k in ("n_rl", "n_rr"):
+        out[k] = -out[k]
+    if "yaw_rate" in out:
+        out["yaw_rate"] = -out["yaw_rate"]
+    return out
+
+
+@pytest.mark.parametrize("share", [1.0, 0.5])
+def test_a_vehicle_backing_up_is_no_heading_in_another_frame(noisy_drive: SimulatedDrive,
+                                                              share: float) -> None:
+    """A drive backed along its path (whole, or its second half: shunting) moves against its
+    heading while its wheels turn backwards: calibrated, within 3 std of the truth (on main
+    it was refused as a heading 180 or 90 degrees off the course, "another frame?"). With
+    the wheels' sign dropped, backing up whole is refused, and the words say it may be that."""
+    def backed(c: Columns) -> Columns:
+        if share == 1.0:
+            return _backwards(c)
+        half = c["t"].size // 2
+        first = {k: v[:half + 1] for k, v in c.items()}
+        back = _backwards(first)
+        out = {k: np.concatenate([first[k], back[k][1:]]) for k in c}
+        out["t"] = c["t"][0] + np.arange(out["t"].size) * (c["t"][1] - c["t"][0])
+        return out
+
+    drive = faulty(noisy_drive, backed)
+    result = odocal.calibrate(drive)
+    assert result.success, result.diagnosis
+    truth = noisy_drive.true_parameters.as_array()
+    est = result.estimate
+    for j, name in enumerate(est.names):
+        if est.identified[name]:
+            assert abs(est.theta.as_array()[j] - truth[j]) <= 3.0 * float(est.std[j]), name
+    if share == 1.0:
+        unsigned = faulty(noisy_drive, lambda c: {**(b := _backwards(c)),
+                                                   "n_rl": np.abs(b["n_rl"]),
+                                                   "n_rr": np.abs(b["n_rr"])})
+        refused = odocal.calibrate(unsigned)
+        assert Check.REFERENCE_HEADING in {f.check for f in refused.diagnosis.fatal_findings}
+        from odocal.report.summary import summary_lines
+
+        assert "wheel speeds without a sign on a vehicle backing up" in \
+            "\n".join(summary_lines(refused))
+
+
 @pytest.mark.parametrize("jump", [1000.0, 40.0])
 def test_a_jump_in_the_reference_pose_is_named_with_where(noisy_drive: SimulatedDrive,
                                                           jump: float) -> None:

@@ -594,9 +594,11 @@ def _reference_and_sensor_text(finding: Finding) -> str:
         return (f"the reference pose's speed does not follow the wheels' (correlation "
                 f"{ref:+.2f}); {lag}. Align the clocks or give the matching logs")
     if c is Check.REFERENCE_HEADING:
+        backing = (" or wheel speeds without a sign on a vehicle backing up (the wheels then "
+                   "cannot say it moves backwards)?" if v > np.radians(150.0) else "")
         return (f"the reference heading does not point where the reference moves: on straights "
                 f"they are {np.degrees(v):.0f} degrees apart (x and y swapped? a compass heading "
-                "in the 'enu' convention? another frame?); fix the mapping")
+                f"in the 'enu' convention? another frame?{backing}); fix the mapping")
     if c is Check.POSE_JUMP:
         where = f" in '{finding.name}'" if finding.name else ""
         return (f"the reference pose jumps by {v:.1f} m at t = {ref:.2f} s{where}, far beyond "
