@@ -1007,6 +1007,10 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
         speed = np.hypot(np.gradient(d.x, d.t_s), np.gradient(d.y, d.t_s))
         yaw = np.gradient(np.unwrap(np.asarray(d.psi, dtype=np.float64)), d.t_s)
         moving = speed > 1.0
+        d, unsigned_s = _without_unsigned_backing(d)
+        if unsigned_s > 0.0:
+            found.append(Finding(Check.FRONT_AXLE, Severity.NOTE, unsigned_s, 0.0,
+                                 f"unsigned|{d.name}"))
         if steer:
             d, stuck_s = _without_stuck_steering(d, moving, yaw / np.maximum(speed, 2.0))
             if stuck_s > 0.0:
@@ -1025,6 +1029,23 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
         out.append(dataclasses.replace(d, inputs={k: v for k, v in d.inputs.items()
                                                   if k != "steer"}))
     return FrontChecks(tuple(out), tuple(found))
+
+
+def _without_unsigned_backing(drive: Drive) -> tuple[Drive, float]:
+    """The drive with its front wheels' rates left out (NaN) where the rear wheels turn
+    backwards and a front wheel reads forwards: front speeds without a sign (the rear ones
+    carry it) on a vehicle backing up. And the seconds left out. A front wheel turning against
+    the rear ones nearly throughout is a flipped sign, named by the front checks instead."""
+    rear = 0.5 * (np.asarray(drive.n_rl) + np.asarray(drive.n_rr))
+    backing = rear < -0.25
+    fl, fr = (np.asarray(drive.inputs[k], dtype=np.float64) for k in ("n_fl", "n_fr"))
+    against = backing & ((fl > 0.0) | (fr > 0.0))
+    rolling = np.abs(rear) > 0.25
+    if not against.any() or against.sum() > DEAD_SHARE * max(int(rolling.sum()), 1):
+        return drive, 0.0
+    inputs = {**drive.inputs, "n_fl": np.where(against, np.nan, fl),
+              "n_fr": np.where(against, np.nan, fr)}
+    return dataclasses.replace(drive, inputs=inputs), float(against.sum()) * drive.t_s
 
 
 def _without_stuck_steering(drive: Drive, moving: BoolArray, curvature: FloatArray

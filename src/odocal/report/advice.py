@@ -439,6 +439,10 @@ def _four_wheel_text(finding: Finding) -> str:
         return ("the rear wheels turn alike in bends while the car has four wheel signals: "
                 "two wheels of one side mapped as an axle (a wheel among the four in the "
                 f"wrong column)? check the mapping of all four{_NOTHING}")
+    if what == "unsigned":
+        return (f"the front wheels of {where} read forwards for {v:.0f} s while the rear ones "
+                "turn backwards: front wheel speeds without a sign on a vehicle backing up; "
+                "those samples are left out of the front axle's fit")
     if what == "no-front":
         return (f"{where} carries no front wheels' rates while other drives do: the front "
                 "axle is calibrated on those")
