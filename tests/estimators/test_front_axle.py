@@ -688,7 +688,7 @@ def test_a_wheelbase_no_drive_identified_nor_datasheet_stated_is_left_for_the_us
     est = result.model_estimate
     assert not est.identified["L"] and not est.identified["t_f"]
     assert not est.identified["t_r"]
-    result.save(tmp_path / "a", exports=("ackermann", "autoware"), report=False)
+    result.save(tmp_path / "a", exports=("ackermann", "autoware", "yaml"), report=False)
     stated = odocal.calibrate(drive, settings=FOUR.replace(identify={"theta0": tuple(
         2.62 if n == "L" else v for n, v in zip(FOUR_WHEEL.names, FOUR.identify.theta0,
                                                  strict=True))}))
@@ -708,8 +708,16 @@ def test_a_wheelbase_no_drive_identified_nor_datasheet_stated_is_left_for_the_us
                 for k in ("a", "b")}
         again = load_declared(tmp_path / "b" / "ackermann" / "ackermann_steering_controller.yaml",
                               "ackermann_steering_controller", ACKERMANN_HUMBLE, context=ros)
+        own = load_declared(tmp_path / "a" / "odometry_parameters.yaml", "wheel_odometry",
+                            {"std": "DOUBLE_ARRAY", "datasheet_std": "DOUBLE_ARRAY",
+                             "identified": "BOOL_ARRAY"}, context=ros)
     assert info["a"]["wheel_base"] is None
     assert info["a"]["wheel_radius"] * 2 * np.pi == pytest.approx(est.theta.c_e)
+    # what a value kept at the datasheet is known to: its uncertainty, not the std 0 of a
+    # parameter not fitted
+    L = FOUR_WHEEL.index("L")
+    assert not own["identified"][L] and own["std"][L] == 0.0
+    assert list(own["datasheet_std"]) == list(FOUR.identify.prior_std)
     assert info["b"]["wheel_base"] == 2.62 and again["wheelbase"] == 2.62
 
 

@@ -106,6 +106,9 @@ class Calibrated:
     it."""
     covariance: tuple[tuple[float, ...], ...] | None = None
     """The covariance of theta (``--export yaml``), in theta's order."""
+    datasheet_std: tuple[float, ...] | None = None
+    """The datasheet values' uncertainty (``[identify] prior_std``), in theta's order: what a
+    parameter the drives did not identify is known to (``--export yaml``)."""
 
     @property
     def datasheet_stated(self) -> bool:
@@ -337,7 +340,8 @@ def parameters_yaml(c: Calibrated, path: Path) -> Path:
            else np.asarray(c.covariance, dtype=float))
     header = [*_header(c, "Wheel-odometry parameters", "yaml"),
               "Parameters a drive did not identify keep their datasheet values (identified: "
-              "false).",
+              "false): their std and covariance are 0 (not fitted), their uncertainty is the "
+              "datasheet's (datasheet_std).",
               "Units: " + ", ".join(f"{n} {u}" for n, u in zip(names, units, strict=True))
               + "; wheel_radius = c_e / (2 pi), m; c_d is left minus right.",
               f"covariance: row-major {n}x{n} in the order of parameter_names, SI units"]
@@ -365,6 +369,8 @@ def parameters_yaml(c: Calibrated, path: Path) -> Path:
               "parameter_names": list(names),
               "identified": [bool(ok) for ok in c.identified],
               "std": [_float(s) for s in c.std],
+              **({"datasheet_std": [_float(s) for s in c.datasheet_std]}
+                 if c.datasheet_std is not None else {}),
               "covariance": [_float(v) for v in cov.ravel()], **speed}
     write_text(path, parameter_file(header, "wheel_odometry", params))
     return path

@@ -151,6 +151,8 @@ def export_parameters(result: CalibrationResult, out_dir: str | Path, fmt: str) 
             "model": est.model, "theta": theta, "covariance": cov.tolist(),
             "std": dict(zip(names, est.std.tolist(), strict=True)),
             "identified": dict(zip(names, est.identified, strict=True)),
+            "datasheet_std": dict(zip(names, (float(v) for v in (
+                result.model_settings or result.settings).identify.prior_std), strict=True)),
             "units": dict(zip(names, units, strict=True)),
             "speed_scale": (result.speed_scale.to_dict() if result.speed_scale is not None
                             else None),
@@ -182,8 +184,10 @@ def _calibrated(result: CalibrationResult, *,
     # the vehicle's reported speed relates to it (the speed scale factor is relative to it)
     signal = speed_signal(result.drive_data)
     circumference = signal[0] if signal is not None else None
+    settings = result.model_settings or result.settings
     return Calibrated(theta=est.theta, datasheet=est.datasheet,
                       std=tuple(float(s) for s in est.std),
+                      datasheet_std=tuple(float(s) for s in settings.identify.prior_std),
                       identified=est.identified, method=result.method,
                       noise=result.odometry_noise,
                       source=", ".join(d.name for d in result.drives),
