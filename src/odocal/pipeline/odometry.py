@@ -119,6 +119,9 @@ def on_four_wheels(drives: Sequence[Drive], theta: Parameters,
     out = []
     for d in drives:
         if "n_fl" not in d.inputs or "n_fr" not in d.inputs:
+            from odocal.estimators.front_axle import require_front_wheels
+
+            require_front_wheels([d])             # a column the reader left out: says why
             raise DataError(f"{d.name!r} has no front wheels' rates (n_fl, n_fr): the "
                             "four_wheel model's odometry needs all four")
         rates = np.column_stack([d.inputs["n_fl"], d.inputs["n_fr"], d.n_rl, d.n_rr])
