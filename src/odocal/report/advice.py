@@ -230,9 +230,14 @@ def front_advice(vehicle: Estimate) -> list[ParameterAdvice]:
         elif verdict.reason in (Reason.FAILED, Reason.REJECTED, Reason.STANDSTILL):
             text = f"{label} is not calibrated: {reason_text(name, verdict, threshold_radps=0)}."
         else:
+            beside = [n for n in _FRONT_NEEDS if n != name
+                      and not vehicle.identified[layout.index(n)]]
+            also = (f" (or datasheet values of {', '.join(beside)}, held beside it: their "
+                    "uncertainty is carried into it)" if beside else "")
             text = (f"{label} is not identified by these drives: it needs "
-                    f"{_FRONT_NEEDS[name]}. Its datasheet value is kept, and its datasheet "
-                    "uncertainty is carried into the parameters identified beside it.")
+                    f"{_FRONT_NEEDS[name]}{also}. Its datasheet value is kept, and its "
+                    "datasheet uncertainty is carried into the parameters identified beside "
+                    "it.")
         out.append(ParameterAdvice(name, label, isinstance(verdict, Identified), text))
     return out
 
