@@ -1115,4 +1115,6 @@ def datasheet_stated(theta0: Any) -> bool:
     ``--datasheet``): a ratio to it says nothing about the user's vehicle. ``theta0``: the four
     values, or anything with ``as_array()``."""
     values = theta0.as_array().tolist() if hasattr(theta0, "as_array") else list(theta0)
-    return tuple(float(v) for v in values) != DATASHEET_THETA
+    # a model's theta begins with the rear axle's four (the four-wheel car's front axle and
+    # steering after them): those are what the datasheet check is about
+    return tuple(float(v) for v in values[:len(DATASHEET_THETA)]) != DATASHEET_THETA

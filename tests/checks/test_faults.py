@@ -215,6 +215,17 @@ def test_a_vehicle_backing_up_is_no_heading_in_another_frame(noisy_drive: Simula
             "\n".join(summary_lines(refused))
 
 
+def test_wheels_counting_backwards_on_a_drive_forwards_are_a_sign_not_a_heading(
+        noisy_drive: SimulatedDrive) -> None:
+    """Both rear wheels negated while the car drives forwards along its heading: the wheels'
+    sign is named (the heading check, which takes a car backing up, must not claim it: the
+    heading is right whichever way the wheels say)."""
+    drive = faulty(noisy_drive, lambda c: {**c, "n_rl": -c["n_rl"], "n_rr": -c["n_rr"]})
+    result = odocal.calibrate(drive)
+    fatal = {f.check for f in result.diagnosis.fatal_findings}
+    assert Check.SPEED_SCALE in fatal and Check.REFERENCE_HEADING not in fatal
+
+
 @pytest.mark.parametrize("jump", [1000.0, 40.0])
 def test_a_jump_in_the_reference_pose_is_named_with_where(noisy_drive: SimulatedDrive,
                                                           jump: float) -> None:

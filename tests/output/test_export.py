@@ -282,7 +282,8 @@ def test_what_the_data_cannot_give_is_named_in_one_fill_in_line(tmp_path: Path) 
     for path in (tmp_path / "complete").rglob("*.yaml"):
         assert _fill_ins(path) == [], path
     text = (tmp_path / "complete" / "autoware" / "vehicle_info.param.yaml").read_text()
-    assert "not identified by the data (datasheet values kept): d" in text
+    assert "not identified by the data (datasheet values kept; one no datasheet states is a " \
+        "FILL IN line where a key needs it): d" in text
 
 
 def test_wheel_joint_names_and_export_lists_from_the_command_line(

@@ -208,15 +208,18 @@ def _pose_jumps(drives: Sequence[Drive], lim: ChecksSettings) -> list[Finding]:
 def _heading(win: _Windows, moving: BoolArray, lim: ChecksSettings) -> list[Finding]:
     """On straight seconds, the reference heading against the direction it moves in (where
     the wheels turn backwards, against the opposite direction: a car backing up moves against
-    its heading)."""
+    its heading); refused where it is off either way."""
     straight = moving & (np.abs(win.dpsi) < lim.straight_turn_rad) \
         & (np.abs(win.ds) > lim.straight_speed_mps)
     if straight.sum() < lim.heading_min_seconds:
         return []
     backwards = win.wheel_ds < 0.0
-    course_gap = np.where(backwards, np.remainder(win.course_gap, 2.0 * np.pi) - np.pi,
-                          win.course_gap)
-    gap = float(np.median(np.abs(course_gap[straight])))
+    turned = np.where(backwards, np.remainder(win.course_gap, 2.0 * np.pi) - np.pi,
+                      win.course_gap)
+    # the heading is wrong only where it is wrong either way: a reference moving along its
+    # heading while the wheels turn backwards is a wheel sign flipped (the scale check names it)
+    gap = min(float(np.median(np.abs(turned[straight]))),
+              float(np.median(np.abs(win.course_gap[straight]))))
     if gap > lim.heading_max_gap_rad:
         return [Finding(Check.REFERENCE_HEADING, Severity.FATAL, gap, 0.0)]
     return []

@@ -205,7 +205,7 @@ def steering_lag(drive: Drive) -> tuple[FloatArray | None, float | None]:
     for a, b in drive.pieces:
         psi = np.unwrap(np.asarray(drive.psi[a:b], dtype=np.float64))
         speed = np.hypot(np.gradient(drive.x[a:b], t_s), np.gradient(drive.y[a:b], t_s))
-        curvature = np.gradient(psi, t_s) / np.maximum(speed, 2.0)
+        curvature = np.gradient(psi, t_s) / np.maximum(speed, 2.0) * _direction(drive)[a:b]
         if b - a > 4 * STEERING_LAG_S / t_s:
             pairs.append((curvature, filled(steer[a:b])))
     span = max(1, round(STEERING_LAG_S / t_s))
@@ -220,9 +220,22 @@ def steering_lag(drive: Drive) -> tuple[FloatArray | None, float | None]:
     lag = peak.steps * t_s
     aligned = np.array(steer, dtype=np.float64)
     for a, b in drive.pieces:
-        t = drive.t[a:b]
-        aligned[a:b] = np.interp(t + lag, t, np.asarray(steer[a:b], dtype=np.float64))
+        aligned[a:b] = _shifted(drive.t[a:b], np.asarray(steer[a:b], dtype=np.float64), lag,
+                                t_s)
     return aligned, float(lag)
+
+
+def _shifted(t: FloatArray, values: FloatArray, lag: float, t_s: float) -> FloatArray:
+    """``values`` at ``t + lag``, interpolated between their measured samples (NaN: not
+    measured); NaN where no measured sample lies within two steps of the time asked."""
+    known = np.isfinite(values)
+    if not known.any():
+        return np.full(t.size, np.nan)
+    at, tk = t + lag, t[known]
+    out = np.interp(at, tk, values[known])
+    j = np.clip(np.searchsorted(tk, at), 1, max(tk.size - 1, 1))
+    near = np.minimum(np.abs(at - tk[j - 1]), np.abs(tk[np.minimum(j, tk.size - 1)] - at))
+    return np.where(near <= 2.0 * t_s, out, np.nan)
 
 
 def _add_windows(parts: dict[str, list[FloatArray]], drive: Drive, steer_in: FloatArray | None,
@@ -243,13 +256,14 @@ def _add_windows(parts: dict[str, list[FloatArray]], drive: Drive, steer_in: Flo
         a_x = np.gradient(ds / t_s, t_s) if ds.size > 1 else np.zeros_like(ds)
         ds, dpsi = ds[:cut].reshape(n, k), dpsi[:cut].reshape(n, k)
         moving = np.abs(ds).sum(axis=1) > MOVING_MPS * k * t_s
-        revs = np.column_stack([drive.inputs["n_fl"][a:b - 1], drive.inputs["n_fr"][a:b - 1]])
-        revs = (revs[:cut] * t_s).reshape(n, k, 2).sum(axis=1)
+        revs = _measured_revolutions(np.column_stack([drive.inputs["n_fl"][a:b - 1],
+                                                       drive.inputs["n_fr"][a:b - 1]])[:cut],
+                                     n, k, t_s)
         if steer_in is None:
             steer = np.full((n, k), np.nan)
         else:
             steer = np.array(steer_in[a:b - 1][:cut], dtype=np.float64).reshape(n, k)
-            steer[np.abs(ds) <= MOVING_MPS * t_s] = np.nan    # at a crawl: the reference's noise
+        crawl = np.abs(ds) <= MOVING_MPS * t_s                  # the reference's noise there
         keep = moving & np.isfinite(revs).all(axis=1)
         t0 = drive.t[a:b - 1][:cut:k]
         cluster = label + np.floor((t0 - drive.t[0]) / cluster_s)
@@ -260,10 +274,40 @@ def _add_windows(parts: dict[str, list[FloatArray]], drive: Drive, steer_in: Flo
         parts["a_y"].append(_summed(a_y[keep], m) / m)
         parts["a_x"].append(_summed(a_x[:cut].reshape(n, k)[keep], m) / m)
         parts["revs"].append(revs[keep])
-        # a sub-step's angle where every step of it moves (NaN sums to NaN)
-        parts["steer"].append(_summed(steer[keep], m) / m)
+        parts["steer"].append(_substep_angle(steer[keep], crawl[keep], m))
         parts["cluster"].append(cluster[keep])
         parts["noise"].append(np.full(int(keep.sum()), heading_noise(psi)))
+
+
+#: A window's revolutions are told from its measured samples where at least this share of them
+#: is measured (a signal on half the grid: a 50 Hz wheel speed beside a 100 Hz one).
+MIN_MEASURED = 0.5
+
+
+def _measured_revolutions(rates: FloatArray, n: int, k: int, t_s: float) -> FloatArray:
+    """(n, 2) each window's revolutions of the wheels' rates (n k, 2): the mean rate of its
+    measured samples over the window's time, NaN where fewer than :data:`MIN_MEASURED` of them
+    are measured (a wheel's rate is smooth over a window's samples: a sample not measured is
+    its neighbours')."""
+    r = rates.reshape(n, k, 2)
+    known = np.isfinite(r)
+    count = known.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(known, r, 0.0).sum(axis=1) / count
+    return np.where(count >= MIN_MEASURED * k, mean * k * t_s, np.nan)
+
+
+def _substep_angle(steer: FloatArray, crawl: BoolArray, m: int) -> FloatArray:
+    """(N, k / m) each sub-step's mean steering angle over its measured samples, NaN where a
+    step of it crawls (the reference's curvature there is its noise) or none is measured."""
+    n, k = steer.shape
+    s = steer.reshape(n, k // m, m)
+    known = np.isfinite(s)
+    count = known.sum(axis=2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(known, s, 0.0).sum(axis=2) / count
+    crawling = crawl.reshape(n, k // m, m).any(axis=2)
+    return np.where((count > 0) & ~crawling, mean, np.nan)
 
 
 def heading_noise(psi: FloatArray) -> float:
@@ -1007,21 +1051,24 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
         speed = np.hypot(np.gradient(d.x, d.t_s), np.gradient(d.y, d.t_s))
         yaw = np.gradient(np.unwrap(np.asarray(d.psi, dtype=np.float64)), d.t_s)
         moving = speed > 1.0
+        curvature = yaw / np.maximum(speed, 2.0) * _direction(d)
         d, unsigned_s = _without_unsigned_backing(d)
         if unsigned_s > 0.0:
             found.append(Finding(Check.FRONT_AXLE, Severity.NOTE, unsigned_s, 0.0,
                                  f"unsigned|{d.name}"))
         if steer:
-            d, stuck_s = _without_stuck_steering(d, moving, yaw / np.maximum(speed, 2.0))
+            d, stuck_s = _without_stuck_steering(d, moving, curvature)
             if stuck_s > 0.0:
                 found.append(Finding(Check.STEERING, Severity.NOTE, stuck_s, STUCK_S,
                                      f"stuck|{d.name}"))
         # judged on the inputs with their samples not measured (NaN) bridged: a few dropped
         # frames change no verdict (the fit leaves those samples out)
+        # (only where measured: a gap bridged by a held value is no frozen sensor)
         judged = dataclasses.replace(d, inputs={k: filled(v) for k, v in d.inputs.items()})
-        found += _front_wheel_findings(judged, moving, yaw)
-        problem = _steering_problem(judged, moving, yaw / np.maximum(speed, 2.0), wheelbase,
-                                    (low, high))
+        wheels = moving & np.isfinite(d.inputs["n_fl"]) & np.isfinite(d.inputs["n_fr"])
+        found += _front_wheel_findings(judged, wheels, yaw)
+        angle = moving & np.isfinite(d.inputs["steer"]) if "steer" in d.inputs else moving
+        problem = _steering_problem(judged, angle, curvature, wheelbase, (low, high))
         if problem is None:
             out.append(d)
             continue
@@ -1029,6 +1076,13 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
         out.append(dataclasses.replace(d, inputs={k: v for k, v in d.inputs.items()
                                                   if k != "steer"}))
     return FrontChecks(tuple(out), tuple(found))
+
+
+def _direction(drive: Drive) -> FloatArray:
+    """+1 where the rear wheels turn forwards (or stand), -1 where they turn backwards: a car
+    backing up turns against its steering's side (its path's curvature flips sign)."""
+    rear = 0.5 * (np.asarray(drive.n_rl) + np.asarray(drive.n_rr))
+    return np.where(rear < -0.25, -1.0, 1.0)
 
 
 def _without_unsigned_backing(drive: Drive) -> tuple[Drive, float]:

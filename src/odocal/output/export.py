@@ -146,7 +146,8 @@ def _header(c: Calibrated, what: str, release: str) -> list[str]:
         lines.append(f"from: {redact_text(c.source)}")
     missing = [n for n, ok in zip(c.theta.layout.names, c.identified, strict=True) if not ok]
     if missing:
-        lines.append(f"not identified by the data (datasheet values kept): {', '.join(missing)}")
+        lines.append(f"not identified by the data (datasheet values kept; one no datasheet "
+                     f"states is a FILL IN line where a key needs it): {', '.join(missing)}")
     if not c.datasheet_stated:
         lines.append("no datasheet values were given (--datasheet): parameters not identified "
                      "hold odocal's placeholder")
