@@ -844,3 +844,21 @@ def test_a_car_backing_up_all_drive_calibrates_its_steering(
     for j, name in ((8, "ratio"), (9, "s_0")):
         assert est.identified[name]
         assert abs(est.theta.as_dict()[name] - truth[j]) <= 3.0 * float(est.std[name]), name
+
+
+@pytest.mark.parametrize(("wheelbase", "said"), [(10.0, True), (2.6, False)])
+def test_a_datasheet_wheelbase_far_from_what_the_drives_identify_is_said(
+        four_wheel_drive: tuple[Drive, np.ndarray], wheelbase: float, said: bool) -> None:
+    """A datasheet wheelbase of 10 m for a 2.62 m car the drive identifies: said in a note (a
+    typo, another car's), the calibration standing as the drive says; 2.6 m: no note."""
+    drive, truth = four_wheel_drive
+    theta0 = tuple(wheelbase if n == "L" else v
+                   for n, v in zip(FOUR_WHEEL.names, FOUR.identify.theta0, strict=True))
+    result = odocal.calibrate(drive, settings=FOUR.replace(identify={"theta0": theta0}))
+    est = result.model_estimate
+    assert result.success and est.identified["L"]
+    assert abs(est.theta.L - truth[7]) <= 3.0 * float(est.std["L"])
+    notes = [f for f in result.diagnosis.findings if f.name == "datasheet-far|L"]
+    assert len(notes) == int(said)
+    if said:
+        assert "far from the datasheet's 10 m" in "\n".join(summary_lines(result))

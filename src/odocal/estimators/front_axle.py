@@ -977,6 +977,15 @@ def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis, *,
     if attenuation is not None and attenuation < MIN_ATTENUATION:
         found.append(Finding(Check.STEERING, Severity.NOTE, attenuation, MIN_ATTENUATION,
                              "diluted"))
+    sheet = vehicle.datasheet.as_array()
+    for name in FRONT:                  # a datasheet stated far from what the drives say
+        j = LAYOUT.index(name)
+        std = float(vehicle.std[j])
+        if ok[name] and sheet[j] != LAYOUT.placeholder[j] and std > 0 \
+                and abs(th[name] - sheet[j]) > DATASHEET_FAR * std \
+                and abs(th[name] - sheet[j]) > 0.05 * max(abs(sheet[j]), 1e-9):
+            found.append(Finding(Check.FRONT_AXLE, Severity.NOTE, th[name], float(sheet[j]),
+                                 f"datasheet-far|{name}"))
     low, high = LAYOUT.parameters[LAYOUT.index("L")].vehicle_range
     if ok["L"] and not low <= th["L"] <= high:
         found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, th["L"], high, "wheelbase"))
@@ -986,6 +995,9 @@ def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis, *,
 #: The front wheels' circumference over the rear ones' that a car's tyres span (staggered
 #: sizes differ by a tenth or two); beyond, the front rates are in another unit or scaled.
 FRONT_SCALE = (0.67, 1.5)
+#: An identified front parameter this many of its stds (and 5%) from a datasheet value stated
+#: (not odocal's placeholder) is said in a note: a typo in the datasheet, or another car.
+DATASHEET_FAR = 5.0
 #: The front wheels' circumference off the rear ones' by more than this share is said in a
 #: note: staggered tyres differ by a few per cent; more is a front speed signal converted
 #: with another circumference, or rings of another tooth count, unless the car is built so.

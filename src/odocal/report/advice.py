@@ -444,6 +444,10 @@ def _four_wheel_text(finding: Finding) -> str:
         return ("the rear wheels turn alike in bends while the car has four wheel signals: "
                 "two wheels of one side mapped as an axle (a wheel among the four in the "
                 f"wrong column)? check the mapping of all four{_NOTHING}")
+    if what == "datasheet-far":
+        return (f"the drives put {where} at {format_value(where, v)}, far from the datasheet's "
+                f"{format_value(where, ref)} (more than five calibrated stds apart): a typo in the "
+                "datasheet, or another car's? (the calibration stands as the drives say)")
     if what == "unsigned":
         return (f"the front wheels of {where} read forwards for {v:.0f} s while the rear ones "
                 "turn backwards: front wheel speeds without a sign on a vehicle backing up; "
