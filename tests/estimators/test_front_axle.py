@@ -862,3 +862,26 @@ def test_a_datasheet_wheelbase_far_from_what_the_drives_identify_is_said(
     assert len(notes) == int(said)
     if said:
         assert "far from the datasheet's 10 m" in "\n".join(summary_lines(result))
+
+
+def test_a_noise_free_drive_calibrates_the_front_axle_not_its_placeholder() -> None:
+    """Noise-free wheels and reference (the steering keeps its sensor's noise): the rear fit is
+    exact, and its d's std, of rounding's size, held d in the front fit instead of swamping it
+    as a prior (on main the front fit took no step and printed odocal's placeholders as
+    "exact": c_f 2.0, t_f 1.6, ratio 15). The front calibrates to the truth; only the rear
+    says exact."""
+    sim, truth = with_front_axle(odocal.simulate(duration_s=600.0, seed=0, noise="none"))
+    result = odocal.calibrate(sim.drive, settings=FOUR)
+    est = result.model_estimate
+    assert est.status is Status.EXACT
+    true = truth.as_dict()
+    for name in ("c_f", "c_fd", "t_f", "L", "ratio", "s_0"):
+        assert est.identified[name]
+        err = abs(est.theta.as_dict()[name] - true[name])
+        assert err <= max(3.0 * float(est.std[name]), 1e-9 * abs(true[name])), name
+    table = "\n".join(summary_lines(result))
+    front = table[table.index("the four_wheel model:"):]
+    assert next(line for line in front.splitlines() if line.startswith("c_e")).split()[-1] \
+        == "exact"
+    assert "exact" not in next(line for line in front.splitlines()
+                               if line.startswith("ratio"))

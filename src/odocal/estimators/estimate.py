@@ -372,7 +372,10 @@ def parameter_table(est: Estimate, *, truth: Parameters | None = None,
     for j, (name, ok) in enumerate(zip(est.names, est.identified, strict=True)):
         if ok:
             cal = parameter_text(name, theta[name])
-            sd = "exact" if exact else std_text(name, float(std[j]))
+            # exact: a noise-free fit's, to rounding (a part with noise of its own, such as
+            # the four-wheel car's steering sensor, shows its std)
+            tiny = float(std[j]) <= 1e-9 * max(abs(theta[name]), 1.0)
+            sd = "exact" if exact and tiny else std_text(name, float(std[j]))
         else:
             cal, sd = "not identified", ""
         line = f"{name:<10} {parameter_text(name, theta0[name]):>16} {cal:>16} {sd:>10}"

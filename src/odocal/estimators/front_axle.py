@@ -841,8 +841,11 @@ def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Setti
     theta0[:_REAR_SIZE] = rear.theta.as_array()
     d = FOUR_WHEEL_MODEL.rear.layout.index(LAYOUT.load)
     load_std = float(rear.std[d]) if rear.identified[d] else 0.0
-    front = fit_front(windows, theta0, settings, load_std=load_std, fit_load=load_std > 0)
-    if load_std > 0:
+    # an exact rear fit (noise-free data) states d's std at rounding's size: as a prior its
+    # information would swamp the front's equations (their steps vanish): d is held there
+    fit_load = load_std > LOAD_STD_FLOOR
+    front = fit_front(windows, theta0, settings, load_std=load_std, fit_load=fit_load)
+    if fit_load:
         front = _with_load(front, windows, theta0, settings, float(rear.theta.as_array()[d]),
                            load_std)
     theta, cov = joined(rear.theta.as_array(), rear.covariance, front)
@@ -995,6 +998,10 @@ def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis, *,
 #: The front wheels' circumference over the rear ones' that a car's tyres span (staggered
 #: sizes differ by a tenth or two); beyond, the front rates are in another unit or scaled.
 FRONT_SCALE = (0.67, 1.5)
+#: Below this std (m per m/s^2) the rear fit's d is exact (a noise-free fit's) and held in the
+#: front fit rather than its prior: a micrometre, below any drive's (tens of micrometres on
+#: twenty minutes of driving).
+LOAD_STD_FLOOR = 1e-6
 #: An identified front parameter this many of its stds (and 5%) from a datasheet value stated
 #: (not odocal's placeholder) is said in a note: a typo in the datasheet, or another car.
 DATASHEET_FAR = 5.0
