@@ -99,16 +99,23 @@ def summary_lines(result: CalibrationResult, *, truth: Parameters | None = None,
     for name in consistent_with_zero(est):       # identified, but no evidence of the effect
         j = PARAMETER_NAMES.index(name)
         lines.append(f"note: {zero_text(name, float(est.theta.as_array()[j]), float(est.std[j]))}")
-    vehicle = result.vehicle_estimate
-    if vehicle is not None and vehicle.status is not Status.REJECTED:
-        whole = truth if truth is not None and truth.layout.names == vehicle.names else None
-        lines += ["", f"the {vehicle.model} model: the rear axle above joined with the front "
-                      "axle and the steering", *parameter_table(vehicle, truth=whole)]
-        lines += [f"note: {a.text}" for a in front_advice(vehicle) if not a.identified]
+    lines += _car_lines(result, truth)
     lines += [f"warning: {w}" for w in result.warnings]
     if not result.success and est.status is not Status.NOTHING_IDENTIFIABLE:
         lines.append(f"calibration failed: {est.message}")
     return lines
+
+
+def _car_lines(result: CalibrationResult, truth: Parameters | None) -> list[str]:
+    """The whole car's table (a model beyond the rear axle: its truth beside it where
+    ``truth`` is that model's) and what it lacks, in notes; none for the rear-axle model."""
+    vehicle = result.vehicle_estimate
+    if vehicle is None or vehicle.status is Status.REJECTED:
+        return []
+    whole = truth if truth is not None and truth.layout.names == vehicle.names else None
+    return ["", f"the {vehicle.model} model: the rear axle above joined with the front axle "
+                "and the steering", *parameter_table(vehicle, truth=whole),
+            *(f"note: {a.text}" for a in front_advice(vehicle) if not a.identified)]
 
 
 def speed_note(speed: SpeedScale, c_e: float) -> str:
