@@ -289,23 +289,24 @@ def _measured_revolutions(rates: FloatArray, n: int, k: int, t_s: float) -> Floa
     measured samples over the window's time, NaN where fewer than :data:`MIN_MEASURED` of them
     are measured (a wheel's rate is smooth over a window's samples: a sample not measured is
     its neighbours')."""
-    r = rates.reshape(n, k, 2)
-    known = np.isfinite(r)
-    count = known.sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(known, r, 0.0).sum(axis=1) / count
+    mean, count = _measured_mean(rates.reshape(n, k, 2), axis=1)
     return np.where(count >= MIN_MEASURED * k, mean * k * t_s, np.nan)
+
+
+def _measured_mean(values: FloatArray, axis: int) -> tuple[FloatArray, IntArray]:
+    """The mean of ``values``' measured (finite) entries along ``axis`` (NaN where none is),
+    and how many there are."""
+    known = np.isfinite(values)
+    count = known.sum(axis=axis)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(known, values, 0.0).sum(axis=axis) / count, count
 
 
 def _substep_angle(steer: FloatArray, crawl: BoolArray, m: int) -> FloatArray:
     """(N, k / m) each sub-step's mean steering angle over its measured samples, NaN where a
     step of it crawls (the reference's curvature there is its noise) or none is measured."""
     n, k = steer.shape
-    s = steer.reshape(n, k // m, m)
-    known = np.isfinite(s)
-    count = known.sum(axis=2)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(known, s, 0.0).sum(axis=2) / count
+    mean, count = _measured_mean(steer.reshape(n, k // m, m), axis=2)
     crawling = crawl.reshape(n, k // m, m).any(axis=2)
     return np.where((count > 0) & ~crawling, mean, np.nan)
 
@@ -1110,7 +1111,7 @@ def _without_unsigned_backing(drive: Drive) -> tuple[Drive, float]:
     carry it) on a vehicle backing up. And the seconds left out. A front wheel turning against
     the rear ones nearly throughout is a flipped sign, named by the front checks instead."""
     rear = 0.5 * (np.asarray(drive.n_rl) + np.asarray(drive.n_rr))
-    backing = rear < -0.25
+    backing = _direction(drive) < 0.0
     fl, fr = (np.asarray(drive.inputs[k], dtype=np.float64) for k in ("n_fl", "n_fr"))
     against = backing & ((fl > 0.0) | (fr > 0.0))
     rolling = np.abs(rear) > 0.25
@@ -1128,8 +1129,7 @@ def _without_stuck_steering(drive: Drive, moving: BoolArray, curvature: FloatArr
     over a second, spanning :data:`STUCK_TURN` or more): a sensor that stopped updating, or
     a column zeroed from some time on. And the seconds left out."""
     steer = np.asarray(drive.inputs["steer"], dtype=np.float64)
-    n = max(round(1.0 / drive.t_s), 1)
-    bend = np.convolve(np.where(moving, curvature, 0.0), np.ones(n) / n, mode="same")
+    bend = _second_mean(curvature, moving, drive.t_s)
     same = np.concatenate([[False], np.diff(steer) == 0.0])
     edges = np.flatnonzero(np.diff(np.concatenate([[0], same.astype(np.int8), [0]])))
     out = steer.copy()
@@ -1234,10 +1234,13 @@ def _correlation(a: FloatArray, b: FloatArray) -> float:
 def _straight(curvature: FloatArray, moving: BoolArray, t_s: float) -> BoolArray:
     """The samples of straight driving: moving, with the reference's curvature, averaged over
     a second (its noise sample to sample is a jittery pose's), below :data:`STRAIGHT_CURVATURE`."""
+    return moving & (np.abs(_second_mean(curvature, moving, t_s)) < STRAIGHT_CURVATURE)
+
+
+def _second_mean(curvature: FloatArray, moving: BoolArray, t_s: float) -> FloatArray:
+    """The curvature while moving (0 standing), averaged over a second about each sample."""
     n = max(round(1.0 / t_s), 1)
-    k = np.where(moving, curvature, 0.0)
-    mean = np.convolve(k, np.ones(n) / n, mode="same")
-    return moving & (np.abs(mean) < STRAIGHT_CURVATURE)
+    return np.convolve(np.where(moving, curvature, 0.0), np.ones(n) / n, mode="same")
 
 
 def _steering_problem(drive: Drive, moving: BoolArray, curvature: FloatArray,
