@@ -7,7 +7,8 @@
 Processes on this machine's private ROS 2 domain (discovery on localhost only):
 
 * the **node**, ``odocal ros2`` as a user starts it (``use_sim_time``, best-effort inputs, the
-  default ``qos_depth``), pinned to one core;
+  default ``qos_depth``), pinned to one core, and its calibrator's process (the default
+  ``calibrator_process``: the pushes and estimates) moved to the other core;
 * a **player** on the other core publishing a simulated drive as a vehicle does: wheel joint
   velocities (``sensor_msgs/JointState``) and an IMU at 100 Hz, the reference pose
   (``nav_msgs/Odometry``) at 50 Hz (``--rate-hz``, ``--pose-every``: issue 41's user published
@@ -27,7 +28,8 @@ player's core), the 50th/99th percentile and largest latency from a wheel messag
 publication to the arrival of the odometry computed from it,
 the estimates the node took (its count in ``/diagnostics``: one every ``[online] update_s`` of
 data and the final one) and how many of them the listener heard, the
-node's CPU time per second of the run, and its resident memory (peak, at the end). Then an hour
+node's CPU time per second of the run and its calibrator process's, the node's resident memory
+(peak, at the end) and its calibrator's (peak). Then an hour
 of driving at ``--hour-factor``. ``--profile`` runs the node under cProfile for the first
 sweep factor and prints where its main thread's CPU time goes.
 """
@@ -66,6 +68,37 @@ def _env(domain: int) -> dict[str, str]:
     return env
 
 
+def _children(pid: int) -> list[int]:
+    """The processes ``pid`` started (its calibrator's)."""
+    out: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*/children"):
+        try:
+            out += [int(c) for c in task.read_text().split()]
+        except OSError:
+            pass
+    return out
+
+
+def _calibrator(node: Any, cores: set[int]) -> int | None:
+    """The node's calibrator process (``calibrator_process``: it starts with the node),
+    moved to ``cores``; None where the node has none within ten seconds."""
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and node.poll() is None:
+        spawned = [c for c in _children(node.pid) if "spawn_main" in _cmdline(c)]
+        if spawned:
+            os.sched_setaffinity(spawned[0], cores)
+            return spawned[0]
+        time.sleep(0.05)
+    return None
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
 def _status_kb(pid: int, field: str) -> int:
     try:
         for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -76,9 +109,15 @@ def _status_kb(pid: int, field: str) -> int:
     return 0
 
 
-def _cpu_s(pid: int) -> float:
-    """User and system CPU time of a process (all its threads), s."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+def _cpu_s(pid: int | None) -> float:
+    """User and system CPU time of a process (all its threads), s (0 without one)."""
+    if pid is None:
+        return 0.0
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return 0.0
+    fields = stat.rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
@@ -397,15 +436,19 @@ def run(drive: Path, n: int, factor: float, folder: Path, domain: int, *,
                 "--disable-external-lib-logs"]
     err = open(folder / f"node_{tag}.err", "w")
     node = _start(node_cmd, env, node_core, cwd=ROOT, stderr=err, stdout=subprocess.DEVNULL)
+    calibrator = _calibrator(node, other)
     out = str(folder / f"recv_{tag}.npy")
     lst = _start([sys.executable, __file__, "--role", "listener", "--out", out, "--n", str(n),
                   *_rate_args()], env, other)
     _wait_ready(out)
     sent_path = str(folder / f"sent_{tag}.npy")
+    calibrator0 = _cpu_s(calibrator)
     played, cpu0 = _play(drive, factor, sent_path, env, other, node.pid)
-    _caught_up(node)
+    _caught_up(node, calibrator)
     cpu = _cpu_s(node.pid) - cpu0
+    calibrator_cpu = _cpu_s(calibrator) - calibrator0
     rss_end, rss_peak = _status_kb(node.pid, "VmRSS"), _status_kb(node.pid, "VmHWM")
+    calibrator_peak = _status_kb(calibrator, "VmHWM") if calibrator is not None else 0
     signalled = time.monotonic()
     node.send_signal(signal.SIGINT)
     node.wait(timeout=120)
@@ -432,7 +475,9 @@ def run(drive: Path, n: int, factor: float, folder: Path, domain: int, *,
               "heard_updates": len(meta["updates"]),
               "updates": max((int(u) for u in meta["updates"]), default=0),
               "cpu_share": cpu / played if played > 0 else np.nan,
+              "calibrator_share": calibrator_cpu / played if played > 0 else np.nan,
               "rss_end_mb": rss_end / 1024, "rss_peak_mb": rss_peak / 1024,
+              "calibrator_peak_mb": calibrator_peak / 1024,
               "exit_code": node.returncode, "exit_s": exit_s,
               "traceback": "Traceback" in log or "FATAL" in log,
               "lost_at_s": [round(float(k) / RATE["hz"], 1) for k in np.flatnonzero(~ok)[:3]]}
@@ -460,21 +505,22 @@ finally:
 """
 
 
-def _caught_up(node: Any) -> None:
-    """Wait until the node has taken what is still queued (idle for a second: less than 5%
-    of a core), two minutes at most."""
+def _caught_up(node: Any, calibrator: int | None = None) -> None:
+    """Wait until the node and its calibrator have taken what is still queued (idle for a
+    second: less than 5% of a core), two minutes at most."""
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and node.poll() is None:
-        busy = _cpu_s(node.pid)
+        busy = _cpu_s(node.pid) + _cpu_s(calibrator)
         time.sleep(1.0)
-        if _cpu_s(node.pid) - busy < 0.05:
+        if _cpu_s(node.pid) + _cpu_s(calibrator) - busy < 0.05:
             break
 
 
 HEADER = (f"{'factor':>7} {'sim min':>7} {'achieved':>9} {'msgs/s':>9} "
           f"{'taken/sent':>15} {'missing':>7} {'outputs/inputs':>17} "
           f"{'p50 ms':>7} {'p99 ms':>8} {'max ms':>8} "
-          f"{'estimates':>9} {'node CPU':>8} {'peak MB':>8} {'end MB':>7} {'exit':>10}")
+          f"{'estimates':>9} {'node CPU':>8} {'calib CPU':>9} {'peak MB':>8} {'end MB':>7} "
+          f"{'calib MB':>8} {'exit':>10}")
 
 
 def _row(r: dict[str, Any]) -> str:
@@ -484,8 +530,9 @@ def _row(r: dict[str, Any]) -> str:
             f"{r['messages_per_s']:>9.0f} {r['taken']:>7d}/{r['messages']:<7d} "
             f"{r['missing']:>7d} {r['outputs']:>8d}/{r['inputs']:<8d} "
             f"{r['p50_ms']:>7.2f} {r['p99_ms']:>8.2f} {r['max_ms']:>8.1f} "
-            f"{updates:>9} {r['cpu_share'] * 100:>7.0f}% {r['rss_peak_mb']:>8.0f} "
-            f"{r['rss_end_mb']:>7.0f} {exit_text:>10}"
+            f"{updates:>9} {r['cpu_share'] * 100:>7.0f}% {r['calibrator_share'] * 100:>8.0f}% "
+            f"{r['rss_peak_mb']:>8.0f} "
+            f"{r['rss_end_mb']:>7.0f} {r['calibrator_peak_mb']:>8.0f} {exit_text:>10}"
             + (f"  (first lost at {r['lost_at_s']} s of the drive)" if r["lost_at_s"] else ""))
 
 

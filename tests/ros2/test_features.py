@@ -223,7 +223,7 @@ def test_a_lifecycle_manager_configures_activates_and_deactivates_it(
         assert answer.success
     spin_until(r.executor, lambda: r.player.wheels.get_subscription_count() > 0
                and r.player.pose.get_subscription_count() > 0, "discovery")
-    assert r.node.calibrator.details_samples() == 0
+    assert r.node.calibrator.samples == 0
     play(r.executor, r.player, r.node, short)
     assert r.node.messages()["wheels"] == short.n_samples
 

@@ -71,8 +71,9 @@ def theta_std(calibration: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
             np.array([calibration["std"][n] for n in names]))
 
 
+@pytest.mark.parametrize("beside", [False, True], ids=["in its thread", "in a process beside"])
 def test_the_node_calibrates_as_replay_does(rig: Any, drive: odocal.Drive,
-                                            tmp_path: Path, ros: Any) -> None:
+                                            tmp_path: Path, ros: Any, beside: bool) -> None:
     # a stand-in for a running diff_drive_controller: a real ROS 2 parameter service with the
     # parameters the controller declares (ros2_controllers 4.42.1), not the controller itself
     # (no ros2_control on the package index)
@@ -84,11 +85,13 @@ def test_the_node_calibrates_as_replay_does(rig: Any, drive: odocal.Drive,
                        ("left_wheel_radius_multiplier", 1.0),
                        ("right_wheel_radius_multiplier", 1.0)):
         controller.declare_parameter(key, value)
-    r = rig(controller_name=f"/{name}/diff_drive_controller")
+    r = rig(controller_name=f"/{name}/diff_drive_controller", calibrator_process=beside)
     executor, player, node = r.executor, r.player, r.node
     executor.add_node(controller)
     play(executor, player, node, drive)
     est = node.finish()
+    # every [online] update_s (30 s) of data from the first block's end, and the final one
+    assert node.updates == (drive.duration_s - 1.0) // 30.0 + 1
     settle(executor, player, node)
 
     def pushed() -> bool:       # the final estimate's multipliers (after earlier ones)
@@ -183,7 +186,7 @@ def test_a_silent_imu_topic_is_named(rig: Any, drive: odocal.Drive) -> None:
     assert f"{r.node.get_parameter('imu_topic').value} (imu) for" in named[-1].message
     assert "/joint_states" not in named[-1].message and "/pose" not in named[-1].message
     # nothing was calibrated from the wheels and the pose alone while it was silent
-    assert r.node.calibrator.details_samples() < 9.0 * 40
+    assert r.node.calibrator.samples < 9.0 * 40
 
 
 def test_a_ros2_bag_played_through_the_node(rig: Any, tmp_path: Path) -> None:

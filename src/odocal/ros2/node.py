@@ -55,16 +55,25 @@ from typing import Any
 
 import numpy as np
 
-from odocal.errors import ConfigError, DataError, MissingDependencyError, OdocalError
+from odocal.errors import ConfigError, MissingDependencyError, OdocalError
 from odocal.estimators.estimate import Estimate, NotIdentified, Status
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.model.vehicle import MODEL
-from odocal.online.calibrator import OnlineCalibrator
 from odocal.online.replay import GridResampler, publishable
 from odocal.output.export import TARGETS, Calibrated, export, parameters_yaml
 from odocal.pipeline.odometry import OdometryNoise
 from odocal.report.advice import finding_text, reason_text
 from odocal.ros2 import cdr, params
+from odocal.ros2.calibrating import (
+    Beside,
+    CalibratorLost,
+    Event,
+    InThread,
+    LeftOut,
+    Raised,
+    Updated,
+    View,
+)
 from odocal.ros2.exports import imu_corrector, point_ekf_at
 from odocal.ros2.gyro import GyroBias
 from odocal.ros2.inputs import TWO_PI, Buffer, Continuity, Rates, wheel_joints
@@ -83,6 +92,7 @@ try:
         ParameterType,
         SetParametersResult,
     )
+    from rclpy.clock import Clock, ClockType
     from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from rclpy.serialization import serialize_message
@@ -201,6 +211,10 @@ class CalibrationNode(LifecycleNode):
         except Exception:
             self.destroy_node()
             raise
+
+    def destroy_node(self) -> None:
+        self._close_calibration()
+        super().destroy_node()
 
     # ------------------------------------------------------------------ parameters
 
@@ -349,7 +363,11 @@ class CalibrationNode(LifecycleNode):
     def _fresh(self) -> None:
         """Everything calibrated so far forgotten: a new calibrator, grid and inputs."""
         s = self.settings
-        self.calibrator = OnlineCalibrator(s)
+        self._close_calibration()
+        self.calibrator = View()
+        self._calibration: Beside | InThread | None = (
+            Beside(s) if self._param("calibrator_process") else InThread(s))
+        self._lost = ""
         self._grid = GridResampler(t_s=1.0 / s.convert.rate_hz, max_gap_s=s.convert.max_gap_s)
         self._rows_per_push = max(int(s.online.chunk_s * s.convert.rate_hz), 1)
         self._pending: list[dict[str, np.ndarray]] = []
@@ -364,9 +382,6 @@ class CalibrationNode(LifecycleNode):
         self._max_gap_s = s.convert.max_gap_s
         self._config_error: str | None = None
         self._origin: tuple[int, int] | None = None
-        self._first_t: float | None = None
-        self._last_t: float | None = None
-        self._next_update: float | None = None
         self._flushed_t: float | None = None
         self.estimate: Estimate | None = None
         self._good: Estimate | None = None        # the latest estimate that may be published
@@ -427,6 +442,10 @@ class CalibrationNode(LifecycleNode):
         self._status_name = f"{self.get_name()}: wheel odometry calibration"
         self._timer: Any = None
         self._restart_timer()
+        # the answers of a calibrator beside the node are read as they come, on the wall's
+        # clock (the drive's may have stopped), where no message calls first
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._answers_timer = self.create_timer(0.02, self._answers_due, clock=self._steady)
         self._controller: ControllerPush | None = None
         if p("controller_name"):
             self._controller = ControllerPush(self, p("controller_name"))
@@ -448,10 +467,12 @@ class CalibrationNode(LifecycleNode):
         for publisher in self._outputs:
             self.destroy_lifecycle_publisher(publisher)
         self._entities, self._outputs = [], []
-        timer = getattr(self, "_timer", None)
-        if timer is not None:
-            self.destroy_timer(timer)
-            self._timer = None
+        for name in ("_timer", "_answers_timer"):
+            timer = getattr(self, name, None)
+            if timer is not None:
+                self.destroy_timer(timer)
+                setattr(self, name, None)
+        self._close_calibration()
 
     def _start_line(self) -> str:
         qos = "reliable" if self._param("qos_reliable") else "best effort"
@@ -506,6 +527,8 @@ class CalibrationNode(LifecycleNode):
                     batch.append(got[0])
             handle(batch)
             self._maybe_flush()
+            if not self._idle():
+                self._take_answers()
 
         return take
 
@@ -831,45 +854,83 @@ class CalibrationNode(LifecycleNode):
         return np.asarray(out, dtype=np.float64)
 
     def _push_pending(self, final: bool) -> None:
-        """The grid's rows into the calibrator, ``rows_per_push`` at a time (the last, shorter
+        """The grid's rows to the calibrator, ``rows_per_push`` at a time (the last, shorter
         block only at the end), as odocal replay pushes a drive file."""
         if not self._pending:
             return
         rows = {k: np.concatenate([c[k] for c in self._pending]) for k in self._pending[0]}
         n, step = rows["t"].size, self._rows_per_push
         cut = n if final else (n // step) * step
-        for lo in range(0, cut, step):
-            self._push({k: v[lo:min(lo + step, cut)] for k, v in rows.items()})
+        blocks = [{k: v[lo:min(lo + step, cut)] for k, v in rows.items()}
+                  for lo in range(0, cut, step)]
         self._pending = [{k: v[cut:] for k, v in rows.items()}] if cut < n else []
+        if blocks and self._calibration is not None and not self.calibrator.halted:
+            self._ask(lambda c: c.push(blocks))
 
-    def _push(self, block: dict[str, np.ndarray]) -> None:
-        if self.calibrator.halted:
+    def _ask(self, request: Callable[[Beside | InThread], None]) -> None:
+        """A request to the calibrator; its answers taken where they are ready."""
+        calibration = self._calibration
+        if calibration is None:
             return
         try:
-            self.calibrator.push(block)
-        except DataError as exc:          # a block it cannot use: said, and left out
-            self._push_error = str(exc)
-            self.get_logger().warning(f"samples at {self.stamp_of(float(block['t'][0])):.3f} s "
-                                      f"left out: {exc}")
+            request(calibration)
+        except CalibratorLost as exc:
+            self._calibrator_lost(exc)
             return
-        self._last_t = float(block["t"][-1])
-        if self._first_t is None:
-            self._first_t = float(block["t"][0])
-            self._next_update = self._first_t + self.settings.online.update_s
-        if self.calibrator.halted:
-            self.update()
-            return
-        if len(self.calibrator.alarms) > self._alarms_seen:
-            self._publish_alarms()
-        assert self._next_update is not None
-        if self._last_t >= self._next_update:
-            self.update()
-            self._next_update = self._last_t + self.settings.online.update_s
+        self._take_answers()
 
-    def update(self) -> Estimate:
-        """Take the estimate now; publish it where it may be (never a rejected one over the
-        last publishable one)."""
-        est = self.calibrator.estimate()
+    def _answers_due(self) -> None:
+        if not self._idle():
+            self._take_answers()
+
+    def _idle(self) -> bool:
+        return self._calibration is None or self._calibration.idle
+
+    def _take_answers(self, *, settle: bool = False) -> None:
+        """What the calibrator answered (``settle``: waiting for every answer), in order."""
+        calibration = self._calibration
+        if calibration is None:
+            return
+        try:
+            events = calibration.settle() if settle else calibration.answers()
+        except CalibratorLost as exc:
+            self._calibrator_lost(exc)
+            return
+        for event in events:
+            self._handle(event)
+
+    def _handle(self, event: Event) -> None:
+        self.calibrator = event.view
+        if isinstance(event, LeftOut):   # a block it cannot use: said, and left out
+            self._push_error = event.message
+            self.get_logger().warning(f"samples at {self.stamp_of(event.t0):.3f} s "
+                                      f"left out: {event.message}")
+        elif isinstance(event, Raised):
+            self._publish_alarms()
+        elif isinstance(event, Updated):
+            self._updated(event.estimate)
+
+    def _calibrator_lost(self, exc: CalibratorLost) -> None:
+        self._lost = str(exc)
+        self._calibration = None
+        self.get_logger().error(self._lost)
+        self.publish_diagnostics()
+
+    def _close_calibration(self) -> None:
+        calibration = getattr(self, "_calibration", None)
+        if calibration is not None:
+            calibration.close()
+        self._calibration = None
+
+    def update(self) -> Estimate | None:
+        """Take the estimate now (waiting for it), and publish it where it may be (never a
+        rejected one over the last publishable one)."""
+        self._ask(lambda c: c.estimate())
+        self._take_answers(settle=True)
+        return self.estimate
+
+    def _updated(self, est: Estimate) -> None:
+        """An estimate taken: published where it may be."""
         self.estimate = est
         self.updates += 1
         if publishable(est):
@@ -879,7 +940,6 @@ class CalibrationNode(LifecycleNode):
         if len(self.calibrator.alarms) > self._alarms_seen:
             self._publish_alarms()
         self.publish_diagnostics()
-        return est
 
     def _publish_estimate(self, est: Estimate) -> None:
         first = self._good is None
@@ -916,7 +976,7 @@ class CalibrationNode(LifecycleNode):
         self.get_logger().warning(f"estimate at {self.calibrator.distance_km:.2f} km refused: "
                                   f"{self._rejection(est)}; {where}")
 
-    def finish(self) -> Estimate:
+    def finish(self) -> Estimate | None:
         """The end of the drive (shutdown, or a test's end): push every row the grid can still
         make, take the final estimate, publish it, write the export files (``export_dir``) and
         say what was done. Once: later calls return the same estimate."""
@@ -925,8 +985,12 @@ class CalibrationNode(LifecycleNode):
         self._finished = True
         self.flush(final=True)
         est = self.update()
+        self._close_calibration()
         log = self.get_logger()
-        if self._good is not None:
+        if est is None:
+            log.warning(f"no calibration after {self.calibrator.distance_km:.2f} km: "
+                        + (self._lost or "no estimate"))
+        elif self._good is not None:
             note = ("" if est is self._good else
                     f" (the final estimate was refused: {self._rejection(est)}; this is the one "
                     f"from {self._good_km:.2f} km)")
@@ -1042,6 +1106,8 @@ class CalibrationNode(LifecycleNode):
         rejected = est is not None and est.status is Status.REJECTED
         if self._config_error is not None:
             return DiagnosticStatus.ERROR, self._config_error
+        if self._lost:
+            return DiagnosticStatus.ERROR, self._lost
         if self.calibrator.halted or (rejected and good is None):
             return DiagnosticStatus.ERROR, self._rejection(est)
         warnings = [*self.silent(), *(p for t in self.topics for p in t.problems())]
@@ -1070,7 +1136,7 @@ class CalibrationNode(LifecycleNode):
     def _values(self, level: bytes) -> list[tuple[str, str]]:
         calibrator = self.calibrator
         values = [("distance_km", f"{calibrator.distance_km:.4f}"),
-                  ("samples", str(calibrator.details_samples())), ("updates", str(self.updates))]
+                  ("samples", str(calibrator.samples)), ("updates", str(self.updates))]
         for t in self.topics:
             s = t.stamps
             values += [(f"messages {t.name}", str(s.received - s.invalid)),
@@ -1091,7 +1157,7 @@ class CalibrationNode(LifecycleNode):
 
     def _rejection(self, est: Estimate | None) -> str:
         findings = (est.details.findings if est is not None and est.details is not None
-                    else self.calibrator.diagnosis.findings)
+                    else self.calibrator.findings)
         fatal = [f for f in findings if int(f.severity) == 2]
         if fatal:
             return "the data contradict the model: " + finding_text(fatal[0], self.settings)

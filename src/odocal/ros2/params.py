@@ -101,6 +101,9 @@ SPECS: tuple[Spec, ...] = (
          "reliable and best-effort publishers alike)"),
     Spec("controller_name", "", "a running diff_drive_controller to set the identified "
          "multipliers on (e.g. /diff_drive_controller; empty: none)"),
+    Spec("calibrator_process", True, "push and estimate in a process of the calibrator's own "
+         "beside the node's (the estimates never hold up the messages); false: in the node's "
+         "thread"),
     Spec("autostart", True, "configure and activate at once (false: wait for a lifecycle "
          "manager)"),
 )
