@@ -198,13 +198,16 @@ def play(executor: Any, player: Player, node: CalibrationNode, d: odocal.Drive,
         late_imu = [msgs["imu"] for k, msgs in batch_msgs
                     if d.t[k] < script.imu_until_s and not script.skip("imu", k)]
         expected = dict(sent)
-        spin_until(executor, lambda e=expected: arrived(node) == e, "the drive's messages")
+        # (and the calibrator's answers, where it runs beside the node: as in its thread, each
+        # estimate is published before the next batch)
+        spin_until(executor, lambda e=expected: arrived(node) == e and node.idle,
+                   "the drive's messages")
         if between is not None:
             between(b)
     for msg in late_imu:
         player.imu.publish(msg)
         sent["imu"] += 1
-    spin_until(executor, lambda: arrived(node) == sent, "the last messages")
+    spin_until(executor, lambda: arrived(node) == sent and node.idle, "the last messages")
     # the clock goes on a little after the drive (a timer tick publishes the diagnostics)
     player.clock.publish(Clock(clock=stamp(script.start_s + float(d.t[-1]) + 0.5)))
     executor.spin_once(timeout_sec=0.05)

@@ -77,10 +77,12 @@ def test_the_estimate_is_latched_data_with_its_labels(rig: Any, drive: odocal.Dr
     assert ekf["odom0"] == f"{r.node.get_fully_qualified_name()}/odometry"
 
 
-def test_reset_starts_the_calibration_over(rig: Any, drive: odocal.Drive) -> None:
+@pytest.mark.parametrize("beside", [False, True], ids=["in its thread", "in a process beside"])
+def test_reset_starts_the_calibration_over(rig: Any, drive: odocal.Drive, beside: bool) -> None:
     """~/reset (after a tyre change): everything calibrated before is forgotten; the drive
-    goes on and the calibration comes from what follows alone."""
-    r = rig()
+    goes on and the calibration comes from what follows alone (the calibrator's process, where
+    it has one, started anew)."""
+    r = rig(calibrator_process=beside)
     first = first_seconds(drive, 90.0)
     play(r.executor, r.player, r.node, first)
     assert r.node.calibrator.distance_km > 0.5

@@ -527,7 +527,7 @@ class CalibrationNode(LifecycleNode):
                     batch.append(got[0])
             handle(batch)
             self._maybe_flush()
-            if not self._idle():
+            if not self.idle:
                 self._take_answers()
 
         return take
@@ -880,10 +880,13 @@ class CalibrationNode(LifecycleNode):
         self._take_answers()
 
     def _answers_due(self) -> None:
-        if not self._idle():
+        if not self.idle:
             self._take_answers()
 
-    def _idle(self) -> bool:
+    @property
+    def idle(self) -> bool:
+        """Whether the calibrator has answered every request sent and the answers are
+        handled."""
         return self._calibration is None or self._calibration.idle
 
     def _take_answers(self, *, settle: bool = False) -> None:
