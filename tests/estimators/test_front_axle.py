@@ -864,6 +864,29 @@ def test_a_datasheet_wheelbase_far_from_what_the_drives_identify_is_said(
         assert "far from the datasheet's 10 m" in "\n".join(summary_lines(result))
 
 
+def test_a_datasheet_wheelbase_held_far_from_what_the_drives_identify_is_said() -> None:
+    """A datasheet wheelbase of 1.5 m for a 2.62 m car on ten minutes of driving: judged at
+    1.5 m the drive cannot tell L (its signal grows with L) and it is held there; a fit from
+    odocal's placeholder puts L at the truth, far from the statement: said in a note naming
+    both (before, the wrong value was held without a word; the hostile test's drive)."""
+    sim, true = with_front_axle(odocal.simulate(duration_s=600.0, seed=3, noise="realistic"))
+    drive, truth = sim.drive, true.as_array()
+    theta0 = tuple(1.5 if n == "L" else v
+                   for n, v in zip(FOUR_WHEEL.names, FOUR.identify.theta0, strict=True))
+    result = odocal.calibrate(drive, settings=FOUR.replace(identify={"theta0": theta0}))
+    est = result.model_estimate
+    assert result.success and not est.identified["L"] and est.theta.L == 1.5
+    [note] = [f for f in result.diagnosis.findings if f.name == "datasheet-held|L"]
+    [(name, value, std, stated)] = est.details.front.held_far
+    assert (name, stated, note.value, note.reference) == ("L", 1.5, value, 1.5)
+    assert abs(value - truth[7]) <= 3.0 * std and abs(value - 1.5) > 5.0 * std
+    assert "the datasheet's 1.5 m for L is kept, but the drives put it at " \
+        f"{value:.2f} m" in "\n".join(summary_lines(result))
+    json_front = est.details.to_dict()["front_axle"]
+    assert json_front["held_far"] == [{"name": "L", "drives": value, "std": std,
+                                       "datasheet": 1.5}]
+
+
 def test_a_noise_free_drive_calibrates_the_front_axle_not_its_placeholder() -> None:
     """Noise-free wheels and reference (the steering keeps its sensor's noise): the rear fit is
     exact, and its d's std, of rounding's size, held d in the front fit instead of swamping it

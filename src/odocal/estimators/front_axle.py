@@ -398,6 +398,10 @@ class FrontDetails:
     """The share of the steering regressor's spread that is turning, not the reference
     heading's noise (:func:`steering_attenuation`); below :data:`MIN_ATTENUATION` the ratio
     is held. None where not told."""
+    held_far: tuple[tuple[str, float, float, float], ...] = ()
+    """Front parameters the datasheet states and the fit held (judged at the stated value, the
+    drives could not tell them) that a fit from odocal's placeholder identifies far from the
+    statement (:func:`_held_far`): name, the drives' value, its std, the datasheet's."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"windows": self.windows, "window_s": self.window_s, "clusters": self.clusters,
@@ -409,7 +413,9 @@ class FrontDetails:
                                "fitted": self.load_prior[2], "joined": self.load_joined},
                 "traction_per_mps2": {"value": self.traction[0], "std": self.traction[1]},
                 "steering_out_of_range": self.steering_out_of_range,
-                "steering_attenuation": self.steering_attenuation}
+                "steering_attenuation": self.steering_attenuation,
+                "held_far": [{"name": n, "drives": v, "std": s, "datasheet": d}
+                             for n, v, s, d in self.held_far]}
 
 
 @dataclass(frozen=True)
@@ -849,6 +855,10 @@ def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Setti
     if fit_load:
         front = _with_load(front, windows, theta0, settings, float(rear.theta.as_array()[d]),
                            load_std)
+    far = _held_far(front, windows, theta0, settings, load_std=load_std, fit_load=fit_load)
+    if far:
+        front = dataclasses.replace(front, details=dataclasses.replace(front.details,
+                                                                       held_far=far))
     theta, cov = joined(rear.theta.as_array(), rear.covariance, front)
     verdicts: list[Verdict] = list(rear.verdicts)
     if front.details.load_joined:      # d, joined with the front wheels' evidence
@@ -898,6 +908,37 @@ def _without_front(rear: Estimate, datasheet: Parameters, limit: FloatArray) -> 
                     status=rear.status, details=FourWheelDetails(rear.details, None),
                     widening=np.append(rear.widening, np.ones(len(FRONT))),
                     model=FOUR_WHEEL_MODEL.name)
+
+
+def _held_far(front: FrontFit, windows: FrontWindows, theta0: FloatArray, settings: Settings,
+              *, load_std: float, fit_load: bool) -> tuple[tuple[str, float, float, float], ...]:
+    """Front parameters the datasheet states (not odocal's placeholder) and the fit held, that
+    the drives identify far from the statement. Judged at a stated value, a parameter whose
+    signal grows with it (the wheelbase: the front wheels' longer path and the steering
+    angle's reach both scale with L) can look untold where the value is wrong: a typo (1.5 m
+    for 2.5 m) would be held silently. So the drives are fitted once more from odocal's
+    placeholder for those parameters; where that fit identifies one beyond
+    :data:`DATASHEET_FAR` of its stds and 5% of the statement, it is returned (the estimate
+    keeps the datasheet's value: the note says the drives' one)."""
+    sheet = np.asarray(theta0, dtype=np.float64)
+    stated = [name for name, free in zip(FRONT, front.free, strict=True)
+              if not free and sheet[LAYOUT.index(name)] != LAYOUT.placeholder[LAYOUT.index(name)]]
+    if not stated:
+        return ()
+    start = sheet.copy()
+    for name in stated:
+        start[LAYOUT.index(name)] = LAYOUT.placeholder[LAYOUT.index(name)]
+    probe = fit_front(windows, start, settings, load_std=load_std, fit_load=fit_load)
+    told = dict(zip(FRONT, probe.free, strict=True))
+    far = []
+    for name in stated:
+        j = LAYOUT.index(name)
+        value, std = float(probe.theta[j]), float(np.sqrt(max(probe.covariance[j, j], 0.0)))
+        gap = abs(value - sheet[j])
+        if told[name] and std > 0 and gap > DATASHEET_FAR * std \
+                and gap > 0.05 * max(abs(float(sheet[j])), 1e-9):
+            far.append((name, value, std, float(sheet[j])))
+    return tuple(far)
 
 
 #: Below this share of the steering regressor's spread being turning (the rest the reference
@@ -990,6 +1031,9 @@ def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis, *,
                 and abs(th[name] - sheet[j]) > 0.05 * max(abs(sheet[j]), 1e-9):
             found.append(Finding(Check.FRONT_AXLE, Severity.NOTE, th[name], float(sheet[j]),
                                  f"datasheet-far|{name}"))
+    for name, value, _std, stated in getattr(front, "held_far", ()):
+        found.append(Finding(Check.FRONT_AXLE, Severity.NOTE, value, stated,
+                             f"datasheet-held|{name}"))
     low, high = LAYOUT.parameters[LAYOUT.index("L")].vehicle_range
     if ok["L"] and not low <= th["L"] <= high:
         found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, th["L"], high, "wheelbase"))

@@ -448,6 +448,13 @@ def _four_wheel_text(finding: Finding) -> str:
         return (f"the drives put {where} at {format_value(where, v)}, far from the datasheet's "
                 f"{format_value(where, ref)} (more than five calibrated stds apart): a typo in the "
                 "datasheet, or another car's? (the calibration stands as the drives say)")
+    if what == "datasheet-held":
+        return (f"the datasheet's {format_value(where, ref)} for {where} is kept, but the "
+                f"drives put it at {format_value(where, v)} when fitted from odocal's "
+                "placeholder (more than five of their stds apart): judged at the datasheet's "
+                "value they could not tell it, as its signal grows with it. A typo in the "
+                f"datasheet, or another car's? state {where} as the car has it, or leave it "
+                "out, and calibrate again")
     if what == "unsigned":
         return (f"the front wheels of {where} read forwards for {v:.0f} s while the rear ones "
                 "turn backwards: front wheel speeds without a sign on a vehicle backing up; "
