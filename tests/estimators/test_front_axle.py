@@ -515,6 +515,35 @@ def test_validate_refuses_a_four_wheel_parameter_file_no_car_has_in_one_line(
     assert "L = 100 is not a wheeled vehicle's wheelbase" in err[0]
 
 
+def test_validate_names_front_wheels_swapped_left_and_right(
+        four_wheel_drive: tuple[Drive, np.ndarray], tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """`odocal validate` of a four-wheel calibration on a drive whose front wheels are mapped
+    the wrong way round: one line naming it and exit 1, as calibrate names it (before: E_p
+    computed as if right, with no word)."""
+    from odocal.cli.main import main
+
+    drive, _ = four_wheel_drive
+    car = odocal.calibrate(drive, settings=FOUR)
+    car.save(tmp_path / "car", report=False)
+    columns = drive.columns()
+    columns["n_fl"], columns["n_fr"] = columns["n_fr"], columns["n_fl"]
+    odocal.save_drive(Drive.from_columns(columns, name="swapped"), tmp_path / "swapped.parquet")
+    odocal.save_drive(drive, tmp_path / "right.parquet")
+    config = tmp_path / "four.toml"
+    config.write_text('[vehicle]\nmodel = "four_wheel"\n')
+    params = str(tmp_path / "car" / "calibration.json")
+    capsys.readouterr()
+    code = main(["validate", str(tmp_path / "swapped.parquet"), "--config", str(config),
+                 "--params", params])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 1 and len(err) == 1
+    assert "front left and right swapped? map them the other way round" in err[0]
+    assert "calibrated" not in err[0]
+    assert main(["validate", str(tmp_path / "right.parquet"), "--config", str(config),
+                 "--params", params, "-q"]) == 0
+
+
 def _odocal(*argv: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "odocal", *argv], capture_output=True,
                           text=True, check=False, cwd=cwd)

@@ -47,6 +47,8 @@ def cmd_validate(args: argparse.Namespace) -> int:
         std = read_uncertainty(args.params, settings.vehicle.model)
     drives = drives_from(args.logs, source_format=args.source_format, mapping=args.mapping,
                          scenes=args.scene, settings=settings, quiet=args.quiet)
+    if settings.vehicle.model != "rear_axle":
+        _front_wheels_checked(drives, settings)
     result = validate_theta(drives, theta, settings=settings, std=std)
     if args.quiet:
         return EXIT_OK
@@ -64,6 +66,20 @@ def cmd_validate(args: argparse.Namespace) -> int:
         say(f"{i:>7} {Path(names[int(d)]).name[:30]:<30} {t0:>10.1f} {dist:>10.1f} {e:>9.3f} "
             f"{f:>13.3f}")
     return EXIT_OK
+
+
+def _front_wheels_checked(drives: Any, settings: Settings) -> None:
+    """The front wheels' and steering's checks that need no fit, as calibrate runs them: a
+    fatal finding (left and right swapped, a dead wheel, another unit) is a one-line error,
+    never an E_p computed on a wrong mapping."""
+    from odocal.checks.findings import Severity
+    from odocal.errors import DataError
+    from odocal.estimators.front_axle import front_checks
+    from odocal.report.advice import NOTHING_CALIBRATED, finding_text
+
+    for finding in front_checks(drives, settings).findings:
+        if finding.severity is Severity.FATAL:
+            raise DataError(finding_text(finding, settings).removesuffix(NOTHING_CALIBRATED))
 
 
 def cmd_minimum(args: argparse.Namespace) -> int:

@@ -418,8 +418,8 @@ _FRONT_WHEEL_WORDS = {
     "backwards": "turns against the rear ones on {v:.0%} of the moving samples of {where}: its "
                  "sign is flipped",
 }
-#: What a refusal of the four-wheel car ends with.
-_NOTHING = " (nothing is calibrated from these)"
+#: What a refusal of the four-wheel car ends with (what calibrate does about it).
+NOTHING_CALIBRATED = _NOTHING = " (nothing is calibrated from these)"
 
 
 def _four_wheel_text(finding: Finding) -> str:
