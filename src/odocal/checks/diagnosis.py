@@ -221,8 +221,23 @@ def _heading(win: _Windows, moving: BoolArray, lim: ChecksSettings) -> list[Find
     gap = min(float(np.median(np.abs(turned[straight]))),
               float(np.median(np.abs(win.course_gap[straight]))))
     if gap > lim.heading_max_gap_rad:
-        return [Finding(Check.REFERENCE_HEADING, Severity.FATAL, gap, 0.0)]
+        # (reference: where the wheels never turn backwards and the straight seconds go
+        # either along the heading or against it, the share against: wheel speeds without a
+        # sign on a car backing up; a rotated or mirrored frame spreads the gaps between)
+        course = np.abs(win.course_gap[straight])
+        against = course > BACKING_GAP_RAD
+        either = against | (course <= lim.heading_max_gap_rad)
+        share = (float(against.mean()) if not backwards.any()
+                 and either.mean() >= BACKING_EITHER_SHARE else 0.0)
+        return [Finding(Check.REFERENCE_HEADING, Severity.FATAL, gap, share)]
     return []
+
+
+#: A course against the heading by more than this (rad, 150 degrees) is a car backing up.
+BACKING_GAP_RAD = float(np.radians(150.0))
+#: The share of straight seconds along the heading or against it beyond which a drive is one
+#: of a car going forwards and backing up (not of another frame).
+BACKING_EITHER_SHARE = 0.9
 
 
 def _sync(win: _Windows, lim: ChecksSettings) -> list[Finding]:

@@ -418,6 +418,9 @@ _FRONT_WHEEL_WORDS = {
     "backwards": "turns against the rear ones on {v:.0%} of the moving samples of {where}: its "
                  "sign is flipped",
 }
+#: The share of straight seconds moving against the heading on wheels without a sign beyond
+#: which a refused heading names the wheels' sign as a cause.
+BACKING_SHARE = 0.05
 #: What a refusal of the four-wheel car ends with (what calibrate does about it).
 NOTHING_CALIBRATED = _NOTHING = " (nothing is calibrated from these)"
 
@@ -616,6 +619,10 @@ def _reference_and_sensor_text(finding: Finding) -> str:
     if c is Check.REFERENCE_HEADING:
         backing = (" or wheel speeds without a sign on a vehicle backing up (the wheels then "
                    "cannot say it moves backwards)?" if v > np.radians(150.0) else "")
+        if ref >= BACKING_SHARE:
+            backing = (f" or, as on {ref:.0%} of them the reference moves against its heading "
+                       "while the wheels, which never turn backwards, turn forwards: wheel "
+                       "speeds without a sign on a vehicle backing up? give them their sign")
         return (f"the reference heading does not point where the reference moves: on straights "
                 f"they are {np.degrees(v):.0f} degrees apart (x and y swapped? a compass heading "
                 f"in the 'enu' convention? another frame?{backing}); fix the mapping")
