@@ -1014,6 +1014,9 @@ def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis, *,
     if ok["c_fd"] and abs(th["c_fd"]) > max_difference * abs(th["c_f"]):
         found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, th["c_fd"], th["c_f"],
                              "difference"))
+    elif ok["c_fd"] and abs(th["c_fd"]) > FRONT_DIFFERENCE_NOTE * abs(th["c_f"]):
+        found.append(Finding(Check.FRONT_AXLE, Severity.NOTE, th["c_fd"], th["c_f"],
+                             "difference-note"))
     front = getattr(vehicle.details, "front", None)
     said = getattr(front, "steering_out_of_range", None)
     if said is not None:
@@ -1054,6 +1057,10 @@ DATASHEET_FAR = 5.0
 #: note: staggered tyres differ by a few per cent; more is a front speed signal converted
 #: with another circumference, or rings of another tooth count, unless the car is built so.
 FRONT_SCALE_NOTE = 0.05
+#: Two front wheels apart per turn by more than this share of the circumference (below the
+#: rear wheels' gate) is said in a note: two tyres of one axle differ by a few millimetres
+#: (a tenth of a per cent); a per cent is a tyre of another size or wear, or a scaled signal.
+FRONT_DIFFERENCE_NOTE = 0.01
 #: A front wheel reading nothing on more than this share of the moving samples, while the
 #: other turns, is dead.
 DEAD_SHARE = 0.9

@@ -480,6 +480,11 @@ def _four_wheel_text(finding: Finding) -> str:
                 "few per cent; more is a front speed signal converted with another "
                 "circumference, or wheel-speed rings of another tooth count (the calibration "
                 "stands as the wheels report)")
+    if what == "difference-note":
+        return (f"the front wheels' circumferences differ by {v * 1e3:.4g} mm of {ref:.4g} m "
+                f"({abs(v) / ref:.1%}), where two tyres of one axle differ by a few "
+                "millimetres: a tyre of another size or wear, or one wheel's signal scaled? "
+                "(the calibration stands as the wheels report)")
     if what == "difference":
         return (f"the front wheels' circumferences differ by {v * 1e3:.4g} mm of {ref:.4g} m, "
                 "more than two tyres of one axle do: one front wheel reads a share of its "
