@@ -137,6 +137,28 @@ def test_a_calibrator_that_died_is_named_not_waited_for(blocks: list[dict[str, n
         beside.close()
 
 
+def test_a_frozen_calibrator_never_holds_up_the_node(blocks: list[dict[str, np.ndarray]]
+                                                    ) -> None:
+    """A calibrator that stops answering (SIGSTOP: it and its reader frozen): the node's sends
+    never wait (far more than the pipe holds go out), and waiting for its answers ends after
+    the timeout with the process ended and named (the hostile test's node stalled its
+    odometry and hung at Ctrl-C)."""
+    beside = Beside(Settings())
+    try:
+        beside.push(blocks[:2])
+        beside.settle()
+        pid = beside._process.pid or 0
+        os.kill(pid, signal.SIGSTOP)
+        for _ in range(60):                     # about 2 MB of rows: the pipe holds 64 KiB
+            beside.push(blocks)
+        assert beside.backlog == 60 and not beside.idle
+        with pytest.raises(CalibratorLost, match="did not answer within 2 s; it was ended"):
+            beside.settle(timeout_s=2.0)
+        assert not beside._process.is_alive() and beside._process.exitcode == -signal.SIGKILL
+    finally:
+        beside.close()
+
+
 def test_a_node_whose_calibrator_died_says_so_and_goes_on(rig: Any, drive: odocal.Drive
                                                           ) -> None:
     require_rclpy()

@@ -22,6 +22,7 @@ import multiprocessing
 import queue
 import signal
 import threading
+import time
 from collections import deque
 from dataclasses import dataclass
 from multiprocessing import resource_tracker
@@ -151,12 +152,16 @@ class InThread:
         self._events.clear()
         return out
 
-    def settle(self) -> list[Event]:
+    def settle(self, timeout_s: float = 0.0) -> list[Event]:
         return self.answers()
 
     @property
     def idle(self) -> bool:
         return not self._events
+
+    @property
+    def backlog(self) -> int:
+        return 0
 
     def close(self) -> None:
         self._events.clear()
@@ -166,8 +171,15 @@ class CalibratorLost(OdocalError):
     """The calibrator's process ended before it answered."""
 
 
+#: How long (s) the node waits at most for the calibrator's last answers (the drive's end, an
+#: estimate asked for): a process that does not answer by then (frozen, stopped) is ended.
+SETTLE_S = 30.0
+
+
 class Beside:
-    """The schedule in a process of its own (spawned, signals blocked: see the module)."""
+    """The schedule in a process of its own (spawned, signals blocked: see the module). The
+    requests go out through a thread of the node's (its sends wait on a full pipe, never the
+    node's thread, whatever the calibrator does)."""
 
     def __init__(self, settings: Settings) -> None:
         context = multiprocessing.get_context("spawn")
@@ -184,6 +196,11 @@ class Beside:
             signal.pthread_sigmask(signal.SIG_SETMASK, held)
         child.close()
         self._waiting = 0
+        self._broken = False
+        self._outbox: queue.SimpleQueue[tuple[str, Any] | None] = queue.SimpleQueue()
+        self._sender = threading.Thread(target=self._send_all, name="calibrator requests",
+                                        daemon=True)
+        self._sender.start()
 
     def push(self, blocks: list[Block]) -> None:
         self._send(("push", blocks))
@@ -192,11 +209,18 @@ class Beside:
         self._send(("estimate", None))
 
     def _send(self, request: tuple[str, Any]) -> None:
-        try:
-            self._conn.send(request)
-        except (OSError, ValueError) as exc:
-            raise self._lost() from exc
+        if self._broken or not self._process.is_alive():
+            raise self._lost()
+        self._outbox.put(request)
         self._waiting += 1
+
+    def _send_all(self) -> None:
+        while (request := self._outbox.get()) is not None:
+            try:
+                self._conn.send(request)
+            except (OSError, ValueError):
+                self._broken = True
+                return
 
     def answers(self) -> list[Event]:
         """The events of every request answered so far (never waits)."""
@@ -207,13 +231,20 @@ class Beside:
                 self._waiting -= 1
         except (EOFError, OSError) as exc:
             raise self._lost() from exc
+        if self._waiting and (self._broken or not self._process.is_alive()):
+            raise self._lost()
         return out
 
-    def settle(self) -> list[Event]:
-        """The events of every request sent, waiting for those not answered yet."""
+    def settle(self, timeout_s: float = SETTLE_S) -> list[Event]:
+        """The events of every request sent, waiting for those not answered yet (at most
+        ``timeout_s``: then the process is ended and named lost)."""
         out: list[Event] = []
+        deadline = time.monotonic() + timeout_s
         try:
             while self._waiting:
+                if not self._conn.poll(max(deadline - time.monotonic(), 0.0)):
+                    self._process.kill()
+                    raise self._lost(f"did not answer within {timeout_s:g} s; it was ended")
                 out.extend(self._conn.recv())
                 self._waiting -= 1
         except (EOFError, OSError) as exc:
@@ -225,16 +256,24 @@ class Beside:
         """Whether every request sent has been answered and read."""
         return self._waiting == 0
 
-    def _lost(self) -> CalibratorLost:
+    @property
+    def backlog(self) -> int:
+        """The requests sent and not answered yet."""
+        return self._waiting
+
+    def _lost(self, why: str = "") -> CalibratorLost:
         self._process.join(timeout=1.0)
         self._waiting = 0
-        return CalibratorLost(f"the calibrator's process ended (exit code "
-                              f"{self._process.exitcode}): nothing more is calibrated")
+        return CalibratorLost("the calibrator's process " + (why or f"ended (exit code "
+                              f"{self._process.exitcode})") + ": nothing more is calibrated")
 
     def close(self) -> None:
-        """The process ended (its pipe closed; it exits as it reads the end)."""
+        """The process ended (its pipe closed; it exits as it reads the end; one that does not
+        within two seconds is killed)."""
+        self._outbox.put(None)
+        self._sender.join(timeout=1.0)
         self._conn.close()
-        self._process.join(timeout=5.0)
+        self._process.join(timeout=2.0)
         if self._process.is_alive():
             self._process.kill()
             self._process.join()

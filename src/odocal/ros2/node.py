@@ -113,6 +113,9 @@ LOSS_NAMED_S = 60.0
 #: At most this many messages of one input are taken in one callback (the executor calls
 #: again for the rest: a backlog is not held in memory all at once).
 MAX_BATCH = 500
+#: Requests to the calibrator beside the node not answered yet (blocks of ``[online] chunk_s``
+#: of data) beyond which /diagnostics says it is behind.
+BEHIND = 60
 _LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                       reliability=ReliabilityPolicy.RELIABLE)
 _SUCCESS, _FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
@@ -1116,6 +1119,11 @@ class CalibrationNode(LifecycleNode):
         warnings = [*self.silent(), *(p for t in self.topics for p in t.problems())]
         if self._push_error:
             warnings.append(f"samples left out: {self._push_error}")
+        behind = self._calibration.backlog if self._calibration is not None else 0
+        if behind > BEHIND:
+            warnings.append(f"the calibrator is behind: {behind} blocks of "
+                            f"{self.settings.online.chunk_s:g} s of data not answered yet "
+                            "(its estimates come late)")
         if rejected:
             warnings.append(f"the latest estimate was refused ({self._rejection(est)}): "
                             f"publishing the calibration from {self._good_km:.2f} km")
