@@ -173,7 +173,7 @@ class CalibratorLost(OdocalError):
 
 #: How long (s) the node waits at most for the calibrator's last answers (the drive's end, an
 #: estimate asked for): a process that does not answer by then (frozen, stopped) is ended.
-SETTLE_S = 30.0
+SETTLE_S = 10.0
 
 
 class Beside:
