@@ -268,12 +268,11 @@ class Beside:
                               f"{self._process.exitcode})") + ": nothing more is calibrated")
 
     def close(self) -> None:
-        """The process ended (its pipe closed; it exits as it reads the end; one that does not
-        within two seconds is killed)."""
+        """The process ended: its pipe closed (it exits as it reads the end; one that does not
+        within half a second, busy with what nobody waits for, is killed)."""
         self._outbox.put(None)
-        self._sender.join(timeout=1.0)
-        self._conn.close()
-        self._process.join(timeout=2.0)
+        self._conn.close()              # (a send under way in the sender thread fails: it ends)
+        self._process.join(timeout=0.5)
         if self._process.is_alive():
             self._process.kill()
             self._process.join()
