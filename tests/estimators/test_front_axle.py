@@ -926,7 +926,7 @@ def test_a_datasheet_wheelbase_held_far_from_what_the_drives_identify_is_said() 
     est = result.model_estimate
     assert result.success and not est.identified["L"] and est.theta.L == 1.5
     [note] = [f for f in result.diagnosis.findings if f.name == "datasheet-held|L"]
-    [(name, value, std, stated)] = est.details.front.held_far
+    [(name, value, std, stated)] = est.details.front.held_far      # (name, drives, std, sheet)
     assert (name, stated, note.value, note.reference) == ("L", 1.5, value, 1.5)
     assert abs(value - truth[7]) <= 3.0 * std and abs(value - 1.5) > 5.0 * std
     assert "the datasheet's 1.5 m for L is kept, but the drives put it at " \

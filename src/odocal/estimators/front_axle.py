@@ -40,7 +40,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -363,6 +363,16 @@ def _summed(steps: FloatArray, m: int) -> FloatArray:
     return np.asarray(steps.reshape(steps.shape[0], steps.shape[1] // m, m).sum(axis=2))
 
 
+class HeldFar(NamedTuple):
+    """A front parameter the datasheet states and the fit held, that a fit from odocal's
+    placeholder identifies far from the statement (:func:`_held_far`)."""
+
+    name: str
+    drives: float       # the value a fit from odocal's placeholder puts it at
+    std: float
+    datasheet: float
+
+
 @dataclass(frozen=True)
 class FrontDetails:
     """What the front axle's fit did.
@@ -398,10 +408,10 @@ class FrontDetails:
     """The share of the steering regressor's spread that is turning, not the reference
     heading's noise (:func:`steering_attenuation`); below :data:`MIN_ATTENUATION` the ratio
     is held. None where not told."""
-    held_far: tuple[tuple[str, float, float, float], ...] = ()
+    held_far: tuple[HeldFar, ...] = ()
     """Front parameters the datasheet states and the fit held (judged at the stated value, the
     drives could not tell them) that a fit from odocal's placeholder identifies far from the
-    statement (:func:`_held_far`): name, the drives' value, its std, the datasheet's."""
+    statement (:func:`_held_far`)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"windows": self.windows, "window_s": self.window_s, "clusters": self.clusters,
@@ -414,8 +424,7 @@ class FrontDetails:
                 "traction_per_mps2": {"value": self.traction[0], "std": self.traction[1]},
                 "steering_out_of_range": self.steering_out_of_range,
                 "steering_attenuation": self.steering_attenuation,
-                "held_far": [{"name": n, "drives": v, "std": s, "datasheet": d}
-                             for n, v, s, d in self.held_far]}
+                "held_far": [far._asdict() for far in self.held_far]}
 
 
 @dataclass(frozen=True)
@@ -911,7 +920,7 @@ def _without_front(rear: Estimate, datasheet: Parameters, limit: FloatArray) -> 
 
 
 def _held_far(front: FrontFit, windows: FrontWindows, theta0: FloatArray, settings: Settings,
-              *, load_std: float, fit_load: bool) -> tuple[tuple[str, float, float, float], ...]:
+              *, load_std: float, fit_load: bool) -> tuple[HeldFar, ...]:
     """Front parameters the datasheet states (not odocal's placeholder) and the fit held, that
     the drives identify far from the statement. Judged at a stated value, a parameter whose
     signal grows with it (the wheelbase: the front wheels' longer path and the steering
@@ -937,7 +946,7 @@ def _held_far(front: FrontFit, windows: FrontWindows, theta0: FloatArray, settin
         gap = abs(value - sheet[j])
         if told[name] and std > 0 and gap > DATASHEET_FAR * std \
                 and gap > 0.05 * max(abs(float(sheet[j])), 1e-9):
-            far.append((name, value, std, float(sheet[j])))
+            far.append(HeldFar(name, value, std, float(sheet[j])))
     return tuple(far)
 
 
@@ -1034,9 +1043,9 @@ def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis, *,
                 and abs(th[name] - sheet[j]) > 0.05 * max(abs(sheet[j]), 1e-9):
             found.append(Finding(Check.FRONT_AXLE, Severity.NOTE, th[name], float(sheet[j]),
                                  f"datasheet-far|{name}"))
-    for name, value, _std, stated in getattr(front, "held_far", ()):
-        found.append(Finding(Check.FRONT_AXLE, Severity.NOTE, value, stated,
-                             f"datasheet-held|{name}"))
+    for far in getattr(front, "held_far", ()):
+        found.append(Finding(Check.FRONT_AXLE, Severity.NOTE, far.drives, far.datasheet,
+                             f"datasheet-held|{far.name}"))
     low, high = LAYOUT.parameters[LAYOUT.index("L")].vehicle_range
     if ok["L"] and not low <= th["L"] <= high:
         found.append(Finding(Check.FRONT_AXLE, Severity.FATAL, th["L"], high, "wheelbase"))
