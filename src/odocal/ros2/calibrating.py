@@ -163,7 +163,7 @@ class InThread:
     def backlog(self) -> int:
         return 0
 
-    def close(self) -> None:
+    def close(self, *, wait: bool = True) -> None:
         self._events.clear()
 
 
@@ -267,12 +267,14 @@ class Beside:
         return CalibratorLost("the calibrator's process " + (why or f"ended (exit code "
                               f"{self._process.exitcode})") + ": nothing more is calibrated")
 
-    def close(self) -> None:
-        """The process ended: its pipe closed (it exits as it reads the end; one that does not
-        within half a second, busy with what nobody waits for, is killed)."""
+    def close(self, *, wait: bool = True) -> None:
+        """The process ended: its pipe closed, and (``wait``) it exits as it reads the end (one
+        that does not within half a second is killed); without ``wait`` it is killed at once
+        (what it was doing is forgotten: a reset)."""
         self._outbox.put(None)
         self._conn.close()              # (a send under way in the sender thread fails: it ends)
-        self._process.join(timeout=0.5)
+        if wait:
+            self._process.join(timeout=0.5)
         if self._process.is_alive():
             self._process.kill()
             self._process.join()

@@ -922,10 +922,13 @@ class CalibrationNode(LifecycleNode):
         self.get_logger().error(self._lost)
         self.publish_diagnostics()
 
-    def _close_calibration(self) -> None:
+    def _close_calibration(self, *, settled: bool = False) -> None:
+        """The calibrator ended: where every answer was taken (``settled``, the drive's end),
+        as it reads the end of its requests; else (a reset, a cleanup) at once: what it was
+        doing is forgotten."""
         calibration = getattr(self, "_calibration", None)
         if calibration is not None:
-            calibration.close()
+            calibration.close(wait=settled)
         self._calibration = None
 
     def update(self) -> Estimate | None:
@@ -991,7 +994,7 @@ class CalibrationNode(LifecycleNode):
         self._finished = True
         self.flush(final=True)
         est = self.update()
-        self._close_calibration()
+        self._close_calibration(settled=True)
         log = self.get_logger()
         if est is None:
             log.warning(f"no calibration after {self.calibrator.distance_km:.2f} km: "
