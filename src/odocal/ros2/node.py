@@ -530,8 +530,7 @@ class CalibrationNode(LifecycleNode):
                     batch.append(got[0])
             handle(batch)
             self._maybe_flush()
-            if not self.idle:
-                self._take_answers()
+            self._answers_due()
 
         return take
 
@@ -918,7 +917,7 @@ class CalibrationNode(LifecycleNode):
 
     def _calibrator_lost(self, exc: CalibratorLost) -> None:
         self._lost = str(exc)
-        self._calibration = None
+        self._close_calibration()               # (its pipe and request thread released)
         self.get_logger().error(self._lost)
         self.publish_diagnostics()
 
