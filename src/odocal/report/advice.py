@@ -433,31 +433,9 @@ def _four_wheel_text(finding: Finding) -> str:
     if c is Check.STEERING:
         return _steering_text(what, where, v, ref)
     if c is Check.WHEEL_MAPPING:
-        if what == "front-sides-yaw":
-            return (f"the front wheels' difference turns against the yaw rate (correlation "
-                    f"{v:+.2f}) in {where}: front left and right swapped? map them the other "
-                    f"way round{_NOTHING}")
-        if what == "front-copy":
-            return (f"the front left and right wheels' columns hold one signal in {where}: one "
-                    f"column mapped twice? map each front wheel to its own{_NOTHING}")
-        if what == "front-sides":
-            return (f"the front wheels' difference runs against the turning (t_f = {v:.2f} m "
-                    f"+-{ref:.2f}): front left and right swapped? map them the other way "
-                    f"round{_NOTHING}")
-        return ("the rear wheels turn alike in bends while the car has four wheel signals: "
-                "two wheels of one side mapped as an axle (a wheel among the four in the "
-                f"wrong column)? check the mapping of all four{_NOTHING}")
-    if what == "datasheet-far":
-        return (f"the drives put {where} at {format_value(where, v)}, far from the datasheet's "
-                f"{format_value(where, ref)} (more than five calibrated stds apart): a typo in the "
-                "datasheet, or another car's? (the calibration stands as the drives say)")
-    if what == "datasheet-held":
-        return (f"the datasheet's {format_value(where, ref)} for {where} is kept, but the "
-                f"drives put it at {format_value(where, v)} when fitted from odocal's "
-                "placeholder (more than five of their stds apart): judged at the datasheet's "
-                "value they could not tell it, as its signal grows with it. A typo in the "
-                f"datasheet, or another car's? state {where} as the car has it, or leave it "
-                "out, and calibrate again")
+        return _mapping_text(what, where, v, ref)
+    if what.startswith("datasheet-"):
+        return _datasheet_text(what, where, v, ref)
     if what == "unsigned":
         return (f"the front wheels of {where} read forwards for {v:.0f} s while the rear ones "
                 "turn backwards: front wheel speeds without a sign on a vehicle backing up; "
@@ -491,6 +469,40 @@ def _four_wheel_text(finding: Finding) -> str:
                 f"turns (another tooth count, a scaled signal), or another unit{_NOTHING}")
     return (f"the front wheels put the front axle {v:.4g} m ahead of the rear one, beyond any "
             f"vehicle's {ref:.0f} m{_NOTHING}")
+
+
+def _mapping_text(what: str, where: str, v: float, ref: float) -> str:
+    """The four wheels' mapping (a wheel in another's column)."""
+    if what == "front-sides-yaw":
+        return (f"the front wheels' difference turns against the yaw rate (correlation "
+                f"{v:+.2f}) in {where}: front left and right swapped? map them the other "
+                f"way round{_NOTHING}")
+    if what == "front-copy":
+        return (f"the front left and right wheels' columns hold one signal in {where}: one "
+                f"column mapped twice? map each front wheel to its own{_NOTHING}")
+    if what == "front-sides":
+        return (f"the front wheels' difference runs against the turning (t_f = {v:.2f} m "
+                f"+-{ref:.2f}): front left and right swapped? map them the other way "
+                f"round{_NOTHING}")
+    return ("the rear wheels turn alike in bends while the car has four wheel signals: "
+            "two wheels of one side mapped as an axle (a wheel among the four in the "
+            f"wrong column)? check the mapping of all four{_NOTHING}")
+
+
+def _datasheet_text(what: str, where: str, v: float, ref: float) -> str:
+    """A datasheet value stated far from what the drives say of it (``datasheet-far``: the
+    drives identify it; ``datasheet-held``: held at the statement, identified from odocal's
+    placeholder)."""
+    if what == "datasheet-held":
+        return (f"the datasheet's {format_value(where, ref)} for {where} is kept, but the "
+                f"drives put it at {format_value(where, v)} when fitted from odocal's "
+                "placeholder (more than five of their stds apart): judged at the datasheet's "
+                "value they could not tell it, as its signal grows with it. A typo in the "
+                f"datasheet, or another car's? state {where} as the car has it, or leave it "
+                "out, and calibrate again")
+    return (f"the drives put {where} at {format_value(where, v)}, far from the datasheet's "
+            f"{format_value(where, ref)} (more than five calibrated stds apart): a typo in the "
+            "datasheet, or another car's? (the calibration stands as the drives say)")
 
 
 def _steering_text(what: str, where: str, v: float, ref: float) -> str:
