@@ -181,7 +181,10 @@ def local_client(n: int) -> Iterator[Any]:
     from distributed import Client, LocalCluster
 
     if not log.isEnabledFor(logging.INFO):
-        logging.getLogger("distributed").setLevel(logging.CRITICAL)
+        # (and the IO loop's: a callback Dask's client runs while Ctrl-C closes it logs its
+        # stack through tornado's logger, a traceback in a run that ends in one line)
+        for name in ("distributed", "tornado.application"):
+            logging.getLogger(name).setLevel(logging.CRITICAL)
     # one compiled-kernel and BLAS thread per single-threaded worker process (set in the
     # workers' environment, never in this process, whose threads may have started)
     threads = {k: "1" for k in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
