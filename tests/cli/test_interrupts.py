@@ -24,6 +24,7 @@ from tests.interrupting import BIN, Outcome, interrupt_at
 ROOT = Path(__file__).resolve().parents[2]
 SOURCES = Path(odocal.__file__).resolve().parents[1]          # the odocal under test
 SWALLOWING = [sys.executable, "-m", "tests.cli.swallowing"]
+STUCK = [sys.executable, "-m", "tests.cli.stuck"]
 
 
 def _odocal(*argv: str, cwd: Path) -> None:
@@ -157,6 +158,30 @@ def test_an_interrupt_a_library_swallowed_still_stops_the_run(place: Path, comma
     assert o.code == 130, o.stderr[-2000:]
     assert o.intact, "the interrupted run replaced the earlier results"
     assert "Traceback" not in o.stderr and o.left == () and o.leftovers == ()
+
+
+@pytest.mark.parametrize(("command", "target", "output"), [
+    (["calibrate", "small.parquet", "--out", "prev"], "odocal.output.results:write_results",
+     "prev"),
+    (["replay", "small.parquet", "--out", "prevr", "--no-batch"],
+     "odocal.online.replay:replay", "prevr"),
+])
+def test_a_clean_up_that_never_ends_does_not_keep_the_program(place: Path,
+                                                               command: list[str], target: str,
+                                                               output: str) -> None:
+    """Ctrl-C whose clean-up waits for ever (found in CI: closing the fleet's Dask client
+    waited a minute for its scheduler): the program leaves on its own, exit 130 and one line
+    (the hang is what fails here: the harness kills the run after 30 s). A temporary folder
+    the stuck clean-up could not remove is removed by the next run, its writer being gone."""
+    o = interrupt_at([target, *command], outputs=[place / output], cwd=place, program=STUCK,
+                     signal_sent=False, timeout_s=30.0,
+                     env={"PYTHONPATH": f"{ROOT}:{SOURCES}"})
+    assert o.code == 130, o.stderr[-2000:]
+    assert o.stderr.strip().splitlines()[-1].endswith(": interrupted"), o.stderr[-2000:]
+    assert "Traceback" not in o.stderr
+    assert o.intact and o.left == ()
+    _odocal(*command, cwd=place)
+    assert not list(place.glob(f".{output}.*"))
 
 
 def test_simulate_fleet_leaves_no_half_a_fleet(place: Path) -> None:

@@ -13,6 +13,11 @@ is (exit 130; not for a command whose normal end is Ctrl-C, ``odocal ros2``, whi
 itself). The handler is installed only by the program itself (:func:`install` from
 :func:`odocal.cli.run` and ``main()`` without arguments), never by a caller of
 ``main([...])``.
+
+A clean-up that never comes back (a library waiting on a closing connection: Dask's client
+waits up to a minute for a scheduler that is going away) must not keep the program: once a
+command is :func:`watch`-ed, Ctrl-C also starts a timer that leaves (:func:`leave`: its one
+line, exit 130) :data:`LEAVE_WITHIN_S` seconds later if the program is still there.
 """
 
 from __future__ import annotations
@@ -20,14 +25,33 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import threading
 from types import FrameType
 
 from odocal import cancel
 
+#: Seconds from Ctrl-C to the program leaving whatever its clean-up is waiting for.
+LEAVE_WITHIN_S = 5.0
+
+_watched: list[str | None] = [None]      # the command whose Ctrl-C starts the timer
+_leaving = threading.Lock()              # one leave: the timer's or the program's
+
 
 def _on_interrupt(signum: int, frame: FrameType | None) -> None:
+    first = not cancel.requested()
     cancel.request()
+    command = _watched[0]
+    if first and command is not None:
+        timer = threading.Timer(LEAVE_WITHIN_S, leave, args=(command,))
+        timer.daemon = True
+        timer.start()
     raise KeyboardInterrupt
+
+
+def watch(command: str) -> None:
+    """From now on Ctrl-C leaves within :data:`LEAVE_WITHIN_S` seconds as ``command``, whatever
+    the program's clean-up waits for (not for a command that handles Ctrl-C as its normal end)."""
+    _watched[0] = command
 
 
 def install() -> None:
@@ -88,7 +112,9 @@ def _kill_children() -> None:
 
 
 def leave(command: str) -> None:
-    """One line on stderr, and exit 130 at once (nothing is waited for on the way out)."""
+    """One line on stderr, and exit 130 at once (nothing is waited for on the way out). Called
+    twice (the program and its timer), the second call waits for the first one's exit."""
+    _leaving.acquire()
     _kill_children()
     _release_semaphores()
     try:

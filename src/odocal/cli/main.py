@@ -85,6 +85,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _interrupted("odocal", argv)
     _configure_logging(args.verbose, args.quiet)
     command = f"odocal {args.command}"
+    if argv is None and args.command not in _ENDED_BY_CTRL_C:
+        interrupt.watch(command)      # Ctrl-C leaves within seconds, whatever is waited for
     func: Callable[[argparse.Namespace], int] = args.func
     try:
         code = func(args)

@@ -25,7 +25,7 @@ import os
 import signal
 import tempfile
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from multiprocessing import resource_tracker
 from pathlib import Path
 from typing import Any
@@ -189,6 +189,7 @@ def local_client(n: int) -> Iterator[Any]:
     # workers' environment, never in this process, whose threads may have started)
     threads = {k: "1" for k in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
     cluster: Any = None
+    stopping = False
     try:
         with _guard_flag() as flag:
             try:
@@ -213,17 +214,41 @@ def local_client(n: int) -> Iterator[Any]:
                 raise
             if flag.exists():
                 raise ConfigError(GUARD_MESSAGE)
-        with Client(cluster) as client:
+        client = Client(cluster)
+        try:
             client.register_plugin(_worker_plugin(), name="odocal-worker-setup")
             yield client
+        except KeyboardInterrupt:
+            # the workers go first, and nothing is waited for long: closing the client
+            # waits up to a minute for an answer of a scheduler that is busy going away
+            stopping = True
+            _kill_workers(cluster)
+            raise
+        finally:
+            _close(client.close, within_s=2.0 if stopping else None)
     except KeyboardInterrupt:
+        stopping = True
         if cluster is not None:
             _kill_workers(cluster)
         raise
     finally:
         if cluster is not None:
-            with contextlib.suppress(Exception):
-                cluster.close(timeout=2)
+            _close(lambda: cluster.close(timeout=2), within_s=3.0 if stopping else None)
+
+
+def _close(close: Callable[[], object], *, within_s: float | None) -> None:
+    """Call ``close``, its errors ignored; with ``within_s``, on a daemon thread waited for that
+    long at most (a run that is stopping: what is left undone ends with the process)."""
+    def run() -> None:
+        with contextlib.suppress(Exception):
+            close()
+
+    if within_s is None:
+        run()
+        return
+    thread = threading.Thread(target=run, name="odocal-close", daemon=True)
+    thread.start()
+    thread.join(within_s)
 
 
 def _kill_workers(cluster: Any) -> None:
