@@ -218,7 +218,9 @@ class Beside:
         while (request := self._outbox.get()) is not None:
             try:
                 self._conn.send(request)
-            except (OSError, ValueError):
+            except (OSError, ValueError, TypeError):
+                # (TypeError: the pipe closed under this send by the node's release, its
+                # handle gone: multiprocessing writes to None)
                 self._broken = True
                 return
 
