@@ -12,6 +12,7 @@ from typing import Any
 from odocal.cli.arguments import DURATION_S, SEED, WORKERS, add_config, add_quiet, integer, number
 from odocal.cli.common import load_config, say
 from odocal.estimators import DEFAULT_METHOD, METHOD_NAMES
+from odocal.model import registry
 from odocal.sim.limits import MAX_CIRCUMFERENCE_LOSS, MAX_DRIVES, MAX_VEHICLES
 
 
@@ -142,10 +143,10 @@ def cmd_fleet_alarms(args: argparse.Namespace) -> int:
 def cmd_fleet_history(args: argparse.Namespace) -> int:
     from odocal.errors import DataError
     from odocal.fleet.engine import store_of
-    from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES
 
     with store_of(args.store) as db:
         rows = db.drives(args.vehicle)
+        layout = db.layout                     # the store's model's parameters
         if not rows:
             known = ", ".join(db.vehicles()[:10]) or "none"
             raise DataError(f"no drive of vehicle {args.vehicle!r} in '{args.store}' "
@@ -158,12 +159,12 @@ def cmd_fleet_history(args: argparse.Namespace) -> int:
         say(json.dumps(rows, indent=1))
         return 0
     head = "time              status      " + "".join(
-        f"{n + ' [' + PARAMETER_DISPLAY[n][1] + ']':>24}" for n in PARAMETER_NAMES) + "   E_p m"
+        f"{n + ' [' + layout.display[n][1] + ']':>24}" for n in layout.names) + "   E_p m"
     say(head)
     for r in rows:
         cells = []
-        for n in PARAMETER_NAMES:
-            scale = PARAMETER_DISPLAY[n][0]
+        for n in layout.names:
+            scale = layout.display[n][0]
             if r[n] is None:
                 cells.append(f"{'-':>24}")
             else:
@@ -185,7 +186,7 @@ def cmd_simulate_fleet(args: argparse.Namespace) -> int:
         fleet = simulate_fleet(args.out, vehicles=args.vehicles, drives=args.drives,
                                duration_s=args.duration, seed=args.seed, noise=args.noise,
                                plan=args.plan, size=args.size, wear=args.wear,
-                               progress=progress)
+                               model=args.model, progress=progress)
     finally:
         if progress is not None:
             progress.close()
@@ -292,5 +293,9 @@ def _add_simulate_fleet(sub: Any) -> None:
                    metavar="SHARE",
                    help="relative c_e loss by wear over a vehicle's history (default 0.003, "
                         "at most 0.05)")
+    p.add_argument("--model", choices=registry.names(), default=registry.DEFAULT,
+                   help="vehicle model (default rear_axle): four_wheel adds the front wheels "
+                        "(n_fl, n_fr) and the steering-wheel angle (steer) to every drive; "
+                        "calibrate it with [vehicle] model = \"four_wheel\" in --config")
     add_quiet(p)
     p.set_defaults(func=cmd_simulate_fleet)

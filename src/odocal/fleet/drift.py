@@ -45,16 +45,31 @@ from typing import Any
 
 import numpy as np
 
-from odocal.model.parameters import PARAMETER_NAMES, PARAMETER_UNITS
+from odocal.model import registry
+from odocal.model.layout import REAR_AXLE, Layout
 from odocal.settings import FleetSettings
 
-#: What a change of each parameter usually means, and what to do (alarm messages).
+#: What a change of each parameter (of every model) usually means, and what to do (alarm
+#: messages; a parameter not named here: "recalibrate").
 CAUSES = {
     "c_e": "tyre pressure or a tyre change; recalibrate",
     "c_d": "one tyre's pressure, or tyres of different wear; check the tyres and recalibrate",
     "t_r": "a changed axle, wheels or tyres; recalibrate",
     "d": "a changed load or suspension; recalibrate",
+    "c_f": "the front tyres' pressure or a front tyre change; recalibrate",
+    "c_fd": "one front tyre's pressure, or front tyres of different wear; check the tyres and "
+            "recalibrate",
+    "t_f": "a changed front axle, wheels or tyres, or the wheel alignment; recalibrate",
+    "L": "a changed suspension, or wheel signals mapped anew; check the mapping and recalibrate",
+    "ratio": "a steering repair or another steering-angle sensor; recalibrate",
+    "s_0": "the wheel alignment or the steering-angle sensor's zero changed; recalibrate",
 }
+#: The circumferences (a change read as a share of the level, with its tread-wear trend).
+_SCALES = frozenset({"c_e", "c_f"})
+#: Circumference differences, near zero: a change read as a share of their scale's level.
+_DIFFERENCES = {"c_d": "c_e", "c_fd": "c_f"}
+#: Lengths read in mm.
+_LENGTHS = frozenset({"t_r", "t_f", "L"})
 
 
 @dataclass(frozen=True)
@@ -169,11 +184,12 @@ def points(rows: Sequence[Mapping[str, Any]], parameter: str) -> tuple[list[Poin
 
 
 def analyse_vehicle(vehicle: str, rows: Sequence[Mapping[str, Any]],
-                    settings: FleetSettings) -> Analysis:
-    """Baselines and alarms of one vehicle (``rows``: its drive rows, in time order)."""
+                    settings: FleetSettings, layout: Layout = REAR_AXLE) -> Analysis:
+    """Baselines and alarms of one vehicle (``rows``: its drive rows, in time order), for each
+    parameter of the model of ``layout`` (``settings.excess_floor`` in its order)."""
     baselines: list[Baseline] = []
     alarms: list[Alarm] = []
-    for j, name in enumerate(PARAMETER_NAMES):
+    for j, name in enumerate(layout.names):
         pts, resets = points(rows, name)
         floor = settings.excess_floor[j]
         for stretch in _stretches(pts, resets):
@@ -265,7 +281,7 @@ def _alarm(vehicle: str, name: str, pts: list[Point], start: int, first: int, la
     change = m1 - m0
     z = abs(change) / math.sqrt(se0**2 + se1**2)
     confidence = math.erf(z / math.sqrt(2.0))
-    reference = m0 if name != "c_d" else _baseline_ce(rows, pts[start].time, m0)
+    reference = _reference(name, rows, pts[start].time, m0)
     relative = change / abs(reference) if reference else float("nan")
     kind, per_1000 = _kind(pts[start:last + 1], first - start, excess)
     km = sum(p.distance_km for p in after)
@@ -273,13 +289,14 @@ def _alarm(vehicle: str, name: str, pts: list[Point], start: int, first: int, la
     amount = _amount(name, change, relative)
     verb = "fell" if change < 0 else "rose"
     if kind == "trend":
-        # (a share of c_e's own level; c_d's level is near zero, a share of it says nothing)
+        # (a share of a circumference's own level; a difference's level is near zero, a
+        # share of it says nothing)
         rate = (f" ({abs(per_1000) * 100:.2f}% per 1000 km)" if per_1000 is not None
-                and name == "c_e" else "")
+                and name in _SCALES else "")
         message = (f"{name} {verb} {amount} since {since}, gradually{rate}: "
-                   f"{'tread wear' if name == 'c_e' else 'a slow change'}; recalibrate")
+                   f"{'tread wear' if name in _SCALES else 'a slow change'}; recalibrate")
     else:
-        message = f"{name} {verb} {amount} since {since}: {CAUSES[name]}"
+        message = f"{name} {verb} {amount} since {since}: {CAUSES.get(name, 'recalibrate')}"
     rejected = sum(p.rejected for p in after)
     if rejected:
         message += (f" ({rejected} of the {len(after)} drives since were rejected for an "
@@ -327,7 +344,7 @@ def _mixed(vehicle: str, name: str, pts: list[Point], floor: float,
     if turns < 4:                        # a step (1), or a step and back (2, 3): not a blend
         return None
     change = m_hi - m_lo
-    reference = m_lo if name != "c_d" else _baseline_ce(rows, pts[0].time, m_lo)
+    reference = _reference(name, rows, pts[0].time, m_lo)
     relative = change / abs(reference) if reference else float("nan")
     z = change / math.sqrt(se_lo**2 + se_hi**2)
     unit = _amount(name, change, relative)
@@ -343,28 +360,46 @@ def _mixed(vehicle: str, name: str, pts: list[Point], floor: float,
 
 
 def _level(name: str, value: float) -> str:
-    if name in ("c_e", "t_r"):
+    if name in _SCALES or name in _LENGTHS:
         return f"{value:.4f} m"
-    if name == "c_d":
+    if name in _DIFFERENCES:
         return f"{value * 1000:.2f} mm"
-    return f"{value:.3g} {PARAMETER_UNITS[PARAMETER_NAMES.index(name)]}"
+    return _in_display_unit(name, value)
 
 
 def _amount(name: str, change: float, relative: float) -> str:
-    if name == "c_e":
+    if name in _SCALES:
         return f"{abs(relative) * 100:.2f}% ({abs(change) * 1000:.2f} mm)"
-    if name == "c_d":                        # a difference near zero: its share is of c_e
-        return f"{abs(change) * 1000:.2f} mm ({abs(relative) * 100:.2f}% of c_e)"
-    if name == "t_r":
+    if name in _DIFFERENCES:                 # a difference near zero: its share is of c_e
+        return (f"{abs(change) * 1000:.2f} mm ({abs(relative) * 100:.2f}% of "
+                f"{_DIFFERENCES[name]})")
+    if name in _LENGTHS:
         return f"{abs(change) * 1000:.1f} mm"
-    return f"{abs(change):.3g} {PARAMETER_UNITS[PARAMETER_NAMES.index(name)]}"
+    return _in_display_unit(name, abs(change))
 
 
-def _baseline_ce(rows: Sequence[Mapping[str, Any]], since: dt.datetime, fallback: float) -> float:
+def _in_display_unit(name: str, value: float) -> str:
+    """``value`` of parameter ``name`` in the unit its model shows it in (d in mm per m/s^2,
+    the steering's offset in degrees)."""
+    for model in registry.names():
+        shown = registry.layout(model).display.get(name)
+        if shown is not None:
+            scale, unit = shown
+            return f"{value * scale:.3g} {unit}".rstrip()
+    return f"{value:.3g}"
+
+
+def _reference(name: str, rows: Sequence[Mapping[str, Any]], since: dt.datetime,
+               level: float) -> float:
+    """What a change of ``name`` is a share of: its own level, a difference's scale's level
+    (its own is near zero) in the first successful drive since ``since``."""
+    scale = _DIFFERENCES.get(name)
+    if scale is None:
+        return level
     for r in rows:
-        if r.get("c_e") and parse_stamp(r["time"]) >= since and r.get("success"):
-            return float(r["c_e"])
-    return fallback
+        if r.get(scale) and parse_stamp(r["time"]) >= since and r.get("success"):
+            return float(r[scale])
+    return level
 
 
 def _kind(pts: list[Point], change_at: int, excess: float) -> tuple[str, float | None]:
@@ -395,15 +430,17 @@ def _wls_rss(design: np.ndarray, x: np.ndarray, w: np.ndarray) -> float:
     return float(np.sum(w * (x - design @ coef) ** 2))
 
 
-def analyse(rows: Sequence[Mapping[str, Any]], settings: FleetSettings) -> Analysis:
-    """Baselines and alarms of every vehicle in ``rows`` (drive rows, any order)."""
+def analyse(rows: Sequence[Mapping[str, Any]], settings: FleetSettings,
+            layout: Layout = REAR_AXLE) -> Analysis:
+    """Baselines and alarms of every vehicle in ``rows`` (drive rows of a model of
+    ``layout``, any order)."""
     by_vehicle: dict[str, list[Mapping[str, Any]]] = {}
     for r in sorted(rows, key=lambda r: (r["vehicle"], parse_stamp(r["time"]), r["task_key"])):
         by_vehicle.setdefault(r["vehicle"], []).append(r)
     baselines: list[Baseline] = []
     alarms: list[Alarm] = []
     for vehicle, history in by_vehicle.items():
-        result = analyse_vehicle(vehicle, history, settings)
+        result = analyse_vehicle(vehicle, history, settings, layout)
         baselines += result.baselines
         alarms += result.alarms
     return Analysis(tuple(baselines), tuple(alarms))

@@ -48,7 +48,6 @@ from odocal.fleet.tasks import (
 )
 from odocal.io.atomic import check_fleet_folder, refuse_inputs
 from odocal.io.urls import name_of
-from odocal.model import registry
 from odocal.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -329,7 +328,6 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
     refuse_unguarded_start()             # a worker process re-running an unguarded script
     started = time.perf_counter()
     settings = settings or Settings()
-    registry.require_rear_axle(settings.vehicle.model, "odocal fleet calibrate")
     method = method or DEFAULT_METHOD
     _check_run(method, scheduler, client, connect_timeout_s)
     catalog_path, store_path, out_path = _paths(catalog, store, out)
@@ -428,7 +426,8 @@ def _write_outputs(db: Store, out: Path | None, settings: Settings) -> tuple[Pat
     from odocal.fleet.report import write_fleet_outputs
     from odocal.model.parameters import Parameters
 
-    return write_fleet_outputs(db, out, datasheet=Parameters(*settings.identify.theta0))
+    return write_fleet_outputs(db, out, datasheet=Parameters(*settings.identify.theta0,
+                                                             layout=db.layout))
 
 
 class _Arrivals:
@@ -516,7 +515,7 @@ def _analysed_and_pooled(client: Any, db: Store, tasks: Sequence[DriveTask],
     Returns the analysis and the pooled tasks run now.
     """
     rows = db.drives()
-    analysis = analyse(rows, settings.fleet)
+    analysis = analyse(rows, settings.fleet, db.layout)
     db.replace_analysis([b.to_row() for b in analysis.baselines],
                         [a.to_row() for a in analysis.alarms])
     pooled = [p for p in _pooled_tasks(tasks, rows, analysis.alarms, settings, method)

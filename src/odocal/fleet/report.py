@@ -20,8 +20,9 @@ from odocal._version import __version__
 from odocal.fleet.drift import parse_stamp
 from odocal.fleet.store import Store
 from odocal.io.atomic import FLEET_MARKER, file_name, write_bytes, write_text
-from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES, Parameters
-from odocal.output.export import Calibrated, export
+from odocal.model.layout import REAR_AXLE, Layout
+from odocal.model.parameters import Parameters
+from odocal.output.export import CAR_TARGETS, TARGETS, Calibrated, export
 from odocal.pipeline.odometry import OdometryNoise
 from odocal.redaction import redact_text
 from odocal.report.render import Call, FigureSpec, Renderer
@@ -30,7 +31,10 @@ from odocal.report.style import CSS
 
 def _history_spec(vehicle: str, rows: Sequence[Mapping[str, Any]],
                   baselines: Sequence[Mapping[str, Any]],
-                  alarms: Sequence[Mapping[str, Any]]) -> FigureSpec | None:
+                  alarms: Sequence[Mapping[str, Any]],
+                  layout: Layout = REAR_AXLE) -> FigureSpec | None:
+    """Vehicle ``vehicle``'s history figure: a panel per parameter of its model (``layout``),
+    two to a row."""
     ok_rows = [r for r in rows if r["success"]]
     if not ok_rows:
         return None
@@ -43,7 +47,7 @@ def _history_spec(vehicle: str, rows: Sequence[Mapping[str, Any]],
     end = float(days.max()) if len(days) else 0.0
     events = [day(r["time"]) for r in rows if r.get("event")]
     calls = []
-    for j, name in enumerate(PARAMETER_NAMES):
+    for j, name in enumerate(layout.names):
         mine = sorted((b for b in baselines if b["parameter"] == name), key=lambda b: b["since"])
         spans = []
         for k, b in enumerate(mine):
@@ -63,18 +67,21 @@ def _history_spec(vehicle: str, rows: Sequence[Mapping[str, Any]],
              "events": events, "xlabel": f"days since {t0.date().isoformat()}"},
             row=j // 2, col=j % 2))
     calls.append(Call("legend", (), {"fontsize": 7, "loc": "best"}, row=0, col=0))
+    rows_of_panels = (layout.size + 1) // 2
     return FigureSpec(name=f"history_{_safe(vehicle)}", caption=f"{vehicle}: every drive's "
                       "estimate with one standard deviation, baselines and changes",
-                      width=10.0, height=5.6, calls=tuple(calls), rows=2, cols=2)
+                      width=10.0, height=2.8 * rows_of_panels, calls=tuple(calls),
+                      rows=rows_of_panels, cols=2)
 
 
 _safe = file_name  # vehicles whose names clean alike keep apart
 
 
-def _fmt(name: str, value: float | None, std: float | None = None) -> str:
+def _fmt(name: str, value: float | None, std: float | None = None,
+         layout: Layout = REAR_AXLE) -> str:
     if value is None:
         return "-"
-    scale, unit = PARAMETER_DISPLAY[name]
+    scale, unit = layout.display[name]
     text = f"{value * scale:.6g}"
     if std is not None and std > 0:
         text += f" &plusmn; {std * scale:.2g}"
@@ -92,18 +99,19 @@ def _pooled_by_vehicle(store: Store) -> dict[str, Mapping[str, Any]]:
 
 def _exports(store: Store, out: Path, datasheet: Parameters) -> list[Path]:
     written: list[Path] = []
+    names = store.layout.names
     for vehicle, p in _pooled_by_vehicle(store).items():
         noise = (OdometryNoise(p["speed_std_mps"], p["yaw_rate_std_radps"], 0)
                  if p.get("speed_std_mps") is not None else None)
         calibrated = Calibrated(
-            theta=Parameters(*(p[n] for n in PARAMETER_NAMES)), datasheet=datasheet,
-            std=tuple(p[f"{n}_std"] for n in PARAMETER_NAMES),
-            identified=tuple(bool(p[f"{n}_identified"])
-                             for n in PARAMETER_NAMES),
+            theta=Parameters(*(p[n] for n in names), layout=store.layout),
+            datasheet=datasheet, std=tuple(p[f"{n}_std"] for n in names),
+            identified=tuple(bool(p[f"{n}_identified"]) for n in names),
             method=p["method"] or "", noise=noise,
             source=f"fleet store, vehicle {vehicle}, {len(json.loads(p['drives']))} drives up to "
                    f"{p['time']}")
-        written += export(calibrated, out / "vehicles" / _safe(vehicle))
+        written += export(calibrated, out / "vehicles" / _safe(vehicle),
+                          (*TARGETS, *CAR_TARGETS) if "L" in names else TARGETS)
     return written
 
 
@@ -112,7 +120,8 @@ def write_fleet_outputs(store: Store, out: Path, *, datasheet: Parameters | None
     """``report.html``, ``figures/history_*.png`` and ``vehicles/ID/TARGET/*`` in ``out``."""
     from odocal.settings import Settings
 
-    datasheet = datasheet or Parameters(*Settings().identify.theta0)
+    datasheet = datasheet or Parameters(
+        *Settings().replace(vehicle={"model": store.model}).identify.theta0, layout=store.layout)
     out.mkdir(parents=True, exist_ok=True)
     (out / FLEET_MARKER).write_text("written by odocal fleet calibrate; updated in place\n")
     drives, alarms, baselines = store.drives(), store.alarms(), store.baselines()
@@ -120,7 +129,8 @@ def write_fleet_outputs(store: Store, out: Path, *, datasheet: Parameters | None
     specs = [s for v in vehicles
              if (s := _history_spec(v, [r for r in drives if r["vehicle"] == v],
                                     [b for b in baselines if b["vehicle"] == v],
-                                    [a for a in alarms if a["vehicle"] == v])) is not None]
+                                    [a for a in alarms if a["vehicle"] == v],
+                                    store.layout)) is not None]
     with Renderer() as renderer:
         pngs = renderer.draw(specs)
     figures = out / "figures"
@@ -133,7 +143,8 @@ def write_fleet_outputs(store: Store, out: Path, *, datasheet: Parameters | None
         written.append(path)
     exports = _exports(store, out, datasheet)
     page = _page(out, drives, alarms, _pooled_by_vehicle(store),
-                 {s.name: (s.caption, png) for s, png in zip(specs, pngs, strict=True)})
+                 {s.name: (s.caption, png) for s, png in zip(specs, pngs, strict=True)},
+                 store.layout)
     report = out / "report.html"
     write_text(report, redact_text(page))          # no secret on the page
     return (report, *written, *exports)
@@ -141,7 +152,7 @@ def write_fleet_outputs(store: Store, out: Path, *, datasheet: Parameters | None
 
 def _page(out: Path, drives: Sequence[Mapping[str, Any]], alarms: Sequence[Mapping[str, Any]],
           pooled: Mapping[str, Mapping[str, Any]],
-          pngs: Mapping[str, tuple[str, bytes]]) -> str:
+          pngs: Mapping[str, tuple[str, bytes]], layout: Layout = REAR_AXLE) -> str:
     vehicles = sorted({r["vehicle"] for r in drives})
     failed = sum(1 for r in drives if not r["success"])
     alarm_rows = "".join(
@@ -150,7 +161,7 @@ def _page(out: Path, drives: Sequence[Mapping[str, Any]], alarms: Sequence[Mappi
         f"<td>{a['relative_change'] * 100:+.3f}%</td><td>{a['confidence']:.3f}</td>"
         f"<td>{a['drives_to_detect']} / {a['km_to_detect']:.0f} km</td>"
         f"<td class='text'>{html.escape(a['message'])}</td></tr>" for a in alarms)
-    sections = [_vehicle_section(out, v, drives, pooled, pngs) for v in vehicles]
+    sections = [_vehicle_section(out, v, drives, pooled, pngs, layout) for v in vehicles]
     recal = sorted({a["vehicle"] for a in alarms})
     recal_rows = "".join(
         f"<tr><td><a href='#{_safe(v)}'>{html.escape(v)}</a></td><td class='text'>"
@@ -179,13 +190,14 @@ parameter files are in vehicles/ID/.</p>
 
 def _vehicle_section(out: Path, v: str, drives: Sequence[Mapping[str, Any]],
                      pooled: Mapping[str, Mapping[str, Any]],
-                     pngs: Mapping[str, tuple[str, bytes]]) -> str:
+                     pngs: Mapping[str, tuple[str, bytes]], layout: Layout = REAR_AXLE) -> str:
     """Vehicle ``v``'s section: its pooled calibration, its history figure, and its drives,
     each linked to its own report where there is one (relative to ``out`` where inside it)."""
     mine = [r for r in drives if r["vehicle"] == v]
     p = pooled.get(v)
-    current = (" &middot; ".join(_fmt(n, p[n], p[f"{n}_std"]) if p[f"{n}_identified"]
-                                 else f"{n} not identified" for n in PARAMETER_NAMES)
+    current = (" &middot; ".join(f"{n} = {_fmt(n, p[n], p[f'{n}_std'], layout)}"
+                                 if p[f"{n}_identified"] else f"{n} not identified"
+                                 for n in layout.names)
                if p else "no pooled calibration")
     fig = pngs.get(f"history_{_safe(v)}")
     img = (f'<figure><img alt="history of {html.escape(v)}" src="data:image/png;base64,'

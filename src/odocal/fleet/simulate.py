@@ -16,6 +16,12 @@ The ``mixed`` plan cycles none, pressure, wear, tyres, with a mis-mapped log on 
 event-free vehicle; ``pressure`` and ``none`` give every vehicle that plan (for detection and
 false-alarm rates). Written: one drive file per drive (``VEHICLE/DATE_dNN.parquet``),
 ``catalog.csv`` and ``truth.json`` (every drive's true parameters and every event).
+
+With ``model="four_wheel"`` every drive also carries the front wheels and the steering-wheel
+angle (:func:`odocal.sim.four_wheel.with_front_axle`) of a front axle and steering drawn per
+vehicle around :data:`~odocal.sim.four_wheel.TRUE_FOUR_WHEEL`'s (from a random stream of their
+own: the rear axle's drives are those of the rear-axle fleet of the same seed), drawn anew at a
+tyre change; the events stay the rear axle's.
 """
 
 from __future__ import annotations
@@ -30,9 +36,12 @@ from typing import Any
 
 import numpy as np
 
+from odocal.data.drive import Drive
 from odocal.errors import ConfigError, OutputError
 from odocal.io.atomic import write_text
 from odocal.io.drivefile import save_drive
+from odocal.model import registry
+from odocal.model.layout import REAR_AXLE
 from odocal.model.parameters import Parameters
 from odocal.sim.limits import (
     MAX_DRIVES,
@@ -67,6 +76,21 @@ class SimulatedFleet:
     events: tuple[FleetEvent, ...]
 
 
+def _front_theta(rng: np.random.Generator) -> np.ndarray:
+    """A vehicle's front axle and steering (c_f, c_fd, t_f, L, ratio, s_0), spread around the
+    simulated car's as tyres, builds and steering racks spread."""
+    from odocal.sim.four_wheel import TRUE_FOUR_WHEEL
+
+    base = TRUE_FOUR_WHEEL.as_array()[REAR_AXLE.size:].copy()
+    base[0] *= 1.0 + rng.normal(0.0, 0.003)
+    base[1] += rng.normal(0.0, 0.0005)
+    base[2] += rng.normal(0.0, 0.01)
+    base[3] += rng.normal(0.0, 0.03)
+    base[4] *= 1.0 + rng.normal(0.0, 0.03)
+    base[5] += rng.normal(0.0, 0.005)
+    return base
+
+
 def _vehicle_theta(rng: np.random.Generator) -> np.ndarray:
     base = TRUE_PARAMETERS.as_array().copy()
     base[0] *= 1.0 + rng.normal(0.0, 0.003)
@@ -79,8 +103,11 @@ def _vehicle_theta(rng: np.random.Generator) -> np.ndarray:
 def simulate_fleet(out: str | Path, *, vehicles: int = 4, drives: int = 12,
                    duration_s: float = 600.0, seed: int = 0, noise: str = "realistic",
                    plan: str = "mixed", size: float = 0.002, wear: float = 0.003,
+                   model: str = registry.DEFAULT,
                    progress: Callable[[str, int, int], None] | None = None) -> SimulatedFleet:
-    """Write a simulated fleet into the folder ``out`` (see the module docstring)."""
+    """Write a simulated fleet of the vehicle ``model``'s drives into the folder ``out`` (see
+    the module docstring)."""
+    registry.entry(model)
     if plan not in PLANS:
         raise ConfigError(f"unknown fleet plan {plan!r}; choose one of {', '.join(PLANS)}")
     checked_count(vehicles, name="vehicles", lower=1, upper=MAX_VEHICLES)
@@ -100,15 +127,16 @@ def simulate_fleet(out: str | Path, *, vehicles: int = 4, drives: int = 12,
     with new_folder(target) as root:
         events = _write_fleet(root, vehicles=vehicles, drives=drives, duration_s=duration_s,
                               seed=seed, noise=noise, plan=plan, size=size, wear=wear,
-                              progress=progress)
+                              four=model != registry.DEFAULT, progress=progress)
     return SimulatedFleet(catalog=target / "catalog.csv", truth=target / "truth.json",
                           drives=vehicles * drives, events=tuple(events))
 
 
 def _write_fleet(root: Path, *, vehicles: int, drives: int, duration_s: float, seed: int,
-                 noise: str, plan: str, size: float, wear: float,
+                 noise: str, plan: str, size: float, wear: float, four: bool,
                  progress: Callable[[str, int, int], None] | None) -> list[FleetEvent]:
-    """The fleet's drives, catalog and truth, written into ``root``; its events."""
+    """The fleet's drives, catalog and truth (of four-wheel cars with ``four``), written into
+    ``root``; its events."""
     rows: list[dict[str, Any]] = []
     truth: dict[str, Any] = {"plan": plan, "size": size, "wear": wear, "noise": noise,
                              "duration_s": duration_s, "seed": seed, "vehicles": {}}
@@ -119,6 +147,8 @@ def _write_fleet(root: Path, *, vehicles: int, drives: int, duration_s: float, s
         rng = np.random.default_rng([seed, v])
         kind = _MIXED[v % len(_MIXED)] if plan == "mixed" else plan
         theta = _vehicle_theta(rng)
+        front_rng = np.random.default_rng([seed, v, 4])     # (the rear's stream unchanged)
+        front = _front_theta(front_rng) if four else None
         at = int(rng.integers(6, max(7, drives - 4))) if kind in ("pressure", "tyres") else -1
         mismapped = (int(rng.integers(2, drives)) if plan == "mixed" and kind == "none"
                      and drives > 2 else -1)
@@ -131,20 +161,19 @@ def _write_fleet(root: Path, *, vehicles: int, drives: int, duration_s: float, s
             if kind == "tyres" and i == at:
                 event = "tyre change"
                 theta = _vehicle_theta(rng)
+                front = _front_theta(front_rng) if four else None
             current = _drive_theta(theta, rng, kind=kind, i=i, at=at, drives=drives, size=size,
                                    wear=wear)
-            sim = simulate(duration_s=duration_s, seed=int(rng.integers(2**31)), noise=noise,
-                           theta=Parameters(*current), name=f"{name}-{i:02d}")
-            drive = sim.drive
-            if i == mismapped:
-                drive = dataclasses.replace(drive, n_rl=drive.n_rr, n_rr=drive.n_rl)
+            drive, true = _drive(current, front, duration_s=duration_s,
+                                 seed=int(rng.integers(2**31)), noise=noise,
+                                 name=f"{name}-{i:02d}", mismapped=i == mismapped)
             path = root / name / f"{when.strftime('%Y-%m-%dT%H-%M')}_d{i:02d}.parquet"
             save_drive(drive, path)
             rows.append({"vehicle": name, "path": f"{name}/{path.name}",
                          "time": when.isoformat(timespec="seconds"),
                          "odometer_km": f"{odometer:.1f}", "event": event})
             history.append({"drive": i, "time": when.isoformat(timespec="seconds"),
-                            "theta": Parameters(*current).as_dict(),
+                            "theta": true,
                             "mismapped": i == mismapped})
             odometer += drive.distance_m / 1000.0
             if event or (kind == "pressure" and i == at) or i == mismapped:
@@ -161,6 +190,24 @@ def _write_fleet(root: Path, *, vehicles: int, drives: int, duration_s: float, s
     truth["events"] = [dataclasses.asdict(e) for e in events]
     _write_catalog(root, rows, truth)
     return events
+
+
+def _drive(current: np.ndarray, front: np.ndarray | None, *, duration_s: float, seed: int,
+           noise: str, name: str, mismapped: bool) -> tuple[Drive, dict[str, float]]:
+    """One drive of the rear axle ``current`` (and the front axle and steering ``front``), its
+    rear wheel columns swapped where ``mismapped``, and its true parameters by name."""
+    sim = simulate(duration_s=duration_s, seed=seed, noise=noise, theta=Parameters(*current),
+                   name=name)
+    truth = Parameters(*current)
+    if front is not None:
+        from odocal.model.four_wheel import FOUR_WHEEL
+        from odocal.sim.four_wheel import with_front_axle
+
+        sim, truth = with_front_axle(sim, theta=Parameters(*current, *front, layout=FOUR_WHEEL))
+    drive = sim.drive
+    if mismapped:
+        drive = dataclasses.replace(drive, n_rl=drive.n_rr, n_rr=drive.n_rl)
+    return drive, truth.as_dict()
 
 
 def _drive_theta(theta: np.ndarray, rng: np.random.Generator, *, kind: str, i: int, at: int,

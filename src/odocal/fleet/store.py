@@ -16,9 +16,10 @@ files in place):
     method and odocal's version: the estimate's key; a rerun with other settings replaces the
     row), ``vehicle``, ``time`` (ISO 8601 in UTC, so that text order is time order),
     ``odometer_km``, ``source``, ``format``, ``event``, ``method``, ``status``, ``success``,
-    ``message``, the four parameters and their standard deviations (``c_e``, ``c_e_std``, ...),
-    ``c_e_identified`` (...), ``covariance`` (JSON, 4x4 row-major in the order c_e, c_d, t_r,
-    d), ``e_p_m`` and ``datasheet_e_p_m`` (validation errors), ``distance_km``, ``duration_s``,
+    ``message``, the model's parameters and their standard deviations (``c_e``, ``c_e_std``,
+    ..., the four-wheel car's ten), ``c_e_identified`` (...), ``covariance`` (JSON, row-major in
+    the model's order: c_e, c_d, t_r, d for the rear axle), ``e_p_m`` and ``datasheet_e_p_m``
+    (validation errors), ``distance_km``, ``duration_s``,
     ``findings`` (JSON list of the checks' names), ``error``, ``input_hashes`` (JSON),
     ``settings_hash``, ``odocal_version``, ``report`` (the drive's own report.html, when
     written), ``out_of_range`` (JSON list of the parameters for which the quality gate rejected
@@ -58,19 +59,21 @@ from typing import Any
 
 from odocal.errors import DataError, OutputError, input_file, shown
 from odocal.model import registry
-from odocal.model.parameters import PARAMETER_NAMES
+from odocal.model.layout import Layout
 from odocal.redaction import redact_text
 
 SCHEMA_VERSION = 3
 
-_PARAMS = ", ".join(f"{n} REAL, {n}_std REAL, {n}_identified INTEGER" for n in PARAMETER_NAMES)
-_SCHEMA = f"""
+def _schema(layout: Layout) -> str:
+    """The store's tables for a model of this ``layout`` (its parameters' columns)."""
+    params = ", ".join(f"{n} REAL, {n}_std REAL, {n}_identified INTEGER" for n in layout.names)
+    return f"""
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS drives (
     drive_id TEXT PRIMARY KEY, content TEXT, task_key TEXT NOT NULL, vehicle TEXT NOT NULL,
     time TEXT NOT NULL, odometer_km REAL,
     source TEXT NOT NULL, format TEXT, event TEXT, method TEXT, status TEXT NOT NULL,
-    success INTEGER NOT NULL, message TEXT, {_PARAMS}, covariance TEXT, e_p_m REAL,
+    success INTEGER NOT NULL, message TEXT, {params}, covariance TEXT, e_p_m REAL,
     datasheet_e_p_m REAL, distance_km REAL, duration_s REAL, findings TEXT, error TEXT,
     input_hashes TEXT, settings_hash TEXT, odocal_version TEXT, report TEXT, out_of_range TEXT,
     stored_at TEXT NOT NULL);
@@ -81,7 +84,7 @@ CREATE TABLE IF NOT EXISTS objects (
     fingerprint TEXT PRIMARY KEY, content TEXT NOT NULL, seen_at TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS pooled (
     task_key TEXT PRIMARY KEY, vehicle TEXT NOT NULL, time TEXT NOT NULL, drives TEXT NOT NULL,
-    method TEXT, status TEXT NOT NULL, success INTEGER NOT NULL, message TEXT, {_PARAMS},
+    method TEXT, status TEXT NOT NULL, success INTEGER NOT NULL, message TEXT, {params},
     covariance TEXT, e_p_m REAL, speed_std_mps REAL, yaw_rate_std_radps REAL, error TEXT,
     stored_at TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS baselines (
@@ -93,18 +96,26 @@ CREATE TABLE IF NOT EXISTS alarms (
     drives_to_detect INTEGER, km_to_detect REAL, message TEXT,
     PRIMARY KEY (vehicle, parameter, kind, time));
 """
-#: Columns of ``drives`` a task result fills (besides the bookkeeping ones).
-DRIVE_COLUMNS = ("drive_id", "content", "task_key", "vehicle", "time", "odometer_km", "source",
-                 "format", "event", "method", "status", "success", "message",
-                 *(f"{n}{suffix}" for n in PARAMETER_NAMES for suffix in ("", "_std",
-                                                                          "_identified")),
-                 "covariance", "e_p_m", "datasheet_e_p_m", "distance_km", "duration_s",
-                 "findings", "error", "input_hashes", "settings_hash", "odocal_version",
-                 "report", "out_of_range")
-POOLED_COLUMNS = ("task_key", "vehicle", "time", "drives", "method", "status", "success",
-                  "message", *(f"{n}{suffix}" for n in PARAMETER_NAMES
-                               for suffix in ("", "_std", "_identified")),
-                  "covariance", "e_p_m", "speed_std_mps", "yaw_rate_std_radps", "error")
+
+
+def _parameter_columns(layout: Layout) -> tuple[str, ...]:
+    return tuple(f"{n}{suffix}" for n in layout.names for suffix in ("", "_std", "_identified"))
+
+
+def drive_columns(layout: Layout) -> tuple[str, ...]:
+    """Columns of ``drives`` a task result fills (besides the bookkeeping ones)."""
+    return ("drive_id", "content", "task_key", "vehicle", "time", "odometer_km", "source",
+            "format", "event", "method", "status", "success", "message",
+            *_parameter_columns(layout), "covariance", "e_p_m", "datasheet_e_p_m",
+            "distance_km", "duration_s", "findings", "error", "input_hashes", "settings_hash",
+            "odocal_version", "report", "out_of_range")
+
+
+def pooled_columns(layout: Layout) -> tuple[str, ...]:
+    """Columns of ``pooled`` a pooled task's result fills."""
+    return ("task_key", "vehicle", "time", "drives", "method", "status", "success", "message",
+            *_parameter_columns(layout), "covariance", "e_p_m", "speed_std_mps",
+            "yaw_rate_std_radps", "error")
 
 
 def _now() -> str:
@@ -130,9 +141,12 @@ def utc_text(text: str) -> str:
 class Store:
     """An open fleet database (use :func:`open_store`)."""
 
-    def __init__(self, connection: sqlite3.Connection, path: Path) -> None:
+    def __init__(self, connection: sqlite3.Connection, path: Path,
+                 model: str = registry.DEFAULT) -> None:
         self.db = connection
         self.path = path
+        self.model = model                     # whose parameters the columns hold
+        self.layout = registry.layout(model)
 
     def close(self) -> None:
         self.db.close()
@@ -185,22 +199,24 @@ class Store:
         row.setdefault("drive_id", drive_id(row["vehicle"], content or row["task_key"]))
         if row.get("time"):
             row["time"] = utc_text(row["time"])
-        values = [_sql(row.get(c)) for c in DRIVE_COLUMNS]
+        columns = drive_columns(self.layout)
+        values = [_sql(row.get(c)) for c in columns]
         with self.transaction() as db:
             db.execute("DELETE FROM drives WHERE vehicle = ? AND source = ? AND drive_id != ?",
                        (row["vehicle"], row.get("source"), row["drive_id"]))
-            db.execute(f"INSERT OR REPLACE INTO drives ({', '.join(DRIVE_COLUMNS)}, stored_at) "
-                       f"VALUES ({', '.join('?' * len(DRIVE_COLUMNS))}, ?)", [*values, _now()])
+            db.execute(f"INSERT OR REPLACE INTO drives ({', '.join(columns)}, stored_at) "
+                       f"VALUES ({', '.join('?' * len(columns))}, ?)", [*values, _now()])
             if fingerprint and content:
                 db.execute("INSERT OR REPLACE INTO objects VALUES (?, ?, ?)",
                            (fingerprint, content, _now()))
 
     def add_pooled(self, row: Mapping[str, Any]) -> None:
         row = {k: _free_text(k, v) for k, v in row.items()}
-        values = [_sql(row.get(c)) for c in POOLED_COLUMNS]
+        columns = pooled_columns(self.layout)
+        values = [_sql(row.get(c)) for c in columns]
         with self.transaction() as db:
-            db.execute(f"INSERT OR REPLACE INTO pooled ({', '.join(POOLED_COLUMNS)}, stored_at) "
-                       f"VALUES ({', '.join('?' * len(POOLED_COLUMNS))}, ?)", [*values, _now()])
+            db.execute(f"INSERT OR REPLACE INTO pooled ({', '.join(columns)}, stored_at) "
+                       f"VALUES ({', '.join('?' * len(columns))}, ?)", [*values, _now()])
 
     def update_catalog_fields(self, tasks: Sequence[Any]) -> None:
         """Catalog fields of drives already stored (a corrected time, odometer or event needs
@@ -314,9 +330,8 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
         db.close()
         raise DataError(f"fleet store '{p}' has schema version {version}, newer than this "
                         f"odocal's ({SCHEMA_VERSION}); upgrade odocal")
-    if model is not None and "meta" in tables:       # another model's store: refused as it is
-        _check_model(db, model, p)
-    store = Store(db, p)
+    stated = _stated_model(db, model, p) if "meta" in tables else None
+    store = Store(db, p, stated or model or registry.DEFAULT)
     if version < SCHEMA_VERSION:
         # SQLite's DDL is transactional: the migration and the new tables land together or not
         with store.transaction() as tx:
@@ -324,7 +339,7 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
                 _migrate_1_to_2(tx)
             if version in (1, 2):
                 _migrate_2_to_3(tx)
-            for statement in _SCHEMA.split(";"):
+            for statement in _schema(store.layout).split(";"):
                 if statement.strip():
                     tx.execute(statement)
             tx.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)",
@@ -364,15 +379,21 @@ def _connect(p: Path, read_only: bool) -> tuple[sqlite3.Connection, set[str]]:
     return db, tables
 
 
-def _check_model(db: sqlite3.Connection, model: str, p: Path) -> None:
-    """The store's model (its ``meta``; none: the rear axle's) is ``model``, else the
-    database is closed and a one-line DataError names both."""
+def _stated_model(db: sqlite3.Connection, model: str | None, p: Path) -> str | None:
+    """The model the store's ``meta`` names (None: it names none, a new store, or one of
+    before models were named: the rear axle's if it holds rows); with ``model`` given, a store
+    of another model's parameters closes the database with a one-line DataError naming both."""
     row = db.execute("SELECT value FROM meta WHERE key = 'model'").fetchone()
+    stated = row[0] if row else None
     try:
-        registry.check_stated(row[0] if row else None, model, f"fleet store '{shown(p)}'")
+        if model is not None:
+            registry.check_stated(stated, model, f"fleet store '{shown(p)}'")
+        elif stated is not None:
+            registry.check_stated(stated, stated, f"fleet store '{shown(p)}'")
     except DataError:
         db.close()
         raise
+    return stated
 
 
 def _disk_said_no(exc: BaseException) -> bool:
@@ -402,7 +423,8 @@ def _migrate_2_to_3(db: sqlite3.Connection) -> None:
     old = [dict(zip(names, r, strict=True))
            for r in db.execute("SELECT * FROM drives ORDER BY stored_at")]
     db.execute("ALTER TABLE drives RENAME TO drives_v2")
-    for statement in _SCHEMA.split(";"):
+    rear = registry.layout(registry.DEFAULT)          # (version 2 knew no other model)
+    for statement in _schema(rear).split(";"):
         if statement.strip() and "drives" in statement and "INDEX" not in statement:
             db.execute(statement)
     db.execute("DROP INDEX IF EXISTS drives_by_vehicle")
@@ -415,7 +437,7 @@ def _migrate_2_to_3(db: sqlite3.Connection) -> None:
         row["content"] = content
         row["drive_id"] = drive_id(row["vehicle"], content or row["task_key"])
         row["time"] = utc_text(row["time"])
-        columns = [c for c in (*DRIVE_COLUMNS, "stored_at") if c in row]
+        columns = [c for c in (*drive_columns(rear), "stored_at") if c in row]
         db.execute(f"INSERT OR REPLACE INTO drives ({', '.join(columns)}) VALUES "
                    f"({', '.join('?' * len(columns))})", [row[c] for c in columns])
     db.execute("DROP TABLE drives_v2")

@@ -31,7 +31,6 @@ import numpy as np
 
 from odocal._version import __version__
 from odocal.fleet.catalog import CatalogEntry
-from odocal.model.parameters import PARAMETER_NAMES
 from odocal.model.registry import DEFAULT as DEFAULT_MODEL
 from odocal.settings import Settings, settings_from_dict
 
@@ -216,9 +215,11 @@ def _mapping_here(mapping: Any) -> Any:
 
 
 def _parameter_columns(result: Any) -> dict[str, Any]:
-    est = result.estimate
+    """The chosen model's parameters (the four-wheel car's, or the rear axle's), their
+    uncertainty and the estimate's status, by the store's column names."""
+    est = result.model_estimate
     row: dict[str, Any] = {}
-    for j, name in enumerate(PARAMETER_NAMES):
+    for j, name in enumerate(est.theta.layout.names):
         row[name] = float(est.theta.as_array()[j])
         row[f"{name}_std"] = float(est.std[j])
         row[f"{name}_identified"] = bool(est.identified[j])

@@ -88,8 +88,10 @@ def check_stated(stated: object, expected: str, what: str) -> str:
 
 def require_rear_axle(name: str, what: str) -> None:
     """A one-line ConfigError where ``what`` (a command, a part of odocal) is asked to run a
-    model other than the rear axle: in this version only ``odocal calibrate`` (and
-    :func:`odocal.calibrate`) takes the others."""
+    model other than the rear axle: in this version ``odocal calibrate`` (and
+    :func:`odocal.calibrate`), ``odocal validate`` and ``odocal fleet calibrate`` take the
+    others."""
     if name != DEFAULT:
         raise ConfigError(f"{what} takes the {DEFAULT} model only in this version; the {name} "
-                          "model ([vehicle] model) is calibrated by 'odocal calibrate'")
+                          "model ([vehicle] model) is calibrated by 'odocal calibrate' and "
+                          "'odocal fleet calibrate'")

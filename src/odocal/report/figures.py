@@ -450,7 +450,7 @@ def plot_trace(ax: Axes, distance_km: FloatArray, value: FloatArray, std: FloatA
         artists.append(ax.axvline(km, color=DATASHEET, lw=1.2,
                                   label="change detected" if i == 0 else None))
     ax.set_xlabel("distance driven [km]")
-    ax.set_ylabel(f"{name} [{unit}]")
+    ax.set_ylabel(f"{name} [{unit}]" if unit else name)
     ax.grid(True, alpha=0.3)
     return artists
 
@@ -483,6 +483,6 @@ def plot_history(ax: Axes, days: FloatArray, value: FloatArray, std: FloatArray,
         artists.append(ax.axvline(day, color="#2e9b3e", lw=1.3, ls="--",
                                   label="declared event" if i == 0 else None))
     ax.set_xlabel(xlabel)
-    ax.set_ylabel(f"{name} [{unit}]")
+    ax.set_ylabel(f"{name} [{unit}]" if unit else name)
     ax.grid(True, alpha=0.3)
     return artists
