@@ -102,6 +102,27 @@ def dead_reckoned(drive: Drive, theta: Parameters,
     return poses
 
 
+#: Two of a four-wheel log's wheel columns that a mapping may exchange, left and right kept
+#: (a left-right swap the front checks name without a fit): the words, and the columns in the
+#: order front left, front right, rear left, rear right that the log's are read as.
+EXCHANGES: tuple[tuple[str, tuple[int, int, int, int]], ...] = (
+    ("front and rear axles", (2, 3, 0, 1)),
+    ("front left and rear left wheels", (2, 1, 0, 3)),
+    ("front right and rear right wheels", (0, 3, 2, 1)),
+)
+
+
+def exchanged(drive: Drive, order: Sequence[int]) -> Drive:
+    """``drive`` with its four wheels' columns (front left, front right, rear left, rear right)
+    read in ``order`` (an entry of :data:`EXCHANGES`)."""
+    import dataclasses
+
+    rates = [drive.inputs["n_fl"], drive.inputs["n_fr"], drive.n_rl, drive.n_rr]
+    fl, fr, rl, rr = (rates[k] for k in order)
+    return dataclasses.replace(drive, n_rl=rl, n_rr=rr,
+                               inputs={**drive.inputs, "n_fl": fl, "n_fr": fr})
+
+
 def on_four_wheels(drives: Sequence[Drive], theta: Parameters,
                    std: Sequence[float] | FloatArray) -> list[Drive]:
     """The drives with their rear wheels' rates replaced by those that dead-reckon, through
