@@ -630,3 +630,27 @@ class OnlineCalibrator:
             lines.append(f"{name:<10} {parameter_text(name, float(sheet)):>16} "
                          f"{parameter_text(name, float(now)):>16}")
         return "\n".join(lines)
+
+
+class Updates:
+    """When the running estimate is taken (one rule for ``odocal replay`` and the ROS 2
+    node): every ``update_s`` of data on the log's clock, the first ``update_s`` after the
+    first sample."""
+
+    def __init__(self, update_s: float) -> None:
+        self._every = update_s
+        self._next: float | None = None
+
+    def due(self, span: tuple[float, float] | None) -> bool:
+        """Whether an estimate is due now that the samples pushed span ``span`` (the
+        calibrator's :attr:`~OnlineCalibrator.span_s`); if so, the next is ``update_s`` on."""
+        if span is None:
+            return False
+        first, last = span
+        if self._next is None:
+            self._next = first + self._every
+        if last < self._next:
+            return False
+        self._next = last + self._every
+        return True
+

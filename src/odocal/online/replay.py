@@ -26,7 +26,7 @@ from odocal.errors import ConfigError, DataError, InputFileError, input_file
 from odocal.estimators.estimate import Estimate, Status
 from odocal.io.streams import Stream
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
-from odocal.online.calibrator import OnlineCalibrator
+from odocal.online.calibrator import OnlineCalibrator, Updates
 from odocal.online.changes import Alarm
 from odocal.online.samples import MAX_PUSHED_RATE_REVPS
 from odocal.settings import Settings
@@ -461,7 +461,7 @@ def _feed(calibrator: OnlineCalibrator, source: str | Path, *, fmt: str | None,
     seconds), None for no samples or a single one."""
     first_t: float | None = None
     last_t = 0.0
-    next_update: float | None = None
+    updates = Updates(settings.online.update_s)
     read = 0                                      # samples read before this chunk
     piece: float | None = None                    # the drive format's piece, if it has one
     previous_t: float | None = None               # the last one's t, as the log has it
@@ -482,11 +482,8 @@ def _feed(calibrator: OnlineCalibrator, source: str | Path, *, fmt: str | None,
         first_t, last_t = span
         if calibrator.halted:
             break                 # the data contradict the model: it publishes that, not numbers
-        if next_update is None:
-            next_update = first_t + settings.online.update_s
-        if last_t >= next_update:
+        if updates.due(span):
             update(last_t)
-            next_update = last_t + settings.online.update_s
     if first_t is None:
         return None
     return first_t, last_t

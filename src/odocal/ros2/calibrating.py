@@ -33,7 +33,7 @@ import numpy as np
 from odocal.checks.findings import Finding
 from odocal.errors import DataError, OdocalError
 from odocal.estimators.estimate import Estimate
-from odocal.online.calibrator import OnlineCalibrator
+from odocal.online.calibrator import OnlineCalibrator, Updates
 from odocal.online.changes import Alarm
 from odocal.settings import Settings
 
@@ -92,8 +92,7 @@ class Schedule:
 
     def __init__(self, settings: Settings) -> None:
         self.calibrator = OnlineCalibrator(settings)
-        self._update_s = settings.online.update_s
-        self._next: float | None = None
+        self._updates = Updates(settings.online.update_s)
         self._alarms = 0
 
     def view(self) -> View:
@@ -113,18 +112,14 @@ class Schedule:
             except DataError as exc:            # a block it cannot use: said, and left out
                 events.append(LeftOut(float(block["t"][0]), str(exc), self.view()))
                 continue
-            last = float(block["t"][-1])
-            if self._next is None:
-                self._next = float(block["t"][0]) + self._update_s
             if c.halted:
                 events.append(self.estimate())
                 break
             if len(c.alarms) > self._alarms:
                 self._alarms = len(c.alarms)
                 events.append(Raised(self.view()))
-            if last >= self._next:
+            if self._updates.due(c.span_s):
                 events.append(self.estimate())
-                self._next = last + self._update_s
         events.append(Pushed(self.view()))
         return events
 
