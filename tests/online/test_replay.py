@@ -154,3 +154,15 @@ def test_replay_of_a_log_in_nanoseconds_reports_seconds(
     trace = (tmp_path / "r" / "trace.csv").read_text().splitlines()
     assert 4 <= len(trace) - 1 <= 6                       # every 30 s, and the end
     assert float(trace[-1].split(",")[0]) == pytest.approx(1.7e9 + 120.0, abs=1e-3)
+
+
+def test_the_estimate_is_due_every_update_s_of_data_from_the_first_sample() -> None:
+    """One rule for replay and the ROS 2 node: the first estimate update_s after the first
+    sample, then update_s after the last one taken (a chunk spanning more takes one)."""
+    from odocal.online.calibrator import Updates
+
+    u = Updates(30.0)
+    spans = [None, (5.0, 20.0), (5.0, 34.9), (5.0, 35.0), (5.0, 64.0), (5.0, 66.0),
+             (5.0, 200.0), (5.0, 229.0), (5.0, 230.0)]
+    assert [u.due(s) for s in spans] == [False, False, False, True, False, True, True, False,
+                                         True]
