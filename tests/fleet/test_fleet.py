@@ -6,6 +6,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import os
+import re
 import signal
 import socket
 import sqlite3
@@ -285,13 +286,13 @@ def test_a_failed_transaction_stores_nothing(tmp_path: Path) -> None:
 # ---------------------------------------------------------------- drift detection
 
 def _history(values: list[float], std: float, *, events: dict[int, str] | None = None,
-             odometer: bool = True) -> list[dict[str, Any]]:
+             odometer: bool = True, km0: float = 1000.0) -> list[dict[str, Any]]:
     t0 = dt.datetime(2026, 1, 1, tzinfo=dt.UTC)
     rows = []
     for i, v in enumerate(values):
         row: dict[str, Any] = {"task_key": f"k{i:04d}", "vehicle": "v",
                                "time": (t0 + dt.timedelta(days=i)).isoformat(),
-                               "odometer_km": 1000.0 + 20 * i if odometer else None,
+                               "odometer_km": km0 + 20 * i if odometer else None,
                                "distance_km": 20.0, "success": 1,
                                "event": (events or {}).get(i)}
         for n in ("c_e", "c_d", "t_r", "d"):
@@ -335,11 +336,18 @@ def test_one_wild_drive_never_alarms_and_events_reset() -> None:
     assert [b.value for b in result.baselines] == pytest.approx([1.95, 1.96])
 
 
-def test_wear_is_a_trend() -> None:
+@pytest.mark.parametrize("km0", [1000.0, 19000.0, 150000.0])
+def test_wear_is_a_trend_at_its_rate(km0: float) -> None:
+    """0.4% over 29 drives of 20 km: 0.69% per 1000 km whatever the odometer reads (the
+    hostile run: a car at 19,000 km was said to wear 3.83% per 1000 km where it wore 13.8%,
+    the rate taken as a share of the line's value at 0 km)."""
     values = [1.95 * (1 - 0.004 * i / 29) for i in range(30)]
-    alarms = analyse(_history(values, 3e-4), FleetSettings()).alarms
-    assert alarms and alarms[0].kind == "trend" and "per 1000 km" in alarms[0].message
+    alarms = analyse(_history(values, 3e-4, km0=km0), FleetSettings()).alarms
+    assert alarms and alarms[0].kind == "trend"
     assert alarms[0].relative_change < 0
+    rate = re.search(r"gradually \(([0-9.]+)% per 1000 km\)", alarms[0].message)
+    assert rate is not None, alarms[0].message
+    assert float(rate[1]) == pytest.approx(0.4 / 580 * 1000, abs=0.02)
 
 
 # ---------------------------------------------------------------- the command line

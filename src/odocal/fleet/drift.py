@@ -418,9 +418,13 @@ def _kind(pts: list[Point], change_at: int, excess: float) -> tuple[str, float |
     line_rss = _wls_rss(line_design, x, w)
     if line_rss >= step_rss:
         return "step", None
+    # the rate as a share of the level over the stretch (the line's value at its weighted
+    # centre: at odometer 0 km, tens of thousands of km back, the line says nothing)
     sw = np.sqrt(w)
-    coef = np.linalg.lstsq(line_design * sw[:, None], x * sw, rcond=None)[0]
-    per_1000 = float(coef[1] * 1000.0 / coef[0]) if has_km and coef[0] else None
+    centre = float(np.sum(w * t) / np.sum(w))
+    centred = np.column_stack([np.ones(len(pts)), t - centre])
+    level_at, slope = np.linalg.lstsq(centred * sw[:, None], x * sw, rcond=None)[0]
+    per_1000 = float(slope * 1000.0 / level_at) if has_km and level_at else None
     return "trend", per_1000
 
 
