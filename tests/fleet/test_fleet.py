@@ -61,6 +61,10 @@ def test_fleet_on_local_cluster_detects_the_events(fleet: Any, client: Any,
     rows = list(_rows(store).values())
     mismapped = [r for r in rows if r["vehicle"] == "car000" and not r["success"]]
     assert len(mismapped) == 1 and mismapped[0]["status"] == "rejected"
+    # why, in the row itself (it said "the errors above say which", with nothing above it)
+    assert mismapped[0]["message"].startswith("rejected: the yaw rate the wheels imply turns "
+                                              "against the reference's in bends")
+    assert "the left and right wheel columns are swapped" in mismapped[0]["message"]
     by_vehicle = {(a.vehicle, a.parameter) for a in run.alarms}
     assert ("car001", "c_e") in by_vehicle               # the pressure loss
     assert ("car002", "c_e") in by_vehicle               # the wear

@@ -110,11 +110,23 @@ def test_the_report_and_the_exports_carry_the_car(four_fleet: dict[str, Any]) ->
 
 def test_a_store_of_the_rear_axle_is_refused_for_the_car(four_fleet: dict[str, Any],
                                                           tmp_path: Path) -> None:
+    """A store holding the rear axle's estimates is refused for the car in one line; one that
+    holds none (created, or stopped before its first drive) takes the car's columns."""
     rear = tmp_path / "rear.db"
-    open_store(rear, model="rear_axle").close()
+    with open_store(rear, model="rear_axle") as db:
+        db.add_drive({"task_key": "k", "vehicle": "v", "time": "2026-01-01T00:00:00+00:00",
+                      "source": "s", "status": "converged", "success": True, "c_e": 1.95})
     with pytest.raises(DataError, match="calibration of the rear_axle model, not of the "
                                         "four_wheel model"):
         calibrate_fleet(four_fleet["fleet"].catalog, rear, settings=FOUR, workers=1)
+    empty = tmp_path / "empty.db"
+    open_store(empty, model="rear_axle").close()
+    with open_store(empty, model="four_wheel") as db:
+        assert db.model == "four_wheel"
+        db.add_drive({"task_key": "k", "vehicle": "v", "time": "2026-01-01T00:00:00+00:00",
+                      "source": "s", "status": "converged", "success": True, "c_e": 1.95,
+                      "L": 2.6})
+        assert db.drives()[0]["L"] == 2.6
 
 
 def _rows(parameter: str, values: list[float], std: float) -> list[dict[str, Any]]:
@@ -155,3 +167,32 @@ def test_a_step_of_a_front_parameter_is_named_in_its_words(parameter: str, level
     change = abs(alarm.change)
     assert alarm.message == said.format(mm=change * 1000, deg=math.degrees(change),
                                         share=change / 1.947 * 100, cause=CAUSES[parameter])
+
+
+def test_the_car_on_logs_without_front_wheels_says_why_and_the_store_takes_the_next_model(
+        tmp_path: Path) -> None:
+    """A four-wheel settings file on a fleet of rear-axle logs (hostile run: exit 0 and no
+    word of why 8 of 8 drives failed; the store then refused the rear-axle rerun): the reason
+    once with its count, exit 1; the store, holding no estimate, takes the rear axle's run."""
+    simulate_fleet(tmp_path / "rear", vehicles=1, drives=3, duration_s=240.0, seed=2)
+    config = tmp_path / "car.toml"
+    config.write_text('[vehicle]\nmodel = "four_wheel"\n')
+    store = tmp_path / "fleet.db"
+    argv = [str(BIN / "odocal"), "fleet", "calibrate", str(tmp_path / "rear" / "catalog.csv"),
+            "--store", str(store), "--workers", "1"]
+    run = subprocess.run([*argv, "--config", str(config)], capture_output=True, text=True)
+    assert run.returncode == 1, run.stderr
+    assert ("not calibrated (3 drives): DataError: the four_wheel model needs the front "
+            "wheels' rates (n_fl, n_fr), and '...' has none") in run.stdout
+    errors = [line for line in run.stderr.splitlines() if "error" in line]
+    assert len(errors) == 1 and errors[0].startswith(
+        "odocal fleet calibrate: error: no drive of the catalog could be calibrated; the "
+        "commonest reason: DataError: the four_wheel model needs the front wheels' rates")
+    assert "Traceback" not in run.stderr
+    rear = subprocess.run(argv, capture_output=True, text=True)
+    assert rear.returncode == 0, rear.stderr
+    with open_store(store, create=False, read_only=True) as db:
+        assert db.model == "rear_axle"
+        rows = db.drives()
+        assert len(rows) == 3 and all(r["c_e"] is not None for r in rows)
+        assert "c_f" not in rows[0]

@@ -48,6 +48,8 @@ def run() -> None:
     interrupt.install()
     try:
         from odocal.cli.main import main
-    except KeyboardInterrupt:
-        interrupt.leave("odocal")
+    except KeyboardInterrupt:            # before the command line is parsed: its first word
+        word = sys.argv[1] if len(sys.argv) > 1 else ""
+        named = word.replace("-", "").isalnum() and word.islower()
+        interrupt.leave(f"odocal {word}" if named else "odocal")
     sys.exit(main())

@@ -43,6 +43,8 @@ def _summary(run: Any) -> None:
            f"{run.calibrated} calibrated now, {run.failed} could not be calibrated"
            + (f", {len(run.refused)} not read" if run.refused else "") + "; "
            f"{run.pooled} pooled calibrations; {run.elapsed_s:.1f} s")
+    for reason, count in run.reasons[:3]:
+        say(f"  not calibrated ({count} drive{'s' if count != 1 else ''}): {reason}")
     if run.alarms:
         say(f"{len(run.alarms)} alarm(s):")
         for a in run.alarms:
@@ -82,6 +84,11 @@ def cmd_fleet_calibrate(args: argparse.Namespace) -> int:
     if run.refused:
         sys.stderr.write(f"odocal fleet calibrate: error: {len(run.refused)} catalog row(s) "
                          "could not be used (named above); the others are stored\n")
+        return 1
+    if run.drives and run.failed == run.drives and run.reasons:
+        # every drive failed: the settings or the logs are wrong for all of them, not weak
+        sys.stderr.write("odocal fleet calibrate: error: no drive of the catalog could be "
+                         f"calibrated; the commonest reason: {run.reasons[0][0]}\n")
         return 1
     return 0
 

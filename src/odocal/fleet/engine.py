@@ -21,12 +21,13 @@ stored for such a row; the other drives are calibrated and stored.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import logging
 import os
 import re
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -70,6 +71,7 @@ class FleetRun:
     elapsed_s: float
     written: tuple[Path, ...] = field(default=())
     refused: tuple[str, ...] = field(default=())     # catalog rows not read, one line each
+    reasons: tuple[tuple[str, int], ...] = field(default=())   # why drives failed, how many
     bytes_read: int = 0          # read from object stores by the workers for the drives run now
 
 
@@ -357,13 +359,28 @@ def calibrate_fleet(catalog: str | Path, store: str | Path, *,
             # workers stopped mid-report (Ctrl-C, an error) leave their temporary folders
             _remove_report_leftovers(report_root)
         keys = {t.key for t in tasks}
-        failed = sum(1 for r in db.drives() if r["task_key"] in keys and not r["success"])
+        failures = [r for r in db.drives() if r["task_key"] in keys and not r["success"]]
         written = _write_outputs(db, out_path, settings)
     return FleetRun(drives=len(entries), stored_before=stored_before,
-                    calibrated=len(arrivals.stored), failed=failed, pooled=len(pooled),
+                    calibrated=len(arrivals.stored), failed=len(failures),
+                    reasons=_reasons(failures), pooled=len(pooled),
                     alarms=analysis.alarms, dashboard=dashboard,
                     elapsed_s=time.perf_counter() - started, written=written,
                     refused=tuple(refused), bytes_read=sum(arrivals.bytes_read))
+
+
+def _reasons(failures: Sequence[Mapping[str, Any]]) -> tuple[tuple[str, int], ...]:
+    """Why the drives stored with an error failed: each reason (its first line; what it
+    quotes, such as the log's path, as '...' where it stopped several drives) with how many
+    drives it stopped, the commonest first."""
+    said = [str(r.get("error") or r.get("message") or r.get("status")).splitlines()[0]
+            for r in failures]
+    def general(text: str) -> str:          # (a possessive's apostrophe is no quote)
+        return re.sub(r"(?<!\w)'[^']+'(?!\w)", "'...'", text)
+
+    counts = collections.Counter(general(s) for s in said)
+    first = {general(s): s for s in reversed(said)}
+    return tuple((reason if n > 1 else first[reason], n) for reason, n in counts.most_common())
 
 
 def _check_run(method: str, scheduler: str | None, client: Any,

@@ -330,7 +330,14 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
         db.close()
         raise DataError(f"fleet store '{p}' has schema version {version}, newer than this "
                         f"odocal's ({SCHEMA_VERSION}); upgrade odocal")
-    stated = _stated_model(db, model, p) if "meta" in tables else None
+    empty = _holds_nothing(db, tables)
+    stated = _stated_model(db, None if empty else model, p) if "meta" in tables else None
+    if empty and model is not None and not read_only:
+        # a store that holds no estimate (a run stopped before its first drive, or one whose
+        # drives all failed, such as logs without a model's inputs) takes the run's model,
+        # columns too: what it held were errors, which the run redoes
+        stated = model
+        _tables_for(db, model, tables)
     store = Store(db, p, stated or model or registry.DEFAULT)
     if version < SCHEMA_VERSION:
         # SQLite's DDL is transactional: the migration and the new tables land together or not
@@ -348,7 +355,7 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
     if model is not None and not read_only:
         try:
             with store.transaction() as tx:
-                tx.execute("INSERT OR IGNORE INTO meta VALUES ('model', ?)", (model,))
+                tx.execute("INSERT OR REPLACE INTO meta VALUES ('model', ?)", (model,))
         except BaseException:
             db.close()
             raise
@@ -377,6 +384,32 @@ def _connect(p: Path, read_only: bool) -> tuple[sqlite3.Connection, set[str]]:
     except sqlite3.DatabaseError as exc:
         raise DataError(f"'{shown(p)}' is not an odocal fleet store (SQLite: {exc})") from exc
     return db, tables
+
+
+def _holds_nothing(db: sqlite3.Connection, tables: set[str]) -> bool:
+    """Whether the store holds no estimate: no drive and no pooled calibration with
+    parameters (drives stored with only an error, such as a model's inputs missing, hold
+    none), or is new."""
+    return not any(db.execute(f"SELECT 1 FROM {t} WHERE c_e IS NOT NULL LIMIT 1").fetchone()
+                   for t in ("drives", "pooled") if t in tables)
+
+
+def _tables_for(db: sqlite3.Connection, model: str, tables: set[str]) -> None:
+    """An empty store's result tables made anew with ``model``'s parameter columns (where they
+    have another's), in one transaction."""
+    if "drives" not in tables:
+        return
+    columns = [r[1] for r in db.execute("PRAGMA table_info(drives)")]
+    if {c.removesuffix("_identified") for c in columns if c.endswith("_identified")} \
+            == set(registry.layout(model).names):
+        return
+    store = Store(db, Path(), model)
+    with store.transaction() as tx:
+        for table in ("drives", "pooled", "baselines", "alarms"):
+            tx.execute(f"DROP TABLE IF EXISTS {table}")
+        for statement in _schema(store.layout).split(";"):
+            if statement.strip():
+                tx.execute(statement)
 
 
 def _stated_model(db: sqlite3.Connection, model: str | None, p: Path) -> str | None:

@@ -226,10 +226,25 @@ def _parameter_columns(result: Any) -> dict[str, Any]:
     row["covariance"] = np.asarray(est.covariance).tolist()
     row["status"] = est.status.name.lower()
     row["success"] = bool(est.success)
-    row["message"] = est.message
+    row["message"] = _rejection(result) if est.status.name == "REJECTED" else est.message
     row["method"] = est.method
     row["e_p_m"] = result.validation.mean_error_m if result.validation is not None else None
     return row
+
+
+def _rejection(result: Any) -> str:
+    """Why the checks or the gate rejected the drives, in the store's words: the first fatal
+    finding (or gate warning) as the calibration's summary says it, and how many more (the
+    estimate's own message points at lines printed above it, which a stored row has not)."""
+    from odocal.checks.findings import Severity
+    from odocal.report.advice import finding_text
+
+    said = [finding_text(f, result.settings) for f in result.diagnosis.findings
+            if f.severity is Severity.FATAL] or list(result.warnings)
+    if not said:
+        return str(result.model_estimate.message)
+    more = f" (and {len(said) - 1} more)" if len(said) > 1 else ""
+    return f"rejected: {said[0]}{more}"
 
 
 def _limit_threads() -> None:
