@@ -196,3 +196,20 @@ def test_the_car_on_logs_without_front_wheels_says_why_and_the_store_takes_the_n
         rows = db.drives()
         assert len(rows) == 3 and all(r["c_e"] is not None for r in rows)
         assert "c_f" not in rows[0]
+
+
+def test_the_exports_say_how_the_noise_was_measured(four_fleet: dict[str, Any]) -> None:
+    """The pooled calibration keeps the odometry's noise, not its window count: the files say
+    it was measured against the reference (they said "over 0 windows"), with the variances
+    the store holds."""
+    with open_store(four_fleet["store"], create=False, read_only=True) as db:
+        pooled = {p["vehicle"]: p for p in db.pooled()}
+    for vehicle, p in pooled.items():
+        text = (four_fleet["out"] / "vehicles" / vehicle / "ackermann" /
+                "ackermann_steering_controller.yaml").read_text()
+        assert "vx and vyaw variances measured in windows of 1 s against the reference" in text
+        assert "0 windows" not in text
+        params = yaml.safe_load(text)["ackermann_steering_controller"]["ros__parameters"]
+        twist = params["twist_covariance_diagonal"]
+        assert twist[0] == pytest.approx(p["speed_std_mps"] ** 2, rel=1e-9)
+        assert twist[5] == pytest.approx(p["yaw_rate_std_radps"] ** 2, rel=1e-9)

@@ -174,8 +174,11 @@ def _left_out(keys: Mapping[str, str], missing: Sequence[str]) -> tuple[list[str
 
 def _noise(c: Calibrated) -> tuple[float, float, str]:
     if c.noise is not None:
+        # (a fleet's pooled calibration keeps the figures, not how many windows gave them)
+        over = (f"over {c.noise.windows} windows" if c.noise.windows
+                else "in windows")
         return (c.noise.speed_std_mps, c.noise.yaw_rate_std_radps,
-                f"measured over {c.noise.windows} windows of {c.noise.window_s:g} s")
+                f"measured {over} of {c.noise.window_s:g} s against the reference")
     return AUTOWARE_VELOCITY_STD, AUTOWARE_YAW_RATE_STD, "not measured here: Autoware's defaults"
 
 
