@@ -81,6 +81,10 @@ def probe_scheduler(address: str, timeout_s: float) -> dict[str, Any]:
         raise ConfigError(f"{where}: no answer within {timeout_s:g} s (--connect-timeout)")
     if "error" in answer:
         exc = answer["error"]
+        if isinstance(exc, MemoryError | ValueError | TypeError | KeyError):
+            # Dask's protocol read the first bytes of something else as a message's sizes
+            raise ConfigError(f"{address} answered, but not in Dask's protocol: not a Dask "
+                              "scheduler (another service on that port?)")
         text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise ConfigError(f"{where}: {_shown(text)}")
     reply: Any = answer.get("reply")
