@@ -94,12 +94,12 @@ run()
 
 
 def test_ctrl_c_while_the_program_starts(long_drive: Path, tmp_path: Path) -> None:
-    """Interrupted while it imports (before any command runs): exit 130, one line (was: a
-    traceback)."""
+    """Interrupted while it imports (before any command runs): exit 130, one line naming
+    the command its first word is (was: a traceback; then "odocal: interrupted")."""
     proc = subprocess.run([sys.executable, "-c", _STARTING, str(long_drive),
                            str(tmp_path / "o")], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 130, proc.stderr
-    assert proc.stderr == "odocal: interrupted\n"
+    assert proc.stderr == "odocal replay: interrupted\n"
     assert not (tmp_path / "o").exists()
 
 
