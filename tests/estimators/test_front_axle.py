@@ -519,6 +519,25 @@ def test_validate_refuses_a_four_wheel_parameter_file_no_car_has_in_one_line(
     assert "L = 100 is not a wheeled vehicle's wheelbase" in err[0]
 
 
+def _saved_car(drive: Drive, tmp_path: Path) -> tuple[Path, str]:
+    """``drive``'s four-wheel calibration saved in ``tmp_path/car``: the settings file choosing
+    the model, and the calibration.json."""
+    odocal.calibrate(drive, settings=FOUR).save(tmp_path / "car", report=False)
+    config = tmp_path / "four.toml"
+    config.write_text('[vehicle]\nmodel = "four_wheel"\n')
+    return config, str(tmp_path / "car" / "calibration.json")
+
+
+def _validated(log: Path, config: Path, params: str,
+               capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
+    """``odocal validate LOG`` of the car: its exit code and its stderr's lines."""
+    from odocal.cli.main import main
+
+    capsys.readouterr()
+    code = main(["validate", str(log), "--config", str(config), "--params", params])
+    return code, [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+
+
 def test_validate_names_front_wheels_swapped_left_and_right(
         four_wheel_drive: tuple[Drive, np.ndarray], tmp_path: Path,
         capsys: pytest.CaptureFixture[str]) -> None:
@@ -528,19 +547,12 @@ def test_validate_names_front_wheels_swapped_left_and_right(
     from odocal.cli.main import main
 
     drive, _ = four_wheel_drive
-    car = odocal.calibrate(drive, settings=FOUR)
-    car.save(tmp_path / "car", report=False)
+    config, params = _saved_car(drive, tmp_path)
     columns = drive.columns()
     columns["n_fl"], columns["n_fr"] = columns["n_fr"], columns["n_fl"]
     odocal.save_drive(Drive.from_columns(columns, name="swapped"), tmp_path / "swapped.parquet")
     odocal.save_drive(drive, tmp_path / "right.parquet")
-    config = tmp_path / "four.toml"
-    config.write_text('[vehicle]\nmodel = "four_wheel"\n')
-    params = str(tmp_path / "car" / "calibration.json")
-    capsys.readouterr()
-    code = main(["validate", str(tmp_path / "swapped.parquet"), "--config", str(config),
-                 "--params", params])
-    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    code, err = _validated(tmp_path / "swapped.parquet", config, params, capsys)
     assert code == 1 and len(err) == 1
     assert "front left and right swapped? map them the other way round" in err[0]
     assert "calibrated" not in err[0]
@@ -557,27 +569,20 @@ def test_validate_names_two_wheel_columns_exchanged(four_wheel_drive: tuple[Driv
     columns are exchanged (the axles, or one side's wheels): one line naming the exchange,
     with E_p as mapped and exchanged, exit 1 (before: E_p 19.6 m with no word). The same
     drive mapped right is validated."""
-    from odocal.cli.main import main
-
     drive, _ = four_wheel_drive
-    car = odocal.calibrate(drive, settings=FOUR)
-    car.save(tmp_path / "car", report=False)
+    config, params = _saved_car(drive, tmp_path)
     other, _ = with_front_axle(odocal.simulate(duration_s=900.0, seed=13, noise="realistic"))
     odocal.save_drive(exchanged(other.drive, order), tmp_path / "mapped-wrong.parquet")
-    config = tmp_path / "four.toml"
-    config.write_text('[vehicle]\nmodel = "four_wheel"\n')
-    params = str(tmp_path / "car" / "calibration.json")
-    capsys.readouterr()
-    code = main(["validate", str(tmp_path / "mapped-wrong.parquet"), "--config", str(config),
-                 "--params", params])
-    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    code, err = _validated(tmp_path / "mapped-wrong.parquet", config, params, capsys)
     assert code == 1 and len(err) == 1, err
     said = re.search(r"dead-reckon ([0-9.]+) m with the (.+) exchanged against ([0-9.]+) m as "
                      r"mapped: the wheel columns look mapped wrong", err[0])
     assert said is not None, err[0]
     assert said[2] == words
-    right = odocal.validate(other.drive, car.model_estimate.theta, settings=FOUR,
-                            std=car.model_estimate.std).mean_error_m
+    from odocal.io.json_files import read_parameters, read_uncertainty
+
+    right = odocal.validate(other.drive, read_parameters(params, "four_wheel"), settings=FOUR,
+                            std=read_uncertainty(params, "four_wheel")).mean_error_m
     assert float(said[1]) == pytest.approx(right, abs=0.006)          # as printed: 2 decimals
     assert float(said[3]) > EXCHANGED_GAIN * float(said[1])
 

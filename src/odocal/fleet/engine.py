@@ -375,6 +375,7 @@ def _reasons(failures: Sequence[Mapping[str, Any]]) -> tuple[tuple[str, int], ..
     drives it stopped, the commonest first."""
     said = [str(r.get("error") or r.get("message") or r.get("status")).splitlines()[0]
             for r in failures]
+
     def general(text: str) -> str:          # (a possessive's apostrophe is no quote)
         return re.sub(r"(?<!\w)'[^']+'(?!\w)", "'...'", text)
 

@@ -22,7 +22,7 @@ from odocal.fleet.store import Store
 from odocal.io.atomic import FLEET_MARKER, file_name, write_bytes, write_text
 from odocal.model.layout import REAR_AXLE, Layout
 from odocal.model.parameters import Parameters
-from odocal.output.export import CAR_TARGETS, TARGETS, Calibrated, export
+from odocal.output.export import Calibrated, export, targets_for
 from odocal.pipeline.odometry import OdometryNoise
 from odocal.redaction import redact_text
 from odocal.report.render import Call, FigureSpec, Renderer
@@ -111,7 +111,7 @@ def _exports(store: Store, out: Path, datasheet: Parameters) -> list[Path]:
             source=f"fleet store, vehicle {vehicle}, {len(json.loads(p['drives']))} drives up to "
                    f"{p['time']}")
         written += export(calibrated, out / "vehicles" / _safe(vehicle),
-                          (*TARGETS, *CAR_TARGETS) if "L" in names else TARGETS)
+                          targets_for(store.layout))
     return written
 
 

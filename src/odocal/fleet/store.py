@@ -346,9 +346,7 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
                 _migrate_1_to_2(tx)
             if version in (1, 2):
                 _migrate_2_to_3(tx)
-            for statement in _schema(store.layout).split(";"):
-                if statement.strip():
-                    tx.execute(statement)
+            _create_tables(tx, store.layout)
             tx.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)",
                        (str(SCHEMA_VERSION),))
             tx.execute("INSERT OR IGNORE INTO meta VALUES ('created_at', ?)", (_now(),))
@@ -407,9 +405,14 @@ def _tables_for(db: sqlite3.Connection, model: str, tables: set[str]) -> None:
     with store.transaction() as tx:
         for table in ("drives", "pooled", "baselines", "alarms"):
             tx.execute(f"DROP TABLE IF EXISTS {table}")
-        for statement in _schema(store.layout).split(";"):
-            if statement.strip():
-                tx.execute(statement)
+        _create_tables(tx, store.layout)
+
+
+def _create_tables(db: sqlite3.Connection, layout: Layout) -> None:
+    """Every table of the schema not there yet, with ``layout``'s parameter columns."""
+    for statement in _schema(layout).split(";"):
+        if statement.strip():
+            db.execute(statement)
 
 
 def _stated_model(db: sqlite3.Connection, model: str | None, p: Path) -> str | None:

@@ -217,6 +217,8 @@ def _mapping_here(mapping: Any) -> Any:
 def _parameter_columns(result: Any) -> dict[str, Any]:
     """The chosen model's parameters (the four-wheel car's, or the rear axle's), their
     uncertainty and the estimate's status, by the store's column names."""
+    from odocal.estimators.estimate import Status
+
     est = result.model_estimate
     row: dict[str, Any] = {}
     for j, name in enumerate(est.theta.layout.names):
@@ -226,7 +228,7 @@ def _parameter_columns(result: Any) -> dict[str, Any]:
     row["covariance"] = np.asarray(est.covariance).tolist()
     row["status"] = est.status.name.lower()
     row["success"] = bool(est.success)
-    row["message"] = _rejection(result) if est.status.name == "REJECTED" else est.message
+    row["message"] = _rejection(result) if est.status is Status.REJECTED else est.message
     row["method"] = est.method
     row["e_p_m"] = result.validation.mean_error_m if result.validation is not None else None
     return row

@@ -653,4 +653,3 @@ class Updates:
             return False
         self._next = last + self._every
         return True
-

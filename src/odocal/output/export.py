@@ -63,6 +63,7 @@ from odocal._version import __version__
 from odocal.errors import ConfigError
 from odocal.io.atomic import write_text
 from odocal.model.four_wheel import FOUR_WHEEL_MODEL
+from odocal.model.layout import Layout
 from odocal.model.parameters import Parameters
 from odocal.model.vehicle import MODEL
 from odocal.pipeline.odometry import OdometryNoise
@@ -72,6 +73,16 @@ from odocal.settings import datasheet_stated
 TARGETS = ("autoware", "ros2_control", "robot_localization")
 #: The targets of a model with a wheelbase and a steering (the four-wheel car) besides.
 CAR_TARGETS = ("ackermann",)
+
+
+def is_car(layout: Layout) -> bool:
+    """Whether a model of ``layout`` is a car with a wheelbase and a steering."""
+    return "L" in layout.names
+
+
+def targets_for(layout: Layout) -> tuple[str, ...]:
+    """Every target a calibration of a model of ``layout`` can be exported to."""
+    return (*TARGETS, *CAR_TARGETS) if is_car(layout) else TARGETS
 #: Autoware's vehicle_velocity_converter defaults (used where no noise was measured).
 AUTOWARE_VELOCITY_STD, AUTOWARE_YAW_RATE_STD = 0.2, 0.1
 
@@ -184,7 +195,7 @@ def _noise(c: Calibrated) -> tuple[float, float, str]:
 
 def autoware(c: Calibrated, out: Path) -> list[Path]:
     th, ds = c.theta, c.datasheet
-    car = "L" in th.layout.names
+    car = is_car(th.layout)
     keys = {"wheel_radius": "c_e", "wheel_tread": "t_r", **({"wheel_base": "L"} if car else {})}
     fill, gone = _left_out(keys, unstated(c))
     values = {"wheel_radius": _float(th.c_e / (2.0 * math.pi)), "wheel_tread": _float(th.t_r),
@@ -279,7 +290,7 @@ def ackermann(c: Calibrated, out: Path) -> list[Path]:
     ackermann_steering_controller (rear traction wheels, steered front ones), under the names
     of every release (each declares its own; the others are left unread)."""
     th = c.theta
-    if "L" not in th.layout.names:
+    if not is_car(th.layout):
         raise ConfigError("the ackermann export needs a car's wheelbase and steering: calibrate "
                           "with [vehicle] model = \"four_wheel\"")
     g = FOUR_WHEEL_MODEL.geometry(th.as_array())
@@ -369,7 +380,7 @@ def parameters_yaml(c: Calibrated, path: Path) -> Path:
                   "front_circumference_difference": _float(th.c_fd),
                   "front_track_width": _float(th.t_f), "wheelbase": _float(th.L),
                   "steering_ratio": _float(th.ratio), "steering_offset": _float(th.s_0)}
-                 if "L" in names else {}),
+                 if is_car(th.layout) else {}),
               "parameter_names": list(names),
               "identified": [bool(ok) for ok in c.identified],
               "std": [_float(s) for s in c.std],

@@ -229,7 +229,7 @@ EXCHANGED_GAIN = 3.0
 
 
 def _dead_reckoned(theta: Parameters | FloatArray, drives: list[Drive],
-               settings: Settings) -> ValidationResult:
+                   settings: Settings) -> ValidationResult:
     segs = validation_segments(drives, settings.segments)
     return validation(theta, validation_data(drives, segs, settings), segs, drives)
 
