@@ -146,14 +146,15 @@ def test_a_drive_without_steering_leaves_the_ratio_and_offset_unidentified(
 def test_commands_for_the_rear_axle_only_refuse_the_model_in_one_line(tmp_path: Path) -> None:
     config = tmp_path / "four.toml"
     config.write_text('[vehicle]\nmodel = "four_wheel"\n')
-    run = subprocess.run([sys.executable, "-m", "odocal", "reproduce", "--config", str(config),
-                          "--distance-km", "1"], capture_output=True, text=True, check=False)
-    assert run.returncode != 0
-    assert "Traceback" not in run.stderr
-    lines = [line for line in run.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and "rear_axle model only" in lines[0], run.stderr
-    with pytest.raises(ConfigError, match="the live calibration takes the rear_axle model"):
-        odocal.OnlineCalibrator(FOUR)
+    for command in (["reproduce", "--config", str(config), "--distance-km", "1"],
+                    ["ros2", "--config", str(config)]):
+        run = subprocess.run([sys.executable, "-m", "odocal", *command], capture_output=True,
+                             text=True, check=False, timeout=120)
+        assert run.returncode != 0
+        assert "Traceback" not in run.stderr
+        lines = [line for line in run.stderr.splitlines() if line.strip()]
+        assert len(lines) == 1 and "rear_axle model only" in lines[0], run.stderr
+        assert f"odocal {command[0]}" in lines[0]
 
 
 def test_the_shared_nuscenes_scenes_keep_the_rear_axle_and_name_what_the_front_lacks(

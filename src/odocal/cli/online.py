@@ -42,8 +42,7 @@ def _replay(args: argparse.Namespace, drawer: Any) -> int:
     from odocal.online.replay import replay
     from odocal.report.replay import alarm_words, convergence_km
 
-    settings = settings_for(command="replay",
-                            config=args.config, datasheet=args.datasheet, workers=args.workers)
+    settings = settings_for(config=args.config, datasheet=args.datasheet, workers=args.workers)
     inputs = inputs_of(args.source, config=args.config, mapping=args.mapping)
     out = Path(args.out)
     check_out_dir(args.out, inputs)
@@ -90,11 +89,10 @@ def _replay(args: argparse.Namespace, drawer: Any) -> int:
 def _update_line(row: TraceRow) -> str:
     """One update of the replay as the terminal shows it: each parameter with its standard
     deviation (- where not identified), and whether the gate refused it."""
-    from odocal.model.parameters import PARAMETER_NAMES
     from odocal.report.summary import parameter_text, std_text
 
     parts = [f"{n} {parameter_text(n, v)} {std_text(n, s)}" if ok else f"{n} -"
-             for n, v, s, ok in zip(PARAMETER_NAMES, row.theta, row.std, row.identified,
+             for n, v, s, ok in zip(row.names, row.theta, row.std, row.identified,
                                     strict=True)]
     return (f"{row.t:9.1f} s {row.distance_km:8.2f} km  " + "  ".join(parts)
             + (f"  REJECTED ({row.rejected_by or 'gate'}): not published" if row.rejected
@@ -108,7 +106,7 @@ def _batch_estimate(source: str, settings: Settings) -> Estimate | None:
 
     batch = None
     try:
-        batch = calibrate(source, settings=settings).estimate
+        batch = calibrate(source, settings=settings).model_estimate
     except OdocalError as exc:   # the comparison is an extra: the replay's answer stands
         interrupt.checkpoint()
         say(f"note: no batch calibration to compare with: {shown(exc, 300)}")

@@ -121,6 +121,27 @@ class FrontWindows:
     def size(self) -> int:
         return int(self.ds.shape[0])
 
+    @staticmethod
+    def concat(parts: Sequence[FrontWindows]) -> FrontWindows | None:
+        """The windows of ``parts`` (made alike: one window length and grid) in one set, each
+        part's clusters its own; None where no part holds a window."""
+        held = [w for w in parts if w.size]
+        if not held:
+            return None
+        own = [w.cluster - w.cluster.min() for w in held]
+        base = np.cumsum([0, *(int(c.max()) + 1 for c in own[:-1])])
+        noise = [w.heading_noise if w.heading_noise is not None else np.full(w.size, np.nan)
+                 for w in held]
+        def joined(key: str) -> FloatArray:
+            return np.concatenate([getattr(w, key) for w in held])
+
+        return FrontWindows(joined("ds"), joined("dpsi"), joined("a_y"), joined("a_x"),
+                            joined("revolutions"), joined("steer"),
+                            cluster=np.concatenate([c + b for c, b in zip(own, base,
+                                                                          strict=True)]),
+                            steering_lag_s=tuple(x for w in held for x in w.steering_lag_s),
+                            heading_noise=np.concatenate(noise))
+
     def measured(self) -> FloatArray:
         """(N, 3): the channels' measurements (:data:`CHANNELS`; the steering's NaN where a
         window has no moving step with an angle)."""
@@ -842,17 +863,30 @@ def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Setti
     fitted on the motion it settled (its lag and heading offset) and joined with it
     (:func:`joined`). ``settings``: the four-wheel model's. Where the rear fit ended without an
     estimate, nothing of the front is fitted either (its verdicts say why)."""
-    datasheet = _front_datasheet(rear, settings)
-    limit = settings.identify.identifiable_ratio * np.asarray(settings.identify.prior_std)
     details = rear.details
     if not rear.success or not hasattr(details, "delay_s"):
-        return _without_front(rear, datasheet, limit)
+        return car_estimate(rear, None, settings)
     # the wheels' whole lag is the rear fit's delay; a lag it fitted as a departure is part
     # of it, and the drives (as fitted) are already shifted by that part
     taken = float(dict(getattr(details, "fitted_departures", {}) or {}).get("lag", 0.0))
     shift = float(details.delay_s) - taken * (drives[0].t_s if drives else 0.0)
     windows = front_windows(drives, settings, delay_s=shift,
                             heading_offset=float(details.heading_offset_rad))
+    return car_estimate(rear, windows, settings)
+
+
+def car_estimate(rear: Estimate, windows: FrontWindows | None, settings: Settings
+                 ) -> Estimate:
+    """The four-wheel estimate of the rear axle's (``rear``) and the front ``windows`` made on
+    the motion it settled (:func:`front_windows`; the live calibrator keeps its own): the
+    front axle and the steering fitted on them and joined with the rear's. None for
+    ``windows``, or a rear fit that ended without an estimate: the front at the datasheet's,
+    not calibrated for the rear's reason."""
+    datasheet = _front_datasheet(rear, settings)
+    limit = settings.identify.identifiable_ratio * np.asarray(settings.identify.prior_std)
+    details = rear.details
+    if windows is None or not rear.success:
+        return _without_front(rear, datasheet, limit)
     theta0 = datasheet.as_array().copy()
     theta0[:_REAR_SIZE] = rear.theta.as_array()
     d = FOUR_WHEEL_MODEL.rear.layout.index(LAYOUT.load)

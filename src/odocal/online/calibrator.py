@@ -41,10 +41,10 @@ from odocal.checks.departures import Departures, wheel_lag_s
 from odocal.checks.departures import findings as departure_findings
 from odocal.checks.departures import measure as measure_departures
 from odocal.checks.diagnosis import check_drives
-from odocal.checks.findings import Diagnosis, Finding, Severity
+from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.checks.gate import gate
 from odocal.data.drive import Drive
-from odocal.errors import DataError
+from odocal.errors import ConfigError, DataError
 from odocal.estimators import core, fitting
 from odocal.estimators import departures as fitted
 from odocal.estimators.estimate import (
@@ -55,6 +55,12 @@ from odocal.estimators.estimate import (
     Status,
     judge,
 )
+from odocal.estimators.front_axle import (
+    FrontDetails,
+    car_estimate,
+    front_checks,
+    mapping_findings,
+)
 from odocal.estimators.windows import (
     WindowBuilder,
     WindowSet,
@@ -63,6 +69,7 @@ from odocal.estimators.windows import (
     heading_offset,
 )
 from odocal.model import registry
+from odocal.model.four_wheel import FOUR_WHEEL_MODEL
 from odocal.model.parameters import PARAMETER_NAMES, PARAMETERS, Parameters
 from odocal.model.vehicle import MODEL
 from odocal.online.arrivals import Arrivals
@@ -81,8 +88,9 @@ from odocal.online.departures import (
     ReferenceAligner,
     recorrected,
 )
+from odocal.online.front import COLUMNS, INPUTS, Alignment, LiveFront
 from odocal.online.running import RunningFit
-from odocal.online.samples import Intake
+from odocal.online.samples import SAMPLE, Intake, has_column
 from odocal.settings import Settings
 
 #: The running update scans the lag every this many completed clusters.
@@ -119,6 +127,10 @@ class OnlineDetails:
     """How the pushed ``t`` came: ``s``, ``ms``, ``us``, ``ns`` or ``datetime``."""
     sampling_s: float = float("nan")
     """The grid's step (the first samples'; later ones at another rate are put onto it), s."""
+    front: FrontDetails | None = None
+    """The four-wheel car's front fit (None: the rear axle's model, or nothing fitted)."""
+    front_kept_s: float = 0.0
+    """The span of driving the front fit rests on (s; :mod:`odocal.online.front`)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"samples": self.samples, "windows": self.windows,
@@ -132,7 +144,9 @@ class OnlineDetails:
                 "coupling_beta": self.coupling,
                 "diagnosis": [f.to_dict() for f in self.findings], "halted": self.halted,
                 "time_unit": self.time_unit,
-                "sampling_s": self.sampling_s if math.isfinite(self.sampling_s) else None}
+                "sampling_s": self.sampling_s if math.isfinite(self.sampling_s) else None,
+                **({"front_axle": self.front.to_dict(), "front_kept_s": self.front_kept_s}
+                   if self.front is not None else {})}
 
 
 class OnlineCalibrator:
@@ -149,13 +163,18 @@ class OnlineCalibrator:
     def __init__(self, settings: Settings | None = None,
                  theta0: Parameters | FloatArray | None = None, *,
                  source: str = "live samples") -> None:
-        self.settings = settings or Settings()
-        registry.require_rear_axle(self.settings.vehicle.model, "the live calibration")
+        #: The four-wheel car's settings (None: the rear axle's model); its rear axle is
+        #: calibrated with the rear-axle model's (:attr:`settings`), as batch does.
+        self.car_settings = _car_settings(settings or Settings())
+        self.settings = (settings or Settings()) if self.car_settings is None \
+            else self.car_settings.replace(vehicle={"model": registry.DEFAULT})
         #: What the samples are called in the checks' words (``replay``: the log's name).
         self.source = source
         start = (np.asarray(self.settings.identify.theta0, dtype=np.float64) if theta0 is None
                  else (theta0.as_array() if isinstance(theta0, Parameters)
                        else np.asarray(theta0, dtype=np.float64)))
+        if self.car_settings is not None and start.shape == (FOUR_WHEEL_MODEL.layout.size,):
+            start = start[:MODEL.size]            # (the car's theta0: its rear axle starts)
         lengths = MODEL.layout.indices(MODEL.layout.lengths)
         if start.shape != (MODEL.size,) or not np.all(np.isfinite(start)) \
                 or np.any(start[list(lengths)] <= 0):
@@ -163,7 +182,9 @@ class OnlineCalibrator:
         self.datasheet = np.asarray(self.settings.identify.theta0, dtype=np.float64)
         # the running estimate, its error model and lag, and the evidence folded
         self._fit = RunningFit(self.settings, self.datasheet, start)
-        self._intake = Intake()                   # the chunks as samples on one grid
+        car = self.car_settings is not None
+        self._intake = Intake(INPUTS if car else ())    # the chunks as samples on one grid
+        self._front: LiveFront | None = None      # the car's front axle (once the grid is known)
         self._aligner: ReferenceAligner | None = None
         self._builder: WindowBuilder | None = None
         self._windows: WindowSet | None = None
@@ -178,7 +199,7 @@ class OnlineCalibrator:
         cfg = self.settings.online
         self._changes = ChangeDetector(k=cfg.cusum_k, h=cfg.cusum_h)
         # the checks: the latest samples as they came, what they found, and whether they halted
-        self._checks = LiveChecks()
+        self._checks = LiveChecks(COLUMNS if car else SAMPLE)
 
     # ---------------------------------------------------------------- input
 
@@ -193,6 +214,8 @@ class OnlineCalibrator:
         raises a DataError naming why and leaves the calibrator as it was.
         """
         started = self._t_s is not None
+        if self.car_settings is not None:
+            _require_front_wheels(chunk)
         rows = self._intake.take(chunk)
         if not rows.shape[0]:
             return
@@ -212,6 +235,8 @@ class OnlineCalibrator:
         self._windows = empty_windows(length=self._builder.length,
                                       margin=self._builder.margin, t_s=self._t_s)
         self._aligner = ReferenceAligner(self._t_s)
+        if self.car_settings is not None:
+            self._front = LiveFront(self.car_settings, self._t_s, self.source)
 
     @property
     def _t_s(self) -> float | None:
@@ -224,6 +249,9 @@ class OnlineCalibrator:
         grid = self._intake.grid(rows)
         if not grid.shape[0]:
             return
+        if self._front is not None and self._front.add(grid):
+            self._front.settle(self._alignment())
+        full, grid = grid, grid[:, :len(SAMPLE)]           # (the rear axle's samples)
         if self._history is not None:
             since = self._history[0][0, 0] if self._history else grid[0, 0]
             if self._fit.folded.clusters or self._alarms or grid[-1, 0] - since > HISTORY_S:
@@ -231,7 +259,7 @@ class OnlineCalibrator:
             else:
                 self._history.append(grid)
         # (as they came: the checks measure)
-        self._checks.keep(grid, driven=bool(self._arrivals.total))
+        self._checks.keep(full, driven=bool(self._arrivals.total))
         assert self._aligner is not None
         aligned = self._aligner.add(grid)             # the reference on the wheels' clock
         if aligned.shape[0]:
@@ -251,6 +279,8 @@ class OnlineCalibrator:
             return
         drive, driving_s = latest
         diagnosis = check_drives([drive], self.settings)
+        if self.car_settings is not None:         # the front wheels and steering, as batch
+            diagnosis = diagnosis.plus(front_checks([drive], self.car_settings).findings)
         if not (diagnosis.fatal or diagnosis.standstill):
             # the reference on the wheels' clock, and the sensors' departures, measured as
             # batch measures them (on the samples as they came) and taken out of the samples
@@ -417,6 +447,8 @@ class OnlineCalibrator:
             self._changes.reset()
             return False
         self._alarms.append(alarm)
+        if self._front is not None:
+            self._front.forget_before(alarm.t)
         self._restart(change)
         return True
 
@@ -490,8 +522,45 @@ class OnlineCalibrator:
 
         The latest samples are checked first (as every path checks its data); where they
         contradict the model, or the estimate fails the quality gate, the status is
-        ``REJECTED`` and the findings are in ``details.findings``.
+        ``REJECTED`` and the findings are in ``details.findings``. The four-wheel car's is its
+        rear axle's with the front axle and the steering fitted on the front windows kept
+        (:mod:`odocal.online.front`) and joined, as batch joins them.
         """
+        rear = self._rear_estimate()
+        return rear if self.car_settings is None else self._car(rear)
+
+    def _car(self, rear: Estimate) -> Estimate:
+        """The four-wheel estimate of the rear axle's ``rear``, and what its fit shows of the
+        wheels' mapping (fatal: refused, as batch refuses it)."""
+        assert self.car_settings is not None
+        windows = None
+        if self._front is not None and rear.success:
+            windows = self._front.windows(self._alignment())
+        car = car_estimate(rear, windows, self.car_settings)
+        found = mapping_findings(car, self._checks.checked,
+                                 max_difference=self.car_settings.gate.max_abs_c_d_fraction)
+        details = dataclasses.replace(
+            rear.details, front=getattr(car.details, "front", None),
+            front_kept_s=self._front.kept_s if self._front is not None else 0.0,
+            findings=(*rear.details.findings, *found))
+        # the wheels' mapping contradicts the model (the car's fit, or steered wheels in the
+        # rear axle's columns, which a car's four columns can only be by a wrong mapping):
+        # halted, as the checks halt it, never an estimate published before it was seen
+        mapping = [f for f in details.findings if f.severity is Severity.FATAL and (
+            f in found or f.check is Check.FRONT_WHEELS)]
+        fatal = any(f.severity is Severity.FATAL for f in found)
+        if mapping:
+            self._checks.found(self._checks.checked.plus(mapping))
+        return dataclasses.replace(car, details=details,
+                                   status=Status.REJECTED if fatal else car.status)
+
+    def _alignment(self) -> Alignment:
+        """What the front windows are made with now: the rear fit's lag, heading offset and
+        the departures taken out."""
+        return Alignment(self.delay_s(), self.heading_offset(), self._departures)
+
+    def _rear_estimate(self) -> Estimate:
+        """The rear axle's estimate now (:meth:`estimate`)."""
         if self._checks.unchecked:
             self._check()
         if self._checks.halted:
@@ -630,6 +699,34 @@ class OnlineCalibrator:
             lines.append(f"{name:<10} {parameter_text(name, float(sheet)):>16} "
                          f"{parameter_text(name, float(now)):>16}")
         return "\n".join(lines)
+
+
+def _car_settings(settings: Settings) -> Settings | None:
+    """The four-wheel car's settings where they choose it (None: the rear axle's model); a
+    one-line ConfigError for a model the live path does not take, or a car whose evidence
+    would fade (``[online] forgetting_s``: the front fit keeps its windows, it does not fade
+    them)."""
+    model = settings.vehicle.model
+    if model == registry.DEFAULT:
+        return None
+    if model != FOUR_WHEEL_MODEL.name:
+        registry.require_rear_axle(model, "the live calibration")
+    if settings.online.forgetting_s:
+        raise ConfigError(f"the live calibration of the {model} model does not fade its "
+                          "evidence: set [online] forgetting_s = 0 (or calibrate the rear "
+                          "axle: [vehicle] model = \"rear_axle\")")
+    return settings
+
+
+def _require_front_wheels(chunk: Any) -> None:
+    """A one-line DataError where pushed samples of the four-wheel car lack the front wheels'
+    rates."""
+    missing = [k for k in ("n_fl", "n_fr") if not has_column(chunk, k)]
+    if missing:
+        raise DataError(f"the four_wheel model needs the front wheels' rates (n_fl, n_fr), and "
+                        f"the pushed samples lack {', '.join(missing)}: map them ([wheels] "
+                        "front_left/front_right, or the table's columns), or calibrate the "
+                        "rear axle ([vehicle] model = \"rear_axle\")")
 
 
 class Updates:

@@ -4,6 +4,7 @@ drive when the checks are due, what they found, and whether the calibrator halte
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -27,7 +28,9 @@ class LiveChecks:
     calibrator (:attr:`halted`): a contradiction of the model, or numbers that could not be
     fitted (:meth:`failed`)."""
 
-    def __init__(self) -> None:
+    def __init__(self, columns: Sequence[str] = SAMPLE) -> None:
+        #: The samples' columns (:data:`~odocal.online.samples.SAMPLE` and a model's inputs).
+        self.columns = tuple(columns)
         self._recent: list[FloatArray] = []
         self._checked_t = -math.inf
         self._recent_t = -math.inf                # the newest sample kept
@@ -63,19 +66,17 @@ class LiveChecks:
         """The latest :data:`CHECK_WINDOW_S` kept as a drive named by ``source`` and its span,
         and the driving it holds (s); a finding where the samples make no drive; None where
         fewer than three samples are kept. The samples count as checked."""
-        samples = np.vstack(self._recent) if self._recent else np.zeros((0, len(SAMPLE)))
+        samples = np.vstack(self._recent) if self._recent else np.zeros((0, len(self.columns)))
         samples = samples[samples[:, 0] > samples[-1, 0] - CHECK_WINDOW_S] if samples.size \
             else samples
         self._checked_t = float(samples[-1, 0]) if samples.size else self._checked_t
         if samples.shape[0] < 3:
             return None
         step = t_s or float(np.median(np.diff(samples[:, 0])))
-        piece = np.cumsum(np.concatenate([[0], np.diff(samples[:, 0]) > 1.5 * step]))
-        columns = {k: samples[:, i] for i, k in enumerate(SAMPLE)} | {"piece": piece}
         # named by the source and the stretch (s) the checks judged
         name = f"{source}, t={samples[0, 0]:.6g} to {samples[-1, 0]:.6g} s"
         try:
-            drive = Drive.from_columns(columns, name=name)
+            drive = drive_of(samples, step, name, self.columns)
         except DataError as exc:
             return Diagnosis((Finding(Check.INVALID_INPUT, Severity.FATAL, name=str(exc)),))
         return drive, samples.shape[0] * step
@@ -107,3 +108,14 @@ class LiveChecks:
         if self._failure is not None:
             return Diagnosis((*self._found.findings, self._failure))
         return self._found
+
+
+def drive_of(rows: FloatArray, t_s: float, name: str, columns: Sequence[str] = SAMPLE
+             ) -> Drive:
+    """Samples on the grid (in ``columns``) as a drive named ``name`` (a gap beyond 1.5 steps
+    ends a piece; a model input never measured is left out); a DataError where they make
+    none."""
+    piece = np.cumsum(np.concatenate([[0], np.diff(rows[:, 0]) > 1.5 * t_s]))
+    data = {k: rows[:, i] for i, k in enumerate(columns)
+            if k in SAMPLE or np.isfinite(rows[:, i]).any()}
+    return Drive.from_columns(data | {"piece": piece}, name=name)

@@ -21,7 +21,7 @@ import numpy as np
 from odocal import cancel
 from odocal.arrays import BoolArray, FloatArray
 from odocal.checks.findings import Severity
-from odocal.data.drive import REQUIRED_COLUMNS
+from odocal.data.drive import MODEL_INPUTS, REQUIRED_COLUMNS
 from odocal.errors import ConfigError, DataError, InputFileError, input_file
 from odocal.estimators.estimate import Estimate, Status
 from odocal.io.streams import Stream
@@ -35,6 +35,9 @@ Chunk = dict[str, FloatArray]
 
 #: Formats replay streams: the drive format (by file suffix) and bags.
 REPLAY_FORMATS = ("drive", "rosbag")
+#: The drive format's columns streamed beside the required ones (a model's inputs: the
+#: four-wheel car's front wheels and steering).
+STREAMED = ("beta", "piece", *MODEL_INPUTS)
 
 
 @dataclass(frozen=True)
@@ -53,11 +56,14 @@ class TraceRow:
     identified: tuple[bool, ...]
     status: str = Status.CONVERGED.name
     rejected_by: str = ""
+    names: tuple[str, ...] = PARAMETER_NAMES
+    """The parameters' names (the vehicle model's layout)."""
 
     @staticmethod
-    def header() -> list[str]:
-        return ["t", "distance_km", *PARAMETER_NAMES, *(f"{n}_std" for n in PARAMETER_NAMES),
-                *(f"{n}_identified" for n in PARAMETER_NAMES), "status", "rejected_by"]
+    def header(names: Sequence[str] = PARAMETER_NAMES) -> list[str]:
+        """trace.csv's header for a model of parameters ``names``."""
+        return ["t", "distance_km", *names, *(f"{n}_std" for n in names),
+                *(f"{n}_identified" for n in names), "status", "rejected_by"]
 
     def values(self) -> list[float | bool | str]:
         return [self.t, self.distance_km, *self.theta, *self.std, *self.identified,
@@ -73,7 +79,7 @@ class TraceRow:
         return TraceRow(t=t, distance_km=distance_km,
                         theta=tuple(est.theta.as_array().tolist()), std=tuple(est.std.tolist()),
                         identified=est.identified, status=est.status.name,
-                        rejected_by=",".join(rejected_by(est)))
+                        rejected_by=",".join(rejected_by(est)), names=est.names)
 
 
 def rejected_by(est: Estimate) -> tuple[str, ...]:
@@ -150,7 +156,7 @@ def _stream_drive(source: Any, p: str, suffix: str, *, rows: int) -> Iterator[Ch
         if suffix in (".parquet", ".pq"):
             pfile = pq.ParquetFile(source)
             names = pfile.schema_arrow.names
-            wanted = [n for n in (*REQUIRED_COLUMNS, "beta", "piece") if n in names]
+            wanted = [n for n in (*REQUIRED_COLUMNS, *STREAMED) if n in names]
             # one row group at a time (odocal writes groups of 65,536 rows): memory stays flat
             batches: Iterator[Any] = (
                 batch for group in range(pfile.num_row_groups)
@@ -169,7 +175,7 @@ def _stream_drive(source: Any, p: str, suffix: str, *, rows: int) -> Iterator[Ch
                             f"{', '.join(missing)}")
         for batch in batches:           # read in large batches, handed on in chunks of ``rows``
             cols = {name: _numbers(batch.column(name))
-                    for name in (*REQUIRED_COLUMNS, "beta", "piece") if name in names}
+                    for name in (*REQUIRED_COLUMNS, *STREAMED) if name in names}
             for lo in range(0, batch.num_rows, rows):
                 yield {k: v[lo:lo + rows] for k, v in cols.items()}
     except (pa.ArrowInvalid, pa.ArrowTypeError, ValueError, TypeError) as exc:
@@ -302,7 +308,7 @@ class GridResampler:
         if "a_y" not in out:
             out["a_y"] = np.zeros(grid.size)
         chunk = {k: v[valid] for k, v in out.items()
-                 if k in ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi", "yaw_rate")}
+                 if k in ("t", "n_rl", "n_rr", "a_y", "x", "y", "psi", "yaw_rate", *MODEL_INPUTS)}
         return chunk if chunk["t"].size else None
 
 

@@ -42,7 +42,7 @@ _ON_GRID = 1e-3
 _EPOCH = _dt.datetime(1970, 1, 1)
 
 
-def _has(chunk: Any, key: str) -> bool:
+def has_column(chunk: Any, key: str) -> bool:
     try:
         return key in chunk
     except TypeError:
@@ -94,21 +94,22 @@ def step_s(t: FloatArray) -> float:
     return clean if clean > 0 and abs(clean - step) <= 1e-5 * step else step
 
 
-def rows(chunk: Any) -> tuple[FloatArray, bool]:
-    """A pushed chunk as samples (M, len(SAMPLE)) in :data:`SAMPLE` order (``beta`` 0 where
-    absent), and whether ``t`` came as datetimes (then in seconds since the epoch); or a
+def rows(chunk: Any, extra: tuple[str, ...] = ()) -> tuple[FloatArray, bool]:
+    """A pushed chunk as samples (M, len(SAMPLE) + len(extra)) in :data:`SAMPLE` order (``beta``
+    0 where absent), then the ``extra`` columns (a model's own inputs: NaN where absent or not
+    measured), and whether ``t`` came as datetimes (then in seconds since the epoch); or a
     DataError naming what is wrong with it."""
     if not hasattr(chunk, "__getitem__") or isinstance(chunk, str | bytes):
         raise DataError(f"pushed samples must be a mapping of column names to arrays (or a "
                         f"DataFrame), not {type(chunk).__name__}")
-    missing = [k for k in REQUIRED if not _has(chunk, k)]
+    missing = [k for k in REQUIRED if not has_column(chunk, k)]
     if missing:
         raise DataError(f"pushed samples lack column{'s' if len(missing) > 1 else ''} "
                         f"{', '.join(missing)}")
     cols: list[FloatArray] = []
     stamped = False
     for key in SAMPLE:
-        if key == "beta" and not _has(chunk, key):
+        if key == "beta" and not has_column(chunk, key):
             cols.append(np.zeros(cols[0].size))
             continue
         values = chunk[key]
@@ -127,19 +128,39 @@ def rows(chunk: Any) -> tuple[FloatArray, bool]:
             cols.append(seconds)
             stamped = True
     n = cols[0].size
-    for key, values in zip(SAMPLE, cols, strict=True):
+    cols.extend(_extra(chunk, extra, n))
+    names = (*SAMPLE, *extra)
+    for key, values in zip(names, cols, strict=True):
         if values.size != n:
             raise DataError(f"pushed column {key} has {values.size} samples, t has {n}")
-    out = np.column_stack(cols) if n else np.zeros((0, len(SAMPLE)))
-    if not np.isfinite(out).all():
-        key = SAMPLE[int(np.flatnonzero(~np.isfinite(out).all(axis=0))[0])]
+    out = np.column_stack(cols) if n else np.zeros((0, len(names)))
+    if not np.isfinite(out[:, :len(SAMPLE)]).all():
+        key = SAMPLE[int(np.flatnonzero(~np.isfinite(out[:, :len(SAMPLE)]).all(axis=0))[0])]
         raise DataError(f"pushed column {key} holds NaN or infinite values")
-    rates = np.abs(out[:, 1:3])
-    if n and rates.max() > MAX_PUSHED_RATE_REVPS:
-        key = SAMPLE[1 + int(np.argmax(rates.max(axis=0)))]
-        raise DataError(f"pushed column {key} reaches {rates.max():.4g}: wheel rates must be "
-                        "in rev/s")
+    if np.isinf(out[:, len(SAMPLE):]).any():
+        key = extra[int(np.flatnonzero(np.isinf(out[:, len(SAMPLE):]).any(axis=0))[0])]
+        raise DataError(f"pushed column {key} holds infinite values")
+    wheels = [i for i, k in enumerate(names) if k.startswith("n_")]
+    rates = np.abs(out[:, wheels])
+    if n and np.nanmax(rates, initial=0.0) > MAX_PUSHED_RATE_REVPS:
+        key = names[wheels[int(np.argmax(np.nanmax(rates, axis=0, initial=0.0)))]]
+        raise DataError(f"pushed column {key} reaches {np.nanmax(rates):.4g}: wheel rates must "
+                        "be in rev/s")
     return out, stamped
+
+
+def _extra(chunk: Any, extra: tuple[str, ...], n: int) -> list[FloatArray]:
+    """The ``extra`` columns of ``chunk`` as floats (NaN where a column is absent)."""
+    out = []
+    for key in extra:
+        if not has_column(chunk, key):
+            out.append(np.full(n, np.nan))
+            continue
+        try:
+            out.append(np.asarray(chunk[key], dtype=np.float64).ravel())
+        except (TypeError, ValueError) as err:
+            raise DataError(f"pushed column {key} is not numeric") from err
+    return out
 
 
 def time_unit(step: float) -> tuple[str, float]:
@@ -168,8 +189,8 @@ class Regrid:
         self._steps: list[float] = []               # the stream's recent steps
 
     def add(self, samples: FloatArray) -> FloatArray:
-        """Samples (M, len(SAMPLE)), in time order, continuing the stream; the grid's samples
-        they complete (K, len(SAMPLE))."""
+        """Samples (M, len(SAMPLE) and any model inputs), in time order, continuing the stream;
+        the grid's samples they complete (K, as many columns)."""
         if samples.shape[0] and self._last is not None and self._next is not None:
             t = samples[:, 0]
             steps = np.diff(t, prepend=self._last[0])
@@ -184,7 +205,7 @@ class Regrid:
         out: list[FloatArray] = []
         for row in samples:
             out.extend(self._one(row))
-        return np.array(out, dtype=np.float64).reshape(-1, len(SAMPLE))
+        return np.array(out, dtype=np.float64).reshape(-1, samples.shape[1])
 
     def _gap(self, step: float) -> bool:
         local = float(np.median(self._steps)) if self._steps else self.t_s
@@ -228,10 +249,12 @@ class Intake:
 
     ``samples`` counts every sample pushed; ``first_t`` and ``last_t`` are the first and the
     latest sample's time in seconds; ``unit`` how ``t`` came; ``t_s`` the grid's step (None
-    until two samples have come).
+    until two samples have come). ``extra``: a model's own inputs, taken after :data:`SAMPLE`
+    (:func:`rows`).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, extra: tuple[str, ...] = ()) -> None:
+        self.extra = extra
         self.samples = 0
         self.unit: str | None = None
         self.t_s: float | None = None
@@ -244,7 +267,7 @@ class Intake:
     def take(self, chunk: Any) -> FloatArray:
         """The chunk's samples, ``t`` in seconds (none where it is empty or a lone first
         sample); a DataError, with nothing taken, where ``t`` does not increase."""
-        data, stamped = rows(chunk)
+        data, stamped = rows(chunk, self.extra)
         count = data.shape[0]
         if count == 0:
             return data

@@ -261,7 +261,7 @@ def write_replay_results(result: Any, out_dir: str | Path, *, batch: Any, settin
     written = [write_json(out / CALIBRATION_FILE, data)]
     text = io.StringIO()
     table = csv.writer(text)
-    table.writerow(TraceRow.header())
+    table.writerow(TraceRow.header(est.names))
     for row in result.trace:
         table.writerow(row.values())
     write_text(out / "trace.csv", text.getvalue())

@@ -12,7 +12,7 @@ import numpy as np
 from odocal._version import __version__
 from odocal.estimators.estimate import Estimate
 from odocal.io.atomic import write_bytes, write_text
-from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_LABELS, PARAMETER_NAMES
+from odocal.model.parameters import PARAMETER_DISPLAY, PARAMETER_NAMES
 from odocal.online.changes import Alarm
 from odocal.online.replay import ReplayResult
 from odocal.redaction import redact_text
@@ -25,8 +25,9 @@ CONVERGED_STD = {"c_e": 1e-3, "t_r": 20e-3}
 def convergence_km(result: ReplayResult) -> dict[str, float | None]:
     """Distance driven until each quoted parameter was identified within its threshold."""
     out: dict[str, float | None] = {}
+    names = result.trace[0].names if result.trace else PARAMETER_NAMES
     for name, limit in CONVERGED_STD.items():
-        j = PARAMETER_NAMES.index(name)
+        j = names.index(name)
         hit = [r.distance_km for r in result.trace
                if r.identified[j] and r.std[j] <= limit and not r.rejected]
         out[name] = hit[0] if hit else None
@@ -52,7 +53,8 @@ def _spec(result: ReplayResult, batch: Estimate | None) -> FigureSpec:
     rows = result.trace
     distance = np.array([r.distance_km for r in rows])
     calls = []
-    for j, name in enumerate(PARAMETER_NAMES):
+    names = result.estimate.names
+    for j, name in enumerate(names):
         # a rejected estimate was never published: a gap in its line (trace.csv has it)
         calls.append(Call("plot_trace", (distance, np.array([r.theta[j] for r in rows]),
                                          np.array([r.std[j] for r in rows]),
@@ -65,16 +67,17 @@ def _spec(result: ReplayResult, batch: Estimate | None) -> FigureSpec:
                            "alarms_km": [a.detected_distance_km for a in result.alarms]},
                           row=j // 2, col=j % 2))
     calls.append(Call("legend", kwargs={"fontsize": 7, "loc": "best"}))
+    grid = math.ceil(len(names) / 2)
     return FigureSpec("trace", "The online estimate of each parameter against the distance "
                       "driven, with its one-standard-deviation band (gaps where the estimate "
                       "was rejected by the checks or the gate); the batch calibration of "
                       "the whole log for comparison; red lines where a change was detected.",
-                      10.0, 6.0, tuple(calls), rows=2, cols=2)
+                      10.0, 3.0 * grid, tuple(calls), rows=grid, cols=2)
 
 
 def _fmt(name: str, value: float) -> str:
     scale, unit = PARAMETER_DISPLAY[name]
-    return f"{value * scale:.{3 if name in ('c_d', 'd') else 5}f} {unit}"
+    return f"{value * scale:.{3 if scale != 1.0 else 5}f} {unit}"
 
 
 def rejected_updates(result: ReplayResult) -> list[tuple[float, str]]:
@@ -108,7 +111,8 @@ def _parameter_rows(est: Estimate, batch: Estimate | None) -> list[str]:
     batch calibration of the whole log, if there is one."""
     e = html.escape
     rows = []
-    for j, (name, label) in enumerate(zip(PARAMETER_NAMES, PARAMETER_LABELS, strict=True)):
+    layout = est.theta.layout
+    for j, (name, label) in enumerate(zip(layout.names, layout.labels, strict=True)):
         online = (f"{_fmt(name, est.theta.as_array()[j])} &plusmn; {_fmt(name, est.std[j])}"
                   if est.identified[j] else "not identified")
         cmp = "-"

@@ -1,0 +1,155 @@
+"""The four-wheel car's front axle and steering while driving (``[vehicle] model =
+"four_wheel"`` in ``odocal replay`` and :class:`~odocal.online.calibrator.OnlineCalibrator`).
+
+The batch four-wheel calibration fits the front axle on the motion the rear fit settled: the
+reference on the wheels' clock (the rear fit's lag), its heading turned by the rear fit's
+offset, its departures taken out (:func:`odocal.estimators.front_axle.four_wheel_estimate`).
+Live, those are known better the longer the drive: the lag and the offset settle in minutes.
+So the samples are kept in blocks of :data:`BLOCK_S` and made into the front fit's windows
+(:func:`~odocal.estimators.front_axle.front_windows`, after the front checks'
+clean-up, as batch makes them) with the alignment of the moment the estimate is taken; a block's
+windows are made again only where the alignment moved (:meth:`Alignment.near`). A block older
+than :data:`RAW_S` keeps its windows as last made and lets its samples go, so memory grows
+with the windows alone (about 1.6 MB an hour), up to :data:`MEMORY_S` of them; older windows
+leave the fit (its uncertainty is then that of the driving kept).
+
+The front fit itself is the batch one on these windows, every time the estimate is taken
+(:func:`~odocal.estimators.front_axle.car_estimate`): nothing of it is folded, so the live
+front estimate *is* the batch fit of the same windows.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from odocal.arrays import FloatArray
+from odocal.errors import DataError
+from odocal.estimators.front_axle import FrontWindows, front_checks, front_windows
+from odocal.online.checking import drive_of
+from odocal.online.departures import LiveDepartures
+from odocal.online.samples import SAMPLE
+from odocal.settings import Settings
+
+#: The samples are made into a drive (and its front windows) every this many seconds.
+BLOCK_S = 120.0
+#: Blocks this recent keep their samples, their windows made again where the alignment moves.
+RAW_S = 1800.0
+#: The front fit rests on this much of the latest driving at most (s).
+MEMORY_S = 24 * 3600.0
+#: The alignment moved where the lag moved by more than this share of a sampling step ...
+NEAR_STEPS = 0.25
+#: ... or the heading offset by more than this (rad: the windows' distance moves by its
+#: square, 5e-7 of it).
+NEAR_RAD = 1e-3
+#: The model's own inputs, after the rear axle's sample (:data:`~odocal.online.samples.SAMPLE`).
+INPUTS = ("n_fl", "n_fr", "steer")
+#: The columns of a sample of the four-wheel car.
+COLUMNS = (*SAMPLE, *INPUTS)
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """What the front windows are made with: the wheels' lag behind the reference (s), the
+    reference heading's offset (rad) and the departures taken out of the samples."""
+
+    delay_s: float
+    heading_offset: float
+    departures: LiveDepartures
+
+    def near(self, other: Alignment | None, t_s: float) -> bool:
+        """Whether windows made with ``other`` stand for this alignment."""
+        return (other is not None and other.departures == self.departures
+                and abs(self.delay_s - other.delay_s) <= NEAR_STEPS * t_s
+                and abs(self.heading_offset - other.heading_offset) <= NEAR_RAD)
+
+
+@dataclass
+class _Block:
+    """Samples on the grid (M, len(COLUMNS)) as they came, and their windows as last made."""
+
+    rows: FloatArray | None
+    first_t: float
+    last_t: float
+    made: Alignment | None = None
+    windows: FrontWindows | None = None
+
+
+class LiveFront:
+    """The front windows of a live stream (see the module docstring): ``add`` the samples as
+    they come, ``windows`` at an alignment when the estimate is taken."""
+
+    def __init__(self, settings: Settings, t_s: float, source: str) -> None:
+        self.settings = settings
+        self.t_s = t_s
+        self.source = source
+        self._blocks: list[_Block] = []
+        self._open: list[FloatArray] = []
+
+    def add(self, rows: FloatArray) -> bool:
+        """Samples on the grid (M, len(COLUMNS)); whether a block full of them closed (then
+        :meth:`settle` at the alignment of now)."""
+        if not rows.shape[0]:
+            return False
+        self._open.append(rows)
+        if float(rows[-1, 0]) - float(self._open[0][0, 0]) < BLOCK_S:
+            return False
+        block = np.vstack(self._open)
+        self._open = []
+        self._blocks.append(_Block(block, float(block[0, 0]), float(block[-1, 0])))
+        return True
+
+    def settle(self, alignment: Alignment) -> None:
+        """Blocks beyond :data:`RAW_S` keep their windows (made now where they stand for
+        another alignment) and let their samples go; those beyond :data:`MEMORY_S` leave."""
+        newest = self._blocks[-1].last_t
+        for block in self._blocks:
+            if block.rows is not None and block.last_t < newest - RAW_S:
+                self._made(block, alignment)
+                block.rows = None
+        self._blocks = [b for b in self._blocks if b.last_t >= newest - MEMORY_S]
+
+    def windows(self, alignment: Alignment) -> FrontWindows | None:
+        """Every block's windows at ``alignment`` (a block that let its samples go: as last
+        made) and those of the samples since the last block; None where there are none."""
+        parts = [self._made(block, alignment) for block in self._blocks]
+        if self._open:
+            rows = np.vstack(self._open)
+            parts.append(self._made(_Block(rows, float(rows[0, 0]), float(rows[-1, 0])),
+                                    alignment))
+        return FrontWindows.concat([w for w in parts if w is not None])
+
+    def forget_before(self, t: float) -> None:
+        """Leave out the driving before ``t`` (the wheels changed then: what the front wheels
+        said of their tyres no longer holds)."""
+        self._blocks = [b for b in self._blocks if b.first_t >= t]
+        self._open = [r for r in self._open if float(r[0, 0]) >= t]
+
+    def _made(self, block: _Block, alignment: Alignment) -> FrontWindows | None:
+        """The block's windows at ``alignment`` (as last made where they stand for it, or where
+        its samples are gone)."""
+        if block.rows is None or alignment.near(block.made, self.t_s):
+            return block.windows
+        rows = block.rows.copy()
+        rows[:, :len(SAMPLE)] = alignment.departures.correct(rows[:, :len(SAMPLE)])
+        name = f"{self.source}, t={block.first_t:.6g} to {block.last_t:.6g} s"
+        try:
+            drive = drive_of(rows, self.t_s, name, COLUMNS)
+            checked = front_checks([drive], self.settings).drives
+            windows = front_windows(checked, self.settings, delay_s=alignment.delay_s,
+                                    heading_offset=alignment.heading_offset)
+        except DataError:
+            windows = None      # samples that make no drive: the checks name them
+        block.made, block.windows = alignment, windows
+        return windows
+
+    @property
+    def kept_s(self) -> float:
+        """The span of driving the front fit rests on (s)."""
+        if not self._blocks and not self._open:
+            return 0.0
+        first = self._blocks[0].first_t if self._blocks else float(self._open[0][0, 0])
+        last = float(self._open[-1][-1, 0]) if self._open else self._blocks[-1].last_t
+        return last - first if math.isfinite(first) else 0.0

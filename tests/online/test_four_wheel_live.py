@@ -1,0 +1,171 @@
+"""The four-wheel car calibrated while driving (issue 37): the online calibrator and ``odocal
+replay`` with ``[vehicle] model = "four_wheel"`` against batch, the truth and a wrong mapping."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import odocal
+from odocal.cli.main import EXIT_FAILED, EXIT_OK, main
+from odocal.errors import ConfigError, DataError
+from odocal.estimators.estimate import Status
+from odocal.model.layout import FOUR_WHEEL
+from odocal.online import front
+from odocal.online.calibrator import OnlineCalibrator
+from odocal.settings import Settings
+from odocal.sim.four_wheel import with_front_axle
+from odocal.sim.simulate import SimulatedDrive
+
+FOUR = Settings().replace(vehicle={"model": "four_wheel"})
+
+
+@pytest.fixture(scope="module")
+def car() -> tuple[SimulatedDrive, np.ndarray]:
+    sim, truth = with_front_axle(odocal.simulate(duration_s=1200.0, seed=3, noise="realistic"))
+    return sim, truth.as_array()
+
+
+def pushed(columns: dict[str, np.ndarray], settings: Settings = FOUR, step: int = 500,
+           estimate_s: float | None = None) -> OnlineCalibrator:
+    """A calibrator that took ``columns`` in chunks of ``step`` samples, the estimate taken
+    every ``estimate_s`` of them (as replay and the node take it: its lag then follows)."""
+    calibrator = OnlineCalibrator(settings)
+    n, t = columns["t"].size, columns["t"]
+    taken = t[0]
+    for i in range(0, n, step):
+        calibrator.push({k: v[i:i + step] for k, v in columns.items()})
+        if estimate_s is not None and t[min(i + step, n) - 1] - taken >= estimate_s:
+            calibrator.estimate()
+            taken = t[min(i + step, n) - 1]
+    return calibrator
+
+
+def test_the_live_car_agrees_with_batch_and_the_truth(
+        car: tuple[SimulatedDrive, np.ndarray]) -> None:
+    sim, truth = car
+    online = pushed(sim.drive.columns()).estimate()
+    batch = odocal.calibrate(sim.drive, settings=FOUR).model_estimate
+    assert online.model == batch.model == "four_wheel" and online.names == FOUR_WHEEL.names
+    assert online.method == "online" and online.status is Status.CONVERGED
+    assert online.identified == batch.identified and all(online.identified)
+    diff = (online.theta.as_array() - batch.theta.as_array()) / batch.std
+    assert np.all(np.abs(diff) < 1.0), dict(zip(online.names, diff.round(2), strict=True))
+    np.testing.assert_allclose(online.std, batch.std, rtol=0.25)
+    z = (online.theta.as_array() - truth) / online.std
+    assert np.all(np.abs(z) < 3.0), dict(zip(online.names, z.round(2), strict=True))
+    front_fit = online.details.front
+    assert front_fit is not None and front_fit.windows > 500
+    assert online.details.front_kept_s == pytest.approx(1200.0, abs=1.0)
+    assert online.details.to_dict()["front_axle"]["windows"] == front_fit.windows
+
+
+def test_old_blocks_keep_their_windows_and_the_memory_keeps_the_latest_driving(
+        car: tuple[SimulatedDrive, np.ndarray], monkeypatch: pytest.MonkeyPatch) -> None:
+    """Blocks beyond RAW_S let their samples go (their windows kept as made); beyond
+    MEMORY_S their windows leave, and the front's stds are those of the driving kept."""
+    sim, _ = car
+    monkeypatch.setattr(front, "BLOCK_S", 60.0)
+    whole = pushed(sim.drive.columns()).estimate()
+    monkeypatch.setattr(front, "RAW_S", 300.0)
+    settled = pushed(sim.drive.columns(), estimate_s=60.0)
+    blocks = settled._front._blocks                      # (the memory itself)
+    assert sum(b.rows is None for b in blocks) >= 12 and blocks[-1].rows is not None
+    est = settled.estimate()
+    f = [FOUR_WHEEL.index(n) for n in ("c_f", "c_fd", "t_f", "L", "ratio", "s_0")]
+    diff = (est.theta.as_array() - whole.theta.as_array())[f] / whole.std[f]
+    assert np.all(np.abs(diff) < 0.25), diff.round(2)
+    monkeypatch.setattr(front, "MEMORY_S", 400.0)
+    recent = pushed(sim.drive.columns()).estimate()
+    assert recent.details.front_kept_s <= 400.0 + 60.0
+    assert np.all(recent.std[f[:3]] > 1.3 * whole.std[f[:3]])
+
+
+@pytest.mark.parametrize(("exchange", "check"), [
+    ({"n_fl": "n_rl", "n_fr": "n_rr", "n_rl": "n_fl", "n_rr": "n_fr"}, "front-wheels"),
+    ({"n_fl": "n_fr", "n_fr": "n_fl"}, "wheel-mapping"),
+    ({"n_fl": "n_rl", "n_rl": "n_fl"}, "front-wheels"),
+], ids=["axles", "front sides", "left side"])
+def test_wheel_columns_exchanged_are_refused_live_as_batch_refuses_them(
+        exchange: dict[str, str], check: str) -> None:
+    sim, _ = with_front_axle(odocal.simulate(duration_s=600.0, seed=4, noise="realistic"))
+    columns = {exchange.get(k, k): v for k, v in sim.drive.columns().items()}
+    est = pushed(columns).estimate()
+    assert est.status is Status.REJECTED
+    fatal = [f.check.value for f in est.details.findings if f.severity.name == "FATAL"]
+    assert check in fatal, fatal
+    batch = odocal.calibrate(odocal.Drive.from_columns(columns, name="exchanged"),
+                             settings=FOUR).model_estimate
+    assert batch.status is Status.REJECTED
+
+
+def test_the_live_car_refuses_fading_and_samples_without_front_wheels(
+        car: tuple[SimulatedDrive, np.ndarray]) -> None:
+    with pytest.raises(ConfigError, match=r"does not fade its evidence: set \[online\] "
+                                          r"forgetting_s = 0"):
+        OnlineCalibrator(FOUR.replace(online={"forgetting_s": 600.0}))
+    rear = {k: v[:200] for k, v in car[0].drive.columns().items() if k not in ("n_fl",)}
+    calibrator = OnlineCalibrator(FOUR)
+    with pytest.raises(DataError, match=r"needs the front wheels' rates \(n_fl, n_fr\), and "
+                                        r"the pushed samples lack n_fl"):
+        calibrator.push(rear)
+    assert calibrator.details_samples() == 0
+
+
+def test_forgetting_before_a_change_leaves_the_front_windows_after_it() -> None:
+    live = front.LiveFront(FOUR, 0.01, "test")
+    closed = 0
+    for start in range(0, 600, 30):                     # 20 chunks of 30 s
+        t = start + 0.01 * np.arange(3000)
+        closed += live.add(np.column_stack([t, np.zeros((t.size, len(front.COLUMNS) - 1))]))
+    assert closed == 4 and live.kept_s == pytest.approx(599.99)
+    live.forget_before(250.0)
+    # what began before the change left: the driving kept starts at a chunk after it
+    assert 599.99 - 250.0 - front.BLOCK_S <= live.kept_s <= 599.99 - 250.0
+
+
+def test_replay_of_a_car_writes_its_ten_parameters(tmp_path: Path) -> None:
+    drive = tmp_path / "car.parquet"
+    assert main(["simulate", "--out", str(drive), "--model", "four_wheel", "--duration", "600",
+                 "--seed", "2", "-q"]) == EXIT_OK
+    config = tmp_path / "car.toml"
+    config.write_text('[vehicle]\nmodel = "four_wheel"\n')
+    out = tmp_path / "out"
+    assert main(["replay", str(drive), "--config", str(config), "--out", str(out),
+                 "-q"]) == EXIT_OK
+    with (out / "trace.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0])[2:12] == list(FOUR_WHEEL.names)
+    last = rows[-1]
+    data = json.loads((out / "calibration.json").read_text())
+    assert data["model"] == "four_wheel" and data["batch"]["model"] == "four_wheel"
+    assert float(last["L"]) == pytest.approx(data["theta"]["L"])
+    truth = json.loads((tmp_path / "car.truth.json").read_text())["theta"]
+    for name in ("c_f", "t_f", "ratio"):
+        assert data["identified"][name]
+        assert abs(data["theta"][name] - truth[name]) < 3.5 * data["std"][name], name
+    assert (out / "report.html").is_file() and (out / "figures" / "trace.png").is_file()
+    html = (out / "report.html").read_text()
+    assert "<b>ratio</b>" in html and "<b>L</b>" in html
+
+
+def test_replay_of_a_car_with_its_axles_exchanged_fails_in_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    sim, _ = with_front_axle(odocal.simulate(duration_s=400.0, seed=6, noise="realistic"))
+    swap = {"n_fl": "n_rl", "n_fr": "n_rr", "n_rl": "n_fl", "n_rr": "n_fr"}
+    columns = {swap.get(k, k): v for k, v in sim.drive.columns().items()}
+    import pandas as pd
+
+    drive = tmp_path / "exchanged.parquet"
+    pd.DataFrame(columns).to_parquet(drive)
+    config = tmp_path / "car.toml"
+    config.write_text('[vehicle]\nmodel = "four_wheel"\n')
+    code = main(["replay", str(drive), "--config", str(config), "--out",
+                 str(tmp_path / "out"), "--no-batch", "-q"])
+    assert code == EXIT_FAILED
+    err = capsys.readouterr()
+    assert "front" in (err.out + err.err).lower()
