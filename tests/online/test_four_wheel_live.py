@@ -169,3 +169,29 @@ def test_replay_of_a_car_with_its_axles_exchanged_fails_in_one_line(
     assert code == EXIT_FAILED
     err = capsys.readouterr()
     assert "front" in (err.out + err.err).lower()
+
+
+def test_replay_streams_a_cars_bag_with_its_front_wheels_and_the_steering_it_names(
+        tmp_path: Path) -> None:
+    """A bag's JointState of four wheels and a steering wheel: the front wheels are found by
+    their names, the steering only where the mapping names its joint (never guessed)."""
+    from tests.bagwriter import write_bag
+
+    sim, _ = with_front_axle(odocal.simulate(duration_s=300.0, seed=2, noise="realistic"))
+    bag = write_bag(sim.drive, tmp_path / "car.mcap", "mcap")
+    config = tmp_path / "car.toml"
+    config.write_text('[vehicle]\nmodel = "four_wheel"\n')
+    mapping = tmp_path / "bag.toml"
+    mapping.write_text('[wheels]\ntopic = "/joint_states"\nsteering = "steering_wheel"\n'
+                       'steering_unit = "rad"\n')
+    found = {}
+    for name, extra in (("named", ["--mapping", str(mapping)]), ("unnamed", [])):
+        out = tmp_path / name
+        assert main(["replay", str(bag), "--from", "rosbag", *extra, "--config", str(config),
+                     "--out", str(out), "--no-batch", "-q", "--no-report"]) == EXIT_OK
+        found[name] = json.loads((out / "calibration.json").read_text())
+    named, unnamed = found["named"], found["unnamed"]
+    assert named["model"] == unnamed["model"] == "four_wheel"
+    assert named["identified"]["c_f"] and unnamed["identified"]["c_f"]
+    assert named["identified"]["ratio"] and not unnamed["identified"]["ratio"]
+    assert named["samples"] > 0.9 * sim.drive.n_samples

@@ -1332,8 +1332,9 @@ def _straight(curvature: FloatArray, moving: BoolArray, t_s: float) -> BoolArray
 
 
 def _second_mean(curvature: FloatArray, moving: BoolArray, t_s: float) -> FloatArray:
-    """The curvature while moving (0 standing), averaged over a second about each sample."""
-    n = max(round(1.0 / t_s), 1)
+    """The curvature while moving (0 standing), averaged over a second about each sample (over
+    all of them where they span less)."""
+    n = min(max(round(1.0 / t_s), 1), max(curvature.size, 1))
     return np.convolve(np.where(moving, curvature, 0.0), np.ones(n) / n, mode="same")
 
 
