@@ -14,7 +14,12 @@ Printed:
   parameters) and both against the truth (mean |error|);
 * **changes**: a 0.2% step in c_e (and 0.5 mm in c_d) halfway through a one-hour drive: how often
   and how soon (distance) it is detected, over seeds; false alarms per hour on drives without;
-* **real**: distance until c_e is known to 1 mm and t_r to 20 mm on the shared real logs.
+* **real**: distance until c_e is known to 1 mm and t_r to 20 mm on the shared real logs;
+* **car** (``[vehicle] model = "four_wheel"``, issue 37): ``odocal replay`` of one hour and of
+  ``--long-hours`` of four-wheel driving against the rear axle's of the same files (time and
+  peak memory), and over profiles and seeds of 20-minute drives the live car at the end against
+  batch's (largest difference in batch stds, per parameter group) and against the truth (RMS
+  and largest |z|).
 """
 
 from __future__ import annotations
@@ -180,15 +185,78 @@ def real() -> None:
                                           est.identified, strict=True)))
 
 
+CAR = odocal.Settings().replace(vehicle={"model": "four_wheel"})
+
+
+def car_replay(hours: float) -> None:
+    """``odocal replay`` of four-wheel drives as the car and as the rear axle."""
+    from odocal.sim.four_wheel import with_front_axle
+
+    exe = str(Path(sys.executable).with_name("odocal"))
+    work = Path(tempfile.mkdtemp(prefix="odocal-car-"))
+    config = work / "car.toml"
+    config.write_text('[vehicle]\nmodel = "four_wheel"\n')
+    for label, seconds in (("1 h", 3600.0), (f"{hours:g} h", hours * 3600.0)):
+        path = work / f"{label.replace(' ', '')}.parquet"
+        sim, _ = with_front_axle(odocal.simulate(duration_s=seconds, seed=8))
+        odocal.save_drive(sim.drive, path)
+        for model, extra in (("rear axle", []), ("car", ["--config", str(config)])):
+            wall, peak = run_measured([exe, "replay", str(path), *extra, "--out",
+                                       str(work / f"r{label}{model}"), "--no-batch",
+                                       "--no-report", "-q"])
+            print(f"car: replay of {label} as the {model}: {wall:.1f} s, peak {peak:.0f} MB",
+                  flush=True)
+
+
+def car_matrix(profiles: list[str], seeds: int) -> None:
+    """The live car at the end of 20-minute drives against batch's and the truth."""
+    from odocal.sim.four_wheel import with_front_axle
+
+    rear, front = slice(0, 4), slice(4, None)
+    print(f"car: live at the end vs batch, {seeds} seeds of 20 minutes per profile")
+    print(f"  {'profile':<18}{'max|live-batch|/std rear, front':>34}{'live RMS z':>12}"
+          f"{'live max|z|':>13}{'batch RMS z':>13}{'batch max|z|':>14}")
+    all_z = []
+    for profile in profiles:
+        diffs, z_on, z_ba = [], [], []
+        for seed in range(seeds):
+            sim, truth = with_front_axle(odocal.simulate(duration_s=1200, seed=seed,
+                                                         noise=profile))
+            online = push_all(sim.drive, calibrator=OnlineCalibrator(CAR))[0].estimate()
+            batch = odocal.calibrate(sim.drive, settings=CAR).model_estimate
+            ok = np.array(batch.identified) & np.array(online.identified)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                d = np.abs(online.theta.as_array() - batch.theta.as_array()) / batch.std
+                zo = (online.theta.as_array() - truth.as_array()) / online.std
+                zb = (batch.theta.as_array() - truth.as_array()) / batch.std
+            d = np.where(ok, d, 0.0)
+            diffs.append((float(np.max(d[rear])), float(np.max(d[front]))))
+            z_on += list(zo[np.array(online.identified)])
+            z_ba += list(zb[np.array(batch.identified)])
+        all_z += z_on
+        dr, df = np.max(diffs, axis=0)
+        print(f"  {profile:<18}{dr:>17.2f}, {df:<15.2f}{np.sqrt(np.mean(np.square(z_on))):>12.2f}"
+              f"{np.max(np.abs(z_on)):>13.2f}{np.sqrt(np.mean(np.square(z_ba))):>13.2f}"
+              f"{np.max(np.abs(z_ba)):>14.2f}", flush=True)
+    print(f"  all: {len(all_z)} values, live RMS z {np.sqrt(np.mean(np.square(all_z))):.2f}, "
+          f"|z| > 3: {int(np.sum(np.abs(all_z) > 3))}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--long-hours", type=float, default=10.0)
     parser.add_argument("--profiles", default=",".join(p for p in NOISE_PROFILES if p != "none"))
     parser.add_argument("--skip", default="")
+    parser.add_argument("--car-profiles", default="white,realistic,slip,heavy,everything")
+    parser.add_argument("--car-hours", type=float, default=3.0)
+    parser.add_argument("--only", default="", help="run only these parts (comma-separated)")
     args = parser.parse_args()
     skip = set(args.skip.split(","))
-    speed()
+    if args.only:
+        skip = {"speed", "memory", "matrix", "changes", "real", "car"} - set(args.only.split(","))
+    if "speed" not in skip:
+        speed()
     if "memory" not in skip:
         memory(args.long_hours)
     if "matrix" not in skip:
@@ -197,6 +265,9 @@ def main() -> None:
         changes(args.seeds)
     if "real" not in skip:
         real()
+    if "car" not in skip:
+        car_replay(args.car_hours)
+        car_matrix(args.car_profiles.split(","), args.seeds)
 
 
 if __name__ == "__main__":

@@ -195,3 +195,28 @@ def test_replay_streams_a_cars_bag_with_its_front_wheels_and_the_steering_it_nam
     assert named["identified"]["c_f"] and unnamed["identified"]["c_f"]
     assert named["identified"]["ratio"] and not unnamed["identified"]["ratio"]
     assert named["samples"] > 0.9 * sim.drive.n_samples
+
+
+def test_a_running_update_fits_the_front_again_once_its_windows_grew_by_a_tenth(
+        car: tuple[SimulatedDrive, np.ndarray]) -> None:
+    """A replay's updates: the front axle's last fit joined with the rear axle of now until
+    the windows grew by REFIT_GROWTH; an estimate asked for otherwise fits every window."""
+    sim, _ = car
+    columns = sim.drive.columns()
+    half = columns["t"].size // 2
+    calibrator = pushed({k: v[:half] for k, v in columns.items()})
+    first = calibrator.estimate(running=True)
+    fitted = first.details.front.windows
+    t = columns["t"]
+    more = int(np.searchsorted(t, t[half] + 40.0))            # 20 more windows of 2 s
+    for i in range(half, more, 500):
+        calibrator.push({k: v[i:min(i + 500, more)] for k, v in columns.items()})
+    stale = calibrator.estimate(running=True)
+    assert stale.details.front.windows == fitted
+    f = [FOUR_WHEEL.index(n) for n in ("c_f", "t_f", "L", "ratio")]
+    np.testing.assert_allclose(stale.std[f], first.std[f], rtol=0.05)
+    fresh = calibrator.estimate()
+    assert fitted + 15 <= fresh.details.front.windows < front.REFIT_GROWTH * fitted
+    for i in range(more, columns["t"].size, 500):
+        calibrator.push({k: v[i:i + 500] for k, v in columns.items()})
+    assert calibrator.estimate(running=True).details.front.windows > 1.9 * fitted

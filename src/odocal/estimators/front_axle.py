@@ -875,19 +875,39 @@ def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Setti
     return car_estimate(rear, windows, settings)
 
 
-def car_estimate(rear: Estimate, windows: FrontWindows | None, settings: Settings
-                 ) -> Estimate:
+def car_estimate(rear: Estimate, windows: FrontWindows | None, settings: Settings, *,
+                 front: FrontFit | None = None) -> Estimate:
     """The four-wheel estimate of the rear axle's (``rear``) and the front ``windows`` made on
     the motion it settled (:func:`front_windows`; the live calibrator keeps its own): the
-    front axle and the steering fitted on them and joined with the rear's. None for
-    ``windows``, or a rear fit that ended without an estimate: the front at the datasheet's,
-    not calibrated for the rear's reason."""
+    front axle and the steering fitted on them (:func:`fit_car_front`; ``front``: as fitted
+    already) and joined with the rear's. None for ``windows``, or a rear fit that ended
+    without an estimate: the front at the datasheet's, not calibrated for the rear's reason."""
     datasheet = _front_datasheet(rear, settings)
     limit = settings.identify.identifiable_ratio * np.asarray(settings.identify.prior_std)
     details = rear.details
     if windows is None or not rear.success:
         return _without_front(rear, datasheet, limit)
-    theta0 = datasheet.as_array().copy()
+    if front is None:
+        front = fit_car_front(rear, windows, settings)
+    d = FOUR_WHEEL_MODEL.rear.layout.index(LAYOUT.load)
+    theta, cov = joined(rear.theta.as_array(), rear.covariance, front)
+    verdicts: list[Verdict] = list(rear.verdicts)
+    if front.details.load_joined:      # d, joined with the front wheels' evidence
+        verdicts[d] = Identified(float(np.sqrt(max(cov[_LOAD, _LOAD], 0.0))),
+                                 float(limit[_LOAD]))
+    return Estimate(method=rear.method, theta=Parameters.from_array(theta, layout=LAYOUT),
+                    datasheet=datasheet, covariance=cov, covariance_kind=rear.covariance_kind,
+                    free=(*rear.free, *front.free), verdicts=(*verdicts, *front.verdicts),
+                    status=rear.status, details=FourWheelDetails(details, front.details),
+                    widening=np.append(rear.widening, np.ones(len(FRONT))),
+                    model=FOUR_WHEEL_MODEL.name)
+
+
+def fit_car_front(rear: Estimate, windows: FrontWindows, settings: Settings) -> FrontFit:
+    """The front axle and the steering fitted on ``windows`` from the rear axle's estimate
+    (``rear``: its d the prior of the front's, where it identifies it), with what the
+    datasheet states far from what the windows identify (:func:`_held_far`)."""
+    theta0 = _front_datasheet(rear, settings).as_array().copy()
     theta0[:_REAR_SIZE] = rear.theta.as_array()
     d = FOUR_WHEEL_MODEL.rear.layout.index(LAYOUT.load)
     load_std = float(rear.std[d]) if rear.identified[d] else 0.0
@@ -902,17 +922,7 @@ def car_estimate(rear: Estimate, windows: FrontWindows | None, settings: Setting
     if far:
         front = dataclasses.replace(front, details=dataclasses.replace(front.details,
                                                                        held_far=far))
-    theta, cov = joined(rear.theta.as_array(), rear.covariance, front)
-    verdicts: list[Verdict] = list(rear.verdicts)
-    if front.details.load_joined:      # d, joined with the front wheels' evidence
-        verdicts[d] = Identified(float(np.sqrt(max(cov[_LOAD, _LOAD], 0.0))),
-                                 float(limit[_LOAD]))
-    return Estimate(method=rear.method, theta=Parameters.from_array(theta, layout=LAYOUT),
-                    datasheet=datasheet, covariance=cov, covariance_kind=rear.covariance_kind,
-                    free=(*rear.free, *front.free), verdicts=(*verdicts, *front.verdicts),
-                    status=rear.status, details=FourWheelDetails(details, front.details),
-                    widening=np.append(rear.widening, np.ones(len(FRONT))),
-                    model=FOUR_WHEEL_MODEL.name)
+    return front
 
 
 _REAR_SIZE = FOUR_WHEEL_MODEL.rear.layout.size

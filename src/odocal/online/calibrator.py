@@ -57,7 +57,9 @@ from odocal.estimators.estimate import (
 )
 from odocal.estimators.front_axle import (
     FrontDetails,
+    FrontFit,
     car_estimate,
+    fit_car_front,
     front_checks,
     mapping_findings,
 )
@@ -88,7 +90,7 @@ from odocal.online.departures import (
     ReferenceAligner,
     recorrected,
 )
-from odocal.online.front import COLUMNS, INPUTS, Alignment, LiveFront
+from odocal.online.front import COLUMNS, INPUTS, REFIT_GROWTH, Alignment, LiveFront
 from odocal.online.running import RunningFit
 from odocal.online.samples import SAMPLE, Intake, has_column
 from odocal.settings import Settings
@@ -185,6 +187,7 @@ class OnlineCalibrator:
         car = self.car_settings is not None
         self._intake = Intake(INPUTS if car else ())    # the chunks as samples on one grid
         self._front: LiveFront | None = None      # the car's front axle (once the grid is known)
+        self._front_fit: FrontFit | None = None   # its last fit (estimate(running=True))
         self._aligner: ReferenceAligner | None = None
         self._builder: WindowBuilder | None = None
         self._windows: WindowSet | None = None
@@ -449,6 +452,7 @@ class OnlineCalibrator:
         self._alarms.append(alarm)
         if self._front is not None:
             self._front.forget_before(alarm.t)
+            self._front_fit = None
         self._restart(change)
         return True
 
@@ -517,7 +521,7 @@ class OnlineCalibrator:
 
     # ---------------------------------------------------------------- output
 
-    def estimate(self) -> Estimate:
+    def estimate(self, *, running: bool = False) -> Estimate:
         """The estimate now: theta, covariance, verdicts, status (as the batch methods give).
 
         The latest samples are checked first (as every path checks its data); where they
@@ -525,18 +529,28 @@ class OnlineCalibrator:
         ``REJECTED`` and the findings are in ``details.findings``. The four-wheel car's is its
         rear axle's with the front axle and the steering fitted on the front windows kept
         (:mod:`odocal.online.front`) and joined, as batch joins them.
+
+        ``running``: an update of a running trace (``odocal replay``'s): the front axle is
+        fitted again only where its windows grew by :data:`~odocal.online.front.REFIT_GROWTH`
+        since its last fit (each fit costs all the windows kept: fitted at every update, a
+        replay's time would grow with the square of its length); in between, its last fit is
+        joined with the rear axle of now.
         """
         rear = self._rear_estimate()
-        return rear if self.car_settings is None else self._car(rear)
+        return rear if self.car_settings is None else self._car(rear, running=running)
 
-    def _car(self, rear: Estimate) -> Estimate:
+    def _car(self, rear: Estimate, *, running: bool) -> Estimate:
         """The four-wheel estimate of the rear axle's ``rear``, and what its fit shows of the
         wheels' mapping (fatal: refused, as batch refuses it)."""
         assert self.car_settings is not None
         windows = None
         if self._front is not None and rear.success:
             windows = self._front.windows(self._alignment())
-        car = car_estimate(rear, windows, self.car_settings)
+        fit = self._front_fit
+        if windows is not None and (not running or fit is None
+                                    or windows.size >= REFIT_GROWTH * fit.details.windows):
+            fit = self._front_fit = fit_car_front(rear, windows, self.car_settings)
+        car = car_estimate(rear, windows, self.car_settings, front=fit)
         found = mapping_findings(car, self._checks.checked,
                                  max_difference=self.car_settings.gate.max_abs_c_d_fraction)
         details = dataclasses.replace(

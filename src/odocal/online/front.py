@@ -13,9 +13,12 @@ than :data:`RAW_S` keeps its windows as last made and lets its samples go, so me
 with the windows alone (about 1.6 MB an hour), up to :data:`MEMORY_S` of them; older windows
 leave the fit (its uncertainty is then that of the driving kept).
 
-The front fit itself is the batch one on these windows, every time the estimate is taken
+The front fit itself is the batch one on these windows
 (:func:`~odocal.estimators.front_axle.car_estimate`): nothing of it is folded, so the live
-front estimate *is* the batch fit of the same windows.
+front estimate *is* the batch fit of the same windows. Its cost grows with them, so the running
+updates of a replay fit it again only once the windows grew by a tenth (:data:`REFIT_GROWTH`)
+and join its last fit with the rear axle of now in between (its stds are those of the windows it
+rests on); an ``estimate()`` asked for otherwise fits it on every window kept.
 """
 
 from __future__ import annotations
@@ -44,6 +47,9 @@ NEAR_STEPS = 0.25
 #: ... or the heading offset by more than this (rad: the windows' distance moves by its
 #: square, 5e-7 of it).
 NEAR_RAD = 1e-3
+#: A running update (``estimate(running=True)``) fits the front axle again once its windows
+#: are this many times those of its last fit.
+REFIT_GROWTH = 1.1
 #: The model's own inputs, after the rear axle's sample (:data:`~odocal.online.samples.SAMPLE`).
 INPUTS = ("n_fl", "n_fr", "steer")
 #: The columns of a sample of the four-wheel car.

@@ -434,8 +434,8 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
     trace: list[TraceRow] = []
     good: list[tuple[Estimate, float]] = []       # the latest publishable estimate, and where
 
-    def update(t: float) -> Estimate:
-        est = calibrator.estimate()
+    def update(t: float, *, final: bool = False) -> Estimate:
+        est = calibrator.estimate(running=not final)
         row = TraceRow.of(t, calibrator.distance_km, est)
         trace.append(row)
         if publishable(est):
@@ -448,7 +448,7 @@ def replay(source: str | Path, *, fmt: str | None = None, settings: Settings | N
     if span is None:
         raise DataError(f"'{redact(source)}' holds no samples (or a single one)")
     first_t, last_t = span
-    final = update(last_t)
+    final = update(last_t, final=True)
     published, published_km = final, None
     if final.status is Status.REJECTED and not calibrator.halted and good:
         published, published_km = good[0]
