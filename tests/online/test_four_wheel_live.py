@@ -64,6 +64,26 @@ def test_the_live_car_agrees_with_batch_and_the_truth(
     assert online.details.to_dict()["front_axle"]["windows"] == front_fit.windows
 
 
+def test_a_reference_off_the_rear_axle_is_taken_out_of_the_front_windows_as_batch_takes_it(
+        car: tuple[SimulatedDrive, np.ndarray]) -> None:
+    """A reference 1 m ahead of the rear axle and 0.3 m left: the rear fit finds the lever arm
+    beside theta, and the front windows are made on the reference moved to the axle (left in,
+    the steering offset came out 7.8 batch stds off, the wheelbase 3.3)."""
+    from odocal.sim.departures import lever_arm
+
+    sim, truth = car
+    moved = lever_arm(sim, 1.0, 0.3)
+    online = pushed(moved.drive.columns()).estimate()
+    batch = odocal.calibrate(moved.drive, settings=FOUR).model_estimate
+    arm = {n: (v, s) for n, v, s in online.details.departures}
+    assert abs(arm["arm_x"][0] - 1.0) < 3 * arm["arm_x"][1]
+    assert abs(arm["arm_y"][0] - 0.3) < 3 * arm["arm_y"][1]
+    diff = (online.theta.as_array() - batch.theta.as_array()) / batch.std
+    assert np.all(np.abs(diff) < 1.0), dict(zip(online.names, diff.round(2), strict=True))
+    z = (online.theta.as_array() - truth) / online.std
+    assert np.all(np.abs(z) < 3.0), dict(zip(online.names, z.round(2), strict=True))
+
+
 def test_old_blocks_keep_their_windows_and_the_memory_keeps_the_latest_driving(
         car: tuple[SimulatedDrive, np.ndarray], monkeypatch: pytest.MonkeyPatch) -> None:
     """Blocks beyond RAW_S let their samples go (their windows kept as made); beyond

@@ -880,14 +880,16 @@ def car_estimate(rear: Estimate, windows: FrontWindows | None, settings: Setting
     """The four-wheel estimate of the rear axle's (``rear``) and the front ``windows`` made on
     the motion it settled (:func:`front_windows`; the live calibrator keeps its own): the
     front axle and the steering fitted on them (:func:`fit_car_front`; ``front``: as fitted
-    already) and joined with the rear's. None for ``windows``, or a rear fit that ended
-    without an estimate: the front at the datasheet's, not calibrated for the rear's reason."""
+    already, on windows the caller kept) and joined with the rear's. None for both, or a rear
+    fit that ended without an estimate: the front at the datasheet's, not calibrated for the
+    rear's reason."""
     datasheet = _front_datasheet(rear, settings)
     limit = settings.identify.identifiable_ratio * np.asarray(settings.identify.prior_std)
     details = rear.details
-    if windows is None or not rear.success:
+    if not rear.success or (front is None and windows is None):
         return _without_front(rear, datasheet, limit)
     if front is None:
+        assert windows is not None
         front = fit_car_front(rear, windows, settings)
     d = FOUR_WHEEL_MODEL.rear.layout.index(LAYOUT.load)
     theta, cov = joined(rear.theta.as_array(), rear.covariance, front)

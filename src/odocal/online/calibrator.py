@@ -90,7 +90,14 @@ from odocal.online.departures import (
     ReferenceAligner,
     recorrected,
 )
-from odocal.online.front import COLUMNS, INPUTS, REFIT_GROWTH, Alignment, LiveFront
+from odocal.online.front import (
+    COLUMNS,
+    INPUTS,
+    REFIT_GROWTH,
+    Alignment,
+    Fitted,
+    LiveFront,
+)
 from odocal.online.running import RunningFit
 from odocal.online.samples import SAMPLE, Intake, has_column
 from odocal.settings import Settings
@@ -133,6 +140,15 @@ class OnlineDetails:
     """The four-wheel car's front fit (None: the rear axle's model, or nothing fitted)."""
     front_kept_s: float = 0.0
     """The span of driving the front fit rests on (s; :mod:`odocal.online.front`)."""
+    departures: tuple[tuple[str, float, float], ...] = ()
+    """The departures fitted beside theta (:mod:`odocal.estimators.departures`): name, value
+    and standard deviation, as batch's details give them."""
+
+    @property
+    def fitted_departures(self) -> dict[str, float]:
+        """The departures fitted, by name (the lag: in steps of the grid, within
+        :attr:`delay_s`)."""
+        return {name: value for name, value, _ in self.departures}
 
     def to_dict(self) -> dict[str, Any]:
         return {"samples": self.samples, "windows": self.windows,
@@ -147,6 +163,8 @@ class OnlineDetails:
                 "diagnosis": [f.to_dict() for f in self.findings], "halted": self.halted,
                 "time_unit": self.time_unit,
                 "sampling_s": self.sampling_s if math.isfinite(self.sampling_s) else None,
+                "departures": [{"name": n, "value": v, "std": s}
+                               for n, v, s in self.departures],
                 **({"front_axle": self.front.to_dict(), "front_kept_s": self.front_kept_s}
                    if self.front is not None else {})}
 
@@ -187,7 +205,9 @@ class OnlineCalibrator:
         car = self.car_settings is not None
         self._intake = Intake(INPUTS if car else ())    # the chunks as samples on one grid
         self._front: LiveFront | None = None      # the car's front axle (once the grid is known)
-        self._front_fit: FrontFit | None = None   # its last fit (estimate(running=True))
+        self._front_fit: FrontFit | None = None   # its last fit (estimate(running=True)),
+        self._front_fit_s = 0.0                   # and the driving it rested on (s)
+        self._rear_fitted = Fitted()              # the departures the rear fit estimated
         self._aligner: ReferenceAligner | None = None
         self._builder: WindowBuilder | None = None
         self._windows: WindowSet | None = None
@@ -531,10 +551,10 @@ class OnlineCalibrator:
         (:mod:`odocal.online.front`) and joined, as batch joins them.
 
         ``running``: an update of a running trace (``odocal replay``'s): the front axle is
-        fitted again only where its windows grew by :data:`~odocal.online.front.REFIT_GROWTH`
-        since its last fit (each fit costs all the windows kept: fitted at every update, a
-        replay's time would grow with the square of its length); in between, its last fit is
-        joined with the rear axle of now.
+        fitted again only where the driving it rests on grew by
+        :data:`~odocal.online.front.REFIT_GROWTH` since its last fit (each fit costs all the
+        windows kept: fitted at every update, a replay's time would grow with the square of
+        its length); in between, its last fit is joined with the rear axle of now.
         """
         rear = self._rear_estimate()
         return rear if self.car_settings is None else self._car(rear, running=running)
@@ -543,14 +563,13 @@ class OnlineCalibrator:
         """The four-wheel estimate of the rear axle's ``rear``, and what its fit shows of the
         wheels' mapping (fatal: refused, as batch refuses it)."""
         assert self.car_settings is not None
-        windows = None
-        if self._front is not None and rear.success:
-            windows = self._front.windows(self._alignment())
-        fit = self._front_fit
-        if windows is not None and (not running or fit is None
-                                    or windows.size >= REFIT_GROWTH * fit.details.windows):
-            fit = self._front_fit = fit_car_front(rear, windows, self.car_settings)
-        car = car_estimate(rear, windows, self.car_settings, front=fit)
+        fit, kept_s = self._front_fit, self._front.kept_s if self._front is not None else 0.0
+        if self._front is not None and rear.success and (
+                not running or fit is None or kept_s >= REFIT_GROWTH * self._front_fit_s):
+            windows = self._front.windows(self._alignment(rear))
+            fit = None if windows is None else fit_car_front(rear, windows, self.car_settings)
+            self._front_fit, self._front_fit_s = fit, kept_s
+        car = car_estimate(rear, None, self.car_settings, front=fit)
         found = mapping_findings(car, self._checks.checked,
                                  max_difference=self.car_settings.gate.max_abs_c_d_fraction)
         details = dataclasses.replace(
@@ -568,10 +587,15 @@ class OnlineCalibrator:
         return dataclasses.replace(car, details=details,
                                    status=Status.REJECTED if fatal else car.status)
 
-    def _alignment(self) -> Alignment:
-        """What the front windows are made with now: the rear fit's lag, heading offset and
-        the departures taken out."""
-        return Alignment(self.delay_s(), self.heading_offset(), self._departures)
+    def _alignment(self, rear: Estimate | None = None) -> Alignment:
+        """What the front windows are made with now: the rear fit's lag, heading offset, the
+        departures taken out of the samples and those ``rear`` (the rear axle's estimate now;
+        None: the last one's) fitted beside theta (the lag is in the delay)."""
+        if rear is not None:
+            self._rear_fitted = Fitted.of(getattr(rear.details, "departures", ()),
+                                          rear.theta.as_array())
+        return Alignment(self.delay_s(), self.heading_offset(), self._departures,
+                         self._rear_fitted)
 
     def _rear_estimate(self) -> Estimate:
         """The rear axle's estimate now (:meth:`estimate`)."""
@@ -610,13 +634,17 @@ class OnlineCalibrator:
                                 rivals=found.rivals)
         if any(f.severity is Severity.FATAL for f in named):
             status = Status.REJECTED
+        departed = tuple((name, float(total[fitted.at(name)]),
+                          float(found.nuisance_std[fitted.at(name)])) for name in found.entered)
         return Estimate(method="online", theta=Parameters.from_array(theta),
                         datasheet=Parameters.from_array(self.datasheet),
                         covariance=found.covariance, covariance_kind=CovarianceKind.RECURSIVE,
                         free=tuple(bool(f) for f in free),
                         verdicts=judge(std, free, self.settings.identify, held=found.held),
                         status=status,
-                        details=self._details(found.clusters, [*named, *refused]),
+                        details=dataclasses.replace(
+                            self._details(found.clusters, [*named, *refused]),
+                            departures=departed),
                         widening=found.uncertainty.widening)
 
     @property

@@ -16,20 +16,24 @@ leave the fit (its uncertainty is then that of the driving kept).
 The front fit itself is the batch one on these windows
 (:func:`~odocal.estimators.front_axle.car_estimate`): nothing of it is folded, so the live
 front estimate *is* the batch fit of the same windows. Its cost grows with them, so the running
-updates of a replay fit it again only once the windows grew by a tenth (:data:`REFIT_GROWTH`)
-and join its last fit with the rear axle of now in between (its stds are those of the windows it
-rests on); an ``estimate()`` asked for otherwise fits it on every window kept.
+updates of a replay fit it again only once the driving kept grew by a tenth
+(:data:`REFIT_GROWTH`) and join its last fit with the rear axle of now in between (its stds are
+those of the windows it rests on); an ``estimate()`` asked for otherwise fits it on every window
+kept.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from odocal.arrays import FloatArray
+from odocal.data.drive import Drive
 from odocal.errors import DataError
+from odocal.estimators.departures import corrected
 from odocal.estimators.front_axle import FrontWindows, front_checks, front_windows
 from odocal.online.checking import drive_of
 from odocal.online.departures import LiveDepartures
@@ -43,12 +47,14 @@ RAW_S = 1800.0
 #: The front fit rests on this much of the latest driving at most (s).
 MEMORY_S = 24 * 3600.0
 #: The alignment moved where the lag moved by more than this share of a sampling step ...
-NEAR_STEPS = 0.25
+NEAR_STEPS = 0.05
 #: ... or the heading offset by more than this (rad: the windows' distance moves by its
-#: square, 5e-7 of it).
+#: square, 5e-7 of it) ...
 NEAR_RAD = 1e-3
-#: A running update (``estimate(running=True)``) fits the front axle again once its windows
-#: are this many times those of its last fit.
+#: ... or a fitted departure by more than this share of its std.
+NEAR_STDS = 0.1
+#: A running update (``estimate(running=True)``) fits the front axle again once the driving
+#: it rests on is this many times that of its last fit.
 REFIT_GROWTH = 1.1
 #: The model's own inputs, after the rear axle's sample (:data:`~odocal.online.samples.SAMPLE`).
 INPUTS = ("n_fl", "n_fr", "steer")
@@ -57,19 +63,51 @@ COLUMNS = (*SAMPLE, *INPUTS)
 
 
 @dataclass(frozen=True)
+class Fitted:
+    """The departures the rear fit estimated beside theta (name, value, std; the lag is in
+    the delay), and its theta then: what batch takes out of the drives its front axle is
+    fitted on (:func:`~odocal.estimators.departures.corrected`: a reference point ahead of
+    the axle, a slip, ...)."""
+
+    departures: tuple[tuple[str, float, float], ...] = ()
+    theta: tuple[float, ...] = ()
+
+    @staticmethod
+    def of(departures: Sequence[tuple[str, float, float]], theta: FloatArray) -> Fitted:
+        return Fitted(tuple((n, v, s) for n, v, s in departures if n != "lag"),
+                      tuple(float(x) for x in theta))
+
+    def near(self, other: Fitted) -> bool:
+        """The same departures, each within :data:`NEAR_STDS` of its std of the other's."""
+        return [n for n, _, _ in self.departures] == [n for n, _, _ in other.departures] and all(
+            abs(a - b) <= NEAR_STDS * s for (_, a, s), (_, b, _) in zip(
+                self.departures, other.departures, strict=True))
+
+    def corrected(self, drive: Drive) -> Drive:
+        """``drive`` with these departures taken out."""
+        if not self.departures:
+            return drive
+        values = {n: v for n, v, _ in self.departures}
+        return corrected([drive], values, np.asarray(self.theta, dtype=np.float64))[0]
+
+
+@dataclass(frozen=True)
 class Alignment:
     """What the front windows are made with: the wheels' lag behind the reference (s), the
-    reference heading's offset (rad) and the departures taken out of the samples."""
+    reference heading's offset (rad), the departures taken out of the samples and those the
+    rear fit estimated."""
 
     delay_s: float
     heading_offset: float
     departures: LiveDepartures
+    fitted: Fitted = Fitted()
 
     def near(self, other: Alignment | None, t_s: float) -> bool:
         """Whether windows made with ``other`` stand for this alignment."""
         return (other is not None and other.departures == self.departures
                 and abs(self.delay_s - other.delay_s) <= NEAR_STEPS * t_s
-                and abs(self.heading_offset - other.heading_offset) <= NEAR_RAD)
+                and abs(self.heading_offset - other.heading_offset) <= NEAR_RAD
+                and self.fitted.near(other.fitted))
 
 
 @dataclass
@@ -142,7 +180,7 @@ class LiveFront:
         rows[:, :len(SAMPLE)] = alignment.departures.correct(rows[:, :len(SAMPLE)])
         name = f"{self.source}, t={block.first_t:.6g} to {block.last_t:.6g} s"
         try:
-            drive = drive_of(rows, self.t_s, name, COLUMNS)
+            drive = alignment.fitted.corrected(drive_of(rows, self.t_s, name, COLUMNS))
             checked = front_checks([drive], self.settings).drives
             windows = front_windows(checked, self.settings, delay_s=alignment.delay_s,
                                     heading_offset=alignment.heading_offset)
