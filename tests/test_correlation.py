@@ -102,3 +102,22 @@ def test_the_tapered_estimate_divides_the_products_by_the_whole_series_energies(
     same = correlations([(x, x)], 20, estimate="tapered")
     assert same.values[20] == pytest.approx(1.0)
     assert np.all(same.values < 1.0 + 1e-12)
+
+
+def test_sums_of_series_one_after_another_pool_into_their_correlation(
+        rng: np.random.Generator) -> None:
+    """The live path keeps each block's sums and pools them: the same correlation at every
+    lag as the pairs taken together, whatever the centre the sums were taken about."""
+    from odocal.correlation import correlation_sums, of_sums
+
+    pairs = []
+    for size in (300, 450, 120):
+        a = rng.normal(0.1, 1.0, size)
+        pairs.append((a, np.roll(a, 3) + rng.normal(0.2, 0.5, size)))
+    whole = correlations(pairs, 10)
+    pooled = of_sums(10, correlation_sums(pairs[:2], 10) + correlation_sums(pairs[2:], 10))
+    np.testing.assert_allclose(pooled.values, whole.values, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(pooled.overlap, whole.overlap)
+    assert pooled.peak() is not None and pooled.peak().steps == pytest.approx(3.0, abs=0.2)
+    centred = of_sums(10, correlation_sums(pairs, 10, centre=(0.1, 0.3)))
+    np.testing.assert_allclose(centred.values, whole.values, rtol=1e-9, atol=1e-12)

@@ -79,14 +79,24 @@ def correlations(pairs: Sequence[tuple[FloatArray, FloatArray]], span: int, *,
         return Correlations(lags, np.full(lags.size, np.nan), np.zeros(lags.size, np.int64))
     if estimate == "tapered":
         return _tapered(pairs, lags)
-    sums = np.zeros((6, lags.size))                   # n, sa, sb, saa, sbb, sab
     # centred on the means of all samples (the pooled correlation does not change; the sums
     # keep their precision)
     mean_a = float(np.mean(np.concatenate([np.asarray(a, float) for a, _ in pairs])))
     mean_b = float(np.mean(np.concatenate([np.asarray(b, float) for _, b in pairs])))
+    return of_sums(span, correlation_sums(pairs, span, centre=(mean_a, mean_b)))
+
+
+def correlation_sums(pairs: Sequence[tuple[FloatArray, FloatArray]], span: int, *,
+                     centre: tuple[float, float] = (0.0, 0.0)) -> FloatArray:
+    """(6, 2 span + 1): per lag the count, sums, sums of squares and sum of products of the
+    samples :func:`correlations` compares, ``centre`` taken from ``a`` and ``b``. Sums of
+    series taken one after another add up (with one ``centre``): :func:`of_sums` makes their
+    pooled correlation."""
+    lags = np.arange(-span, span + 1)
+    sums = np.zeros((6, lags.size))                   # n, sa, sb, saa, sbb, sab
     for a_in, b_in in pairs:
-        a = np.asarray(a_in, dtype=np.float64) - mean_a
-        b = np.asarray(b_in, dtype=np.float64) - mean_b
+        a = np.asarray(a_in, dtype=np.float64) - centre[0]
+        b = np.asarray(b_in, dtype=np.float64) - centre[1]
         if b.size == a.size + 2 * span:
             sums += _whole_sums(a, b, lags, span)
         elif b.size == a.size:
@@ -94,12 +104,18 @@ def correlations(pairs: Sequence[tuple[FloatArray, FloatArray]], span: int, *,
         else:
             raise ValueError(f"b holds {b.size} samples for a's {a.size}: as many, or "
                              f"{2 * span} more")
+    return sums
+
+
+def of_sums(span: int, sums: FloatArray) -> Correlations:
+    """Pearson's correlation at every lag from ``-span`` to ``span`` of
+    :func:`correlation_sums`' sums."""
     n, sa, sb, saa, sbb, sab = sums
     with np.errstate(divide="ignore", invalid="ignore"):
         cov = sab - sa * sb / n
         var = (saa - sa * sa / n) * (sbb - sb * sb / n)
         values = np.where((n > 1) & (var > 0), cov / np.sqrt(var), np.nan)
-    return Correlations(lags, values, n.astype(np.int64))
+    return Correlations(np.arange(-span, span + 1), values, n.astype(np.int64))
 
 
 def _tapered(pairs: Sequence[tuple[FloatArray, FloatArray]], lags: IntArray) -> Correlations:

@@ -84,6 +84,22 @@ def test_a_reference_off_the_rear_axle_is_taken_out_of_the_front_windows_as_batc
     assert np.all(np.abs(z) < 3.0), dict(zip(online.names, z.round(2), strict=True))
 
 
+def test_the_steering_lag_is_one_for_the_stream_found_on_all_its_driving() -> None:
+    """Each block's windows take the steering's lag found on every block pooled (one sensor,
+    one latency), as batch finds it on the whole drive, not each block's own (which scattered
+    by 12 ms on this drive and moved the steering offset)."""
+    from odocal.estimators.front_axle import front_windows
+
+    sim, _ = with_front_axle(odocal.simulate(duration_s=1200.0, seed=2, noise="everything"))
+    calibrator = pushed(sim.drive.columns())
+    online = calibrator.estimate()
+    kept = calibrator._front.windows(calibrator._alignment())
+    assert kept is not None and len(kept.steering_lag_s) == 10
+    assert np.ptp(kept.steering_lag_s) == 0.0
+    batch = front_windows([sim.drive], FOUR, delay_s=online.details.delay_s)
+    assert kept.steering_lag_s[0] == pytest.approx(batch.steering_lag_s[0], abs=1e-3)
+
+
 def test_old_blocks_keep_their_windows_and_the_memory_keeps_the_latest_driving(
         car: tuple[SimulatedDrive, np.ndarray], monkeypatch: pytest.MonkeyPatch) -> None:
     """Blocks beyond RAW_S let their samples go (their windows kept as made); beyond

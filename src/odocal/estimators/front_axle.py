@@ -47,7 +47,7 @@ import numpy as np
 from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.checks.departures import shifted_reference
 from odocal.checks.findings import Check, Diagnosis, Finding, Severity
-from odocal.correlation import correlations
+from odocal.correlation import Correlations, correlations
 from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.estimators.covariance import widened
@@ -154,14 +154,17 @@ class FrontWindows:
 
 
 def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float = 0.0,
-                  heading_offset: float = 0.0) -> FrontWindows:
+                  heading_offset: float = 0.0, steering_lag_s: float | None = None
+                  ) -> FrontWindows:
     """The drives' windows of ``[inverse] window_s`` (the default method's), piece by piece:
     the reference delayed by ``delay_s`` (the wheels' lag behind it) and its heading turned by
     ``heading_offset`` onto the course, as the default fit found them. Windows that do not
     move (a mean speed below :data:`~odocal.estimators.windows.MOVING_MPS`) say nothing and
     are left out, as are drives without front wheels (:func:`require_front_wheels` names a
     set with none). The steering angle is put on the reference's clock by its own lag
-    (:func:`steering_lag`): a steering sensor's latency is not the wheels'."""
+    (:func:`steering_lag`): a steering sensor's latency is not the wheels'. ``steering_lag_s``:
+    that lag as found already (on more driving than a drive: the live path's), for every
+    drive."""
     require_front_wheels(drives)
     parts: dict[str, list[FloatArray]] = {k: [] for k in ("ds", "dpsi", "a_y", "a_x", "revs",
                                                           "steer", "cluster", "noise")}
@@ -171,7 +174,11 @@ def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float
             continue
         if delay_s:
             drive = shifted_reference(drive, delay_s)
-        steer, lag = steering_lag(drive)
+        if steering_lag_s is None:
+            steer, lag = steering_lag(drive)
+        else:
+            lag = steering_lag_s if "steer" in drive.inputs else None
+            steer = steering_at(drive, steering_lag_s) if lag is not None else None
         if lag is not None:
             lags.append(lag)
         # clustered drive by drive, as the rear fit's windows are: a drive added changes
@@ -221,29 +228,60 @@ def steering_lag(drive: Drive) -> tuple[FloatArray | None, float | None]:
     steer = drive.inputs.get("steer")
     if steer is None:
         return None, None
+    pairs = steering_pairs(drive)
+    span = steering_span(drive.t_s)
+    lag = steering_peak(correlations(pairs, span), drive.t_s) if pairs else None
+    if lag is None:
+        return np.asarray(steer, dtype=np.float64), None
+    return steering_at(drive, lag), lag
+
+
+def steering_span(t_s: float) -> int:
+    """The steps the steering's lag is searched within, either way."""
+    return max(1, round(STEERING_LAG_S / t_s))
+
+
+def steering_pairs(drive: Drive) -> list[tuple[FloatArray, FloatArray]]:
+    """The reference's curvature and the steering angle of each piece long enough to search
+    the steering's lag on (none without a steering angle)."""
+    steer = drive.inputs.get("steer")
+    if steer is None:
+        return []
     t_s = drive.t_s
     pairs = []
     for a, b in drive.pieces:
+        if b - a <= 4 * STEERING_LAG_S / t_s:
+            continue
         psi = np.unwrap(np.asarray(drive.psi[a:b], dtype=np.float64))
         speed = np.hypot(np.gradient(drive.x[a:b], t_s), np.gradient(drive.y[a:b], t_s))
         curvature = np.gradient(psi, t_s) / np.maximum(speed, 2.0) * _direction(drive)[a:b]
-        if b - a > 4 * STEERING_LAG_S / t_s:
-            pairs.append((curvature, filled(steer[a:b])))
-    span = max(1, round(STEERING_LAG_S / t_s))
-    peak = correlations(pairs, span).peak() if pairs else None
+        pairs.append((curvature, filled(steer[a:b])))
+    return pairs
+
+
+def steering_peak(found: Correlations, t_s: float) -> float | None:
+    """The steering's lag (s) where the angle agrees with the curvature well enough
+    (:data:`STEERING_MIN_CORRELATION`, not at the search's edge); None where it does not."""
+    peak = found.peak()
     if peak is None or peak.at_edge or abs(peak.correlation) < STEERING_MIN_CORRELATION:
-        return np.asarray(steer, dtype=np.float64), None
+        return None
     # a steering angle with the wrong sign agrees best at a negative correlation: the lag is
     # that of the agreement either way (the fit names the sign)
     if peak.correlation < 0:
-        negated = correlations([(a, -b) for a, b in pairs], span).peak()
+        negated = Correlations(found.lags, -found.values, found.overlap).peak()
         peak = negated if negated is not None else peak
-    lag = peak.steps * t_s
+    return float(peak.steps * t_s)
+
+
+def steering_at(drive: Drive, lag: float) -> FloatArray:
+    """The drive's steering angle at ``lag`` (s) after each sample (on the reference's clock
+    where ``lag`` is its lag behind it)."""
+    steer = drive.inputs["steer"]
     aligned = np.array(steer, dtype=np.float64)
     for a, b in drive.pieces:
         aligned[a:b] = _shifted(drive.t[a:b], np.asarray(steer[a:b], dtype=np.float64), lag,
-                                t_s)
-    return aligned, float(lag)
+                                drive.t_s)
+    return aligned
 
 
 def _shifted(t: FloatArray, values: FloatArray, lag: float, t_s: float) -> FloatArray:

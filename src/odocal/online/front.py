@@ -24,6 +24,7 @@ kept.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -31,10 +32,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from odocal.arrays import FloatArray
+from odocal.correlation import correlation_sums, of_sums
 from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.estimators.departures import corrected
-from odocal.estimators.front_axle import FrontWindows, front_checks, front_windows
+from odocal.estimators.front_axle import (
+    FrontWindows,
+    front_checks,
+    front_windows,
+    steering_pairs,
+    steering_peak,
+    steering_span,
+)
 from odocal.online.checking import drive_of
 from odocal.online.departures import LiveDepartures
 from odocal.online.samples import SAMPLE
@@ -101,11 +110,14 @@ class Alignment:
     heading_offset: float
     departures: LiveDepartures
     fitted: Fitted = Fitted()
+    steering_lag_s: float = 0.0
+    """The steering angle's lag behind the reference on the wheels' clock (s; 0: as logged)."""
 
     def near(self, other: Alignment | None, t_s: float) -> bool:
         """Whether windows made with ``other`` stand for this alignment."""
         return (other is not None and other.departures == self.departures
                 and abs(self.delay_s - other.delay_s) <= NEAR_STEPS * t_s
+                and abs(self.steering_lag_s - other.steering_lag_s) <= NEAR_STEPS * t_s
                 and abs(self.heading_offset - other.heading_offset) <= NEAR_RAD
                 and self.fitted.near(other.fitted))
 
@@ -117,6 +129,9 @@ class _Block:
     rows: FloatArray | None
     first_t: float
     last_t: float
+    steering: FloatArray | None = None
+    """The steering angle's correlation sums with the reference's curvature
+    (:func:`~odocal.correlation.correlation_sums`, the reference as logged)."""
     made: Alignment | None = None
     windows: FrontWindows | None = None
 
@@ -142,7 +157,8 @@ class LiveFront:
             return False
         block = np.vstack(self._open)
         self._open = []
-        self._blocks.append(_Block(block, float(block[0, 0]), float(block[-1, 0])))
+        self._blocks.append(_Block(block, float(block[0, 0]), float(block[-1, 0]),
+                                   self._steering_sums(block)))
         return True
 
     def settle(self, alignment: Alignment) -> None:
@@ -151,19 +167,44 @@ class LiveFront:
         newest = self._blocks[-1].last_t
         for block in self._blocks:
             if block.rows is not None and block.last_t < newest - RAW_S:
-                self._made(block, alignment)
+                if block.made is None:            # (else: as made at the last estimate)
+                    self._made(block, self._steered(alignment, ()))
                 block.rows = None
         self._blocks = [b for b in self._blocks if b.last_t >= newest - MEMORY_S]
 
     def windows(self, alignment: Alignment) -> FrontWindows | None:
         """Every block's windows at ``alignment`` (a block that let its samples go: as last
         made) and those of the samples since the last block; None where there are none."""
-        parts = [self._made(block, alignment) for block in self._blocks]
+        last = None
         if self._open:
             rows = np.vstack(self._open)
-            parts.append(self._made(_Block(rows, float(rows[0, 0]), float(rows[-1, 0])),
-                                    alignment))
+            last = _Block(rows, float(rows[0, 0]), float(rows[-1, 0]),
+                          self._steering_sums(rows))
+        alignment = self._steered(alignment, () if last is None else (last,))
+        parts = [self._made(block, alignment) for block in self._blocks]
+        if last is not None:
+            parts.append(self._made(last, alignment))
         return FrontWindows.concat([w for w in parts if w is not None])
+
+    def _steered(self, alignment: Alignment, more: Sequence[_Block]) -> Alignment:
+        """``alignment`` with the steering's lag behind the reference on the wheels' clock:
+        found on every block's driving pooled (its latency is the sensor's, one for the whole
+        stream; found block by block, its scatter moved the steering's offset by more than a
+        batch std), 0 (as logged) where the angle agrees too little with the curvature."""
+        sums = [b.steering for b in (*self._blocks, *more) if b.steering is not None]
+        found = steering_peak(of_sums(steering_span(self.t_s), np.sum(sums, axis=0)),
+                              self.t_s) if sums else None
+        lag = 0.0 if found is None else found - alignment.delay_s
+        return dataclasses.replace(alignment, steering_lag_s=lag)
+
+    def _steering_sums(self, rows: FloatArray) -> FloatArray | None:
+        """The steering's correlation sums of samples as they came (None: no drive, or no
+        steering angle)."""
+        try:
+            pairs = steering_pairs(drive_of(rows, self.t_s, self.source, COLUMNS))
+        except DataError:
+            return None
+        return correlation_sums(pairs, steering_span(self.t_s)) if pairs else None
 
     def forget_before(self, t: float) -> None:
         """Leave out the driving before ``t`` (the wheels changed then: what the front wheels
@@ -183,7 +224,8 @@ class LiveFront:
             drive = alignment.fitted.corrected(drive_of(rows, self.t_s, name, COLUMNS))
             checked = front_checks([drive], self.settings).drives
             windows = front_windows(checked, self.settings, delay_s=alignment.delay_s,
-                                    heading_offset=alignment.heading_offset)
+                                    heading_offset=alignment.heading_offset,
+                                    steering_lag_s=alignment.steering_lag_s)
         except DataError:
             windows = None      # samples that make no drive: the checks name them
         block.made, block.windows = alignment, windows
