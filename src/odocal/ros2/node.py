@@ -57,6 +57,7 @@ import numpy as np
 
 from odocal.errors import ConfigError, MissingDependencyError, OdocalError
 from odocal.estimators.estimate import Estimate, NotIdentified, Status
+from odocal.model import registry
 from odocal.model.parameters import PARAMETER_NAMES, Parameters
 from odocal.model.vehicle import MODEL
 from odocal.online.replay import GridResampler, publishable
@@ -326,6 +327,9 @@ class CalibrationNode(LifecycleNode):
             settings = settings.replace(identify={"theta0": datasheet_theta(
                 parse_datasheet(p("datasheet"), what="parameter datasheet"),
                 settings.identify.theta0)})
+        # (the node reads two wheel joints: a settings file choosing the car is refused here,
+        # as the command line refuses it)
+        registry.require_rear_axle(settings.vehicle.model, "odocal ros2")
         self.settings = settings
         self.datasheet = Parameters.from_array(np.asarray(settings.identify.theta0))
         names = {key: self._topic(key) for key in ("wheel_topic", "pose_topic", "imu_topic",
