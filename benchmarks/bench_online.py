@@ -29,6 +29,7 @@ import os
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
@@ -142,13 +143,14 @@ def changes(seeds: int) -> None:
           + f"; false alarms: {false} in {hours:.1f} h of driving without a change")
 
 
-def real() -> None:
+def shared_logs() -> tuple[dict[str, odocal.Drive], dict[str, list[str]]] | None:
+    """The shared real logs by name, and each car's (None where ../shared/data is not
+    there)."""
     from odocal.preprocess.convert import convert
 
     data = Path(__file__).resolve().parents[1].parent / "shared" / "data"
     if not data.is_dir():
-        print("real: ../shared/data not found; skipped")
-        return
+        return None
     logs = {d.name: d for d in convert("nuscenes", [data / "nuscenes-can-bus-mini"])}
     segment = data / "comma2k19-example" / "2018-08-02--08-34-47" / "40"
     logs.update({f"comma2k19 {d.name}": d for d in convert("comma2k19", [segment])})
@@ -156,24 +158,39 @@ def real() -> None:
                                                     "scene-0796", "scene-1100"],
               "nuScenes Boston car (2 scenes)": ["scene-0103", "scene-0655"],
               "comma2k19 segment": [n for n in logs if n.startswith("comma2k19")]}
+    return logs, groups
+
+
+def one_after_another(logs: list[odocal.Drive]) -> Iterator[dict[str, np.ndarray]]:
+    """A car's logs as one stream (100 s apart), in chunks of 40 samples."""
+    offset = 0.0
+    for log in logs:
+        cols = log.columns()
+        cols = {**cols, "t": cols["t"] - cols["t"][0] + offset}
+        offset = float(cols["t"][-1]) + 100.0
+        for i in range(0, cols["t"].size, 40):
+            yield {k: v[i:i + 40] for k, v in cols.items()}
+
+
+def real() -> None:
+    shared = shared_logs()
+    if shared is None:
+        print("real: ../shared/data not found; skipped")
+        return
+    logs, groups = shared
     print("real: distance until c_e is identified to 1 mm and t_r to 20 mm (online; a car's "
           "logs pushed one after another)")
     for label, names in groups.items():
         cal = OnlineCalibrator()
         first: dict[str, float | None] = {"c_e": None, "t_r": None}
-        offset = 0.0
-        for name in names:
-            cols = logs[name].columns()
-            cols = {**cols, "t": cols["t"] - cols["t"][0] + offset}   # the logs one after another
-            offset = float(cols["t"][-1]) + 100.0
-            for i in range(0, cols["t"].size, 40):
-                cal.push({k: v[i:i + 40] for k, v in cols.items()})
-                if i % 200 == 0:
-                    est = cal.estimate()
-                    for n, limit in (("c_e", 1e-3), ("t_r", 20e-3)):
-                        j = PARAMETER_NAMES.index(n)
-                        if first[n] is None and est.identified[j] and est.std[j] <= limit:
-                            first[n] = cal.distance_km
+        for k, chunk in enumerate(one_after_another([logs[n] for n in names])):
+            cal.push(chunk)
+            if k % 5 == 0:                        # every 200 samples
+                est = cal.estimate()
+                for n, limit in (("c_e", 1e-3), ("t_r", 20e-3)):
+                    j = PARAMETER_NAMES.index(n)
+                    if first[n] is None and est.identified[j] and est.std[j] <= limit:
+                        first[n] = cal.distance_km
         est = cal.estimate()
         print(f"  {label:<36} {cal.distance_km:6.2f} km: c_e to 1 mm "
               + (f"after {first['c_e']:.2f} km" if first["c_e"] is not None else "not reached")
@@ -242,6 +259,32 @@ def car_matrix(profiles: list[str], seeds: int) -> None:
           f"|z| > 3: {int(np.sum(np.abs(all_z) > 3))}")
 
 
+def car_real() -> None:
+    """The live car on the shared real logs (a car's logs one after another) against batch's
+    four-wheel calibration of the same logs."""
+    shared = shared_logs()
+    if shared is None:
+        print("car real: ../shared/data not found; skipped")
+        return
+    logs, groups = shared
+    print("car real: the live car (logs one after another) against batch's of the same logs")
+    for label, names in groups.items():
+        cal = OnlineCalibrator(CAR)
+        for chunk in one_after_another([logs[n] for n in names]):
+            cal.push(chunk)
+        live = cal.estimate()
+        batch = odocal.calibrate([logs[n] for n in names], settings=CAR).model_estimate
+        words = []
+        for j, name in enumerate(live.names):
+            if live.identified[j] or batch.identified[j]:
+                lv = f"{live.theta.as_array()[j]:.4f}+-{live.std[j]:.4f}" \
+                    if live.identified[j] else "-"
+                bv = f"{batch.theta.as_array()[j]:.4f}+-{batch.std[j]:.4f}" \
+                    if batch.identified[j] else "-"
+                words.append(f"{name} {lv} (batch {bv})")
+        print(f"  {label:<22} {live.status.name}: " + "; ".join(words), flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5)
@@ -268,6 +311,7 @@ def main() -> None:
     if "car" not in skip:
         car_replay(args.car_hours)
         car_matrix(args.car_profiles.split(","), args.seeds)
+        car_real()
 
 
 if __name__ == "__main__":
