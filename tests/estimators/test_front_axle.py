@@ -73,6 +73,9 @@ def test_the_four_wheel_estimate_is_within_its_stds_and_leaves_the_rear_axle_as_
     assert np.linalg.eigvalsh(cov).min() > -1e-15
     front = [FOUR_WHEEL.index(n) for n in ("c_f", "t_f", "L", "ratio")]
     assert np.all(np.sqrt(np.diag(cov))[front] > 0)
+    # every verdict states the std the estimate publishes (the rear axle's joined with d)
+    for verdict, std in zip(est.verdicts, est.std, strict=True):
+        assert verdict.std == pytest.approx(std, rel=1e-12)
 
 
 def test_calibration_json_names_the_model_and_its_ten_parameters(

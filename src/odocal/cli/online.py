@@ -74,6 +74,8 @@ def _replay(args: argparse.Namespace, drawer: Any) -> int:
     if refused:
         say(refused)
         return EXIT_FAILED
+    for line in _said(result, settings):
+        say(line)
     conv = convergence_km(result)
     if not args.quiet:
         say(f"replayed {result.duration_s / 60:.1f} min, {result.distance_km:.2f} km in "
@@ -84,6 +86,32 @@ def _replay(args: argparse.Namespace, drawer: Any) -> int:
         for path in written:
             say(f"wrote {out / path}")
     return EXIT_OK
+
+
+def _said(result: Any, settings: Settings) -> list[str]:
+    """What the replay's answer holds back, in the report's words: a final estimate refused
+    (the published one is the last that was not), the warnings the checks raised (an input
+    left out, a steering angle that cannot be the car's), and for the four-wheel car what the
+    drive did not identify of its front axle and steering."""
+    from odocal.checks.findings import Severity
+    from odocal.report.advice import finding_text, front_advice
+    from odocal.report.summary import SEVERITY_WORDS
+
+    lines = []
+    if result.published_km is not None and result.final is not None:
+        why = rejection(result.final, result.final.details.findings, settings)
+        lines.append(f"note: the final estimate was refused ({(why or '').removeprefix('error: ')}"
+                     f"); published: the last estimate that was not, from "
+                     f"{result.published_km:.2f} km")
+    seen = set()
+    for finding in result.estimate.details.findings:
+        text = finding_text(finding, settings)
+        if finding.severity is Severity.FALLBACK and text not in seen:
+            seen.add(text)
+            lines.append(f"{SEVERITY_WORDS[int(finding.severity)]}: {text}")
+    if result.estimate.model != "rear_axle":
+        lines += [f"note: {a.text}" for a in front_advice(result.estimate) if not a.identified]
+    return lines
 
 
 def _update_line(row: TraceRow) -> str:

@@ -932,9 +932,13 @@ def car_estimate(rear: Estimate, windows: FrontWindows | None, settings: Setting
     d = FOUR_WHEEL_MODEL.rear.layout.index(LAYOUT.load)
     theta, cov = joined(rear.theta.as_array(), rear.covariance, front)
     verdicts: list[Verdict] = list(rear.verdicts)
-    if front.details.load_joined:      # d, joined with the front wheels' evidence
-        verdicts[d] = Identified(float(np.sqrt(max(cov[_LOAD, _LOAD], 0.0))),
-                                 float(limit[_LOAD]))
+    if front.details.load_joined:
+        # d joined with the front wheels' evidence, and the rear axle's others following it
+        # by their covariance with d: their verdicts state the joined std, as the estimate
+        for j, verdict in enumerate(rear.verdicts):
+            if isinstance(verdict, Identified) or j == d:
+                verdicts[j] = Identified(float(np.sqrt(max(cov[j, j], 0.0))),
+                                         float(limit[j]))
     return Estimate(method=rear.method, theta=Parameters.from_array(theta, layout=LAYOUT),
                     datasheet=datasheet, covariance=cov, covariance_kind=rear.covariance_kind,
                     free=(*rear.free, *front.free), verdicts=(*verdicts, *front.verdicts),

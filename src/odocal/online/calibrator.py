@@ -47,6 +47,7 @@ from odocal.data.drive import Drive
 from odocal.errors import ConfigError, DataError
 from odocal.estimators import core, fitting
 from odocal.estimators import departures as fitted
+from odocal.estimators.base import held_by_checks
 from odocal.estimators.estimate import (
     CovarianceKind,
     Estimate,
@@ -304,6 +305,11 @@ class OnlineCalibrator:
         diagnosis = check_drives([drive], self.settings)
         if self.car_settings is not None:         # the front wheels and steering, as batch
             diagnosis = diagnosis.plus(front_checks([drive], self.car_settings).findings)
+            # a model input left out whole (a steering angle beyond any car's: its unit), said
+            # as batch says it when it reads the log
+            diagnosis = diagnosis.plus([
+                Finding(Check.INVALID_INPUT, Severity.FALLBACK, name=str(said))
+                for said in drive.metadata.get("left_out", ())])
         if not (diagnosis.fatal or diagnosis.standstill):
             # the reference on the wheels' clock, and the sensors' departures, measured as
             # batch measures them (on the samples as they came) and taken out of the samples
@@ -556,7 +562,7 @@ class OnlineCalibrator:
         windows kept: fitted at every update, a replay's time would grow with the square of
         its length); in between, its last fit is joined with the rear axle of now.
         """
-        rear = self._rear_estimate()
+        rear = self._rear_estimate(running=running)
         return rear if self.car_settings is None else self._car(rear, running=running)
 
     def _car(self, rear: Estimate, *, running: bool) -> Estimate:
@@ -572,6 +578,12 @@ class OnlineCalibrator:
         car = car_estimate(rear, None, self.car_settings, front=fit)
         found = mapping_findings(car, self._checks.checked,
                                  max_difference=self.car_settings.gate.max_abs_c_d_fraction)
+        if self._front is not None and rear.success and not self._front.measured:
+            found = (*found, Finding(
+                Check.INVALID_INPUT, Severity.FALLBACK,
+                name=f"{self.source} holds no sample with both front wheels' rates measured "
+                     "(n_fl, n_fr NaN throughout): the front axle and the steering are not "
+                     "calibrated; check the front wheel columns"))
         details = dataclasses.replace(
             rear.details, front=getattr(car.details, "front", None),
             front_kept_s=self._front.kept_s if self._front is not None else 0.0,
@@ -597,7 +609,7 @@ class OnlineCalibrator:
         return Alignment(self.delay_s(), self.heading_offset(), self._departures,
                          self._rear_fitted)
 
-    def _rear_estimate(self) -> Estimate:
+    def _rear_estimate(self, *, running: bool = True) -> Estimate:
         """The rear axle's estimate now (:meth:`estimate`)."""
         if self._checks.unchecked:
             self._check()
@@ -632,6 +644,8 @@ class OnlineCalibrator:
                                 reference_shift_s=self._departures.reference_shift_s,
                                 heading_own=self._fit.setup(windows, self._checks.checked).across,
                                 rivals=found.rivals)
+        if not running:
+            named += self._front_wheels_afresh(named)
         if any(f.severity is Severity.FATAL for f in named):
             status = Status.REJECTED
         departed = tuple((name, float(total[fitted.at(name)]),
@@ -646,6 +660,33 @@ class OnlineCalibrator:
                             self._details(found.clusters, [*named, *refused]),
                             departures=departed),
                         widening=found.uncertainty.widening)
+
+    def _front_wheels_afresh(self, named: Sequence[Finding]) -> list[Finding]:
+        """Front wheels mapped as the rear ones, judged as batch judges them: on every window
+        in memory, the departures chosen afresh (the running fit keeps what held out once,
+        and leaves out windows where a wheel turns far from its estimate: wheel offsets taken
+        in early, and the tight bends left out, blur the wheels' excess in bends that names
+        front wheels). Only where nothing is folded yet and the running fit has not named
+        them already; the named finding, or none."""
+        windows = self._windows
+        if windows is None or not windows.size or self._fit.folded.clusters or any(
+                f.check is Check.FRONT_WHEELS and f.severity is Severity.FATAL for f in named):
+            return []
+        checked = self._checks.checked
+        setup = dataclasses.replace(self._fit.setup(windows, checked), kept=())
+        try:
+            found = core.fit(windows, self._fit.folded, self.settings,
+                             heading_offset=self.heading_offset(), held=held_by_checks(checked),
+                             distance_only=checked.no_differential, setup=setup)
+        except (np.linalg.LinAlgError, FloatingPointError):
+            return []
+        total = found.fit.p.copy()
+        total[fitting.LAG] = found.lag.shift if "lag" in found.entered else 0.0
+        return [f for f in fitted.findings(
+                    total, found.nuisance_std, found.entered, t_s=self._t_s or 0.0,
+                    reference_shift_s=self._departures.reference_shift_s,
+                    heading_own=setup.across, rivals=found.rivals)
+                if f.check is Check.FRONT_WHEELS and f.severity is Severity.FATAL]
 
     @property
     def theta(self) -> FloatArray:

@@ -146,12 +146,16 @@ class LiveFront:
         self.source = source
         self._blocks: list[_Block] = []
         self._open: list[FloatArray] = []
+        #: Samples with both front wheels' rates measured, so far.
+        self.measured = 0
 
     def add(self, rows: FloatArray) -> bool:
         """Samples on the grid (M, len(COLUMNS)); whether a block full of them closed (then
         :meth:`settle` at the alignment of now)."""
         if not rows.shape[0]:
             return False
+        fl, fr = COLUMNS.index("n_fl"), COLUMNS.index("n_fr")
+        self.measured += int((np.isfinite(rows[:, fl]) & np.isfinite(rows[:, fr])).sum())
         self._open.append(rows)
         if float(rows[-1, 0]) - float(self._open[0][0, 0]) < BLOCK_S:
             return False

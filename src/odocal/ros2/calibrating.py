@@ -119,12 +119,14 @@ class Schedule:
                 self._alarms = len(c.alarms)
                 events.append(Raised(self.view()))
             if self._updates.due(c.span_s):
-                events.append(self.estimate())
+                events.append(self.estimate(running=True))
         events.append(Pushed(self.view()))
         return events
 
-    def estimate(self) -> Updated:
-        est = self.calibrator.estimate()
+    def estimate(self, *, running: bool = False) -> Updated:
+        """The estimate now (``running``: a periodic update, as replay's are:
+        :meth:`~odocal.online.calibrator.OnlineCalibrator.estimate`)."""
+        est = self.calibrator.estimate(running=running)
         self._alarms = len(self.calibrator.alarms)
         return Updated(est, self.view())
 
