@@ -510,7 +510,7 @@ def _predict(p: FloatArray, w: FrontWindows) -> tuple[FloatArray, FloatArray]:
     """Each window's channels (N, 3) and their Jacobian in ``p = [theta, traction]``
     (N, 3, 11)."""
     theta = p[:_K]
-    revs, jac = FOUR_WHEEL_MODEL.inverse_step(theta, w.ds, w.dpsi, w.a_y)
+    revs, jac = FOUR_WHEEL_MODEL.inverse_step(theta, w.ds, w.dpsi, w.a_y, front_only=True)
     slip = w.a_x[..., None]                                     # (N, k, 1)
     jac = np.concatenate([jac * (1.0 + p[_K] * slip)[..., None],
                           (revs * slip)[..., None]], axis=-1)

@@ -56,13 +56,15 @@ _E, _D, _T, _A, _F, _FD, _TF, _L, _RATIO, _S0 = range(FOUR_WHEEL.size)
 
 
 def inverse_step(theta: FloatArray, ds: FloatArray, dpsi: FloatArray,
-                 a_y: FloatArray) -> tuple[FloatArray, FloatArray]:
+                 a_y: FloatArray, *, front_only: bool = False) -> tuple[FloatArray, FloatArray]:
     """The revolutions each wheel turns over each step (M, 4: fl, fr, rl, rr) and their
-    Jacobian in theta (M, 4, n)."""
+    Jacobian in theta (M, 4, n); ``front_only``: the front wheels' alone (M, 2), (M, 2, n)
+    (what the front axle's fit takes: half the work and memory)."""
     th = np.asarray(theta, dtype=np.float64)
     ds, dpsi, a_y = (np.asarray(x, dtype=np.float64) for x in np.broadcast_arrays(ds, dpsi, a_y))
-    revs = np.empty((*ds.shape, 4))
-    jac = np.zeros((*ds.shape, 4, FOUR_WHEEL.size))
+    wheels = 2 if front_only else 4
+    revs = np.empty((*ds.shape, wheels))
+    jac = np.zeros((*ds.shape, wheels, FOUR_WHEEL.size))
     load = th[_A] * a_y
 
     def rolling(column: int, sign: float, mean: int, difference: int,
@@ -79,7 +81,7 @@ def inverse_step(theta: FloatArray, ds: FloatArray, dpsi: FloatArray,
         jac[..., column, _A] = sign * a_y * dc
         return c
 
-    for column, sign in ((2, 1.0), (3, -1.0)):                   # rl (+), rr (-)
+    for column, sign in () if front_only else ((2, 1.0), (3, -1.0)):   # rl (+), rr (-)
         c = rolling(column, sign, _E, _D, ds - sign * 0.5 * th[_T] * dpsi)
         jac[..., column, _T] = -sign * 0.5 * dpsi / c
     for column, sign in ((0, 1.0), (1, -1.0)):                   # fl (+), fr (-)
@@ -148,10 +150,11 @@ class FourWheelModel:
         return rear_axle(theta)
 
     def inverse_step(self, theta: FloatArray, ds: FloatArray, dpsi: FloatArray,
-                     a_y: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Each wheel's revolutions over each step (..., 4: fl, fr, rl, rr) and their
-        Jacobian in theta: :func:`inverse_step`."""
-        return inverse_step(theta, ds, dpsi, a_y)
+                     a_y: FloatArray, *, front_only: bool = False
+                     ) -> tuple[FloatArray, FloatArray]:
+        """Each wheel's revolutions over each step (..., 4: fl, fr, rl, rr; ``front_only``:
+        fl, fr) and their Jacobian in theta: :func:`inverse_step`."""
+        return inverse_step(theta, ds, dpsi, a_y, front_only=front_only)
 
     def steering(self, theta: FloatArray, ds: FloatArray,
                  dpsi: FloatArray) -> tuple[FloatArray, FloatArray]:
