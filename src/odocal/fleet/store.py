@@ -294,16 +294,9 @@ def _sql(value: Any) -> Any:
     return value
 
 
-def open_store(path: str | Path, *, create: bool = True, read_only: bool = False,
-               model: str | None = None) -> Store:
-    """Open (or create) a fleet database, migrating an older schema in place.
-
-    ``read_only``: open the file read-only (SQLite's ``mode=ro``): no journal-mode switch, no
-    schema, no migration; a file that is not an odocal store of this version is refused.
-    ``model``: the vehicle model the run calibrates; a store of another model's parameters is
-    refused (one store holds one model's columns), a new one is marked with it.
-    """
-    p = Path(path)
+def _check_path(p: Path, *, create: bool, read_only: bool) -> None:
+    """A one-line error where ``p`` cannot be a store opened so: none there (and not to be
+    created, or its folder missing), a folder, an empty file opened read-only."""
     if not p.exists():
         if not create or read_only:
             raise DataError(f"fleet store '{shown(p)}' does not exist")
@@ -316,6 +309,33 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
         input_file(p, "fleet store")
         if read_only and p.stat().st_size == 0:
             raise DataError(f"'{shown(p)}' is empty, not an odocal fleet store")
+
+
+def _migrate(store: Store, version: int) -> None:
+    """The store's schema from ``version`` to this odocal's (SQLite's DDL is transactional:
+    the migration and the new tables land together or not at all)."""
+    with store.transaction() as tx:
+        if version == 1:
+            _migrate_1_to_2(tx)
+        if version in (1, 2):
+            _migrate_2_to_3(tx)
+        _create_tables(tx, store.layout)
+        tx.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)",
+                   (str(SCHEMA_VERSION),))
+        tx.execute("INSERT OR IGNORE INTO meta VALUES ('created_at', ?)", (_now(),))
+
+
+def open_store(path: str | Path, *, create: bool = True, read_only: bool = False,
+               model: str | None = None) -> Store:
+    """Open (or create) a fleet database, migrating an older schema in place.
+
+    ``read_only``: open the file read-only (SQLite's ``mode=ro``): no journal-mode switch, no
+    schema, no migration; a file that is not an odocal store of this version is refused.
+    ``model``: the vehicle model the run calibrates; a store of another model's parameters is
+    refused (one store holds one model's columns), a new one is marked with it.
+    """
+    p = Path(path)
+    _check_path(p, create=create, read_only=read_only)
     db, tables = _connect(p, read_only)
     version = 0
     if "meta" in tables:
@@ -340,16 +360,7 @@ def open_store(path: str | Path, *, create: bool = True, read_only: bool = False
         _tables_for(db, model, tables)
     store = Store(db, p, stated or model or registry.DEFAULT)
     if version < SCHEMA_VERSION:
-        # SQLite's DDL is transactional: the migration and the new tables land together or not
-        with store.transaction() as tx:
-            if version == 1:
-                _migrate_1_to_2(tx)
-            if version in (1, 2):
-                _migrate_2_to_3(tx)
-            _create_tables(tx, store.layout)
-            tx.execute("INSERT OR REPLACE INTO meta VALUES ('schema_version', ?)",
-                       (str(SCHEMA_VERSION),))
-            tx.execute("INSERT OR IGNORE INTO meta VALUES ('created_at', ?)", (_now(),))
+        _migrate(store, version)
     if model is not None and not read_only:
         try:
             with store.transaction() as tx:
