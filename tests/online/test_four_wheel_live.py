@@ -316,3 +316,34 @@ def test_a_refused_final_estimate_is_said_with_what_is_published_instead(
     assert re.search(r"note: the final estimate was refused \(.*front wheels mapped as the "
                      r"rear ones.*\); published: the last estimate that was not, from "
                      r"[\d.]+ km", said.out + said.err)
+
+
+def test_a_change_of_the_front_tyres_alone_is_named_and_widens_c_f(
+        car: tuple[SimulatedDrive, np.ndarray]) -> None:
+    """Both front tyres 2% smaller from halfway on (the rear wheels as they were: the rear's
+    change detector sees nothing): batch and live name the change, and c_f (the mix of the
+    two) carries a std that covers the tyres of now (it came out 9 of its stds off). The drive
+    without a change is not named."""
+    from odocal.checks.findings import Diagnosis
+    from odocal.estimators.front_axle import mapping_findings
+
+    sim, truth = car
+    columns = sim.drive.columns()
+    after = columns["t"] >= 600.0
+    changed = {**columns, "n_fl": np.where(after, columns["n_fl"] / 1.02, columns["n_fl"]),
+               "n_fr": np.where(after, columns["n_fr"] / 1.02, columns["n_fr"])}
+    c_f = FOUR_WHEEL.index("c_f")
+    now = truth[c_f] * 1.02
+    live = pushed(changed).estimate()
+    batch = odocal.calibrate(odocal.Drive.from_columns(changed, name="front tyres"),
+                             settings=FOUR)
+    for est, findings in ((live, live.details.findings),
+                          (batch.model_estimate, batch.diagnosis.findings)):
+        named = [f for f in findings if f.check.value == "front-axle" and f.name == "change"]
+        assert len(named) == 1 and named[0].severity.name == "FALLBACK"
+        assert named[0].value == pytest.approx(-0.0196, abs=0.002) and named[0].reference < -5
+        assert abs(est.theta.as_array()[c_f] - now) < 2.0 * est.std[c_f]
+        assert est.verdicts[c_f].std == pytest.approx(est.std[c_f], rel=1e-12)
+    clean = pushed(columns).estimate()
+    assert clean.details.front.change is None
+    assert not [f for f in mapping_findings(clean, Diagnosis(())) if f.name == "change"]

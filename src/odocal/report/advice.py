@@ -463,6 +463,11 @@ def _four_wheel_text(finding: Finding) -> str:
                 f"({abs(v) / ref:.1%}), where two tyres of one axle differ by a few "
                 "millimetres: a tyre of another size or wear, or one wheel's signal scaled? "
                 "(the calibration stands as the wheels report)")
+    if what == "change":
+        return (f"the front wheels' circumference changed by {v:+.2%} within the drives (their "
+                f"later half against the earlier, {abs(ref):.0f} standard deviations): a front "
+                "tyre changed, or its pressure; c_f is a mix of the two, its std widened to "
+                "cover either (calibrate on the drives after the change for its value now)")
     if what == "difference":
         return (f"the front wheels' circumferences differ by {v * 1e3:.4g} mm of {ref:.4g} m, "
                 "more than two tyres of one axle do: one front wheel reads a share of its "
