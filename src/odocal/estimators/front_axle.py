@@ -1138,6 +1138,15 @@ def _joins(front: FrontFit, prior_std: float) -> bool:
     return all(identified[n] for n in _WITH_LOAD) and 0.0 < std < prior_std
 
 
+def _changed(vehicle: Estimate) -> list[Finding]:
+    """A change of the front tyres within the drives (:func:`front_change`), as a warning:
+    c_f is their mix, its std widened."""
+    change = getattr(getattr(vehicle.details, "front", None), "change", None)
+    if change is None:
+        return []
+    return [Finding(Check.FRONT_AXLE, Severity.FALLBACK, change[0], change[1], "change")]
+
+
 def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis, *,
                      max_difference: float = MAX_DIFFERENCE_SHARE) -> tuple[Finding, ...]:
     """What the four-wheel fit shows of the wheels' mapping and units, fatal each: front
@@ -1150,13 +1159,10 @@ def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis, *,
     has. A front axle whose circumference differs from the rear's by more than
     :data:`FRONT_SCALE_NOTE` is a note (staggered tyres differ by a few per cent). A
     front and rear axle swapped, or a front wheel in a rear column, the rear fit names itself
-    (:data:`~odocal.checks.findings.Check.FRONT_WHEELS`)."""
-    found = []
+    (:data:`~odocal.checks.findings.Check.FRONT_WHEELS`). A change of the front tyres within
+    the drives is a warning (:func:`_changed`)."""
+    found = _changed(vehicle)
     th, ok = vehicle.theta.as_dict(), vehicle.identified
-    change = getattr(getattr(vehicle.details, "front", None), "change", None)
-    if change is not None:
-        found.append(Finding(Check.FRONT_AXLE, Severity.FALLBACK, change[0], change[1],
-                             "change"))
     t_f = LAYOUT.index("t_f")
     if ok[t_f] and th["t_f"] < 0.0:
         found.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL, th["t_f"],
