@@ -30,8 +30,13 @@ _names = st.text(alphabet=string.ascii_letters + "_/", max_size=9)
 _floats = st.floats(allow_nan=False, allow_infinity=False, width=64)
 
 
-def _pick(names: tuple[str, ...]) -> tuple[int, int]:
-    return names.index("L"), names.index("R")
+def _pick(names: tuple[str, ...]) -> tuple[tuple[int, ...], int | None]:
+    return (names.index("L"), names.index("R")), None
+
+
+def _pick_car(names: tuple[str, ...]) -> tuple[tuple[int, ...], int | None]:
+    """The car's: the rear wheels, then the front ones, and the steering joint."""
+    return tuple(names.index(n) for n in ("L", "R", "FL", "FR")), names.index("S")
 
 
 @given(frame=_names, names=st.lists(_names.filter(lambda n: n not in "LR"), max_size=4),
@@ -55,9 +60,9 @@ def test_a_joint_state_reads_as_rclpy_serialized_it(frame: str, names: list[str]
     data = serialize_message(msg)
     reader = cdr.JointReader(_pick)
     for _ in range(2):                              # learned, then from the cached layout
-        got_sec, got_nsec, pos, vel = reader.read(data)
+        got_sec, got_nsec, pos, vel, steering = reader.read(data)
         i, j = joints.index("L"), joints.index("R")
-        assert (got_sec, got_nsec) == (sec, nsec)
+        assert (got_sec, got_nsec) == (sec, nsec) and steering is None
         assert pos == ((msg.position[i], msg.position[j]) if positions else None)
         assert vel == ((msg.velocity[i], msg.velocity[j]) if velocities else None)
         # the node's loop: the stamp and the velocities by the layout, None without velocities
@@ -65,6 +70,40 @@ def test_a_joint_state_reads_as_rclpy_serialized_it(frame: str, names: list[str]
                                            if velocities else None)
     full = cdr.joint_state(data)
     assert full.names == tuple(j.encode() for j in joints)
+
+
+@given(names=st.lists(_names.filter(lambda n: n not in ("L", "R", "FL", "FR", "S")),
+                      max_size=3),
+       order=st.permutations(["L", "R", "FL", "FR", "S"]), where=st.integers(0, 3),
+       positions=st.booleans(), velocities=st.booleans(),
+       values=st.lists(_floats, min_size=16, max_size=16))
+@example(names=[], order=["S", "FL", "L", "FR", "R"], where=0, positions=False,
+         velocities=True, values=[float(v) for v in range(16)])
+def test_a_cars_joint_state_reads_four_wheels_and_the_steering(
+        names: list[str], order: list[str], where: int, positions: bool, velocities: bool,
+        values: list[float]) -> None:
+    """The car's reader: the four wheels' velocities in the order picked and the steering
+    joint's position, wherever they lie among other joints; the quick read only where both the
+    velocities and the steering's position are in the messages."""
+    joints = list(names)
+    joints[min(where, len(joints)):min(where, len(joints))] = order
+    n = len(joints)
+    msg = JointState(name=joints, position=values[:n] if positions else [],
+                     velocity=values[n:2 * n] if velocities else [])
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 3, 4
+    data = serialize_message(msg)
+    reader = cdr.JointReader(_pick_car)
+    at = [joints.index(k) for k in ("L", "R", "FL", "FR")]
+    steer_at = joints.index("S")
+    for _ in range(2):
+        sec, nsec, pos, vel, steering = reader.read(data)
+        assert (sec, nsec) == (3, 4)
+        assert pos == (tuple(msg.position[i] for i in at) if positions else None)
+        assert vel == (tuple(msg.velocity[i] for i in at) if velocities else None)
+        assert steering == (msg.position[steer_at] if positions else None)
+        assert reader.velocities(data) == (
+            (3, 4, *(msg.velocity[i] for i in at), msg.position[steer_at])
+            if positions and velocities else None)
 
 
 def test_a_joint_state_of_another_layout_is_learned_anew() -> None:
@@ -128,7 +167,7 @@ def test_big_endian_messages_read_as_little_endian_ones() -> None:
         data = bytes(store.serialize_cdr(joint, "sensor_msgs/msg/JointState",
                                          little_endian=little))
         assert data[1] == (1 if little else 0)
-        assert cdr.JointReader(_pick).read(data) == (7, 8, (2.0, 3.0), (5.0, 6.0))
+        assert cdr.JointReader(_pick).read(data) == (7, 8, (2.0, 3.0), (5.0, 6.0), None)
 
 
 @pytest.mark.parametrize("data", [b"", b"\x00\x01\x00\x00" + b"\x00" * 8,
@@ -190,6 +229,13 @@ def test_rates_from_positions_are_the_step_over_its_time_at_its_middle() -> None
     t, left, right = rates.add(1.1, 2 * math.pi, -math.pi)       # type: ignore[misc]
     assert t == pytest.approx(1.05) and left == pytest.approx(10.0) and right == pytest.approx(-5.0)
     assert rates.add(2.0, 0.0, 0.0) is None                       # a gap: a new piece
+    # four joints and a steering angle beside them (its mean over the step)
+    # (other joints than the step before: a new piece)
+    assert rates.add(2.1, 0.0, 0.0, 0.0, 0.0, angles=(0.2,)) is None
+    t, *got = rates.add(2.3, math.pi, 0.0, -math.pi, 4 * math.pi,  # type: ignore[misc]
+                        angles=(0.4,))
+    assert t == pytest.approx(2.2)
+    assert got == pytest.approx([2.5, 0.0, -2.5, 10.0, 0.3])
 
 
 def test_reading_noise_is_the_variance_of_white_readings() -> None:

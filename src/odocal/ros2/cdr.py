@@ -157,35 +157,42 @@ def joint_state(data: bytes) -> Joints:
 
 @dataclass(frozen=True)
 class _JointLayout:
-    """Where two joints' values lie in JointState messages of one layout."""
+    """Where the picked joints' values lie in JointState messages of one layout."""
 
     order: str
     length: int
     fields: struct.Struct            # every length and count field, from offset 12
     values: tuple[int, ...]          # ... as they read in this layout
-    names: tuple[tuple[int, bytes], ...]   # the two joints' names: (offset, characters)
-    positions: tuple[int, int]       # the two joints' offsets (-1: none in these messages)
-    velocities: tuple[int, int]
-    quick: Fixed | None              # the stamp and the two velocities (where there are)
+    names: tuple[tuple[int, bytes], ...]   # the picked joints' names: (offset, characters)
+    positions: tuple[int, ...]       # the wheel joints' offsets (-1: none in these messages)
+    velocities: tuple[int, ...]
+    steering: int                    # the steering joint's position's offset (-1: none)
+    quick: Fixed | None              # the stamp, the velocities and the steering (where there are)
+
+
+#: What a reader is asked to pick from a layout's joint names: the wheel joints' indices (in
+#: the order the values are wanted) and the steering joint's (None: no steering).
+Pick = Callable[[tuple[str, ...]], tuple[tuple[int, ...], int | None]]
 
 
 class JointReader:
-    """Two joints' positions and velocities from JointState bytes, by index into the names.
+    """The wheel joints' positions and velocities, and a steering joint's position, from
+    JointState bytes, by index into the names.
 
-    ``pick(names)`` says which two joints (their indices; names as text), or raises; it is
-    asked once per layout of the messages (joint names, their lengths, how many positions and
+    ``pick(names)`` says which joints (their indices; names as text), or raises; it is asked
+    once per layout of the messages (joint names, their lengths, how many positions and
     velocities). A message of the layout seen last is read with one check of its length and
-    count fields and of the two names' characters; any other is parsed in full.
+    count fields and of the picked names' characters; any other is parsed in full.
     """
 
-    def __init__(self, pick: Callable[[tuple[str, ...]], tuple[int, int]]) -> None:
+    def __init__(self, pick: Pick) -> None:
         self._pick = pick
         self._layout: _JointLayout | None = None
 
-    def read(self, data: bytes) -> tuple[int, int, tuple[float, float] | None,
-                                         tuple[float, float] | None]:
-        """(sec, nanosec, (left, right) positions or None, (left, right) velocities or
-        None)."""
+    def read(self, data: bytes) -> tuple[int, int, tuple[float, ...] | None,
+                                         tuple[float, ...] | None, float | None]:
+        """(sec, nanosec, the wheels' positions or None, their velocities or None, the
+        steering joint's position or None)."""
         lay = self._layout
         if lay is None or len(data) != lay.length or data[1] != (lay.order == "<") \
                 or lay.fields.unpack_from(data, 12) != lay.values \
@@ -193,16 +200,20 @@ class JointReader:
             lay = self._layout = self._learn(data)
         sec, nsec = struct.unpack_from(lay.order + "iI", data, 4)
         d = lay.order + "d"
-        pos, vel = lay.positions, lay.velocities
-        return (sec, nsec,
-                (struct.unpack_from(d, data, pos[0])[0], struct.unpack_from(d, data, pos[1])[0])
-                if pos[0] >= 0 else None,
-                (struct.unpack_from(d, data, vel[0])[0], struct.unpack_from(d, data, vel[1])[0])
-                if vel[0] >= 0 else None)
 
-    def velocities(self, data: bytes) -> tuple[int, int, float, float] | None:
-        """(sec, nanosec, left, right velocity) of a message of the layout seen last, where
-        it has velocities; None for any other message (:meth:`read` it)."""
+        def values(offsets: tuple[int, ...]) -> tuple[float, ...] | None:
+            if offsets[0] < 0:
+                return None
+            return tuple(struct.unpack_from(d, data, at)[0] for at in offsets)
+
+        steering = (struct.unpack_from(d, data, lay.steering)[0] if lay.steering >= 0
+                    else None)
+        return sec, nsec, values(lay.positions), values(lay.velocities), steering
+
+    def velocities(self, data: bytes) -> tuple[Any, ...] | None:
+        """(sec, nanosec, each wheel's velocity[, the steering's position]) of a message of
+        the layout seen last, where it has them; None for any other message (:meth:`read`
+        it)."""
         lay = self._layout
         if lay is None or lay.quick is None:
             return None
@@ -228,13 +239,16 @@ class JointReader:
 
         string()                                          # header.frame_id
         names = [string() for _ in range(u32())]
-        left, right = self._pick(tuple(n.decode("utf-8", "replace") for _, n in names))
+        wheels, steer = self._pick(tuple(n.decode("utf-8", "replace") for _, n in names))
         offsets = []
-        for _ in range(2):                                # positions, velocities
+        steering = -1
+        for kind in ("positions", "velocities"):
             n = u32()
             at = c.doubles_at(n) if n else c.pos
-            offsets.append((at + 8 * left, at + 8 * right)
-                           if n > max(left, right) else (-1, -1))
+            offsets.append(tuple(at + 8 * i for i in wheels) if n > max(wheels)
+                           else (-1,) * len(wheels))
+            if kind == "positions" and steer is not None and n > steer:
+                steering = at + 8 * steer
         n = u32()                                         # efforts (their count fixes the length)
         if n:
             c.doubles_at(n)
@@ -243,15 +257,17 @@ class JointReader:
             fmt += f"{at - pos}xI"
             pos = at + 4
         velocities = offsets[1]
+        picked = tuple(names[i] for i in (*wheels, *(() if steer is None else (steer,))))
         checks = [(at, "I", v) for at, v in fields] + [
-            (at, f"{len(name)}s", name) for at, name in (names[left], names[right]) if name]
-        quick = (Fixed(data, c.order, checks,
-                       [*_STAMP, (velocities[0], "d"), (velocities[1], "d")])
-                 if velocities[0] >= 0 else None)
+            (at, f"{len(name)}s", name) for at, name in picked if name]
+        reads = [*_STAMP, *((at, "d") for at in velocities),
+                 *(((steering, "d"),) if steering >= 0 else ())]
+        quick = (Fixed(data, c.order, checks, reads)
+                 if velocities[0] >= 0 and (steer is None or steering >= 0) else None)
         return _JointLayout(order=c.order, length=len(data), fields=struct.Struct(fmt),
-                            values=tuple(v for _, v in fields),
-                            names=(names[left], names[right]),
-                            positions=offsets[0], velocities=velocities, quick=quick)
+                            values=tuple(v for _, v in fields), names=picked,
+                            positions=offsets[0], velocities=velocities, steering=steering,
+                            quick=quick)
 
 
 def _fields_at(data: bytes, strings: int, doubles: int) -> tuple[str, int]:

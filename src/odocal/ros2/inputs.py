@@ -150,20 +150,26 @@ class Buffer:
 
 class Rates:
     """Wheel rates (rev/s) from wheel joint positions (rad): the change over the step between
-    two messages, at the step's middle. A step longer than ``max_gap_s`` starts over."""
+    two messages, at the step's middle (and an angle read beside them, a steering joint's, as
+    its mean over the step). A step longer than ``max_gap_s``, or of other joints, starts
+    over."""
 
     def __init__(self, max_gap_s: float) -> None:
         self.max_gap_s = max_gap_s
-        self._last: tuple[float, float, float] | None = None
+        self._last: tuple[float, tuple[float, ...], tuple[float, ...]] | None = None
 
-    def add(self, t: float, left_rad: float, right_rad: float) -> tuple[float, float, float] | None:
-        """(t of the middle of the step, n_rl, n_rr), or None for the first of a piece."""
-        last, self._last = self._last, (t, left_rad, right_rad)
-        if last is None or not 0.0 < t - last[0] <= self.max_gap_s:
+    def add(self, t: float, *positions_rad: float, angles: tuple[float, ...] = ()
+            ) -> tuple[float, ...] | None:
+        """(t of the middle of the step, each joint's rate in rev/s, then each of ``angles``
+        at the step's middle), or None for the first of a piece."""
+        last, self._last = self._last, (t, positions_rad, angles)
+        if last is None or not 0.0 < t - last[0] <= self.max_gap_s \
+                or len(last[1]) != len(positions_rad) or len(last[2]) != len(angles):
             return None
-        dt = t - last[0]
-        return (0.5 * (t + last[0]), (left_rad - last[1]) / (TWO_PI * dt),
-                (right_rad - last[2]) / (TWO_PI * dt))
+        turn = TWO_PI * (t - last[0])
+        return (0.5 * (t + last[0]),
+                *((now - was) / turn for now, was in zip(positions_rad, last[1], strict=True)),
+                *(0.5 * (now + was) for now, was in zip(angles, last[2], strict=True)))
 
     def reset(self) -> None:
         self._last = None
