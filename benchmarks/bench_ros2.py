@@ -2,7 +2,7 @@
 
     python benchmarks/bench_ros2.py [--factors 25,50,100] [--sweep-minutes 10]
                                     [--hour-factor 100] [--hours 1] [--rate-hz 100]
-                                    [--pose-every 2] [--profile]
+                                    [--pose-every 2] [--profile] [--car]
 
 Processes on this machine's private ROS 2 domain (discovery on localhost only):
 
@@ -56,6 +56,11 @@ NODE = "odocal_bench"
 #: The wheels' and IMU's rate (Hz) and every how many of their samples a pose comes
 #: (--rate-hz, --pose-every: the defaults are a car's drivers, 100 Hz and 50 Hz).
 RATE = {"hz": 100.0, "pose_every": 2}
+#: --car: the four-wheel car (four wheel joints and the steering wheel's in one JointState, the
+#: node started with [vehicle] model = "four_wheel" and steering_joint).
+CAR = {"on": False}
+CAR_JOINTS = ["front_left_wheel", "front_right_wheel", "rear_left_wheel", "rear_right_wheel",
+              "steering_wheel"]
 START_S = 1000.0
 CHUNK = 100                                   # samples serialized at a time (1 s of driving)
 TOPICS = ("/bench/joint_states", "/bench/imu", "/bench/pose")
@@ -159,6 +164,11 @@ def _templates() -> dict[str, _Template]:
     sec, nsec = (1_111_111_111, "i"), (333_333_333, "I")
     joint = JointState(name=["rear_left_wheel_joint", "rear_right_wheel_joint"],
                        velocity=[1.25e-300, 2.5e-300])
+    car = {"fl": (0.25e-300, "d"), "fr": (0.5e-300, "d"), "steer": (0.75e-300, "d")}
+    if CAR["on"]:
+        joint = JointState(name=CAR_JOINTS, velocity=[0.25e-300, 0.5e-300, 1.25e-300,
+                                                      2.5e-300, 0.0],
+                           position=[0.0, 0.0, 0.0, 0.0, 0.75e-300])
     joint.header.stamp.sec, joint.header.stamp.nanosec = sec[0], nsec[0]
     imu = Imu()
     imu.header.frame_id = "base_link"
@@ -175,7 +185,7 @@ def _templates() -> dict[str, _Template]:
     clock.clock.sec, clock.clock.nanosec = sec[0], nsec[0]
     return {
         "wheels": _Template(joint, {"sec": sec, "nsec": nsec, "l": (1.25e-300, "d"),
-                                    "r": (2.5e-300, "d")}),
+                                    "r": (2.5e-300, "d"), **(car if CAR["on"] else {})}),
         "imu": _Template(imu, {"sec": sec, "nsec": nsec, "w": (3.5e-300, "d"),
                                "a": (4.5e-300, "d")}),
         "pose": _Template(pose, {"sec": sec, "nsec": nsec, "x": (5.5e-300, "d"),
@@ -201,9 +211,11 @@ def _blocks(data: Any, tpl: dict[str, _Template], lo: int, hi: int) -> dict[str,
     pose = ks % RATE["pose_every"] == 0
     clock = ks % _clock_every() == 0
     half = 0.5 * data["psi"][lo:hi]
+    car = ({"fl": data["n_fl"][lo:hi] * two_pi, "fr": data["n_fr"][lo:hi] * two_pi,
+            "steer": data["steer"][lo:hi]} if CAR["on"] else {})
     return {
         "wheels": tpl["wheels"].block(sec=sec, nsec=nsec, l=data["n_rl"][lo:hi] * two_pi,
-                                      r=data["n_rr"][lo:hi] * two_pi),
+                                      r=data["n_rr"][lo:hi] * two_pi, **car),
         "imu": tpl["imu"].block(sec=sec, nsec=nsec, w=data["yaw_rate"][lo:hi],
                                 a=data["a_y"][lo:hi]),
         "pose": tpl["pose"].block(sec=sec[pose], nsec=nsec[pose], x=data["x"][lo:hi][pose],
@@ -359,15 +371,20 @@ def _drive(minutes: float, folder: Path) -> tuple[Path, int]:
 
     sim = odocal.simulate(duration_s=minutes * 60.0, seed=5, noise="realistic",
                           t_s=1.0 / RATE["hz"])
+    if CAR["on"]:
+        from odocal.sim.four_wheel import with_front_axle
+
+        sim, _ = with_front_axle(sim)
     d = sim.drive
     path = folder / f"drive_{minutes:g}.npz"
     np.savez(path, t=d.t, n_rl=d.n_rl, n_rr=d.n_rr, a_y=d.a_y, yaw_rate=d.yaw_rate, x=d.x,
-             y=d.y, psi=d.psi)
+             y=d.y, psi=d.psi, **d.inputs)
     return path, d.n_samples
 
 
 def _rate_args() -> list[str]:
-    return ["--rate-hz", str(RATE["hz"]), "--pose-every", str(RATE["pose_every"])]
+    return ["--rate-hz", str(RATE["hz"]), "--pose-every", str(RATE["pose_every"]),
+            *(["--car"] if CAR["on"] else [])]
 
 
 def _cores() -> tuple[set[int], set[int]]:
@@ -430,9 +447,14 @@ def run(drive: Path, n: int, factor: float, folder: Path, domain: int, *,
     tag = f"{factor:g}_{n}"
     prof = folder / f"node_{tag}.prof"
     python = [sys.executable] + (["-c", _PROFILED, str(prof)] if profile else ["-m", "odocal"])
-    node_cmd = [*python, "ros2", "--ros-args", "-r", f"__node:={NODE}",
+    car: list[str] = []
+    if CAR["on"]:
+        (folder / "car.toml").write_text('[vehicle]\nmodel = "four_wheel"\n')
+        car = ["--config", str(folder / "car.toml")]
+    node_cmd = [*python, "ros2", *car, "--ros-args", "-r", f"__node:={NODE}",
                 "-p", "use_sim_time:=true", "-p", f"wheel_topic:={TOPICS[0]}",
                 "-p", f"imu_topic:={TOPICS[1]}", "-p", f"pose_topic:={TOPICS[2]}",
+                *(["-p", "steering_joint:=steering_wheel"] if car else []),
                 "--disable-external-lib-logs"]
     err = open(folder / f"node_{tag}.err", "w")
     node = _start(node_cmd, env, node_core, cwd=ROOT, stderr=err, stdout=subprocess.DEVNULL)
@@ -551,8 +573,11 @@ def main() -> None:
                     help="the wheels' and the IMU's rate (Hz; default 100)")
     ap.add_argument("--pose-every", type=int, default=2,
                     help="a pose every this many of their samples (default 2: 50 Hz)")
+    ap.add_argument("--car", action="store_true",
+                    help="the four-wheel car: four wheel joints and a steering joint")
     args = ap.parse_args()
     RATE["hz"], RATE["pose_every"] = args.rate_hz, args.pose_every
+    CAR["on"] = args.car
     if args.role == "player":
         player(args.drive, args.factor, args.out)
         return
@@ -564,8 +589,10 @@ def main() -> None:
         return
     domain = random.SystemRandom().randint(1, 101)
     node_core, _ = _cores()
-    print(f"ROS 2 domain {domain} (localhost discovery); wheels and IMU at {RATE['hz']:g} Hz, "
-          f"the pose at {RATE['hz'] / RATE['pose_every']:g} Hz "
+    car = ("the four-wheel car (four wheels and the steering in each JointState); "
+           if CAR["on"] else "")
+    print(f"ROS 2 domain {domain} (localhost discovery); {car}wheels and IMU at "
+          f"{RATE['hz']:g} Hz, the pose at {RATE['hz'] / RATE['pose_every']:g} Hz "
           f"({RATE['hz'] * (2 + 1 / RATE['pose_every']):g} messages per second of driving); "
           f"node pinned to core "
           f"{min(node_core)}; cores {os.cpu_count()}, load {os.getloadavg()[0]:.1f} "

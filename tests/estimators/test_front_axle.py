@@ -149,8 +149,7 @@ def test_a_drive_without_steering_leaves_the_ratio_and_offset_unidentified(
 def test_commands_for_the_rear_axle_only_refuse_the_model_in_one_line(tmp_path: Path) -> None:
     config = tmp_path / "four.toml"
     config.write_text('[vehicle]\nmodel = "four_wheel"\n')
-    for command in (["reproduce", "--config", str(config), "--distance-km", "1"],
-                    ["ros2", "--config", str(config)]):
+    for command in (["reproduce", "--config", str(config), "--distance-km", "1"],):
         run = subprocess.run([sys.executable, "-m", "odocal", *command], capture_output=True,
                              text=True, check=False, timeout=120)
         assert run.returncode != 0

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 import odocal
-from tests.bagwriter import JOINTS
+from tests.bagwriter import BAG_JOINTS, JOINTS
 from tests.ros2.rosenv import require_rclpy
 
 require_rclpy()
@@ -75,6 +75,9 @@ class Script:
     start_s: float = START_S
     joints: Sequence[str] = tuple(JOINTS)
     positions_only: bool = False           # JointState without velocities
+    car: bool = False                      # four wheels (the drive's n_fl, n_fr) and, as the
+    steering: bool = True                  # ... fifth joint's position, its steer (rad)
+    steering_deg: bool = False             # ... or in degrees
     imu_until_s: float = np.inf            # the IMU goes silent after this (s of the drive)
     pose_type: str = "odometry"            # or pose_with_covariance
     sideslip: bool = False                 # the reference's twist carries the drive's beta
@@ -127,7 +130,9 @@ def messages(d: odocal.Drive, k: int, script: Script, sim: Any = None) -> dict[s
     rates = [float(d.n_rl[k]) * 2 * np.pi, float(d.n_rr[k]) * 2 * np.pi]
     joints = list(script.joints)
     joint = JointState(name=joints)
-    if script.positions_only:
+    if script.car:
+        _car_joints(joint, d, k, script)
+    elif script.positions_only:
         # the wheels' angles: the rates summed over the steps before (trapezoidal)
         joint.position = [0.0] * (len(joints) - 2) + [float(v) for v in script.extra["angles"][k]]
     else:
@@ -158,11 +163,26 @@ def messages(d: odocal.Drive, k: int, script: Script, sim: Any = None) -> dict[s
     return out
 
 
-def wheel_angles(d: odocal.Drive) -> np.ndarray:
-    """The wheels' joint angles (rad) whose steps over the drive's samples give its rates."""
-    rates = np.column_stack([d.n_rl, d.n_rr]) * 2 * np.pi
+def _car_joints(joint: JointState, d: odocal.Drive, k: int, script: Script) -> None:
+    """A car's JointState (:data:`BAG_JOINTS`, or ``script.joints`` where it names five): the
+    four wheels in that order, then the steering wheel (its position the drive's steer)."""
+    joint.name = list(script.joints) if len(script.joints) == 5 else list(BAG_JOINTS)
+    steer = float(d.inputs["steer"][k]) if script.steering else 0.0
+    steer = math.degrees(steer) if script.steering_deg else steer
+    if script.positions_only:
+        joint.position = [float(v) for v in script.extra["angles"][k]] + [steer]
+    else:
+        joint.position = [0.0] * 4 + [steer]
+        joint.velocity = [float(d.inputs[c][k]) * 2 * np.pi for c in ("n_fl", "n_fr")] + [
+            float(d.n_rl[k]) * 2 * np.pi, float(d.n_rr[k]) * 2 * np.pi, 0.0]
+
+
+def wheel_angles(d: odocal.Drive, columns: Sequence[str] = ("n_rl", "n_rr")) -> np.ndarray:
+    """The wheels' joint angles (rad) whose steps over the drive's samples give its rates
+    (``columns``: the drive's wheel columns, in the joints' order)."""
+    rates = np.column_stack([d.columns()[c] for c in columns]) * 2 * np.pi
     steps = 0.5 * (rates[1:] + rates[:-1]) * np.diff(d.t)[:, None]
-    return np.vstack([np.zeros((1, 2)), np.cumsum(steps, axis=0)])
+    return np.vstack([np.zeros((1, len(columns))), np.cumsum(steps, axis=0)])
 
 
 def spin_until(executor: Any, done: Callable[[], bool], what: str, limit_s: float = 60.0) -> None:

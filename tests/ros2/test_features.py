@@ -34,7 +34,7 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from odocal.ros2 import params  # noqa: E402
-from odocal.ros2.node import ESTIMATE_COLUMNS, CalibrationNode  # noqa: E402
+from odocal.ros2.node import CalibrationNode, estimate_columns  # noqa: E402
 
 PARAMS_FILE = Path(params.__file__).with_name("odocal_ros2.params.yaml")
 
@@ -64,7 +64,8 @@ def test_the_estimate_is_latched_data_with_its_labels(rig: Any, drive: odocal.Dr
     msg = got[-1]
     rows, columns = msg.layout.dim
     assert rows.label == "parameter: c_e c_d t_r d" and rows.size == 4
-    assert columns.label == "column: " + " ".join(ESTIMATE_COLUMNS) and columns.size == 7
+    assert columns.label == "column: " + " ".join(estimate_columns(("c_e", "c_d", "t_r", "d")))
+    assert columns.size == 7
     table = np.array(msg.data).reshape(4, 7)
     assert np.array_equal(table[:, 0], est.theta.as_array())
     assert np.array_equal(table[:, 1], est.std)

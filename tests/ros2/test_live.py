@@ -439,26 +439,6 @@ def test_bad_parameters_are_refused_at_start_in_one_line(ros: Any, given: dict[s
     assert len(str(caught.value).splitlines()) == 1
 
 
-def test_a_settings_file_choosing_the_car_is_refused_at_start_in_one_line(
-        ros: Any, tmp_path: Path) -> None:
-    """The node reads two wheel joints: the four-wheel model (replay takes it) is refused,
-    from its settings as from a settings_file parameter."""
-    from rclpy.parameter import Parameter
-
-    from odocal.ros2.node import CalibrationNode
-    from tests.ros2.rig import unique
-
-    car = tmp_path / "car.toml"
-    car.write_text('[vehicle]\nmodel = "four_wheel"\n')
-    for kwargs in ({"settings": odocal.Settings().replace(vehicle={"model": "four_wheel"})},
-                   {"parameter_overrides": [Parameter("settings_file", value=str(car))]}):
-        with pytest.raises(odocal.ConfigError, match="odocal ros2 takes the rear_axle model "
-                                                     "only") as caught:
-            CalibrationNode(context=ros, node_name=unique("car"), enable_rosout=False,
-                            **kwargs)
-        assert len(str(caught.value).splitlines()) == 1
-
-
 def test_a_bad_parameter_on_the_command_line_is_exit_1(capsys: pytest.CaptureFixture[str]
                                                       ) -> None:
     from tests.ros2.rosenv import isolate
@@ -585,7 +565,8 @@ def test_the_node_says_what_it_does(rig: Any, drive_120: odocal.Drive) -> None:
                "the node's last lines")
     name = r.node.get_fully_qualified_name()
     start = lines[0]
-    assert start.startswith(f"{name}: calibrating from ") and "QoS best effort" in start
+    assert start.startswith(f"{name}: calibrating the rear_axle model from ")
+    assert "QoS best effort" in start
     for key in ("wheel_topic", "pose_topic", "imu_topic"):
         assert r.node.get_parameter(key).value in start
     assert f"{name}/odometry" in start and "/diagnostics" in start

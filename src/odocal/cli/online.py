@@ -144,8 +144,7 @@ def _batch_estimate(source: str, settings: Settings) -> Estimate | None:
 
 def cmd_ros2(args: argparse.Namespace) -> int:
     """The online calibrator as a ROS 2 node (docs: ROS 2), until Ctrl-C or SIGTERM."""
-    settings = settings_for(command="ros2",
-                            config=args.config, datasheet=args.datasheet)
+    settings = settings_for(config=args.config, datasheet=args.datasheet)
     from odocal.ros2.node import run
 
     return run(list(args.ros_args), settings=settings)

@@ -900,6 +900,26 @@ class FourWheelDetails:
                 "front_axle": self.front.to_dict() if self.front is not None else None}
 
 
+def rear_axle_of(est: Estimate) -> Estimate:
+    """The rear axle within a four-wheel estimate (its four as joined with the front's: values,
+    covariance, verdicts, and the rear fit's details) as the rear-axle model's estimate: what
+    odometry from the rear wheels alone runs on. A rear-axle estimate is returned as it is."""
+    if est.model != FOUR_WHEEL_MODEL.name:
+        return est
+    rear = FOUR_WHEEL_MODEL.rear
+    r = np.array(LAYOUT.indices(rear.layout.names))
+    details = est.details.rear if isinstance(est.details, FourWheelDetails) else est.details
+    return Estimate(method=est.method,
+                    theta=Parameters.from_array(est.theta.as_array()[r], layout=rear.layout),
+                    datasheet=Parameters.from_array(est.datasheet.as_array()[r],
+                                                    layout=rear.layout),
+                    covariance=np.asarray(est.covariance)[np.ix_(r, r)],
+                    covariance_kind=est.covariance_kind,
+                    free=tuple(est.free[i] for i in r), verdicts=tuple(est.verdicts[i] for i in r),
+                    status=est.status, details=details, widening=np.asarray(est.widening)[r],
+                    model=rear.name)
+
+
 def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Settings
                         ) -> Estimate:
     """The four-wheel model's estimate from the rear axle's (the default method's, on

@@ -4,7 +4,9 @@ Inputs (topic names, message types and wheel joint names are parameters, :mod:`o
 time is each message's header stamp, never its arrival; ``use_sim_time`` is honoured):
 
 * the wheel joints' velocities (rad/s) or, where the driver sends none, positions (rad) from
-  ``sensor_msgs/JointState``;
+  ``sensor_msgs/JointState``: the rear wheels; for the four-wheel car (``[vehicle] model =
+  "four_wheel"`` in ``settings_file``) the front wheels too, and the steering wheel's angle
+  where ``steering_joint`` names its joint in the same message;
 * the lateral acceleration and yaw rate from ``sensor_msgs/Imu`` (in the vehicle's axes after
   ``imu_rotation_deg``);
 * the reference pose from ``nav_msgs/Odometry`` or ``geometry_msgs/PoseWithCovarianceStamped``
@@ -25,8 +27,10 @@ Outputs:
 * ``~/odometry`` (``nav_msgs/Odometry``), one per wheel message: the wheel odometry with the
   published calibration (equations (2)-(3) of :mod:`odocal.model.step`; the dead-reckoned
   pose) and the covariance of that message's speed and yaw rate (:mod:`odocal.ros2.twist`);
+  from the rear wheels, for the car too (with its rear axle's calibration);
 * ``~/estimate`` (``std_msgs/Float64MultiArray``, latched): the published calibration as data,
-  4 rows (c_e, c_d, t_r, d) of value, std, identified (1/0) and the covariance row;
+  a row per parameter (the rear axle's c_e, c_d, t_r, d; the car's ten) of value, std,
+  identified (1/0) and the covariance row;
 * ``/diagnostics``: OK when every parameter is identified, WARN while something is not (named,
   with why), an input is silent, loses messages or sends what cannot be used, or the latest
   estimate was refused while an earlier one stands; ERROR where the data contradict the model
@@ -36,7 +40,7 @@ Outputs:
   (``~/export``) and at shutdown; ``~/reset`` (``std_srvs/Trigger``) starts the calibration
   over (after a tyre change);
 * optionally (``controller_name``), the identified multipliers set on a running
-  ``diff_drive_controller`` through its parameter service.
+  ``diff_drive_controller`` through its parameter service (the rear axle's only).
 
 A rejected estimate (the checks' or the gate's) never replaces the last publishable one in
 anything the node publishes; where the calibrator halts (the data contradict the model) the
@@ -57,11 +61,14 @@ import numpy as np
 
 from odocal.errors import ConfigError, MissingDependencyError, OdocalError
 from odocal.estimators.estimate import Estimate, NotIdentified, Status
+from odocal.estimators.front_axle import rear_axle_of
+from odocal.io import joints
 from odocal.model import registry
-from odocal.model.parameters import PARAMETER_NAMES, Parameters
+from odocal.model.four_wheel import FOUR_WHEEL_MODEL
+from odocal.model.parameters import Parameters
 from odocal.model.vehicle import MODEL
 from odocal.online.replay import GridResampler, publishable
-from odocal.output.export import TARGETS, Calibrated, export, parameters_yaml
+from odocal.output.export import Calibrated, export, parameters_yaml, targets_for
 from odocal.pipeline.odometry import OdometryNoise
 from odocal.report.advice import finding_text, reason_text
 from odocal.ros2 import cdr, params
@@ -327,11 +334,12 @@ class CalibrationNode(LifecycleNode):
             settings = settings.replace(identify={"theta0": datasheet_theta(
                 parse_datasheet(p("datasheet"), what="parameter datasheet"),
                 settings.identify.theta0)})
-        # (the node reads two wheel joints: a settings file choosing the car is refused here,
-        # as the command line refuses it)
-        registry.require_rear_axle(settings.vehicle.model, "odocal ros2")
         self.settings = settings
-        self.datasheet = Parameters.from_array(np.asarray(settings.identify.theta0))
+        self._layout = registry.layout(settings.vehicle.model)
+        self._car = settings.vehicle.model == FOUR_WHEEL_MODEL.name
+        self._check_car()
+        self.datasheet = Parameters.from_array(np.asarray(settings.identify.theta0),
+                                               layout=self._layout)
         names = {key: self._topic(key) for key in ("wheel_topic", "pose_topic", "imu_topic",
                                                    "odometry_topic")}
         self._rotation = rotation(p("imu_rotation_deg"))
@@ -352,6 +360,27 @@ class CalibrationNode(LifecycleNode):
         # the estimate imports scipy.special at its first call (0.9 s here): done now, not
         # under the first estimate, when the inputs' queues would fill meanwhile
         import scipy.special  # noqa: F401
+
+    def _check_car(self) -> None:
+        """The car's parameters where the model is the car, and only there (one line)."""
+        p = self._param
+        car_only = [k for k in ("front_left_wheel_joint", "front_right_wheel_joint",
+                                "steering_joint") if p(k)]
+        if not self._car and car_only:
+            raise ConfigError(f"parameter {car_only[0]}: the {self.settings.vehicle.model} "
+                              "model reads no front wheels or steering; choose the car with "
+                              "[vehicle] model = \"four_wheel\" in settings_file")
+        if self._car and p("controller_name"):
+            raise ConfigError("parameter controller_name: a diff_drive_controller's multipliers "
+                              "are the rear axle's; the four_wheel model's calibration goes to "
+                              "ackermann_steering_controller by its parameter file (export_dir)")
+        self._steered = self._car and bool(p("steering_joint"))
+        self._steer_scale = math.pi / 180.0 if p("steering_unit") == "deg" else 1.0
+
+    def _rear(self, theta: Any) -> np.ndarray:
+        """The rear axle's parameters of a theta of the node's model (the car's leading four)."""
+        theta = np.asarray(theta, dtype=float)
+        return FOUR_WHEEL_MODEL.rear_axle(theta) if self._car else theta
 
     def _topic(self, key: str) -> str:
         """A topic parameter, resolved (a ConfigError naming it where it is no topic name)."""
@@ -379,7 +408,9 @@ class CalibrationNode(LifecycleNode):
         self._rows_per_push = max(int(s.online.chunk_s * s.convert.rate_hz), 1)
         self._pending: list[dict[str, np.ndarray]] = []
         self._beta: list[tuple[float, float]] = []
-        self._wheels = _Input(self._wheel_names, "wheels", ("n_rl", "n_rr"))
+        self._wheels = _Input(self._wheel_names, "wheels",
+                              ("n_rl", "n_rr", *(("n_fl", "n_fr") if self._car else ()),
+                               *(("steer",) if self._steered else ())))
         self._pose = _Input(self._pose_name, "pose", ("x", "y", "psi"))
         self._imu = _Input(self._imu_name, "imu", ("yaw_rate", "a_y")) if self._imu_name \
             else None
@@ -393,13 +424,13 @@ class CalibrationNode(LifecycleNode):
         self.estimate: Estimate | None = None
         self._good: Estimate | None = None        # the latest estimate that may be published
         self._good_km = 0.0
-        self._identified: tuple[bool, ...] = (False,) * len(PARAMETER_NAMES)
+        self._identified: tuple[bool, ...] = (False,) * self._layout.size
         self._alarms_seen = 0
         self._push_error = ""
         self.updates = 0
         self.twist = TwistVariance(window_s=s.inverse.window_s, max_gap_s=s.convert.max_gap_s)
         self.gyro = GyroBias(s.convert.max_gap_s)
-        self._use_theta(self.datasheet.as_array())
+        self._use_theta(self._rear(self.datasheet.as_array()))
         self._a_y = 0.0
         self._odom_t: float | None = None
         self._x = self._y = self._psi = 0.0
@@ -488,7 +519,8 @@ class CalibrationNode(LifecycleNode):
                      else "PoseWithCovarianceStamped") + ")"]
         if self._imu_name:
             inputs.append(f"{self._imu_name} (Imu)")
-        return (f"{self.get_fully_qualified_name()}: calibrating from {', '.join(inputs)} "
+        return (f"{self.get_fully_qualified_name()}: calibrating the "
+                f"{self.settings.vehicle.model} model from {', '.join(inputs)} "
                 f"(QoS {qos}, depth {self._param('qos_depth')}); publishing "
                 f"{self._odom_pub.topic_name}, {self._estimate_pub.topic_name}, "
                 f"{self._alarm_pub.topic_name}, /diagnostics; services "
@@ -509,11 +541,37 @@ class CalibrationNode(LifecycleNode):
             return t
         return t + self._origin[0] + 1e-9 * self._origin[1]
 
-    def _pick_joints(self, names: tuple[str, ...]) -> tuple[int, int]:
-        left, right = wheel_joints(names, self._param("left_wheel_joint"),
-                                   self._param("right_wheel_joint"), self._wheels.name)
+    def _pick_joints(self, names: tuple[str, ...]) -> tuple[tuple[int, ...], int | None]:
+        """The wheel joints' indices (rear left, rear right; the car's front left and right
+        after them) and the steering joint's (None: none), by :mod:`odocal.io.joints`' rule."""
+        p, topic = self._param, self._wheels.name
+        left, right = wheel_joints(names, p("left_wheel_joint"), p("right_wheel_joint"), topic)
+        if not self._car:
+            self._joints = (names[left], names[right])
+            return (left, right), None
+        front = joints.front_wheel_joints(
+            names, (p("front_left_wheel_joint"), p("front_right_wheel_joint")), where=topic,
+            setting=lambda side: f"front_{side}_wheel_joint", error=ConfigError)
+        if front is None:
+            raise ConfigError(f"{topic}: the four_wheel model needs the front wheels, and "
+                              f"cannot tell which joints they are among {', '.join(names)}; "
+                              "set front_left_wheel_joint and front_right_wheel_joint")
+        if set(front) & {left, right}:
+            raise ConfigError(f"{topic}: a front wheel is the rear wheel's joint "
+                              f"{names[next(iter(set(front) & {left, right}))]!r}; set "
+                              "front_left_wheel_joint and front_right_wheel_joint")
+        steering = (joints.named_joint(names, p("steering_joint"), where=topic,
+                                       setting="steering_joint", error=ConfigError)
+                    if self._steered else None)
         self._joints = (names[left], names[right])
-        return left, right
+        return (left, right, *front), steering
+
+    def _front_row(self, rates: Sequence[float], angle: float | None
+                   ) -> tuple[float, ...] | None:
+        """The car's further wheel columns of a message (the front rates in rev/s, the
+        steering in rad); None where one is NaN or infinite."""
+        row = (*rates, *(() if angle is None else (angle * self._steer_scale,)))
+        return row if all(map(math.isfinite, row)) else None
 
     def _taker(self, name: str, handle: Callable[[list[bytes]], None]
                ) -> Callable[[bytes], None]:
@@ -552,6 +610,10 @@ class CalibrationNode(LifecycleNode):
         columns = wheels.buffer.columns
         add_t, add_l, add_r = (columns["t"].append, columns["n_rl"].append,
                                columns["n_rr"].append)
+        # the car's front wheels and steering, after the rear wheels in what is read
+        car = self._car
+        further = [columns[k].append for k in wheels.buffer.keys[2:]]
+        front_row = self._front_row
         readings, variances = self.twist.readings.add, self.twist.variances
         message = self._writer.message
         # (2a), (2b): the model's body map at the batch's theta and a_y
@@ -570,15 +632,19 @@ class CalibrationNode(LifecycleNode):
                     x, y, psi, last = self._x, self._y, self._psi, self._odom_t
                     origin = self._origin
                     continue
-                sec, nsec, left, right = got
+                sec, nsec, left, right = got[:4] if car else got
                 t = float(sec - origin[0]) + 1e-9 * float(nsec - origin[1])
                 if not check(t):
                     self._rates.reset()
                     continue
                 n_rl, n_rr = left / TWO_PI, right / TWO_PI
-                if not (isfinite(n_rl) and isfinite(n_rr)):
+                row = (front_row((got[4] / TWO_PI, got[5] / TWO_PI), got[6] if len(got) > 6
+                                 else None) if car else ())
+                if not (isfinite(n_rl) and isfinite(n_rr)) or row is None:
                     self._refuse_wheels()
                     continue
+                for add, value in zip(further, row, strict=True):
+                    add(value)
                 add_t(t)
                 add_l(n_rl)
                 add_r(n_rr)
@@ -606,7 +672,7 @@ class CalibrationNode(LifecycleNode):
     def _wheel_message(self, data: bytes) -> None:
         wheels = self._wheels
         try:
-            sec, nsec, positions, velocities = self._reader.read(data)
+            sec, nsec, positions, velocities, steering = self._reader.read(data)
         except cdr.CdrError as exc:
             wheels.undecodable += 1
             wheels.note = str(exc)
@@ -621,21 +687,29 @@ class CalibrationNode(LifecycleNode):
         if not wheels.stamps.check(t):
             self._rates.reset()
             return
+        if self._steered and steering is None:
+            wheels.stamps.refuse_invalid()
+            wheels.note = f"no position for the steering joint {self._param('steering_joint')}"
+            return
+        angles = () if steering is None else (steering,)
         if velocities is not None:
-            t_rate, n_rl, n_rr = t, velocities[0] / TWO_PI, velocities[1] / TWO_PI
+            t_rate, rates = t, (*(v / TWO_PI for v in velocities), *angles)
         elif positions is not None:
-            rates = self._rates.add(t, positions[0], positions[1])
-            if rates is None:
+            got = self._rates.add(t, *positions, angles=angles)
+            if got is None:
                 return                               # the first of a piece: no rate yet
-            t_rate, n_rl, n_rr = rates
+            t_rate, rates = got[0], got[1:]
         else:
             wheels.stamps.refuse_invalid()
             wheels.note = "neither velocities nor positions for the wheel joints"
             return
-        if not (math.isfinite(n_rl) and math.isfinite(n_rr)):
+        n_rl, n_rr = rates[:2]
+        row = self._front_row(rates[2:4], rates[4] if len(rates) > 4 else None) \
+            if self._car else ()
+        if not (math.isfinite(n_rl) and math.isfinite(n_rr)) or row is None:
             self._refuse_wheels()
             return
-        wheels.buffer.add(t_rate, (n_rl, n_rr))
+        wheels.buffer.add(t_rate, (n_rl, n_rr, *row))
         self._publish_odometry(sec, nsec, t, n_rl, n_rr)
 
     def _imu_batch(self, batch: list[bytes]) -> None:
@@ -956,15 +1030,17 @@ class CalibrationNode(LifecycleNode):
     def _publish_estimate(self, est: Estimate) -> None:
         first = self._good is None
         self._good, self._good_km = est, self.calibrator.distance_km
-        self._use_theta(est.theta.as_array())
-        self.twist.calibrate(est)
+        rear = rear_axle_of(est)
+        self._use_theta(rear.theta.as_array())
+        self.twist.calibrate(rear)
         self._estimate_pub.publish(estimate_array(est))
         if self._controller is not None:
             self._controller.push(est)
         if first or est.identified != self._identified:
-            gained = [n for n, now, was in zip(PARAMETER_NAMES, est.identified,
-                                               self._identified, strict=True) if now and not was]
-            lost = [n for n, now, was in zip(PARAMETER_NAMES, est.identified, self._identified,
+            names = est.theta.layout.names
+            gained = [n for n, now, was in zip(names, est.identified, self._identified,
+                                               strict=True) if now and not was]
+            lost = [n for n, now, was in zip(names, est.identified, self._identified,
                                              strict=True) if was and not now]
             self.get_logger().info(
                 f"at {self._good_km:.2f} km: "
@@ -980,7 +1056,7 @@ class CalibrationNode(LifecycleNode):
             if self._good is not None or self.updates == 1:
                 self.get_logger().error(self._rejection(est))
             self._good = None
-            self._use_theta(self.datasheet.as_array())
+            self._use_theta(self._rear(self.datasheet.as_array()))
             self.twist.calibrate(None)
             return
         where = (f"keeping the calibration from {self._good_km:.2f} km"
@@ -1044,8 +1120,8 @@ class CalibrationNode(LifecycleNode):
     # ------------------------------------------------------------------ outputs
 
     def _use_theta(self, theta: Any) -> None:
-        """Publish odometry with ``theta`` from now on: the model's body map as plain floats
-        (a message's speed and yaw rate are four products, :meth:`_body_at`)."""
+        """Publish odometry with the rear axle's ``theta`` from now on: the model's body map
+        as plain floats (a message's speed and yaw rate are four products, :meth:`_body_at`)."""
         self._theta = np.array(theta, dtype=float)
         m0, m1 = MODEL.body_map(self._theta)
         self._body = (tuple(tuple(float(v) for v in row) for row in m0),
@@ -1135,11 +1211,11 @@ class CalibrationNode(LifecycleNode):
                             f"publishing the calibration from {self._good_km:.2f} km")
         if good is None:
             calibrator = self.calibrator
-            warnings.append("not yet identified: " + ", ".join(PARAMETER_NAMES)
+            warnings.append("not yet identified: " + ", ".join(self._layout.names)
                             + f" ({calibrator.distance_km:.2f} km driven; "
                             + ("no estimate yet)" if est is None else f"{est.message})"))
         else:
-            missing = [(n, v) for n, v in zip(PARAMETER_NAMES, good.verdicts, strict=True)
+            missing = [(n, v) for n, v in zip(good.theta.layout.names, good.verdicts, strict=True)
                        if isinstance(v, NotIdentified)]
             if missing:
                 threshold = self.settings.segments.yaw_rate_threshold_radps
@@ -1161,7 +1237,7 @@ class CalibrationNode(LifecycleNode):
                        (f"refused {t.name}", str(s.back + s.invalid + t.undecodable))]
         good = self._good
         if good is not None and level != DiagnosticStatus.ERROR:
-            for n, v, s_, ok in zip(PARAMETER_NAMES, good.theta.as_array(), good.std,
+            for n, v, s_, ok in zip(good.theta.layout.names, good.theta.as_array(), good.std,
                                     good.identified, strict=True):
                 values += [(n, repr(float(v))), (f"{n}_std", repr(float(s_))),
                            (f"{n}_identified", "true" if ok else "false")]
@@ -1227,7 +1303,8 @@ class CalibrationNode(LifecycleNode):
         calibrated = self.calibrated()
         targets = params.targets(self._param("export_targets"))
         folder.mkdir(parents=True, exist_ok=True)
-        written = export(calibrated, folder, [t for t in targets if t in TARGETS])
+        written = export(calibrated, folder,
+                         [t for t in targets if t in targets_for(self._layout)])
         if "robot_localization" in targets:
             point_ekf_at(folder / "robot_localization" / "ekf_odometry.yaml",
                          self._odom_pub.topic_name)
@@ -1273,27 +1350,30 @@ def _unknown_covariance() -> list[float]:
 def parameters_text(est: Estimate) -> str:
     """The parameters of an estimate in one line: ``c_e 1.95214 +- 0.00031 m, ...``."""
     return ", ".join(f"{n} {v:.6g}" + (f" +- {s:.2g}" if ok else " (datasheet)")
-                     for n, v, s, ok in zip(PARAMETER_NAMES, est.theta.as_array(), est.std,
-                                            est.identified, strict=True))
+                     for n, v, s, ok in zip(est.theta.layout.names, est.theta.as_array(),
+                                            est.std, est.identified, strict=True))
 
 
-#: The ``~/estimate`` array's columns (after the rows' parameter).
-ESTIMATE_COLUMNS = ("value", "std", "identified", *(f"cov_{n}" for n in PARAMETER_NAMES))
+def estimate_columns(names: Sequence[str]) -> tuple[str, ...]:
+    """The ``~/estimate`` array's columns (after the rows' parameter) for a model's
+    parameters ``names``."""
+    return ("value", "std", "identified", *(f"cov_{n}" for n in names))
 
 
 def estimate_array(est: Estimate) -> Any:
-    """``est`` as a ``std_msgs/Float64MultiArray``: rows c_e, c_d, t_r, d; columns value, std,
-    identified (1.0 or 0.0) and the covariance's row (SI units), labels in the layout."""
-    rows = len(PARAMETER_NAMES)
+    """``est`` as a ``std_msgs/Float64MultiArray``: a row per parameter (c_e, c_d, t_r, d for
+    the rear axle); columns value, std, identified (1.0 or 0.0) and the covariance's row (SI
+    units), labels in the layout."""
+    names = est.theta.layout.names
+    columns = estimate_columns(names)
     cov = np.where(np.isfinite(est.covariance), est.covariance, 0.0)
     data = np.column_stack([est.theta.as_array(), est.std,
                             np.asarray(est.identified, dtype=float), cov])
     msg = Float64MultiArray(data=[float(v) for v in data.ravel()])
-    msg.layout.dim = [MultiArrayDimension(label="parameter: " + " ".join(PARAMETER_NAMES),
-                                          size=rows, stride=rows * len(ESTIMATE_COLUMNS)),
-                      MultiArrayDimension(label="column: " + " ".join(ESTIMATE_COLUMNS),
-                                          size=len(ESTIMATE_COLUMNS),
-                                          stride=len(ESTIMATE_COLUMNS))]
+    msg.layout.dim = [MultiArrayDimension(label="parameter: " + " ".join(names),
+                                          size=len(names), stride=len(names) * len(columns)),
+                      MultiArrayDimension(label="column: " + " ".join(columns),
+                                          size=len(columns), stride=len(columns))]
     return msg
 
 

@@ -18,10 +18,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from odocal.errors import ConfigError
-from odocal.output.export import TARGETS
+from odocal.output.export import CAR_TARGETS, TARGETS
 
-#: The export targets ``export_targets`` may name (``yaml``: odometry_parameters.yaml).
-EXPORTS = (*TARGETS, "yaml")
+#: The export targets ``export_targets`` may name (``yaml``: odometry_parameters.yaml;
+#: ``ackermann``: the four_wheel model's only, left out for the rear axle's).
+EXPORTS = (*TARGETS, *CAR_TARGETS, "yaml")
+#: The steering joint's position's units.
+STEERING_UNITS = ("rad", "deg")
 #: The reference pose's message types.
 POSE_TYPES = ("odometry", "pose_with_covariance")
 #: Parameters every ROS 2 node has (and the QoS overrides rclpy reads by prefix).
@@ -68,6 +71,16 @@ SPECS: tuple[Spec, ...] = (
     Spec("left_wheel_joint", "", "the left wheel's joint (empty: the one joint named rear or "
          "back and left, else the one left wheel joint that is not a front or steering one)"),
     Spec("right_wheel_joint", "", "the right wheel's joint (as left_wheel_joint)"),
+    Spec("front_left_wheel_joint", "", "the four_wheel model's ([vehicle] model in "
+         "settings_file) front left wheel joint (empty: the one joint named front and left, "
+         "not a steering one)"),
+    Spec("front_right_wheel_joint", "", "the front right wheel's joint (as "
+         "front_left_wheel_joint)"),
+    Spec("steering_joint", "", "the four_wheel model's steering-wheel joint in the same "
+         "JointState (its position: the steering wheel's angle; empty: no steering, the "
+         "steering ratio and offset are not calibrated); never guessed from the names"),
+    Spec("steering_unit", "rad", "the steering joint's position's unit: rad or deg",
+         choices=STEERING_UNITS),
     Spec("imu_topic", "/imu/data", "sensor_msgs/Imu: angular_velocity.z and "
          "linear_acceleration.y in the vehicle's axes (imu_rotation_deg); empty: no IMU "
          "(a_y = 0, d not identified)"),
