@@ -196,10 +196,11 @@ def _print_z(z: dict[str, list[float]], held: dict[str, int]) -> None:
         print(line + (f"; not identified in {held[name]}" if held[name] else ""))
 
 
-def calibrated(seeds: range, duration_s: float, noise: str) -> None:
+def calibrated(seeds: range, duration_s: float, noise: str, *, sideslip: bool = True) -> None:
     """odocal's four-wheel calibration (``[vehicle] model = "four_wheel"``: the default
     method's rear axle joined with the front axle and the steering) on simulated four-wheel
-    drives: each identified parameter's error over its stated standard deviation."""
+    drives: each identified parameter's error over its stated standard deviation
+    (``sideslip=False``: the drives without their sideslip column, as real logs come)."""
     settings = Settings().replace(vehicle={"model": "four_wheel"})
     z: dict[str, list[float]] = {n: [] for n in FOUR_WHEEL.names}
     held = dict.fromkeys(z, 0)
@@ -207,7 +208,11 @@ def calibrated(seeds: range, duration_s: float, noise: str) -> None:
     for seed in seeds:
         sim, truth = with_front_axle(odocal.simulate(duration_s=duration_s, seed=seed,
                                                      noise=noise))
-        result = odocal.calibrate(sim.drive, settings=settings)
+        drive = sim.drive
+        if not sideslip:
+            drive = Drive.from_columns({k: v for k, v in drive.columns().items()
+                                        if k != "beta"}, name=drive.name)
+        result = odocal.calibrate(drive, settings=settings)
         est = result.model_estimate
         seconds.append(result.timings_s.get("front axle", 0.0) / max(result.elapsed_s, 1e-9))
         for j, name in enumerate(est.names):
@@ -217,7 +222,8 @@ def calibrated(seeds: range, duration_s: float, noise: str) -> None:
             else:
                 held[name] += 1
     print(f"\nodocal calibrate, four_wheel model, {len(seeds)} seeds x {duration_s:g} s, noise "
-          f"{noise!r} (the front axle's share of the time: {np.mean(seconds):.0%})")
+          f"{noise!r}{'' if sideslip else ', without the sideslip column'} (the front axle's "
+          f"share of the time: {np.mean(seconds):.0%})")
     _print_z(z, held)
 
 
@@ -229,10 +235,13 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=1200.0)
     parser.add_argument("--calibrate", nargs="*", metavar="NOISE",
                         help="only odocal's four-wheel calibration, on these noise profiles")
+    parser.add_argument("--no-sideslip", action="store_true",
+                        help="with --calibrate: the drives without their sideslip column")
     args = parser.parse_args()
     if args.calibrate is not None:
         for noise in args.calibrate or ("white", "realistic", "everything", "slip", "heavy"):
-            calibrated(range(1, args.seeds + 1), args.duration, noise)
+            calibrated(range(1, args.seeds + 1), args.duration, noise,
+                       sideslip=not args.no_sideslip)
         return
     for noise in ("white", "realistic"):
         simulated(range(1, args.seeds + 1), args.duration, noise)

@@ -37,6 +37,7 @@ sweep factor and prints where its main thread's CPU time goes.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import random
@@ -573,6 +574,8 @@ def main() -> None:
                     help="the wheels' and the IMU's rate (Hz; default 100)")
     ap.add_argument("--pose-every", type=int, default=2,
                     help="a pose every this many of their samples (default 2: 50 Hz)")
+    ap.add_argument("--keep", metavar="DIR",
+                    help="keep the run's files (the node's log, the drives) in a folder in DIR")
     ap.add_argument("--car", action="store_true",
                     help="the four-wheel car: four wheel joints and a steering joint")
     args = ap.parse_args()
@@ -597,7 +600,8 @@ def main() -> None:
           f"node pinned to core "
           f"{min(node_core)}; cores {os.cpu_count()}, load {os.getloadavg()[0]:.1f} "
           f"{os.getloadavg()[1]:.1f} {os.getloadavg()[2]:.1f} (1, 5, 15 min)")
-    with tempfile.TemporaryDirectory() as tmp:
+    with (contextlib.nullcontext(tempfile.mkdtemp(dir=args.keep)) if args.keep
+          else tempfile.TemporaryDirectory()) as tmp:
         folder = Path(tmp)
         drive, n = _drive(args.sweep_minutes, folder)
         limit = player_limit(drive, n, folder, domain)

@@ -67,6 +67,19 @@ def test_the_live_car_agrees_with_batch_and_the_truth(
     assert online.details.to_dict()["front_axle"]["windows"] == front_fit.windows
 
 
+
+def test_the_live_car_without_its_sideslip_keeps_the_wheelbase_and_the_ratio(
+        car: tuple[SimulatedDrive, np.ndarray]) -> None:
+    """As batch (tests/estimators/test_front_axle.py): without the sideslip column the front
+    wheels are read without the wheels' excess in bends the rear fit found."""
+    sim, truth = car
+    columns = {k: v for k, v in sim.drive.columns().items() if k != "beta"}
+    online = pushed(columns, estimate_s=30.0).estimate()
+    z = (online.theta.as_array() - truth) / online.std
+    assert online.identified["L"] and online.identified["ratio"]
+    assert np.all(np.abs(z) < 3.0), dict(zip(online.names, z.round(2), strict=True))
+    assert [f.name for f in online.details.findings].count("slid") == 1
+
 def test_a_reference_off_the_rear_axle_is_taken_out_of_the_front_windows_as_batch_takes_it(
         car: tuple[SimulatedDrive, np.ndarray]) -> None:
     """A reference 1 m ahead of the rear axle and 0.3 m left: the rear fit finds the lever arm

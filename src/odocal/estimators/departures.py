@@ -240,6 +240,7 @@ def corrected(drives: Sequence[Drive], values: Mapping[str, float],
             excess = curve * np.clip(kappa, -0.5, 0.5) ** 2 * speed * moving
             n_rl -= excess * gain[0]
             n_rr -= excess * gain[1]
+            d = _front_less(d, excess * float(gain.mean()))
         drift = float(values.get("drift", 0.0))
         if drift:
             factor = 1.0 + drift * (d.t - d.t[-1]) / 3600.0
@@ -247,6 +248,19 @@ def corrected(drives: Sequence[Drive], values: Mapping[str, float],
         beta = np.asarray(d.beta) + float(values.get("slip", 0.0)) * a_y
         out.append(dataclasses.replace(d, x=x, y=y, a_y=a_y, n_rl=n_rl, n_rr=n_rr, beta=beta))
     return out
+
+
+def _front_less(d: Drive, excess_revps: FloatArray) -> Drive:
+    """``d`` with its front wheels' rates (where it has them) less ``excess_revps``: the
+    wheels' excess in bends over what the reference's point travels is the reference's
+    (a point off the axle, a heading that is the course), so every wheel reads it."""
+    if "n_fl" not in d.inputs:
+        return d
+    inputs = dict(d.inputs)
+    for key in ("n_fl", "n_fr"):
+        rate = np.asarray(inputs[key], dtype=np.float64)
+        inputs[key] = rate - excess_revps * np.sign(rate)
+    return dataclasses.replace(d, inputs=inputs)
 
 
 #: Wheels whose excess in bends puts them this far ahead of the rear axle (m, a short car's

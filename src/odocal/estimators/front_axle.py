@@ -1167,6 +1167,21 @@ def _changed(vehicle: Estimate) -> list[Finding]:
     return [Finding(Check.FRONT_AXLE, Severity.FALLBACK, change[0], change[1], "change")]
 
 
+def _slid(vehicle: Estimate) -> list[Finding]:
+    """Where the rear fit described the reference's motion in bends by the rear axle's slip
+    or the wheels' excess in bends (departures it fitted: a sideslip the log lacks) while the
+    front fit identifies the wheelbase or the ratio, a warning: the front wheels' path in
+    bends, which tells them, follows from that description to first order only, and their
+    stds carry none of its error (value: the slip, rad per m/s^2; reference: the excess)."""
+    details = getattr(vehicle.details, "rear", vehicle.details)     # (batch's; the live one)
+    fitted = dict(getattr(details, "fitted_departures", {}) or {})
+    told = any(vehicle.identified[LAYOUT.index(n)] for n in ("L", "ratio"))
+    if not told or not (fitted.get("slip") or fitted.get("curve")):
+        return []
+    return [Finding(Check.FRONT_AXLE, Severity.FALLBACK, float(fitted.get("slip", 0.0)),
+                    float(fitted.get("curve", 0.0)), "slid")]
+
+
 def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis, *,
                      max_difference: float = MAX_DIFFERENCE_SHARE) -> tuple[Finding, ...]:
     """What the four-wheel fit shows of the wheels' mapping and units, fatal each: front
@@ -1180,8 +1195,9 @@ def mapping_findings(vehicle: Estimate, diagnosis: Diagnosis, *,
     :data:`FRONT_SCALE_NOTE` is a note (staggered tyres differ by a few per cent). A
     front and rear axle swapped, or a front wheel in a rear column, the rear fit names itself
     (:data:`~odocal.checks.findings.Check.FRONT_WHEELS`). A change of the front tyres within
-    the drives is a warning (:func:`_changed`)."""
-    found = _changed(vehicle)
+    the drives is a warning (:func:`_changed`), as a wheelbase or ratio told on a
+    reference's motion the rear fit had to describe by a slip (:func:`_slid`)."""
+    found = _changed(vehicle) + _slid(vehicle)
     th, ok = vehicle.theta.as_dict(), vehicle.identified
     t_f = LAYOUT.index("t_f")
     if ok[t_f] and th["t_f"] < 0.0:

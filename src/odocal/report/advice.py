@@ -468,6 +468,18 @@ def _four_wheel_text(finding: Finding) -> str:
                 f"later half against the earlier, {abs(ref):.0f} standard deviations): a front "
                 "tyre changed, or its pressure; c_f is a mix of the two, its std widened to "
                 "cover either (calibrate on the drives after the change for its value now)")
+    if what == "slid":
+        how = " and ".join(
+            ([f"the rear axle sliding {math.degrees(v):+.2f} degrees per m/s^2 of lateral "
+              "acceleration"] if v else [])
+            + (["the wheels travelling more in bends than the reference's point"] if ref
+               else []))
+        return (f"the rear fit found {how}, a sideslip the log does not carry: the wheelbase "
+                "and the steering ratio rest on the front wheels' path in bends, which that "
+                "description gives to first order only, and their stds do not carry its error "
+                "(on simulated cars logged so they came out 2 to 10 stds off); give the "
+                "sideslip (a beta column; the ROS 2 node's sideslip_from_reference) or state "
+                "the wheelbase from the datasheet")
     if what == "difference":
         return (f"the front wheels' circumferences differ by {v * 1e3:.4g} mm of {ref:.4g} m, "
                 "more than two tyres of one axle do: one front wheel reads a share of its "
