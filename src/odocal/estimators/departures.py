@@ -235,9 +235,7 @@ def corrected(drives: Sequence[Drive], values: Mapping[str, float],
         n_rr -= (offset + float(values.get("offset_right", 0.0))) * sign
         curve = float(values.get("curve", 0.0))
         if curve:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                kappa = np.where(moving > 0, np.gradient(np.unwrap(psi), d.t) / speed, 0.0)
-            excess = curve * np.clip(kappa, -0.5, 0.5) ** 2 * speed * moving
+            excess = curve_excess(d.t, x, y, psi, curve)
             n_rl -= excess * gain[0]
             n_rr -= excess * gain[1]
             d = _front_less(d, excess * float(gain.mean()))
@@ -248,6 +246,18 @@ def corrected(drives: Sequence[Drive], values: Mapping[str, float],
         beta = np.asarray(d.beta) + float(values.get("slip", 0.0)) * a_y
         out.append(dataclasses.replace(d, x=x, y=y, a_y=a_y, n_rl=n_rl, n_rr=n_rr, beta=beta))
     return out
+
+
+def curve_excess(t: FloatArray, x: FloatArray, y: FloatArray, psi: FloatArray,
+                 curve: float) -> FloatArray:
+    """The wheels' excess speed (m/s) over the reference's point (at ``x``, ``y``, heading
+    ``psi``) that a ``curve`` departure (m^2) gives at each sample: ``curve kappa^2 v`` where
+    moving (the curvature clipped to 0.5 1/m)."""
+    speed = np.hypot(np.gradient(x, t), np.gradient(y, t))
+    moving = np.where(speed > 0.5, 1.0, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        kappa = np.where(moving > 0, np.gradient(np.unwrap(psi), t) / speed, 0.0)
+    return np.asarray(curve * np.clip(kappa, -0.5, 0.5) ** 2 * speed * moving)
 
 
 def _front_less(d: Drive, excess_revps: FloatArray) -> Drive:

@@ -51,6 +51,7 @@ from odocal.correlation import Correlations, correlations
 from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.estimators.covariance import widened
+from odocal.estimators.departures import curve_excess
 from odocal.estimators.estimate import Estimate, Identified, NotIdentified, Reason, Verdict
 from odocal.estimators.windows import MOVING_MPS, cluster_steps_for
 from odocal.model.four_wheel import FOUR_WHEEL_MODEL
@@ -116,6 +117,10 @@ class FrontWindows:
     heading_noise: FloatArray | None = None
     """(N,) the reference heading's sample-to-sample noise (rad) of each window's piece
     (:func:`heading_noise`); None: not known."""
+    excess: FloatArray | None = None
+    """(N,) the wheels' excess travel in bends over the reference's point (m) that the rear
+    fit found (its ``curve`` departure) and the front wheels were read without; None: none
+    (the fit carries how far it would move with it as a systematic error)."""
 
     @property
     def size(self) -> int:
@@ -132,6 +137,8 @@ class FrontWindows:
         base = np.cumsum([0, *(int(c.max()) + 1 for c in own[:-1])])
         noise = [w.heading_noise if w.heading_noise is not None else np.full(w.size, np.nan)
                  for w in held]
+        excess = ([w.excess if w.excess is not None else np.zeros(w.size) for w in held]
+                  if any(w.excess is not None for w in held) else None)
         def joined(key: str) -> FloatArray:
             return np.concatenate([getattr(w, key) for w in held])
 
@@ -140,7 +147,8 @@ class FrontWindows:
                             cluster=np.concatenate([c + b for c, b in zip(own, base,
                                                                           strict=True)]),
                             steering_lag_s=tuple(x for w in held for x in w.steering_lag_s),
-                            heading_noise=np.concatenate(noise))
+                            heading_noise=np.concatenate(noise),
+                            excess=None if excess is None else np.concatenate(excess))
 
     def measured(self) -> FloatArray:
         """(N, 3): the channels' measurements (:data:`CHANNELS`; the steering's NaN where a
@@ -154,8 +162,8 @@ class FrontWindows:
 
 
 def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float = 0.0,
-                  heading_offset: float = 0.0, steering_lag_s: float | None = None
-                  ) -> FrontWindows:
+                  heading_offset: float = 0.0, steering_lag_s: float | None = None,
+                  curve: float = 0.0) -> FrontWindows:
     """The drives' windows of ``[inverse] window_s`` (the default method's), piece by piece:
     the reference delayed by ``delay_s`` (the wheels' lag behind it) and its heading turned by
     ``heading_offset`` onto the course, as the default fit found them. Windows that do not
@@ -164,10 +172,13 @@ def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float
     set with none). The steering angle is put on the reference's clock by its own lag
     (:func:`steering_lag`): a steering sensor's latency is not the wheels'. ``steering_lag_s``:
     that lag as found already (on more driving than a drive: the live path's), for every
-    drive."""
+    drive. ``curve``: the rear fit's ``curve`` departure (m^2), whose excess the drives' front
+    wheels were read without (:func:`~odocal.estimators.departures.corrected`): each window's
+    share of it is kept (:attr:`FrontWindows.excess`)."""
     require_front_wheels(drives)
     parts: dict[str, list[FloatArray]] = {k: [] for k in ("ds", "dpsi", "a_y", "a_x", "revs",
-                                                          "steer", "cluster", "noise")}
+                                                          "steer", "cluster", "noise",
+                                                          "excess")}
     lags = []
     for index, drive in enumerate(drives):
         if "n_fl" not in drive.inputs or "n_fr" not in drive.inputs:
@@ -186,7 +197,7 @@ def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float
         # of one pooled over every drive
         cluster_s = cluster_steps_for([drive], settings) * drive.t_s
         _add_windows(parts, drive, steer, settings.inverse.window_s, heading_offset,
-                     index * 10**9, cluster_s)
+                     index * 10**9, cluster_s, curve)
     if not parts["ds"]:
         empty = np.zeros((0, 1))
         return FrontWindows(empty, empty, empty, empty, np.zeros((0, 2)), empty,
@@ -194,7 +205,7 @@ def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float
     cat = {k: np.concatenate(v) for k, v in parts.items()}
     return FrontWindows(cat["ds"], cat["dpsi"], cat["a_y"], cat["a_x"], cat["revs"],
                         cat["steer"], cat["cluster"].astype(np.int64), tuple(lags),
-                        cat["noise"])
+                        cat["noise"], excess=cat["excess"] if curve else None)
 
 
 def require_front_wheels(drives: Sequence[Drive]) -> None:
@@ -298,9 +309,10 @@ def _shifted(t: FloatArray, values: FloatArray, lag: float, t_s: float) -> Float
 
 
 def _add_windows(parts: dict[str, list[FloatArray]], drive: Drive, steer_in: FloatArray | None,
-                 window_s: float, heading_offset: float, label: int, cluster_s: float) -> None:
+                 window_s: float, heading_offset: float, label: int, cluster_s: float,
+                 curve: float) -> None:
     """One drive's windows, piece by piece, into ``parts`` (``steer_in``: its steering angle
-    on the reference's clock, None without one)."""
+    on the reference's clock, None without one; ``curve``: see :func:`front_windows`)."""
     t_s = drive.t_s
     k = max(round(window_s / t_s), 1)
     for a, b in drive.pieces:
@@ -336,6 +348,9 @@ def _add_windows(parts: dict[str, list[FloatArray]], drive: Drive, steer_in: Flo
         parts["steer"].append(_substep_angle(steer[keep], crawl[keep], m))
         parts["cluster"].append(cluster[keep])
         parts["noise"].append(np.full(int(keep.sum()), heading_noise(psi)))
+        excess = (curve_excess(drive.t[a:b], drive.x[a:b], drive.y[a:b], psi, curve)[:-1]
+                  if curve else np.zeros(b - a - 1))
+        parts["excess"].append((excess[:cut].reshape(n, k).sum(axis=1) * t_s)[keep])
 
 
 #: A window's revolutions are told from its measured samples where at least this share of them
@@ -663,6 +678,7 @@ def fit_front(windows: FrontWindows, theta0: FloatArray, settings: Settings, *,
             p0, windows, measured, (weight, scale), usable & ~held, limit, load)
         eq = _normal(p, windows, measured, weight_f, scale_f, load)
         cov = _covariance(eq, windows, free, nuisance, clusters, load)
+        cov = cov + _excess_term(eq, p, windows, measured, (weight_f, scale_f), free, load)
         std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
         hold, out_of_range = _to_hold(p, free, std, limit)
         if not hold:
@@ -831,6 +847,27 @@ def _covariance(eq: _Normal, windows: FrontWindows, free: BoolArray, nuisance: F
     return np.asarray(0.5 * (cov + cov.T))          # symmetric to the last bit
 
 
+def _excess_term(eq: _Normal, p: FloatArray, windows: FrontWindows, measured: FloatArray,
+                 weights: tuple[FloatArray, FloatArray], free: BoolArray, load: _Prior
+                 ) -> FloatArray:
+    """The systematic covariance (8, 8) of the wheels' excess in bends the front wheels were
+    read without (:attr:`FrontWindows.excess`): ``s s^T``, with ``s`` how far one
+    Gauss-Newton step moves the fit were they read with it. The rear fit's constant excess
+    describes the reference's motion in bends to the first order only, and the wheelbase
+    lives in the second; zeros without an excess."""
+    n = _FIT.size
+    if windows.excess is None or not np.any(windows.excess) or not free.any():
+        return np.zeros((n, n))
+    other = np.array(measured, dtype=np.float64, copy=True)
+    other[:, 0] += windows.excess / float(p[LAYOUT.index("c_f")])      # (m -> revolutions)
+    alt = _normal(p, windows, other, weights[0], weights[1], load)
+    cols = np.flatnonzero(free)
+    shift = np.zeros(n)
+    shift[cols] = np.linalg.lstsq(eq.a[np.ix_(cols, cols)], (alt.g - eq.g)[cols],
+                                  rcond=None)[0]
+    return np.outer(shift, shift)
+
+
 def _effective(eq: _Normal, bread: FloatArray, count: int, index: IntArray) -> FloatArray:
     """Per parameter, the effective number of clusters its variance rests on: ``(sum_k
     e_k)^2 / sum_k e_k^2`` with ``e_k`` cluster k's share (its scores through the bread)."""
@@ -935,7 +972,9 @@ def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Setti
     taken = float(dict(getattr(details, "fitted_departures", {}) or {}).get("lag", 0.0))
     shift = float(details.delay_s) - taken * (drives[0].t_s if drives else 0.0)
     windows = front_windows(drives, settings, delay_s=shift,
-                            heading_offset=float(details.heading_offset_rad))
+                            heading_offset=float(details.heading_offset_rad),
+                            curve=float(dict(getattr(details, "fitted_departures", {})
+                                             or {}).get("curve", 0.0)))
     return car_estimate(rear, windows, settings)
 
 

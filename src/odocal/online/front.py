@@ -92,6 +92,10 @@ class Fitted:
             abs(a - b) <= NEAR_STDS * s for (_, a, s), (_, b, _) in zip(
                 self.departures, other.departures, strict=True))
 
+    def value(self, name: str) -> float:
+        """The departure ``name``'s value (0 where it was not fitted)."""
+        return next((v for n, v, _ in self.departures if n == name), 0.0)
+
     def corrected(self, drive: Drive) -> Drive:
         """``drive`` with these departures taken out."""
         if not self.departures:
@@ -229,7 +233,8 @@ class LiveFront:
             checked = front_checks([drive], self.settings).drives
             windows = front_windows(checked, self.settings, delay_s=alignment.delay_s,
                                     heading_offset=alignment.heading_offset,
-                                    steering_lag_s=alignment.steering_lag_s)
+                                    steering_lag_s=alignment.steering_lag_s,
+                                    curve=alignment.fitted.value("curve"))
         except DataError:
             windows = None      # samples that make no drive: the checks name them
         block.made, block.windows = alignment, windows

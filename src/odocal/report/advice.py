@@ -476,10 +476,10 @@ def _four_wheel_text(finding: Finding) -> str:
                else []))
         return (f"the rear fit found {how}, a sideslip the log does not carry: the wheelbase "
                 "and the steering ratio rest on the front wheels' path in bends, which that "
-                "description gives to first order only, and their stds do not carry its error "
-                "(on simulated cars logged so they came out 2 to 10 stds off); give the "
-                "sideslip (a beta column; the ROS 2 node's sideslip_from_reference) or state "
-                "the wheelbase from the datasheet")
+                "description gives to first order only; their stds carry the excess's share "
+                "where one was found, not the rest (on simulated cars logged so, one drive in "
+                "ten came out 3 to 7 stds off); give the sideslip (a beta column; the ROS 2 "
+                "node's sideslip_from_reference) or state the wheelbase from the datasheet")
     if what == "difference":
         return (f"the front wheels' circumferences differ by {v * 1e3:.4g} mm of {ref:.4g} m, "
                 "more than two tyres of one axle do: one front wheel reads a share of its "
