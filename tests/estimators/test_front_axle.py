@@ -113,6 +113,52 @@ def test_a_car_logged_without_its_sideslip_keeps_the_wheelbase_and_the_ratio(
     assert not [f for f in with_it.diagnosis.findings if f.name == "slid"]
 
 
+def test_each_sides_front_wheel_travels_further_in_bends_or_its_mapping_is_named(
+        four_wheel_drive: tuple[Drive, np.ndarray]) -> None:
+    """On the wheels alone: each front wheel travels further than its side's rear one in bends
+    by about (L kappa)^2 / 2 (a note giving L), and a side whose front and rear columns are
+    exchanged travels less (fatal, named). Where both sides are ahead, the rear fit's excess
+    in bends is the reference's: its 'front wheels in the rear columns' is a note."""
+    from odocal.checks.findings import Finding, Severity
+    from odocal.estimators.departures import as_excess
+    from odocal.estimators.front_axle import front_ahead, front_checks
+    from odocal.report.advice import finding_text
+
+    drive, truth = four_wheel_drive
+    found = front_checks([drive], FOUR).findings
+    ahead = {f.name.partition("|")[0]: f for f in found if f.name.startswith("ahead-")}
+    assert set(ahead) == {"ahead-left", "ahead-right"} and front_ahead(found)
+    wheelbase = truth[FOUR_WHEEL.index("L")]
+    for f in ahead.values():
+        assert f.severity is Severity.NOTE and abs(np.sqrt(f.value) - wheelbase) < 0.2
+    columns = drive.columns()
+    swapped = Drive.from_columns({**columns, "n_fl": columns["n_rl"], "n_rl": columns["n_fl"]},
+                                 name="left exchanged")
+    found = front_checks([swapped], FOUR).findings
+    behind = [f for f in found if f.name.startswith("front-behind-left")]
+    assert len(behind) == 1 and behind[0].severity is Severity.FATAL and not front_ahead(found)
+    said = finding_text(behind[0], FOUR)
+    assert "the left front wheel travels less than the left rear one" in said
+    assert "exchanged" in said
+    steered = Finding(Check.FRONT_WHEELS, Severity.FATAL, 2.0, 0.05)
+    note, = as_excess([steered])
+    assert note.check is Check.CURVE_EXCESS and note.severity is Severity.NOTE
+    assert note.value == pytest.approx(2.0) and note.reference == pytest.approx(0.2)
+
+
+def test_a_front_parameter_not_identified_says_what_it_needs_without_a_nan() -> None:
+    from odocal.estimators.estimate import NotIdentified, Reason
+    from odocal.report.advice import reason_text
+
+    said = reason_text("L", NotIdentified(Reason.NEEDS_BENDS, limit=0.1), threshold_radps=0.15)
+    assert said.startswith("needs tight bends") and "nan" not in said
+    said = reason_text("c_f", NotIdentified(Reason.WEAK, limit=0.001), threshold_radps=0.15)
+    assert said.startswith("needs distance on the front wheels") and "nan" not in said
+    rear = reason_text("t_r", NotIdentified(Reason.NEEDS_BENDS, limit=0.1, detail=0.1),
+                       threshold_radps=0.15)
+    assert "at most 0.100 rad/s" in rear
+
+
 def test_calibration_json_names_the_model_and_its_ten_parameters(
         four_wheel_drive: tuple[Drive, np.ndarray], tmp_path: Path) -> None:
     drive, _ = four_wheel_drive

@@ -26,8 +26,9 @@ from tests.ros2.rig import (
     play,
     spin_until,
     unique,
+    values_of,
     wheel_angles,
-    )
+)
 from tests.ros2.rosenv import load_declared, require_rclpy
 
 require_rclpy()
@@ -228,3 +229,66 @@ def test_a_controller_to_push_to_is_refused_for_the_car(ros: Any, config: Path) 
                                              Parameter("controller_name",
                                                        value="/diff_drive_controller")])
     assert len(str(caught.value).splitlines()) == 1
+
+
+def test_a_steering_joint_that_is_a_wheel_is_an_error_never_a_crash(
+        rig: Any, car: Any, config: Path) -> None:
+    _, d, _ = car
+    r = car_rig(rig, config, steering_joint="front_left_wheel")
+    for k in range(3):
+        r.player.wheels.publish(messages(d, k, car_script())["wheels"])
+    spin_until(r.executor, lambda: r.node.status()[0].level == DiagnosticStatus.ERROR,
+               "the error on /diagnostics")
+    said = r.node.status()[0].message
+    assert "the steering joint 'front_left_wheel' is a wheel's; set steering_joint" in said
+    spin_until(r.executor, lambda: r.node.arrived()["wheels"] == 3, "the messages counted")
+
+
+def test_a_steering_joint_gone_from_the_messages_is_counted_and_named(
+        rig: Any, car: Any, config: Path) -> None:
+    """Messages of a layout without the named steering joint, after messages that had it: each
+    one refused, counted and named (not silence); one such message first, then the drive: the
+    error clears once a usable layout comes."""
+    _, d, _ = car
+    short = odocal.Drive.from_columns({k: v[:2401] for k, v in d.columns().items()},
+                                      name=d.name)
+    r = car_rig(rig, config, steering_joint="steering_wheel")
+    wheels_only = ("front_left_wheel", "front_right_wheel", "rear_left_wheel",
+                   "rear_right_wheel", "spare")
+    gone = lambda role, k: role == "wheels" and k >= 1200  # noqa: E731
+    play(r.executor, r.player, r.node, short, car_script(skip=gone))
+    for k in range(1200, 1210):
+        r.player.wheels.publish(messages(short, k, car_script(joints=wheels_only))["wheels"])
+    spin_until(r.executor, lambda: r.node.arrived()["wheels"] == 1210, "the messages counted")
+    status = r.node.status()[0]
+    assert status.level == DiagnosticStatus.WARN
+    assert "no joint named 'steering_wheel' (steering_joint)" in status.message
+    assert values_of(status)[f"refused {r.node.topics[0].name}"] == "10"
+    assert "no message on" not in status.message
+
+    first = car_rig(rig, config, steering_joint="steering_wheel")
+    first.player.wheels.publish(messages(short, 0, car_script(joints=wheels_only))["wheels"])
+    spin_until(first.executor,
+               lambda: first.node.status()[0].level == DiagnosticStatus.ERROR, "the error")
+    play(first.executor, first.player, first.node, short, car_script())
+    assert first.node.finish() is not None
+    assert first.node.status()[0].level != DiagnosticStatus.ERROR
+
+
+def test_what_a_rear_axle_node_cannot_export_or_read_is_said(rig: Any, ros: Any) -> None:
+    from rclpy.parameter import Parameter
+    from std_srvs.srv import Trigger
+
+    from tests.ros2.rig import call
+
+    with pytest.raises(odocal.ConfigError, match="parameter steering_unit: the rear_axle"):
+        CalibrationNode(context=ros, node_name=unique("rear"), enable_rosout=False,
+                        parameter_overrides=[Parameter("steering_unit", value="deg")])
+    sim = odocal.simulate(duration_s=90.0, seed=5, noise="realistic")
+    r = rig(export_targets=["ackermann"])
+    play(r.executor, r.player, r.node, sim.drive)
+    r.node.update()
+    answer = call(r.executor, r.player.export, Trigger.Request(), "~/export")
+    assert not answer.success
+    assert answer.message.startswith("nothing to write: export_targets names none of the "
+                                     "rear_axle model's targets (autoware")

@@ -350,6 +350,22 @@ def _curve_finding(q: float, q_std: float, mine: Mapping[str, float], *,
     return Finding(Check.CURVE_EXCESS, Severity.NOTE, q, q_std)
 
 
+def as_excess(findings: Sequence[Finding]) -> list[Finding]:
+    """``findings`` with front wheels named in the rear columns (the fatal
+    :attr:`~odocal.checks.findings.Check.FRONT_WHEELS`) turned into the note of the wheels'
+    excess in bends that it was judged from: for a car whose four wheels show each front one
+    travelling further in bends than its rear one
+    (:func:`odocal.estimators.front_axle.front_ahead`), that excess is the reference's."""
+    out = []
+    for f in findings:
+        if f.check is Check.FRONT_WHEELS and f.severity is Severity.FATAL:
+            distance = float(f.value)
+            f = Finding(Check.CURVE_EXCESS, Severity.NOTE, 0.5 * distance ** 2,
+                        float(f.reference) * 2.0 * distance)
+        out.append(f)
+    return out
+
+
 def _change_finding(p: FloatArray, std: FloatArray, change: tuple[float, str]) -> Finding:
     """The step of c_e and c_d at ``change`` (its time and drive), named by the parameter whose
     step stands out more against its standard deviation."""

@@ -51,7 +51,7 @@ from odocal.correlation import Correlations, correlations
 from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.estimators.covariance import widened
-from odocal.estimators.departures import curve_excess
+from odocal.estimators.departures import FRONT_MIN_M, curve_excess
 from odocal.estimators.estimate import Estimate, Identified, NotIdentified, Reason, Verdict
 from odocal.estimators.windows import MOVING_MPS, cluster_steps_for
 from odocal.model.four_wheel import FOUR_WHEEL_MODEL
@@ -1378,6 +1378,7 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
         judged = dataclasses.replace(d, inputs={k: filled(v) for k, v in d.inputs.items()})
         wheels = moving & np.isfinite(d.inputs["n_fl"]) & np.isfinite(d.inputs["n_fr"])
         found += _front_wheel_findings(judged, wheels, yaw)
+        found += _ahead_findings(judged, wheels, yaw)
         angle = moving & np.isfinite(d.inputs["steer"]) if "steer" in d.inputs else moving
         problem = _steering_problem(judged, angle, curvature, wheelbase, (low, high))
         if problem is None:
@@ -1496,6 +1497,65 @@ def _front_wheel_findings(d: Drive, moving: BoolArray, yaw: FloatArray) -> list[
             found.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL, r, 1.0,
                                  f"front-sides-yaw|{d.name}"))
     return found
+
+
+#: A side's front wheel travels further than its rear one in bends, by about (L kappa)^2 / 2
+#: of the path: regressed on a second's sums, the coefficient of kappa^2 / 2 (m^2) is L^2 where
+#: the columns are mapped right and -L^2 where a side's front and rear are exchanged. Judged
+#: beyond this many standard deviations and beyond a short car's wheelbase squared ...
+AHEAD_SIGMAS = 5.0
+#: ... on at least this many moving seconds, some as tight as this curvature (1/m).
+AHEAD_MIN_SECONDS, AHEAD_MIN_CURVATURE = 20, 0.05
+
+
+def _ahead_findings(d: Drive, moving: BoolArray, yaw: FloatArray) -> list[Finding]:
+    """Each side's front wheel against its rear one in bends, on the wheels alone (the
+    reference's curvature only says where the bends are): a front wheel that travels further
+    by a wheelbase's share is a note (value: the coefficient, m^2; reference: its std), one
+    that travels less is a rear wheel in a front column (fatal)."""
+    size = max(1, round(1.0 / d.t_s))
+    whole = (d.n_samples // size) * size
+    if whole < AHEAD_MIN_SECONDS * size:
+        return []
+
+    def seconds(values: FloatArray) -> FloatArray:
+        return np.asarray(np.where(moving, values, 0.0)[:whole].reshape(-1, size).sum(axis=1))
+
+    speed = np.hypot(np.gradient(d.x, d.t_s), np.gradient(d.y, d.t_s))
+    kappa = seconds(yaw) / np.maximum(seconds(speed), 1e-9)
+    counted = seconds(np.ones(d.n_samples)) == size
+    found = []
+    for side, front, rear in (("left", d.inputs["n_fl"], d.n_rl),
+                              ("right", d.inputs["n_fr"], d.n_rr)):
+        f, r = seconds(np.asarray(front)), seconds(np.asarray(rear))
+        use = counted & np.isfinite(f) & np.isfinite(r) & (np.abs(r) > 0.5 * size) \
+            & (f * r > 0)
+        if use.sum() < AHEAD_MIN_SECONDS or not np.any(np.abs(kappa[use]) > AHEAD_MIN_CURVATURE):
+            continue
+        k = kappa[use]
+        design = np.column_stack([np.ones(k.size), k, 0.5 * k * k])
+        coef, *_ = np.linalg.lstsq(design, f[use] / r[use], rcond=None)
+        residual = f[use] / r[use] - design @ coef
+        sigma2 = float(residual @ residual) / max(k.size - 3, 1)
+        std = float(np.sqrt(sigma2 * np.linalg.pinv(design.T @ design)[2, 2])) / abs(coef[0])
+        l2 = float(coef[2] / coef[0])
+        short = FRONT_MIN_M ** 2
+        if l2 < -short and l2 + AHEAD_SIGMAS * std < 0.0:
+            found.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL, l2, std,
+                                 f"front-behind-{side}|{d.name}"))
+        elif l2 > short and l2 - AHEAD_SIGMAS * std > 0.0:
+            found.append(Finding(Check.FRONT_AXLE, Severity.NOTE, l2, std,
+                                 f"ahead-{side}|{d.name}"))
+    return found
+
+
+def front_ahead(findings: Sequence[Finding]) -> bool:
+    """Whether ``findings`` (:func:`front_checks`') show both sides' front wheels travelling
+    further than their rear ones in bends, and none less: the rear columns hold no front
+    wheel, whatever the rear fit makes of the wheels' excess in bends."""
+    names = [f.name.partition("|")[0] for f in findings]
+    return ("ahead-left" in names and "ahead-right" in names
+            and not any(n.startswith("front-behind") for n in names))
 
 
 def _frozen_s(own: FloatArray, other: FloatArray, turning: BoolArray, t_s: float) -> float:

@@ -61,6 +61,7 @@ from odocal.estimators.front_axle import (
     FrontFit,
     car_estimate,
     fit_car_front,
+    front_ahead,
     front_checks,
     mapping_findings,
 )
@@ -208,6 +209,7 @@ class OnlineCalibrator:
         self._front: LiveFront | None = None      # the car's front axle (once the grid is known)
         self._front_fit: FrontFit | None = None   # its last fit (estimate(running=True)),
         self._front_fit_s = 0.0                   # and the driving it rested on (s)
+        self._front_seen_ahead = False            # the four wheels showed the front ahead
         self._rear_fitted = Fitted()              # the departures the rear fit estimated
         self._aligner: ReferenceAligner | None = None
         self._builder: WindowBuilder | None = None
@@ -305,6 +307,9 @@ class OnlineCalibrator:
         diagnosis = check_drives([drive], self.settings)
         if self.car_settings is not None:         # the front wheels and steering, as batch
             diagnosis = diagnosis.plus(front_checks([drive], self.car_settings).findings)
+            # (once the four wheels showed the front ones ahead, the rear fit's excess in
+            # bends is the reference's: :meth:`_rear_estimate`)
+            self._front_seen_ahead = self._front_seen_ahead or front_ahead(diagnosis.findings)
             # a model input left out whole (a steering angle beyond any car's: its unit), said
             # as batch says it when it reads the log
             diagnosis = diagnosis.plus([
@@ -590,9 +595,13 @@ class OnlineCalibrator:
             findings=(*rear.details.findings, *found))
         # the wheels' mapping contradicts the model (the car's fit, or steered wheels in the
         # rear axle's columns, which a car's four columns can only be by a wrong mapping):
-        # halted, as the checks halt it, never an estimate published before it was seen
+        # halted, as the checks halt it, never an estimate published before it was seen. The
+        # rear fit's judgement of steered wheels halts at a final estimate only (judged there
+        # as batch judges it): a running fit's departures, chosen as they held out once, can
+        # read a reference's second-order motion as wheels ahead (a running estimate that
+        # names them is refused, as the rear axle's is)
         mapping = [f for f in details.findings if f.severity is Severity.FATAL and (
-            f in found or f.check is Check.FRONT_WHEELS)]
+            f in found or (f.check is Check.FRONT_WHEELS and not running))]
         fatal = any(f.severity is Severity.FATAL for f in found)
         if mapping:
             self._checks.found(self._checks.checked.plus(mapping))
@@ -645,7 +654,9 @@ class OnlineCalibrator:
                                 heading_own=self._fit.setup(windows, self._checks.checked).across,
                                 rivals=found.rivals)
         if not running:
-            named += self._front_wheels_afresh(named)
+            named = self._front_wheels_afresh(named)
+        if self._front_seen_ahead:
+            named = fitted.as_excess(named)
         if any(f.severity is Severity.FATAL for f in named):
             status = Status.REJECTED
         departed = tuple((name, float(total[fitted.at(name)]),
@@ -662,16 +673,17 @@ class OnlineCalibrator:
                         widening=found.uncertainty.widening)
 
     def _front_wheels_afresh(self, named: Sequence[Finding]) -> list[Finding]:
-        """Front wheels mapped as the rear ones, judged as batch judges them: on every window
-        in memory, the departures chosen afresh (the running fit keeps what held out once,
-        and leaves out windows where a wheel turns far from its estimate: wheel offsets taken
-        in early, and the tight bends left out, blur the wheels' excess in bends that names
-        front wheels). Only where nothing is folded yet and the running fit has not named
-        them already; the named finding, or none."""
+        """``named`` (the running fit's findings) with front wheels mapped as the rear ones
+        judged as batch judges them: on every window in memory, the departures chosen afresh
+        (the running fit keeps what held out once, and leaves out windows where a wheel turns
+        far from its estimate: wheel offsets taken in early and the tight bends left out blur
+        the wheels' excess in bends that names front wheels, and departures it has not taken
+        in yet can make a reference's second-order motion read as wheels ahead). That
+        judgement replaces the running fit's; where something is folded already (the windows
+        are not all in memory), the running fit's stands."""
         windows = self._windows
-        if windows is None or not windows.size or self._fit.folded.clusters or any(
-                f.check is Check.FRONT_WHEELS and f.severity is Severity.FATAL for f in named):
-            return []
+        if windows is None or not windows.size or self._fit.folded.clusters:
+            return list(named)
         checked = self._checks.checked
         setup = dataclasses.replace(self._fit.setup(windows, checked), kept=())
         try:
@@ -679,14 +691,16 @@ class OnlineCalibrator:
                              heading_offset=self.heading_offset(), held=held_by_checks(checked),
                              distance_only=checked.no_differential, setup=setup)
         except (np.linalg.LinAlgError, FloatingPointError):
-            return []
+            return list(named)
         total = found.fit.p.copy()
         total[fitting.LAG] = found.lag.shift if "lag" in found.entered else 0.0
-        return [f for f in fitted.findings(
-                    total, found.nuisance_std, found.entered, t_s=self._t_s or 0.0,
-                    reference_shift_s=self._departures.reference_shift_s,
-                    heading_own=setup.across, rivals=found.rivals)
-                if f.check is Check.FRONT_WHEELS and f.severity is Severity.FATAL]
+        steered = [f for f in fitted.findings(
+                       total, found.nuisance_std, found.entered, t_s=self._t_s or 0.0,
+                       reference_shift_s=self._departures.reference_shift_s,
+                       heading_own=setup.across, rivals=found.rivals)
+                   if f.check is Check.FRONT_WHEELS and f.severity is Severity.FATAL]
+        return [f for f in named if not (f.check is Check.FRONT_WHEELS
+                                         and f.severity is Severity.FATAL)] + steered
 
     @property
     def theta(self) -> FloatArray:

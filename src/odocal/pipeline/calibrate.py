@@ -327,7 +327,8 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     outcome, estimate, boot = _fitted(method, prep, settings, clock, diagnosis=diagnosis,
                                       departures=departures, screened=screened,
                                       drives=drive_list)
-    diagnosis, estimate, fitted = _with_fit_findings(diagnosis, estimate)
+    diagnosis, estimate, fitted = _with_fit_findings(
+        diagnosis, estimate, ahead=_front_ahead(drive_list, model_settings))
     warnings = _warnings(method, prep, outcome, boot, drive_list)
     with clock.stage("validation"):
         val, datasheet = _validated(estimate, fitted, drive_list, prep, settings, method)
@@ -351,11 +352,29 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         vehicle_estimate=vehicle, model_settings=model_settings)
 
 
-def _with_fit_findings(diagnosis: Diagnosis, estimate: Estimate
+def _front_ahead(drives: Sequence[Drive], model_settings: Settings | None) -> bool:
+    """Whether a car's four wheels show each front one travelling further in bends than its
+    rear one (:func:`~odocal.estimators.front_axle.front_ahead`; False for the rear axle)."""
+    if model_settings is None:
+        return False
+    from odocal.estimators.front_axle import front_ahead, front_checks
+
+    return front_ahead(front_checks(drives, model_settings).findings)
+
+
+def _with_fit_findings(diagnosis: Diagnosis, estimate: Estimate, *, ahead: bool = False
                        ) -> tuple[Diagnosis, Estimate, tuple[Finding, ...]]:
     """What the fit's residuals showed (front wheels: refused; a change inside the log) added
-    to the diagnosis, the estimate refused where it is fatal; and those findings."""
+    to the diagnosis, the estimate refused where it is fatal; and those findings. ``ahead``:
+    a car whose front wheels travel further in bends than its rear ones, whose rear columns
+    then hold no front wheel (the wheels' excess is a note)."""
     fitted = tuple(getattr(estimate.details, "findings", ()))
+    if ahead and fitted:
+        from odocal.estimators.departures import as_excess
+
+        fitted = tuple(as_excess(fitted))
+        estimate = dataclasses.replace(
+            estimate, details=dataclasses.replace(estimate.details, findings=fitted))
     if fitted:
         diagnosis = diagnosis.plus(fitted)
         if diagnosis.fatal:

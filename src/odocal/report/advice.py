@@ -168,6 +168,10 @@ def _not_identified(name: str, label: str, verdict: NotIdentified, cov: Coverage
 def reason_text(name: str, verdict: NotIdentified, *, threshold_radps: float) -> str:
     """Why a parameter is not identified, in one clause (for the CLI and warnings)."""
     reason = verdict.reason
+    front = name in _FRONT_NEEDS          # (the four-wheel car's: judged on its windows)
+    if front and (reason is Reason.NEEDS_BENDS
+                  or (reason is Reason.WEAK and not math.isfinite(verdict.std))):
+        return f"needs {_FRONT_NEEDS[name]}; kept at the datasheet value"
     if reason is Reason.NEEDS_BENDS:
         return (f"needs bends: the yaw rate never exceeds {threshold_radps} rad/s (at most "
                 f"{verdict.detail:.3f} rad/s); kept at the datasheet value")
@@ -444,6 +448,11 @@ def _four_wheel_text(finding: Finding) -> str:
         return (f"{where} carries no front wheels' rates while other drives do: the front "
                 "axle is calibrated on those")
     fault, _, side = what.partition("-")
+    if fault == "ahead":
+        return (f"the {side} front wheel travels further than the {side} rear one in bends in "
+                f"{where}, as a wheel {math.sqrt(v):.2f} m (+-{ref / (2 * math.sqrt(v)):.2f}) "
+                "ahead of it does: the front and rear columns are mapped as such (judged on the "
+                "wheels alone)")
     if fault in _FRONT_WHEEL_WORDS:
         gap = "" if fault == "frozen" else " "
         return (f"the front {side} wheel{gap}"
@@ -494,6 +503,11 @@ def _mapping_text(what: str, where: str, v: float, ref: float) -> str:
         return (f"the front wheels' difference turns against the yaw rate (correlation "
                 f"{v:+.2f}) in {where}: front left and right swapped? map them the other "
                 f"way round{_NOTHING}")
+    if what.startswith("front-behind-"):
+        side = what.rpartition("-")[2]
+        return (f"the {side} front wheel travels less than the {side} rear one in bends in "
+                f"{where} (as a wheel {math.sqrt(-v):.1f} m behind it would): that side's front "
+                f"and rear wheels exchanged? map them the other way round{_NOTHING}")
     if what == "front-copy":
         return (f"the front left and right wheels' columns hold one signal in {where}: one "
                 f"column mapped twice? map each front wheel to its own{_NOTHING}")

@@ -366,6 +366,7 @@ class CalibrationNode(LifecycleNode):
         p = self._param
         car_only = [k for k in ("front_left_wheel_joint", "front_right_wheel_joint",
                                 "steering_joint") if p(k)]
+        car_only += ["steering_unit"] if p("steering_unit") != "rad" else []
         if not self._car and car_only:
             raise ConfigError(f"parameter {car_only[0]}: the {self.settings.vehicle.model} "
                               "model reads no front wheels or steering; choose the car with "
@@ -548,6 +549,7 @@ class CalibrationNode(LifecycleNode):
         left, right = wheel_joints(names, p("left_wheel_joint"), p("right_wheel_joint"), topic)
         if not self._car:
             self._joints = (names[left], names[right])
+            self._config_error = None
             return (left, right), None
         front = joints.front_wheel_joints(
             names, (p("front_left_wheel_joint"), p("front_right_wheel_joint")), where=topic,
@@ -563,7 +565,11 @@ class CalibrationNode(LifecycleNode):
         steering = (joints.named_joint(names, p("steering_joint"), where=topic,
                                        setting="steering_joint", error=ConfigError)
                     if self._steered else None)
+        if steering in (left, right, *front):
+            raise ConfigError(f"{topic}: the steering joint {names[steering]!r} is a wheel's; "
+                              "set steering_joint to the steering wheel's joint")
         self._joints = (names[left], names[right])
+        self._config_error = None          # (a layout that reads: an earlier one's error gone)
         return (left, right, *front), steering
 
     def _front_row(self, rates: Sequence[float], angle: float | None
@@ -678,6 +684,9 @@ class CalibrationNode(LifecycleNode):
             wheels.note = str(exc)
             return
         except ConfigError as exc:
+            # (refused and named: an ERROR until a message of a usable layout comes)
+            wheels.undecodable += 1
+            wheels.note = str(exc)
             if self._joints is None and self._config_error is None:
                 self._config_error = str(exc)
                 self.get_logger().error(self._config_error)
@@ -1326,6 +1335,12 @@ class CalibrationNode(LifecycleNode):
             written = self.write_exports(Path(folder))
         except (OdocalError, OSError) as exc:
             response.success, response.message = False, str(exc)
+            return response
+        if not written:
+            response.success = False
+            response.message = (f"nothing to write: export_targets names none of the "
+                                f"{self.settings.vehicle.model} model's targets ("
+                                + ", ".join((*targets_for(self._layout), "yaml")) + ")")
             return response
         response.success = True
         response.message = "wrote " + ", ".join(str(p) for p in written)
