@@ -43,6 +43,17 @@ ELSEWHERE: dict[str, tuple[str, tuple[str, ...]]] = {
     "-p imu_topic:=/imu/data -p pose_topic:=/odometry/filtered -p export_dir:=$HOME/odocal": (
         "tests/ros2/test_node.py::test_odocal_ros2_starts_the_node_and_stops_on_ctrl_c",
         ('"ros2", "--datasheet", "c_e=1.95,t_r=1.51"', '"--ros-args"', "export_dir:=")),
+    # the four-wheel car's node: its settings file (the test's config fixture writes it) and
+    # its parameters, the steering joint and the reference's sideslip (car_rig), the export
+    "printf '[vehicle]\\nmodel = \"four_wheel\"\\n' > car.toml": (
+        "tests/ros2/test_car.py::"
+        "test_the_car_on_ros2_is_replays_car_and_publishes_its_ten_parameters",
+        ("config: Path", "car_rig(rig, config")),
+    "odocal ros2 --config car.toml --ros-args -p steering_joint:=steering_wheel "
+    "-p sideslip_from_reference:=true -p export_dir:=$HOME/odocal": (
+        "tests/ros2/test_car.py::"
+        "test_the_car_on_ros2_is_replays_car_and_publishes_its_ten_parameters",
+        ('car_rig(rig, config, steering_joint="steering_wheel")', 'r.folder / "ackermann"')),
     # the example parameter file, given to a node of the default name as rcl's --params-file
     "odocal ros2 --ros-args --params-file odocal_ros2.params.yaml": (
         "tests/ros2/test_features.py::"

@@ -1524,7 +1524,8 @@ def _ahead_findings(d: Drive, moving: BoolArray, yaw: FloatArray) -> list[Findin
     speed = np.hypot(np.gradient(d.x, d.t_s), np.gradient(d.y, d.t_s))
     kappa = seconds(yaw) / np.maximum(seconds(speed), 1e-9)
     counted = seconds(np.ones(d.n_samples)) == size
-    found = []
+    found: list[Finding] = []
+    behind: list[Finding] = []
     for side, front, rear in (("left", d.inputs["n_fl"], d.n_rl),
                               ("right", d.inputs["n_fr"], d.n_rr)):
         f, r = seconds(np.asarray(front)), seconds(np.asarray(rear))
@@ -1541,12 +1542,14 @@ def _ahead_findings(d: Drive, moving: BoolArray, yaw: FloatArray) -> list[Findin
         l2 = float(coef[2] / coef[0])
         short = FRONT_MIN_M ** 2
         if l2 < -short and l2 + AHEAD_SIGMAS * std < 0.0:
-            found.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL, l2, std,
-                                 f"front-behind-{side}|{d.name}"))
+            behind.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL, l2, std,
+                                  f"front-behind-{side}|{d.name}"))
         elif l2 > short and l2 - AHEAD_SIGMAS * std > 0.0:
             found.append(Finding(Check.FRONT_AXLE, Severity.NOTE, l2, std,
                                  f"ahead-{side}|{d.name}"))
-    return found
+    if len(behind) == 2:                    # both sides: the axles exchanged, said once
+        behind = [dataclasses.replace(behind[0], name=f"front-behind-axles|{d.name}")]
+    return found + behind
 
 
 def front_ahead(findings: Sequence[Finding]) -> bool:

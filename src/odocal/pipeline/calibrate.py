@@ -311,8 +311,7 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
     """
     started = time.perf_counter()
     settings = settings or Settings()
-    method = method or DEFAULT_METHOD
-    _check_method(method)
+    _check_method(method := method or DEFAULT_METHOD)
     model_settings, settings = _rear_axle_settings(settings, method)   # a car: its rear axle
     clock = Stopwatch(progress)
     with clock.stage("read"):
@@ -347,8 +346,8 @@ def calibrate(drives: Drive | str | Path | Sequence[Drive | str | Path], *,
         segments=prep.segments, used=prep.used, drives=summarise(drive_list), settings=settings,
         warnings=tuple(warnings), elapsed_s=time.perf_counter() - started, bootstrap=boot,
         three_step=outcome.three_step, batch=prep.__dict__.get("batch"),
-        drive_data=tuple(drive_list),
-        timings_s=dict(clock.seconds), diagnosis=diagnosis, departures=departures,
+        drive_data=tuple(drive_list), timings_s=dict(clock.seconds), diagnosis=diagnosis,
+        departures=departures,
         vehicle_estimate=vehicle, model_settings=model_settings)
 
 

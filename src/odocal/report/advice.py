@@ -448,11 +448,8 @@ def _four_wheel_text(finding: Finding) -> str:
         return (f"{where} carries no front wheels' rates while other drives do: the front "
                 "axle is calibrated on those")
     fault, _, side = what.partition("-")
-    if fault == "ahead":
-        return (f"the {side} front wheel travels further than the {side} rear one in bends in "
-                f"{where}, as a wheel {math.sqrt(v):.2f} m (+-{ref / (2 * math.sqrt(v)):.2f}) "
-                "ahead of it does: the front and rear columns are mapped as such (judged on the "
-                "wheels alone)")
+    if fault in ("ahead", "change", "slid"):
+        return _fit_text(fault, side, where, v, ref)
     if fault in _FRONT_WHEEL_WORDS:
         gap = "" if fault == "frozen" else " "
         return (f"the front {side} wheel{gap}"
@@ -472,29 +469,38 @@ def _four_wheel_text(finding: Finding) -> str:
                 f"({abs(v) / ref:.1%}), where two tyres of one axle differ by a few "
                 "millimetres: a tyre of another size or wear, or one wheel's signal scaled? "
                 "(the calibration stands as the wheels report)")
-    if what == "change":
-        return (f"the front wheels' circumference changed by {v:+.2%} within the drives (their "
-                f"later half against the earlier, {abs(ref):.0f} standard deviations): a front "
-                "tyre changed, or its pressure; c_f is a mix of the two, its std widened to "
-                "cover either (calibrate on the drives after the change for its value now)")
-    if what == "slid":
-        how = " and ".join(
-            ([f"the rear axle sliding {math.degrees(v):+.2f} degrees per m/s^2 of lateral "
-              "acceleration"] if v else [])
-            + (["the wheels travelling more in bends than the reference's point"] if ref
-               else []))
-        return (f"the rear fit found {how}, a sideslip the log does not carry: the wheelbase "
-                "and the steering ratio rest on the front wheels' path in bends, which that "
-                "description gives to first order only; their stds carry the excess's share "
-                "where one was found, not the rest (on simulated cars logged so, one drive in "
-                "ten came out 3 to 7 stds off); give the sideslip (a beta column; the ROS 2 "
-                "node's sideslip_from_reference) or state the wheelbase from the datasheet")
     if what == "difference":
         return (f"the front wheels' circumferences differ by {v * 1e3:.4g} mm of {ref:.4g} m, "
                 "more than two tyres of one axle do: one front wheel reads a share of its "
                 f"turns (another tooth count, a scaled signal), or another unit{_NOTHING}")
     return (f"the front wheels put the front axle {v:.4g} m ahead of the rear one, beyond any "
             f"vehicle's {ref:.0f} m{_NOTHING}")
+
+
+def _fit_text(what: str, side: str, where: str, v: float, ref: float) -> str:
+    """What the car's fit says beside its numbers: a side's front wheel ahead of its rear one
+    (``ahead``), the front tyres changed within the drives (``change``), a sideslip the rear
+    fit described (``slid``)."""
+    if what == "ahead":
+        return (f"the {side} front wheel travels further than the {side} rear one in bends in "
+                f"{where}, as a wheel {math.sqrt(v):.2f} m (+-{ref / (2 * math.sqrt(v)):.2f}) "
+                "ahead of it does: the front and rear columns are mapped as such (judged on the "
+                "wheels alone)")
+    if what == "change":
+        return (f"the front wheels' circumference changed by {v:+.2%} within the drives (their "
+                f"later half against the earlier, {abs(ref):.0f} standard deviations): a front "
+                "tyre changed, or its pressure; c_f is a mix of the two, its std widened to "
+                "cover either (calibrate on the drives after the change for its value now)")
+    how = " and ".join(
+        ([f"the rear axle sliding {math.degrees(v):+.2f} degrees per m/s^2 of lateral "
+          "acceleration"] if v else [])
+        + (["the wheels travelling more in bends than the reference's point"] if ref else []))
+    return (f"the rear fit found {how}, a sideslip the log does not carry: the wheelbase "
+            "and the steering ratio rest on the front wheels' path in bends, which that "
+            "description gives to first order only; their stds carry the excess's share "
+            "where one was found, not the rest (on simulated cars logged so, one drive in "
+            "ten came out 3 to 7 stds off); give the sideslip (a beta column; the ROS 2 "
+            "node's sideslip_from_reference) or state the wheelbase from the datasheet")
 
 
 def _mapping_text(what: str, where: str, v: float, ref: float) -> str:
@@ -505,9 +511,13 @@ def _mapping_text(what: str, where: str, v: float, ref: float) -> str:
                 f"way round{_NOTHING}")
     if what.startswith("front-behind-"):
         side = what.rpartition("-")[2]
+        if side == "axles":
+            return (f"the front wheels travel less than the rear ones in bends on both sides in "
+                    f"{where} (as wheels {math.sqrt(-v):.1f} m behind them would): the front and "
+                    f"rear axles exchanged? map them the other way round{_NOTHING}")
         return (f"the {side} front wheel travels less than the {side} rear one in bends in "
-                f"{where} (as a wheel {math.sqrt(-v):.1f} m behind it would): that side's front "
-                f"and rear wheels exchanged? map them the other way round{_NOTHING}")
+                f"{where} (as a wheel {math.sqrt(-v):.1f} m behind it would): the front {side} "
+                f"and rear {side} wheels exchanged? map them the other way round{_NOTHING}")
     if what == "front-copy":
         return (f"the front left and right wheels' columns hold one signal in {where}: one "
                 f"column mapped twice? map each front wheel to its own{_NOTHING}")

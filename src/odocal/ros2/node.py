@@ -572,6 +572,15 @@ class CalibrationNode(LifecycleNode):
         self._config_error = None          # (a layout that reads: an earlier one's error gone)
         return (left, right, *front), steering
 
+    def _further(self, more: Sequence[float]) -> tuple[float, ...] | None:
+        """The car's further columns of a quick read's values after the rear wheels' (the front
+        ones' velocities, rad/s, and the steering's position): :meth:`_front_row`; () for the
+        rear axle."""
+        if not more:
+            return ()
+        return self._front_row((more[0] / TWO_PI, more[1] / TWO_PI),
+                               more[2] if len(more) > 2 else None)
+
     def _front_row(self, rates: Sequence[float], angle: float | None
                    ) -> tuple[float, ...] | None:
         """The car's further wheel columns of a message (the front rates in rev/s, the
@@ -608,26 +617,20 @@ class CalibrationNode(LifecycleNode):
         last one, finite values) is read, buffered and its odometry published here with the
         state in local variables (one Python call per message costs as much as its work);
         any other goes through :meth:`_wheel_message`."""
-        pub = self._odom_pub
-        handle = pub.handle
-        quick = self._reader.velocities
-        wheels = self._wheels
-        check = wheels.stamps.check
+        pub, quick, wheels = self._odom_pub, self._reader.velocities, self._wheels
+        handle, check = pub.handle, wheels.stamps.check
         columns = wheels.buffer.columns
         add_t, add_l, add_r = (columns["t"].append, columns["n_rl"].append,
                                columns["n_rr"].append)
         # the car's front wheels and steering, after the rear wheels in what is read
-        car = self._car
-        further = [columns[k].append for k in wheels.buffer.keys[2:]]
-        front_row = self._front_row
-        readings, variances = self.twist.readings.add, self.twist.variances
-        message = self._writer.message
+        further, further_of = [columns[k].append for k in wheels.buffer.keys[2:]], self._further
+        readings, variances, message = (self.twist.readings.add, self.twist.variances,
+                                        self._writer.message)
         # (2a), (2b): the model's body map at the batch's theta and a_y
         a_y = self._a_y
         (v_l, v_r), (w_l, w_r) = self._body_at(a_y)
-        max_gap = self._max_gap_s
+        max_gap, origin = self._max_gap_s, self._origin
         isfinite, cos, sin = math.isfinite, math.cos, math.sin
-        origin = self._origin
         x, y, psi, last = self._x, self._y, self._psi, self._odom_t
         with handle:
             publish = handle.publish_raw if pub.is_activated else None
@@ -638,14 +641,13 @@ class CalibrationNode(LifecycleNode):
                     x, y, psi, last = self._x, self._y, self._psi, self._odom_t
                     origin = self._origin
                     continue
-                sec, nsec, left, right = got[:4] if car else got
+                sec, nsec, left, right, *more = got     # (the car's front and steering after)
                 t = float(sec - origin[0]) + 1e-9 * float(nsec - origin[1])
                 if not check(t):
                     self._rates.reset()
                     continue
                 n_rl, n_rr = left / TWO_PI, right / TWO_PI
-                row = (front_row((got[4] / TWO_PI, got[5] / TWO_PI), got[6] if len(got) > 6
-                                 else None) if car else ())
+                row = further_of(more)
                 if not (isfinite(n_rl) and isfinite(n_rr)) or row is None:
                     self._refuse_wheels()
                     continue
