@@ -146,6 +146,30 @@ def test_each_sides_front_wheel_travels_further_in_bends_or_its_mapping_is_named
     assert note.value == pytest.approx(2.0) and note.reference == pytest.approx(0.2)
 
 
+def test_a_front_and_a_rear_wheel_exchanged_across_the_car_are_named(
+        four_wheel_drive: tuple[Drive, np.ndarray]) -> None:
+    """The front left in the rear right column and the rear right in the front left: neither
+    side's front wheel is behind its rear one, but neither axle's difference follows the yaw
+    rate any more (0.2 to 0.5 where a mapping right gives 0.99 or more): named, nothing
+    calibrated. Before, replay published an estimate from before the gate saw t_r at 0.3 m."""
+    from odocal.checks.findings import Severity
+    from odocal.estimators.front_axle import front_checks
+    from odocal.report.advice import finding_text
+
+    drive, _ = four_wheel_drive
+    assert not [f for f in front_checks([drive], FOUR).findings if f.name.startswith("axle")]
+    columns = drive.columns()
+    across = Drive.from_columns({**columns, "n_rr": columns["n_fl"], "n_fl": columns["n_rr"]},
+                                name="across")
+    named = [f for f in front_checks([across], FOUR).findings
+             if f.name.startswith("axle-sides-")]
+    assert {f.name.partition("|")[0] for f in named} == {"axle-sides-front", "axle-sides-rear"}
+    assert all(f.severity is Severity.FATAL and f.value < 0.8 for f in named)
+    assert "in the rear columns? check the mapping of all four" in finding_text(
+        next(f for f in named if "rear" in f.name), FOUR)
+    assert odocal.calibrate(across, settings=FOUR).model_estimate.status is Status.REJECTED
+
+
 def test_a_front_parameter_not_identified_says_what_it_needs_without_a_nan() -> None:
     from odocal.estimators.estimate import NotIdentified, Reason
     from odocal.report.advice import reason_text

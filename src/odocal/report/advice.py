@@ -518,6 +518,12 @@ def _mapping_text(what: str, where: str, v: float, ref: float) -> str:
         return (f"the {side} front wheel travels less than the {side} rear one in bends in "
                 f"{where} (as a wheel {math.sqrt(-v):.1f} m behind it would): the front {side} "
                 f"and rear {side} wheels exchanged? map them the other way round{_NOTHING}")
+    if what.startswith("axle-sides-"):
+        axle = what.rpartition("-")[2]
+        return (f"the {axle} wheels' difference does not follow the yaw rate in bends in "
+                f"{where} (correlation {v:+.2f}), as an axle's does: two wheels of one side, or "
+                f"a front and a rear wheel, in the {axle} columns? check the mapping of all "
+                f"four{_NOTHING}")
     if what == "front-copy":
         return (f"the front left and right wheels' columns hold one signal in {where}: one "
                 f"column mapped twice? map each front wheel to its own{_NOTHING}")
