@@ -1578,7 +1578,14 @@ def _axle_findings(d: Drive, moving: BoolArray, yaw: FloatArray) -> list[Finding
     found = []
     for axle, left, right in (("front", d.inputs["n_fl"], d.inputs["n_fr"]),
                               ("rear", d.n_rl, d.n_rr)):
-        r = _correlation(seconds(np.asarray(right) - np.asarray(left))[bends], turn[bends])
+        diff = seconds(np.asarray(right) - np.asarray(left))[bends]
+        if not np.ptp(diff):
+            continue                            # one signal in both columns: named elsewhere
+        # with the axle's travel taken out (two wheels of it apart in scale: named elsewhere)
+        travel = np.column_stack([np.ones(diff.size),
+                                  seconds(np.asarray(right) + np.asarray(left))[bends]])
+        r = _correlation(*(v - travel @ np.linalg.lstsq(travel, v, rcond=None)[0]
+                           for v in (diff, turn[bends])))
         if -TURNING_CORRELATION <= r < AXLE_CORRELATION:
             found.append(Finding(Check.WHEEL_MAPPING, Severity.FATAL, r, AXLE_CORRELATION,
                                  f"axle-sides-{axle}|{d.name}"))
