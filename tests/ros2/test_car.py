@@ -292,3 +292,29 @@ def test_what_a_rear_axle_node_cannot_export_or_read_is_said(rig: Any, ros: Any)
     assert not answer.success
     assert answer.message.startswith("nothing to write: export_targets names none of the "
                                      "rear_axle model's targets (autoware")
+
+
+def test_a_nan_steering_or_front_wheel_leaves_that_value_out_not_the_rear_wheels(
+        rig: Any, car: Any, config: Path) -> None:
+    """400 messages with a NaN steering angle and 100 with a NaN front wheel: each message's
+    rear wheels are taken and their odometry published; those values are left out (counted
+    and named), and the car is calibrated (before, the whole message was refused: 10 s of it
+    cost the wheelbase)."""
+    _, d, truth = car
+
+    def spoiled(role: str, k: int, msg: Any) -> None:
+        if role == "wheels" and 2000 <= k < 2400:
+            msg.position[4] = float("nan")
+        if role == "wheels" and 3000 <= k < 3100:
+            msg.velocity[0] = float("nan")
+
+    r = car_rig(rig, config, steering_joint="steering_wheel")
+    play(r.executor, r.player, r.node, d, car_script(values=spoiled))
+    est = r.node.finish()
+    assert r.node.messages()["wheels"] == d.n_samples
+    spin_until(r.executor, lambda: len(r.player.odometry) == d.n_samples, "the odometry")
+    assert "500 messages with a NaN or infinite front wheel or steering value: those values " \
+           "left out, the rear wheels kept" in r.node.status()[0].message
+    assert all(est.identified)
+    z = (est.theta.as_array() - truth) / est.std
+    assert np.all(np.abs(z) < 3.0), dict(zip(est.names, z.round(2), strict=True))

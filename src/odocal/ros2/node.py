@@ -165,6 +165,7 @@ class _Input:
         self.seen = 0                  # messages taken when it was last checked
         self.undecodable = 0
         self.note = ""                 # why messages were refused (the latest reason)
+        self.partial = 0               # taken without a front wheel's or the steering's value
 
     def taken(self) -> int:
         """Messages taken from the topic, used or refused."""
@@ -195,6 +196,9 @@ class _Input:
         if self.undecodable:
             out.append(f"{self.name}: {self.undecodable} messages that are not "
                        f"{self.role} messages ({self.note})")
+        if self.partial:
+            out.append(f"{self.name}: {self.partial} messages with a NaN or infinite front "
+                       "wheel or steering value: those values left out, the rear wheels kept")
         return out
 
 
@@ -572,7 +576,7 @@ class CalibrationNode(LifecycleNode):
         self._config_error = None          # (a layout that reads: an earlier one's error gone)
         return (left, right, *front), steering
 
-    def _further(self, more: Sequence[float]) -> tuple[float, ...] | None:
+    def _further(self, more: Sequence[float]) -> tuple[float, ...]:
         """The car's further columns of a quick read's values after the rear wheels' (the front
         ones' velocities, rad/s, and the steering's position): :meth:`_front_row`; () for the
         rear axle."""
@@ -581,12 +585,15 @@ class CalibrationNode(LifecycleNode):
         return self._front_row((more[0] / TWO_PI, more[1] / TWO_PI),
                                more[2] if len(more) > 2 else None)
 
-    def _front_row(self, rates: Sequence[float], angle: float | None
-                   ) -> tuple[float, ...] | None:
+    def _front_row(self, rates: Sequence[float], angle: float | None) -> tuple[float, ...]:
         """The car's further wheel columns of a message (the front rates in rev/s, the
-        steering in rad); None where one is NaN or infinite."""
+        steering in rad); a NaN or infinite one left out (NaN: not measured, as the front fit
+        takes it) and counted, the rear wheels' sample kept."""
         row = (*rates, *(() if angle is None else (angle * self._steer_scale,)))
-        return row if all(map(math.isfinite, row)) else None
+        if all(map(math.isfinite, row)):
+            return row
+        self._wheels.partial += 1
+        return tuple(v if math.isfinite(v) else math.nan for v in row)
 
     def _taker(self, name: str, handle: Callable[[list[bytes]], None]
                ) -> Callable[[bytes], None]:
@@ -647,11 +654,10 @@ class CalibrationNode(LifecycleNode):
                     self._rates.reset()
                     continue
                 n_rl, n_rr = left / TWO_PI, right / TWO_PI
-                row = further_of(more)
-                if not (isfinite(n_rl) and isfinite(n_rr)) or row is None:
+                if not (isfinite(n_rl) and isfinite(n_rr)):
                     self._refuse_wheels()
                     continue
-                for add, value in zip(further, row, strict=True):
+                for add, value in zip(further, further_of(more), strict=True):
                     add(value)
                 add_t(t)
                 add_l(n_rl)
@@ -715,11 +721,11 @@ class CalibrationNode(LifecycleNode):
             wheels.note = "neither velocities nor positions for the wheel joints"
             return
         n_rl, n_rr = rates[:2]
-        row = self._front_row(rates[2:4], rates[4] if len(rates) > 4 else None) \
-            if self._car else ()
-        if not (math.isfinite(n_rl) and math.isfinite(n_rr)) or row is None:
+        if not (math.isfinite(n_rl) and math.isfinite(n_rr)):
             self._refuse_wheels()
             return
+        row = self._front_row(rates[2:4], rates[4] if len(rates) > 4 else None) \
+            if self._car else ()
         wheels.buffer.add(t_rate, (n_rl, n_rr, *row))
         self._publish_odometry(sec, nsec, t, n_rl, n_rr)
 
