@@ -233,6 +233,12 @@ def test_both_wheels_shrinking_unequally_are_named_as_c_e() -> None:
     assert relative == pytest.approx(-0.03 / before[0])
     assert named(-0.02, 0.0)[:2] == ("c_d", "left")
     assert named(0.01, -0.03)[:2] == ("c_d", "right")
+    # a step whose standard deviation is zero (no spread to judge it by) is infinitely many of
+    # them, never a division by zero
+    exact = Change(index=3, t=100.0, distance_m=1500.0, before=before,
+                   step=np.array([-0.03, 0.0]), std=np.zeros(2))
+    alarm = describe(exact, suspect, detected_t=160.0, detected_distance_km=2.4)
+    assert (alarm.parameter, alarm.wheel, alarm.sigmas) == ("c_e", "both", np.inf)
 
 
 
@@ -297,6 +303,27 @@ def test_a_clusters_evidence_on_a_change_is_that_of_its_moving_windows_alone() -
     np.testing.assert_allclose(steps.h.sum(axis=0), alone.h.sum(axis=0), rtol=1e-12)
 
 
+def test_windows_too_slow_to_show_a_circumference_give_no_evidence_even_where_they_fit() -> None:
+    """A window whose wheels turn under ``MIN_RATE_REVPS`` (a crawl, a standstill) says nothing
+    about a tyre even where the model fits it exactly: the windows the change detector uses are
+    those that move *and* fit (mutation: ``moving | ~gross`` took every window that fits)."""
+    import dataclasses
+
+    from odocal.estimators import fitting
+    from odocal.estimators.error_model import ErrorModel
+    from odocal.online.changes import MIN_RATE_REVPS, _predicted, window_steps
+
+    drive = odocal.simulate(duration_s=240, seed=6, noise="realistic").drive
+    windows, _ = windows_from_drives([drive], odocal.Settings())
+    p = np.zeros(fitting.P)
+    p[fitting.THETA] = odocal.TRUE_PARAMETERS.as_array()
+    pred, _ = _predicted(windows, p, 0.0, 0.0)
+    exact = dataclasses.replace(windows, measured=pred)          # every window fits exactly
+    slow = np.any(np.abs(pred) < MIN_RATE_REVPS * windows.length * windows.t_s, axis=1)
+    assert slow.sum() >= 2 and (~slow).sum() > 20
+    np.testing.assert_array_equal(window_steps(exact, p, 0.0, 0.0, ErrorModel()).usable, ~slow)
+
+
 def test_before_any_sample_nothing_is_identified_in_seconds() -> None:
     """Asked before the first sample: the datasheet values, nothing free, no distance, and the
     clock read in seconds (what replay's files and the live node report)."""
@@ -322,3 +349,21 @@ def test_a_cluster_longer_than_the_memory_is_folded_half_by_half() -> None:
     assert est.details.windows == 139 and est.details.windows_in_memory <= 30
     assert est.status is Status.CONVERGED and est.identified["c_d"]
     assert est.theta.c_d == pytest.approx(sim.true_parameters.c_d, abs=4 * est.std[1])
+
+
+def test_departures_are_chosen_afresh_at_every_estimate_not_kept_as_they_held_out_once() -> None:
+    """An estimate every 30 s is many looks at the same evidence. A departure that passed its
+    test at an earlier one is in a later estimate only where that estimate takes it in again
+    (kept for good, a spread, a wheel-rate offset and a cut gathered over a simulated hour at
+    40 Hz beside the lever arm it needed, and c_e stood 10 of its stds from the truth)."""
+    drive = odocal.simulate(duration_s=600, seed=2, noise="realistic").drive
+    calibrator = pushed(drive, 400)
+    first = calibrator.estimate(running=True)
+    chosen = [name for name, _, _ in first.details.departures]
+    assert not {"spread", "offset", "cut"} & set(chosen), chosen
+    # what an earlier estimate would have left behind, had these held out there by chance
+    calibrator._fit.entered = (*calibrator._fit.entered, "spread", "offset", "cut")
+    again = calibrator.estimate(running=True)
+    assert [name for name, _, _ in again.details.departures] == chosen
+    np.testing.assert_allclose(again.theta.as_array(), first.theta.as_array(), rtol=1e-9)
+    np.testing.assert_allclose(again.std, first.std, rtol=1e-6)

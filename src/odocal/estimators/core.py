@@ -184,8 +184,6 @@ class Setup:
     across, lateral : the reference channels it has (:class:`View`)
     stated : nuisance parameters stated by the user (held at these values; e.g. the lever arm)
     tau_h : hours to each window's drive's end (c_e's drift), or None
-    kept : departures in the fit from the start (the live path's: what held out once holds on
-        the evidence folded since, which its windows in memory alone no longer show)
     coupled : whether the live path took a common wheel error's coupling before (kept at a
         lower Wald statistic: :data:`~odocal.estimators.error_model.COUPLING_KEEP_WALD`)
     """
@@ -195,7 +193,6 @@ class Setup:
     lateral: bool = False
     stated: Mapping[str, float] = field(default_factory=dict)
     tau_h: FloatArray | None = None
-    kept: tuple[str, ...] = ()
     coupled: bool = False
 
 
@@ -218,7 +215,7 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
     for name, value in setup.stated.items():
         p0[dep.at(name)] = value
     ctx = _Context(windows, folded, settings, heading_offset, channels, unseen_d, setup)
-    entered = _Entered([n for b in blocks for n in b if b[0] in setup.kept], folded.offset_free)
+    entered = _Entered([], folded.offset_free)
     state = ctx.run(p0, free, entered.free(), change=-1)
     h_theta = state.fit.normal_equations(folded)[0][THETA, THETA]
     informed = numerically_free(h_theta, settings.identify.prior_std, free)

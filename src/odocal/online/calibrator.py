@@ -597,9 +597,9 @@ class OnlineCalibrator:
         # rear axle's columns, which a car's four columns can only be by a wrong mapping):
         # halted, as the checks halt it, never an estimate published before it was seen. The
         # rear fit's judgement of steered wheels halts at a final estimate only (judged there
-        # as batch judges it): a running fit's departures, chosen as they held out once, can
-        # read a reference's second-order motion as wheels ahead (a running estimate that
-        # names them is refused, as the rear axle's is)
+        # as batch judges it): a running fit leaves out the windows where a wheel turns far
+        # from its estimate, which can read a reference's second-order motion as wheels ahead
+        # (a running estimate that names them is refused, as the rear axle's is)
         mapping = [f for f in details.findings if f.severity is Severity.FATAL and (
             f in found or (f.check is Check.FRONT_WHEELS and not running))]
         fatal = any(f.severity is Severity.FATAL for f in found)
@@ -674,18 +674,16 @@ class OnlineCalibrator:
 
     def _front_wheels_afresh(self, named: Sequence[Finding]) -> list[Finding]:
         """``named`` (the running fit's findings) with front wheels mapped as the rear ones
-        judged as batch judges them: on every window in memory, the departures chosen afresh
-        (the running fit keeps what held out once, and leaves out windows where a wheel turns
-        far from its estimate: wheel offsets taken in early and the tight bends left out blur
-        the wheels' excess in bends that names front wheels, and departures it has not taken
-        in yet can make a reference's second-order motion read as wheels ahead). That
-        judgement replaces the running fit's; where something is folded already (the windows
-        are not all in memory), the running fit's stands."""
+        judged as batch judges them: on every window in memory (the running fit leaves out
+        windows where a wheel turns far from its estimate: the tight bends left out blur the
+        wheels' excess in bends that names front wheels). That judgement replaces the running
+        fit's; where something is folded already (the windows are not all in memory), the
+        running fit's stands."""
         windows = self._windows
         if windows is None or not windows.size or self._fit.folded.clusters:
             return list(named)
         checked = self._checks.checked
-        setup = dataclasses.replace(self._fit.setup(windows, checked), kept=())
+        setup = self._fit.setup(windows, checked)
         try:
             found = core.fit(windows, self._fit.folded, self.settings,
                              heading_offset=self.heading_offset(), held=held_by_checks(checked),

@@ -90,7 +90,7 @@ class RunningFit:
         and forgetting follow."""
         blocks = fitted.LIVE if self.folded.clusters else (*fitted.LIVE, ("drift",))
         setup = fit_setup(windows, self.settings, held_by_checks(diagnosis), blocks=blocks)
-        return dataclasses.replace(setup, kept=self.entered, coupled=bool(self.model.coupling))
+        return dataclasses.replace(setup, coupled=bool(self.model.coupling))
 
     def kept(self, windows: WindowSet, heading_offset: float,
              p: FloatArray | None = None) -> BoolArray:
