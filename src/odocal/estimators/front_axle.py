@@ -51,7 +51,7 @@ from odocal.correlation import Correlations, correlations
 from odocal.data.drive import Drive
 from odocal.errors import DataError
 from odocal.estimators.covariance import widened
-from odocal.estimators.departures import FRONT_MIN_M, curve_excess
+from odocal.estimators.departures import FRONT_MIN_M, curve_excess, excess_doubt
 from odocal.estimators.estimate import Estimate, Identified, NotIdentified, Reason, Verdict
 from odocal.estimators.windows import MOVING_MPS, cluster_steps_for
 from odocal.model.four_wheel import FOUR_WHEEL_MODEL
@@ -119,8 +119,9 @@ class FrontWindows:
     (:func:`heading_noise`); None: not known."""
     excess: FloatArray | None = None
     """(N,) the wheels' excess travel in bends over the reference's point (m) that the rear
-    fit found (its ``curve`` departure) and the front wheels were read without; None: none
-    (the fit carries how far it would move with it as a systematic error)."""
+    fit found (its ``curve`` departure: the front wheels were read without it) or that its
+    lever arm gives (:func:`~odocal.estimators.departures.excess_doubt`); None: none (the fit
+    carries how far it would move with it as a systematic error)."""
 
     @property
     def size(self) -> int:
@@ -172,9 +173,10 @@ def front_windows(drives: Sequence[Drive], settings: Settings, *, delay_s: float
     set with none). The steering angle is put on the reference's clock by its own lag
     (:func:`steering_lag`): a steering sensor's latency is not the wheels'. ``steering_lag_s``:
     that lag as found already (on more driving than a drive: the live path's), for every
-    drive. ``curve``: the rear fit's ``curve`` departure (m^2), whose excess the drives' front
-    wheels were read without (:func:`~odocal.estimators.departures.corrected`): each window's
-    share of it is kept (:attr:`FrontWindows.excess`)."""
+    drive. ``curve``: the excess in bends the front fit doubts (m^2,
+    :func:`~odocal.estimators.departures.excess_doubt`: the rear fit's ``curve`` departure,
+    which :func:`~odocal.estimators.departures.corrected` took out of the front wheels, or its
+    lever arm's): each window's share of it is kept (:attr:`FrontWindows.excess`)."""
     require_front_wheels(drives)
     parts: dict[str, list[FloatArray]] = {k: [] for k in ("ds", "dpsi", "a_y", "a_x", "revs",
                                                           "steer", "cluster", "noise",
@@ -850,11 +852,12 @@ def _covariance(eq: _Normal, windows: FrontWindows, free: BoolArray, nuisance: F
 def _excess_term(eq: _Normal, p: FloatArray, windows: FrontWindows, measured: FloatArray,
                  weights: tuple[FloatArray, FloatArray], free: BoolArray, load: _Prior
                  ) -> FloatArray:
-    """The systematic covariance (8, 8) of the wheels' excess in bends the front wheels were
-    read without (:attr:`FrontWindows.excess`): ``s s^T``, with ``s`` how far one
-    Gauss-Newton step moves the fit were they read with it. The rear fit's constant excess
-    describes the reference's motion in bends to the first order only, and the wheelbase
-    lives in the second; zeros without an excess."""
+    """The systematic covariance (8, 8) of the wheels' excess in bends
+    (:attr:`FrontWindows.excess`): ``s s^T``, with ``s`` how far one Gauss-Newton step moves
+    the fit were the front wheels read with it (without it, where the rear fit left it out:
+    the same to first order). The rear fit's constant excess describes the reference's motion
+    in bends to the first order only, and the wheelbase lives in the second; zeros without an
+    excess."""
     n = _FIT.size
     if windows.excess is None or not np.any(windows.excess) or not free.any():
         return np.zeros((n, n))
@@ -973,8 +976,8 @@ def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Setti
     shift = float(details.delay_s) - taken * (drives[0].t_s if drives else 0.0)
     windows = front_windows(drives, settings, delay_s=shift,
                             heading_offset=float(details.heading_offset_rad),
-                            curve=float(dict(getattr(details, "fitted_departures", {})
-                                             or {}).get("curve", 0.0)))
+                            curve=excess_doubt(dict(getattr(details, "fitted_departures", {})
+                                                    or {})))
     return car_estimate(rear, windows, settings)
 
 

@@ -35,7 +35,7 @@ from odocal.arrays import FloatArray
 from odocal.correlation import correlation_sums, of_sums
 from odocal.data.drive import Drive
 from odocal.errors import DataError
-from odocal.estimators.departures import corrected
+from odocal.estimators.departures import corrected, excess_doubt
 from odocal.estimators.front_axle import (
     FrontWindows,
     front_checks,
@@ -234,7 +234,8 @@ class LiveFront:
             windows = front_windows(checked, self.settings, delay_s=alignment.delay_s,
                                     heading_offset=alignment.heading_offset,
                                     steering_lag_s=alignment.steering_lag_s,
-                                    curve=alignment.fitted.value("curve"))
+                                    curve=excess_doubt({n: v for n, v, _ in
+                                                        alignment.fitted.departures}))
         except DataError:
             windows = None      # samples that make no drive: the checks name them
         block.made, block.windows = alignment, windows
