@@ -116,9 +116,10 @@ def test_a_car_logged_without_its_sideslip_keeps_the_wheelbase_and_the_ratio(
 def test_a_lever_arm_without_an_excess_in_bends_still_doubts_the_excess() -> None:
     """Where the rear fit describes a sideslip the log lacks (a lever arm ahead of the axle,
     the axle's slip) but its held-out test leaves the excess in bends out, the front fit
-    doubts the excess such a point has by geometry (``arm_x^2 / 2``). On this drive (realistic, seed 10, no sideslip column) the wheelbase
-    came out 5.8 stds long and the ratio 6.6 short: now each parameter identified is within 3
-    stds (the wheelbase, its std beyond the limit, is not identified)."""
+    doubts the excess such a point has by geometry (``arm_x^2 / 2``). On this drive
+    (realistic, seed 10, no sideslip column) the wheelbase came out 5.8 stds long and the
+    ratio 6.6 short: now each parameter identified is within 3 stds (the wheelbase, its std
+    beyond the limit, is not identified)."""
     from odocal.estimators.departures import excess_doubt
     from odocal.sim.four_wheel import with_front_axle
 
