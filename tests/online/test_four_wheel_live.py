@@ -364,3 +364,28 @@ def test_a_change_of_the_front_tyres_alone_is_named_and_widens_c_f(
     clean = pushed(columns).estimate()
     assert clean.details.front.change is None
     assert not [f for f in mapping_findings(clean, Diagnosis(())) if f.name == "change"]
+
+
+@pytest.mark.parametrize("fault", ["sign", "unit"])
+def test_a_steering_angle_wrong_for_the_whole_stream_is_left_out_of_every_block(fault: str) -> None:
+    """The steering's sign flipped, or radians sent where degrees were said: a block that turns
+    enough shows it, and the angle is left out of every block's windows (one sensor), as batch
+    leaves it out of the drive, named. Before, the blocks too straight to judge it kept it:
+    the live front fit lost the front track and the wheelbase (batch keeps them) and said they
+    needed bends."""
+    import dataclasses
+
+    sim, _ = with_front_axle(odocal.simulate(duration_s=300.0, seed=5, noise="realistic"))
+    steer = sim.drive.inputs["steer"]
+    wrong = -steer if fault == "sign" else np.radians(steer)
+    drive = dataclasses.replace(sim.drive, inputs={**sim.drive.inputs, "steer": wrong})
+    calibrator = pushed(drive.columns(), step=40)
+    online = calibrator.estimate()
+    batch = odocal.calibrate(drive, settings=FOUR).model_estimate
+    assert online.identified == batch.identified
+    assert online.identified["t_f"] and online.identified["L"]
+    assert not online.identified["ratio"] and not online.identified["s_0"]
+    np.testing.assert_allclose(online.std[4:8], batch.std[4:8], rtol=0.25)
+    said = [f.name for f in online.details.findings if f.check.value == "steering"]
+    assert any(name.startswith(f"{fault}|") for name in said), said
+    assert calibrator._front is not None and calibrator._front.steering_fault is not None

@@ -589,6 +589,11 @@ class OnlineCalibrator:
                 name=f"{self.source} holds no sample with both front wheels' rates measured "
                      "(n_fl, n_fr NaN throughout): the front axle and the steering are not "
                      "calibrated; check the front wheel columns"))
+        fault = self._front.steering_fault if self._front is not None else None
+        if fault is not None and not any(
+                f.check is Check.STEERING and f.name.split("|")[0] == fault.name.split("|")[0]
+                for f in rear.details.findings):
+            found = (*found, fault)       # (left out of every block, found on an earlier one)
         details = dataclasses.replace(
             rear.details, front=getattr(car.details, "front", None),
             front_kept_s=self._front.kept_s if self._front is not None else 0.0,

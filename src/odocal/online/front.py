@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from odocal.arrays import FloatArray
+from odocal.checks.findings import Check, Finding, Severity
 from odocal.correlation import correlation_sums, of_sums
 from odocal.data.drive import Drive
 from odocal.errors import DataError
@@ -51,6 +52,10 @@ from odocal.settings import Settings
 
 #: The samples are made into a drive (and its front windows) every this many seconds.
 BLOCK_S = 120.0
+#: What a block's front checks find wrong with the steering angle that is the sensor's, for the
+#: whole stream (:func:`~odocal.estimators.front_axle.front_checks`): its sign, its unit, its
+#: zero far off centre (a constant or stuck angle is the block's own).
+STREAM_WIDE = ("sign", "unit", "straight")
 #: Blocks this recent keep their samples, their windows made again where the alignment moves.
 RAW_S = 1800.0
 #: The front fit rests on this much of the latest driving at most (s).
@@ -152,6 +157,11 @@ class LiveFront:
         self._open: list[FloatArray] = []
         #: Samples with both front wheels' rates measured, so far.
         self.measured = 0
+        #: Why the stream's steering angle is left out of every block's windows: its sign, its
+        #: unit or its zero found wrong on a block (one sensor for the whole stream; a block
+        #: too straight to judge it kept it, and a fit with the angle's sign flipped on some
+        #: windows lost the wheelbase, the ratio and the front track), or None.
+        self.steering_fault: Finding | None = None
 
     def add(self, rows: FloatArray) -> bool:
         """Samples on the grid (M, len(COLUMNS)); whether a block full of them closed (then
@@ -192,7 +202,10 @@ class LiveFront:
         parts = [self._made(block, alignment) for block in self._blocks]
         if last is not None:
             parts.append(self._made(last, alignment))
-        return FrontWindows.concat([w for w in parts if w is not None])
+        windows = FrontWindows.concat([w for w in parts if w is not None])
+        if windows is not None and self.steering_fault is not None:
+            windows = dataclasses.replace(windows, steer=np.full_like(windows.steer, np.nan))
+        return windows
 
     def _steered(self, alignment: Alignment, more: Sequence[_Block]) -> Alignment:
         """``alignment`` with the steering's lag behind the reference on the wheels' clock:
@@ -230,7 +243,12 @@ class LiveFront:
         name = f"{self.source}, t={block.first_t:.6g} to {block.last_t:.6g} s"
         try:
             drive = alignment.fitted.corrected(drive_of(rows, self.t_s, name, COLUMNS))
-            checked = front_checks([drive], self.settings).drives
+            checks = front_checks([drive], self.settings)
+            self.steering_fault = self.steering_fault or next(
+                (f for f in checks.findings if f.check is Check.STEERING
+                 and f.severity is Severity.FALLBACK and f.name.split("|")[0] in STREAM_WIDE),
+                None)
+            checked = checks.drives
             windows = front_windows(checked, self.settings, delay_s=alignment.delay_s,
                                     heading_offset=alignment.heading_offset,
                                     steering_lag_s=alignment.steering_lag_s,
