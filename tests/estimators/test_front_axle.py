@@ -139,6 +139,31 @@ def test_a_lever_arm_without_an_excess_in_bends_still_doubts_the_excess() -> Non
     assert np.all(np.abs(z[told]) < 3.0), dict(zip(est.names, z.round(2), strict=True))
 
 
+def test_the_front_checks_take_no_jump_across_a_gap_for_a_bend() -> None:
+    """Drives one after another with gaps between them (what the live checks' latest ten
+    minutes hold of logs played in a row; a log with dropouts): the position and the heading
+    jump across a gap, and the jump is no bend. Before, the yaw and speed were differenced
+    across the gaps: these six 40 s pieces were refused as axles whose wheels do not follow
+    the yaw (0.52 against 0.8), and so were the shared Singapore scenes played in a row."""
+    from odocal.estimators.front_axle import front_checks
+    from odocal.sim.four_wheel import with_front_axle
+
+    parts, start = [], 0.0
+    for k, seed in enumerate(range(1, 7)):
+        sim, _ = with_front_axle(odocal.simulate(duration_s=40.0, seed=seed, noise="realistic"))
+        columns = sim.drive.columns()
+        t = columns["t"] - columns["t"][0] + start
+        parts.append({**columns, "t": t, "piece": np.full(t.size, k)})
+        start = float(t[-1]) + 100.0
+    drive = Drive.from_columns({k: np.concatenate([p[k] for p in parts]) for k in parts[0]},
+                               name="six pieces")
+    assert len(drive.pieces) == 6
+    found = front_checks([drive], FOUR).findings
+    assert not [f for f in found if f.severity.name == "FATAL"], found
+    ahead = {f.name.partition("|")[0]: f.value for f in found}
+    assert 2.3 ** 2 < ahead["ahead-left"] < 2.9 ** 2 and 2.3 ** 2 < ahead["ahead-right"] < 2.9 ** 2
+
+
 def test_each_sides_front_wheel_travels_further_in_bends_or_its_mapping_is_named(
         four_wheel_drive: tuple[Drive, np.ndarray]) -> None:
     """On the wheels alone: each front wheel travels further than its side's rear one in bends

@@ -334,7 +334,7 @@ def _heading_and_yaw_rate(name: str, arrays: Mapping[str, FloatArray], t_s: floa
     heading's derivative); a DataError where either turns faster than any vehicle (degrees,
     deg/s, or a heading that is noisy or jumps)."""
     psi = _unwrap_pieces(arrays["psi"], pieces)
-    yaw_from_psi = _derivative_pieces(psi, t_s, pieces)
+    yaw_from_psi = derivative_pieces(psi, t_s, pieces)
     if np.percentile(np.abs(yaw_from_psi), 99) > _MAX_YAW_RATE_RADPS:
         _psi_too_fast(name, psi, yaw_from_psi, t_s)
     yaw_rate = arrays.get("yaw_rate", yaw_from_psi)
@@ -564,8 +564,10 @@ def _unwrap_pieces(psi: FloatArray, pieces: tuple[tuple[int, int], ...]) -> Floa
     return out
 
 
-def _derivative_pieces(values: FloatArray, t_s: float,
-                       pieces: tuple[tuple[int, int], ...]) -> FloatArray:
+def derivative_pieces(values: FloatArray, t_s: float,
+                      pieces: tuple[tuple[int, int], ...]) -> FloatArray:
+    """The derivative of ``values`` within each piece (never across a gap; 0 in a piece of
+    one sample)."""
     out = np.zeros_like(values)
     for a, b in pieces:
         if b - a >= 2:

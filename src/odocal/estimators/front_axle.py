@@ -48,7 +48,7 @@ from odocal.arrays import BoolArray, FloatArray, IntArray
 from odocal.checks.departures import shifted_reference
 from odocal.checks.findings import Check, Diagnosis, Finding, Severity
 from odocal.correlation import Correlations, correlations
-from odocal.data.drive import Drive
+from odocal.data.drive import Drive, derivative_pieces
 from odocal.errors import DataError
 from odocal.estimators.covariance import widened
 from odocal.estimators.departures import FRONT_MIN_M, curve_excess, excess_doubt
@@ -1362,8 +1362,11 @@ def front_checks(drives: Sequence[Drive], settings: Settings) -> FrontChecks:
         if not front:
             out.append(d)
             continue
-        speed = np.hypot(np.gradient(d.x, d.t_s), np.gradient(d.y, d.t_s))
-        yaw = np.gradient(np.unwrap(np.asarray(d.psi, dtype=np.float64)), d.t_s)
+        # (within each piece: a gap's jump in position and heading is no motion)
+        speed = np.hypot(derivative_pieces(d.x, d.t_s, d.pieces),
+                         derivative_pieces(d.y, d.t_s, d.pieces))
+        yaw = derivative_pieces(np.unwrap(np.asarray(d.psi, dtype=np.float64)), d.t_s,
+                                d.pieces)
         moving = speed > 1.0
         curvature = yaw / np.maximum(speed, 2.0) * _direction(d)
         d, unsigned_s = _without_unsigned_backing(d)
@@ -1525,7 +1528,8 @@ def _ahead_findings(d: Drive, moving: BoolArray, yaw: FloatArray) -> list[Findin
     def seconds(values: FloatArray) -> FloatArray:
         return np.asarray(np.where(moving, values, 0.0)[:whole].reshape(-1, size).sum(axis=1))
 
-    speed = np.hypot(np.gradient(d.x, d.t_s), np.gradient(d.y, d.t_s))
+    speed = np.hypot(derivative_pieces(d.x, d.t_s, d.pieces),
+                     derivative_pieces(d.y, d.t_s, d.pieces))
     kappa = seconds(yaw) / np.maximum(seconds(speed), 1e-9)
     counted = seconds(np.ones(d.n_samples)) == size
     found: list[Finding] = []
