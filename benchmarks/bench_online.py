@@ -137,7 +137,7 @@ def hours(profiles: list[str], seeds: int, hours_each: float) -> None:
     """Live (``odocal replay``: a running estimate every 30 s, the final one) against batch on
     drives of ``hours_each`` hours at 40 Hz without a sideslip column: each one's z against the
     truth. (Before the departures were chosen afresh at every estimate, seed 5 of `realistic`
-    gave c_e 10 stds off live.)"""
+    gave c_e 15 stds off live.)"""
     from odocal.online.replay import replay
 
     print(f"hours: live against batch, {hours_each:g} h at 40 Hz without the sideslip column, "

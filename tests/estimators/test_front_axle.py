@@ -126,7 +126,9 @@ def test_a_lever_arm_without_an_excess_in_bends_still_doubts_the_excess() -> Non
     assert excess_doubt({"arm_x": 1.5, "slip": -0.007}) == pytest.approx(1.125)
     assert excess_doubt({"arm_x": 1.5, "slip": -0.007, "curve": 0.7}) == 0.7
     assert excess_doubt({"slip": -0.007}) == 0.0
-    assert excess_doubt({"arm_x": 1.0, "arm_y": 0.3}) == 0.0      # a sideslip given: none
+    assert excess_doubt({"arm_x": 1.0, "arm_y": 0.3}) == 0.0      # no slip taken in: none
+    assert excess_doubt({"slip": -0.007}, 1.5) == pytest.approx(1.125)   # a lever arm stated
+    assert excess_doubt({"slip": 0.0, "arm_x": 1.0}) == 0.5       # (a slip fitted at 0 counts)
     sim, truth = with_front_axle(odocal.simulate(duration_s=1200, seed=10, noise="realistic"))
     columns = {k: v for k, v in sim.drive.columns().items() if k != "beta"}
     est = odocal.calibrate(Drive.from_columns(columns, name="no sideslip"),

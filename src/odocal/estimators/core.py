@@ -225,7 +225,7 @@ def fit(windows: WindowSet, folded: Folded, settings: Settings, *, heading_offse
             held[LAYOUT.names[j]] = NotIdentified(Reason.NO_INFORMATION)
         free = informed
         state = ctx.run(p0, free, entered.free(), change=-1)
-    state, entered = _enter_departures(ctx, state, free, blocks, entered)
+    state, entered = _enter_departures(ctx, state, free, blocks, folded.offset_free)
     with_nuisance = entered.free()
     before_verdict = (state.fit, free_of(free, entered=[n for n in entered.names if n != "lag"])
                       | (with_nuisance & (np.arange(P) == OFFSET)))
@@ -294,13 +294,12 @@ class _Entered:
 
 def _enter_departures(ctx: _Context, state: _State, free: BoolArray,
                       blocks: Sequence[tuple[str, ...]],
-                      start: _Entered) -> tuple[_State, _Entered]:
-    """The departures' one rule, in rounds: the one whose held-out test holds out most above
-    its penalty enters and the fit is redone; one that leaves the fit unacceptable or not
-    determined is taken out again and not tried again. The fit and the departures entered
-    (``start``'s and those after them)."""
-    entered = dataclasses.replace(start, names=list(start.names),
-                                  rivals={k: dict(v) for k, v in start.rivals.items()})
+                      offset_free: bool) -> tuple[_State, _Entered]:
+    """The departures' one rule, in rounds, from none: the one whose held-out test holds out
+    most above its penalty enters and the fit is redone; one that leaves the fit unacceptable
+    or not determined is taken out again and not tried again. The fit and the departures
+    entered (``offset_free``: the folded sums' wheel-rate offset is fitted throughout)."""
+    entered = _Entered([], offset_free)
     excluded: set[tuple[str, ...]] = set()
     for _ in range(len(blocks)):
         statistics = ctx.tests(state, free, entered.free(),

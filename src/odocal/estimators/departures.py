@@ -248,20 +248,22 @@ def corrected(drives: Sequence[Drive], values: Mapping[str, float],
     return out
 
 
-def excess_doubt(fitted: Mapping[str, float]) -> float:
+def excess_doubt(fitted: Mapping[str, float], stated_arm_x: float | None = None) -> float:
     """The ``curve`` departure (m^2) whose excess in bends the front fit carries as a
     systematic error, from the rear fit's departures ``fitted`` (name: value): the one it took
-    in, else, where it described a sideslip the log lacks (a lever arm and the axle's slip)
-    without it, the excess of such a point by geometry: ``arm_x^2 / 2`` (a point ``a`` metres
-    ahead of an axle that does not slide travels ``(a kappa)^2 / 2`` further in a bend, where
-    its course is taken for its heading; the simulated cars without their sideslip column fit
-    0.65-0.94 m^2 beside a lever arm of about 1.5 m, and where the held-out test left the
-    excess out, the wheelbase came out 3-7 stds off); else 0 (with the sideslip given, the
+    in; else, where it took in the axle's slip (it described a sideslip the log lacks), the
+    excess by geometry of a point at its lever arm (fitted, or ``stated_arm_x``, m, the
+    settings' ``[reference] offset_m``): ``arm_x^2 / 2`` (a point ``a`` metres ahead of an axle
+    that does not slide travels ``(a kappa)^2 / 2`` further in a bend, where its course is
+    taken for its heading; the simulated cars without their sideslip column fit 0.65-0.94 m^2
+    beside a lever arm of about 1.5 m, and where the held-out test left the excess out, the
+    wheelbase came out 3-7 stds off); else 0 (no slip taken in: with a sideslip column the
     lever arm takes the point's motion back whole)."""
     curve = float(fitted.get("curve", 0.0))
-    if curve or not fitted.get("slip"):
+    if curve or "slip" not in fitted:
         return curve
-    return 0.5 * float(fitted.get("arm_x", 0.0)) ** 2
+    arm = fitted.get("arm_x", stated_arm_x if stated_arm_x is not None else 0.0)
+    return 0.5 * float(arm) ** 2
 
 
 def curve_excess(t: FloatArray, x: FloatArray, y: FloatArray, psi: FloatArray,

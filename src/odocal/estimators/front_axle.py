@@ -977,8 +977,15 @@ def four_wheel_estimate(rear: Estimate, drives: Sequence[Drive], settings: Setti
     windows = front_windows(drives, settings, delay_s=shift,
                             heading_offset=float(details.heading_offset_rad),
                             curve=excess_doubt(dict(getattr(details, "fitted_departures", {})
-                                                    or {})))
+                                                    or {}), stated_arm_x(settings)))
     return car_estimate(rear, windows, settings)
+
+
+def stated_arm_x(settings: Settings) -> float | None:
+    """The lever arm ahead of the rear axle the settings state (``[reference] offset_m``; the
+    fit holds it, so it is not among the departures fitted), or None."""
+    arm = settings.reference.offset_m
+    return None if arm is None else float(arm[0])
 
 
 def car_estimate(rear: Estimate, windows: FrontWindows | None, settings: Settings, *,

@@ -602,9 +602,10 @@ class OnlineCalibrator:
         # rear axle's columns, which a car's four columns can only be by a wrong mapping):
         # halted, as the checks halt it, never an estimate published before it was seen. The
         # rear fit's judgement of steered wheels halts at a final estimate only (judged there
-        # as batch judges it): a running fit leaves out the windows where a wheel turns far
-        # from its estimate, which can read a reference's second-order motion as wheels ahead
-        # (a running estimate that names them is refused, as the rear axle's is)
+        # as batch judges it): a running fit, on folded sums and without the windows where a
+        # wheel turns far from its estimate, read a simulated reference's second-order motion
+        # as wheels 2 m ahead (an hour at 40 Hz, while it still kept departures from earlier
+        # estimates; a running estimate that names them is refused, as the rear axle's is)
         mapping = [f for f in details.findings if f.severity is Severity.FATAL and (
             f in found or (f.check is Check.FRONT_WHEELS and not running))]
         fatal = any(f.severity is Severity.FATAL for f in found)

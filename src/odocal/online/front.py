@@ -41,6 +41,7 @@ from odocal.estimators.front_axle import (
     FrontWindows,
     front_checks,
     front_windows,
+    stated_arm_x,
     steering_pairs,
     steering_peak,
     steering_span,
@@ -54,8 +55,12 @@ from odocal.settings import Settings
 BLOCK_S = 120.0
 #: What a block's front checks find wrong with the steering angle that is the sensor's, for the
 #: whole stream (:func:`~odocal.estimators.front_axle.front_checks`): its sign, its unit, its
-#: zero far off centre (a constant or stuck angle is the block's own).
+#: centre or spread far off while driving straight (a constant or stuck angle is the
+#: block's own) ...
 STREAM_WIDE = ("sign", "unit", "straight")
+#: ... once this many whole blocks show it (a slice of a few seconds of a right sensor can
+#: turn against the curvature; two stretches of two minutes do not).
+STREAM_WIDE_BLOCKS = 2
 #: Blocks this recent keep their samples, their windows made again where the alignment moves.
 RAW_S = 1800.0
 #: The front fit rests on this much of the latest driving at most (s).
@@ -96,10 +101,6 @@ class Fitted:
         return [n for n, _, _ in self.departures] == [n for n, _, _ in other.departures] and all(
             abs(a - b) <= NEAR_STDS * s for (_, a, s), (_, b, _) in zip(
                 self.departures, other.departures, strict=True))
-
-    def value(self, name: str) -> float:
-        """The departure ``name``'s value (0 where it was not fitted)."""
-        return next((v for n, v, _ in self.departures if n == name), 0.0)
 
     def corrected(self, drive: Drive) -> Drive:
         """``drive`` with these departures taken out."""
@@ -143,6 +144,9 @@ class _Block:
     (:func:`~odocal.correlation.correlation_sums`, the reference as logged)."""
     made: Alignment | None = None
     windows: FrontWindows | None = None
+    fault: Finding | None = None
+    """What its front checks found wrong with the steering angle that is the sensor's
+    (:data:`STREAM_WIDE`), as last made."""
 
 
 class LiveFront:
@@ -157,11 +161,6 @@ class LiveFront:
         self._open: list[FloatArray] = []
         #: Samples with both front wheels' rates measured, so far.
         self.measured = 0
-        #: Why the stream's steering angle is left out of every block's windows: its sign, its
-        #: unit or its zero found wrong on a block (one sensor for the whole stream; a block
-        #: too straight to judge it kept it, and a fit with the angle's sign flipped on some
-        #: windows lost the wheelbase, the ratio and the front track), or None.
-        self.steering_fault: Finding | None = None
 
     def add(self, rows: FloatArray) -> bool:
         """Samples on the grid (M, len(COLUMNS)); whether a block full of them closed (then
@@ -175,18 +174,16 @@ class LiveFront:
         fl, fr = COLUMNS.index("n_fl"), COLUMNS.index("n_fr")
         self.measured += int((np.isfinite(rows[:, fl]) & np.isfinite(rows[:, fr])).sum())
         self._open.append(rows)
-        closed = False
-        while float(self._open[-1][-1, 0]) - float(self._open[0][0, 0]) >= BLOCK_S:
-            waiting = np.vstack(self._open)
+        if float(rows[-1, 0]) - float(self._open[0][0, 0]) < BLOCK_S:
+            return False
+        waiting = np.vstack(self._open)
+        while waiting.shape[0] and float(waiting[-1, 0]) - float(waiting[0, 0]) >= BLOCK_S:
             cut = int(np.searchsorted(waiting[:, 0], waiting[0, 0] + BLOCK_S))
-            block, rest = waiting[:cut], waiting[cut:]
-            self._open = [rest] if rest.shape[0] else []
+            block, waiting = waiting[:cut], waiting[cut:]
             self._blocks.append(_Block(block, float(block[0, 0]), float(block[-1, 0]),
                                        self._steering_sums(block)))
-            closed = True
-            if not self._open:
-                break
-        return closed
+        self._open = [waiting] if waiting.shape[0] else []
+        return True
 
     def settle(self, alignment: Alignment) -> None:
         """Blocks beyond :data:`RAW_S` keep their windows (made now where they stand for
@@ -253,20 +250,32 @@ class LiveFront:
         try:
             drive = alignment.fitted.corrected(drive_of(rows, self.t_s, name, COLUMNS))
             checks = front_checks([drive], self.settings)
-            self.steering_fault = self.steering_fault or next(
-                (f for f in checks.findings if f.check is Check.STEERING
-                 and f.severity is Severity.FALLBACK and f.name.split("|")[0] in STREAM_WIDE),
-                None)
+            block.fault = next((f for f in checks.findings if f.check is Check.STEERING
+                                and f.severity is Severity.FALLBACK
+                                and f.name.split("|")[0] in STREAM_WIDE), None)
             checked = checks.drives
             windows = front_windows(checked, self.settings, delay_s=alignment.delay_s,
                                     heading_offset=alignment.heading_offset,
                                     steering_lag_s=alignment.steering_lag_s,
-                                    curve=excess_doubt({n: v for n, v, _ in
-                                                        alignment.fitted.departures}))
+                                    curve=excess_doubt(
+                                        {n: v for n, v, _ in alignment.fitted.departures},
+                                        stated_arm_x(self.settings)))
         except DataError:
             windows = None      # samples that make no drive: the checks name them
         block.made, block.windows = alignment, windows
         return windows
+
+    @property
+    def steering_fault(self) -> Finding | None:
+        """Why the stream's steering angle is left out of every block's windows: its sign,
+        its unit or its centre found wrong on :data:`STREAM_WIDE_BLOCKS` of the whole blocks
+        held (one sensor for the whole stream: a block too straight to judge it kept it, and a
+        fit with the angle's sign flipped on some windows lost the wheelbase, the ratio and
+        the front track), or None."""
+        faults = [b.fault for b in self._blocks if b.fault is not None]
+        kinds = [f.name.split("|")[0] for f in faults]
+        return next((f for f, kind in zip(faults, kinds, strict=True)
+                     if kinds.count(kind) >= STREAM_WIDE_BLOCKS), None)
 
     @property
     def kept_s(self) -> float:
