@@ -117,3 +117,30 @@ def test_the_default_holds_out_at_least_as_well_as_a_plain_fit_over_the_singapor
             theta = odocal.calibrate(train, method=method, settings=SHORT).theta.as_array()
             totals[method] += held_out(held, theta)
     assert totals["inverse"] <= 1.1 * totals["raw"]
+
+
+@pytest.mark.realdata
+def test_the_live_car_takes_the_singapore_scenes_played_in_a_row(
+        scenes: dict[str, odocal.Drive]) -> None:
+    """The five scenes pushed into the live car one after another, 100 s apart: the checks
+    of the latest ten minutes see them as one drive with gaps, and a gap's jump is no bend
+    (the axles' check refused them, 0.72 against 0.8, while it differenced across the gaps).
+    The live car is the batch one of the same scenes within 1.5 of batch's stds."""
+    from odocal.online.calibrator import OnlineCalibrator
+
+    car = Settings().replace(vehicle={"model": "four_wheel"})
+    calibrator = OnlineCalibrator(car)
+    start = 0.0
+    for name in SINGAPORE:
+        columns = scenes[name].columns()
+        t = columns["t"] - columns["t"][0] + start
+        start = float(t[-1]) + 100.0
+        for i in range(0, t.size, 40):
+            calibrator.push({k: (t if k == "t" else v)[i:i + 40] for k, v in columns.items()})
+    live = calibrator.estimate()
+    assert live.status is Status.CONVERGED, [f.name for f in live.details.findings]
+    batch = odocal.calibrate([scenes[n] for n in SINGAPORE], settings=car).model_estimate
+    both = np.array(live.identified) & np.array(batch.identified)
+    assert both[:4].all() and both.sum() >= 8, (live.identified, batch.identified)
+    diff = (live.theta.as_array() - batch.theta.as_array()) / batch.std
+    assert np.all(np.abs(diff[both]) < 1.5), dict(zip(live.names, diff.round(2), strict=True))
