@@ -166,6 +166,34 @@ def test_the_front_checks_take_no_jump_across_a_gap_for_a_bend() -> None:
     assert 2.3 ** 2 < ahead["ahead-left"] < 2.9 ** 2 and 2.3 ** 2 < ahead["ahead-right"] < 2.9 ** 2
 
 
+def test_the_excess_in_bends_is_taken_out_within_each_piece_never_across_a_gap() -> None:
+    """A fitted ``curve`` taken out of drives with gaps (what validation and the exports'
+    trajectories roll out): the reference jumps across a gap (100 m, a new heading), and the
+    jump is no bend. Before, speed and curvature were differenced over the whole drive, so the
+    samples beside each gap lost up to a wheel's worth of rate."""
+    from odocal.estimators.departures import corrected, curve_excess
+    from odocal.model.vehicle import MODEL
+
+    parts, start = [], 0.0
+    for k, seed in enumerate(range(1, 4)):
+        columns = odocal.simulate(duration_s=40.0, seed=seed, noise="realistic").drive.columns()
+        t = columns["t"] - columns["t"][0] + start
+        parts.append({**columns, "t": t, "x": columns["x"] + 100.0 * k,
+                      "psi": columns["psi"] + 1.0 * k, "piece": np.full(t.size, k)})
+        start = float(t[-1]) + 100.0
+    drive = Drive.from_columns({k: np.concatenate([p[k] for p in parts]) for k in parts[0]},
+                               name="three pieces")
+    assert len(drive.pieces) == 3
+    theta = np.asarray(Settings().identify.theta0, dtype=np.float64)
+    out = corrected([drive], {"curve": 0.8}, theta)[0]
+    taken = np.asarray(drive.n_rl) - np.asarray(out.n_rl)
+    gain = MODEL.along_gain(theta)[0]
+    for a, b in drive.pieces:
+        own = curve_excess(drive.t[a:b], drive.x[a:b], drive.y[a:b], drive.psi[a:b], 0.8)
+        np.testing.assert_allclose(taken[a:b], own * gain, rtol=1e-12, atol=1e-12)
+    assert np.abs(taken).max() < 0.5
+
+
 def test_each_sides_front_wheel_travels_further_in_bends_or_its_mapping_is_named(
         four_wheel_drive: tuple[Drive, np.ndarray]) -> None:
     """On the wheels alone: each front wheel travels further than its side's rear one in bends

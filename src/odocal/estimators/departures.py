@@ -66,7 +66,7 @@ import numpy as np
 
 from odocal.arrays import BoolArray, FloatArray
 from odocal.checks.findings import Check, Finding, Severity
-from odocal.data.drive import Drive
+from odocal.data.drive import Drive, derivative_pieces
 from odocal.model.vehicle import MODEL
 
 
@@ -226,7 +226,8 @@ def corrected(drives: Sequence[Drive], values: Mapping[str, float],
         x -= arm_x * np.cos(psi) - arm_y * np.sin(psi)
         y -= arm_x * np.sin(psi) + arm_y * np.cos(psi)
         a_y = np.asarray(d.a_y)                    # (theta is for a_y as logged)
-        speed = np.hypot(np.gradient(x, d.t), np.gradient(y, d.t))
+        speed = np.hypot(derivative_pieces(x, t_s, d.pieces),
+                         derivative_pieces(y, t_s, d.pieces))
         moving = np.where(speed > 0.5, 1.0, 0.0)
         n_rl, n_rr = np.array(d.n_rl, dtype=np.float64), np.array(d.n_rr, dtype=np.float64)
         offset = float(values.get("offset", 0.0))
@@ -235,7 +236,10 @@ def corrected(drives: Sequence[Drive], values: Mapping[str, float],
         n_rr -= (offset + float(values.get("offset_right", 0.0))) * sign
         curve = float(values.get("curve", 0.0))
         if curve:
-            excess = curve_excess(d.t, x, y, psi, curve)
+            excess = np.zeros(d.n_samples)
+            for a, b in d.pieces:                  # (never differenced across a gap)
+                if b - a >= 2:
+                    excess[a:b] = curve_excess(d.t[a:b], x[a:b], y[a:b], psi[a:b], curve)
             n_rl -= excess * gain[0]
             n_rr -= excess * gain[1]
             d = _front_less(d, excess * float(gain.mean()))

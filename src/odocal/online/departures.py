@@ -36,10 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from odocal.arrays import FloatArray
-from odocal.checks.departures import (
-    Departures,
-    heading_correction,
-)
+from odocal.checks.departures import Departures, heading_correction, pose_at
 from odocal.estimators import core, fitting
 from odocal.estimators.windows import WindowSet
 from odocal.settings import Settings
@@ -135,7 +132,7 @@ def with_offset_std(folded: fitting.Folded, std: float) -> fitting.Folded:
 
 
 #: Columns of a sample that are the reference pose (x, y, psi).
-_POSE = (5, 6, 7)
+_POSE = [5, 6, 7]
 
 
 class ReferenceAligner:
@@ -189,12 +186,8 @@ class ReferenceAligner:
         if not ready.any():
             return np.zeros((0, 8))
         rows = piece[ready].copy()
-        at = rows[:, 0] - self.shift_s
-        inside = (at >= t[0] - 1e-9 * self.t_s) & (at <= newest + 1e-9 * self.t_s)
-        if self.shift_s:
-            for col in _POSE:
-                values = np.unwrap(piece[:, col]) if col == 7 else piece[:, col]
-                rows[:, col] = np.interp(at, t, values)
+        rows[:, _POSE], inside = pose_at(t, piece[:, _POSE], rows[:, 0] - self.shift_s,
+                                         self.t_s)
         self._sent_t = float(rows[-1, 0])
         # keep what later samples' shifted times still reach back to
         keep_from = self._sent_t - max(self.shift_s, 0.0) - 2.0 * self.t_s
