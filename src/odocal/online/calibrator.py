@@ -82,6 +82,7 @@ from odocal.online.changes import (
     Alarm,
     Change,
     ChangeDetector,
+    Drift,
     Suspect,
     describe,
     estimate_change,
@@ -472,6 +473,11 @@ class OnlineCalibrator:
             lag=self._fit.lag, heading_offset=self.heading_offset(), model=self._fit.model,
             smooth=self._smooth, tolerance=self.settings.inverse.tolerance)
         if change is None:
+            return False
+        if isinstance(change, Drift):
+            # the wheels drift (tyres warming): the running fit takes the drift in, as batch
+            # does, where a step would restart the estimate from a level the drift leaves
+            self._changes.reset()
             return False
         alarm = describe(change, suspect, detected_t=float(cluster.t0[-1]),
                          detected_distance_km=float(cluster.distance_m[-1]) / 1000.0)
