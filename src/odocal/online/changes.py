@@ -335,8 +335,8 @@ def drifting(steps: Steps, t0: FloatArray, index: int, locations: int) -> Drift 
     gains = []
     for second in ((t0 - t0.mean()) / span, (np.arange(t0.size) >= index).astype(float)):
         basis = np.stack([np.ones_like(second), second], axis=1)           # (W, 2)
-        g = np.einsum("wa,wp->ap", basis, steps.g).reshape(4)
-        h = np.einsum("wa,wb,wpq->apbq", basis, basis, steps.h).reshape(4, 4)
+        g = np.einsum("wa,wp->ap", basis, steps.g).reshape(-1)
+        h = np.einsum("wa,wb,wpq->apbq", basis, basis, steps.h).reshape(g.size, g.size)
         scale = np.sqrt(np.maximum(np.diag(h), 1e-300))
         solved = np.linalg.lstsq(h / np.outer(scale, scale), g / scale, rcond=1e-10)[0]
         gains.append(float((g / scale) @ solved))
