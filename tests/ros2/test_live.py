@@ -234,11 +234,14 @@ def test_a_joint_state_with_positions_only_is_calibrated(rig: Any, tmp_path: Pat
 def test_velocities_in_every_other_message_are_calibrated_as_velocities_alone(
         rig: Any, tmp_path: Path) -> None:
     """A driver whose every message has the wheels' angles and every other one their
-    velocities too: the velocities are read where they come, and a rate from the angles is
-    taken only for an instant the velocities did not give. Before, each angles-only message
-    gave the rate over the two steps since the last one, stamped at the middle: the velocity
-    message's own time, so the buffer held two rows at one instant, and the estimate moved by
-    up to a standard deviation (stop 50's hostile run, on a car)."""
+    velocities too: the velocities are read where they come, and an angles-only message gives
+    the rate over the step from the message before it, at the step's middle. Before, the
+    velocity messages' angles were not kept, so an angles-only message gave the rate over two
+    steps, stamped at their middle: the velocity message's own time. The buffer held two rows
+    at one instant and none at the next, and d moved by 0.96 of replay's std (stop 50's
+    hostile run, on a car: up to 1.05). Now the node is as close to the truth as replay is
+    (seeds 5-7: the two differ by up to 0.67 std, the grid's averaging of rates at the steps'
+    middles, as with angles alone), and its std is within a quarter of replay's."""
     sim = odocal.simulate(duration_s=300.0, seed=5, noise="realistic")
     d = without_sideslip(sim.drive)
     angles = wheel_angles(d)
@@ -258,8 +261,10 @@ def test_velocities_in_every_other_message_are_calibrated_as_velocities_alone(
     theta, std = _theta_std(calibration)
     assert all(est.identified)
     diff = (est.theta.as_array() - theta) / std
-    print("mixed against replay of the rates, in stds:", diff.round(3))
-    assert np.all(np.abs(diff) <= 0.2), diff
+    z = (est.theta.as_array() - sim.true_parameters.as_array()) / est.std
+    print("mixed against replay of the rates, in stds:", diff.round(3), "z:", z.round(2))
+    assert np.all(np.abs(diff) <= 0.75), diff
+    assert np.all(np.abs(z) < 3.0) and np.all(np.asarray(est.std) <= 1.25 * std), z
 
 
 def test_nan_values_and_stamps_going_back_are_refused_counted_and_named(

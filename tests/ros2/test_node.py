@@ -32,6 +32,7 @@ from tests.ros2.rig import (
     stamp,
     unique,
     values_of,
+    wheel_angles,
     without_sideslip,
 )
 from tests.ros2.rosenv import load_declared, require_rclpy
@@ -320,10 +321,12 @@ def test_a_callbacks_batch_is_taken_as_its_messages_one_by_one(rig: Any,
     node takes them) against the same messages handed in one at a time: the same odometry,
     byte for byte, the same counts and the same calibration; with messages that leave the
     loop's path among them (a NaN wheel rate, stamps that go back, another IMU frame name, a
-    wheel message with positions only)."""
+    wheel message with positions only, then a stretch whose every other wheel message has the
+    angles alone: from there on every message goes the one-by-one path)."""
     from rclpy.serialization import serialize_message
 
     d = first_seconds(drive, 100.0)
+    angles = wheel_angles(d)
     script = Script()
     batches: list[list[tuple[str, bytes]]] = []
     for start in range(0, d.n_samples, 25):
@@ -339,6 +342,10 @@ def test_a_callbacks_batch_is_taken_as_its_messages_one_by_one(rig: Any,
             if k in (1300, 1301):                  # a second back, then on again
                 for m in msgs.values():
                     m.header.stamp = stamp(START_S + float(d.t[k]) - 1.0)
+            if k >= 2000:                              # the angles, velocities every other
+                msgs["wheels"].position = [0.0, 0.0, *(float(a) for a in angles[k])]
+                if k % 2:
+                    msgs["wheels"].velocity = []
             batch += [(role, serialize_message(msgs[role])) for role in ("imu", "pose", "wheels")]
         batches.append(batch)
     nodes = [rig(discover=False).node for _ in range(2)]
@@ -354,6 +361,7 @@ def test_a_callbacks_batch_is_taken_as_its_messages_one_by_one(rig: Any,
             for node in nodes:
                 node._maybe_flush()
     ests = [node.finish() for node in nodes]
+    assert nodes[0]._mixed and nodes[1]._mixed
     assert len(outputs[0]) > 0.9 * d.n_samples and outputs[0] == outputs[1]
     assert nodes[0].arrived() == nodes[1].arrived() and nodes[0].updates == nodes[1].updates > 2
     assert [t.stamps for t in nodes[0].topics] == [t.stamps for t in nodes[1].topics]

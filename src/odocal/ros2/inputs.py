@@ -171,5 +171,10 @@ class Rates:
                 *((now - was) / turn for now, was in zip(positions_rad, last[1], strict=True)),
                 *(0.5 * (now + was) for now, was in zip(angles, last[2], strict=True)))
 
+    @property
+    def last_t(self) -> float | None:
+        """The time of the angles the next step starts from (None: none kept)."""
+        return None if self._last is None else self._last[0]
+
     def reset(self) -> None:
         self._last = None

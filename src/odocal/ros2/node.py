@@ -422,6 +422,7 @@ class CalibrationNode(LifecycleNode):
         self._joints: tuple[str, str] | None = None
         self._reader = cdr.JointReader(self._pick_joints)
         self._rates = Rates(s.convert.max_gap_s)
+        self._mixed = False            # wheel messages with velocities and without, mixed
         self._max_gap_s = s.convert.max_gap_s
         self._config_error: str | None = None
         self._origin: tuple[int, int] | None = None
@@ -641,12 +642,13 @@ class CalibrationNode(LifecycleNode):
         x, y, psi, last = self._x, self._y, self._psi, self._odom_t
         with handle:
             publish = handle.publish_raw if pub.is_activated else None
+            mixed = self._mixed
             for data in batch:
-                if origin is None or (got := quick(data)) is None:
+                if origin is None or mixed or (got := quick(data)) is None:
                     self._x, self._y, self._psi, self._odom_t = x, y, psi, last
                     self._wheel_message(data)
                     x, y, psi, last = self._x, self._y, self._psi, self._odom_t
-                    origin = self._origin
+                    origin, mixed = self._origin, self._mixed
                     continue
                 sec, nsec, left, right, *more = got     # (the car's front and steering after)
                 t = float(sec - origin[0]) + 1e-9 * float(nsec - origin[1])
@@ -711,8 +713,19 @@ class CalibrationNode(LifecycleNode):
         angles = () if steering is None else (steering,)
         if velocities is not None:
             t_rate, rates = t, (*(v / TWO_PI for v in velocities), *angles)
+            if self._mixed and positions is not None:
+                self._rates.add(t, *positions, angles=angles)   # (the next step starts here)
         elif positions is not None:
+            since = self._rates.last_t
             got = self._rates.add(t, *positions, angles=angles)
+            if since is not None and self._odom_t is not None and since < self._odom_t:
+                # velocities came since the angles before: a driver that sends them in some
+                # messages and not in others. From now on every message is read here and
+                # its angles kept, so that an angles-only message gives the rate over the
+                # step from the message before it (this one's step spans a velocity
+                # message's instant: not taken)
+                self._mixed = True
+                return
             if got is None:
                 return                               # the first of a piece: no rate yet
             t_rate, rates = got[0], got[1:]
