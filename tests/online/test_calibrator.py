@@ -390,15 +390,15 @@ def test_a_drift_is_told_from_a_step_by_which_explains_the_windows() -> None:
 
     n = 300
     ramp, t0 = _ramp_or_step_steps(np.linspace(-1.0, 1.0, n), 0.5)
-    drift = drifting(ramp, t0, n // 2, n)                         # type: ignore[arg-type]
+    drift = drifting(ramp, t0, n // 2, t0[-1])                         # type: ignore[arg-type]
     assert drift is not None
     assert drift.drift_gain == pytest.approx(0.25 * n / 3 * (1 + 2 / (n - 1)), rel=1e-9)
     assert drift.step_gain == pytest.approx(0.75 * drift.drift_gain, rel=0.01)
     step, _ = _ramp_or_step_steps((np.arange(n) >= 250).astype(float), 0.6)
-    assert drifting(step, t0, 250, n) is None                     # type: ignore[arg-type]
+    assert drifting(step, t0, 250, t0[-1]) is None                     # type: ignore[arg-type]
     # a step small enough that the two differ by less than the place's penalty is a drift
     faint, _ = _ramp_or_step_steps((np.arange(n) >= 250).astype(float), 0.15)
-    assert drifting(faint, t0, 250, n) is not None                # type: ignore[arg-type]
+    assert drifting(faint, t0, 250, t0[-1]) is not None                # type: ignore[arg-type]
 
 
 def test_tyres_warming_are_fitted_as_a_drift_not_alarmed_as_a_step() -> None:

@@ -322,15 +322,15 @@ class Drift:
     step_gain: float
 
 
-def drifting(steps: Steps, t0: FloatArray, index: int, locations: int) -> Drift | None:
-    """Whether a steady drift of the wheels (a level and a slope in time from the reference,
-    in c_e and c_d) explains ``steps`` as well as the step at ``index`` (a level and a step)
-    does, the step's place searched among ``locations`` counted against it (Schwarz's
-    ``log(locations)``, as batch counts a change's time; the two have as many parameters
-    otherwise). Each is the gain in the weighted squared residuals over the reference. Tyres
-    warming drift; a tyre losing pressure, or changed, steps: on simulated drives the step's
-    gain led by 10.6 to 74 for steps of 0.3-1% of c_e, and by -1.7 to 1.8 for a drift of
-    0.3% over 20 minutes (the penalty is about 5.5)."""
+def drifting(steps: Steps, t0: FloatArray, index: int, latest: float) -> Drift | None:
+    """Whether a steady drift of the wheels (a level and a slope in time from the reference, in c_e
+    and c_d) explains ``steps`` as well as the step at ``index`` (a level and a step) does,
+    the step's place, searched among the usable windows starting up to ``latest``, counted
+    against it (Schwarz's ``log`` of their number, as batch counts a change's time; the two
+    have as many parameters otherwise). Each is the gain in the weighted squared residuals
+    over the reference. Tyres warming drift; a tyre losing pressure, or changed, steps: on
+    simulated drives the step's gain led by 10.6 to 74 for steps of 0.3-1% of c_e, and by
+    -1.7 to 1.8 for a drift of 0.3% over 20 minutes (the penalty at most 6.3)."""
     span = max(float(t0[-1] - t0[0]), 1e-9)
     gains = []
     for second in ((t0 - t0.mean()) / span, (np.arange(t0.size) >= index).astype(float)):
@@ -341,7 +341,8 @@ def drifting(steps: Steps, t0: FloatArray, index: int, locations: int) -> Drift 
         solved = np.linalg.lstsq(h / np.outer(scale, scale), g / scale, rcond=1e-10)[0]
         gains.append(float((g / scale) @ solved))
     drift, step = gains
-    return Drift(drift, step) if drift >= step - math.log(max(locations, 1)) else None
+    locations = max(int((steps.usable & (t0 <= latest)).sum()), 1)
+    return Drift(drift, step) if drift >= step - math.log(locations) else None
 
 
 @dataclass(frozen=True)
@@ -377,11 +378,9 @@ def estimate_change(windows: WindowSet, folded: fitting.Folded, suspect: Suspect
     after = np.arange(windows.size) >= index
     if int((steps.usable & after).sum()) < _MIN_WINDOWS:
         return None
-    if not folded.clusters:
-        locations = int((steps.usable & (windows.t0 <= suspect.until_t)).sum())
-        drift = drifting(steps, windows.t0, index, locations)
-        if drift is not None:
-            return drift
+    drift = None if folded.clusters else drifting(steps, windows.t0, index, suspect.until_t)
+    if drift is not None:
+        return drift
     theta_size = int(np.asarray(p[fitting.THETA]).size)
     free = fitting.free_of(np.ones(theta_size, dtype=bool), kappa=smooth,
                            offset=folded.offset_free)
