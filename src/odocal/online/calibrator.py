@@ -468,16 +468,24 @@ class OnlineCalibrator:
         """A suspected change: where it began and how large (an alarm), and the estimate
         restarted from it; False where the windows cannot tell yet."""
         assert self._windows is not None and self._t_s is not None
-        change = estimate_change(
-            self._windows, self._fit.folded, suspect, p=self._fit.p,
-            lag=self._fit.lag, heading_offset=self.heading_offset(), model=self._fit.model,
-            smooth=self._smooth, tolerance=self.settings.inverse.tolerance)
-        if change is None:
-            return False
+        windows, folded, p, lag = self._windows, self._fit.folded, self._fit.p, self._fit.lag
+
+        def found(drift: bool) -> Change | Drift | None:
+            return estimate_change(windows, folded, suspect, p=p, lag=lag,
+                                   heading_offset=self.heading_offset(), model=self._fit.model,
+                                   smooth=self._smooth, drift=drift,
+                                   tolerance=self.settings.inverse.tolerance)
+
+        change = found(drift=not folded.clusters)
         if isinstance(change, Drift):
-            # the wheels drift (tyres warming): the running fit takes the drift in, as batch
-            # does, where a step would restart the estimate from a level the drift leaves
-            self._changes.reset()
+            # the wheels drift (tyres warming): where the core, choosing its departures
+            # afresh on the windows now, takes the drift in (as batch does), no step restarts
+            # the estimate from a level the drift leaves; where it does not, a step follows it
+            if "drift" in self._refit().entered:
+                self._changes.reset()
+                return False
+            change = found(drift=False)
+        if not isinstance(change, Change):
             return False
         alarm = describe(change, suspect, detected_t=float(cluster.t0[-1]),
                          detected_distance_km=float(cluster.distance_m[-1]) / 1000.0)
@@ -508,6 +516,7 @@ class OnlineCalibrator:
         self._windows = dataclasses.replace(kept, follows=follows)
         after = change.before.copy()
         after[list(WHEELS)] += change.step            # (c_e and c_d)
+        after[fitting.DRIFT] = 0.0                    # (folded sums hold no drift)
         self._fit.take(after)
         self._clusters_done = 0                      # a new warm-up before watching again
         self._changes.reset()

@@ -23,8 +23,8 @@ What is not a tyre is kept out:
 When the CUSUM rises, :func:`estimate_change` finds where the change began (the likelihood
 change point over the windows) and how much (the wheels refitted on the windows after it,
 against an estimate from the windows before it): an :class:`Alarm`. While nothing is folded,
-a suspicion that a steady drift explains as well as a step (:func:`drifting`) is no alarm: the
-running fit takes the drift in.
+a suspicion that a steady drift of c_e explains rather than a step (:func:`drifting`) is a
+:class:`Drift`: no alarm where the core takes the drift in (the calibrator asks it).
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from odocal.arrays import BoolArray, FloatArray
+from odocal.estimators import departures as fitted_departures
 from odocal.estimators import fitting
 from odocal.estimators.error_model import (
     CHANNELS,
@@ -142,12 +143,18 @@ class Steps:
 
 
 def _predicted(windows: WindowSet, p: FloatArray, shift: float,
-               heading_offset: float) -> tuple[FloatArray, FloatArray]:
+               heading_offset: float, end_t: float | None = None
+               ) -> tuple[FloatArray, FloatArray]:
     """Each window's revolutions (W, 2) at the core's ``p`` (theta and the departures fitted;
     a spread of the wheels' timing left out: it moves a window by a tiny share) and their
-    Jacobian in theta (W, 2, n)."""
+    Jacobian in theta (W, 2, n). ``end_t``: the end of the windows ``p`` was fitted on, where
+    its c_e is theirs at the end of a drift (the drift then runs on from it)."""
+    tau = None
+    if end_t is not None and p[fitting.DRIFT]:
+        tau = (windows.t0 + 0.5 * windows.length * windows.t_s - end_t) / 3600.0
     pred, jac = fitting.wheels(np.asarray(p, dtype=np.float64),
-                               fitting.View.of(windows, shift, heading_offset), smooth=False)
+                               fitting.View.of(windows, shift, heading_offset, tau_h=tau),
+                               smooth=False)
     return pred, jac[..., fitting.THETA]
 
 
@@ -166,10 +173,10 @@ def disturbed(windows: WindowSet, p: FloatArray, shift: float,
 
 
 def window_steps(windows: WindowSet, reference: FloatArray, shift: float, heading_offset: float,
-                 model: ErrorModel) -> Steps:
+                 model: ErrorModel, end_t: float | None = None) -> Steps:
     """The windows' evidence on a change of c_e and c_d from ``reference`` (the core's p; see
     :class:`Steps`)."""
-    pred, jac = _predicted(windows, reference, shift, heading_offset)
+    pred, jac = _predicted(windows, reference, shift, heading_offset, end_t)
     wheels = windows.measured - pred                                  # per wheel
     r = wheels @ CHANNELS.T
     j = np.einsum("ci,wip->wcp", CHANNELS, jac[:, :, list(WHEELS)])
@@ -204,13 +211,14 @@ class Suspect:
     """The detector's verdict on a cluster: a change of ``parameter`` (an index into theta)
     against ``reference`` (the core's p), begun between ``since_t`` (the start of the first
     cluster since the detector was last quiet) and ``until_t`` (the start of the latest
-    cluster)."""
+    cluster); ``reference_t``: the end of the windows the reference was fitted on."""
 
     parameter: int
     since_t: float
     until_t: float
     reference: FloatArray
     sigmas: float
+    reference_t: float | None = None
 
 
 @dataclass
@@ -227,6 +235,7 @@ class ChangeDetector:
     h: float
     cusum: tuple[Cusum, Cusum] = field(init=False)
     reference: FloatArray | None = None
+    reference_t: float | None = None         # the end of the windows it was fitted on
     since_t: float | None = None
     seen: list[list[float]] = field(default_factory=lambda: [[], []])
     recent: list[_Record] = field(default_factory=list)
@@ -249,7 +258,9 @@ class ChangeDetector:
         quiet = all(c.quiet for c in self.cusum)
         if self.reference is None or quiet:
             self.reference = np.asarray(p, dtype=np.float64).copy()
-        steps = window_steps(cluster, self.reference, shift, heading_offset, model)
+            self.reference_t = float(cluster.t0[0])         # (p is of the windows before it)
+        steps = window_steps(cluster, self.reference, shift, heading_offset, model,
+                             self.reference_t)
         if int(steps.usable.sum()) < _MIN_WINDOWS:
             return None                                  # parked, or all disturbed: no verdict
         step, std = _solve2(steps.h.sum(axis=0), steps.g.sum(axis=0))
@@ -282,7 +293,7 @@ class ChangeDetector:
                     found = Suspect(parameter=WHEELS[i],
                                     since_t=min(self.since_t or t0, self.recent[0].t0),
                                     until_t=t0, reference=self.reference.copy(),
-                                    sigmas=sigmas)
+                                    sigmas=sigmas, reference_t=self.reference_t)
         return found
 
     def _scale(self, i: int) -> float:
@@ -315,34 +326,67 @@ def change_point(steps: Steps, t0: FloatArray, *, earliest: float, latest: float
 
 @dataclass(frozen=True)
 class Drift:
-    """A suspected change that a steady drift of the wheels explains as well as a step does
-    (:func:`drifting`): the gains of the two over the reference."""
+    """A suspected change that a steady drift of c_e explains (:func:`drifting`): the gains
+    over the reference of the drift, of the step, and of a step on top of the drift; the
+    drift's rate (relative, per hour)."""
 
     drift_gain: float
     step_gain: float
+    both_gain: float
+    per_hour: float
 
 
-def drifting(steps: Steps, t0: FloatArray, index: int, latest: float) -> Drift | None:
-    """Whether a steady drift of the wheels (a level and a slope in time from the reference, in c_e
-    and c_d) explains ``steps`` as well as the step at ``index`` (a level and a step) does,
-    the step's place, searched among the usable windows starting up to ``latest``, counted
-    against it (Schwarz's ``log`` of their number, as batch counts a change's time; the two
-    have as many parameters otherwise). Each is the gain in the weighted squared residuals
-    over the reference. Tyres warming drift; a tyre losing pressure, or changed, steps: on
-    simulated drives the step's gain led by 10.6 to 74 for steps of 0.3-1% of c_e, and by
-    -1.7 to 1.8 for a drift of 0.3% over 20 minutes (the penalty at most 6.3)."""
+#: The fastest drift the running fit can take in (relative per hour: the ``drift``
+#: departure's bound); a faster one is followed by steps.
+DRIFT_BOUND = fitted_departures.NUISANCES[fitted_departures.NAMES.index("drift")].bound
+
+
+def _gain(steps: Steps, columns: list[FloatArray]) -> tuple[float, FloatArray]:
+    """The gain in the weighted squared residuals over the reference of the model whose
+    parameters move each window's (c_e, c_d) by ``columns`` (each (W, 2)), and its solution."""
+    x = np.stack(columns, axis=1)                                      # (W, K, 2)
+    g = np.einsum("wkp,wp->k", x, steps.g)
+    h = np.einsum("wkp,wpq,wlq->kl", x, steps.h, x)
+    scale = np.sqrt(np.maximum(np.diag(h), 1e-300))
+    solved = np.linalg.lstsq(h / np.outer(scale, scale), g / scale, rcond=1e-10)[0]
+    return float((g / scale) @ solved), solved / scale
+
+
+def drifting(steps: Steps, t0: FloatArray, index: int, latest: float,
+             c_e: float) -> Drift | None:
+    """Whether a steady drift of c_e (a level in c_e and c_d, a slope in c_e: the fit's
+    ``drift``) explains ``steps`` rather than the step at ``index`` (a level and a step in
+    both). All three must hold:
+
+    * the drift explains them as well as the step, the step's place (searched among the
+      usable windows starting up to ``latest``) counted against the step (Schwarz's ``log``
+      of their number, as batch counts a change's time);
+    * a step on top of the drift adds no more than a step's own penalty (``2 log`` of the
+      windows and the ``log`` of the places): warming and then a tyre changed is a step;
+    * the drift is one the running fit can take in (:data:`DRIFT_BOUND`).
+
+    One tyre drifting (c_d) is a step here: the fit's drift is c_e's. Each gain is in the
+    weighted squared residuals over the reference; on simulated drives the step's gain led
+    the drift's by 10.6 to 74 for steps of 0.3-1% of c_e, and by -1.7 to 1.8 for a drift of
+    0.3% over 20 minutes (the place's penalty at most 6.3)."""
     span = max(float(t0[-1] - t0[0]), 1e-9)
-    gains = []
-    for second in ((t0 - t0.mean()) / span, (np.arange(t0.size) >= index).astype(float)):
-        basis = np.stack([np.ones_like(second), second], axis=1)           # (W, 2)
-        g = np.einsum("wa,wp->ap", basis, steps.g).reshape(-1)
-        h = np.einsum("wa,wb,wpq->apbq", basis, basis, steps.h).reshape(g.size, g.size)
-        scale = np.sqrt(np.maximum(np.diag(h), 1e-300))
-        solved = np.linalg.lstsq(h / np.outer(scale, scale), g / scale, rcond=1e-10)[0]
-        gains.append(float((g / scale) @ solved))
-    drift, step = gains
-    locations = max(int((steps.usable & (t0 <= latest)).sum()), 1)
-    return Drift(drift, step) if drift >= step - math.log(locations) else None
+    zero, one = np.zeros(t0.size), np.ones(t0.size)
+    slope = (t0 - t0.mean()) / span
+    after = (np.arange(t0.size) >= index).astype(float)
+    level = [np.stack([one, zero], axis=1), np.stack([zero, one], axis=1)]
+    ramp = [np.stack([slope, zero], axis=1)]
+    step = [np.stack([after, zero], axis=1), np.stack([zero, after], axis=1)]
+    drift_gain, solved = _gain(steps, level + ramp)
+    step_gain, _ = _gain(steps, level + step)
+    both_gain, _ = _gain(steps, level + ramp + step)
+    windows = max(int(steps.usable.sum()), 3)
+    places = math.log(max(int((steps.usable & (t0 <= latest)).sum()), 1))
+    per_hour = float(solved[2]) / c_e * 3600.0 / span
+    if drift_gain >= step_gain - places \
+            and both_gain - drift_gain <= 2.0 * math.log(windows) + places \
+            and abs(per_hour) <= DRIFT_BOUND:
+        return Drift(drift_gain, step_gain, both_gain, per_hour)
+    return None
 
 
 @dataclass(frozen=True)
@@ -360,10 +404,11 @@ class Change:
 
 def estimate_change(windows: WindowSet, folded: fitting.Folded, suspect: Suspect, *,
                     p: FloatArray, lag: Lag, heading_offset: float, model: ErrorModel,
-                    smooth: bool, tolerance: float) -> Change | Drift | None:
-    """Where a suspected change began and how large it is; or, while nothing is folded (the
-    running fit can then take a drift of c_e in, as batch does), a :class:`Drift` where a
-    steady drift explains the windows as well as a step (:func:`drifting`).
+                    smooth: bool, tolerance: float, drift: bool = False
+                    ) -> Change | Drift | None:
+    """Where a suspected change began and how large it is; or, with ``drift`` (the running
+    fit can take a drift of c_e in, as batch does), a :class:`Drift` where a steady drift
+    explains the windows rather than a step (:func:`drifting`).
 
     The change point is searched among the windows in memory up to the suspect's latest
     cluster (a small change lets the CUSUM fall back to zero now and then after it: where its
@@ -372,15 +417,17 @@ def estimate_change(windows: WindowSet, folded: fitting.Folded, suspect: Suspect
     the windows after it, the others held at the fit before. ``p``: the running estimate (the
     core's p). None where the windows after the change point cannot carry the step.
     """
-    steps = window_steps(windows, suspect.reference, lag.shift, heading_offset, model)
+    steps = window_steps(windows, suspect.reference, lag.shift, heading_offset, model,
+                         suspect.reference_t)
     index = change_point(steps, windows.t0, earliest=-math.inf,
                          latest=suspect.until_t)
     after = np.arange(windows.size) >= index
     if int((steps.usable & after).sum()) < _MIN_WINDOWS:
         return None
-    drift = None if folded.clusters else drifting(steps, windows.t0, index, suspect.until_t)
-    if drift is not None:
-        return drift
+    found = drifting(steps, windows.t0, index, suspect.until_t,
+                     _LAYOUT.value(suspect.reference, _LAYOUT.scale)) if drift else None
+    if found is not None:
+        return found
     theta_size = int(np.asarray(p[fitting.THETA]).size)
     free = fitting.free_of(np.ones(theta_size, dtype=bool), kappa=smooth,
                            offset=folded.offset_free)
