@@ -406,21 +406,17 @@ def estimate_change(windows: WindowSet, folded: fitting.Folded, suspect: Suspect
                     p: FloatArray, lag: Lag, heading_offset: float, model: ErrorModel,
                     smooth: bool, tolerance: float, drift: bool = False
                     ) -> Change | Drift | None:
-    """Where a suspected change began and how large it is; or, with ``drift`` (the running
-    fit can take a drift of c_e in, as batch does), a :class:`Drift` where a steady drift
-    explains the windows rather than a step (:func:`drifting`).
-
-    The change point is searched among the windows in memory up to the suspect's latest
-    cluster (a small change lets the CUSUM fall back to zero now and then after it: where its
-    evidence last began is no bound); the wheels before it come from the windows before it
-    (and the folded sums) fitted anew, all parameters free; after it, c_e and c_d alone from
-    the windows after it, the others held at the fit before. ``p``: the running estimate (the
-    core's p). None where the windows after the change point cannot carry the step.
-    """
+    """Where a suspected change began and how large it is; with ``drift`` (the running fit
+    can take a drift of c_e in), a :class:`Drift` where one explains the windows rather than a
+    step (:func:`drifting`). The change point is searched among the windows in memory up to
+    the suspect's latest cluster (a small change lets the CUSUM fall back to zero now and then
+    after it: where its evidence last began is no bound); the wheels before it come from the
+    windows before it (and the folded sums) fitted anew, all parameters free; after it, c_e
+    and c_d alone from the windows after it, the others held at the fit before. ``p``: the
+    running estimate (the core's p). None where the windows after it cannot carry the step."""
     steps = window_steps(windows, suspect.reference, lag.shift, heading_offset, model,
                          suspect.reference_t)
-    index = change_point(steps, windows.t0, earliest=-math.inf,
-                         latest=suspect.until_t)
+    index = change_point(steps, windows.t0, earliest=-math.inf, latest=suspect.until_t)
     after = np.arange(windows.size) >= index
     if int((steps.usable & after).sum()) < _MIN_WINDOWS:
         return None
