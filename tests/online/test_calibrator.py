@@ -18,6 +18,7 @@ from odocal.model.kinematics import inverse_revolutions
 from odocal.model.parameters import Parameters
 from odocal.model.vehicle import MODEL, SERIES
 from odocal.online.calibrator import OnlineCalibrator
+from odocal.online.changes import Steps
 from odocal.sim.simulate import SimulatedDrive
 from tests.bagwriter import write_bag
 
@@ -369,11 +370,9 @@ def test_departures_are_chosen_afresh_at_every_estimate_not_kept_as_they_held_ou
     np.testing.assert_allclose(again.std, first.std, rtol=1e-6)
 
 
-def _departing(c_e: np.ndarray, c_d: np.ndarray | None = None) -> tuple[object, np.ndarray]:
+def _departing(c_e: np.ndarray, c_d: np.ndarray | None = None) -> tuple[Steps, np.ndarray]:
     """Steps of windows 16 s apart whose (c_e, c_d) depart from the reference by ``c_e`` and
     ``c_d`` (exactly, one unit of information per window and parameter)."""
-    from odocal.online.changes import Steps
-
     n = c_e.size
     g = np.stack([c_e, np.zeros(n) if c_d is None else c_d], axis=1)
     return (Steps(g=g, h=np.tile(np.eye(2), (n, 1, 1)), usable=np.ones(n, dtype=bool)),
@@ -393,19 +392,19 @@ def test_a_drift_is_told_from_a_step_by_which_explains_the_windows() -> None:
     steps, t0 = _departing(ramp)
     hours = (t0[-1] - t0[0]) / 3600.0          # (1.33 h: the ramp is c_e 1.0 over it)
     slow = 2.0 / (DRIFT_BOUND * hours)         # a c_e for which it runs at half the bound
-    found = drifting(steps, t0, n // 2, t0[-1], slow)                 # type: ignore[arg-type]
+    found = drifting(steps, t0, n // 2, t0[-1], slow)
     assert found is not None
     assert found.drift_gain == pytest.approx(float(np.sum(ramp ** 2)), rel=1e-9)
     assert found.step_gain == pytest.approx(0.75 * found.drift_gain, rel=0.01)
     assert found.per_hour == pytest.approx(0.5 * DRIFT_BOUND, rel=1e-9)
     fast = 0.25 * slow                                                # twice the bound
-    assert drifting(steps, t0, n // 2, t0[-1], fast) is None          # type: ignore[arg-type]
+    assert drifting(steps, t0, n // 2, t0[-1], fast) is None
     jump = (np.arange(n) >= at).astype(float)
     for c_e, c_d in ((0.6 * jump, None), (np.zeros(n), ramp), (ramp + jump, None)):
         steps, _ = _departing(c_e, c_d)
-        assert drifting(steps, t0, at, t0[-1], slow) is None          # type: ignore[arg-type]
+        assert drifting(steps, t0, at, t0[-1], slow) is None
     faint, _ = _departing(0.15 * jump)
-    assert drifting(faint, t0, at, t0[-1], slow) is not None          # type: ignore[arg-type]
+    assert drifting(faint, t0, at, t0[-1], slow) is not None
 
 
 def test_tyres_warming_are_fitted_as_a_drift_not_alarmed_as_a_step() -> None:
